@@ -1,0 +1,1 @@
+"""Evaluation: simulation, data sets, metrics, the comparison study and the `tcaff` CLI."""

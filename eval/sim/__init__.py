@@ -1,0 +1,1 @@
+"""Simulated multi-robot worlds."""

@@ -1,0 +1,1 @@
+"""Mapping front end: RGB-D frames and segmentation masks -> object maps."""

@@ -1,0 +1,483 @@
+"""CLIPPER: consistency graph of putative associations, its relaxed densest-clique solver, and
+the multiple-near-optima variant of the paper (MNO-CLIPPER, Algorithm 1).
+
+The graph is stored sparsely (symmetric CSR without the diagonal, plus a diagonal vector), so
+its memory grows with the number of consistent pairs, never with m^2. Hot loops are compiled
+with numba; the compiled code is cached on disk next to this module.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from scipy import sparse
+
+from .errors import DataError
+from .params import ClipperParams
+
+__all__ = ["ClipperSolution", "ConsistencyGraph", "clipper_solve", "consistency_graph",
+           "mno_clipper"]
+
+
+@dataclass(frozen=True, eq=False)
+class ConsistencyGraph:
+    """Weighted consistency graph over m putative associations.
+
+    Attributes:
+        associations: (m, 2) int64, (ego index, other index) of each node.
+        indptr, indices, weights: symmetric CSR adjacency without self loops; an edge (p, q)
+            exists when associations p and q are consistent, with weight exp(-c^2 / 2 sigma^2).
+        diag: (m,) prior weight of each association (the affinity's diagonal), 1 by default.
+    """
+
+    associations: np.ndarray
+    indptr: np.ndarray
+    indices: np.ndarray
+    weights: np.ndarray
+    diag: np.ndarray
+
+    @property
+    def m(self) -> int:
+        """Number of nodes (putative associations)."""
+        return self.associations.shape[0]
+
+    @property
+    def n_edges(self) -> int:
+        """Number of undirected edges (consistent pairs)."""
+        return self.indices.shape[0] // 2
+
+    def affinity(self) -> sparse.csr_matrix:
+        """The affinity matrix M (m, m) as a scipy sparse matrix, diagonal included."""
+        adjacency = sparse.csr_matrix((self.weights, self.indices, self.indptr),
+                                      shape=(self.m, self.m))
+        return (adjacency + sparse.diags(self.diag)).tocsr()
+
+
+@dataclass(frozen=True, eq=False)
+class ClipperSolution:
+    """One CLIPPER solution.
+
+    Attributes:
+        nodes: (k,) int64 indices of the selected graph nodes, ascending.
+        associations: (k, 2) int64 (ego index, other index) of the selected associations.
+        u: (m,) the relaxed solution on the unit sphere (zeros on removed nodes).
+        score: u'Mu / u'u of the selected set's indicator vector on the original affinity
+            (for an unweighted clique, its size).
+        penalty: final penalty weight d of the homotopy.
+    """
+
+    nodes: np.ndarray
+    associations: np.ndarray
+    u: np.ndarray
+    score: float
+    penalty: float
+
+    def __len__(self) -> int:
+        return self.nodes.shape[0]
+
+
+@numba.njit(cache=True)
+def _consistent_pairs(d_ego, d_other, ego_idx, other_idx, epsilon, inv_two_sigma_sq):
+    """Upper-triangle edges (p < q) of the consistency graph: rows, cols, weights.
+
+    Each row is gathered in a fixed scratch buffer so the inner loop never reallocates; the
+    output grows (doubling) only between rows.
+    """
+    m = ego_idx.shape[0]
+    row_cols = np.empty(m, np.int64)
+    row_c = np.empty(m)
+    capacity = max(16, 4 * m)
+    rows = np.empty(capacity, np.int64)
+    cols = np.empty(capacity, np.int64)
+    wts = np.empty(capacity)
+    n = 0
+    for p in range(m):
+        i = ego_idx[p]
+        j = other_idx[p]
+        d_i = d_ego[i]
+        d_j = d_other[j]
+        count = 0
+        for q in range(p + 1, m):
+            k = ego_idx[q]
+            l = other_idx[q]
+            c = abs(d_i[k] - d_j[l])
+            if c < epsilon and i != k and j != l:
+                row_cols[count] = q
+                row_c[count] = c
+                count += 1
+        if n + count > capacity:
+            capacity = max(2 * capacity, n + count)
+            rows = np.concatenate((rows[:n], np.empty(capacity - n, np.int64)))
+            cols = np.concatenate((cols[:n], np.empty(capacity - n, np.int64)))
+            wts = np.concatenate((wts[:n], np.empty(capacity - n)))
+        for e in range(count):
+            rows[n + e] = p
+            cols[n + e] = row_cols[e]
+            wts[n + e] = np.exp(-row_c[e] * row_c[e] * inv_two_sigma_sq)
+        n += count
+    return rows[:n], cols[:n], wts[:n]
+
+
+@numba.njit(cache=True)
+def _symmetric_csr(m, rows, cols, wts):
+    """CSR arrays of the symmetric matrix whose upper triangle is (rows, cols, wts)."""
+    indptr = np.zeros(m + 1, np.int64)
+    for e in range(rows.shape[0]):
+        indptr[rows[e] + 1] += 1
+        indptr[cols[e] + 1] += 1
+    for p in range(m):
+        indptr[p + 1] += indptr[p]
+    cursor = indptr[:-1].copy()
+    indices = np.empty(indptr[m], np.int64)
+    weights = np.empty(indptr[m])
+    for e in range(rows.shape[0]):
+        p, q = rows[e], cols[e]
+        indices[cursor[p]] = q
+        weights[cursor[p]] = wts[e]
+        cursor[p] += 1
+        indices[cursor[q]] = p
+        weights[cursor[q]] = wts[e]
+        cursor[q] += 1
+    return indptr, indices, weights
+
+
+def _pairwise_distances(points: np.ndarray) -> np.ndarray:
+    diff = points[:, None, :] - points[None, :, :]
+    return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+
+
+def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
+                      associations: np.ndarray, epsilon: float = 0.25, sigma: float = 0.15,
+                      prior: np.ndarray | None = None) -> ConsistencyGraph:
+    """Build CLIPPER's consistency graph.
+
+    Associations a = (i, j) and b = (k, l) with i != k and j != l are consistent when
+    c = | |p_i - p_k| - |q_j - q_l| | < epsilon; their edge weight is exp(-c^2 / (2 sigma^2)).
+
+    Args:
+        ego_points: (n1, d) metres, d = 2 (x, y) or 3, in the ego robot's odometry frame.
+        other_points: (n2, d) metres, in the other robot's odometry frame.
+        associations: (m, 2) int (ego index, other index).
+        epsilon, sigma: metres.
+        prior: optional (m,) non-negative prior weight per association (affinity diagonal).
+    """
+    ego_points = np.asarray(ego_points, dtype=float)
+    other_points = np.asarray(other_points, dtype=float)
+    associations = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
+    if (ego_points.ndim != 2 or other_points.ndim != 2 or ego_points.shape[1] not in (2, 3)
+            or other_points.shape[1] != ego_points.shape[1]):
+        raise DataError(f"consistency_graph: points must be (n, 2) or (n, 3) in both maps, "
+                        f"got {ego_points.shape} and {other_points.shape}")
+    if not (np.all(np.isfinite(ego_points)) and np.all(np.isfinite(other_points))):
+        raise DataError("consistency_graph: points must be finite")
+    m = associations.shape[0]
+    if m and (associations.min(axis=0) < 0).any() or m and (
+            associations[:, 0].max() >= len(ego_points)
+            or associations[:, 1].max() >= len(other_points)):
+        raise DataError(f"consistency_graph: association indices out of range for maps of "
+                        f"{len(ego_points)} and {len(other_points)} points")
+    if not (epsilon > 0 and sigma > 0):
+        raise DataError(f"consistency_graph: need epsilon > 0 and sigma > 0, "
+                        f"got {epsilon}, {sigma}")
+    if prior is None:
+        diag = np.ones(m)
+    else:
+        diag = np.asarray(prior, dtype=float)
+        if diag.shape != (m,) or not np.all(np.isfinite(diag)) or np.any(diag < 0):
+            raise DataError(f"consistency_graph: prior must be ({m},) finite and >= 0, "
+                            f"got shape {diag.shape}")
+    d_ego = _pairwise_distances(ego_points)
+    d_other = _pairwise_distances(other_points)
+    ego_idx = np.ascontiguousarray(associations[:, 0])
+    other_idx = np.ascontiguousarray(associations[:, 1])
+    rows, cols, wts = _consistent_pairs(d_ego, d_other, ego_idx, other_idx, epsilon,
+                                        1.0 / (2.0 * sigma * sigma))
+    indptr, indices, weights = _symmetric_csr(m, rows, cols, wts)
+    return ConsistencyGraph(associations, indptr, indices, weights, diag)
+
+
+@numba.njit(cache=True)
+def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touched, mark, stamp):
+    """Mu = M u and Cu = C u (C binary, diagonal included) for u supported on `support`.
+
+    Scatter form: row q of the symmetric adjacency is also its column q, so the cost is the
+    sum of the support's degrees, not m. Only the nodes written (the support and its
+    neighbours) are valid; they are listed in `touched` and stamped with `stamp` in `mark`.
+    Every other node has Mu = Cu = 0. Returns (number touched, sum of u).
+    """
+    n_touched = 0
+    total = 0.0
+    for s in range(n_support):
+        q = support[s]
+        uq = u[q]
+        total += uq
+        if mark[q] != stamp:
+            mark[q] = stamp
+            Mu[q] = 0.0
+            Cu[q] = 0.0
+            touched[n_touched] = q
+            n_touched += 1
+        Mu[q] += diag[q] * uq
+        Cu[q] += uq
+        for e in range(indptr[q], indptr[q + 1]):
+            p = indices[e]
+            if mark[p] != stamp:
+                mark[p] = stamp
+                Mu[p] = 0.0
+                Cu[p] = 0.0
+                touched[n_touched] = p
+                n_touched += 1
+            Mu[p] += weights[e] * uq
+            Cu[p] += uq
+    return n_touched, total
+
+
+@numba.njit(cache=True)
+def _gradient(Mu, Cu, total, d, touched, n_touched, g):
+    """g = M_d u on the touched nodes, M_d = M - d (1 - C): (1 - C) u = sum(u) - C u."""
+    for t in range(n_touched):
+        p = touched[t]
+        g[p] = Mu[p] - d * (total - Cu[p])
+
+
+@numba.njit(cache=True)
+def _objective(u, support, n_support, g):
+    F = 0.0
+    for s in range(n_support):
+        F += u[support[s]] * g[support[s]]
+    return F
+
+
+@numba.njit(cache=True)
+def _project(u, g, alpha, touched, n_touched, active, out, out_support):
+    """out = normalize(max(u + alpha g, 0)) over active touched nodes.
+
+    Untouched nodes stay at zero: they have u = 0 and g = -d sum(u) <= 0. Returns the size of
+    the new support (listed in out_support); 0 when everything was clipped.
+    """
+    norm_sq = 0.0
+    n = 0
+    for t in range(n_touched):
+        p = touched[t]
+        if not active[p]:
+            continue
+        v = u[p] + alpha * g[p]
+        if v > 0.0:
+            out[p] = v
+            out_support[n] = p
+            n += 1
+            norm_sq += v * v
+    if n:
+        scale = 1.0 / np.sqrt(norm_sq)
+        for s in range(n):
+            out[out_support[s]] *= scale
+    return n
+
+
+@numba.njit(cache=True)
+def _penalty_step(u, support, n_support, Mu, Cu, total, eps, first):
+    """Penalty increase that makes active inconsistent pairs costlier; 0 when none is active.
+
+    For each node carrying weight (u_p > eps) with weight on inconsistent nodes
+    (s_p = sum_q (1 - C_pq) u_q > eps), Mu_p / s_p is the penalty at which its gradient turns
+    negative. The first increase uses their mean, later ones their minimum.
+    """
+    count = 0
+    acc = 0.0
+    smallest = np.inf
+    for s in range(n_support):
+        p = support[s]
+        if u[p] <= eps:
+            continue
+        inconsistent = total - Cu[p]
+        if inconsistent > eps:
+            ratio = abs(Mu[p] / inconsistent)
+            count += 1
+            acc += ratio
+            smallest = min(smallest, ratio)
+    if count == 0:
+        return 0.0
+    return acc / count if first else smallest
+
+
+@numba.njit(cache=True)
+def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, eps, beta,
+           max_outer, max_inner, max_line_search):
+    """Penalty homotopy of CLIPPER: projected gradient ascent of u' M_d u on the non-negative
+    unit sphere with backtracking, raising d until no inconsistent pair carries weight.
+
+    Vectors are dense arrays that are zero off an explicit support list; the current iterate
+    (u, its products and gradient) and the line-search trial (ub, ...) each own a set of
+    buffers, swapped on acceptance. Returns (u, d, final objective u'Mu).
+    """
+    m = u0.shape[0]
+    u, ub = np.zeros(m), np.zeros(m)
+    sup, sup_b = np.empty(m, np.int64), np.empty(m, np.int64)
+    Mu, Mu_b = np.zeros(m), np.zeros(m)
+    Cu, Cu_b = np.zeros(m), np.zeros(m)
+    g, g_b = np.zeros(m), np.zeros(m)
+    tch, tch_b = np.empty(m, np.int64), np.empty(m, np.int64)
+    mark, mark_b = np.full(m, -1, np.int64), np.full(m, -1, np.int64)
+    stamp = 0
+    n_sup = 0
+    for p in range(m):
+        if active[p] and u0[p] > 0.0:
+            u[p] = u0[p]
+            sup[n_sup] = p
+            n_sup += 1
+    n_tch, total = _scatter(indptr, indices, weights, diag, u, sup, n_sup, Mu, Cu, tch, mark,
+                            stamp)
+    for _ in range(power_iterations):
+        for s in range(n_sup):
+            u[sup[s]] = 0.0
+        zero = np.zeros(m)
+        n_new = _project(zero, Mu, 1.0, tch, n_tch, active, u, sup_b)
+        if n_new == 0:
+            break
+        sup, sup_b = sup_b, sup
+        n_sup = n_new
+        stamp += 1
+        n_tch, total = _scatter(indptr, indices, weights, diag, u, sup, n_sup, Mu, Cu, tch,
+                                mark, stamp)
+    d = _penalty_step(u, sup, n_sup, Mu, Cu, total, eps, True)
+    _gradient(Mu, Cu, total, d, tch, n_tch, g)
+    F = _objective(u, sup, n_sup, g)
+    for _ in range(max_outer):
+        for _ in range(max_inner):
+            alpha = 1.0
+            Fb = F
+            n_b = 0
+            for _ in range(max_line_search):
+                for s in range(n_b):
+                    ub[sup_b[s]] = 0.0
+                n_b = _project(u, g, alpha, tch, n_tch, active, ub, sup_b)
+                if n_b == 0:
+                    alpha *= beta
+                    continue
+                stamp += 1
+                n_tch_b, total_b = _scatter(indptr, indices, weights, diag, ub, sup_b, n_b,
+                                            Mu_b, Cu_b, tch_b, mark_b, stamp)
+                _gradient(Mu_b, Cu_b, total_b, d, tch_b, n_tch_b, g_b)
+                Fb = _objective(ub, sup_b, n_b, g_b)
+                if Fb - F < -eps:
+                    alpha *= beta
+                else:
+                    break
+            delta = Fb - F
+            if n_b == 0 or delta < -eps:
+                for s in range(n_b):
+                    ub[sup_b[s]] = 0.0
+                break
+            for s in range(n_sup):
+                u[sup[s]] = 0.0
+            u, ub = ub, u
+            sup, sup_b = sup_b, sup
+            n_sup = n_b
+            Mu, Mu_b = Mu_b, Mu
+            Cu, Cu_b = Cu_b, Cu
+            g, g_b = g_b, g
+            tch, tch_b = tch_b, tch
+            mark, mark_b = mark_b, mark
+            n_tch, total, F = n_tch_b, total_b, Fb
+            if abs(delta) < tol_u:
+                break
+        step = _penalty_step(u, sup, n_sup, Mu, Cu, total, eps, False)
+        if step == 0.0:
+            break
+        d += step
+        _gradient(Mu, Cu, total, d, tch, n_tch, g)
+        F = _objective(u, sup, n_sup, g)
+    F_affinity = 0.0
+    for s in range(n_sup):
+        F_affinity += u[sup[s]] * Mu[sup[s]]
+    return u, d, F_affinity
+
+
+def _selection_score(graph: ConsistencyGraph, nodes: np.ndarray) -> float:
+    """x'Mx / x'x for the indicator x of `nodes` on the original affinity."""
+    if nodes.size == 0:
+        return 0.0
+    member = np.zeros(graph.m, dtype=bool)
+    member[nodes] = True
+    starts, stops = graph.indptr[nodes], graph.indptr[nodes + 1]
+    edge_ids = np.concatenate([np.arange(a, b) for a, b in zip(starts, stops, strict=True)])
+    inside = edge_ids[member[graph.indices[edge_ids]]] if edge_ids.size else edge_ids
+    return float((graph.diag[nodes].sum() + graph.weights[inside].sum()) / nodes.size)
+
+
+def _round(u: np.ndarray, Mu_objective: float, params: ClipperParams) -> np.ndarray:
+    support = np.flatnonzero(u > params.eps)
+    if support.size == 0:
+        return support.astype(np.int64)
+    if params.rounding == "threshold":
+        chosen = support[u[support] > params.threshold * u[support].max()]
+    else:
+        size = int(np.clip(round(Mu_objective), 1, support.size))
+        order = np.argsort(-u[support], kind="stable")
+        chosen = support[order[:size]]
+    return np.sort(chosen).astype(np.int64)
+
+
+def _run(graph: ConsistencyGraph, weights: np.ndarray, diag: np.ndarray, active: np.ndarray,
+         params: ClipperParams, rng: np.random.Generator) -> ClipperSolution:
+    m = graph.m
+    if m == 0 or not active.any():
+        return ClipperSolution(np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros(m),
+                               0.0, 0.0)
+    u0 = rng.uniform(0.0, 1.0, m) * active
+    u0 /= np.linalg.norm(u0)
+    u, d, objective = _solve(graph.indptr, graph.indices, weights, diag, active, u0,
+                             params.power_iterations, params.tol_u, params.eps, params.beta,
+                             params.max_outer, params.max_inner, params.max_line_search)
+    nodes = _round(u, objective, params)
+    return ClipperSolution(nodes, graph.associations[nodes], u, _selection_score(graph, nodes),
+                           float(d))
+
+
+def clipper_solve(graph: ConsistencyGraph, params: ClipperParams | None = None) -> ClipperSolution:
+    """The densest consistent set of associations (CLIPPER, Lusk et al.).
+
+    Maximises u'Mu / u'u over u >= 0 with u_p u_q = 0 for inconsistent pairs, relaxed by a
+    penalty homotopy, then rounds u to a discrete set (see `ClipperParams.rounding`).
+    Deterministic for a given `params.seed`. An empty graph gives an empty solution.
+    """
+    params = params or ClipperParams()
+    return _run(graph, graph.weights, graph.diag, np.ones(graph.m, dtype=np.bool_), params,
+                np.random.default_rng(params.seed))
+
+
+def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
+                params: ClipperParams | None = None, downweight: float = 0.0
+                ) -> list[ClipperSolution]:
+    """Multiple near-optimal CLIPPER solutions (the paper's Algorithm 1).
+
+    After each solution the affinities among its associations are multiplied by `downweight`;
+    0 (the paper) zeroes them, diagonal included, which removes those associations from later
+    solutions. The graph is reused, not rebuilt. Each solution is scored on the original
+    affinity. Returns up to `n_solutions` non-empty solutions, in the order found.
+    """
+    params = params or ClipperParams()
+    if not 0 <= downweight < 1:
+        raise DataError(f"mno_clipper: downweight must be in [0, 1), got {downweight}")
+    rng = np.random.default_rng(params.seed)
+    weights = graph.weights.copy()
+    diag = graph.diag.copy()
+    active = np.ones(graph.m, dtype=np.bool_)
+    solutions: list[ClipperSolution] = []
+    for _ in range(n_solutions):
+        solution = _run(graph, weights, diag, active, params, rng)
+        if len(solution) == 0:
+            break
+        solutions.append(solution)
+        nodes = solution.nodes
+        if downweight == 0.0:
+            active[nodes] = False
+        else:
+            member = np.zeros(graph.m, dtype=bool)
+            member[nodes] = True
+            rows = np.repeat(np.arange(graph.m), np.diff(graph.indptr))
+            weights[member[rows] & member[graph.indices]] *= downweight
+            diag[nodes] *= downweight
+    return solutions

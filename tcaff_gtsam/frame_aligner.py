@@ -1,0 +1,138 @@
+"""FrameAligner: two object maps -> candidate alignment measurements z = (x, y, theta) of T_oi_oj.
+
+Pipeline (paper, "Map Alignment" and Algorithm 1): keep objects seen within kappa seconds, gate
+putative associations by size, build the consistency graph, draw N near-optimal CLIPPER
+solutions, register each by weighted Arun, keep the good ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .clipper import consistency_graph, mno_clipper
+from .geometry import se2_from_params, se2_to_params, se3_to_se2, wrap_angle
+from .object_map import ObjectMap
+from .params import FrameAlignerParams
+from .registration import arun_weights, putative_associations, registration_rmse, weighted_arun
+
+__all__ = ["AlignmentMeasurement", "FrameAligner", "residual_covariance"]
+
+
+@dataclass(frozen=True, eq=False)
+class AlignmentMeasurement:
+    """One candidate alignment of the other robot's odometry frame into the ego's.
+
+    Attributes:
+        z: (3,) (x [m], y [m], theta [rad]) of T_oi_oj (i = ego, j = other), theta wrapped.
+        R: (3, 3) measurement covariance of z.
+        associations: (k, 2) int64 (ego index, other index) into the maps that were aligned.
+        score: MNO-CLIPPER score of the association set (u'Mu / u'u on the original affinity).
+        rmse: metres, registration residual RMS of the associated centroids.
+    """
+
+    z: np.ndarray
+    R: np.ndarray
+    associations: np.ndarray
+    score: float
+    rmse: float
+
+    @property
+    def T(self) -> np.ndarray:
+        """(3, 3) SE(2) matrix T_oi_oj."""
+        return se2_from_params(self.z)
+
+
+def residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
+                        floor: float) -> np.ndarray:
+    """Covariance (3, 3) of (x, y, theta) of a weighted 2D registration, from its residuals.
+
+    Model p_k = R(theta) q_k + t + e_k with isotropic point noise e_k ~ N(0, s^2 I). s^2 is the
+    residual sum of squares over its 2k - 3 degrees of freedom, floored at `floor`^2 because
+    a handful of points can fit by chance. With normalised weights v_k = w_k / sum(w) and
+    centred points q'_k = q_k - q_mean, weighted least squares gives
+        var(centroid) = s^2 sum v_k^2 (per axis),   var(theta) = s^2 sum v_k^2 |q'_k|^2 / (sum v_k |q'_k|^2)^2,
+    uncorrelated; t = p_mean - R q_mean then adds the lever arm J = d(R q_mean)/d theta:
+        cov(t) = var(centroid) I + J J' var(theta),   cov(t, theta) = -J var(theta).
+    Few, clustered or old (low-weight) associations therefore give a larger R.
+
+    Args:
+        T_i_j: (3, 3) estimated SE(2) transform; p: (k, 2) ego points; q: (k, 2) other points;
+        weights: (k,) Arun weights; floor: metres.
+    """
+    k = p.shape[0]
+    residual = p - (q @ T_i_j[:2, :2].T + T_i_j[:2, 2])
+    s_sq = max(float(np.sum(residual**2)) / max(2 * k - 3, 1), floor**2)
+    v = weights / weights.sum()
+    q_mean = v @ q
+    q_c = q - q_mean
+    r_sq = np.sum(q_c**2, axis=1)
+    var_centroid = s_sq * np.sum(v**2)
+    var_theta = s_sq * np.sum(v**2 * r_sq) / max(float(v @ r_sq), 1e-12) ** 2
+    Rq = T_i_j[:2, :2] @ q_mean
+    J = np.array([-Rq[1], Rq[0]])
+    cov = np.empty((3, 3))
+    cov[:2, :2] = var_centroid * np.eye(2) + np.outer(J, J) * var_theta
+    cov[:2, 2] = cov[2, :2] = -J * var_theta
+    cov[2, 2] = var_theta
+    return cov
+
+
+class FrameAligner:
+    """Candidate alignments T_oi_oj between an ego map and another robot's map.
+
+    Stateless apart from its parameters; one instance can serve every robot pair.
+    """
+
+    def __init__(self, params: FrameAlignerParams | None = None) -> None:
+        self.params = params or FrameAlignerParams()
+
+    def measurements(self, ego: ObjectMap, other: ObjectMap, now: float
+                     ) -> list[AlignmentMeasurement]:
+        """Candidate alignments, best score first; empty when nothing qualifies.
+
+        Args:
+            ego: map of robot i in its odometry frame.
+            other: map of robot j in its odometry frame.
+            now: seconds, current time on the clock of the maps' `last_seen`.
+        """
+        prm = self.params
+        ego_idx = np.flatnonzero(now - ego.last_seen < prm.kappa)
+        other_idx = np.flatnonzero(now - other.last_seen < prm.kappa)
+        if min(ego_idx.size, other_idx.size) < prm.min_associations:
+            return []
+        ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
+        assoc = putative_associations(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
+        if assoc.shape[0] < prm.min_associations:
+            return []
+        p_all = ego_r.centroids[:, : prm.dim]
+        q_all = other_r.centroids[:, : prm.dim]
+        graph = consistency_graph(p_all, q_all, assoc, prm.clipper.epsilon, prm.clipper.sigma)
+        solutions = mno_clipper(graph, prm.n_solutions, prm.clipper, prm.mno_downweight)
+        if not solutions:
+            return []
+        best = max(s.score for s in solutions)
+        ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
+        out: list[AlignmentMeasurement] = []
+        for sol in solutions:
+            if len(sol) < prm.min_associations or sol.score < prm.min_score_ratio * best:
+                continue
+            a = sol.associations
+            p, q = p_all[a[:, 0]], q_all[a[:, 1]]
+            w = arun_weights(ages_ego[a[:, 0]], ages_other[a[:, 1]], prm.weight_offset)
+            T = weighted_arun(p, q, w)
+            if T is None:
+                continue
+            T2 = se3_to_se2(T) if prm.dim == 3 else T
+            rmse = registration_rmse(T2, p[:, :2], q[:, :2])
+            if prm.max_rmse is not None and rmse > prm.max_rmse:
+                continue
+            z = se2_to_params(T2)
+            z[2] = wrap_angle(z[2])
+            R = (prm.R_constant.copy() if prm.covariance == "constant"
+                 else residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor))
+            associations = np.column_stack([ego_idx[a[:, 0]], other_idx[a[:, 1]]])
+            out.append(AlignmentMeasurement(z, R, associations, sol.score, rmse))
+        out.sort(key=lambda meas: -meas.score)
+        return out

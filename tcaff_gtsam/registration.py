@@ -1,0 +1,108 @@
+"""Putative associations by object size, and weighted Arun registration (Arun 1987, Umeyama)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import DataError
+from .object_map import ObjectMap
+
+__all__ = ["arun_weights", "putative_associations", "registration_rmse", "weighted_arun"]
+
+
+def _sizes_similar(a: np.ndarray, b: np.ndarray, ratio: float, abs_diff: float) -> np.ndarray:
+    """(n,) x (m,) sizes -> (n, m) bool: larger <= ratio * smaller, or |a - b| <= abs_diff."""
+    a = a[:, None]
+    b = b[None, :]
+    return (np.maximum(a, b) <= ratio * np.minimum(a, b)) | (np.abs(a - b) <= abs_diff)
+
+
+def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
+                          abs_diff: float = 0.1) -> np.ndarray:
+    """Pairs of objects of similar size, the nodes of the consistency graph.
+
+    A pair (i, j) is kept when both the widths and the heights of ego object i and other object j
+    are similar: the larger is at most `ratio` times the smaller, or they differ by at most
+    `abs_diff` metres (which keeps small objects whose ratio is noisy).
+
+    Returns:
+        (m, 2) int64 array of (ego index, other index), sorted by ego then other index;
+        (0, 2) when either map is empty or nothing passes.
+    """
+    if ratio < 1 or abs_diff < 0:
+        raise DataError(f"size gate: need ratio >= 1 and abs_diff >= 0, "
+                        f"got ratio={ratio}, abs_diff={abs_diff}")
+    similar = (_sizes_similar(ego.widths, other.widths, ratio, abs_diff)
+               & _sizes_similar(ego.heights, other.heights, ratio, abs_diff))
+    return np.argwhere(similar).astype(np.int64).reshape(-1, 2)
+
+
+def arun_weights(ages_ego: np.ndarray, ages_other: np.ndarray, offset: float = 0.01) -> np.ndarray:
+    """Per-association weights 1 / (offset + age_i * age_j): recently seen objects count more.
+
+    The paper weights by (l_i l_j)^-1; the offset keeps objects seen just now finite.
+    """
+    return 1.0 / (offset + np.asarray(ages_ego, float) * np.asarray(ages_other, float))
+
+
+def weighted_arun(p: np.ndarray, q: np.ndarray, weights: np.ndarray | None = None
+                  ) -> np.ndarray | None:
+    """Least-squares rigid transform T_a_b with p_k ~ T_a_b q_k, weighted (2D or 3D).
+
+    Minimises sum_k w_k |p_k - (R q_k + t)|^2 over rotations R (det = +1, so a mirror image is
+    never returned) and translations t.
+
+    Args:
+        p: (k, d) points in frame a, d = 2 or 3.
+        q: (k, d) corresponding points in frame b.
+        weights: (k,) non-negative weights; None means all ones.
+
+    Returns:
+        (d+1, d+1) homogeneous T_a_b, or None when the set is degenerate: fewer than d points
+        with positive weight, all points coincident, or (3D) all points on one line.
+    Raises:
+        DataError: mismatched shapes, d not 2 or 3, non-finite values or negative weights.
+    """
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    if p.ndim != 2 or p.shape != q.shape or p.shape[1] not in (2, 3):
+        raise DataError(f"weighted_arun: p and q must both be (k, 2) or (k, 3), "
+                        f"got {p.shape} and {q.shape}")
+    k, d = p.shape
+    w = np.ones(k) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (k,):
+        raise DataError(f"weighted_arun: weights must have shape ({k},), got {w.shape}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q)) and np.all(np.isfinite(w))):
+        raise DataError("weighted_arun: points and weights must be finite")
+    if np.any(w < 0):
+        raise DataError(f"weighted_arun: weights must be >= 0, got min {w.min()}")
+    if np.count_nonzero(w > 0) < 2:
+        return None
+    w_sum = w.sum()
+    p_mean = w @ p / w_sum
+    q_mean = w @ q / w_sum
+    p_c = p - p_mean
+    q_c = q - q_mean
+    scatter = (q_c * w[:, None]).T @ q_c
+    spread = np.sort(np.linalg.eigvalsh(scatter))[::-1]
+    scale = 1e-12 * w_sum * max(1.0, float(np.max(np.abs(q))) ** 2)
+    # 2D needs two distinct points; 3D needs the points off a single line.
+    if spread[0] <= scale or (d == 3 and spread[1] <= scale):
+        return None
+    H = (q_c * w[:, None]).T @ p_c
+    U, _, Vt = np.linalg.svd(H)
+    V = Vt.T
+    D = np.eye(d)
+    D[-1, -1] = np.sign(np.linalg.det(V @ U.T)) or 1.0
+    R = V @ D @ U.T
+    T = np.eye(d + 1)
+    T[:d, :d] = R
+    T[:d, d] = p_mean - R @ q_mean
+    return T
+
+
+def registration_rmse(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
+    """Root mean square of |p_k - T_a_b q_k| over the k pairs, metres (k >= 1)."""
+    d = p.shape[1]
+    residual = p - (q @ T_a_b[:d, :d].T + T_a_b[:d, d])
+    return float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
