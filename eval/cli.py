@@ -13,6 +13,7 @@ import numpy as np
 import typer
 from rich import box
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from tcaff_gtsam.errors import TcaffError
@@ -46,9 +47,9 @@ def _candidates_table(title: str, candidates: list[AlignmentMeasurement],
     table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD)
     for name in ("#", "x [m]", "y [m]", "theta [deg]", "assoc", "score", "rmse [m]",
                  "sd [m, deg]"):
-        table.add_column(name, justify="right")
+        table.add_column(escape(name), justify="right")
     if T_true is not None:
-        table.add_column("error [m, deg]", justify="right")
+        table.add_column(escape("error [m, deg]"), justify="right")
         table.add_column("verdict")
     for rank, meas in enumerate(candidates, start=1):
         x, y, theta = meas.z
@@ -174,5 +175,5 @@ def main() -> None:
     try:
         app()
     except TcaffError as exc:
-        err_console.print(f"[red]error:[/] {exc}")
+        err_console.print(f"[red]error:[/] {escape(str(exc))}", soft_wrap=True)
         raise SystemExit(2) from None

@@ -48,35 +48,33 @@ def residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights
                         floor: float) -> np.ndarray:
     """Covariance (3, 3) of (x, y, theta) of a weighted 2D registration, from its residuals.
 
-    Model p_k = R(theta) q_k + t + e_k with isotropic point noise e_k ~ N(0, s^2 I). s^2 is the
-    residual sum of squares over its 2k - 3 degrees of freedom, floored at `floor`^2 because
-    a handful of points can fit by chance. With normalised weights v_k = w_k / sum(w) and
-    centred points q'_k = q_k - q_mean, weighted least squares gives
-        var(centroid) = s^2 sum v_k^2 (per axis),   var(theta) = s^2 sum v_k^2 |q'_k|^2 / (sum v_k |q'_k|^2)^2,
-    uncorrelated; t = p_mean - R q_mean then adds the lever arm J = d(R q_mean)/d theta:
-        cov(t) = var(centroid) I + J J' var(theta),   cov(t, theta) = -J var(theta).
-    Few, clustered or old (low-weight) associations therefore give a larger R.
+    Model p_k = R(theta) q_k + t + e_k with isotropic point noise e_k ~ N(0, s^2 I). Linearised
+    at the estimate, each point contributes the rows A_k = [I_2, perp(R q_k)] (perp rotates by
+    90 degrees) with weight w_k, and weighted least squares has the sandwich covariance
+        cov(z) = s^2 B (A' W^2 A) B,   B = (A' W A)^-1.
+    s^2 is the residual sum of squares divided by its expectation factor for this oblique fit,
+    2k - 6 + tr(B A'W^2A B A'A) (2k - 3 for equal weights), floored at `floor`^2 because a
+    handful of points can fit by chance. Few, clustered, distant or old (low-weight)
+    associations therefore give a larger R.
 
     Args:
         T_i_j: (3, 3) estimated SE(2) transform; p: (k, 2) ego points; q: (k, 2) other points;
         weights: (k,) Arun weights; floor: metres.
     """
     k = p.shape[0]
-    residual = p - (q @ T_i_j[:2, :2].T + T_i_j[:2, 2])
-    s_sq = max(float(np.sum(residual**2)) / max(2 * k - 3, 1), floor**2)
-    v = weights / weights.sum()
-    q_mean = v @ q
-    q_c = q - q_mean
-    r_sq = np.sum(q_c**2, axis=1)
-    var_centroid = s_sq * np.sum(v**2)
-    var_theta = s_sq * np.sum(v**2 * r_sq) / max(float(v @ r_sq), 1e-12) ** 2
-    Rq = T_i_j[:2, :2] @ q_mean
-    J = np.array([-Rq[1], Rq[0]])
-    cov = np.empty((3, 3))
-    cov[:2, :2] = var_centroid * np.eye(2) + np.outer(J, J) * var_theta
-    cov[:2, 2] = cov[2, :2] = -J * var_theta
-    cov[2, 2] = var_theta
-    return cov
+    Rq = q @ T_i_j[:2, :2].T
+    residual = p - (Rq + T_i_j[:2, 2])
+    A = np.zeros((k, 2, 3))
+    A[:, 0, 0] = A[:, 1, 1] = 1.0
+    A[:, 0, 2], A[:, 1, 2] = -Rq[:, 1], Rq[:, 0]
+    A = A.reshape(2 * k, 3)
+    w = np.repeat(weights, 2)
+    bread = np.linalg.pinv((A * w[:, None]).T @ A)
+    meat = (A * (w**2)[:, None]).T @ A
+    dof = 2 * k - 6 + np.trace(bread @ meat @ bread @ (A.T @ A))
+    s_sq = max(float(np.sum(residual**2)) / max(dof, 1e-9), floor**2)
+    cov = s_sq * bread @ meat @ bread
+    return 0.5 * (cov + cov.T)
 
 
 class FrameAligner:

@@ -1,0 +1,174 @@
+"""CLIPPER: the consistency graph, the solver and MNO-CLIPPER."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tcaff_gtsam import ClipperParams, DataError, clipper_solve, consistency_graph, mno_clipper
+from tcaff_gtsam.eval.sim.maps import registration_problem
+from tcaff_gtsam.geometry import invert, se2_from_params, transform_points
+from tcaff_gtsam.registration import weighted_arun
+
+
+def dense_reference(p, q, associations, epsilon, sigma):
+    """The consistency graph by the definition, one pair at a time."""
+    m = len(associations)
+    W = np.zeros((m, m))
+    for a in range(m):
+        for b in range(m):
+            (i, j), (k, l) = associations[a], associations[b]
+            if i == k or j == l:
+                continue
+            c = abs(np.linalg.norm(p[i] - p[k]) - np.linalg.norm(q[j] - q[l]))
+            if c < epsilon:
+                W[a, b] = np.exp(-(c**2) / (2 * sigma**2))
+    return W
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), dim=st.sampled_from([2, 3]), m=st.integers(0, 60))
+def test_graph_matches_definition(seed, dim, m):
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(0, 3, (12, dim))
+    q = rng.uniform(0, 3, (10, dim))
+    associations = np.column_stack([rng.integers(0, 12, m), rng.integers(0, 10, m)])
+    graph = consistency_graph(p, q, associations, epsilon=0.4, sigma=0.2)
+    expected = dense_reference(p, q, associations, 0.4, 0.2)
+    affinity = graph.affinity().toarray()
+    np.testing.assert_allclose(affinity - np.eye(m), expected, atol=1e-12)
+    assert graph.n_edges == np.count_nonzero(expected) // 2
+    # stored sparsely: exactly the consistent pairs, rows sorted
+    assert graph.indices.size == np.count_nonzero(expected)
+    for row in range(m):
+        cols = graph.indices[graph.indptr[row]:graph.indptr[row + 1]]
+        assert np.all(np.diff(cols) > 0)
+
+
+def test_prior_weights_on_diagonal():
+    p = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]])
+    associations = np.array([[0, 0], [1, 1], [2, 2]])
+    graph = consistency_graph(p, p, associations, prior=np.array([0.5, 1.0, 2.0]))
+    np.testing.assert_allclose(graph.affinity().diagonal(), [0.5, 1.0, 2.0])
+    with pytest.raises(DataError, match="prior"):
+        consistency_graph(p, p, associations, prior=np.array([1.0, -1.0, 1.0]))
+
+
+def test_graph_bad_input():
+    p = np.zeros((3, 2))
+    with pytest.raises(DataError, match="out of range"):
+        consistency_graph(p, p, np.array([[0, 3]]))
+    with pytest.raises(DataError, match="finite"):
+        consistency_graph(np.array([[np.nan, 0.0]]), p, np.array([[0, 0]]))
+    with pytest.raises(DataError):
+        consistency_graph(p, np.zeros((3, 3)), np.array([[0, 0]]))
+
+
+def test_empty_graph_gives_empty_solution():
+    graph = consistency_graph(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2), int))
+    assert graph.m == 0
+    assert len(clipper_solve(graph)) == 0
+    assert mno_clipper(graph, 4) == []
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_precision_and_recall_with_many_outliers(dim):
+    """The original's sigma / epsilon, noise 0.05 m, 50-95 % outlier associations."""
+    params = ClipperParams(sigma=0.15, epsilon=0.25)
+    precision, recall = [], []
+    for trial in range(24):
+        rng = np.random.default_rng(trial)
+        outlier_ratio = [0.5, 0.8, 0.9, 0.95][trial % 4]
+        p, q, associations, inlier = registration_problem(rng, 20, outlier_ratio, 0.05, dim=dim)
+        solution = clipper_solve(consistency_graph(p, q, associations, 0.25, 0.15), params)
+        chosen = np.zeros(len(associations), bool)
+        chosen[solution.nodes] = True
+        precision.append((chosen & inlier).sum() / max(chosen.sum(), 1))
+        recall.append((chosen & inlier).sum() / inlier.sum())
+    assert np.mean(precision) >= 0.95
+    assert np.mean(recall) >= 0.6
+
+
+def test_deterministic_for_a_seed():
+    p, q, associations, _ = registration_problem(np.random.default_rng(3), 15, 0.9, 0.05)
+    graph = consistency_graph(p, q, associations)
+    first = clipper_solve(graph, ClipperParams(seed=7))
+    second = clipper_solve(graph, ClipperParams(seed=7))
+    np.testing.assert_array_equal(first.nodes, second.nodes)
+    np.testing.assert_array_equal(first.u, second.u)
+
+
+def test_solution_is_consistent_and_u_on_the_sphere():
+    p, q, associations, _ = registration_problem(np.random.default_rng(5), 20, 0.8, 0.05)
+    graph = consistency_graph(p, q, associations)
+    solution = clipper_solve(graph)
+    assert np.all(solution.u >= 0)
+    assert np.linalg.norm(solution.u) == pytest.approx(1.0)
+    # every selected pair is an edge of the graph: the selection is a clique
+    affinity = graph.affinity().toarray()
+    sub = affinity[np.ix_(solution.nodes, solution.nodes)]
+    assert np.all(sub > 0)
+    # the score of a clique is its indicator's Rayleigh quotient
+    x = np.zeros(graph.m)
+    x[solution.nodes] = 1.0
+    assert solution.score == pytest.approx(x @ affinity @ x / (x @ x))
+
+
+def test_threshold_rounding_keeps_large_entries():
+    p, q, associations, inlier = registration_problem(np.random.default_rng(11), 20, 0.9, 0.05)
+    graph = consistency_graph(p, q, associations)
+    solution = clipper_solve(graph, ClipperParams(rounding="threshold", threshold=0.5))
+    assert len(solution) > 0
+    assert np.all(solution.u[solution.nodes] > 0.5 * solution.u.max())
+    assert inlier[solution.nodes].mean() >= 0.95
+
+
+def rectangle(width=6.0, height=2.0):
+    return np.array([[0.0, 0.0], [width, 0.0], [width, height], [0.0, height]])
+
+
+def test_mno_returns_true_and_mirrored_alignment_on_a_symmetric_map():
+    """A rectangle of identical objects: the truth and its 180 degree twin fit equally well."""
+    T_true = se2_from_params([3.0, -1.0, 0.4])
+    p = rectangle()
+    q = transform_points(invert(T_true), p)
+    associations = np.argwhere(np.ones((4, 4), bool))
+    graph = consistency_graph(p, q, associations)
+    solutions = mno_clipper(graph, 4)
+    assert len(solutions) == 4
+    found = []
+    for solution in solutions:
+        assert len(solution) == 4
+        T = weighted_arun(p[solution.associations[:, 0]], q[solution.associations[:, 1]])
+        found.append(T)
+    # the rectangle turned 180 degrees about its centre maps onto itself: p -> S p
+    turned = se2_from_params([6.0, 2.0, np.pi]) @ T_true
+    assert any(np.allclose(T, T_true, atol=1e-9) for T in found)
+    assert any(np.allclose(T, turned, atol=1e-9) for T in found)
+    # solutions never repeat an association
+    all_nodes = np.concatenate([s.nodes for s in solutions])
+    assert len(np.unique(all_nodes)) == len(all_nodes)
+
+
+def test_mno_downweight_keeps_nodes_available():
+    p = rectangle()
+    associations = np.argwhere(np.ones((4, 4), bool))
+    graph = consistency_graph(p, p, associations)
+    removed = mno_clipper(graph, 6, downweight=0.0)
+    softened = mno_clipper(graph, 6, downweight=0.5)
+    assert len(removed) == 4  # 16 associations, four disjoint cliques of four
+    assert len(softened) == 6  # down-weighted cliques can be found again
+    with pytest.raises(DataError, match="downweight"):
+        mno_clipper(graph, 2, downweight=1.5)
+
+
+def test_mno_scores_use_the_original_affinity():
+    p, q, associations, _ = registration_problem(np.random.default_rng(2), 20, 0.8, 0.05)
+    graph = consistency_graph(p, q, associations)
+    affinity = graph.affinity().toarray()
+    for solution in mno_clipper(graph, 4, downweight=0.3):
+        x = np.zeros(graph.m)
+        x[solution.nodes] = 1.0
+        assert solution.score == pytest.approx(x @ affinity @ x / (x @ x))

@@ -1,0 +1,151 @@
+"""FrameAligner: maps in, candidate alignments of T_oi_oj out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
+from tcaff_gtsam.errors import ConfigError
+from tcaff_gtsam.eval.sim.maps import grid_maps, overlapping_maps
+from tcaff_gtsam.frame_aligner import residual_covariance
+from tcaff_gtsam.geometry import compose, invert, se2_from_params, se2_to_params
+from tcaff_gtsam.registration import arun_weights, weighted_arun
+
+
+def error(T_true, T_est):
+    dx, dy, dtheta = se2_to_params(compose(invert(T_true), T_est))
+    return np.hypot(dx, dy), abs(np.degrees(dtheta))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_best_candidate_recovers_the_alignment(seed):
+    pair = overlapping_maps(np.random.default_rng(seed), 40, 0.6, 0.1, clutter=10)
+    candidates = FrameAligner().measurements(pair.ego, pair.other, pair.now)
+    assert candidates, "an overlap of 24 objects must give a candidate"
+    dt, dtheta = error(pair.T_oi_oj, candidates[0].T)
+    # Arun weights 1 / (0.01 + age_i age_j) let a few fresh objects dominate: 0.1 m median
+    assert dt < 0.6 and dtheta < 1.5
+    true = set(map(tuple, pair.true_pairs))
+    chosen = list(map(tuple, candidates[0].associations))
+    assert sum(a in true for a in chosen) / len(chosen) >= 0.9
+
+
+def test_candidates_obey_the_filters():
+    params = FrameAlignerParams()
+    for seed in range(5):
+        pair = overlapping_maps(np.random.default_rng(100 + seed), 60, 0.3, 0.15, clutter=20)
+        candidates = FrameAligner(params).measurements(pair.ego, pair.other, pair.now)
+        scores = [c.score for c in candidates]
+        assert scores == sorted(scores, reverse=True)
+        for c in candidates:
+            assert len(c.associations) >= params.min_associations
+            assert c.score >= params.min_score_ratio * scores[0]
+            assert c.rmse <= params.max_rmse
+            assert -np.pi <= c.z[2] < np.pi
+            np.testing.assert_allclose(c.R, params.R_constant)
+            np.testing.assert_allclose(c.T, se2_from_params(c.z))
+
+
+def test_only_recent_objects_take_part():
+    pair = overlapping_maps(np.random.default_rng(7), 40, 0.6, 0.1)
+    shared_ego = pair.true_pairs[:, 0]
+    last_seen = pair.ego.last_seen.copy()
+    last_seen[shared_ego[: len(shared_ego) // 2]] = pair.now - 30.0  # older than kappa = 20 s
+    ego = ObjectMap(pair.ego.centroids, pair.ego.widths, pair.ego.heights, last_seen)
+    old = set(shared_ego[: len(shared_ego) // 2].tolist())
+    candidates = FrameAligner().measurements(ego, pair.other, pair.now)
+    assert candidates
+    for c in candidates:
+        assert not old & set(c.associations[:, 0].tolist())
+    # with every object too old, nothing is left to align
+    stale = ObjectMap(ego.centroids, ego.widths, ego.heights, np.full(len(ego), pair.now - 50))
+    assert FrameAligner().measurements(stale, pair.other, pair.now) == []
+
+
+def test_empty_and_single_object_maps_give_no_measurement():
+    pair = overlapping_maps(np.random.default_rng(1), 30, 0.8, 0.05)
+    aligner = FrameAligner()
+    assert aligner.measurements(ObjectMap.empty(), pair.other, pair.now) == []
+    assert aligner.measurements(pair.ego, ObjectMap.empty(), pair.now) == []
+    assert aligner.measurements(pair.ego.subset([0]), pair.other, pair.now) == []
+    assert aligner.measurements(ObjectMap.empty(), ObjectMap.empty(), 0.0) == []
+
+
+def test_ambiguous_grid_gives_truth_and_its_twin_but_no_mirror_image():
+    pair = grid_maps(2, 4, spacing=3.0)
+    candidates = FrameAligner().measurements(pair.ego, pair.other, pair.now)
+    twin = se2_from_params([3.0, 9.0, np.pi]) @ pair.T_oi_oj  # turned about (1.5, 4.5)
+    assert any(np.allclose(c.T, pair.T_oi_oj, atol=1e-9) for c in candidates)
+    assert any(np.allclose(c.T, twin, atol=1e-9) for c in candidates)
+    assert all(c.rmse < 1e-6 for c in candidates)
+    # without the residual check, mirror-image association sets come through as bad fits
+    reference = FrameAligner(FrameAlignerParams.reference()).measurements(
+        pair.ego, pair.other, pair.now)
+    assert len(reference) > len(candidates)
+    assert max(c.rmse for c in reference) > 1.0
+
+
+def test_three_dimensional_matching():
+    pair = overlapping_maps(np.random.default_rng(4), 40, 0.6, 0.05)
+    candidates = FrameAligner(FrameAlignerParams(dim=3)).measurements(
+        pair.ego, pair.other, pair.now)
+    dt, dtheta = error(pair.T_oi_oj, candidates[0].T)
+    assert dt < 0.3 and dtheta < 1.5
+
+
+def test_residual_covariance_is_calibrated():
+    """Monte Carlo: the predicted covariance matches the spread of the estimates."""
+    rng = np.random.default_rng(0)
+    T_true = se2_from_params([5.0, -3.0, 0.7])
+    q = rng.uniform(-4.0, 4.0, (8, 2)) + [10.0, 6.0]  # off the origin: a real lever arm
+    ages = rng.uniform(0.0, 3.0, (8, 2))
+    w = arun_weights(ages[:, 0], ages[:, 1])
+    p_true = q @ T_true[:2, :2].T + T_true[:2, 2]
+    sigma = 0.1
+    errors, predicted = [], []
+    for _ in range(1500):
+        p = p_true + rng.normal(0, sigma, p_true.shape)
+        T = weighted_arun(p, q, w)
+        errors.append(se2_to_params(T) - se2_to_params(T_true))
+        predicted.append(residual_covariance(T, p, q, w, floor=1e-6))
+    errors = np.array(errors)
+    empirical = np.cov(errors.T)
+    mean_predicted = np.mean(predicted, axis=0)
+    np.testing.assert_allclose(np.diag(mean_predicted), np.diag(empirical), rtol=0.15)
+    corr = empirical[0, 2] / np.sqrt(empirical[0, 0] * empirical[2, 2])
+    corr_pred = mean_predicted[0, 2] / np.sqrt(mean_predicted[0, 0] * mean_predicted[2, 2])
+    assert abs(corr - corr_pred) < 0.1
+
+
+def test_residual_covariance_option_in_the_aligner():
+    pair = overlapping_maps(np.random.default_rng(3), 40, 0.6, 0.1)
+    params = FrameAlignerParams(covariance="residual")
+    candidates = FrameAligner(params).measurements(pair.ego, pair.other, pair.now)
+    assert candidates
+    for c in candidates:
+        assert np.allclose(c.R, c.R.T)
+        assert np.all(np.linalg.eigvalsh(c.R) > 0)
+        assert not np.allclose(c.R, params.R_constant)
+
+
+def test_deterministic():
+    pair = overlapping_maps(np.random.default_rng(9), 50, 0.5, 0.1, clutter=5)
+    a = FrameAligner().measurements(pair.ego, pair.other, pair.now)
+    b = FrameAligner().measurements(pair.ego, pair.other, pair.now)
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.z, y.z)
+        np.testing.assert_array_equal(x.associations, y.associations)
+
+
+@pytest.mark.parametrize("changes", [
+    {"kappa": 0.0}, {"size_ratio": 0.9}, {"dim": 4}, {"n_solutions": 0},
+    {"min_associations": 1}, {"min_score_ratio": 1.5}, {"mno_downweight": 1.0},
+    {"covariance": "magic"}, {"R_constant": np.eye(2)}, {"R_constant": -np.eye(3)},
+    {"max_rmse": -1.0},
+])
+def test_bad_parameters_are_rejected(changes):
+    name = next(iter(changes))
+    with pytest.raises(ConfigError, match=name):
+        FrameAlignerParams(**changes)
