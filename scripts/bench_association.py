@@ -23,9 +23,9 @@ import statistics
 import time
 
 import numpy as np
+from tcaff_gtsam.eval.sim.maps import overlapping_maps
 
 from tcaff_gtsam import ClipperParams, FrameAligner, clipper_solve, consistency_graph, mno_clipper
-from tcaff_gtsam.eval.sim.maps import overlapping_maps
 from tcaff_gtsam.registration import putative_associations
 
 COLUMNS = ("n", "m", "edges", "graph", "solve", "mno", "graph+mno", "aligner", "precision",
@@ -100,7 +100,7 @@ def main() -> None:
     args = parser.parse_args()
 
     one_run(12, 0, False)  # compile (or load the cached machine code) before timing anything
-    rows = [(f"gated", row(n, args.runs)) for n in args.sizes]
+    rows = [("gated", row(n, args.runs)) for n in args.sizes]
     rows.append(("all-to-all", row(50, args.runs, all_to_all=True)))
     print_table(rows)
     print("targets: graph+mno <= 5 ms at n = 100, <= 15 ms at n = 200")

@@ -101,9 +101,9 @@ def _consistent_pairs(d_ego, d_other, ego_idx, other_idx, epsilon, inv_two_sigma
         count = 0
         for q in range(p + 1, m):
             k = ego_idx[q]
-            l = other_idx[q]
-            c = abs(d_i[k] - d_j[l])
-            if c < epsilon and i != k and j != l:
+            ell = other_idx[q]
+            c = abs(d_i[k] - d_j[ell])
+            if c < epsilon and i != k and j != ell:
                 row_cols[count] = q
                 row_c[count] = c
                 count += 1
@@ -173,9 +173,9 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
     if not (np.all(np.isfinite(ego_points)) and np.all(np.isfinite(other_points))):
         raise DataError("consistency_graph: points must be finite")
     m = associations.shape[0]
-    if m and (associations.min(axis=0) < 0).any() or m and (
+    if (m and (associations.min(axis=0) < 0).any()) or (m and (
             associations[:, 0].max() >= len(ego_points)
-            or associations[:, 1].max() >= len(other_points)):
+            or associations[:, 1].max() >= len(other_points))):
         raise DataError(f"consistency_graph: association indices out of range for maps of "
                         f"{len(ego_points)} and {len(other_points)} points")
     if not (epsilon > 0 and sigma > 0):

@@ -32,12 +32,16 @@ __all__ = [
 def wrap_angle(angle):
     """Wrap angle(s) in radians to [-pi, pi). Works on scalars and arrays."""
     wrapped = np.mod(np.asarray(angle, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
+    # np.mod of a tiny negative number rounds to 2 pi, which would give +pi
+    wrapped = np.where(wrapped >= np.pi, wrapped - 2.0 * np.pi, wrapped)
     return float(wrapped) if np.ndim(wrapped) == 0 else wrapped
 
 
-def _check_square(T: np.ndarray, sizes: tuple[int, ...], name: str) -> np.ndarray:
+def _check_square(T: np.ndarray, sizes: tuple[int, ...], name: str,
+                  single: bool = False) -> np.ndarray:
     T = np.asarray(T, dtype=float)
-    if T.ndim < 2 or T.shape[-1] != T.shape[-2] or T.shape[-1] not in sizes:
+    if (T.ndim < 2 or (single and T.ndim != 2) or T.shape[-1] != T.shape[-2]
+            or T.shape[-1] not in sizes):
         raise DataError(f"{name}: expected a (..., {sizes[0]}, {sizes[0]}) transform, "
                         f"got shape {T.shape}")
     if not np.all(np.isfinite(T)):
@@ -75,6 +79,9 @@ def se3_from_rt(R, t) -> np.ndarray:
 
 def se3_from_xyz_quat(xyz, q_wxyz) -> np.ndarray:
     """Position (3,) [m] and unit quaternion (w, x, y, z) -> (4, 4) SE(3) matrix."""
+    xyz = np.asarray(xyz, dtype=float)
+    if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
+        raise DataError(f"position: expected three finite numbers (x, y, z), got {xyz!r}")
     q = np.asarray(q_wxyz, dtype=float)
     norm = np.linalg.norm(q)
     if q.shape != (4,) or not np.isfinite(norm) or norm < 1e-9:
@@ -85,7 +92,7 @@ def se3_from_xyz_quat(xyz, q_wxyz) -> np.ndarray:
 
 def se3_to_xyz_quat(T) -> tuple[np.ndarray, np.ndarray]:
     """(4, 4) SE(3) matrix -> (position (3,), quaternion (w, x, y, z) with w >= 0)."""
-    T = _check_square(T, (4,), "T")
+    T = _check_square(T, (4,), "T", single=True)
     x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
     q = np.array([w, x, y, z])
     return T[:3, 3].copy(), q if w >= 0 else -q
@@ -152,7 +159,7 @@ def invert(T) -> np.ndarray:
 
 def transform_points(T_a_b, points_b) -> np.ndarray:
     """Map points (n, d) from frame b into frame a with T_a_b ((d+1, d+1)); returns (n, d)."""
-    T_a_b = _check_square(T_a_b, (3, 4), "T_a_b")
+    T_a_b = _check_square(T_a_b, (3, 4), "T_a_b", single=True)
     points_b = np.asarray(points_b, dtype=float)
     d = T_a_b.shape[-1] - 1
     if points_b.ndim != 2 or points_b.shape[1] != d:

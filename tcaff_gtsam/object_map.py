@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -107,23 +108,29 @@ class ObjectMap:
         return np.maximum(now - self.last_seen, 0.0)
 
     def save(self, path: str | Path) -> None:
-        """Write the map to a `.npz` file (arrays named after the fields)."""
-        np.savez(Path(path), **{name: getattr(self, name) for name in _FIELDS})
+        """Write the map to an npz archive at exactly `path` (arrays named after the fields)."""
+        with open(Path(path), "wb") as file:  # a file object stops numpy appending ".npz"
+            np.savez(file, **{name: getattr(self, name) for name in _FIELDS})
 
     @classmethod
     def load(cls, path: str | Path) -> ObjectMap:
         """Read a map written by `save`; raises `DataError` on missing or malformed files."""
         path = Path(path)
+        if not path.is_file():
+            raise DataError(f"{path}: no such map file")
         try:
-            with np.load(path, allow_pickle=False) as data:
-                missing = [name for name in _FIELDS if name not in data.files]
-                if missing:
-                    raise DataError(f"{path}: not an ObjectMap file, missing arrays {missing} "
-                                    f"(has {sorted(data.files)})")
-                return cls(**{name: data[name] for name in _FIELDS})
-        except FileNotFoundError as exc:
-            raise DataError(f"{path}: no such map file") from exc
-        except (OSError, ValueError) as exc:
-            if isinstance(exc, DataError):
-                raise
+            data = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise DataError(f"{path}: cannot read an ObjectMap ({exc})") from exc
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise DataError(f"{path}: not an ObjectMap file (a single array, not an npz archive)")
+        with data:
+            missing = [name for name in _FIELDS if name not in data.files]
+            if missing:
+                raise DataError(f"{path}: not an ObjectMap file, missing arrays {missing} "
+                                f"(has {sorted(data.files)})")
+            try:
+                arrays = {name: data[name] for name in _FIELDS}
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                raise DataError(f"{path}: corrupt ObjectMap archive ({exc})") from exc
+        return cls(**arrays)

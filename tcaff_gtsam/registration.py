@@ -85,9 +85,11 @@ def weighted_arun(p: np.ndarray, q: np.ndarray, weights: np.ndarray | None = Non
     q_c = q - q_mean
     scatter = (q_c * w[:, None]).T @ q_c
     spread = np.sort(np.linalg.eigvalsh(scatter))[::-1]
-    scale = 1e-12 * w_sum * max(1.0, float(np.max(np.abs(q))) ** 2)
-    # 2D needs two distinct points; 3D needs the points off a single line.
-    if spread[0] <= scale or (d == 3 and spread[1] <= scale):
+    # 2D needs two distinct points; 3D needs the points off a single line. Centring loses
+    # about 1e-16 of the coordinates' magnitude and the eigensolver about 1e-16 of the largest
+    # spread, so spreads below those (with a wide margin) are rounding, not geometry.
+    floor = w_sum * (1e-9 * max(1.0, float(np.max(np.abs(q))))) ** 2
+    if spread[0] <= floor or (d == 3 and spread[1] <= max(floor, 1e-12 * spread[0])):
         return None
     H = (q_c * w[:, None]).T @ p_c
     U, _, Vt = np.linalg.svd(H)

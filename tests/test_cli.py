@@ -8,9 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from typer.testing import CliRunner
-
 from tcaff_gtsam.eval.cli import app
+from typer.testing import CliRunner
 
 runner = CliRunner()
 TCAFF = str(Path(sys.executable).parent / "tcaff")

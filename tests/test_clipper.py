@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tcaff_gtsam.eval.sim.maps import registration_problem
 
 from tcaff_gtsam import ClipperParams, DataError, clipper_solve, consistency_graph, mno_clipper
-from tcaff_gtsam.eval.sim.maps import registration_problem
 from tcaff_gtsam.geometry import invert, se2_from_params, transform_points
 from tcaff_gtsam.registration import weighted_arun
 
@@ -19,10 +19,10 @@ def dense_reference(p, q, associations, epsilon, sigma):
     W = np.zeros((m, m))
     for a in range(m):
         for b in range(m):
-            (i, j), (k, l) = associations[a], associations[b]
-            if i == k or j == l:
+            (i, j), (k, ell) = associations[a], associations[b]
+            if i == k or j == ell:
                 continue
-            c = abs(np.linalg.norm(p[i] - p[k]) - np.linalg.norm(q[j] - q[l]))
+            c = abs(np.linalg.norm(p[i] - p[k]) - np.linalg.norm(q[j] - q[ell]))
             if c < epsilon:
                 W[a, b] = np.exp(-(c**2) / (2 * sigma**2))
     return W

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tcaff_gtsam.eval.sim.maps import grid_maps, overlapping_maps
 
 from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
 from tcaff_gtsam.errors import ConfigError
-from tcaff_gtsam.eval.sim.maps import grid_maps, overlapping_maps
 from tcaff_gtsam.frame_aligner import residual_covariance
 from tcaff_gtsam.geometry import compose, invert, se2_from_params, se2_to_params
 from tcaff_gtsam.registration import arun_weights, weighted_arun
@@ -98,7 +98,7 @@ def test_residual_covariance_is_calibrated():
     """Monte Carlo: the predicted covariance matches the spread of the estimates."""
     rng = np.random.default_rng(0)
     T_true = se2_from_params([5.0, -3.0, 0.7])
-    q = rng.uniform(-4.0, 4.0, (8, 2)) + [10.0, 6.0]  # off the origin: a real lever arm
+    q = rng.uniform(-4.0, 4.0, (8, 2)) + np.array([10.0, 6.0])  # off the origin: a real lever arm
     ages = rng.uniform(0.0, 3.0, (8, 2))
     w = arun_weights(ages[:, 0], ages[:, 1])
     p_true = q @ T_true[:2, :2].T + T_true[:2, 2]

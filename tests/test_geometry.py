@@ -93,8 +93,6 @@ def test_wrap_angle_known_values(a, expected):
     assert wrap_angle(a) == pytest.approx(expected, abs=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: wrap_angle maps the float just below -pi to +pi, "
-                                      "outside the documented range [-pi, pi)")
 def test_wrap_angle_just_below_minus_pi_stays_in_range():
     a = np.nextafter(-np.pi, -np.inf)
     w = wrap_angle(a)
@@ -421,9 +419,6 @@ def test_transform_points_rejects_wrong_point_shapes(T, pts):
         transform_points(T, pts)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError,
-                   reason="BUG (minor): se3_from_xyz_quat does not validate xyz; a (2,) position "
-                          "raises numpy's broadcast ValueError instead of DataError")
 def test_se3_from_xyz_quat_rejects_bad_position_with_data_error():
     try:
         se3_from_xyz_quat([1.0, 2.0], [1.0, 0.0, 0.0, 0.0])

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import re
-import zipfile
 
 import numpy as np
 import pytest
@@ -307,9 +306,6 @@ def test_save_load_accepts_str_paths(tmp_path):
     assert_maps_equal(ObjectMap.load(path), m)
 
 
-@pytest.mark.xfail(strict=True, raises=DataError,
-                   reason="BUG: ObjectMap.save lets np.savez append '.npz' to a path without "
-                          "that suffix, so load(same path) cannot find the file")
 def test_save_load_round_trip_without_npz_suffix(tmp_path):
     m = make_map(3)
     path = tmp_path / "map.bin"
@@ -374,17 +370,9 @@ def _write_npy(path):
     [
         _write_text_garbage,
         _write_binary_garbage,
-        pytest.param(_write_empty, marks=pytest.mark.xfail(
-            strict=True, raises=EOFError,
-            reason="BUG: ObjectMap.load of an empty file raises EOFError, not DataError")),
-        pytest.param(_write_truncated_npz, marks=pytest.mark.xfail(
-            strict=True, raises=zipfile.BadZipFile,
-            reason="BUG: ObjectMap.load of a truncated .npz raises zipfile.BadZipFile, "
-                   "not DataError")),
-        pytest.param(_write_npy, marks=pytest.mark.xfail(
-            strict=True, raises=TypeError,
-            reason="BUG: ObjectMap.load of a .npy array file raises TypeError (ndarray is not "
-                   "a context manager), not DataError")),
+        _write_empty,
+        _write_truncated_npz,
+        _write_npy,
     ],
     ids=["text", "binary", "empty", "truncated-npz", "npy"],
 )

@@ -15,7 +15,7 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import invert, se2_from_params, transform_points
 from tcaff_gtsam.object_map import ObjectMap
 
-__all__ = ["MapPair", "OBJECT_CLASSES", "overlapping_maps", "random_sizes"]
+__all__ = ["OBJECT_CLASSES", "MapPair", "overlapping_maps", "random_sizes"]
 
 #: (width range, height range) in metres per object class; sizes are log-uniform in a range.
 OBJECT_CLASSES: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {

@@ -1,0 +1,199 @@
+"""Packaging: the top-level `mapping/` and `eval/` folders ship as `tcaff_gtsam.mapping` and
+`tcaff_gtsam.eval` (pyproject `[tool.setuptools.package-dir]`), never as top-level packages.
+
+Two installs are checked: the editable install the virtualenv already has, and a normal wheel
+install built from a copy of the repository. The wheel tests (`TestWheelInstall`, select with
+`-k wheel`) build and install a wheel with pip and take a few seconds.
+"""
+
+from __future__ import annotations
+
+import configparser
+import importlib
+import importlib.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+PROBE = """
+import importlib, importlib.util, json, sys
+out = {"top": {name: importlib.util.find_spec(name) is not None for name in ("mapping", "eval")}}
+for name in ("tcaff_gtsam", "tcaff_gtsam.mapping", "tcaff_gtsam.eval", "tcaff_gtsam.eval.sim",
+             "tcaff_gtsam.eval.sim.maps", "tcaff_gtsam.eval.cli"):
+    out[name] = importlib.import_module(name).__file__
+print(json.dumps(out))
+"""
+
+
+def clean_env(**extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    env.update(extra)
+    return env
+
+
+def run_probe(cwd: Path, env: dict[str, str]) -> dict:
+    proc = subprocess.run([sys.executable, "-c", PROBE], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def is_under(path: str | Path, folder: Path) -> bool:
+    return Path(path).resolve().is_relative_to(folder.resolve())
+
+
+# ---------------------------------------------------------------------------------------------
+# (a) the editable install in the virtualenv
+
+
+@pytest.mark.parametrize(
+    ("module", "folder"),
+    [
+        ("tcaff_gtsam.mapping", "mapping"),
+        ("tcaff_gtsam.eval", "eval"),
+        ("tcaff_gtsam.eval.sim", "eval/sim"),
+        ("tcaff_gtsam.eval.sim.maps", "eval/sim"),
+        ("tcaff_gtsam.eval.cli", "eval"),
+    ],
+)
+def test_editable_subpackages_come_from_repo_folders(module, folder):
+    mod = importlib.import_module(module)
+    assert mod.__file__ is not None
+    assert is_under(mod.__file__, REPO / folder), mod.__file__
+    assert not is_under(mod.__file__, REPO / "tcaff_gtsam"), mod.__file__
+
+
+def test_editable_core_package_comes_from_repo():
+    import tcaff_gtsam
+
+    assert Path(tcaff_gtsam.__file__).resolve() == (REPO / "tcaff_gtsam" / "__init__.py").resolve()
+
+
+def test_editable_install_outside_repo_has_no_top_level_mapping_or_eval(tmp_path):
+    out = run_probe(tmp_path, clean_env())
+    assert out["top"] == {"mapping": False, "eval": False}
+    assert is_under(out["tcaff_gtsam.mapping"], REPO / "mapping")
+    assert is_under(out["tcaff_gtsam.eval"], REPO / "eval")
+    assert is_under(out["tcaff_gtsam.eval.sim"], REPO / "eval" / "sim")
+    assert is_under(out["tcaff_gtsam.eval.sim.maps"], REPO / "eval" / "sim")
+    assert is_under(out["tcaff_gtsam"], REPO / "tcaff_gtsam")
+
+
+def test_pyproject_declares_the_package_dir_mapping():
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    config = tomllib.loads((REPO / "pyproject.toml").read_text())
+    setuptools_cfg = config["tool"]["setuptools"]
+    assert setuptools_cfg["package-dir"]["tcaff_gtsam.mapping"] == "mapping"
+    assert setuptools_cfg["package-dir"]["tcaff_gtsam.eval"] == "eval"
+    assert {"tcaff_gtsam.mapping", "tcaff_gtsam.eval", "tcaff_gtsam.eval.sim"} <= set(
+        setuptools_cfg["packages"])
+    assert "mapping" not in setuptools_cfg["packages"]
+    assert "eval" not in setuptools_cfg["packages"]
+    assert config["project"]["scripts"]["tcaff"] == "tcaff_gtsam.eval.cli:main"
+
+
+# ---------------------------------------------------------------------------------------------
+# (b) a normal (non-editable) wheel install
+
+_IGNORE = shutil.ignore_patterns(".venv", ".git", "build", "dist", "*.egg-info", "__pycache__",
+                                 ".pytest_cache", ".hypothesis", ".ruff_cache", "results")
+
+
+@pytest.fixture(scope="module")
+def wheel_install(tmp_path_factory):
+    """Build a wheel from a copy of the repository and pip-install it into a --target folder.
+
+    The copy keeps the build's `build/` and `*.egg-info` output out of the working tree.
+    Returns (wheel path, site folder).
+    """
+    base = tmp_path_factory.mktemp("wheel")
+    src = base / "src"
+    shutil.copytree(REPO, src, ignore=_IGNORE)
+    dist = base / "dist"
+    # Absolute paths throughout: pip would read a bare word as a package name to download.
+    build = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
+         "-w", str(dist), str(src)],
+        capture_output=True, text=True, timeout=300, env=clean_env(),
+    )
+    assert build.returncode == 0, build.stdout + build.stderr
+    wheels = list(dist.glob("tcaff_gtsam-*.whl"))
+    assert len(wheels) == 1, list(dist.iterdir())
+    site = base / "site"
+    install = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "--target",
+         str(site), str(wheels[0])],
+        capture_output=True, text=True, timeout=300, env=clean_env(),
+    )
+    assert install.returncode == 0, install.stdout + install.stderr
+    return wheels[0], site
+
+
+class TestWheelInstall:
+    """Slow-ish (a few seconds): builds and installs a real wheel with pip."""
+
+    def test_wheel_file_list(self, wheel_install):
+        wheel, _ = wheel_install
+        with zipfile.ZipFile(wheel) as zf:
+            names = set(zf.namelist())
+        for required in ("tcaff_gtsam/__init__.py", "tcaff_gtsam/geometry.py",
+                         "tcaff_gtsam/mapping/__init__.py", "tcaff_gtsam/eval/__init__.py",
+                         "tcaff_gtsam/eval/cli.py", "tcaff_gtsam/eval/sim/__init__.py",
+                         "tcaff_gtsam/eval/sim/maps.py"):
+            assert required in names, sorted(names)
+        top_level = {name.split("/", 1)[0] for name in names}
+        assert "mapping" not in top_level
+        assert "eval" not in top_level
+        assert not any(n.startswith(("mapping/", "eval/", "tests/", "scripts/")) for n in names)
+        # Everything in the source folders made it in, under the mapped names.
+        for folder, package in (("mapping", "tcaff_gtsam/mapping"), ("eval", "tcaff_gtsam/eval"),
+                                ("tcaff_gtsam", "tcaff_gtsam")):
+            for py in (REPO / folder).rglob("*.py"):
+                rel = py.relative_to(REPO / folder).as_posix()
+                assert f"{package}/{rel}" in names, f"{py} missing from the wheel"
+
+    def test_wheel_entry_points_and_top_level(self, wheel_install):
+        wheel, _ = wheel_install
+        with zipfile.ZipFile(wheel) as zf:
+            names = zf.namelist()
+            entry = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
+            assert len(entry) == 1, names
+            parser = configparser.ConfigParser()
+            parser.read_string(zf.read(entry[0]).decode())
+            top = [n for n in names if n.endswith(".dist-info/top_level.txt")]
+            top_names = set(zf.read(top[0]).decode().split()) if top else set()
+        assert parser["console_scripts"]["tcaff"].strip() == "tcaff_gtsam.eval.cli:main"
+        assert "mapping" not in top_names and "eval" not in top_names
+
+    def test_wheel_install_imports_from_target(self, wheel_install, tmp_path):
+        _, site = wheel_install
+        assert not (site / "mapping").exists()
+        assert not (site / "eval").exists()
+        out = run_probe(tmp_path, clean_env(PYTHONPATH=str(site)))
+        for name in ("tcaff_gtsam", "tcaff_gtsam.mapping", "tcaff_gtsam.eval",
+                     "tcaff_gtsam.eval.sim", "tcaff_gtsam.eval.sim.maps", "tcaff_gtsam.eval.cli"):
+            assert out[name].startswith(str(site)), (name, out[name])
+        assert out["tcaff_gtsam.eval.sim.maps"] == str(
+            site / "tcaff_gtsam" / "eval" / "sim" / "maps.py")
+        assert out["tcaff_gtsam.mapping"] == str(site / "tcaff_gtsam" / "mapping" / "__init__.py")
+        assert out["top"] == {"mapping": False, "eval": False}
+
+    def test_wheel_console_script_runs(self, wheel_install, tmp_path):
+        _, site = wheel_install
+        script = site / "bin" / "tcaff"
+        assert script.is_file()
+        proc = subprocess.run([sys.executable, str(script), "--help"], cwd=tmp_path,
+                              env=clean_env(PYTHONPATH=str(site)), capture_output=True,
+                              text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        assert "Usage" in proc.stdout
+        assert "align" in proc.stdout.lower()
