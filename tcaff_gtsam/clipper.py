@@ -79,13 +79,18 @@ class ClipperSolution:
 
 
 @numba.njit(cache=True)
-def _consistent_pairs(d_ego, d_other, ego_idx, other_idx, epsilon, inv_two_sigma_sq):
+def _consistent_pairs(d_ego, d_other, other_idx, group_ego, group_start, inv_two_sigma_sq,
+                      epsilon):
     """Upper-triangle edges (p < q) of the consistency graph: rows, cols, weights.
 
-    Each row is gathered in a fixed scratch buffer so the inner loop never reallocates; the
-    output grows (doubling) only between rows.
+    Nodes are sorted by ego index and grouped: group g holds the nodes
+    group_start[g]:group_start[g+1], all with ego object group_ego[g]. For node p = (i, j) the
+    ego distance |p_i - p_k| is then read once per later group instead of once per pair, and
+    the i != k rule means skipping p's own group. Each row is gathered in a fixed scratch
+    buffer so the inner loop never reallocates; the output grows only between rows.
     """
-    m = ego_idx.shape[0]
+    m = other_idx.shape[0]
+    n_groups = group_ego.shape[0]
     row_cols = np.empty(m, np.int64)
     row_c = np.empty(m)
     capacity = max(16, 4 * m)
@@ -93,30 +98,31 @@ def _consistent_pairs(d_ego, d_other, ego_idx, other_idx, epsilon, inv_two_sigma
     cols = np.empty(capacity, np.int64)
     wts = np.empty(capacity)
     n = 0
-    for p in range(m):
-        i = ego_idx[p]
-        j = other_idx[p]
-        d_i = d_ego[i]
-        d_j = d_other[j]
-        count = 0
-        for q in range(p + 1, m):
-            k = ego_idx[q]
-            ell = other_idx[q]
-            c = abs(d_i[k] - d_j[ell])
-            if c < epsilon and i != k and j != ell:
-                row_cols[count] = q
-                row_c[count] = c
-                count += 1
-        if n + count > capacity:
-            capacity = max(2 * capacity, n + count)
-            rows = np.concatenate((rows[:n], np.empty(capacity - n, np.int64)))
-            cols = np.concatenate((cols[:n], np.empty(capacity - n, np.int64)))
-            wts = np.concatenate((wts[:n], np.empty(capacity - n)))
-        for e in range(count):
-            rows[n + e] = p
-            cols[n + e] = row_cols[e]
-            wts[n + e] = np.exp(-row_c[e] * row_c[e] * inv_two_sigma_sq)
-        n += count
+    for g in range(n_groups):
+        d_i = d_ego[group_ego[g]]
+        for p in range(group_start[g], group_start[g + 1]):
+            j = other_idx[p]
+            d_j = d_other[j]
+            count = 0
+            for h in range(g + 1, n_groups):
+                d_ik = d_i[group_ego[h]]
+                for q in range(group_start[h], group_start[h + 1]):
+                    ell = other_idx[q]
+                    c = abs(d_ik - d_j[ell])
+                    if c < epsilon and ell != j:
+                        row_cols[count] = q
+                        row_c[count] = c
+                        count += 1
+            if n + count > capacity:
+                capacity = max(2 * capacity, n + count)
+                rows = np.concatenate((rows[:n], np.empty(capacity - n, np.int64)))
+                cols = np.concatenate((cols[:n], np.empty(capacity - n, np.int64)))
+                wts = np.concatenate((wts[:n], np.empty(capacity - n)))
+            for e in range(count):
+                rows[n + e] = p
+                cols[n + e] = row_cols[e]
+                wts[n + e] = np.exp(-row_c[e] * row_c[e] * inv_two_sigma_sq)
+            n += count
     return rows[:n], cols[:n], wts[:n]
 
 
@@ -173,9 +179,8 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
     if not (np.all(np.isfinite(ego_points)) and np.all(np.isfinite(other_points))):
         raise DataError("consistency_graph: points must be finite")
     m = associations.shape[0]
-    if (m and (associations.min(axis=0) < 0).any()) or (m and (
-            associations[:, 0].max() >= len(ego_points)
-            or associations[:, 1].max() >= len(other_points))):
+    if m and (associations.min() < 0 or associations[:, 0].max() >= len(ego_points)
+              or associations[:, 1].max() >= len(other_points)):
         raise DataError(f"consistency_graph: association indices out of range for maps of "
                         f"{len(ego_points)} and {len(other_points)} points")
     if not (epsilon > 0 and sigma > 0):
@@ -190,10 +195,13 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
                             f"got shape {diag.shape}")
     d_ego = _pairwise_distances(ego_points)
     d_other = _pairwise_distances(other_points)
-    ego_idx = np.ascontiguousarray(associations[:, 0])
-    other_idx = np.ascontiguousarray(associations[:, 1])
-    rows, cols, wts = _consistent_pairs(d_ego, d_other, ego_idx, other_idx, epsilon,
-                                        1.0 / (2.0 * sigma * sigma))
+    order = np.argsort(associations[:, 0], kind="stable")  # identity for sorted input
+    ego_sorted = associations[order, 0]
+    starts = np.flatnonzero(np.diff(ego_sorted, prepend=-1))  # first node of each ego object
+    rows, cols, wts = _consistent_pairs(
+        d_ego, d_other, np.ascontiguousarray(associations[order, 1]), ego_sorted[starts],
+        np.r_[starts, m].astype(np.int64), 1.0 / (2.0 * sigma * sigma), epsilon)
+    rows, cols = order[rows], order[cols]
     indptr, indices, weights = _symmetric_csr(m, rows, cols, wts)
     return ConsistencyGraph(associations, indptr, indices, weights, diag)
 
