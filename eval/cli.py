@@ -20,7 +20,7 @@ from tcaff_gtsam.errors import TcaffError
 from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner
 from tcaff_gtsam.geometry import compose, invert, se2_to_params
 from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.params import FrameAlignerParams
+from tcaff_gtsam.params import ClipperParams, FrameAlignerParams
 
 from .sim.maps import MapPair, grid_maps, overlapping_maps
 
@@ -68,10 +68,9 @@ def _candidates_table(title: str, candidates: list[AlignmentMeasurement],
 
 def _aligner_params(kappa: float, dim: int, solutions: int, min_associations: int,
                     covariance: str, seed: int) -> FrameAlignerParams:
-    base = FrameAlignerParams()
-    return base.with_(kappa=kappa, dim=dim, n_solutions=solutions,
-                      min_associations=min_associations, covariance=covariance,
-                      clipper=base.clipper.__class__(seed=seed))
+    return FrameAlignerParams(kappa=kappa, dim=dim, n_solutions=solutions,
+                              min_associations=min_associations, covariance=covariance,
+                              clipper=ClipperParams(seed=seed))
 
 
 @app.command("align-maps")
@@ -152,7 +151,7 @@ def _demo_case(title: str, pair: MapPair, aligner: FrameAligner) -> None:
 def demo(seed: Annotated[int, typer.Option(help="Random seed.")] = 0) -> None:
     """Align simulated map pairs with known truth and show the candidates against it."""
     aligner = FrameAligner()
-    FrameAligner().measurements(*_warmup_maps())
+    aligner.measurements(*_warmup_maps())
     rng = np.random.default_rng(seed)
     _demo_case("Overlapping maps with clutter", overlapping_maps(
         rng, 40, 0.6, 0.1, clutter=10), aligner)

@@ -206,6 +206,18 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
     return ConsistencyGraph(associations, indptr, indices, weights, diag)
 
 
+@numba.njit(cache=True, inline="always")
+def _touch(node, Mu, Cu, touched, n_touched, mark, stamp):
+    """Zero Mu and Cu at `node` the first time it is written in this pass; returns n_touched."""
+    if mark[node] != stamp:
+        mark[node] = stamp
+        Mu[node] = 0.0
+        Cu[node] = 0.0
+        touched[n_touched] = node
+        n_touched += 1
+    return n_touched
+
+
 @numba.njit(cache=True)
 def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touched, mark, stamp):
     """Mu = M u and Cu = C u (C binary, diagonal included) for u supported on `support`.
@@ -221,22 +233,12 @@ def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touc
         q = support[s]
         uq = u[q]
         total += uq
-        if mark[q] != stamp:
-            mark[q] = stamp
-            Mu[q] = 0.0
-            Cu[q] = 0.0
-            touched[n_touched] = q
-            n_touched += 1
+        n_touched = _touch(q, Mu, Cu, touched, n_touched, mark, stamp)
         Mu[q] += diag[q] * uq
         Cu[q] += uq
         for e in range(indptr[q], indptr[q + 1]):
             p = indices[e]
-            if mark[p] != stamp:
-                mark[p] = stamp
-                Mu[p] = 0.0
-                Cu[p] = 0.0
-                touched[n_touched] = p
-                n_touched += 1
+            n_touched = _touch(p, Mu, Cu, touched, n_touched, mark, stamp)
             Mu[p] += weights[e] * uq
             Cu[p] += uq
     return n_touched, total
@@ -340,8 +342,7 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
     for _ in range(power_iterations):
         for s in range(n_sup):
             u[sup[s]] = 0.0
-        zero = np.zeros(m)
-        n_new = _project(zero, Mu, 1.0, tch, n_tch, active, u, sup_b)
+        n_new = _project(ub, Mu, 1.0, tch, n_tch, active, u, sup_b)  # u = Mu / |Mu| (ub is 0)
         if n_new == 0:
             break
         sup, sup_b = sup_b, sup

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clipper import consistency_graph, mno_clipper
-from .geometry import se2_from_params, se2_to_params, se3_to_se2, wrap_angle
+from .geometry import se2_from_params, se2_to_params, se3_to_se2
 from .object_map import ObjectMap
 from .params import FrameAlignerParams
 from .registration import arun_weights, putative_associations, registration_rmse, weighted_arun
@@ -127,7 +127,6 @@ class FrameAligner:
             if prm.max_rmse is not None and rmse > prm.max_rmse:
                 continue
             z = se2_to_params(T2)
-            z[2] = wrap_angle(z[2])
             R = (prm.R_constant.copy() if prm.covariance == "constant"
                  else residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor))
             associations = np.column_stack([ego_idx[a[:, 0]], other_idx[a[:, 1]]])

@@ -4,7 +4,7 @@ is silent); every object validates itself and raises `ConfigError` naming the fi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -151,7 +151,3 @@ class FrameAlignerParams:
     def reference(cls) -> FrameAlignerParams:
         """The authors' released settings, without this project's residual check."""
         return cls(max_rmse=None)
-
-    def with_(self, **changes) -> FrameAlignerParams:
-        """A copy with some fields changed (validated again)."""
-        return replace(self, **changes)
