@@ -293,7 +293,7 @@ def _penalty_step(u, support, n_support, Mu, Cu, total, eps, first):
     For each node carrying weight (u_p > eps) with weight on inconsistent nodes
     (s_p = sum_q (1 - C_pq) u_q > eps), Mu_p / s_p is the penalty at which its gradient turns
     negative. The first increase uses their mean; later ones the midpoint of their minimum
-    (CLIPPER's step) and their mean, which needs about a quarter less time at n = 200 for the
+    (CLIPPER's step) and their mean, which takes about a third less time at n = 200 for the
     same precision and recall on our benchmarks.
     """
     count = 0
@@ -407,15 +407,22 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
     return u, d, F_affinity
 
 
+def _edges_within(graph: ConsistencyGraph, nodes: np.ndarray) -> np.ndarray:
+    """Positions in the CSR arrays of the edges joining two of `nodes` (both directions)."""
+    member = np.zeros(graph.m, dtype=bool)
+    member[nodes] = True
+    starts, stops = graph.indptr[nodes], graph.indptr[nodes + 1]
+    lengths = stops - starts
+    # arange over each selected row, concatenated: row offsets plus a running index
+    edge_ids = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
+    return edge_ids[member[graph.indices[edge_ids]]]
+
+
 def _selection_score(graph: ConsistencyGraph, nodes: np.ndarray) -> float:
     """x'Mx / x'x for the indicator x of `nodes` on the original affinity."""
     if nodes.size == 0:
         return 0.0
-    member = np.zeros(graph.m, dtype=bool)
-    member[nodes] = True
-    starts, stops = graph.indptr[nodes], graph.indptr[nodes + 1]
-    edge_ids = np.concatenate([np.arange(a, b) for a, b in zip(starts, stops, strict=True)])
-    inside = edge_ids[member[graph.indices[edge_ids]]] if edge_ids.size else edge_ids
+    inside = _edges_within(graph, nodes)
     return float((graph.diag[nodes].sum() + graph.weights[inside].sum()) / nodes.size)
 
 
@@ -487,9 +494,6 @@ def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
         if downweight == 0.0:
             active[nodes] = False
         else:
-            member = np.zeros(graph.m, dtype=bool)
-            member[nodes] = True
-            rows = np.repeat(np.arange(graph.m), np.diff(graph.indptr))
-            weights[member[rows] & member[graph.indices]] *= downweight
+            weights[_edges_within(graph, nodes)] *= downweight
             diag[nodes] *= downweight
     return solutions

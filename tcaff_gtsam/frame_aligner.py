@@ -94,10 +94,12 @@ class FrameAligner:
             ego: map of robot i in its odometry frame.
             other: map of robot j in its odometry frame.
             now: seconds, current time on the clock of the maps' `last_seen`.
+        Raises:
+            DataError: `now` is not finite.
         """
         prm = self.params
-        ego_idx = np.flatnonzero(now - ego.last_seen < prm.kappa)
-        other_idx = np.flatnonzero(now - other.last_seen < prm.kappa)
+        ego_idx = ego.recent_indices(now, prm.kappa)
+        other_idx = other.recent_indices(now, prm.kappa)
         if min(ego_idx.size, other_idx.size) < prm.min_associations:
             return []
         ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)

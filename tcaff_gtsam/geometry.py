@@ -42,8 +42,9 @@ def _check_square(T: np.ndarray, sizes: tuple[int, ...], name: str,
     T = np.asarray(T, dtype=float)
     if (T.ndim < 2 or (single and T.ndim != 2) or T.shape[-1] != T.shape[-2]
             or T.shape[-1] not in sizes):
-        raise DataError(f"{name}: expected a (..., {sizes[0]}, {sizes[0]}) transform, "
-                        f"got shape {T.shape}")
+        expected = " or ".join(f"({s}, {s})" for s in sizes)
+        raise DataError(f"{name}: expected a {'' if single else 'stack of '}{expected} "
+                        f"transform{'' if single else 's'}, got shape {T.shape}")
     if not np.all(np.isfinite(T)):
         raise DataError(f"{name}: transform contains non-finite values")
     return T

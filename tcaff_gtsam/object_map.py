@@ -92,12 +92,16 @@ class ObjectMap:
         return ObjectMap(self.centroids[index], self.widths[index], self.heights[index],
                          self.last_seen[index])
 
-    def recent(self, now: float, kappa: float) -> ObjectMap:
-        """Objects seen less than `kappa` seconds before `now` (the paper's l < kappa)."""
+    def recent_indices(self, now: float, kappa: float) -> np.ndarray:
+        """(k,) int indices of objects seen less than `kappa` seconds before `now` (l < kappa)."""
         if not np.isfinite(now) or not np.isfinite(kappa) or kappa <= 0:
             raise DataError(f"ObjectMap.recent: need finite now and kappa > 0, "
                             f"got now={now}, kappa={kappa}")
-        return self.subset(now - self.last_seen < kappa)
+        return np.flatnonzero(now - self.last_seen < kappa)
+
+    def recent(self, now: float, kappa: float) -> ObjectMap:
+        """The objects of `recent_indices` as a map."""
+        return self.subset(self.recent_indices(now, kappa))
 
     def ages(self, now: float) -> np.ndarray:
         """(n,) seconds since each object was last seen; objects stamped after `now` count as 0.

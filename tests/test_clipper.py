@@ -172,3 +172,19 @@ def test_mno_scores_use_the_original_affinity():
         x = np.zeros(graph.m)
         x[solution.nodes] = 1.0
         assert solution.score == pytest.approx(x @ affinity @ x / (x @ x))
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_edges_within_a_node_set(seed):
+    from tcaff_gtsam.clipper import _edges_within
+
+    rng = np.random.default_rng(seed)
+    p, q, associations, _ = registration_problem(rng, 15, 0.8, 0.05)
+    graph = consistency_graph(p, q, associations)
+    nodes = np.sort(rng.choice(graph.m, rng.integers(1, graph.m), replace=False))
+    member = np.zeros(graph.m, bool)
+    member[nodes] = True
+    rows = np.repeat(np.arange(graph.m), np.diff(graph.indptr))
+    expected = np.flatnonzero(member[rows] & member[graph.indices])
+    np.testing.assert_array_equal(np.sort(_edges_within(graph, nodes)), expected)

@@ -7,7 +7,7 @@ import pytest
 from tcaff_gtsam.eval.sim.maps import grid_maps, overlapping_maps
 
 from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
-from tcaff_gtsam.errors import ConfigError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.frame_aligner import residual_covariance
 from tcaff_gtsam.geometry import compose, invert, se2_from_params, se2_to_params
 from tcaff_gtsam.registration import arun_weights, weighted_arun
@@ -74,6 +74,12 @@ def test_empty_and_single_object_maps_give_no_measurement():
     assert aligner.measurements(pair.ego, ObjectMap.empty(), pair.now) == []
     assert aligner.measurements(pair.ego.subset([0]), pair.other, pair.now) == []
     assert aligner.measurements(ObjectMap.empty(), ObjectMap.empty(), 0.0) == []
+
+
+def test_non_finite_time_is_an_error():
+    pair = overlapping_maps(np.random.default_rng(1), 30, 0.8, 0.05)
+    with pytest.raises(DataError, match="now"):
+        FrameAligner().measurements(pair.ego, pair.other, float("nan"))
 
 
 def test_ambiguous_grid_gives_truth_and_its_twin_but_no_mirror_image():

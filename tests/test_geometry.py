@@ -419,11 +419,7 @@ def test_transform_points_rejects_wrong_point_shapes(T, pts):
         transform_points(T, pts)
 
 
-def test_se3_from_xyz_quat_rejects_bad_position_with_data_error():
-    try:
-        se3_from_xyz_quat([1.0, 2.0], [1.0, 0.0, 0.0, 0.0])
-    except DataError:
-        return
-    except ValueError as exc:
-        raise AssertionError(f"raised {type(exc).__name__}, not DataError") from exc
-    raise AssertionError("no error raised")
+@pytest.mark.parametrize("xyz", [[1.0, 2.0], [1.0, np.nan, 0.0]])
+def test_se3_from_xyz_quat_rejects_bad_position_with_data_error(xyz):
+    with pytest.raises(DataError, match="position"):
+        se3_from_xyz_quat(xyz, [1.0, 0.0, 0.0, 0.0])
