@@ -1,7 +1,7 @@
 """tcaff-gtsam: robot frame alignment by temporal consistency (TCAFF) with a GTSAM back end.
 
-The estimation core: object maps, CLIPPER association, MNO-CLIPPER, weighted Arun and the
-frame aligner. No file formats beyond map save/load, no printing, no plotting.
+The estimation core: object maps, CLIPPER association, MNO-CLIPPER, weighted Arun, the frame
+aligner and the TCAFF filter. No file formats beyond map save/load, no printing, no plotting.
 """
 
 from .clipper import (
@@ -14,12 +14,16 @@ from .clipper import (
 from .errors import ConfigError, DataError, ModelError, TcaffError
 from .frame_aligner import AlignmentMeasurement, FrameAligner
 from .object_map import ObjectMap
-from .params import ClipperParams, FrameAlignerParams
+from .pairwise import PairwiseAligner
+from .params import ClipperParams, FrameAlignerParams, TCAFFParams
 from .registration import putative_associations, weighted_arun
+from .tcaff import TCAFF, AlignmentEstimate
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "TCAFF",
+    "AlignmentEstimate",
     "AlignmentMeasurement",
     "ClipperParams",
     "ClipperSolution",
@@ -30,6 +34,8 @@ __all__ = [
     "FrameAlignerParams",
     "ModelError",
     "ObjectMap",
+    "PairwiseAligner",
+    "TCAFFParams",
     "TcaffError",
     "clipper_solve",
     "consistency_graph",

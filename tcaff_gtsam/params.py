@@ -11,7 +11,12 @@ import numpy as np
 
 from .errors import ConfigError
 
-__all__ = ["ClipperParams", "FrameAlignerParams", "constant_alignment_covariance"]
+__all__ = [
+    "ClipperParams",
+    "FrameAlignerParams",
+    "TCAFFParams",
+    "constant_alignment_covariance",
+]
 
 
 def _require(condition: bool, owner: str, name: str, value, rule: str) -> None:
@@ -22,6 +27,19 @@ def _require(condition: bool, owner: str, name: str, value, rule: str) -> None:
 def constant_alignment_covariance() -> np.ndarray:
     """The original code's fixed measurement covariance diag(0.5 m, 0.5 m, 5 deg)^2, (3, 3)."""
     return np.diag([0.5**2, 0.5**2, math.radians(5.0) ** 2])
+
+
+def _alignment_process_noise() -> np.ndarray:
+    """Drift of T_oi_oj per step, diag(0.1 m, 0.1 m, 0.5 deg)^2, (3, 3) (the original's Q)."""
+    return np.diag([0.1**2, 0.1**2, math.radians(0.5) ** 2])
+
+
+def _check_spd(matrix, d: int, owner: str, name: str) -> np.ndarray:
+    M = np.asarray(matrix, dtype=float)
+    ok = (M.shape == (d, d) and bool(np.all(np.isfinite(M))) and np.allclose(M, M.T)
+          and bool(np.all(np.linalg.eigvalsh(M) > 0)))
+    _require(ok, owner, name, matrix, f"must be a symmetric positive definite ({d}, {d}) matrix")
+    return M
 
 
 @dataclass(frozen=True)
@@ -139,11 +157,7 @@ class FrameAlignerParams:
                  "must be > 0 metres or None")
         _require(self.covariance in ("constant", "residual"), o, "covariance", self.covariance,
                  "must be 'constant' or 'residual'")
-        R = np.asarray(self.R_constant, dtype=float)
-        _require(R.shape == (3, 3) and bool(np.all(np.isfinite(R))) and np.allclose(R, R.T)
-                 and bool(np.all(np.linalg.eigvalsh(R) > 0)), o, "R_constant", self.R_constant,
-                 "must be a symmetric positive definite (3, 3) matrix")
-        object.__setattr__(self, "R_constant", R)
+        object.__setattr__(self, "R_constant", _check_spd(self.R_constant, 3, o, "R_constant"))
         _require(self.residual_floor > 0, o, "residual_floor", self.residual_floor,
                  "must be > 0 metres")
 
@@ -151,3 +165,125 @@ class FrameAlignerParams:
     def reference(cls) -> FrameAlignerParams:
         """The authors' released settings, without this project's residual check."""
         return cls(max_rmse=None)
+
+
+def _int_at_least(value, low: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= low
+
+
+@dataclass(frozen=True)
+class TCAFFParams:
+    """Settings of the TCAFF filter (paper, "Multiple Hypothesis Formulation" and "Frame
+    Alignment Filter"). The defaults are the paper's equations and values; `reference()` is the
+    authors' released code, quirks included.
+
+    The state x has dimension d = Q.shape[0] (3 for (x [m], y [m], theta [rad]) of T_oi_oj);
+    motion and measurement models are the identity. Costs are in nats (negative log
+    likelihoods); lower is better.
+
+    Attributes:
+        window: W, steps a hypothesis is judged over. Each measurement seeds an exploring tree
+            that sees the next W steps; the main tree keeps W steps below its root.
+        max_leaves: B, leaves kept in the main tree.
+        max_children: measurement children per main-tree leaf (the best gated ones), besides the
+            one no-measurement child every leaf gets.
+        explore_max_leaves, explore_max_children: the same for each exploring tree.
+        p_no_measurement: p_NM; a no-measurement child costs -log p_NM - d/2 log 2 pi.
+        tau: an exploring tree whose best path cost over W steps is below tau becomes the main
+            tree when there is none.
+        Q: (d, d) process noise per step (random-walk drift of the alignment).
+        P0: (d, d) covariance of an exploring tree's root, which is the seeding measurement.
+        angle_indices: state components that are angles (residuals and states are wrapped).
+        gate: "mahalanobis" admits a measurement when its squared Mahalanobis distance under
+            S = P + Q + R is within the chi-square quantile `gate_probability`; "box" when
+            every |z_a - x_a| <= gate_box[a] (the original's rule; None is 2.0 for every
+            component, as there, radians included).
+        cost_model: "paper" is the cost of the paper's final equation with S = P + Q + R;
+            "reference" reproduces the released code: squared Mahalanobis distance squared
+            again, S = P + R, diagonal-only inverses and determinants, + d/2 log 2 pi on
+            measurement children and -log p_NM on no-measurement children.
+        promotion: "branch" makes the accepted exploring tree the main tree as it is;
+            "reseed" (released code) starts a fresh tree at the accepted tree's first state
+            with covariance P0 and replays the window's measurements (one step twice).
+        drop_rule, drop_after: the main tree is dropped when its best path has held no
+            measurement for `drop_after` steps ("best_path"), or (released code, "window")
+            when the best path's whole window has been empty for more than `drop_after`
+            consecutive steps.
+        switch_after: while a main tree exists, switch to an exploring hypothesis that is
+            inconsistent with it (Mahalanobis test at `gate_probability`), below tau, and
+            better by `switch_margin` nats for this many consecutive steps. None never re-checks
+            (released code).
+        switch_margin: nats.
+    """
+
+    window: int = 8
+    max_leaves: int = 200
+    max_children: int = 4
+    explore_max_leaves: int = 50
+    explore_max_children: int = 2
+    p_no_measurement: float = 0.001
+    tau: float = 8.0
+    Q: np.ndarray = field(default_factory=_alignment_process_noise)
+    P0: np.ndarray = field(default_factory=constant_alignment_covariance)
+    angle_indices: tuple[int, ...] = (2,)
+    gate: Literal["mahalanobis", "box"] = "mahalanobis"
+    gate_probability: float = 0.999
+    gate_box: tuple[float, ...] | None = None
+    cost_model: Literal["paper", "reference"] = "paper"
+    promotion: Literal["branch", "reseed"] = "branch"
+    drop_rule: Literal["best_path", "window"] = "best_path"
+    drop_after: int = 40
+    switch_after: int | None = 3
+    switch_margin: float = 5.0
+
+    def __post_init__(self) -> None:
+        o = "TCAFFParams"
+        Q = np.asarray(self.Q, dtype=float)
+        _require(Q.ndim == 2 and Q.shape[0] == Q.shape[1] and Q.shape[0] >= 1, o, "Q", self.Q,
+                 "must be a square (d, d) matrix")
+        d = Q.shape[0]
+        object.__setattr__(self, "Q", _check_spd(Q, d, o, "Q"))
+        object.__setattr__(self, "P0", _check_spd(self.P0, d, o, "P0"))
+        for name, low in (("window", 1), ("max_leaves", 1), ("max_children", 1),
+                          ("explore_max_leaves", 1), ("explore_max_children", 1),
+                          ("drop_after", 1)):
+            value = getattr(self, name)
+            _require(_int_at_least(value, low), o, name, value, f"must be an int >= {low}")
+        _require(0 < self.p_no_measurement < 1, o, "p_no_measurement", self.p_no_measurement,
+                 "must be in (0, 1)")
+        _require(math.isfinite(self.tau), o, "tau", self.tau, "must be a finite number")
+        angles = tuple(self.angle_indices)
+        _require(all(isinstance(a, int) and 0 <= a < d for a in angles)
+                 and len(set(angles)) == len(angles), o, "angle_indices", self.angle_indices,
+                 f"must be distinct ints in [0, {d})")
+        object.__setattr__(self, "angle_indices", angles)
+        _require(self.gate in ("mahalanobis", "box"), o, "gate", self.gate,
+                 "must be 'mahalanobis' or 'box'")
+        _require(0 < self.gate_probability < 1, o, "gate_probability", self.gate_probability,
+                 "must be in (0, 1)")
+        box = (2.0,) * d if self.gate_box is None else tuple(
+            float(v) for v in np.atleast_1d(self.gate_box))
+        _require(len(box) == d and all(v > 0 for v in box), o, "gate_box", self.gate_box,
+                 f"must hold {d} numbers > 0")
+        object.__setattr__(self, "gate_box", box)
+        _require(self.cost_model in ("paper", "reference"), o, "cost_model", self.cost_model,
+                 "must be 'paper' or 'reference'")
+        _require(self.promotion in ("branch", "reseed"), o, "promotion", self.promotion,
+                 "must be 'branch' or 'reseed'")
+        _require(self.drop_rule in ("best_path", "window"), o, "drop_rule", self.drop_rule,
+                 "must be 'best_path' or 'window'")
+        _require(self.switch_after is None or _int_at_least(self.switch_after, 1), o,
+                 "switch_after", self.switch_after, "must be an int >= 1 or None")
+        _require(self.switch_margin >= 0 and math.isfinite(self.switch_margin), o,
+                 "switch_margin", self.switch_margin, "must be a finite number >= 0")
+
+    @property
+    def dim(self) -> int:
+        """d, the dimension of the state and of every measurement."""
+        return self.Q.shape[0]
+
+    @classmethod
+    def reference(cls) -> TCAFFParams:
+        """The authors' released code: its threshold, gate, cost, promotion and deletion."""
+        return cls(tau=9.0, gate="box", cost_model="reference", promotion="reseed",
+                   drop_rule="window", drop_after=40, switch_after=None)

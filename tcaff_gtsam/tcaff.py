@@ -1,0 +1,407 @@
+"""TCAFF: the temporally consistent alignment of frames filter (paper, "Multiple Hypothesis
+Formulation" and "Frame Alignment Filter").
+
+Each step brings a set of candidate measurements z (from MNO-CLIPPER), at most one of them
+correct. Hypotheses are sequences of choices (one measurement or none per step) filtered by a
+Kalman filter with identity motion; a sequence costs the sum over steps of
+
+    1/2 (|z - x|^2_S + log |S|),  S = P + Q + R,     for a measurement,
+    -log p_NM - d/2 log 2 pi                          for no measurement
+
+(the paper's final equation). Every measurement seeds an exploring tree; when, W steps later,
+the best path of some exploring tree costs less than tau, that tree becomes the main tree and
+its best leaf is the estimate. Before that, the filter has no estimate.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import deque
+from dataclasses import asdict, dataclass
+from itertools import pairwise
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from .errors import DataError, TcaffError
+from .geometry import se2_from_params, wrap_angle
+from .hypothesis_tree import (
+    BEFORE_ROOT,
+    CostModel,
+    Leaves,
+    best_per_tree,
+    branch,
+    extend,
+    lowest,
+    measurement_costs,
+    seed,
+)
+from .params import TCAFFParams
+
+__all__ = ["TCAFF", "AlignmentEstimate"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class AlignmentEstimate:
+    """The filter's estimate at one step.
+
+    Attributes:
+        x: (d,) state; for frame alignment (x [m], y [m], theta [rad]) of T_oi_oj.
+        P: (d, d) its covariance.
+        cost: path cost of the best hypothesis over the window (nats).
+        hypothesis: id of the main tree that produced it; it changes when the filter accepts a
+            new main tree (after a drop or a switch).
+        step: number of updates so far (1 for the first).
+        n_measurements: measurements on the best path within the window.
+        measurement: index of this step's measurement on the best path, -1 if none.
+    """
+
+    x: np.ndarray
+    P: np.ndarray
+    cost: float
+    hypothesis: int
+    step: int
+    n_measurements: int
+    measurement: int
+
+    @property
+    def T(self) -> np.ndarray:
+        """(3, 3) SE(2) matrix of a 3-dimensional (x, y, theta) state."""
+        if self.x.shape != (3,):
+            raise TcaffError(f"AlignmentEstimate.T needs an (x, y, theta) state, got shape "
+                             f"{self.x.shape}")
+        return se2_from_params(self.x)
+
+
+class TCAFF:
+    """The multiple-hypothesis filter for one directed robot pair (or any identity-motion state
+    whose measurements may be wrong and are told apart by temporal consistency).
+
+    Call `update` once per step with that step's measurements, in order.
+    """
+
+    def __init__(self, params: TCAFFParams | None = None) -> None:
+        self.params = params or TCAFFParams()
+        prm = self.params
+        d = prm.dim
+        angular = np.zeros(d, dtype=bool)
+        angular[list(prm.angle_indices)] = True
+        nm_cost = -np.log(prm.p_no_measurement)
+        if prm.cost_model == "paper":
+            nm_cost -= 0.5 * d * np.log(2.0 * np.pi)
+        self._model = CostModel(
+            Q=prm.Q, angular=angular, reference=prm.cost_model == "reference",
+            use_box=prm.gate == "box", gate_chi2=float(chi2.ppf(prm.gate_probability, d)),
+            gate_box=np.array(prm.gate_box), no_measurement_cost=float(nm_cost))
+        self._columns = prm.window + 1
+        self.reset()
+
+    # -- public --------------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget everything: no main tree, no exploring trees, step 0."""
+        d = self.params.dim
+        self.step = 0
+        self.hypothesis = 0
+        self.last_event: str | None = None
+        self._main: Leaves | None = None
+        self._explore = Leaves.empty(d, self._columns)
+        self._explore_current = True
+        self._next_tree = 0
+        self._switch_streak = 0
+        self._empty_windows = 0
+        self._bank: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self._columns)
+        self._estimate: AlignmentEstimate | None = None
+
+    @property
+    def estimate(self) -> AlignmentEstimate | None:
+        """The estimate of the latest step, or None."""
+        return self._estimate
+
+    def update(self, zs, Rs) -> AlignmentEstimate | None:
+        """One step.
+
+        Args:
+            zs: (k, d) measurements (k may be 0; an empty list is fine), angles in radians.
+            Rs: (k, d, d) their covariances, symmetric positive definite.
+        Returns:
+            The estimate from the main tree's best leaf, or None while there is no main tree.
+        Raises:
+            DataError: wrong shapes, non-finite values, R not symmetric positive definite.
+        """
+        zs, Rs = self._validated(zs, Rs)
+        prm = self.params
+        self.step += 1
+        self.last_event = None
+        self._bank.append((zs, Rs))
+        if self._main is not None and self._main_is_stale():
+            log.debug("step %d: main tree %d dropped", self.step, self.hypothesis)
+            self._main = None
+            self.last_event = "dropped"
+            if not self._explore_current:
+                self._rebuild_exploring()
+        if self._main is not None:
+            self._main = extend(self._main, zs, Rs, self._model, prm.max_children,
+                                self._slide_and_cap)
+        if self._main is None or prm.switch_after is not None:
+            complete = self._advance_exploring(zs, Rs)
+            self._judge(complete)
+            self._explore_current = True
+        else:
+            self._explore_current = False
+        self._estimate = self._main_estimate()
+        if self._estimate is not None:
+            has_measurement = self._estimate.n_measurements > 0
+            self._empty_windows = 0 if has_measurement else self._empty_windows + 1
+        return self._estimate
+
+    # -- exploring trees -----------------------------------------------------------------------
+
+    def _advance_exploring(self, zs: np.ndarray, Rs: np.ndarray) -> Leaves:
+        """Extend the exploring trees by one step and seed one per measurement; return (and
+        remove) the trees whose root is now W steps old.
+
+        While there is a main tree, only measurements its best leaf gates out seed trees: the
+        others start hypotheses consistent with it, which can never be grounds for a switch.
+        """
+        prm = self.params
+        explore = extend(self._explore, zs, Rs, self._model, prm.explore_max_children,
+                         lambda cost, _, tree: best_per_tree(cost, tree, prm.explore_max_leaves))
+        done = explore.choice[:, 0] != BEFORE_ROOT
+        index = np.arange(zs.shape[0])
+        if self._main is not None:
+            best = self._main.take([int(np.argmin(self._main.cost))])
+            index = index[~np.isfinite(measurement_costs(best, zs, Rs, self._model)[0])]
+        ids = self._next_tree + np.arange(index.size)
+        self._next_tree += index.size
+        seeds = seed(zs[index], prm.P0, ids, index, self._columns)
+        self._explore = Leaves.concat([explore.take(~done), seeds])
+        return explore.take(done)
+
+    def _rebuild_exploring(self) -> None:
+        """Replay the stored steps (all but the current one) into fresh exploring trees."""
+        self._explore = Leaves.empty(self.params.dim, self._columns)
+        for zs, Rs in list(self._bank)[:-1]:
+            self._advance_exploring(zs, Rs)
+
+    def _judge(self, complete: Leaves) -> None:
+        """Accept a complete exploring tree as the main tree, or switch to one."""
+        prm = self.params
+        if len(complete) == 0:
+            self._switch_streak = 0
+            return
+        cost = complete.cost
+        if self._main is None:
+            best = int(np.argmin(cost))
+            if cost[best] < prm.tau:
+                self._accept(complete, best)
+                self.last_event = "accepted"
+            return
+        main_cost = self._main.cost
+        m = int(np.argmin(main_cost))
+        r = complete.x - self._main.x[m]
+        r[:, self._model.angular] = wrap_angle(r[:, self._model.angular])
+        S = complete.P + self._main.P[m]
+        maha = np.einsum("li,li->l", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+        rival = (maha > self._model.gate_chi2) & (cost < prm.tau) & (
+            cost + prm.switch_margin < main_cost[m])
+        if not rival.any():
+            self._switch_streak = 0
+            return
+        self._switch_streak += 1
+        if self._switch_streak >= prm.switch_after:
+            best = int(np.flatnonzero(rival)[np.argmin(cost[rival])])
+            log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
+                      self.step, self.hypothesis, main_cost[m], cost[best])
+            self._accept(complete, best)
+            self.last_event = "switched"
+
+    def _accept(self, complete: Leaves, best: int) -> None:
+        prm = self.params
+        self.hypothesis += 1
+        self._switch_streak = 0
+        self._empty_windows = 0
+        tree = complete.take(complete.tree == complete.tree[best])
+        best = int(np.argmin(tree.cost))
+        if prm.promotion == "branch":
+            main = tree.take(branch(tree.choice, best))
+        else:
+            main = self._reseeded(tree, best)
+        main.tree[:] = self.hypothesis
+        self._main = main
+
+    def _reseeded(self, tree: Leaves, best: int) -> Leaves:
+        """The released code's promotion: a fresh tree at the state after the accepted path's
+        first step, covariance P0, fed the window's measurements again (that first step too)."""
+        prm = self.params
+        steps = list(self._bank)
+        z_root, _ = steps[0]
+        root = seed(z_root[tree.choice[best, 0]][None], prm.P0, np.zeros(1), np.zeros(1),
+                    self._columns)
+        z1, R1 = steps[1]
+        first = extend(root, z1, R1, self._model, max(z1.shape[0], 1),
+                       lambda _, choice, __: np.flatnonzero(choice[:, -1] == tree.choice[best, 1]))
+        main = seed(first.x, prm.P0, np.zeros(1), np.zeros(1), self._columns)
+        for zs, Rs in steps[1:]:
+            main = extend(main, zs, Rs, self._model, prm.max_children, self._slide_and_cap)
+        return main
+
+    def _slide_and_cap(self, cost: np.ndarray, choice: np.ndarray, _) -> np.ndarray:
+        """Main-tree pruning: once the window is full keep the best leaf's branch of the root,
+        then the B best leaves."""
+        keep = np.arange(cost.size)
+        if choice[0, 0] != BEFORE_ROOT:
+            keep = branch(choice, int(np.argmin(cost)))
+        return keep[lowest(cost[keep], self.params.max_leaves)]
+
+    # -- main tree -----------------------------------------------------------------------------
+
+    def _main_is_stale(self) -> bool:
+        """Checked before the main tree takes the new step, on its best path so far."""
+        prm = self.params
+        main = self._main
+        best = int(np.argmin(main.cost))
+        if prm.drop_rule == "best_path":
+            return bool(main.since[best] >= prm.drop_after)
+        return self._empty_windows > prm.drop_after
+
+    def _main_estimate(self) -> AlignmentEstimate | None:
+        if self._main is None:
+            return None
+        main = self._main
+        cost = main.cost
+        best = int(np.argmin(cost))
+        path = main.choice[best, 1:]
+        return AlignmentEstimate(main.x[best].copy(), main.P[best].copy(), float(cost[best]),
+                                 self.hypothesis, self.step, int(np.count_nonzero(path >= 0)),
+                                 int(path[-1]))
+
+    # -- input and state -----------------------------------------------------------------------
+
+    def _validated(self, zs, Rs) -> tuple[np.ndarray, np.ndarray]:
+        d = self.params.dim
+        try:
+            zs = np.asarray(zs, dtype=float)
+            Rs = np.asarray(Rs, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"TCAFF.update: zs and Rs must be numeric arrays ({exc})") from None
+        if zs.size == 0 and Rs.size == 0:
+            return np.empty((0, d)), np.empty((0, d, d))
+        if zs.ndim != 2 or zs.shape[1] != d:
+            raise DataError(f"TCAFF.update: zs must have shape (k, {d}), got {zs.shape}")
+        k = zs.shape[0]
+        if Rs.shape != (k, d, d):
+            raise DataError(f"TCAFF.update: Rs must have shape ({k}, {d}, {d}) to match zs, "
+                            f"got {Rs.shape}")
+        bad = np.argwhere(~np.isfinite(zs))
+        if bad.size:
+            i, a = bad[0]
+            raise DataError(f"TCAFF.update: zs[{i}, {a}] = {zs[i, a]} is not finite")
+        bad = np.argwhere(~np.isfinite(Rs))
+        if bad.size:
+            i, a, b = bad[0]
+            raise DataError(f"TCAFF.update: Rs[{i}, {a}, {b}] = {Rs[i, a, b]} is not finite")
+        asym = np.abs(Rs - Rs.transpose(0, 2, 1)) > 1e-9 * (1.0 + np.abs(Rs))
+        if asym.any():
+            i = int(np.argwhere(asym)[0, 0])
+            raise DataError(f"TCAFF.update: Rs[{i}] is not symmetric: {Rs[i].tolist()}")
+        eig_min = np.linalg.eigvalsh(Rs)[:, 0]
+        if (eig_min <= 0).any():
+            i = int(np.flatnonzero(eig_min <= 0)[0])
+            raise DataError(f"TCAFF.update: Rs[{i}] is not positive definite (smallest "
+                            f"eigenvalue {eig_min[i]:.3g})")
+        zs = zs.copy()
+        angles = list(self.params.angle_indices)
+        zs[:, angles] = wrap_angle(zs[:, angles])
+        return zs, np.ascontiguousarray(Rs)
+
+    _LEAF_FIELDS = ("x", "P", "choice", "edge", "since", "tree")
+    _COUNTERS = ("step", "hypothesis", "_next_tree", "_switch_streak", "_empty_windows",
+                 "_explore_current")
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Everything the filter remembers, as arrays (restore with `load_state_dict`)."""
+        state: dict[str, np.ndarray] = {c: np.array(int(getattr(self, c))) for c in self._COUNTERS}
+        state["has_main"] = np.array(self._main is not None)
+        for name, leaves in (("main", self._main), ("explore", self._explore)):
+            if leaves is not None:
+                for f in self._LEAF_FIELDS:
+                    state[f"{name}.{f}"] = getattr(leaves, f)
+        sizes = [zs.shape[0] for zs, _ in self._bank]
+        state["bank.sizes"] = np.array(sizes, dtype=np.int64)
+        d = self.params.dim
+        state["bank.zs"] = np.concatenate([zs for zs, _ in self._bank] or [np.empty((0, d))])
+        state["bank.Rs"] = np.concatenate([Rs for _, Rs in self._bank]
+                                          or [np.empty((0, d, d))])
+        return state
+
+    def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
+        """Restore a state from `state_dict` (of a filter with the same parameters).
+
+        Raises:
+            DataError: missing entries or arrays of the wrong shape.
+        """
+        d, columns = self.params.dim, self._columns
+        try:
+            counters = {c: int(state[c]) for c in self._COUNTERS}
+            has_main = bool(state["has_main"])
+            parts = {}
+            for name in ("main", "explore") if has_main else ("explore",):
+                parts[name] = Leaves(*(np.asarray(state[f"{name}.{f}"])
+                                       for f in self._LEAF_FIELDS))
+            sizes = np.asarray(state["bank.sizes"], dtype=np.int64)
+            bank_zs, bank_Rs = np.asarray(state["bank.zs"]), np.asarray(state["bank.Rs"])
+        except KeyError as exc:
+            raise DataError(f"TCAFF state: missing entry {exc}") from None
+        for name, leaves in parts.items():
+            counts = {f: np.shape(getattr(leaves, f))[:1] for f in self._LEAF_FIELDS}
+            if len(set(counts.values())) != 1:
+                raise DataError(f"TCAFF state: the {name} arrays disagree on the number of "
+                                f"leaves: {counts}")
+            L = len(leaves)
+            shapes = {"x": (L, d), "P": (L, d, d), "choice": (L, columns),
+                      "edge": (L, columns), "since": (L,), "tree": (L,)}
+            for f, shape in shapes.items():
+                if getattr(leaves, f).shape != shape:
+                    raise DataError(f"TCAFF state: {name}.{f} has shape "
+                                    f"{getattr(leaves, f).shape}, expected {shape} (window "
+                                    f"{self.params.window}, d = {d})")
+        if (sizes.ndim != 1 or sizes.size > columns or bank_zs.shape != (sizes.sum(), d)
+                or bank_Rs.shape != (sizes.sum(), d, d)):
+            raise DataError("TCAFF state: the stored measurements do not match bank.sizes")
+        for c, value in counters.items():
+            setattr(self, c, bool(value) if c == "_explore_current" else value)
+        self._main = parts.get("main")
+        self._explore = parts["explore"]
+        bounds = np.r_[0, np.cumsum(sizes)]
+        self._bank = deque(((bank_zs[a:b], bank_Rs[a:b]) for a, b in pairwise(bounds)),
+                           maxlen=columns)
+        self.last_event = None
+        self._estimate = self._main_estimate()
+
+    def save(self, path: str | Path) -> None:
+        """Write parameters and state to an .npz file."""
+        params = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                  for k, v in asdict(self.params).items()}
+        np.savez_compressed(path, params=np.array(json.dumps(params)), **self.state_dict())
+
+    @classmethod
+    def load(cls, path: str | Path) -> TCAFF:
+        """Read a filter written by `save`.
+
+        Raises:
+            DataError: the file is missing, corrupt or not a saved filter.
+        """
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                state = {k: data[k] for k in data.files}
+            params = TCAFFParams(**json.loads(str(state.pop("params"))))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise DataError(f"{path}: not a saved TCAFF filter ({exc})") from None
+        filt = cls(params)
+        filt.load_state_dict(state)
+        return filt

@@ -1,0 +1,275 @@
+"""TCAFF on generated measurement streams: acceptance, accuracy, rejection, recovery, presets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from tcaff_gtsam.eval.sim.streams import alignment_stream, wrong_alignments
+
+from tcaff_gtsam import TCAFF, TCAFFParams
+from tcaff_gtsam.errors import ConfigError, DataError, TcaffError
+from tcaff_gtsam.geometry import wrap_angle
+from tcaff_gtsam.params import constant_alignment_covariance
+
+R_CONSTANT = constant_alignment_covariance()  # what the frame aligner gives by default
+R_HONEST = np.diag([0.2**2, 0.2**2, np.radians(2.0) ** 2])  # the streams' actual noise
+SLOW_DRIFT = np.diag([0.005**2, 0.005**2, np.radians(0.05) ** 2])
+
+
+def run(filt: TCAFF, zs_per_step, R=R_CONSTANT):
+    """Estimates per step (None where there is none)."""
+    return [filt.update(zs, np.broadcast_to(R, (len(zs), 3, 3))) for zs in zs_per_step]
+
+
+def errors(estimates, truth):
+    """(m, 2) translation [m] and absolute heading [deg] errors of the steps with an estimate."""
+    rows = []
+    for est, x in zip(estimates, truth, strict=True):
+        if est is not None:
+            e = est.x - x
+            rows.append((np.hypot(e[0], e[1]), abs(np.degrees(wrap_angle(e[2])))))
+    return np.array(rows).reshape(-1, 2)
+
+
+def first_estimate(estimates) -> int | None:
+    """1-based update number of the first estimate."""
+    return next((i + 1 for i, est in enumerate(estimates) if est is not None), None)
+
+
+@pytest.mark.parametrize("params", [TCAFFParams(), TCAFFParams.reference()],
+                         ids=["default", "reference"])
+def test_no_estimate_before_the_window_has_passed(params):
+    stream = alignment_stream(np.random.default_rng(0), 30, p_empty=0.0, outliers=(0, 0))
+    estimates = run(TCAFF(params), stream.zs)
+    W = params.window
+    assert all(est is None for est in estimates[:W])
+    assert first_estimate(estimates) == W + 1  # every step consistent: accepted at once
+
+
+@pytest.mark.parametrize("Q, R, max_t, max_deg", [
+    (None, R_CONSTANT, 0.1, 1.0),        # defaults, the aligner's constant R
+    (SLOW_DRIFT, R_HONEST, 0.07, 0.5),   # Q and R telling the truth about the stream
+], ids=["default", "tuned"])
+def test_accuracy_after_acceptance(Q, R, max_t, max_deg):
+    params = TCAFFParams() if Q is None else TCAFFParams(Q=Q)
+    for seed in range(5):
+        stream = alignment_stream(np.random.default_rng(seed), 300)
+        estimates = run(TCAFF(params), stream.zs, R)
+        err = errors(estimates, stream.truth)
+        assert len(err) > 0.9 * len(stream)
+        assert err[:, 0].mean() <= max_t, f"seed {seed}"
+        assert err[:, 1].mean() <= max_deg, f"seed {seed}"
+
+
+@pytest.mark.parametrize("params", [TCAFFParams(), TCAFFParams.reference()],
+                         ids=["default", "reference"])
+@pytest.mark.parametrize("spread", [15.0, 3.0])
+def test_temporally_inconsistent_measurements_give_no_estimate(params, spread):
+    rng = np.random.default_rng(7)
+    zs = [wrong_alignments(rng, int(rng.integers(1, 5)), spread) for _ in range(1500)]
+    estimates = run(TCAFF(params), zs)
+    assert sum(est is not None for est in estimates) < 0.01 * len(zs)
+
+
+def steps_to_recover(estimates, truth, start, tol_t=0.5, tol_deg=5.0):
+    for i in range(start, len(estimates)):
+        est = estimates[i]
+        if est is not None:
+            e = est.x - truth[i]
+            if np.hypot(e[0], e[1]) < tol_t and abs(np.degrees(wrap_angle(e[2]))) < tol_deg:
+                return i - start + 1
+    return None
+
+
+def test_recovers_after_a_jump_within_20_steps():
+    """W (8) steps to judge the new hypothesis, 3 to confirm the switch, a few empty steps."""
+    jump = (3.0, -2.0, np.radians(40.0))
+    for seed in range(10):
+        stream = alignment_stream(np.random.default_rng(seed), 300, jumps={150: jump})
+        filt = TCAFF()
+        estimates = run(filt, stream.zs)
+        steps = steps_to_recover(estimates, stream.truth, 150)
+        assert steps is not None and steps <= 20, f"seed {seed}: {steps}"
+        assert estimates[-1].hypothesis == 2  # accepted once, switched once
+        assert errors(estimates[150 + steps:], stream.truth[150 + steps:])[:, 0].max() < 0.5
+
+
+def test_reference_preset_keeps_a_wrong_hypothesis_for_40_steps_after_a_jump():
+    jump = (3.0, -2.0, np.radians(40.0))
+    for seed in range(5):
+        stream = alignment_stream(np.random.default_rng(seed), 300, jumps={150: jump})
+        estimates = run(TCAFF(TCAFFParams.reference()), stream.zs)
+        steps = steps_to_recover(estimates, stream.truth, 150)
+        assert steps is not None and steps > 40, f"seed {seed}: {steps}"
+
+
+def test_reference_deletes_the_main_tree_after_40_empty_windows():
+    W = 8
+    stream = alignment_stream(np.random.default_rng(3), 30, p_empty=0.0, outliers=(0, 0))
+    zs = stream.zs + [np.empty((0, 3))] * 100
+    estimates = run(TCAFF(TCAFFParams.reference()), zs)
+    last = max(i + 1 for i, est in enumerate(estimates) if est is not None)
+    # The window holds step 30 until step 30 + W - 1; from step 30 + W on it is empty. As in
+    # the released code the count of empty windows must exceed 40 (at step 30 + W + 40) before
+    # the tree is deleted, at the start of the next step.
+    assert last == 30 + W + 40
+    assert all(est is None for est in estimates[last:])
+
+
+def test_default_drops_the_main_tree_after_drop_after_steps_without_measurement():
+    stream = alignment_stream(np.random.default_rng(3), 30, p_empty=0.0, outliers=(0, 0))
+    zs = stream.zs + [np.empty((0, 3))] * 60
+    filt = TCAFF(TCAFFParams(drop_after=25))
+    estimates = run(filt, zs)
+    last = max(i + 1 for i, est in enumerate(estimates) if est is not None)
+    assert last == 30 + 25
+    assert filt.estimate is None
+
+
+def test_a_gap_shorter_than_drop_after_keeps_the_estimate_and_its_accuracy():
+    stream = alignment_stream(np.random.default_rng(11), 200, p_empty=0.1)
+    zs = [z if not 80 <= t < 110 else np.empty((0, 3)) for t, z in enumerate(stream.zs)]
+    estimates = run(TCAFF(), zs)
+    assert all(est is not None for est in estimates[80:110])
+    assert estimates[109].P[0, 0] > estimates[79].P[0, 0]  # uncertainty grew over the gap
+    err = errors(estimates[115:], stream.truth[115:])
+    assert err[:, 0].mean() < 0.1 and err[:, 1].mean() < 1.0
+
+
+def test_a_long_gap_drops_and_then_reacquires():
+    stream = alignment_stream(np.random.default_rng(12), 200, p_empty=0.0)
+    zs = [z if not 50 <= t < 120 else wrong_alignments(np.random.default_rng(t), 2)
+          for t, z in enumerate(stream.zs)]
+    filt = TCAFF()
+    estimates = run(filt, zs)
+    assert estimates[100] is None
+    assert steps_to_recover(estimates, stream.truth, 120) == TCAFFParams().window + 1
+    assert estimates[-1].hypothesis == 2
+
+
+def test_heading_near_pi():
+    """The truth sits at the wrap-around; measurements fall on both sides of it."""
+    stream = alignment_stream(np.random.default_rng(5), 200, x0=(1.0, 2.0, np.pi - 0.01))
+    assert (np.array([z[:, 2].min() for z in stream.zs if len(z)]) < -3.0).any()
+    estimates = run(TCAFF(), stream.zs)
+    err = errors(estimates, stream.truth)
+    assert len(err) > 180
+    assert err[:, 0].mean() < 0.1 and err[:, 1].mean() < 1.0
+    assert all(-np.pi <= est.x[2] < np.pi for est in estimates if est is not None)
+
+
+def test_estimate_fields_follow_the_best_path():
+    stream = alignment_stream(np.random.default_rng(2), 40, p_empty=0.0, outliers=(2, 2))
+    filt = TCAFF()
+    estimates = run(filt, stream.zs)
+    last = estimates[-1]
+    assert last.step == 40 and last.hypothesis == 1
+    assert last.measurement == stream.correct[-1]
+    assert last.n_measurements == TCAFFParams().window
+    assert last.T.shape == (3, 3)
+    np.testing.assert_allclose(last.P, last.P.T)
+    assert np.all(np.linalg.eigvalsh(last.P) > 0)
+
+
+def test_generic_dimension_tracks_a_1d_level_among_clutter():
+    """d = 1, no angles: a slowly varying level observed among uniform clutter."""
+    rng = np.random.default_rng(4)
+    params = TCAFFParams(Q=np.array([[1e-4]]), P0=np.array([[0.25]]), angle_indices=())
+    filt = TCAFF(params)
+    level, errs = 5.0, []
+    for t in range(200):
+        level += rng.normal(0, 0.01)
+        zs = np.r_[level + rng.normal(0, 0.1), rng.uniform(-50, 50, 3)][:, None]
+        est = filt.update(zs, np.full((4, 1, 1), 0.1**2))
+        if t > 20:
+            errs.append(abs(est.x[0] - level))
+    assert np.mean(errs) < 0.05
+    with pytest.raises(TcaffError, match="needs an"):
+        _ = est.T
+
+
+def test_state_save_and_restore_continue_identically(tmp_path):
+    stream = alignment_stream(np.random.default_rng(9), 120, jumps={70: (2.0, 0.0, 0.5)})
+    Rs = [np.broadcast_to(R_CONSTANT, (len(z), 3, 3)) for z in stream.zs]
+    for params in (TCAFFParams(), TCAFFParams.reference()):
+        a = TCAFF(params)
+        for zs, R in zip(stream.zs[:60], Rs[:60], strict=True):
+            a.update(zs, R)
+        b = TCAFF(params)
+        b.load_state_dict(a.state_dict())
+        a.save(tmp_path / "filter.npz")
+        c = TCAFF.load(tmp_path / "filter.npz")
+        assert c.params.cost_model == params.cost_model
+        np.testing.assert_array_equal(b.estimate.x, a.estimate.x)
+        for zs, R in zip(stream.zs[60:], Rs[60:], strict=True):
+            ea, eb, ec = a.update(zs, R), b.update(zs, R), c.update(zs, R)
+            assert (ea is None) == (eb is None) == (ec is None)
+            if ea is not None:
+                np.testing.assert_array_equal(ea.x, eb.x)
+                np.testing.assert_array_equal(ea.x, ec.x)
+                assert ea.hypothesis == eb.hypothesis == ec.hypothesis
+
+
+def test_corrupt_state_is_a_data_error(tmp_path):
+    filt = TCAFF()
+    state = filt.state_dict()
+    del state["step"]
+    with pytest.raises(DataError, match="missing entry"):
+        TCAFF().load_state_dict(state)
+    state = filt.state_dict()
+    state["explore.x"] = np.zeros((2, 3))
+    with pytest.raises(DataError, match="explore arrays disagree"):
+        TCAFF().load_state_dict(state)
+    state = filt.state_dict()
+    state["explore.choice"] = np.zeros((0, 4), np.int32)
+    with pytest.raises(DataError, match=r"explore.choice has shape \(0, 4\), expected \(0, 9\)"):
+        TCAFF().load_state_dict(state)
+    (tmp_path / "bad.npz").write_bytes(b"not a zip file")
+    with pytest.raises(DataError, match="not a saved TCAFF filter"):
+        TCAFF.load(tmp_path / "bad.npz")
+
+
+def test_zero_measurements_is_a_normal_step():
+    filt = TCAFF()
+    assert filt.update([], []) is None
+    assert filt.update(np.empty((0, 3)), np.empty((0, 3, 3))) is None
+    assert filt.step == 2
+
+
+@pytest.mark.parametrize("zs, Rs, match", [
+    (np.zeros((2, 2)), np.zeros((2, 3, 3)), r"zs must have shape \(k, 3\)"),
+    (np.zeros((2, 3)), np.broadcast_to(np.eye(3), (3, 3, 3)), r"Rs must have shape \(2, 3, 3\)"),
+    (np.array([[0.0, np.nan, 0.0]]), np.eye(3)[None], r"zs\[0, 1\] = nan"),
+    (np.zeros((1, 3)), np.diag([1.0, np.inf, 1.0])[None], r"Rs\[0, 1, 1\] = inf"),
+    (np.zeros((1, 3)), np.diag([1.0, -1.0, 1.0])[None], "not positive definite"),
+    (np.zeros((1, 3)), np.array([[[1.0, 0.5, 0], [0, 1, 0], [0, 0, 1]]]), "not symmetric"),
+    ("abc", np.eye(3)[None], "numeric"),
+])
+def test_bad_input_is_a_data_error(zs, Rs, match):
+    with pytest.raises(DataError, match=match):
+        TCAFF().update(zs, Rs)
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"window": 0}, "window"),
+    ({"max_leaves": 2.5}, "max_leaves"),
+    ({"p_no_measurement": 1.0}, "p_no_measurement"),
+    ({"Q": np.eye(2) * -1}, "Q"),
+    ({"P0": np.eye(2)}, "P0"),
+    ({"angle_indices": (3,)}, "angle_indices"),
+    ({"gate": "ellipse"}, "gate"),
+    ({"gate_box": (1.0, 1.0)}, "gate_box"),
+    ({"switch_after": 0}, "switch_after"),
+    ({"tau": float("nan")}, "tau"),
+])
+def test_bad_parameters_are_config_errors(kwargs, field):
+    with pytest.raises(ConfigError, match=f"TCAFFParams.{field}"):
+        TCAFFParams(**kwargs)
+
+
+def test_reference_preset_values():
+    ref = TCAFFParams.reference()
+    assert (ref.window, ref.max_leaves, ref.p_no_measurement, ref.tau) == (8, 200, 0.001, 9.0)
+    assert ref.switch_after is None and ref.gate_box == (2.0, 2.0, 2.0)
+    default = TCAFFParams()
+    assert (default.window, default.max_leaves, default.tau) == (8, 200, 8.0)
