@@ -33,6 +33,7 @@ test: install
 
 bench: install
 	$(PY) scripts/bench_association.py
+	$(PY) scripts/bench_tcaff.py
 
 lint: install
 	$(VENV)/bin/ruff check .

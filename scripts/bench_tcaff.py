@@ -80,6 +80,8 @@ def main() -> None:
     for name, params in presets.items():
         for regime in ("exploring", "main tree", "in gate", "rivals"):
             for k in args.counts:
+                if k == 0 and regime != "exploring":
+                    continue  # an empty stream is the same in every regime
                 stream = make_stream(args.steps, k, regime)
                 med, p95, mx, share = time_stream(params, stream)
                 print(f"{name:10} {regime:10} {k:3d} {med:10.3f} {p95:8.3f} {mx:8.3f} "
