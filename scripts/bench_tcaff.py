@@ -1,6 +1,6 @@
 """Time per TCAFF update on generated measurement streams.
 
-Two regimes per measurement count k:
+Four regimes per measurement count k:
   exploring  k wrong alignments per step, scattered over +-15 m and all headings: no main tree
              ever forms, so every step extends and prunes the exploring trees only;
   main tree  one correct alignment (slow drift, 0.2 m / 2 deg noise) and k - 1 wrong ones: a main
@@ -23,15 +23,12 @@ import argparse
 import time
 
 import numpy as np
+from tcaff_gtsam.eval.sim.streams import wrong_alignments
 
 from tcaff_gtsam import TCAFF, TCAFFParams
 from tcaff_gtsam.params import constant_alignment_covariance
 
 R = constant_alignment_covariance()
-
-
-def wrong_alignments(rng: np.random.Generator, k: int) -> np.ndarray:
-    return np.column_stack([rng.uniform(-15, 15, (k, 2)), rng.uniform(-np.pi, np.pi, k)])
 
 
 def make_stream(steps: int, k: int, regime: str, seed: int = 0) -> list[np.ndarray]:

@@ -1,12 +1,13 @@
 """Hypothesis trees of Kalman updates, stored as arrays of leaves.
 
 Only leaves are kept. A leaf's path through its tree is its row of `choice`: the index of the
-measurement it took at each of the last W + 1 steps (`NO_MEASUREMENT` for the no-measurement
+measurement it took at each of the last W + 2 steps (`NO_MEASUREMENT` for the no-measurement
 child, `BEFORE_ROOT` for steps before its tree's root). After the extension at step n, column c
-holds step n - W + c, so the last column is the current step. Column 0 is the root of every tree
-that has a full window; two leaves of one tree share the node at column 1 exactly when they
-share the root and took the same measurement at column 1. `edge` holds the cost of the edge into
-each node, so a leaf's path cost over the window is the sum of columns 1..W.
+holds step n - W - 1 + c, so the last column is the current step and the last W columns are the
+window a path is judged on. Two leaves of one tree share the node at column c exactly when they
+share the node at column c - 1 and took the same measurement at column c, which is what the
+sliding-window pruning (`branch`) uses. `edge` holds the cost of the edge into each node, so a
+leaf's path cost over the window is the sum of its last W columns.
 
 Many trees live in one set of arrays (`tree` names each leaf's tree), so the exploring trees
 are extended, gated and pruned together.
@@ -29,6 +30,7 @@ __all__ = [
     "best_per_tree",
     "branch",
     "extend",
+    "kalman_children",
     "lowest",
     "measurement_costs",
     "seed",
@@ -70,8 +72,8 @@ class Leaves:
     Attributes:
         x: (L, d) filtered states.
         P: (L, d, d) their covariances.
-        choice: (L, W + 1) int32, measurement index per step (see the module docstring).
-        edge: (L, W + 1) cost of the edge into each node of the path.
+        choice: (L, W + 2) int32, measurement index per step (see the module docstring).
+        edge: (L, W + 2) cost of the edge into each node of the path.
         since: (L,) int64, steps since the path last took a measurement.
         tree: (L,) int64, id of the tree each leaf belongs to.
     """
@@ -93,8 +95,8 @@ class Leaves:
 
     @property
     def cost(self) -> np.ndarray:
-        """(L,) path cost over the window, columns 1..W."""
-        return self.edge[:, 1:].sum(axis=1)
+        """(L,) path cost over the window, the last W = columns - 2 columns."""
+        return self.edge[:, 2:].sum(axis=1)
 
     def take(self, index) -> Leaves:
         """Leaves selected by an index array or boolean mask."""
@@ -373,10 +375,11 @@ def best_per_tree(cost: np.ndarray, tree: np.ndarray, count: int) -> np.ndarray:
     return _best_per_group(cost, tree, count)
 
 
-def branch(choice: np.ndarray, best: int) -> np.ndarray:
-    """Slide one tree's window: indices of the leaves below the root's child that leads to
-    leaf `best`; that child becomes the root (paper: sliding-window pruning)."""
-    return np.flatnonzero(choice[:, 1] == choice[best, 1])
+def branch(choice: np.ndarray, best: int, column: int) -> np.ndarray:
+    """Slide one tree's window: indices of the leaves below the node at `column` on leaf
+    `best`'s path, which becomes the root (paper: sliding-window pruning). The node before it
+    must be shared by all leaves."""
+    return np.flatnonzero(choice[:, column] == choice[best, column])
 
 
 def measurement_costs(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: CostModel
@@ -388,6 +391,15 @@ def measurement_costs(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: Cos
                               model.reference, model.use_box, model.gate_chi2, model.gate_box)
 
 
+def kalman_children(leaves: Leaves, parents: np.ndarray, meas: np.ndarray, zs: np.ndarray,
+                    Rs: np.ndarray, model: CostModel) -> tuple[np.ndarray, np.ndarray]:
+    """States (n, d) and covariances (n, d, d) of the children (leaf parents[c] updated with
+    measurement meas[c], or only predicted where meas[c] < 0)."""
+    return _kalman_children(leaves.x, leaves.P, np.asarray(parents, np.int64),
+                            np.asarray(meas, np.int64), zs, Rs, model.Q, model.angular,
+                            model.reference)
+
+
 def extend(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: CostModel,
            max_children: int, prune: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
            ) -> Leaves:
@@ -395,8 +407,9 @@ def extend(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: CostModel,
     no-measurement child. Columns shift left by one; the new step is the last column.
 
     Children are pruned before their Kalman updates are computed: `prune(cost, choice, tree)`
-    gets the children's window costs (n,), paths (n, W + 1) and tree ids (n,) and returns
-    the indices to keep. Children come out in the order of their parents.
+    gets the children's window costs (n,), paths (n, W + 2) and tree ids (n,) and returns
+    the indices to keep. Children come out in the order of their parents, so the leaves of a
+    tree stay adjacent.
 
     Args:
         zs: (k, d) measurements, angles wrapped; Rs: (k, d, d) their covariances; k may be 0.
@@ -411,7 +424,7 @@ def extend(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: CostModel,
     edge[:, :-1] = leaves.edge[parents, 1:]
     edge[:, -1] = edge_new
     tree = leaves.tree[parents]
-    keep = prune(edge[:, 1:].sum(axis=1), choice, tree)
+    keep = prune(edge[:, 2:].sum(axis=1), choice, tree)
     parents, meas = parents[keep], meas[keep]
     x, P = _kalman_children(leaves.x, leaves.P, parents, meas, zs, Rs, model.Q, model.angular,
                             model.reference)

@@ -14,6 +14,7 @@ from .errors import ConfigError
 __all__ = [
     "ClipperParams",
     "FrameAlignerParams",
+    "GraphParams",
     "TCAFFParams",
     "constant_alignment_covariance",
 ]
@@ -183,7 +184,8 @@ class TCAFFParams:
 
     Attributes:
         window: W, steps a hypothesis is judged over. Each measurement seeds an exploring tree
-            that sees the next W steps; the main tree keeps W steps below its root.
+            that sees the next W steps; the main tree keeps W steps below its root (see
+            `root_in_window`).
         max_leaves: B, leaves kept in the main tree.
         max_children: measurement children per main-tree leaf (the best gated ones), besides the
             one no-measurement child every leaf gets.
@@ -202,6 +204,9 @@ class TCAFFParams:
             "reference" reproduces the released code: squared Mahalanobis distance squared
             again, S = P + R, diagonal-only inverses and determinants, + d/2 log 2 pi on
             measurement children and -log p_NM on no-measurement children.
+        root_in_window: False (paper): the main tree's root is the single node W steps back
+            and all W steps after it stay open. True (released code): the root is the first
+            step of the window, so W - 1 steps stay open.
         promotion: "branch" makes the accepted exploring tree the main tree as it is;
             "reseed" (released code) starts a fresh tree at the accepted tree's first state
             with covariance P0 and replays the window's measurements (one step twice).
@@ -230,6 +235,7 @@ class TCAFFParams:
     gate_probability: float = 0.999
     gate_box: tuple[float, ...] | None = None
     cost_model: Literal["paper", "reference"] = "paper"
+    root_in_window: bool = False
     promotion: Literal["branch", "reseed"] = "branch"
     drop_rule: Literal["best_path", "window"] = "best_path"
     drop_after: int = 40
@@ -268,6 +274,8 @@ class TCAFFParams:
         object.__setattr__(self, "gate_box", box)
         _require(self.cost_model in ("paper", "reference"), o, "cost_model", self.cost_model,
                  "must be 'paper' or 'reference'")
+        _require(isinstance(self.root_in_window, bool), o, "root_in_window",
+                 self.root_in_window, "must be True or False")
         _require(self.promotion in ("branch", "reseed"), o, "promotion", self.promotion,
                  "must be 'branch' or 'reseed'")
         _require(self.drop_rule in ("best_path", "window"), o, "drop_rule", self.drop_rule,
@@ -285,5 +293,80 @@ class TCAFFParams:
     @classmethod
     def reference(cls) -> TCAFFParams:
         """The authors' released code: its threshold, gate, cost, promotion and deletion."""
-        return cls(tau=9.0, gate="box", cost_model="reference", promotion="reseed",
-                   drop_rule="window", drop_after=40, switch_after=None)
+        return cls(tau=9.0, gate="box", cost_model="reference", root_in_window=True,
+                   promotion="reseed", drop_rule="window", drop_after=40, switch_after=None)
+
+
+def _default_odometry_cov(dim: int) -> np.ndarray:
+    deg = math.radians(1.0)
+    if dim == 2:
+        return np.diag([0.05**2, 0.05**2, deg**2])
+    return np.diag([(0.5 * deg) ** 2, (0.5 * deg) ** 2, deg**2, 0.05**2, 0.05**2, 0.05**2])
+
+
+@dataclass(frozen=True)
+class GraphParams:
+    """Settings of `InterRobotGraph` (iSAM2 smoothing of frame alignments and trajectories).
+
+    Attributes:
+        dim: 2 for Pose2 (planar robots), 3 for Pose3 with gravity-aligned alignments
+            (x, y, z, yaw).
+        Q: drift of one pair's alignment per step, the covariance of (x, y, theta) (dim 2,
+            (3, 3)) or (x, y, z, yaw) (dim 3, (4, 4)). Each robot's chain gets Q / 2, so the
+            relative drift of two robots is Q, as TCAFF assumes. None: TCAFF's default Q
+            (z drifting like x and y in 3D).
+        robust: M-estimator of the alignment factors: "huber", "cauchy" or "none" (Gaussian).
+        robust_k: its threshold, in standard deviations of the whitened residual.
+        anchor_sigma: metres and radians; prior on robot 0's first alignment and keyframe.
+        free_sigmas: (metres, radians) of the weak prior that keeps every other robot's first
+            alignment and keyframe defined before any inter-robot factor arrives (and after
+            a hypothesis' factors are removed). Weak enough not to bias the solution
+            measurably (1e-8 m on noise-free data).
+        gravity_sigma: radians, roll and pitch uncertainty of a 3D alignment factor.
+        odometry_cov: covariance of the odometry between consecutive keyframes in gtsam's
+            tangent order ((vx, vy, omega) for Pose2; (wx, wy, wz, vx, vy, vz), rotation first,
+            for Pose3). None: 5 cm and 1 deg (0.5 deg roll and pitch) per keyframe.
+        relinearize_threshold, relinearize_skip: iSAM2's relinearisation settings.
+        max_iterations: extra iSAM2 iterations per update while the solution still moves by
+            more than `convergence_tol` (after a first alignment or a hypothesis switch).
+    """
+
+    dim: Literal[2, 3] = 2
+    Q: np.ndarray | None = None
+    robust: Literal["huber", "cauchy", "none"] = "huber"
+    robust_k: float = 1.345
+    anchor_sigma: float = 1e-3
+    free_sigmas: tuple[float, float] = (1e4, 1e4)
+    gravity_sigma: float = 1e-3
+    odometry_cov: np.ndarray | None = None
+    relinearize_threshold: float = 0.01
+    relinearize_skip: int = 1
+    max_iterations: int = 10
+    convergence_tol: float = 1e-4
+
+    def __post_init__(self) -> None:
+        o = "GraphParams"
+        _require(self.dim in (2, 3), o, "dim", self.dim, "must be 2 or 3")
+        n_param = 3 if self.dim == 2 else 4
+        if self.Q is None:
+            q = np.diag(_alignment_process_noise())
+            Q = np.diag(q if self.dim == 2 else [q[0], q[1], q[0], q[2]])
+        else:
+            Q = _check_spd(self.Q, n_param, o, "Q")
+        object.__setattr__(self, "Q", Q)
+        odo = (_default_odometry_cov(self.dim) if self.odometry_cov is None
+               else _check_spd(self.odometry_cov, 3 if self.dim == 2 else 6, o, "odometry_cov"))
+        object.__setattr__(self, "odometry_cov", odo)
+        _require(self.robust in ("huber", "cauchy", "none"), o, "robust", self.robust,
+                 "must be 'huber', 'cauchy' or 'none'")
+        for name in ("robust_k", "anchor_sigma", "gravity_sigma", "relinearize_threshold",
+                     "convergence_tol"):
+            value = getattr(self, name)
+            _require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, o,
+                     name, value, "must be a finite number > 0")
+        _require(len(self.free_sigmas) == 2 and all(v > 0 for v in self.free_sigmas), o,
+                 "free_sigmas", self.free_sigmas, "must be (metres > 0, radians > 0)")
+        _require(_int_at_least(self.relinearize_skip, 1), o, "relinearize_skip",
+                 self.relinearize_skip, "must be an int >= 1")
+        _require(_int_at_least(self.max_iterations, 0), o, "max_iterations",
+                 self.max_iterations, "must be an int >= 0")

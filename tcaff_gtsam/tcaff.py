@@ -8,9 +8,10 @@ Kalman filter with identity motion; a sequence costs the sum over steps of
     1/2 (|z - x|^2_S + log |S|),  S = P + Q + R,     for a measurement,
     -log p_NM - d/2 log 2 pi                          for no measurement
 
-(the paper's final equation). Every measurement seeds an exploring tree; when, W steps later,
-the best path of some exploring tree costs less than tau, that tree becomes the main tree and
-its best leaf is the estimate. Before that, the filter has no estimate.
+(the paper's final equation). Every measurement seeds an exploring tree (while a main tree
+exists, only those it gates out); when, W steps later, the best path of some exploring tree
+costs less than tau, that tree becomes the main tree and its best leaf is the estimate. Before
+that, the filter has no estimate.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from .hypothesis_tree import (
     best_per_tree,
     branch,
     extend,
+    kalman_children,
     lowest,
     measurement_costs,
     seed,
@@ -97,7 +99,7 @@ class TCAFF:
             Q=prm.Q, angular=angular, reference=prm.cost_model == "reference",
             use_box=prm.gate == "box", gate_chi2=float(chi2.ppf(prm.gate_probability, d)),
             gate_box=np.array(prm.gate_box), no_measurement_cost=float(nm_cost))
-        self._columns = prm.window + 1
+        self._columns = prm.window + 2
         self.reset()
 
     # -- public --------------------------------------------------------------------------------
@@ -110,11 +112,11 @@ class TCAFF:
         self.last_event: str | None = None
         self._main: Leaves | None = None
         self._explore = Leaves.empty(d, self._columns)
-        self._explore_current = True
         self._next_tree = 0
         self._switch_streak = 0
+        self._rival: Leaves | None = None  # best rival leaf of the current streak
         self._empty_windows = 0
-        self._bank: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self._columns)
+        self._bank: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.params.window + 1)
         self._estimate: AlignmentEstimate | None = None
 
     @property
@@ -142,17 +144,14 @@ class TCAFF:
             log.debug("step %d: main tree %d dropped", self.step, self.hypothesis)
             self._main = None
             self.last_event = "dropped"
-            if not self._explore_current:
-                self._rebuild_exploring()
         if self._main is not None:
             self._main = extend(self._main, zs, Rs, self._model, prm.max_children,
-                                self._slide_and_cap)
-        if self._main is None or prm.switch_after is not None:
-            complete = self._advance_exploring(zs, Rs)
-            self._judge(complete)
-            self._explore_current = True
-        else:
-            self._explore_current = False
+                                lambda cost, choice, _: self._main_keep(cost, choice))
+        complete = self._advance_exploring(zs, Rs)
+        if self._main is None:
+            self._accept_best(complete)
+        elif prm.switch_after is not None:
+            self._consider_switch(complete)
         self._estimate = self._main_estimate()
         if self._estimate is not None:
             has_measurement = self._estimate.n_measurements > 0
@@ -165,15 +164,16 @@ class TCAFF:
         """Extend the exploring trees by one step and seed one per measurement; return (and
         remove) the trees whose root is now W steps old.
 
-        While there is a main tree, only measurements its best leaf gates out seed trees: the
-        others start hypotheses consistent with it, which can never be grounds for a switch.
+        While there is a main tree and switching is on, only measurements its best leaf gates
+        out seed trees: the others start hypotheses consistent with it, which can never be
+        grounds for a switch.
         """
         prm = self.params
         explore = extend(self._explore, zs, Rs, self._model, prm.explore_max_children,
                          lambda cost, _, tree: best_per_tree(cost, tree, prm.explore_max_leaves))
-        done = explore.choice[:, 0] != BEFORE_ROOT
+        done = explore.choice[:, 1] != BEFORE_ROOT  # root at step n - W
         index = np.arange(zs.shape[0])
-        if self._main is not None:
+        if self._main is not None and prm.switch_after is not None:
             best = self._main.take([int(np.argmin(self._main.cost))])
             index = index[~np.isfinite(measurement_costs(best, zs, Rs, self._model)[0])]
         ids = self._next_tree + np.arange(index.size)
@@ -182,53 +182,61 @@ class TCAFF:
         self._explore = Leaves.concat([explore.take(~done), seeds])
         return explore.take(done)
 
-    def _rebuild_exploring(self) -> None:
-        """Replay the stored steps (all but the current one) into fresh exploring trees."""
-        self._explore = Leaves.empty(self.params.dim, self._columns)
-        for zs, Rs in list(self._bank)[:-1]:
-            self._advance_exploring(zs, Rs)
+    def _accept_best(self, complete: Leaves) -> None:
+        """With no main tree: accept the best complete exploring tree if it beats tau."""
+        if len(complete) == 0:
+            return
+        best = int(np.argmin(complete.cost))
+        if complete.cost[best] < self.params.tau:
+            self._accept(complete, best)
+            self.last_event = "accepted"
 
-    def _judge(self, complete: Leaves) -> None:
-        """Accept a complete exploring tree as the main tree, or switch to one."""
+    def _consider_switch(self, complete: Leaves) -> None:
+        """Switch to a rival hypothesis: one inconsistent with the main tree's best leaf, below
+        tau and `switch_margin` better, that has held for `switch_after` steps in a row. Steps
+        on which no exploring tree completes neither extend nor break the streak."""
         prm = self.params
         if len(complete) == 0:
-            self._switch_streak = 0
             return
         cost = complete.cost
-        if self._main is None:
-            best = int(np.argmin(cost))
-            if cost[best] < prm.tau:
-                self._accept(complete, best)
-                self.last_event = "accepted"
-            return
         main_cost = self._main.cost
         m = int(np.argmin(main_cost))
-        r = complete.x - self._main.x[m]
-        r[:, self._model.angular] = wrap_angle(r[:, self._model.angular])
-        S = complete.P + self._main.P[m]
-        maha = np.einsum("li,li->l", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
-        rival = (maha > self._model.gate_chi2) & (cost < prm.tau) & (
-            cost + prm.switch_margin < main_cost[m])
+        rival = (~self._consistent(complete, self._main.take([m])) & (cost < prm.tau)
+                 & (cost + prm.switch_margin < main_cost[m]))
         if not rival.any():
-            self._switch_streak = 0
+            self._switch_streak, self._rival = 0, None
             return
-        self._switch_streak += 1
+        best = int(np.flatnonzero(rival)[np.argmin(cost[rival])])
+        leaf = complete.take([best])
+        same = self._rival is not None and bool(self._consistent(leaf, self._rival)[0])
+        self._switch_streak = self._switch_streak + 1 if same else 1
+        self._rival = leaf
         if self._switch_streak >= prm.switch_after:
-            best = int(np.flatnonzero(rival)[np.argmin(cost[rival])])
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
             self._accept(complete, best)
             self.last_event = "switched"
 
+    def _consistent(self, leaves: Leaves, other: Leaves) -> np.ndarray:
+        """(L,) whether each leaf's state agrees with the single leaf `other`'s (Mahalanobis
+        distance under P_a + P_b within the gate of `gate_probability`)."""
+        r = leaves.x - other.x[0]
+        angular = self._model.angular
+        r[:, angular] = wrap_angle(r[:, angular])
+        S = leaves.P + other.P[0]
+        maha = np.einsum("li,li->l", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+        return maha <= self._model.gate_chi2
+
     def _accept(self, complete: Leaves, best: int) -> None:
+        """Make the tree of leaf `best` the main tree."""
         prm = self.params
         self.hypothesis += 1
-        self._switch_streak = 0
-        self._empty_windows = 0
-        tree = complete.take(complete.tree == complete.tree[best])
-        best = int(np.argmin(tree.cost))
+        self._switch_streak, self._rival, self._empty_windows = 0, None, 0
+        in_tree = np.flatnonzero(complete.tree == complete.tree[best])
+        tree = complete.take(in_tree)
+        best = int(np.searchsorted(in_tree, best))
         if prm.promotion == "branch":
-            main = tree.take(branch(tree.choice, best))
+            main = tree.take(self._main_keep(tree.cost, tree.choice, best))
         else:
             main = self._reseeded(tree, best)
         main.tree[:] = self.hypothesis
@@ -238,27 +246,29 @@ class TCAFF:
         """The released code's promotion: a fresh tree at the state after the accepted path's
         first step, covariance P0, fed the window's measurements again (that first step too)."""
         prm = self.params
-        steps = list(self._bank)
-        z_root, _ = steps[0]
-        root = seed(z_root[tree.choice[best, 0]][None], prm.P0, np.zeros(1), np.zeros(1),
+        steps = list(self._bank)  # steps n - W .. n
+        (z_root, _), (z1, R1) = steps[0], steps[1]
+        root = seed(z_root[tree.choice[best, 1]][None], prm.P0, np.zeros(1), np.zeros(1),
                     self._columns)
-        z1, R1 = steps[1]
-        first = extend(root, z1, R1, self._model, max(z1.shape[0], 1),
-                       lambda _, choice, __: np.flatnonzero(choice[:, -1] == tree.choice[best, 1]))
-        main = seed(first.x, prm.P0, np.zeros(1), np.zeros(1), self._columns)
+        x1, _ = kalman_children(root, [0], [tree.choice[best, 2]], z1, R1, self._model)
+        main = seed(x1, prm.P0, np.zeros(1), np.zeros(1), self._columns)
         for zs, Rs in steps[1:]:
-            main = extend(main, zs, Rs, self._model, prm.max_children, self._slide_and_cap)
+            main = extend(main, zs, Rs, self._model, prm.max_children,
+                          lambda cost, choice, _: self._main_keep(cost, choice))
         return main
 
-    def _slide_and_cap(self, cost: np.ndarray, choice: np.ndarray, _) -> np.ndarray:
-        """Main-tree pruning: once the window is full keep the best leaf's branch of the root,
-        then the B best leaves."""
-        keep = np.arange(cost.size)
-        if choice[0, 0] != BEFORE_ROOT:
-            keep = branch(choice, int(np.argmin(cost)))
-        return keep[lowest(cost[keep], self.params.max_leaves)]
-
     # -- main tree -----------------------------------------------------------------------------
+
+    def _main_keep(self, cost: np.ndarray, choice: np.ndarray, best: int | None = None
+                   ) -> np.ndarray:
+        """Main-tree pruning: once the window is full keep the branch of the root that holds
+        leaf `best` (default: the cheapest), then the B best leaves. The root is the single node
+        W steps back (paper) or, with `root_in_window`, the first node of the window."""
+        column = 2 if self.params.root_in_window else 1
+        keep = np.arange(cost.size)
+        if choice[0, column - 1] != BEFORE_ROOT:
+            keep = branch(choice, int(np.argmin(cost)) if best is None else best, column)
+        return keep[lowest(cost[keep], self.params.max_leaves)]
 
     def _main_is_stale(self) -> bool:
         """Checked before the main tree takes the new step, on its best path so far."""
@@ -275,7 +285,7 @@ class TCAFF:
         main = self._main
         cost = main.cost
         best = int(np.argmin(cost))
-        path = main.choice[best, 1:]
+        path = main.choice[best, -self.params.window:]
         return AlignmentEstimate(main.x[best].copy(), main.P[best].copy(), float(cost[best]),
                                  self.hypothesis, self.step, int(np.count_nonzero(path >= 0)),
                                  int(path[-1]))
@@ -320,49 +330,54 @@ class TCAFF:
         return zs, np.ascontiguousarray(Rs)
 
     _LEAF_FIELDS = ("x", "P", "choice", "edge", "since", "tree")
-    _COUNTERS = ("step", "hypothesis", "_next_tree", "_switch_streak", "_empty_windows",
-                 "_explore_current")
+    _COUNTERS = ("step", "hypothesis", "_next_tree", "_switch_streak", "_empty_windows")
+    _TREES = ("main", "explore", "rival")
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Everything the filter remembers, as arrays (restore with `load_state_dict`)."""
-        state: dict[str, np.ndarray] = {c: np.array(int(getattr(self, c))) for c in self._COUNTERS}
-        state["has_main"] = np.array(self._main is not None)
-        for name, leaves in (("main", self._main), ("explore", self._explore)):
+        state = {c: np.array(getattr(self, c), dtype=np.int64) for c in self._COUNTERS}
+        for name in self._TREES:
+            leaves = getattr(self, f"_{name}")
             if leaves is not None:
                 for f in self._LEAF_FIELDS:
-                    state[f"{name}.{f}"] = getattr(leaves, f)
-        sizes = [zs.shape[0] for zs, _ in self._bank]
-        state["bank.sizes"] = np.array(sizes, dtype=np.int64)
+                    state[f"{name}.{f}"] = getattr(leaves, f).copy()
         d = self.params.dim
+        state["bank.sizes"] = np.array([zs.shape[0] for zs, _ in self._bank], dtype=np.int64)
         state["bank.zs"] = np.concatenate([zs for zs, _ in self._bank] or [np.empty((0, d))])
         state["bank.Rs"] = np.concatenate([Rs for _, Rs in self._bank]
                                           or [np.empty((0, d, d))])
         return state
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
-        """Restore a state from `state_dict` (of a filter with the same parameters).
+        """Restore a state from `state_dict` of a filter with the same parameters.
 
         Raises:
-            DataError: missing entries or arrays of the wrong shape.
+            DataError: missing entries, or arrays of the wrong kind or shape.
         """
         d, columns = self.params.dim, self._columns
         try:
-            counters = {c: int(state[c]) for c in self._COUNTERS}
-            has_main = bool(state["has_main"])
-            parts = {}
-            for name in ("main", "explore") if has_main else ("explore",):
-                parts[name] = Leaves(*(np.asarray(state[f"{name}.{f}"])
-                                       for f in self._LEAF_FIELDS))
-            sizes = np.asarray(state["bank.sizes"], dtype=np.int64)
-            bank_zs, bank_Rs = np.asarray(state["bank.zs"]), np.asarray(state["bank.Rs"])
+            counters = {c: int(np.asarray(state[c]).item()) for c in self._COUNTERS}
+            trees = {name: Leaves(*(np.array(state[f"{name}.{f}"], dtype=dtype) for f, dtype in
+                                    zip(self._LEAF_FIELDS, (float, float, np.int32, float,
+                                                            np.int64, np.int64), strict=True)))
+                     for name in self._TREES if f"{name}.x" in state}
+            sizes = np.array(state["bank.sizes"], dtype=np.int64)
+            bank_zs = np.array(state["bank.zs"], dtype=float)
+            bank_Rs = np.array(state["bank.Rs"], dtype=float)
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
-        for name, leaves in parts.items():
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"TCAFF state: an entry has the wrong kind ({exc})") from None
+        if "explore" not in trees:
+            raise DataError("TCAFF state: missing entry 'explore.x'")
+        for name, leaves in trees.items():
             counts = {f: np.shape(getattr(leaves, f))[:1] for f in self._LEAF_FIELDS}
             if len(set(counts.values())) != 1:
                 raise DataError(f"TCAFF state: the {name} arrays disagree on the number of "
                                 f"leaves: {counts}")
             L = len(leaves)
+            if name != "explore" and L == 0:
+                raise DataError(f"TCAFF state: the {name} tree has no leaves")
             shapes = {"x": (L, d), "P": (L, d, d), "choice": (L, columns),
                       "edge": (L, columns), "since": (L,), "tree": (L,)}
             for f, shape in shapes.items():
@@ -370,16 +385,15 @@ class TCAFF:
                     raise DataError(f"TCAFF state: {name}.{f} has shape "
                                     f"{getattr(leaves, f).shape}, expected {shape} (window "
                                     f"{self.params.window}, d = {d})")
-        if (sizes.ndim != 1 or sizes.size > columns or bank_zs.shape != (sizes.sum(), d)
-                or bank_Rs.shape != (sizes.sum(), d, d)):
+        if (sizes.ndim != 1 or sizes.size > self.params.window + 1
+                or bank_zs.shape != (sizes.sum(), d) or bank_Rs.shape != (sizes.sum(), d, d)):
             raise DataError("TCAFF state: the stored measurements do not match bank.sizes")
         for c, value in counters.items():
-            setattr(self, c, bool(value) if c == "_explore_current" else value)
-        self._main = parts.get("main")
-        self._explore = parts["explore"]
+            setattr(self, c, value)
+        self._main, self._explore, self._rival = (trees.get(n) for n in self._TREES)
         bounds = np.r_[0, np.cumsum(sizes)]
         self._bank = deque(((bank_zs[a:b], bank_Rs[a:b]) for a, b in pairwise(bounds)),
-                           maxlen=columns)
+                           maxlen=self.params.window + 1)
         self.last_event = None
         self._estimate = self._main_estimate()
 

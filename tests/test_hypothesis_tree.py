@@ -25,10 +25,12 @@ from tcaff_gtsam.hypothesis_tree import (
 
 
 def model(d, angles=(), reference=False, use_box=False, gate_p=0.999, Q=None, nm=4.0):
+    """gate_p=None disables the gate."""
     angular = np.zeros(d, bool)
     angular[list(angles)] = True
+    gate = np.inf if gate_p is None else chi2.ppf(gate_p, d)
     return CostModel(Q=np.eye(d) * 0.01 if Q is None else Q, angular=angular,
-                     reference=reference, use_box=use_box, gate_chi2=chi2.ppf(gate_p, d),
+                     reference=reference, use_box=use_box, gate_chi2=gate,
                      gate_box=np.full(d, 2.0), no_measurement_cost=nm)
 
 
@@ -47,7 +49,7 @@ def test_measurement_child_is_the_textbook_kalman_update(d, seed_value):
     rng = np.random.default_rng(seed_value)
     x, z = rng.normal(size=d), rng.normal(size=d)
     P, R, Q = spd(rng, d, 0.1), spd(rng, d, 0.1), spd(rng, d, 0.01)
-    m = model(d, Q=Q, gate_p=1 - 1e-12)
+    m = model(d, Q=Q, gate_p=None)
     out = extend(one_leaf(x, P), z[None], R[None], m, 1, lambda c, *_: np.arange(c.size))
     assert len(out) == 2  # the measurement child, then the no-measurement child
     Pp = P + Q
@@ -71,15 +73,16 @@ def test_reference_cost_and_gain_are_diagonal_only(d, seed_value):
     rng = np.random.default_rng(seed_value)
     x, z = rng.normal(size=d), rng.normal(size=d) * 0.5
     P, R, Q = spd(rng, d, 0.3), spd(rng, d, 0.3), spd(rng, d, 0.01)
-    m = model(d, Q=Q, reference=True)
+    m = model(d, Q=Q, reference=True, gate_p=None)
     cost = measurement_costs(one_leaf(x, P), z[None], R[None], m)[0, 0]
     s = np.diag(P) + np.diag(R)  # P, not P + Q, and only the diagonal
     maha = np.sum((z - x) ** 2 / s)
     assert cost == pytest.approx(0.5 * (maha**2 + np.log(s).sum() + d * math.log(2 * math.pi)))
     out = extend(one_leaf(x, P), z[None], R[None], m, 1, lambda c, *_: np.arange(c.size))
-    if out.choice[0, -1] == 0:
-        K = (P + Q) / (np.diag(P + Q) + np.diag(R))[None, :]
-        np.testing.assert_allclose(out.x[0], x + K @ (z - x), atol=1e-9)
+    assert out.choice[0, -1] == 0
+    K = (P + Q) / (np.diag(P + Q) + np.diag(R))[None, :]
+    np.testing.assert_allclose(out.x[0], x + K @ (z - x), atol=1e-9)
+    np.testing.assert_allclose(out.P[0], (np.eye(d) - K) @ (P + Q), atol=1e-9)
 
 
 def test_angle_residuals_are_wrapped():
@@ -132,8 +135,8 @@ def test_best_per_tree_keeps_the_cheapest_of_each_adjacent_group():
 
 def test_branch_keeps_the_subtree_of_the_best_leaf():
     choice = np.array([[0, 1, 2], [0, 1, -1], [0, -1, 2], [0, 2, 0]], np.int32)
-    assert branch(choice, 1).tolist() == [0, 1]
-    assert branch(choice, 2).tolist() == [2]
+    assert branch(choice, 1, 1).tolist() == [0, 1]
+    assert branch(choice, 2, 1).tolist() == [2]
 
 
 def test_extend_shifts_the_window_and_counts_steps_without_measurement():

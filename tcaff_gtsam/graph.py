@@ -1,0 +1,471 @@
+"""InterRobotGraph: accepted frame alignments as between-factors in a GTSAM iSAM2 graph.
+
+Two kinds of variables, each robot r having its own chain of both:
+
+- A_r(k), the pose of robot r's odometry frame in the common frame at alignment step k. Chains
+  are linked by identity between-factors with the drift covariance Q / 2 per step (so a pair
+  drifts by Q, as TCAFF assumes); robot 0's first A is anchored by a prior, the others get a weak
+  prior. An alignment T_oi_oj at step k is the factor A_i(k)^-1 A_j(k) = T_oi_oj, and
+  `alignment(i, j, k)` reads T_oi_oj(k) = A_i(k)^-1 A_j(k) with its marginal covariance. The
+  graph makes these cycle consistent: T_ij T_jk = T_ik holds exactly.
+- X_r(m), keyframe poses in the common frame, for CSLAM use: odometry between-factors along each
+  robot's chain, inter-robot factors between keyframes from accepted alignments, and any other
+  between-factor a user has (loop closures).
+
+Covariances of poses follow gtsam: right perturbations T Exp(xi) with xi = (vx, vy, omega) for
+Pose2 and (wx, wy, wz, vx, vy, vz), rotation first, for Pose3. Alignment covariances given to or
+returned by this module are over the parameters (x, y, theta) or (x, y, z, yaw) instead, and
+are converted at the boundary.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from .errors import DataError
+from .geometry import se2_from_params, se2_to_params, se3_from_xyz_yaw, wrap_angle
+from .params import GraphParams
+from .tcaff import AlignmentEstimate
+
+__all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
+
+log = logging.getLogger(__name__)
+
+# One symbol character; kind, robot and index share the symbol's index, which is all that g2o
+# files keep, so exported vertex ids stay unique.
+_ROBOT_SHIFT, _KIND_SHIFT = 36, 52
+
+
+def alignment_key(robot: int, step: int) -> int:
+    """gtsam key of A_robot(step)."""
+    return gtsam.symbol("r", (robot << _ROBOT_SHIFT) | step)
+
+
+def keyframe_key(robot: int, index: int) -> int:
+    """gtsam key of X_robot(index)."""
+    return gtsam.symbol("r", (1 << _KIND_SHIFT) | (robot << _ROBOT_SHIFT) | index)
+
+
+def _check_finite(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != shape:
+        raise DataError(f"{name} must have shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise DataError(f"{name} has non-finite values: {arr.tolist()}")
+    return arr
+
+
+def _check_cov(name: str, cov, n: int) -> np.ndarray:
+    C = _check_finite(name, cov, (n, n))
+    if not np.allclose(C, C.T, atol=1e-12, rtol=1e-9) or np.linalg.eigvalsh(C)[0] <= 0:
+        raise DataError(f"{name} must be symmetric positive definite, got {C.tolist()}")
+    return 0.5 * (C + C.T)
+
+
+class InterRobotGraph:
+    """iSAM2 smoothing of the frame alignments of `n_robots` robots (and their keyframes).
+
+    Per step: add that step's alignments (`add_alignment` or `add_tcaff_estimate`), then call
+    `update(step)`; read `alignment(i, j, step)` right after for the causal estimate, or later
+    for the smoothed one. Factors wait in a queue until the next `update`.
+    """
+
+    def __init__(self, n_robots: int, params: GraphParams | None = None) -> None:
+        if not isinstance(n_robots, int) or n_robots < 1:
+            raise DataError(f"InterRobotGraph: n_robots must be an int >= 1, got {n_robots!r}")
+        self.n_robots = n_robots
+        self.params = params or GraphParams()
+        prm = self.params
+        self._planar = prm.dim == 2
+        isam_params = gtsam.ISAM2Params()
+        isam_params.setRelinearizeThreshold(prm.relinearize_threshold)
+        isam_params.relinearizeSkip = prm.relinearize_skip
+        self._isam = gtsam.ISAM2(isam_params)
+        self._estimate = gtsam.Values()
+        self._steps: list[int] = []
+        self._step_set: set[int] = set()
+        self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)  # T_o_b per index
+        self._pending = gtsam.NonlinearFactorGraph()
+        self._pending_values = gtsam.Values()
+        self._pending_tags: list[tuple | None] = []  # per queued factor
+        self._pending_steps: list[int | None] = []  # per queued factor: its alignment step
+        self._to_remove: list[int] = []
+        self._active: dict[int, gtsam.NonlinearFactor] = {}
+        self._tags: dict[int, tuple] = {}
+        self._hypothesis: dict[tuple[int, int], int] = {}
+
+    # -- pose helpers --------------------------------------------------------------------------
+
+    @property
+    def _n_param(self) -> int:
+        return 3 if self._planar else 4
+
+    def _pose(self, T: np.ndarray):
+        if self._planar:
+            return gtsam.Pose2(T[0, 2], T[1, 2], math.atan2(T[1, 0], T[0, 0]))
+        return gtsam.Pose3(T)
+
+    def _between(self, a: int, b: int, T: np.ndarray, noise):
+        cls = gtsam.BetweenFactorPose2 if self._planar else gtsam.BetweenFactorPose3
+        return cls(a, b, self._pose(T), noise)
+
+    def _prior(self, key: int, T: np.ndarray, sigmas: tuple[float, float]):
+        t, r = sigmas
+        s = np.array([t, t, r]) if self._planar else np.array([r, r, r, t, t, t])
+        noise = gtsam.noiseModel.Diagonal.Sigmas(s)
+        cls = gtsam.PriorFactorPose2 if self._planar else gtsam.PriorFactorPose3
+        return cls(key, self._pose(T), noise)
+
+    def _matrix(self, T_params) -> np.ndarray:
+        """Homogeneous matrix of an alignment given as a matrix or as parameters."""
+        p = np.asarray(T_params, dtype=float)
+        if p.shape == (self._n_param,):
+            return se2_from_params(p) if self._planar else se3_from_xyz_yaw(*p)
+        size = 3 if self._planar else 4
+        T = _check_finite("T", p, (size, size))
+        if not self._planar:
+            # gravity-aligned: keep x, y, z and yaw
+            T = se3_from_xyz_yaw(*T[:3, 3], math.atan2(T[1, 0], T[0, 0]))
+        return T
+
+    def _params_to_tangent(self, T: np.ndarray) -> np.ndarray:
+        """G with xi = G d(params) at pose T; (3, 3) or (6, 4)."""
+        R = T[: self._n_param - 1, : self._n_param - 1] if self._planar else T[:3, :3]
+        if self._planar:
+            G = np.zeros((3, 3))
+            G[:2, :2] = R.T
+            G[2, 2] = 1.0
+            return G
+        G = np.zeros((6, 4))
+        G[2, 3] = 1.0
+        G[3:, :3] = R.T
+        return G
+
+    def _tangent_cov(self, T: np.ndarray, cov_params: np.ndarray) -> np.ndarray:
+        G = self._params_to_tangent(T)
+        cov = G @ cov_params @ G.T
+        if not self._planar:
+            cov[0, 0] += self.params.gravity_sigma**2
+            cov[1, 1] += self.params.gravity_sigma**2
+        return 0.5 * (cov + cov.T)
+
+    def _params_cov(self, T: np.ndarray, cov_tangent: np.ndarray) -> np.ndarray:
+        if self._planar:
+            J = np.eye(3)
+            J[:2, :2] = T[:2, :2]
+        else:
+            J = np.zeros((4, 6))
+            J[:3, 3:] = T[:3, :3]
+            J[3, :3] = T[:3, :3][2]  # d yaw = (R omega)_z for a right perturbation
+        return J @ cov_tangent @ J.T
+
+    def _noise(self, cov_tangent: np.ndarray, robust: bool):
+        gaussian = gtsam.noiseModel.Gaussian.Covariance(cov_tangent)
+        kind = self.params.robust if robust else "none"
+        if kind == "none":
+            return gaussian
+        m = gtsam.noiseModel.mEstimator
+        estimator = (m.Huber if kind == "huber" else m.Cauchy).Create(self.params.robust_k)
+        return gtsam.noiseModel.Robust.Create(estimator, gaussian)
+
+    def _value(self, key: int) -> np.ndarray:
+        values = self._pending_values if self._pending_values.exists(key) else self._estimate
+        if self._planar:
+            return values.atPose2(key).matrix()
+        return values.atPose3(key).matrix()
+
+    def _insert(self, key: int, T: np.ndarray) -> None:
+        self._pending_values.insert(key, self._pose(T))
+
+    def _queue(self, factor, tag: tuple | None = None, step: int | None = None) -> None:
+        self._pending.add(factor)
+        self._pending_tags.append(tag)
+        self._pending_steps.append(step)
+
+    def _check_robot(self, name: str, robot) -> None:
+        if not isinstance(robot, (int, np.integer)) or not 0 <= robot < self.n_robots:
+            raise DataError(f"{name} = {robot!r} is not a robot of this graph (0 to "
+                            f"{self.n_robots - 1})")
+
+    # -- alignment chains ----------------------------------------------------------------------
+
+    @property
+    def steps(self) -> list[int]:
+        """The committed alignment steps, increasing."""
+        return list(self._steps)
+
+    def add_alignment(self, step: int, i: int, j: int, T_oi_oj, cov,
+                      hypothesis: int | None = None, robust: bool = True) -> None:
+        """Queue the factor A_i(step)^-1 A_j(step) = T_oi_oj.
+
+        Args:
+            step: a committed step or the step of the next `update`.
+            i, j: robots (ego, other), i != j.
+            T_oi_oj: (3, 3) SE(2) / (4, 4) SE(3) matrix, or parameters (x, y, theta) /
+                (x, y, z, yaw); 3D alignments are projected onto the gravity-aligned ones.
+            cov: covariance of those parameters, (3, 3) or (4, 4).
+            hypothesis: tag; `remove_hypothesis(i, j, hypothesis)` removes these factors.
+            robust: use the M-estimator of `params.robust` (else Gaussian).
+        Raises:
+            DataError: unknown robot, i == j, a step before the last committed one that has
+                no variables, non-finite values, cov not positive definite.
+        """
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        if i == j:
+            raise DataError(f"add_alignment: i and j are both {i}")
+        if not isinstance(step, (int, np.integer)) or step < 0:
+            raise DataError(f"add_alignment: step = {step!r} must be an int >= 0")
+        if self._steps and step <= self._steps[-1] and step not in self._step_set:
+            raise DataError(f"add_alignment: step {step} was never committed (steps so far "
+                            f"end at {self._steps[-1]})")
+        T = self._matrix(T_oi_oj)
+        C = _check_cov("add_alignment: cov", cov, self._n_param)
+        noise = self._noise(self._tangent_cov(T, C), robust)
+        self._queue(self._between(alignment_key(i, step), alignment_key(j, step), T, noise),
+                    ("alignment", int(i), int(j), hypothesis), int(step))
+
+    def update(self, step: int | None = None) -> None:
+        """Commit the queued factors, creating A_r(step) for every robot if `step` is given.
+
+        Raises:
+            DataError: `step` is not after the last committed step, or a queued alignment
+                refers to a step that neither exists nor is `step`.
+        """
+        if step is not None:
+            if not isinstance(step, (int, np.integer)) or step < 0:
+                raise DataError(f"update: step = {step!r} must be an int >= 0")
+            if self._steps and step <= self._steps[-1]:
+                raise DataError(f"update: step {step} is not after the last committed step "
+                                f"{self._steps[-1]}")
+        bad = [s for s in self._pending_steps
+               if s is not None and s not in self._step_set and s != step]
+        if bad:
+            raise DataError(f"update: queued alignments refer to step {bad[0]}, which is "
+                            f"neither committed nor the step being committed ({step})")
+        if step is not None:
+            self._add_step(int(step))
+        if self._pending.size() == 0 and not self._to_remove:
+            return
+        result = self._isam.update(self._pending, self._pending_values, self._to_remove)
+        for index in self._to_remove:
+            self._active.pop(index, None)
+            self._tags.pop(index, None)
+        for slot, index in enumerate(result.getNewFactorsIndices()):
+            self._active[index] = self._pending.at(slot)
+            if self._pending_tags[slot] is not None:
+                self._tags[index] = self._pending_tags[slot]
+        self._pending = gtsam.NonlinearFactorGraph()
+        self._pending_values = gtsam.Values()
+        self._pending_tags, self._pending_steps, self._to_remove = [], [], []
+        self._settle()
+        self._estimate = self._isam.calculateEstimate()
+
+    def _add_step(self, step: int) -> None:
+        prm = self.params
+        previous = self._steps[-1] if self._steps else None
+        identity = np.eye(3 if self._planar else 4)
+        for r in range(self.n_robots):
+            key = alignment_key(r, step)
+            if previous is None:
+                self._insert(key, identity)
+                sigmas = ((prm.anchor_sigma, prm.anchor_sigma) if r == 0 else prm.free_sigmas)
+                self._queue(self._prior(key, identity, sigmas))
+            else:
+                before = alignment_key(r, previous)
+                self._insert(key, self._value(before))
+                drift = self._tangent_cov(identity, prm.Q * (step - previous) / 2.0)
+                self._queue(self._between(before, key, identity, self._noise(drift, False)))
+        self._steps.append(step)
+        self._step_set.add(step)
+
+    def _settle(self) -> None:
+        """Extra iterations while the solution still moves (big corrections are nonlinear)."""
+        for _ in range(self.params.max_iterations):
+            delta = self._isam.getDelta().vector()
+            if delta.size == 0 or np.abs(delta).max() < self.params.relinearize_threshold:
+                return
+            self._isam.update()
+
+    def alignment(self, i: int, j: int, step: int | None = None, covariance: bool = True
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+        """T_oi_oj(step) = A_i(step)^-1 A_j(step) from the current solution.
+
+        Returns:
+            T: (3, 3) or (4, 4); cov: marginal covariance of (x, y, theta) / (x, y, z, yaw),
+            or None when `covariance` is False.
+        Raises:
+            DataError: unknown robot or a step that has not been committed.
+        """
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        if not self._steps:
+            raise DataError("alignment: no step has been committed yet")
+        step = self._steps[-1] if step is None else step
+        if step not in self._step_set:
+            raise DataError(f"alignment: step {step} has not been committed")
+        ki, kj = alignment_key(i, step), alignment_key(j, step)
+        A_i, A_j = self._value(ki), self._value(kj)
+        T = np.linalg.inv(A_i) @ A_j
+        if not covariance:
+            return T, None
+        if i == j:
+            return T, np.zeros((self._n_param, self._n_param))
+        joint = self._isam.jointMarginalCovariance(gtsam.KeyVector([ki, kj])).fullMatrix()
+        Ad_inv = self._pose(np.linalg.inv(T)).AdjointMap()
+        J = np.hstack([-Ad_inv, np.eye(Ad_inv.shape[0])])
+        return T, self._params_cov(T, J @ joint @ J.T)
+
+    def alignment_params(self, i: int, j: int, step: int | None = None) -> np.ndarray:
+        """(x, y, theta) or (x, y, z, yaw) of T_oi_oj(step), without covariance."""
+        T, _ = self.alignment(i, j, step, covariance=False)
+        if self._planar:
+            return se2_to_params(T)
+        return np.array([*T[:3, 3], wrap_angle(math.atan2(T[1, 0], T[0, 0]))])
+
+    # -- hypotheses ----------------------------------------------------------------------------
+
+    def remove_hypothesis(self, i: int, j: int, hypothesis: int) -> int:
+        """Queue the removal of every factor tagged with (i, j, hypothesis); returns how many."""
+        found = [index for index, tag in self._tags.items()
+                 if tag[1:] == (i, j, hypothesis) and index not in self._to_remove]
+        self._to_remove.extend(found)
+        # factors still waiting in the queue are dropped from it as well
+        queued = list(zip(self._pending_tags, self._pending_steps, strict=True))
+        kept = [slot for slot, (tag, _) in enumerate(queued)
+                if tag is None or tag[1:] != (i, j, hypothesis)]
+        graph = gtsam.NonlinearFactorGraph()
+        for slot in kept:
+            graph.add(self._pending.at(slot))
+        self._pending = graph
+        self._pending_tags = [queued[slot][0] for slot in kept]
+        self._pending_steps = [queued[slot][1] for slot in kept]
+        return len(found) + len(queued) - len(kept)
+
+    def add_tcaff_estimate(self, step: int, i: int, j: int,
+                           estimate: AlignmentEstimate | None, zs, Rs) -> None:
+        """Feed one step of a TCAFF filter for the pair (i, j).
+
+        The factor is the candidate TCAFF's best path took at this step (zs[m], Rs[m] with
+        m = estimate.measurement), not the filtered estimate: consecutive filtered estimates
+        share their past measurements and would count them many times over. When the filter
+        drops its main tree or switches to another one, the factors of the abandoned
+        hypothesis are removed.
+
+        Args:
+            estimate: what `TCAFF.update(zs, Rs)` returned for this step.
+            zs: (k, 3) the candidates given to TCAFF; Rs: (k, 3, 3) their covariances.
+        """
+        previous = self._hypothesis.get((i, j))
+        current = None if estimate is None else estimate.hypothesis
+        if previous is not None and previous != current:
+            removed = self.remove_hypothesis(i, j, previous)
+            log.debug("pair (%d, %d): hypothesis %s abandoned, %d factors removed", i, j,
+                      previous, removed)
+        if current is None:
+            self._hypothesis.pop((i, j), None)
+            return
+        self._hypothesis[(i, j)] = current
+        if estimate.measurement >= 0:
+            m = estimate.measurement
+            self.add_alignment(step, i, j, np.asarray(zs)[m], np.asarray(Rs)[m],
+                               hypothesis=current)
+
+    # -- keyframes -----------------------------------------------------------------------------
+
+    def add_keyframe(self, robot: int, index: int, T_o_b, odometry_cov=None) -> None:
+        """Queue keyframe X_robot(index) at odometry pose T_o_b (body in robot's odometry frame).
+
+        The first keyframe of robot 0 is anchored at T_o_b; other robots' first keyframes get
+        the weak prior, placed through the current alignment estimate when there is one. Later
+        keyframes are linked to the previous one by the odometry between them.
+
+        Raises:
+            DataError: unknown robot, index not increasing, non-finite pose.
+        """
+        self._check_robot("robot", robot)
+        size = 3 if self._planar else 4
+        T = _check_finite("add_keyframe: T_o_b", T_o_b, (size, size))
+        frames = self._keyframes[robot]
+        if frames and index <= max(frames):
+            raise DataError(f"add_keyframe: robot {robot} index {index} is not after "
+                            f"{max(frames)}")
+        key = keyframe_key(robot, index)
+        if not frames:
+            A = (self._value(alignment_key(robot, self._steps[-1])) if self._steps
+                 else np.eye(size))
+            self._insert(key, A @ T)
+            sigmas = ((self.params.anchor_sigma,) * 2 if robot == 0 else self.params.free_sigmas)
+            self._queue(self._prior(key, A @ T, sigmas))
+        else:
+            last = max(frames)
+            delta = np.linalg.inv(frames[last]) @ T
+            cov = (self.params.odometry_cov if odometry_cov is None
+                   else _check_cov("add_keyframe: odometry_cov", odometry_cov,
+                                   3 if self._planar else 6))
+            prev_key = keyframe_key(robot, last)
+            self._insert(key, self._value(prev_key) @ delta)
+            self._queue(self._between(prev_key, key, delta, self._noise(cov, False)))
+        frames[index] = T
+
+    def add_keyframe_alignment(self, i: int, m_i: int, j: int, m_j: int, T_oi_oj, cov,
+                               hypothesis: int | None = None) -> None:
+        """Queue an inter-robot factor between keyframes X_i(m_i) and X_j(m_j) from an alignment
+        T_oi_oj: X_i^-1 X_j = T_oi_bi^-1 T_oi_oj T_oj_bj."""
+        for robot, index in ((i, m_i), (j, m_j)):
+            self._check_robot("robot", robot)
+            if index not in self._keyframes[robot]:
+                raise DataError(f"add_keyframe_alignment: robot {robot} has no keyframe {index}")
+        T = self._matrix(T_oi_oj)
+        C = self._tangent_cov(T, _check_cov("add_keyframe_alignment: cov", cov, self._n_param))
+        T_oj_bj = self._keyframes[j][m_j]
+        T_bi_bj = np.linalg.inv(self._keyframes[i][m_i]) @ T @ T_oj_bj
+        Ad = self._pose(np.linalg.inv(T_oj_bj)).AdjointMap()
+        noise = self._noise(Ad @ C @ Ad.T, True)
+        self._queue(self._between(keyframe_key(i, m_i), keyframe_key(j, m_j), T_bi_bj, noise),
+                    ("keyframe", int(i), int(j), hypothesis))
+
+    def add_between(self, key_a: int, key_b: int, T_a_b, cov_tangent, robust: bool = True
+                    ) -> None:
+        """Queue any between-factor on existing keys (a user's own loop closure, say).
+
+        Args:
+            key_a, key_b: keys from `keyframe_key` / `alignment_key`.
+            T_a_b: relative pose matrix; cov_tangent: its covariance in gtsam's tangent order.
+        """
+        size = 3 if self._planar else 4
+        T = _check_finite("add_between: T_a_b", T_a_b, (size, size))
+        C = _check_cov("add_between: cov_tangent", cov_tangent, 3 if self._planar else 6)
+        for key in (key_a, key_b):
+            if not (self._estimate.exists(key) or self._pending_values.exists(key)):
+                raise DataError(f"add_between: key {gtsam.Symbol(key).string()} does not exist")
+        self._queue(self._between(key_a, key_b, T, self._noise(C, robust)))
+
+    def trajectory(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
+        """Committed keyframes of `robot`: indices (m,) and poses (m, 3, 3) / (m, 4, 4) in the
+        common frame."""
+        self._check_robot("robot", robot)
+        indices = np.array(sorted(i for i in self._keyframes[robot]
+                                  if self._estimate.exists(keyframe_key(robot, i))), np.int64)
+        size = 3 if self._planar else 4
+        poses = np.array([self._value(keyframe_key(robot, int(i))) for i in indices])
+        return indices, poses.reshape(-1, size, size)
+
+    def write_g2o(self, path: str | Path) -> None:
+        """Write the active factors and the current solution in g2o format."""
+        graph = gtsam.NonlinearFactorGraph()
+        for index in sorted(self._active):
+            factor = self._active[index]
+            if isinstance(factor, (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)):
+                noise = factor.noiseModel()
+                if isinstance(noise, gtsam.noiseModel.Robust):
+                    # g2o edges carry an information matrix; the M-estimator is not exported
+                    factor = type(factor)(*factor.keys(), factor.measured(), noise.noise())
+            graph.add(factor)
+        gtsam.writeG2o(graph, self._estimate, str(path))
