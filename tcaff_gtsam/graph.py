@@ -86,8 +86,8 @@ class InterRobotGraph:
         isam_params = gtsam.ISAM2Params()
         isam_params.setRelinearizeThreshold(prm.relinearize_threshold)
         isam_params.relinearizeSkip = prm.relinearize_skip
+        isam_params.enablePartialRelinearizationCheck = True  # only cliques the update touched
         self._isam = gtsam.ISAM2(isam_params)
-        self._estimate = gtsam.Values()
         self._steps: list[int] = []
         self._step_set: set[int] = set()
         self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)  # T_o_b per index
@@ -175,10 +175,18 @@ class InterRobotGraph:
         return gtsam.noiseModel.Robust.Create(estimator, gaussian)
 
     def _value(self, key: int) -> np.ndarray:
-        values = self._pending_values if self._pending_values.exists(key) else self._estimate
-        if self._planar:
-            return values.atPose2(key).matrix()
-        return values.atPose3(key).matrix()
+        """Current estimate of one variable (its initial value while it is still queued)."""
+        if self._pending_values.exists(key):
+            values = self._pending_values
+            pose = values.atPose2(key) if self._planar else values.atPose3(key)
+        elif self._planar:
+            pose = self._isam.calculateEstimatePose2(key)
+        else:
+            pose = self._isam.calculateEstimatePose3(key)
+        return pose.matrix()
+
+    def _exists(self, key: int) -> bool:
+        return self._pending_values.exists(key) or self._isam.valueExists(key)
 
     def _insert(self, key: int, T: np.ndarray) -> None:
         self._pending_values.insert(key, self._pose(T))
@@ -253,6 +261,10 @@ class InterRobotGraph:
             self._add_step(int(step))
         if self._pending.size() == 0 and not self._to_remove:
             return
+        touched = {key for slot in range(self._pending.size())
+                   for key in self._pending.at(slot).keys()}
+        for index in self._to_remove:
+            touched.update(self._active[index].keys())
         result = self._isam.update(self._pending, self._pending_values, self._to_remove)
         for index in self._to_remove:
             self._active.pop(index, None)
@@ -264,8 +276,7 @@ class InterRobotGraph:
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         self._pending_tags, self._pending_steps, self._to_remove = [], [], []
-        self._settle()
-        self._estimate = self._isam.calculateEstimate()
+        self._settle(touched)
 
     def _add_step(self, step: int) -> None:
         prm = self.params
@@ -285,11 +296,13 @@ class InterRobotGraph:
         self._steps.append(step)
         self._step_set.add(step)
 
-    def _settle(self) -> None:
-        """Extra iterations while the solution still moves (big corrections are nonlinear)."""
+    def _settle(self, keys: set[int]) -> None:
+        """Extra iterations while a variable the update touched is still far from its
+        linearisation point (after a first alignment or a removed hypothesis); ordinary steps
+        leave the usual relinearisation to the next update."""
         for _ in range(self.params.max_iterations):
-            delta = self._isam.getDelta().vector()
-            if delta.size == 0 or np.abs(delta).max() < self.params.relinearize_threshold:
+            delta = self._isam.getDelta()
+            if max(np.abs(delta.at(key)).max() for key in keys) < self.params.settle_threshold:
                 return
             self._isam.update()
 
@@ -443,7 +456,7 @@ class InterRobotGraph:
         T = _check_finite("add_between: T_a_b", T_a_b, (size, size))
         C = _check_cov("add_between: cov_tangent", cov_tangent, 3 if self._planar else 6)
         for key in (key_a, key_b):
-            if not (self._estimate.exists(key) or self._pending_values.exists(key)):
+            if not self._exists(key):
                 raise DataError(f"add_between: key {gtsam.Symbol(key).string()} does not exist")
         self._queue(self._between(key_a, key_b, T, self._noise(C, robust)))
 
@@ -451,10 +464,12 @@ class InterRobotGraph:
         """Committed keyframes of `robot`: indices (m,) and poses (m, 3, 3) / (m, 4, 4) in the
         common frame."""
         self._check_robot("robot", robot)
+        estimate = self._isam.calculateEstimate()
         indices = np.array(sorted(i for i in self._keyframes[robot]
-                                  if self._estimate.exists(keyframe_key(robot, i))), np.int64)
+                                  if estimate.exists(keyframe_key(robot, i))), np.int64)
         size = 3 if self._planar else 4
-        poses = np.array([self._value(keyframe_key(robot, int(i))) for i in indices])
+        get = estimate.atPose2 if self._planar else estimate.atPose3
+        poses = np.array([get(keyframe_key(robot, int(i))).matrix() for i in indices])
         return indices, poses.reshape(-1, size, size)
 
     def write_g2o(self, path: str | Path) -> None:
@@ -468,4 +483,4 @@ class InterRobotGraph:
                     # g2o edges carry an information matrix; the M-estimator is not exported
                     factor = type(factor)(*factor.keys(), factor.measured(), noise.noise())
             graph.add(factor)
-        gtsam.writeG2o(graph, self._estimate, str(path))
+        gtsam.writeG2o(graph, self._isam.calculateEstimate(), str(path))

@@ -11,9 +11,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.geometry import wrap_angle
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params, wrap_angle
 
-__all__ = ["AlignmentStream", "alignment_stream", "wrong_alignments"]
+__all__ = [
+    "AlignmentStream",
+    "RobotTeamStreams",
+    "alignment_stream",
+    "observe_alignments",
+    "robot_team_streams",
+    "wrong_alignments",
+]
 
 DEG = np.pi / 180.0
 
@@ -41,8 +48,8 @@ def wrong_alignments(rng: np.random.Generator, k: int, spread: float = 15.0) -> 
 
 def alignment_stream(rng: np.random.Generator, steps: int, x0=(3.0, -2.0, 1.0),
                      drift=(0.005, 0.005, 0.05 * DEG), noise=(0.2, 0.2, 2.0 * DEG),
-                     p_empty: float = 0.2,
-                     outliers: tuple[int, int] = (0, 4), spread: float = 15.0,
+                     p_empty: float = 0.2, outliers: tuple[int, int] = (0, 4),
+                     spread: float = 15.0,
                      jumps: dict[int, tuple[float, float, float]] | None = None
                      ) -> AlignmentStream:
     """A drifting true alignment observed with noise among outliers.
@@ -51,25 +58,42 @@ def alignment_stream(rng: np.random.Generator, steps: int, x0=(3.0, -2.0, 1.0),
         steps: length of the stream.
         x0: the true (x, y, theta) at the first step.
         drift: per-step std of the random walk of the truth (x, y, theta).
-        noise: std of the correct measurement per component.
-        p_empty: probability that a step has no correct measurement.
-        outliers: inclusive range of the number of wrong alignments per step.
-        spread: metres, half-width of the square the wrong alignments fall in.
+        noise, p_empty, outliers, spread: see `observe_alignments`.
         jumps: {step: (dx, dy, dtheta)} added to the truth at that step (a re-initialised
             odometry frame).
     """
-    if steps < 0 or not 0 <= p_empty <= 1 or not 0 <= outliers[0] <= outliers[1]:
-        raise DataError(f"alignment_stream: need steps >= 0, p_empty in [0, 1] and "
-                        f"0 <= outliers[0] <= outliers[1], got {steps}, {p_empty}, {outliers}")
+    if steps < 0:
+        raise DataError(f"alignment_stream: steps = {steps} must be >= 0")
     jumps = jumps or {}
     x = np.array(x0, dtype=float)
-    truth, zs, correct = [], [], []
+    truth = []
     for t in range(steps):
         if t:
             x = x + rng.normal(0.0, drift)
         x = x + np.asarray(jumps.get(t, (0.0, 0.0, 0.0)))
         x[2] = wrap_angle(x[2])
         truth.append(x.copy())
+    return observe_alignments(rng, np.array(truth).reshape(-1, 3), noise, p_empty, outliers,
+                              spread)
+
+
+def observe_alignments(rng: np.random.Generator, truth: np.ndarray,
+                       noise=(0.2, 0.2, 2.0 * DEG), p_empty: float = 0.2,
+                       outliers: tuple[int, int] = (0, 4), spread: float = 15.0
+                       ) -> AlignmentStream:
+    """Candidate measurements of a given true alignment sequence truth (n, 3).
+
+    Args:
+        noise: std of the correct measurement per component.
+        p_empty: probability that a step has no correct measurement.
+        outliers: inclusive range of the number of wrong alignments per step.
+        spread: metres, half-width of the square the wrong alignments fall in.
+    """
+    if not 0 <= p_empty <= 1 or not 0 <= outliers[0] <= outliers[1]:
+        raise DataError(f"observe_alignments: need p_empty in [0, 1] and 0 <= outliers[0] <= "
+                        f"outliers[1], got {p_empty}, {outliers}")
+    zs, correct = [], []
+    for x in truth:
         meas = wrong_alignments(rng, int(rng.integers(outliers[0], outliers[1] + 1)), spread)
         index = -1
         if rng.random() >= p_empty:
@@ -79,4 +103,40 @@ def alignment_stream(rng: np.random.Generator, steps: int, x0=(3.0, -2.0, 1.0),
             meas = np.insert(meas, index, z, axis=0)
         zs.append(meas)
         correct.append(index)
-    return AlignmentStream(np.array(truth).reshape(-1, 3), zs, np.array(correct, np.int64))
+    return AlignmentStream(np.asarray(truth, float).reshape(-1, 3), zs,
+                           np.array(correct, np.int64))
+
+
+@dataclass(frozen=True)
+class RobotTeamStreams:
+    """Attributes:
+        A: (n_robots, steps, 3, 3) true pose of each robot's odometry frame in a common frame
+            (robot 0's, which does not drift) per step.
+        pairs: {(i, j): AlignmentStream of T_oi_oj} for every directed pair i != j.
+    """
+
+    A: np.ndarray
+    pairs: dict[tuple[int, int], AlignmentStream]
+
+
+def robot_team_streams(rng: np.random.Generator, n_robots: int, steps: int,
+                       drift=(0.004, 0.004, 0.04 * DEG), **observe) -> RobotTeamStreams:
+    """Every directed pair's candidate stream for a team whose odometry frames drift.
+
+    Robot r != 0 starts at a random alignment (|t| up to 20 m, any heading) and random-walks
+    with per-step std `drift`; `observe` goes to `observe_alignments` for each pair.
+    """
+    A = np.zeros((n_robots, steps, 3, 3))
+    for r in range(n_robots):
+        x = np.zeros(3) if r == 0 else np.r_[rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)]
+        for t in range(steps):
+            if t and r:
+                x = x + rng.normal(0.0, drift)
+            A[r, t] = se2_from_params(x)
+    pairs = {}
+    for i in range(n_robots):
+        for j in range(n_robots):
+            if i != j:
+                truth = se2_to_params(np.linalg.inv(A[i]) @ A[j])
+                pairs[(i, j)] = observe_alignments(rng, truth, **observe)
+    return RobotTeamStreams(A, pairs)
