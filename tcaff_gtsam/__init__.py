@@ -1,7 +1,8 @@
 """tcaff-gtsam: robot frame alignment by temporal consistency (TCAFF) with a GTSAM back end.
 
 The estimation core: object maps, CLIPPER association, MNO-CLIPPER, weighted Arun, the frame
-aligner and the TCAFF filter. No file formats beyond map save/load, no printing, no plotting.
+aligner, the TCAFF filter and the iSAM2 inter-robot graph. No file formats beyond map and
+filter save/load, no printing, no plotting.
 """
 
 from .clipper import (
@@ -13,9 +14,10 @@ from .clipper import (
 )
 from .errors import ConfigError, DataError, ModelError, TcaffError
 from .frame_aligner import AlignmentMeasurement, FrameAligner
+from .graph import InterRobotGraph
 from .object_map import ObjectMap
 from .pairwise import PairwiseAligner
-from .params import ClipperParams, FrameAlignerParams, TCAFFParams
+from .params import ClipperParams, FrameAlignerParams, GraphParams, TCAFFParams
 from .registration import putative_associations, weighted_arun
 from .tcaff import TCAFF, AlignmentEstimate
 
@@ -32,6 +34,8 @@ __all__ = [
     "DataError",
     "FrameAligner",
     "FrameAlignerParams",
+    "GraphParams",
+    "InterRobotGraph",
     "ModelError",
     "ObjectMap",
     "PairwiseAligner",

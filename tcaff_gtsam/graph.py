@@ -4,8 +4,9 @@ Two kinds of variables, each robot r having its own chain of both:
 
 - A_r(k), the pose of robot r's odometry frame in the common frame at alignment step k. Chains
   are linked by identity between-factors with the drift covariance Q / 2 per step (so a pair
-  drifts by Q, as TCAFF assumes); robot 0's first A is anchored by a prior, the others get a weak
-  prior. An alignment T_oi_oj at step k is the factor A_i(k)^-1 A_j(k) = T_oi_oj, and
+  drifts by Q, as TCAFF assumes); robot 0's first A is anchored by a prior. A robot not (yet, or
+  no longer) connected to robot 0 by alignments gets a weak prior that only fixes its gauge. An
+  alignment T_oi_oj at step k is the factor A_i(k)^-1 A_j(k) = T_oi_oj, and
   `alignment(i, j, k)` reads T_oi_oj(k) = A_i(k)^-1 A_j(k) with its marginal covariance. The
   graph makes these cycle consistent: T_ij T_jk = T_ik holds exactly.
 - X_r(m), keyframe poses in the common frame, for CSLAM use: odometry between-factors along each
@@ -22,7 +23,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
 import gtsam
@@ -50,6 +52,28 @@ def alignment_key(robot: int, step: int) -> int:
 def keyframe_key(robot: int, index: int) -> int:
     """gtsam key of X_robot(index)."""
     return gtsam.symbol("r", (1 << _KIND_SHIFT) | (robot << _ROBOT_SHIFT) | index)
+
+
+def _chain(key: int) -> tuple[str, int]:
+    """("A", robot) or ("X", robot): the chain a key belongs to."""
+    index = gtsam.Symbol(key).index()
+    return ("X" if index >> _KIND_SHIFT else "A", (index >> _ROBOT_SHIFT) & 0xFFFF)
+
+
+@dataclass(frozen=True)
+class _Factor:
+    """A factor and what the graph needs to know about it.
+
+    Attributes:
+        tag: ("alignment" | "keyframe", i, j, hypothesis), ("free", chain) or None.
+        step: the alignment step an alignment factor refers to.
+        link: (chain, chain) when the factor connects two chains.
+    """
+
+    factor: gtsam.NonlinearFactor
+    tag: tuple | None = None
+    step: int | None = None
+    link: tuple | None = None
 
 
 def _check_finite(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
@@ -91,13 +115,12 @@ class InterRobotGraph:
         self._steps: list[int] = []
         self._step_set: set[int] = set()
         self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)  # T_o_b per index
-        self._pending = gtsam.NonlinearFactorGraph()
+        self._queued: list[_Factor] = []
         self._pending_values = gtsam.Values()
-        self._pending_tags: list[tuple | None] = []  # per queued factor
-        self._pending_steps: list[int | None] = []  # per queued factor: its alignment step
         self._to_remove: list[int] = []
-        self._active: dict[int, gtsam.NonlinearFactor] = {}
-        self._tags: dict[int, tuple] = {}
+        self._active: dict[int, _Factor] = {}  # by iSAM2 factor index
+        self._links: Counter[tuple] = Counter()  # committed factors per linked chain pair
+        self._free: dict[tuple, int] = {}  # chain -> index of its gauge prior
         self._hypothesis: dict[tuple[int, int], int] = {}
 
     # -- pose helpers --------------------------------------------------------------------------
@@ -126,6 +149,7 @@ class InterRobotGraph:
         """Homogeneous matrix of an alignment given as a matrix or as parameters."""
         p = np.asarray(T_params, dtype=float)
         if p.shape == (self._n_param,):
+            p = _check_finite("T (parameters)", p, p.shape)
             return se2_from_params(p) if self._planar else se3_from_xyz_yaw(*p)
         size = 3 if self._planar else 4
         T = _check_finite("T", p, (size, size))
@@ -191,10 +215,9 @@ class InterRobotGraph:
     def _insert(self, key: int, T: np.ndarray) -> None:
         self._pending_values.insert(key, self._pose(T))
 
-    def _queue(self, factor, tag: tuple | None = None, step: int | None = None) -> None:
-        self._pending.add(factor)
-        self._pending_tags.append(tag)
-        self._pending_steps.append(step)
+    def _queue(self, factor, tag: tuple | None = None, step: int | None = None,
+               link: tuple | None = None) -> None:
+        self._queued.append(_Factor(factor, tag, step, link))
 
     def _check_robot(self, name: str, robot) -> None:
         if not isinstance(robot, (int, np.integer)) or not 0 <= robot < self.n_robots:
@@ -237,7 +260,8 @@ class InterRobotGraph:
         C = _check_cov("add_alignment: cov", cov, self._n_param)
         noise = self._noise(self._tangent_cov(T, C), robust)
         self._queue(self._between(alignment_key(i, step), alignment_key(j, step), T, noise),
-                    ("alignment", int(i), int(j), hypothesis), int(step))
+                    ("alignment", int(i), int(j), hypothesis), int(step),
+                    (("A", int(i)), ("A", int(j))))
 
     def update(self, step: int | None = None) -> None:
         """Commit the queued factors, creating A_r(step) for every robot if `step` is given.
@@ -252,31 +276,81 @@ class InterRobotGraph:
             if self._steps and step <= self._steps[-1]:
                 raise DataError(f"update: step {step} is not after the last committed step "
                                 f"{self._steps[-1]}")
-        bad = [s for s in self._pending_steps
-               if s is not None and s not in self._step_set and s != step]
+        bad = [q.step for q in self._queued
+               if q.step is not None and q.step not in self._step_set and q.step != step]
         if bad:
             raise DataError(f"update: queued alignments refer to step {bad[0]}, which is "
                             f"neither committed nor the step being committed ({step})")
         if step is not None:
             self._add_step(int(step))
-        if self._pending.size() == 0 and not self._to_remove:
+        self._fix_gauge()
+        if not self._queued and not self._to_remove:
             return
-        touched = {key for slot in range(self._pending.size())
-                   for key in self._pending.at(slot).keys()}
+        graph = gtsam.NonlinearFactorGraph()
+        touched = set()
+        for q in self._queued:
+            graph.add(q.factor)
+            touched.update(q.factor.keys())
         for index in self._to_remove:
-            touched.update(self._active[index].keys())
-        result = self._isam.update(self._pending, self._pending_values, self._to_remove)
-        for index in self._to_remove:
-            self._active.pop(index, None)
-            self._tags.pop(index, None)
-        for slot, index in enumerate(result.getNewFactorsIndices()):
-            self._active[index] = self._pending.at(slot)
-            if self._pending_tags[slot] is not None:
-                self._tags[index] = self._pending_tags[slot]
-        self._pending = gtsam.NonlinearFactorGraph()
-        self._pending_values = gtsam.Values()
-        self._pending_tags, self._pending_steps, self._to_remove = [], [], []
+            gone = self._active.pop(index)
+            touched.update(gone.factor.keys())
+            self._count(gone, index, -1)
+        result = self._isam.update(graph, self._pending_values, self._to_remove)
+        for q, index in zip(self._queued, result.getNewFactorsIndices(), strict=True):
+            self._active[index] = q
+            self._count(q, index, +1)
+        self._queued, self._pending_values, self._to_remove = [], gtsam.Values(), []
         self._settle(touched)
+
+    def _count(self, f: _Factor, index: int, sign: int) -> None:
+        if f.link:
+            self._links[f.link] += sign
+            if self._links[f.link] == 0:
+                del self._links[f.link]
+        if f.tag and f.tag[0] == "free":
+            if sign > 0:
+                self._free[f.tag[1]] = index
+            else:
+                self._free.pop(f.tag[1], None)
+
+    def _fix_gauge(self) -> None:
+        """Keep every group of chains that is not connected to robot 0's anchored chains fixed
+        by exactly one weak prior, and no prior on the others (priors there would bias the
+        alignments). Runs before each iSAM2 update, so priors come and go with the factors
+        (a first alignment, a removed hypothesis) in the same update."""
+        chains = ({("A", r) for r in range(self.n_robots)} if self._steps else set())
+        chains |= {("X", r) for r, frames in self._keyframes.items() if frames}
+        parent = {c: c for c in chains}
+
+        def root(c):
+            while parent[c] != c:
+                parent[c] = parent[parent[c]]
+                c = parent[c]
+            return c
+
+        links = Counter(self._links)
+        for index in self._to_remove:
+            if self._active[index].link:
+                links[self._active[index].link] -= 1
+        links.update(q.link for q in self._queued if q.link)
+        for (a, b), count in links.items():
+            if count > 0:
+                parent[root(a)] = root(b)
+        anchored = {root(c) for c in (("A", 0), ("X", 0)) if c in parent}
+        free = {c: i for c, i in self._free.items() if i not in self._to_remove}
+        groups: dict[tuple, list] = defaultdict(list)
+        for c in sorted(chains):
+            groups[root(c)].append(c)
+        for group_root, members in groups.items():
+            have = [c for c in members if c in free]
+            keep = [] if group_root in anchored else have[:1]
+            self._to_remove.extend(free[c] for c in have if c not in keep)
+            if group_root not in anchored and not keep:
+                kind, robot = members[0]
+                key = (alignment_key(robot, self._steps[-1]) if kind == "A"
+                       else keyframe_key(robot, max(self._keyframes[robot])))
+                self._queue(self._prior(key, self._value(key), self.params.free_sigmas),
+                            ("free", members[0]))
 
     def _add_step(self, step: int) -> None:
         prm = self.params
@@ -286,8 +360,8 @@ class InterRobotGraph:
             key = alignment_key(r, step)
             if previous is None:
                 self._insert(key, identity)
-                sigmas = ((prm.anchor_sigma, prm.anchor_sigma) if r == 0 else prm.free_sigmas)
-                self._queue(self._prior(key, identity, sigmas))
+                if r == 0:
+                    self._queue(self._prior(key, identity, (prm.anchor_sigma,) * 2))
             else:
                 before = alignment_key(r, previous)
                 self._insert(key, self._value(before))
@@ -346,20 +420,15 @@ class InterRobotGraph:
 
     def remove_hypothesis(self, i: int, j: int, hypothesis: int) -> int:
         """Queue the removal of every factor tagged with (i, j, hypothesis); returns how many."""
-        found = [index for index, tag in self._tags.items()
-                 if tag[1:] == (i, j, hypothesis) and index not in self._to_remove]
+        def tagged(f: _Factor) -> bool:
+            return f.tag is not None and f.tag[0] != "free" and f.tag[1:] == (i, j, hypothesis)
+
+        found = [index for index, f in self._active.items()
+                 if tagged(f) and index not in self._to_remove]
         self._to_remove.extend(found)
-        # factors still waiting in the queue are dropped from it as well
-        queued = list(zip(self._pending_tags, self._pending_steps, strict=True))
-        kept = [slot for slot, (tag, _) in enumerate(queued)
-                if tag is None or tag[1:] != (i, j, hypothesis)]
-        graph = gtsam.NonlinearFactorGraph()
-        for slot in kept:
-            graph.add(self._pending.at(slot))
-        self._pending = graph
-        self._pending_tags = [queued[slot][0] for slot in kept]
-        self._pending_steps = [queued[slot][1] for slot in kept]
-        return len(found) + len(queued) - len(kept)
+        queued = len(self._queued)  # factors still waiting are dropped from the queue
+        self._queued = [q for q in self._queued if not tagged(q)]
+        return len(found) + queued - len(self._queued)
 
     def add_tcaff_estimate(self, step: int, i: int, j: int,
                            estimate: AlignmentEstimate | None, zs, Rs) -> None:
@@ -414,8 +483,8 @@ class InterRobotGraph:
             A = (self._value(alignment_key(robot, self._steps[-1])) if self._steps
                  else np.eye(size))
             self._insert(key, A @ T)
-            sigmas = ((self.params.anchor_sigma,) * 2 if robot == 0 else self.params.free_sigmas)
-            self._queue(self._prior(key, A @ T, sigmas))
+            if robot == 0:
+                self._queue(self._prior(key, T, (self.params.anchor_sigma,) * 2))
         else:
             last = max(frames)
             delta = np.linalg.inv(frames[last]) @ T
@@ -442,7 +511,7 @@ class InterRobotGraph:
         Ad = self._pose(np.linalg.inv(T_oj_bj)).AdjointMap()
         noise = self._noise(Ad @ C @ Ad.T, True)
         self._queue(self._between(keyframe_key(i, m_i), keyframe_key(j, m_j), T_bi_bj, noise),
-                    ("keyframe", int(i), int(j), hypothesis))
+                    ("keyframe", int(i), int(j), hypothesis), link=(("X", int(i)), ("X", int(j))))
 
     def add_between(self, key_a: int, key_b: int, T_a_b, cov_tangent, robust: bool = True
                     ) -> None:
@@ -458,7 +527,9 @@ class InterRobotGraph:
         for key in (key_a, key_b):
             if not self._exists(key):
                 raise DataError(f"add_between: key {gtsam.Symbol(key).string()} does not exist")
-        self._queue(self._between(key_a, key_b, T, self._noise(C, robust)))
+        link = (_chain(key_a), _chain(key_b))
+        self._queue(self._between(key_a, key_b, T, self._noise(C, robust)),
+                    link=link if link[0] != link[1] else None)
 
     def trajectory(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
         """Committed keyframes of `robot`: indices (m,) and poses (m, 3, 3) / (m, 4, 4) in the
@@ -476,7 +547,7 @@ class InterRobotGraph:
         """Write the active factors and the current solution in g2o format."""
         graph = gtsam.NonlinearFactorGraph()
         for index in sorted(self._active):
-            factor = self._active[index]
+            factor = self._active[index].factor
             if isinstance(factor, (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)):
                 noise = factor.noiseModel()
                 if isinstance(noise, gtsam.noiseModel.Robust):

@@ -318,10 +318,10 @@ class GraphParams:
         robust: M-estimator of the alignment factors: "huber", "cauchy" or "none" (Gaussian).
         robust_k: its threshold, in standard deviations of the whitened residual.
         anchor_sigma: metres and radians; prior on robot 0's first alignment and keyframe.
-        free_sigmas: (metres, radians) of the weak prior that keeps every other robot's first
-            alignment and keyframe defined before any inter-robot factor arrives (and after
-            a hypothesis' factors are removed). Weak enough not to bias the solution
-            measurably (1e-8 m on noise-free data).
+        free_sigmas: (metres, radians) of the prior that fixes the gauge of robots (or
+            groups of robots) not connected to robot 0 by any factor. It is placed on their
+            latest variable at its current value and removed as soon as they connect, so it
+            never biases an alignment.
         gravity_sigma: radians, roll and pitch uncertainty of a 3D alignment factor.
         odometry_cov: covariance of the odometry between consecutive keyframes in gtsam's
             tangent order ((vx, vy, omega) for Pose2; (wx, wy, wz, vx, vy, vz), rotation first,
@@ -341,7 +341,7 @@ class GraphParams:
     robust: Literal["huber", "cauchy", "none"] = "huber"
     robust_k: float = 1.345
     anchor_sigma: float = 1e-3
-    free_sigmas: tuple[float, float] = (1e4, 1e4)
+    free_sigmas: tuple[float, float] = (1.0, 1.0)
     gravity_sigma: float = 1e-3
     odometry_cov: np.ndarray | None = None
     relinearize_threshold: float = 0.05

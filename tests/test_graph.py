@@ -1,0 +1,277 @@
+"""InterRobotGraph: iSAM2 smoothing of alignments, robustness, hypotheses, keyframes, g2o."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+from tcaff_gtsam.eval.sim.streams import robot_team_streams
+
+from tcaff_gtsam import TCAFF, InterRobotGraph
+from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params, se3_from_xyz_yaw, wrap_angle
+from tcaff_gtsam.graph import alignment_key, keyframe_key
+from tcaff_gtsam.params import GraphParams, constant_alignment_covariance
+
+R = constant_alignment_covariance()
+
+
+def pose_error(T_true, T_est):
+    """Translation [m] and |heading| [deg] of T_true^-1 T_est (SE(2))."""
+    dx, dy, dth = se2_to_params(np.linalg.inv(T_true) @ T_est)
+    return np.hypot(dx, dy), abs(np.degrees(dth))
+
+
+def team(seed=0):
+    rng = np.random.default_rng(seed)
+    T01 = se2_from_params([10.0, -3.0, 2.0])
+    T02 = se2_from_params([-4.0, 7.0, -2.5])
+    return rng, {(0, 1): T01, (0, 2): T02, (1, 2): np.linalg.inv(T01) @ T02}
+
+
+def test_noise_free_alignments_are_reproduced_exactly():
+    _, truth = team()
+    graph = InterRobotGraph(3)
+    for k in range(20):
+        if k % 2 == 0:
+            graph.add_alignment(k, 0, 1, truth[(0, 1)], R)
+        if k % 3 == 0:
+            graph.add_alignment(k, 1, 2, se2_to_params(truth[(1, 2)]), R)  # parameters work too
+        graph.update(k)
+    for k in (0, 7, 19):
+        for pair, T in truth.items():
+            t_err, th_err = pose_error(T, graph.alignment(*pair, k)[0])
+            assert t_err < 1e-6 and th_err < 1e-6
+
+
+def test_alignment_covariance_is_the_factor_covariance_in_parameters():
+    """One factor, nothing else: the marginal of T_01 is that factor's covariance, rotated
+    correctly between gtsam's body-frame tangent and the (x, y, theta) parameters."""
+    C = np.array([[0.3, 0.1, 0.01], [0.1, 0.2, -0.02], [0.01, -0.02, 0.01]])
+    for theta in (0.0, 2.0, -2.8):
+        graph = InterRobotGraph(2)
+        graph.add_alignment(0, 0, 1, [4.0, -1.0, theta], C)
+        graph.update(0)
+        T, cov = graph.alignment(0, 1)
+        np.testing.assert_allclose(se2_to_params(T), [4.0, -1.0, wrap_angle(theta)], atol=1e-9)
+        np.testing.assert_allclose(cov, C, atol=1e-5)
+        # the reverse direction: T_10 = T_01^-1 with the covariance mapped through the inverse
+        T10, cov10 = graph.alignment(1, 0)
+        np.testing.assert_allclose(T10 @ T, np.eye(3), atol=1e-9)
+        x, y = T[0, 2], T[1, 2]
+        c, s = np.cos(theta), np.sin(theta)
+        # d(-R^T t, -theta)/d(x, y, theta)
+        J = np.array([[-c, -s, s * x - c * y], [s, -c, c * x + s * y], [0, 0, -1]])
+        np.testing.assert_allclose(cov10, J @ C @ J.T, atol=1e-5)
+
+
+def run_team(streams, steps, robust="huber"):
+    """TCAFF per pair feeding the graph; errors of the filter, causal and smoothed graph on
+    the steps where the filter has an estimate."""
+    n = streams.A.shape[0]
+    filters = {pair: TCAFF() for pair in streams.pairs}
+    graph = InterRobotGraph(n, GraphParams(robust=robust))
+    est_err, causal_err, kept = [], [], []
+    for k in range(steps):
+        estimates = {}
+        for pair, stream in streams.pairs.items():
+            zs = stream.zs[k]
+            Rs = np.broadcast_to(R, (len(zs), 3, 3))
+            est = filters[pair].update(zs, Rs)
+            graph.add_tcaff_estimate(k, *pair, est, zs, Rs)
+            estimates[pair] = est
+        graph.update(k)
+        for pair, est in estimates.items():
+            if est is not None:
+                T_true = np.linalg.inv(streams.A[pair[0], k]) @ streams.A[pair[1], k]
+                est_err.append(pose_error(T_true, est.T))
+                causal_err.append(pose_error(T_true, graph.alignment(*pair, k, False)[0]))
+                kept.append((pair, k, T_true))
+    smooth_err = [pose_error(T, graph.alignment(*pair, k, False)[0]) for pair, k, T in kept]
+    return np.array(est_err), np.array(causal_err), np.array(smooth_err), graph
+
+
+def test_smoothed_beats_causal_which_matches_or_beats_the_filter():
+    streams = robot_team_streams(np.random.default_rng(3), 3, 120)
+    est, causal, smooth, _ = run_team(streams, 120)
+    assert len(est) > 500
+    assert smooth[:, 0].mean() < causal[:, 0].mean() <= est[:, 0].mean()
+    assert smooth[:, 1].mean() < causal[:, 1].mean() <= est[:, 1].mean()
+
+
+def test_cycle_consistency_of_the_graph_but_not_of_pairwise_filters():
+    streams = robot_team_streams(np.random.default_rng(4), 3, 60)
+    _, _, _, graph = run_team(streams, 60)
+    filters = {pair: TCAFF() for pair in ((0, 1), (1, 2), (0, 2))}
+    for k in range(60):
+        last = {}
+        for pair, filt in filters.items():
+            zs = streams.pairs[pair].zs[k]
+            last[pair] = filt.update(zs, np.broadcast_to(R, (len(zs), 3, 3)))
+    filter_gap = pose_error(last[(0, 1)].T @ last[(1, 2)].T, last[(0, 2)].T)
+    graph_gap = pose_error(graph.alignment(0, 1)[0] @ graph.alignment(1, 2)[0],
+                           graph.alignment(0, 2)[0])
+    assert max(graph_gap) < 1e-9
+    assert filter_gap[0] > 1e-3
+
+
+def outlier_run(robust: str, outliers: bool) -> float:
+    """Mean smoothed translation error of T_01 from alignments with 10 % gross outliers."""
+    rng = np.random.default_rng(5)
+    T = se2_from_params([6.0, 2.0, 0.7])
+    graph = InterRobotGraph(2, GraphParams(robust=robust))
+    for k in range(200):
+        z = se2_to_params(T) + rng.normal(0, [0.2, 0.2, np.radians(2.0)])
+        if outliers and rng.random() < 0.1:
+            z = z + np.array([4.0, -3.0, 0.8])
+        graph.add_alignment(k, 0, 1, z, R)
+        graph.update(k)
+    return float(np.mean([pose_error(T, graph.alignment(0, 1, k, False)[0])[0]
+                          for k in range(200)]))
+
+
+def test_huber_bounds_gross_outliers_and_gaussian_does_not():
+    clean = outlier_run("huber", outliers=False)
+    assert outlier_run("huber", outliers=True) < 2 * clean
+    assert outlier_run("cauchy", outliers=True) < 2 * clean
+    assert outlier_run("none", outliers=True) > 2 * outlier_run("none", outliers=False)
+
+
+def test_removing_a_hypothesis_restores_the_estimate():
+    _, truth = team()
+    good = InterRobotGraph(2)
+    mixed = InterRobotGraph(2)
+    wrong = truth[(0, 1)] @ se2_from_params([3.0, 0.0, 0.5])
+    for k in range(30):
+        for graph in (good, mixed):
+            graph.add_alignment(k, 0, 1, truth[(0, 1)], R, hypothesis=1)
+        if k >= 20:
+            mixed.add_alignment(k, 0, 1, wrong, R * 0.1, hypothesis=2)
+        for graph in (good, mixed):
+            graph.update(k)
+    assert pose_error(truth[(0, 1)], mixed.alignment(0, 1)[0])[0] > 0.5
+    assert mixed.remove_hypothesis(0, 1, 2) == 10
+    mixed.update(30)
+    good.update(30)
+    for k in (25, 30):
+        T_good, C_good = good.alignment(0, 1, k)
+        T_mixed, C_mixed = mixed.alignment(0, 1, k)
+        np.testing.assert_allclose(T_mixed, T_good, atol=1e-6)
+        # marginals come from slightly different linearisation points
+        np.testing.assert_allclose(C_mixed, C_good, rtol=0.02, atol=1e-6)
+
+
+def test_tcaff_switch_removes_the_abandoned_factors():
+    rng = np.random.default_rng(2)
+    graph = InterRobotGraph(2)
+    filt = TCAFF()
+    T_a, T_b = np.array([1.0, 2.0, 0.3]), np.array([-5.0, 4.0, 2.0])
+    for k in range(80):
+        true = T_a if k < 40 else T_b
+        zs = (true + rng.normal(0, [0.1, 0.1, 0.01]))[None]
+        Rs = R[None]
+        graph.add_tcaff_estimate(k, 0, 1, filt.update(zs, Rs), zs, Rs)
+        graph.update(k)
+    hypotheses = {f.tag[3] for f in graph._active.values()
+                  if f.tag is not None and f.tag[0] == "alignment"}
+    assert hypotheses == {2}
+    assert pose_error(se2_from_params(T_b), graph.alignment(0, 1)[0])[0] < 0.1
+
+
+def test_g2o_export_reads_back():
+    _, truth = team()
+    graph = InterRobotGraph(3)
+    for k in range(5):
+        graph.add_alignment(k, 0, 1, truth[(0, 1)], R)
+        graph.add_alignment(k, 0, 2, truth[(0, 2)], R)
+        graph.update(k)
+
+    def vertex(key):
+        return gtsam.Symbol(key).index()
+
+    path = "graph.g2o"
+    import os
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "graph.g2o")
+        graph.write_g2o(path)
+        factors, values = gtsam.readG2o(path)
+    assert values.size() == 15
+    n_between = 3 * 4 + 2 * 5  # chains + alignments; priors are not g2o edges
+    assert factors.size() == n_between
+    A2 = values.atPose2(vertex(alignment_key(2, 3))).matrix()
+    A0 = values.atPose2(vertex(alignment_key(0, 3))).matrix()
+    assert pose_error(truth[(0, 2)], np.linalg.inv(A0) @ A2)[0] < 1e-6
+
+
+def test_keyframe_trajectories_in_the_common_frame():
+    """Two robots drive; odometry between keyframes; one alignment between keyframes places
+    robot 1's whole trajectory in robot 0's frame."""
+    T_o0_o1 = se2_from_params([5.0, -2.0, 1.2])
+    graph = InterRobotGraph(2)
+    truth_1 = []
+    for m in range(10):
+        T_o0_b0 = se2_from_params([0.5 * m, 0.1 * m, 0.05 * m])
+        T_o1_b1 = se2_from_params([0.3 * m, -0.2 * m, -0.1 * m])
+        graph.add_keyframe(0, m, T_o0_b0, odometry_cov=np.eye(3) * 1e-6)
+        graph.add_keyframe(1, m, T_o1_b1, odometry_cov=np.eye(3) * 1e-6)
+        truth_1.append(T_o0_o1 @ T_o1_b1)
+        if m == 4:
+            graph.add_keyframe_alignment(0, 4, 1, 4, T_o0_o1, np.eye(3) * 1e-4)
+        graph.update()
+    indices, poses = graph.trajectory(1)
+    assert indices.tolist() == list(range(10))
+    for T_true, T_est in zip(truth_1, poses, strict=True):
+        t_err, th_err = pose_error(T_true, T_est)
+        assert t_err < 1e-3 and th_err < 0.05
+    # a user's own loop closure goes through add_between
+    graph.add_between(keyframe_key(0, 0), keyframe_key(0, 9),
+                      np.linalg.inv(se2_from_params([0, 0, 0])) @ se2_from_params(
+                          [4.5, 0.9, 0.45]), np.eye(3) * 1e-4)
+    graph.update()
+    with pytest.raises(DataError, match="no keyframe 12"):
+        graph.add_keyframe_alignment(0, 12, 1, 1, T_o0_o1, np.eye(3))
+
+
+def test_pose3_gravity_aligned_alignments():
+    graph = InterRobotGraph(3, GraphParams(dim=3))
+    T01 = se3_from_xyz_yaw(3.0, -1.0, 0.5, 2.2)
+    T12 = se3_from_xyz_yaw(-2.0, 4.0, -0.3, -0.7)
+    C = np.diag([0.25, 0.25, 0.1, 0.01])
+    for k in range(6):
+        graph.add_alignment(k, 0, 1, T01, C)
+        graph.add_alignment(k, 1, 2, [-2.0, 4.0, -0.3, -0.7], C)  # (x, y, z, yaw) works too
+        graph.update(k)
+    T02, cov = graph.alignment(0, 2)
+    np.testing.assert_allclose(T02, T01 @ T12, atol=1e-6)
+    assert cov.shape == (4, 4) and np.all(np.linalg.eigvalsh(cov) > 0)
+    np.testing.assert_allclose(graph.alignment_params(0, 1), [3.0, -1.0, 0.5, 2.2], atol=1e-6)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda g: g.add_alignment(0, 0, 5, np.eye(3), R), "not a robot"),
+    (lambda g: g.add_alignment(0, 1, 1, np.eye(3), R), "both 1"),
+    (lambda g: g.add_alignment(0, 0, 1, [np.nan, 0, 0], R), "non-finite"),
+    (lambda g: g.add_alignment(0, 0, 1, np.eye(3), -R), "positive definite"),
+    (lambda g: g.add_alignment(0, 0, 1, np.eye(4), R), "shape"),
+    (lambda g: g.update(-1), "step"),
+    (lambda g: g.alignment(0, 1), "no step"),
+])
+def test_bad_input_is_a_data_error(call, match):
+    with pytest.raises(DataError, match=match):
+        call(InterRobotGraph(2))
+
+
+def test_steps_must_increase_and_alignments_must_have_a_step():
+    graph = InterRobotGraph(2)
+    graph.update(3)
+    with pytest.raises(DataError, match="not after"):
+        graph.update(3)
+    with pytest.raises(DataError, match="never committed"):
+        graph.add_alignment(1, 0, 1, np.eye(3), R)
+    graph.add_alignment(9, 0, 1, np.eye(3), R)
+    with pytest.raises(DataError, match="refer to step 9"):
+        graph.update(5)
+    with pytest.raises(DataError, match="has not been committed"):
+        graph.alignment(0, 1, 4)
