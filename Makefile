@@ -34,6 +34,7 @@ test: install
 bench: install
 	$(PY) scripts/bench_association.py
 	$(PY) scripts/bench_tcaff.py
+	$(PY) scripts/bench_graph.py
 
 lint: install
 	$(VENV)/bin/ruff check .
