@@ -44,13 +44,23 @@ log = logging.getLogger(__name__)
 _ROBOT_SHIFT, _KIND_SHIFT = 36, 52
 
 
+def _check_index(name: str, value, bits: int) -> int:
+    if (not isinstance(value, (int, np.integer)) or isinstance(value, bool)
+            or not 0 <= value < 1 << bits):
+        raise DataError(f"{name} = {value!r} must be an int in [0, 2^{bits})")
+    return int(value)
+
+
 def alignment_key(robot: int, step: int) -> int:
-    """gtsam key of A_robot(step)."""
-    return gtsam.symbol("r", (robot << _ROBOT_SHIFT) | step)
+    """gtsam key of A_robot(step); robot < 2^16, step < 2^36."""
+    robot = _check_index("robot", robot, _KIND_SHIFT - _ROBOT_SHIFT)
+    return gtsam.symbol("r", (robot << _ROBOT_SHIFT) | _check_index("step", step, _ROBOT_SHIFT))
 
 
 def keyframe_key(robot: int, index: int) -> int:
-    """gtsam key of X_robot(index)."""
+    """gtsam key of X_robot(index); robot < 2^16, index < 2^36."""
+    robot = _check_index("robot", robot, _KIND_SHIFT - _ROBOT_SHIFT)
+    index = _check_index("keyframe index", index, _ROBOT_SHIFT)
     return gtsam.symbol("r", (1 << _KIND_SHIFT) | (robot << _ROBOT_SHIFT) | index)
 
 
@@ -115,7 +125,8 @@ class InterRobotGraph:
         isam_params = gtsam.ISAM2Params()
         isam_params.setRelinearizeThreshold(prm.relinearize_threshold)
         isam_params.relinearizeSkip = prm.relinearize_skip
-        isam_params.enablePartialRelinearizationCheck = True  # only cliques the update touched
+        # check relinearisation from the root down only as far as needed, not every variable
+        isam_params.enablePartialRelinearizationCheck = True
         self._isam = gtsam.ISAM2(isam_params)
         self._steps: list[int] = []
         self._step_set: set[int] = set()
@@ -156,8 +167,7 @@ class InterRobotGraph:
         if p.shape == (self._n_param,):
             p = _check_finite("T (parameters)", p, p.shape)
             return se2_from_params(p) if self._planar else se3_from_xyz_yaw(*p)
-        size = 3 if self._planar else 4
-        T = _check_finite("T", p, (size, size))
+        T = self._rigid("T", p)
         if not self._planar:
             # gravity-aligned: keep x, y, z and yaw
             T = se3_from_xyz_yaw(*T[:3, 3], math.atan2(T[1, 0], T[0, 0]))
@@ -224,6 +234,16 @@ class InterRobotGraph:
                link: tuple | None = None) -> None:
         self._queued.append(_Factor(factor, tag, step, link))
 
+    def _rigid(self, name: str, T) -> np.ndarray:
+        """A homogeneous rigid transform of this graph's dimension, else DataError."""
+        size = 3 if self._planar else 4
+        T = _check_finite(name, T, (size, size))
+        R = T[: size - 1, : size - 1]
+        if (np.abs(R.T @ R - np.eye(size - 1)).max() > 1e-6 or np.linalg.det(R) < 0
+                or np.abs(T[-1] - np.eye(size)[-1]).max() > 1e-9):
+            raise DataError(f"{name} is not a rigid transform: {T.tolist()}")
+        return T
+
     def _check_robot(self, name: str, robot) -> None:
         if not isinstance(robot, (int, np.integer)) or not 0 <= robot < self.n_robots:
             raise DataError(f"{name} = {robot!r} is not a robot of this graph (0 to "
@@ -256,8 +276,7 @@ class InterRobotGraph:
         self._check_robot("j", j)
         if i == j:
             raise DataError(f"add_alignment: i and j are both {i}")
-        if not isinstance(step, (int, np.integer)) or step < 0:
-            raise DataError(f"add_alignment: step = {step!r} must be an int >= 0")
+        step = _check_index("add_alignment: step", step, _ROBOT_SHIFT)
         if self._steps and step <= self._steps[-1] and step not in self._step_set:
             raise DataError(f"add_alignment: step {step} was never committed (steps so far "
                             f"end at {self._steps[-1]})")
@@ -276,20 +295,26 @@ class InterRobotGraph:
                 refers to a step that neither exists nor is `step`.
         """
         if step is not None:
-            if not isinstance(step, (int, np.integer)) or step < 0:
-                raise DataError(f"update: step = {step!r} must be an int >= 0")
+            step = _check_index("update: step", step, _ROBOT_SHIFT)
             if self._steps and step <= self._steps[-1]:
                 raise DataError(f"update: step {step} is not after the last committed step "
                                 f"{self._steps[-1]}")
-        bad = [q.step for q in self._queued
-               if q.step is not None and q.step not in self._step_set and q.step != step]
-        if bad:
-            raise DataError(f"update: queued alignments refer to step {bad[0]}, which is "
-                            f"neither committed nor the step being committed ({step})")
+        newest = step if step is not None else (self._steps[-1] if self._steps else -1)
+        skipped = [q for q in self._queued
+                   if q.step is not None and q.step not in self._step_set and q.step < newest
+                   and q.step != step]
+        if skipped:
+            self._queued = [q for q in self._queued if all(q is not b for b in skipped)]
+            raise DataError(f"update: {len(skipped)} queued alignments refer to step "
+                            f"{skipped[0].step}, which was skipped; they were dropped")
         if step is not None:
-            self._add_step(int(step))
+            self._add_step(step)
+        # alignments for later steps wait in the queue until their step is committed
+        later = [q for q in self._queued if q.step is not None and q.step > newest]
+        self._queued = [q for q in self._queued if q.step is None or q.step <= newest]
         self._fix_gauge()
         if not self._queued and not self._to_remove:
+            self._queued = later
             return
         graph = gtsam.NonlinearFactorGraph()
         touched = set()
@@ -304,7 +329,7 @@ class InterRobotGraph:
         for q, index in zip(self._queued, result.getNewFactorsIndices(), strict=True):
             self._active[index] = q
             self._count(q, index, +1)
-        self._queued, self._pending_values, self._to_remove = [], gtsam.Values(), []
+        self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._settle(touched)
 
     def _count(self, f: _Factor, index: int, sign: int) -> None:
@@ -464,6 +489,18 @@ class InterRobotGraph:
             estimate: what `TCAFF.update(zs, Rs)` returned for this step.
             zs: (k, 3) the candidates given to TCAFF; Rs: (k, 3, 3) their covariances.
         """
+        if not self._planar:
+            raise DataError("add_tcaff_estimate: TCAFF estimates are (x, y, theta); use a "
+                            "planar graph (GraphParams(dim=2))")
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        if estimate is not None and estimate.measurement >= 0:
+            zs, Rs = np.asarray(zs, dtype=float), np.asarray(Rs, dtype=float)
+            if not (zs.ndim == 2 and zs.shape[1:] == (3,) and Rs.shape == (len(zs), 3, 3)
+                    and estimate.measurement < len(zs)):
+                raise DataError(f"add_tcaff_estimate: estimate.measurement = "
+                                f"{estimate.measurement} must index zs (k, 3) and Rs (k, 3, 3), "
+                                f"got shapes {zs.shape} and {Rs.shape}")
         previous = self._hypothesis.get((i, j))
         current = None if estimate is None else estimate.hypothesis
         if previous is not None and previous != current:
@@ -476,8 +513,7 @@ class InterRobotGraph:
         self._hypothesis[(i, j)] = current
         if estimate.measurement >= 0:
             m = estimate.measurement
-            self.add_alignment(step, i, j, np.asarray(zs)[m], np.asarray(Rs)[m],
-                               hypothesis=current)
+            self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
 
     # -- keyframes -----------------------------------------------------------------------------
 
@@ -492,19 +528,20 @@ class InterRobotGraph:
             DataError: unknown robot, index not increasing, non-finite pose.
         """
         self._check_robot("robot", robot)
-        size = 3 if self._planar else 4
-        T = _check_finite("add_keyframe: T_o_b", T_o_b, (size, size))
+        T = self._rigid("add_keyframe: T_o_b", T_o_b)
+        key = keyframe_key(robot, index)
         frames = self._keyframes[robot]
         if frames and index <= max(frames):
             raise DataError(f"add_keyframe: robot {robot} index {index} is not after "
                             f"{max(frames)}")
-        key = keyframe_key(robot, index)
         if not frames:
-            A = (self._value(alignment_key(robot, self._steps[-1])) if self._steps
-                 else np.eye(size))
-            self._insert(key, A @ T)
-            if robot == 0:
+            if robot == 0:  # robot 0's odometry frame is the common frame
+                self._insert(key, T)
                 self._queue(self._prior(key, T, (self.params.anchor_sigma,) * 2))
+            else:
+                A = (self._value(alignment_key(robot, self._steps[-1])) if self._steps
+                     else np.eye(T.shape[0]))
+                self._insert(key, A @ T)
         else:
             last = max(frames)
             delta = np.linalg.inv(frames[last]) @ T
@@ -541,9 +578,10 @@ class InterRobotGraph:
             key_a, key_b: keys from `keyframe_key` / `alignment_key`.
             T_a_b: relative pose matrix; cov_tangent: its covariance in gtsam's tangent order.
         """
-        size = 3 if self._planar else 4
-        T = _check_finite("add_between: T_a_b", T_a_b, (size, size))
+        T = self._rigid("add_between: T_a_b", T_a_b)
         C = _check_cov("add_between: cov_tangent", cov_tangent, 3 if self._planar else 6)
+        if key_a == key_b:
+            raise DataError("add_between: key_a and key_b are the same variable")
         for key in (key_a, key_b):
             if not self._exists(key):
                 raise DataError(f"add_between: key {gtsam.Symbol(key).string()} does not exist")

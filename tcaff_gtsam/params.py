@@ -369,8 +369,10 @@ class GraphParams:
             value = getattr(self, name)
             _require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, o,
                      name, value, "must be a finite number > 0")
-        _require(len(self.free_sigmas) == 2 and all(v > 0 for v in self.free_sigmas), o,
-                 "free_sigmas", self.free_sigmas, "must be (metres > 0, radians > 0)")
+        sig = np.asarray(self.free_sigmas, dtype=float) if np.ndim(self.free_sigmas) == 1 else None
+        _require(sig is not None and sig.shape == (2,) and bool(np.all(np.isfinite(sig)))
+                 and bool(np.all(sig > 0)), o, "free_sigmas", self.free_sigmas,
+                 "must be (metres, radians), finite and > 0")
         _require(_int_at_least(self.relinearize_skip, 1), o, "relinearize_skip",
                  self.relinearize_skip, "must be an int >= 1")
         _require(_int_at_least(self.max_iterations, 0), o, "max_iterations",

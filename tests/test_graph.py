@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
+
 import gtsam
 import numpy as np
 import pytest
@@ -189,10 +192,6 @@ def test_g2o_export_reads_back():
     def vertex(key):
         return gtsam.Symbol(key).index()
 
-    path = "graph.g2o"
-    import os
-    import tempfile
-
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "graph.g2o")
         graph.write_g2o(path)
@@ -226,10 +225,12 @@ def test_keyframe_trajectories_in_the_common_frame():
         t_err, th_err = pose_error(T_true, T_est)
         assert t_err < 1e-3 and th_err < 0.05
     # a user's own loop closure goes through add_between
-    graph.add_between(keyframe_key(0, 0), keyframe_key(0, 9),
-                      np.linalg.inv(se2_from_params([0, 0, 0])) @ se2_from_params(
-                          [4.5, 0.9, 0.45]), np.eye(3) * 1e-4)
+    closure = se2_from_params([4.6, 0.9, 0.45])  # 10 cm off the odometry
+    graph.add_between(keyframe_key(0, 0), keyframe_key(0, 9), closure, np.eye(3) * 1e-6,
+                      robust=False)
     graph.update()
+    _, poses0 = graph.trajectory(0)
+    assert 0.08 < np.linalg.norm(poses0[9][:2, 2] - [4.5, 0.9]) < 0.1  # pulled towards it
     with pytest.raises(DataError, match="no keyframe 12"):
         graph.add_keyframe_alignment(0, 12, 1, 1, T_o0_o1, np.eye(3))
 
@@ -247,6 +248,14 @@ def test_pose3_gravity_aligned_alignments():
     np.testing.assert_allclose(T02, T01 @ T12, atol=1e-6)
     assert cov.shape == (4, 4) and np.all(np.linalg.eigvalsh(cov) > 0)
     np.testing.assert_allclose(graph.alignment_params(0, 1), [3.0, -1.0, 0.5, 2.2], atol=1e-6)
+    # one factor alone: its (x, y, z, yaw) covariance comes back, at any yaw
+    C1 = np.array([[0.3, 0.1, 0.0, 0.01], [0.1, 0.2, 0.02, -0.02], [0.0, 0.02, 0.1, 0.0],
+                   [0.01, -0.02, 0.0, 0.01]])
+    for yaw in (0.0, 2.0, -2.8):
+        single = InterRobotGraph(2, GraphParams(dim=3))
+        single.add_alignment(0, 0, 1, [4.0, -1.0, 0.3, yaw], C1)
+        single.update(0)
+        np.testing.assert_allclose(single.alignment(0, 1)[1], C1, atol=1e-5)
 
 
 @pytest.mark.parametrize("call, match", [
@@ -270,8 +279,53 @@ def test_steps_must_increase_and_alignments_must_have_a_step():
         graph.update(3)
     with pytest.raises(DataError, match="never committed"):
         graph.add_alignment(1, 0, 1, np.eye(3), R)
-    graph.add_alignment(9, 0, 1, np.eye(3), R)
-    with pytest.raises(DataError, match="refer to step 9"):
-        graph.update(5)
+    graph.add_alignment(9, 0, 1, np.eye(3), R)  # waits for step 9
+    graph.update(5)
+    graph.update(9)
+    assert graph.alignment(0, 1, 9)[1][0, 0] < 1.0  # the factor arrived with its step
+    graph.add_alignment(12, 0, 1, np.eye(3), R)
+    with pytest.raises(DataError, match="skipped; they were dropped"):
+        graph.update(14)
+    graph.update(14)  # the graph is not stuck
     with pytest.raises(DataError, match="has not been committed"):
         graph.alignment(0, 1, 4)
+    with pytest.raises(DataError, match=r"step = 68719476736 must be an int in \[0, 2\^36\)"):
+        graph.update(2**36)
+    graph.update(15)
+
+
+def test_gauge_prior_returns_when_a_robot_disconnects_and_queued_factors_can_be_removed():
+    _, truth = team()
+    graph = InterRobotGraph(2)
+    for k in range(5):
+        graph.add_alignment(k, 0, 1, truth[(0, 1)], R, hypothesis=1)
+        graph.update(k)
+    assert not graph._free  # connected: no gauge prior
+    graph.add_alignment(5, 0, 1, truth[(0, 1)], R, hypothesis=1)
+    assert graph.remove_hypothesis(0, 1, 1) == 6  # 5 committed, 1 still queued
+    graph.update(5)
+    assert list(graph._free) == [("A", 1)]
+    _, cov = graph.alignment(0, 1, 5)  # still solvable; now barely known
+    assert cov[0, 0] > 0.5
+
+
+def test_bad_keys_poses_and_estimates_are_data_errors():
+    graph = InterRobotGraph(2)
+    with pytest.raises(DataError, match="keyframe index"):
+        graph.add_keyframe(0, -1, np.eye(3))
+    with pytest.raises(DataError, match="not a rigid transform"):
+        graph.add_keyframe(0, 0, np.diag([2.0, 1.0, 1.0]))
+    with pytest.raises(DataError, match="not a rigid transform"):
+        graph.add_alignment(0, 0, 1, np.diag([1.0, 1.0, 2.0]), R)
+    graph.add_keyframe(0, 0, np.eye(3))
+    with pytest.raises(DataError, match="same variable"):
+        graph.add_between(keyframe_key(0, 0), keyframe_key(0, 0), np.eye(3), np.eye(3))
+    filt = TCAFF()
+    zs = np.array([[1.0, 2.0, 0.1]])
+    est = None
+    for _ in range(10):
+        est = filt.update(zs, R[None])
+    with pytest.raises(DataError, match="must index zs"):
+        graph.add_tcaff_estimate(0, 0, 1, est, zs[:0], R[None][:0])
+    with pytest.raises(DataError, match="planar graph"):
+        InterRobotGraph(2, GraphParams(dim=3)).add_tcaff_estimate(0, 0, 1, est, zs, R[None])
