@@ -20,7 +20,7 @@ import numpy as np
 from tcaff_gtsam.eval.sim.streams import robot_team_streams
 
 from tcaff_gtsam import TCAFF, GraphParams, InterRobotGraph
-from tcaff_gtsam.geometry import se2_to_params
+from tcaff_gtsam.geometry import se2_error
 from tcaff_gtsam.params import constant_alignment_covariance
 
 R = constant_alignment_covariance()
@@ -28,8 +28,7 @@ R = constant_alignment_covariance()
 
 def errors(T_true: np.ndarray, T_est: np.ndarray) -> np.ndarray:
     """(n, 2) translation [m] and |heading| [deg] of T_true^-1 T_est, stacks (n, 3, 3)."""
-    d = se2_to_params(np.linalg.inv(T_true) @ T_est)
-    return np.column_stack([np.hypot(d[:, 0], d[:, 1]), np.degrees(np.abs(d[:, 2]))])
+    return se2_error(T_true, T_est) * [1.0, 180.0 / np.pi]
 
 
 def main() -> None:

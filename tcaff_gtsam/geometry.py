@@ -16,6 +16,7 @@ from .errors import DataError
 __all__ = [
     "compose",
     "invert",
+    "se2_error",
     "se2_from_params",
     "se2_to_params",
     "se2_to_se3",
@@ -68,6 +69,12 @@ def se2_to_params(T) -> np.ndarray:
     T = _check_square(T, (3,), "T")
     theta = np.arctan2(T[..., 1, 0], T[..., 0, 0])
     return np.stack([T[..., 0, 2], T[..., 1, 2], wrap_angle(theta)], axis=-1)
+
+
+def se2_error(T_true, T_est) -> np.ndarray:
+    """(..., 2) translation [m] and absolute heading [rad] of T_true^-1 T_est, SE(2) stacks."""
+    d = se2_to_params(invert(T_true) @ np.asarray(T_est, dtype=float))
+    return np.stack([np.hypot(d[..., 0], d[..., 1]), np.abs(d[..., 2])], axis=-1)
 
 
 def se3_from_rt(R, t) -> np.ndarray:

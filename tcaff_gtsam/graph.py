@@ -31,7 +31,7 @@ import gtsam
 import numpy as np
 
 from .errors import DataError
-from .geometry import se2_from_params, se2_to_params, se3_from_xyz_yaw, wrap_angle
+from .geometry import se2_from_params, se2_to_params, se3_from_xyz_yaw, se3_to_se2
 from .params import GraphParams
 from .tcaff import AlignmentEstimate
 
@@ -174,14 +174,17 @@ class InterRobotGraph:
             p = _check_finite("T (parameters)", p, p.shape)
             return se2_from_params(p) if self._planar else se3_from_xyz_yaw(*p)
         T = self._rigid("T", p)
-        if not self._planar:
-            # gravity-aligned: keep x, y, z and yaw
-            T = se3_from_xyz_yaw(*T[:3, 3], math.atan2(T[1, 0], T[0, 0]))
-        return T
+        return T if self._planar else se3_from_xyz_yaw(*self._params(T))  # gravity-aligned
+
+    def _params(self, T: np.ndarray) -> np.ndarray:
+        """(x, y, theta) of an SE(2) matrix or (x, y, z, yaw) of an SE(3) one."""
+        if self._planar:
+            return se2_to_params(T)
+        return np.array([*T[:3, 3], se2_to_params(se3_to_se2(T))[2]])
 
     def _params_to_tangent(self, T: np.ndarray) -> np.ndarray:
         """G with xi = G d(params) at pose T; (3, 3) or (6, 4)."""
-        R = T[: self._n_param - 1, : self._n_param - 1] if self._planar else T[:3, :3]
+        R = T[:-1, :-1]
         if self._planar:
             G = np.zeros((3, 3))
             G[:2, :2] = R.T
@@ -468,10 +471,7 @@ class InterRobotGraph:
 
     def alignment_params(self, i: int, j: int, step: int | None = None) -> np.ndarray:
         """(x, y, theta) or (x, y, z, yaw) of T_oi_oj(step), without covariance."""
-        T, _ = self.alignment(i, j, step, covariance=False)
-        if self._planar:
-            return se2_to_params(T)
-        return np.array([*T[:3, 3], wrap_angle(math.atan2(T[1, 0], T[0, 0]))])
+        return self._params(self.alignment(i, j, step, covariance=False)[0])
 
     # -- hypotheses ----------------------------------------------------------------------------
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numba
 import numpy as np
@@ -93,9 +94,10 @@ class Leaves:
     def __len__(self) -> int:
         return self.x.shape[0]
 
-    @property
+    @cached_property
     def cost(self) -> np.ndarray:
-        """(L,) path cost over the window, the last W = columns - 2 columns."""
+        """(L,) path cost over the window, the last W = columns - 2 columns (computed once:
+        the filter reads it several times per step)."""
         return self.edge[:, 2:].sum(axis=1)
 
     def take(self, index) -> Leaves:
@@ -119,6 +121,31 @@ def seed(x0: np.ndarray, P0: np.ndarray, tree_ids: np.ndarray, root_choice: np.n
                   np.zeros((n, columns)), np.zeros(n, np.int64), np.asarray(tree_ids, np.int64))
 
 
+@numba.njit(cache=True, inline="always")
+def _residual(z, x, angular, r):
+    """r = z - x with angular components wrapped to [-pi, pi)."""
+    two_pi = 2.0 * np.pi
+    for a in range(r.shape[0]):
+        ra = z[a] - x[a]
+        if angular[a]:
+            ra -= two_pi * np.floor((ra + np.pi) / two_pi)
+        r[a] = ra
+
+
+@numba.njit(cache=True, inline="always")
+def _cholesky(S, C):
+    """Lower Cholesky factor of S (d, d) into C, in place (S = C C')."""
+    for a in range(S.shape[0]):
+        for b in range(a + 1):
+            s = S[a, b]
+            for e in range(b):
+                s -= C[a, e] * C[b, e]
+            if a == b:
+                C[a, a] = np.sqrt(max(s, 1e-300))
+            else:
+                C[a, b] = s / C[b, b]
+
+
 @numba.njit(cache=True)
 def _measurement_costs(x, P, zs, Rs, Q, angular, reference, use_box, gate_chi2, gate_box):
     """(L, k) cost of giving leaf l measurement j; inf where the gate rejects it."""
@@ -128,16 +155,12 @@ def _measurement_costs(x, P, zs, Rs, Q, angular, reference, use_box, gate_chi2, 
     r = np.empty(d)
     S = np.empty((d, d))
     C = np.zeros((d, d))
-    two_pi = 2.0 * np.pi
     for leaf in range(L):
         for j in range(k):
+            _residual(zs[j], x[leaf], angular, r)
             gated_out = False
             for a in range(d):
-                ra = zs[j, a] - x[leaf, a]
-                if angular[a]:
-                    ra -= two_pi * np.floor((ra + np.pi) / two_pi)
-                r[a] = ra
-                if use_box and abs(ra) > gate_box[a]:
+                if use_box and abs(r[a]) > gate_box[a]:
                     gated_out = True
             if gated_out:
                 out[leaf, j] = np.inf
@@ -154,18 +177,11 @@ def _measurement_costs(x, P, zs, Rs, Q, angular, reference, use_box, gate_chi2, 
                 for a in range(d):
                     for b in range(d):
                         S[a, b] = P[leaf, a, b] + Q[a, b] + Rs[j, a, b]
-                # Cholesky S = C C', then C y = r gives maha = |y|^2, log|S| = 2 sum log C_aa
+                # S = C C', then C y = r gives maha = |y|^2 and log|S| = 2 sum log C_aa
+                _cholesky(S, C)
                 maha = 0.0
                 logdet = 0.0
                 for a in range(d):
-                    for b in range(a + 1):
-                        s = S[a, b]
-                        for c in range(b):
-                            s -= C[a, c] * C[b, c]
-                        if a == b:
-                            C[a, a] = np.sqrt(max(s, 1e-300))
-                        else:
-                            C[a, b] = s / C[b, b]
                     y = r[a]
                     for c in range(a):
                         y -= C[a, c] * r[c]
@@ -211,11 +227,8 @@ def _kalman_children(x, P, parent, meas, zs, Rs, Q, angular, reference):
                 for b in range(d):
                     P_out[c, a, b] = Pp[a, b]
             continue
+        _residual(zs[j], x[leaf], angular, r)
         for a in range(d):
-            ra = zs[j, a] - x[leaf, a]
-            if angular[a]:
-                ra -= two_pi * np.floor((ra + np.pi) / two_pi)
-            r[a] = ra
             for b in range(d):
                 S[a, b] = Pp[a, b] + Rs[j, a, b]
         if reference:
@@ -224,15 +237,7 @@ def _kalman_children(x, P, parent, meas, zs, Rs, Q, angular, reference):
                     Si[a, b] = 1.0 / S[a, a] if a == b else 0.0
         else:
             # S^-1 = C^-T C^-1 from the Cholesky factor
-            for a in range(d):
-                for b in range(a + 1):
-                    s = S[a, b]
-                    for e in range(b):
-                        s -= C[a, e] * C[b, e]
-                    if a == b:
-                        C[a, a] = np.sqrt(max(s, 1e-300))
-                    else:
-                        C[a, b] = s / C[b, b]
+            _cholesky(S, C)
             for b in range(d):
                 for a in range(d):
                     if a < b:

@@ -9,13 +9,13 @@ from tcaff_gtsam.eval.sim.maps import grid_maps, overlapping_maps
 from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.frame_aligner import residual_covariance
-from tcaff_gtsam.geometry import compose, invert, se2_from_params, se2_to_params
+from tcaff_gtsam.geometry import se2_error, se2_from_params, se2_to_params
 from tcaff_gtsam.registration import arun_weights, weighted_arun
 
 
 def error(T_true, T_est):
-    dx, dy, dtheta = se2_to_params(compose(invert(T_true), T_est))
-    return np.hypot(dx, dy), abs(np.degrees(dtheta))
+    dt, dtheta = se2_error(T_true, T_est)
+    return dt, np.degrees(dtheta)
 
 
 def test_best_candidate_recovers_the_alignment():

@@ -14,6 +14,7 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import (
     compose,
     invert,
+    se2_error,
     se2_from_params,
     se2_to_params,
     se2_to_se3,
@@ -423,3 +424,13 @@ def test_transform_points_rejects_wrong_point_shapes(T, pts):
 def test_se3_from_xyz_quat_rejects_bad_position_with_data_error(xyz):
     with pytest.raises(DataError, match="position"):
         se3_from_xyz_quat(xyz, [1.0, 0.0, 0.0, 0.0])
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-20, 20), st.floats(-20, 20), st.floats(-3.1, 3.1),
+       st.floats(-2, 2), st.floats(-2, 2), st.floats(-1.0, 1.0))
+def test_se2_error_is_the_size_of_the_right_perturbation(x, y, th, dx, dy, dth):
+    T = se2_from_params([x, y, th])
+    err = se2_error(T, T @ se2_from_params([dx, dy, dth]))
+    np.testing.assert_allclose(err, [math.hypot(dx, dy), abs(dth)], atol=1e-9)
+    assert se2_error(np.stack([T, T]), np.stack([T, T])).shape == (2, 2)
