@@ -146,6 +146,18 @@ def _cholesky(S, C):
                 C[a, b] = s / C[b, b]
 
 
+@numba.njit(cache=True, inline="always")
+def _product(A, B, out, transpose_b):
+    """out = A B (or A B' with transpose_b), all (d, d)."""
+    d = A.shape[0]
+    for a in range(d):
+        for b in range(d):
+            s = 0.0
+            for e in range(d):
+                s += A[a, e] * (B[b, e] if transpose_b else B[e, b])
+            out[a, b] = s
+
+
 @numba.njit(cache=True)
 def _measurement_costs(x, P, zs, Rs, Q, angular, reference, use_box, gate_chi2, gate_box):
     """(L, k) cost of giving leaf l measurement j; inf where the gate rejects it."""
@@ -253,12 +265,7 @@ def _kalman_children(x, P, parent, meas, zs, Rs, Q, angular, reference):
                     for e in range(max(a, b), d):
                         s += Ci[e, a] * Ci[e, b]
                     Si[a, b] = s
-        for a in range(d):
-            for b in range(d):
-                s = 0.0
-                for e in range(d):
-                    s += Pp[a, e] * Si[e, b]
-                K[a, b] = s
+        _product(Pp, Si, K, False)
         for a in range(d):
             s = x[leaf, a]
             for b in range(d):
@@ -269,35 +276,14 @@ def _kalman_children(x, P, parent, meas, zs, Rs, Q, angular, reference):
             for b in range(d):
                 A[a, b] = (1.0 if a == b else 0.0) - K[a, b]
         # reference: P = (I - K) Pp; paper: Joseph form (I - K) Pp (I - K)' + K R K'
-        for a in range(d):
-            for b in range(d):
-                s = 0.0
-                for e in range(d):
-                    s += A[a, e] * Pp[e, b]
-                T[a, b] = s
+        _product(A, Pp, T, False)
         if reference:
-            for a in range(d):
-                for b in range(d):
-                    P_out[c, a, b] = T[a, b]
+            P_out[c] = T
         else:
-            for a in range(d):
-                for b in range(d):
-                    s = 0.0
-                    for e in range(d):
-                        s += T[a, e] * A[b, e]
-                    P_out[c, a, b] = s
-            for a in range(d):
-                for b in range(d):
-                    s = 0.0
-                    for e in range(d):
-                        s += K[a, e] * Rs[j, e, b]
-                    S[a, b] = s
-            for a in range(d):
-                for b in range(d):
-                    s = 0.0
-                    for e in range(d):
-                        s += S[a, e] * K[b, e]
-                    P_out[c, a, b] += s
+            _product(T, A, P_out[c], True)
+            _product(K, Rs[j], S, False)
+            _product(S, K, T, True)
+            P_out[c] += T
         for a in range(d):
             for b in range(a):
                 m = 0.5 * (P_out[c, a, b] + P_out[c, b, a])
