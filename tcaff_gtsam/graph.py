@@ -39,6 +39,8 @@ __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 
 log = logging.getLogger(__name__)
 
+_AGREE_CHI2 = 16.266  # chi-square quantile 0.999 at 3 degrees of freedom
+
 # One symbol character; kind, robot and index share the symbol's index, which is all that g2o
 # files keep, so exported vertex ids stay unique.
 _ROBOT_SHIFT, _KIND_SHIFT = 36, 52
@@ -493,9 +495,13 @@ class InterRobotGraph:
 
         The factor is the candidate TCAFF's best path took at this step (zs[m], Rs[m] with
         m = estimate.measurement), not the filtered estimate: consecutive filtered estimates
-        share their past measurements and would count them many times over. When the filter
-        drops its main tree or switches to another one, the factors of the abandoned
-        hypothesis are removed.
+        share their past measurements and would count them many times over.
+
+        A main tree dropped for want of measurements is no evidence against it, so its factors
+        stay. When the filter next reports a different hypothesis (after a drop, or by
+        switching), the earlier hypothesis's factors are kept if the new estimate agrees with
+        the graph's current alignment of the pair (squared Mahalanobis distance under the sum
+        of both covariances within the chi-square 0.999 quantile), and removed otherwise.
 
         Args:
             estimate: what `TCAFF.update(zs, Rs)` returned for this step.
@@ -506,7 +512,9 @@ class InterRobotGraph:
                             "planar graph (GraphParams(dim=2))")
         self._check_robot("i", i)
         self._check_robot("j", j)
-        if estimate is not None and estimate.measurement >= 0:
+        if estimate is None:
+            return
+        if estimate.measurement >= 0:
             zs, Rs = np.asarray(zs, dtype=float), np.asarray(Rs, dtype=float)
             if not (zs.ndim == 2 and zs.shape[1:] == (3,) and Rs.shape == (len(zs), 3, 3)
                     and estimate.measurement < len(zs)):
@@ -514,18 +522,29 @@ class InterRobotGraph:
                                 f"{estimate.measurement} must index zs (k, 3) and Rs (k, 3, 3), "
                                 f"got shapes {zs.shape} and {Rs.shape}")
         previous = self._hypothesis.get((i, j))
-        current = None if estimate is None else estimate.hypothesis
+        current = estimate.hypothesis
         if previous is not None and previous != current:
-            removed = self.remove_hypothesis(i, j, previous)
-            log.debug("pair (%d, %d): hypothesis %s abandoned, %d factors removed", i, j,
-                      previous, removed)
-        if current is None:
-            self._hypothesis.pop((i, j), None)
-            return
+            if self._agrees(i, j, estimate):
+                log.debug("pair (%d, %d): hypothesis %s agrees with %s, factors kept", i, j,
+                          current, previous)
+            else:
+                removed = self.remove_hypothesis(i, j, previous)
+                log.debug("pair (%d, %d): hypothesis %s abandoned, %d factors removed", i, j,
+                          previous, removed)
         self._hypothesis[(i, j)] = current
         if estimate.measurement >= 0:
             m = estimate.measurement
             self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
+
+    def _agrees(self, i: int, j: int, estimate: AlignmentEstimate) -> bool:
+        """Whether a TCAFF estimate is consistent with the graph's latest alignment of (i, j)."""
+        if not self._steps:
+            return False
+        T, cov = self.alignment(i, j)
+        residual = np.asarray(estimate.x, dtype=float) - self._params(T)
+        residual[2] = math.remainder(residual[2], 2 * math.pi)
+        S = cov + np.asarray(estimate.P, dtype=float)
+        return float(residual @ np.linalg.solve(S, residual)) <= _AGREE_CHI2
 
     # -- keyframes -----------------------------------------------------------------------------
 

@@ -1,0 +1,64 @@
+"""The methods TCAFF is compared with: single-shot CLIPPER and ICP on object centroids.
+
+- Single-shot CLIPPER (the paper's baseline): one standard CLIPPER solution per step, accepted
+  as the alignment when it holds at least k associations, otherwise no alignment that step.
+- ICP (Open3D, point to point) on the two maps' recent centroids, given the true alignment at
+  the start and then started from its own previous estimate, as a local method must be. When
+  fewer than the required correspondences are found it keeps its previous estimate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+
+from tcaff_gtsam.frame_aligner import AlignmentMeasurement
+from tcaff_gtsam.geometry import se2_to_params, se2_to_se3, se3_to_se2
+from tcaff_gtsam.object_map import ObjectMap
+
+__all__ = ["CentroidICP", "single_shot"]
+
+
+def single_shot(solution: AlignmentMeasurement | None, k: int) -> np.ndarray:
+    """(3,) the solution's (x, y, theta) if it has at least k associations, else NaN."""
+    if solution is None or len(solution.associations) < k:
+        return np.full(3, np.nan)
+    return solution.z.copy()
+
+
+class CentroidICP:
+    """ICP between the other robot's recent centroids and the ego's, tracking T_oi_oj.
+
+    Args:
+        T_init: (3, 3) the alignment to start from (the truth at the first step).
+        kappa: seconds; only objects seen within kappa take part.
+        max_correspondence_distance: metres.
+        min_correspondences: fewer correspondences leave the estimate unchanged.
+        max_iterations: ICP iterations per step.
+    """
+
+    def __init__(self, T_init: np.ndarray, kappa: float, max_correspondence_distance: float,
+                 min_correspondences: int, max_iterations: int) -> None:
+        self.T = np.asarray(T_init, dtype=float).copy()
+        self.kappa = kappa
+        self.max_distance = max_correspondence_distance
+        self.min_correspondences = min_correspondences
+        self.criteria = o3d.pipelines.registration.ICPConvergenceCriteria(
+            max_iteration=max_iterations)
+        self.estimation = o3d.pipelines.registration.TransformationEstimationPointToPoint()
+
+    def update(self, t: float, ego: ObjectMap, other: ObjectMap) -> np.ndarray:
+        """(3,) (x, y, theta) of the current T_oi_oj estimate after one ICP step at time t."""
+        target = ego.recent(t, self.kappa).centroids
+        source = other.recent(t, self.kappa).centroids
+        if min(len(target), len(source)) >= self.min_correspondences:
+            result = o3d.pipelines.registration.registration_icp(
+                _cloud(source), _cloud(target), self.max_distance, se2_to_se3(self.T),
+                self.estimation, self.criteria)
+            if len(result.correspondence_set) >= self.min_correspondences:
+                self.T = se3_to_se2(np.asarray(result.transformation))
+        return se2_to_params(self.T)
+
+
+def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
+    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(points, dtype=np.float64)))

@@ -1,0 +1,356 @@
+"""YAML configuration of scenarios, method sets and studies, validated with pydantic.
+
+Unknown keys, wrong types and out-of-range values are rejected with a `ConfigError` whose one-line
+message names the key's path, for example
+`indoor_return.yaml: layout.room: Input should be greater than 0 (got -1)`.
+
+A study names its scenarios and method set either by the name of a file shipped in
+`eval/configs/` (`indoor_return`, `default`) or by a path, or holds them inline. The effective
+configuration a study writes next to its results has everything inline and loads again as is.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from tcaff_gtsam.errors import ConfigError
+
+__all__ = [
+    "CONFIG_DIR",
+    "MethodsConfig",
+    "ScenarioConfig",
+    "StudyConfig",
+    "load_methods",
+    "load_scenario",
+    "load_study",
+]
+
+CONFIG_DIR = Path(__file__).parent / "configs"
+
+METHOD_SETS = ("tcaff", "tcaff_reference", "tcaff_isam2", "clipper", "icp", "ground_truth")
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# -- scenarios ---------------------------------------------------------------------------------
+
+
+class OdometryDrift(_Model):
+    """VIO-like drift: random walks of the odometry heading and position."""
+
+    heading_rw_deg: float = Field(0.05, ge=0, le=10, description="deg per sqrt(s)")
+    position_rw: float = Field(0.01, ge=0, le=1, description="m per sqrt(s), per axis")
+
+
+class SensorConfig(_Model):
+    """Object detections of a forward-looking RGB-D camera after segmentation and lifting."""
+
+    fov_deg: float = Field(90.0, gt=0, le=360)
+    range_min: float = Field(0.3, ge=0, description="m")
+    range_max: float = Field(6.0, gt=0, description="m")
+    p_detect: float = Field(0.8, gt=0, le=1, description="chance to detect a visible object")
+    centroid_noise: float = Field(0.05, ge=0, description="m, std per axis at zero range")
+    centroid_noise_per_m: float = Field(0.01, ge=0, description="m of std per m of range")
+    size_noise: float = Field(0.1, ge=0, le=1, description="relative std of width and height")
+    partial_view: float = Field(0.6, gt=0, le=1,
+                                description="smallest share of an extent a view shows")
+    false_per_frame: float = Field(0.2, ge=0, description="mean false segments per frame")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> SensorConfig:
+        if self.range_max <= self.range_min:
+            raise ValueError(f"range_max ({self.range_max}) must exceed range_min "
+                             f"({self.range_min})")
+        return self
+
+
+class MappingConfig(_Model):
+    """The object mapper each robot runs, and the window of recent objects it shares."""
+
+    nu: int = Field(3, ge=1, description="sightings before an object enters the map")
+    kappa: float = Field(20.0, gt=0, description="s; objects unseen longer leave the map")
+    frame_rate: float = Field(10.0, gt=0, le=100, description="Hz of detections")
+
+
+class IndoorReturnLayout(_Model):
+    """Two robots in a square room of boxes; robot 1 leaves for another room and comes back."""
+
+    kind: Literal["indoor_return"]
+    room: float = Field(10.0, gt=2, description="m, side of the room")
+    boxes: int = Field(14, ge=3)
+    away_boxes: int = Field(14, ge=0, description="boxes in the room robot 1 visits")
+    leave_at: float = Field(70.0, ge=0, description="s")
+    return_at: float = Field(190.0, ge=0, description="s, back in the room")
+    speed: float = Field(0.5, gt=0, description="m/s")
+
+    @model_validator(mode="after")
+    def _order(self) -> IndoorReturnLayout:
+        if self.return_at <= self.leave_at:
+            raise ValueError(f"return_at ({self.return_at}) must be after leave_at "
+                             f"({self.leave_at})")
+        return self
+
+
+class PathLayout(_Model):
+    """Two robots on an outdoor path lined with trees, poles, signs, cars, rocks and benches.
+
+    same_direction: robot 1 follows robot 0 `separation` metres behind. opposite_directions:
+    they start `separation` metres apart, drive towards each other and cross.
+    """
+
+    kind: Literal["same_direction", "opposite_directions"]
+    length: float = Field(200.0, gt=10, description="m")
+    objects_per_100m: float = Field(40.0, gt=0, description="on both sides together")
+    lateral: tuple[float, float] = Field((2.0, 9.0), description="m, from the path's centre")
+    separation: float = Field(15.0, gt=0, description="m")
+    speed: float = Field(1.2, gt=0, description="m/s")
+
+    @field_validator("lateral")
+    @classmethod
+    def _lateral(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not 0 <= value[0] < value[1]:
+            raise ValueError(f"need 0 <= near < far, got {value}")
+        return value
+
+
+class RoomLayout(_Model):
+    """Several robots looping in one room of boxes and furniture."""
+
+    kind: Literal["room"]
+    room: float = Field(14.0, gt=2, description="m, side of the room")
+    robots: int = Field(4, ge=2, le=8)
+    objects: int = Field(24, ge=3)
+    speed: float = Field(0.5, gt=0, description="m/s")
+
+
+class GridLayout(_Model):
+    """A regular grid of identical objects, with a few distinct landmarks around it."""
+
+    kind: Literal["grid"]
+    rows: int = Field(5, ge=2)
+    cols: int = Field(8, ge=2)
+    spacing: float = Field(2.5, gt=0, description="m")
+    size: float = Field(0.5, gt=0, description="m, width and height of every grid object")
+    landmarks: int = Field(0, ge=0, description="distinct objects placed around the grid")
+    speed: float = Field(0.5, gt=0, description="m/s")
+
+
+Layout = Annotated[IndoorReturnLayout | PathLayout | RoomLayout | GridLayout,
+                   Field(discriminator="kind")]
+
+
+class ScenarioConfig(_Model):
+    """One simulated world, its robots and their sensors."""
+
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = ""
+    duration: float = Field(gt=0, le=7200, description="s")
+    layout: Layout
+    odometry: OdometryDrift | list[OdometryDrift] = OdometryDrift()
+    sensor: SensorConfig = SensorConfig()
+    mapping: MappingConfig = MappingConfig()
+    window: int | None = Field(None, ge=1, description="TCAFF window W for this scenario")
+    min_shared: int = Field(5, ge=1, description="objects two maps must share to overlap")
+
+    @property
+    def n_robots(self) -> int:
+        return self.layout.robots if isinstance(self.layout, RoomLayout) else 2
+
+    def drift(self, robot: int) -> OdometryDrift:
+        """The odometry drift of one robot."""
+        return self.odometry[robot] if isinstance(self.odometry, list) else self.odometry
+
+    @model_validator(mode="after")
+    def _per_robot(self) -> ScenarioConfig:
+        if isinstance(self.odometry, list) and len(self.odometry) != self.n_robots:
+            raise ValueError(f"odometry: a list needs one entry per robot ({self.n_robots}), "
+                             f"got {len(self.odometry)}")
+        return self
+
+
+# -- methods -----------------------------------------------------------------------------------
+
+
+class AlignerConfig(_Model):
+    """FrameAligner settings shared by the TCAFF methods (kappa comes from the scenario)."""
+
+    n_solutions: int = Field(4, ge=1, le=20)
+    min_associations: int = Field(5, ge=2)
+    covariance: Literal["constant", "residual"] = "constant"
+    max_rmse: float | None = Field(0.5, gt=0, description="m; None keeps every solution")
+    seed: int = 0
+
+
+class TcaffConfig(_Model):
+    """Overrides of the default TCAFF preset; None keeps the paper's value."""
+
+    tau: float | None = None
+    window: int | None = Field(None, ge=1)
+    p_no_measurement: float | None = Field(None, gt=0, lt=1)
+
+
+class IcpConfig(_Model):
+    """ICP on object centroids, started from the true alignment, then from its last estimate."""
+
+    max_correspondence_distance: float = Field(1.0, gt=0, description="m")
+    min_correspondences: int = Field(5, ge=3)
+    max_iterations: int = Field(30, ge=1)
+
+
+class GraphConfig(_Model):
+    robust: Literal["huber", "cauchy", "none"] = "huber"
+
+
+class ThresholdConfig(_Model):
+    """An estimate further from the truth than either threshold is a false accept."""
+
+    translation: float = Field(1.0, gt=0, description="m")
+    heading_deg: float = Field(5.0, gt=0, le=180)
+
+
+class MethodsConfig(_Model):
+    """Which methods a study compares, and their settings."""
+
+    name: str = Field("methods", min_length=1)
+    methods: list[Literal[METHOD_SETS]] = Field(default_factory=lambda: list(METHOD_SETS),
+                                                min_length=1)
+    clipper_k: list[int] = Field(default_factory=lambda: list(range(3, 13)), min_length=1)
+    clipper_k_shown: int = Field(10, description="the single-shot threshold drawn over time")
+    aligner: AlignerConfig = AlignerConfig()
+    tcaff: TcaffConfig = TcaffConfig()
+    icp: IcpConfig = IcpConfig()
+    graph: GraphConfig = GraphConfig()
+    thresholds: ThresholdConfig = ThresholdConfig()
+
+    @field_validator("methods")
+    @classmethod
+    def _unique(cls, value: list[str]) -> list[str]:
+        if len(set(value)) != len(value):
+            raise ValueError(f"methods must not repeat, got {value}")
+        return value
+
+    @field_validator("clipper_k")
+    @classmethod
+    def _k(cls, value: list[int]) -> list[int]:
+        if any(k < 2 for k in value) or len(set(value)) != len(value):
+            raise ValueError(f"clipper_k must be distinct ints >= 2, got {value}")
+        return sorted(value)
+
+    @model_validator(mode="after")
+    def _shown(self) -> MethodsConfig:
+        if "clipper" in self.methods and self.clipper_k_shown not in self.clipper_k:
+            raise ValueError(f"clipper_k_shown ({self.clipper_k_shown}) must be one of "
+                             f"clipper_k {self.clipper_k}")
+        return self
+
+
+# -- studies -----------------------------------------------------------------------------------
+
+
+class StudyConfig(_Model):
+    """Scenarios x methods x seeds."""
+
+    name: str = Field("study", min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    scenarios: list[str | ScenarioConfig] = Field(min_length=1)
+    methods: str | MethodsConfig = "default"
+    seeds: list[int] = Field(default_factory=lambda: [0], min_length=1)
+    workers: int = Field(2, ge=1, le=64)
+    output: str = "results"
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, value: list[int]) -> list[int]:
+        if any(s < 0 for s in value) or len(set(value)) != len(value):
+            raise ValueError(f"seeds must be distinct ints >= 0, got {value}")
+        return value
+
+
+# -- loading -----------------------------------------------------------------------------------
+
+
+def _format(source: str, error: ValidationError) -> str:
+    parts = []
+    for item in error.errors():
+        path = ".".join(str(p) for p in item["loc"]) or "(top level)"
+        message = item["msg"].removeprefix("Value error, ")
+        if item["type"] not in ("missing", "extra_forbidden") and not isinstance(
+                item.get("input"), dict):
+            message += f" (got {item.get('input')!r})"
+        parts.append(f"{path}: {message}")
+    return f"{source}: " + "; ".join(parts)
+
+
+def _read_yaml(path: Path) -> Any:
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such config file")
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from exc
+
+
+def _validate(model: type[_Model], data: Any, source: str) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected a mapping of keys, got {type(data).__name__}")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(_format(source, exc)) from None
+
+
+def _resolve(ref: str, folder: str) -> Path:
+    """A shipped config's name (`indoor_return`) or a path to a YAML file."""
+    path = Path(ref)
+    if path.suffix in (".yaml", ".yml") or path.parent != Path("."):
+        return path
+    shipped = CONFIG_DIR / folder / f"{ref}.yaml"
+    if not shipped.is_file():
+        names = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
+        raise ConfigError(f"no {folder[:-1]} config named {ref!r}; shipped: {', '.join(names)}")
+    return shipped
+
+
+def load_scenario(ref: str | Path) -> ScenarioConfig:
+    """A scenario by shipped name or path."""
+    path = _resolve(str(ref), "scenarios")
+    return _validate(ScenarioConfig, _read_yaml(path), path.name)
+
+
+def load_methods(ref: str | Path) -> MethodsConfig:
+    """A method set by shipped name or path."""
+    path = _resolve(str(ref), "methods")
+    return _validate(MethodsConfig, _read_yaml(path), path.name)
+
+
+def load_study(ref: str | Path) -> StudyConfig:
+    """A study by shipped name or path, with its scenarios and method set loaded inline."""
+    path = _resolve(str(ref), "studies")
+    return resolve_study(_validate(StudyConfig, _read_yaml(path), path.name))
+
+
+def resolve_study(study: StudyConfig) -> StudyConfig:
+    """The same study with every scenario and the method set inline."""
+    scenarios = [s if isinstance(s, ScenarioConfig) else load_scenario(s) for s in study.scenarios]
+    names = [s.name for s in scenarios]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"study {study.name}: scenario names must be distinct, got {names}")
+    methods = (study.methods if isinstance(study.methods, MethodsConfig)
+               else load_methods(study.methods))
+    return study.model_copy(update={"scenarios": scenarios, "methods": methods})
+
+
+def dump_study(study: StudyConfig) -> str:
+    """YAML of a resolved study, loadable again with `load_study`."""
+    return yaml.safe_dump(study.model_dump(mode="json"), sort_keys=False)
+
+
+def heading_threshold(methods: MethodsConfig) -> float:
+    """The false-accept heading threshold in radians."""
+    return math.radians(methods.thresholds.heading_deg)

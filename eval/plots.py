@@ -1,0 +1,201 @@
+"""The study's figures (matplotlib, PNG).
+
+- leave_and_return.png: the paper's figure: x, y and theta of T_oi_oj over time, MNO-CLIPPER
+  candidates as dots, the ground truth and the TCAFF estimate.
+- errors_<scenario>.png: translation and heading error over time, one line per method.
+- clipper_sweep.png: single-shot CLIPPER's false-accept share, availability and error against its
+  association threshold k, with TCAFF as a reference line.
+- scenarios.png: each world's objects and the robots' true paths.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; never open a window
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from tcaff_gtsam.geometry import se2_error, se2_from_params
+
+from .config import MethodsConfig
+
+__all__ = ["draw_all", "label"]
+
+STYLE = {
+    "tcaff": ("TCAFF", "tab:red", "-"),
+    "tcaff_reference": ("TCAFF (reference preset)", "tab:orange", "--"),
+    "tcaff_isam2_causal": ("TCAFF + iSAM2 (causal)", "tab:purple", "-"),
+    "tcaff_isam2_smoothed": ("TCAFF + iSAM2 (smoothed)", "tab:pink", ":"),
+    "icp": ("ICP (true initial alignment)", "tab:brown", "-"),
+    "ground_truth": ("ground truth", "tab:green", "-"),
+}
+CLIPPER_COLOR = "tab:blue"
+
+
+def label(method: str) -> str:
+    """A method's name as printed in tables and legends."""
+    if method.startswith("clipper_k"):
+        return f"CLIPPER, k >= {method.removeprefix('clipper_k')}"
+    return STYLE.get(method, (method,))[0]
+
+
+def _style(method: str) -> tuple[str, str]:
+    if method.startswith("clipper_k"):
+        return CLIPPER_COLOR, "-"
+    return STYLE[method][1], STYLE[method][2]
+
+
+def _shade_overlap(ax, times: np.ndarray, overlap: np.ndarray) -> None:
+    """Grey bands where the two maps overlap enough for an alignment."""
+    edges = np.flatnonzero(np.diff(np.r_[0, overlap.astype(int), 0]))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        ax.axvspan(times[start] - 0.5, times[stop - 1] + 0.5, color="0.92", lw=0, zorder=0)
+
+
+def leave_and_return(path: Path, job, pair: int = 0) -> None:
+    """x, y, theta of T_oi_oj: candidates, ground truth, TCAFF estimate."""
+    a = job.arrays
+    times, truth = a["times"], a["truth"][pair]
+    est = a["est_tcaff"][pair] if "est_tcaff" in a else None
+    steps, z = a[f"cand_steps_{pair}"], a[f"cand_z_{pair}"]
+    i, j = job.pairs[pair]
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    scale = (1.0, 1.0, 180 / np.pi)
+    for k, (ax, name) in enumerate(zip(axes, ("x [m]", "y [m]", "theta [deg]"), strict=True)):
+        _shade_overlap(ax, times, a["overlap"][pair])
+        ax.plot(times[steps], z[:, k] * scale[k], ".", color="tab:blue", ms=3,
+                label="MNO-CLIPPER candidates")
+        ax.plot(times, truth[:, k] * scale[k], color="tab:green", lw=2, label="ground truth")
+        if est is not None:
+            ax.plot(times, est[:, k] * scale[k], color="tab:red", lw=1.5, label="TCAFF")
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+        # keep the truth readable: outlier candidates may lie far away
+        lo, hi = np.nanmin(truth[:, k] * scale[k]), np.nanmax(truth[:, k] * scale[k])
+        pad = max(hi - lo, 2.0 if k < 2 else 20.0)
+        ax.set_ylim(lo - pad, hi + pad)
+    axes[0].legend(loc="upper right", fontsize=8, ncol=3)
+    axes[0].set_title(f"{job.scenario} (seed {job.seed}): T_o{i}_o{j}; grey = maps overlap")
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def errors_over_time(path: Path, job, methods: list[str], pair: int = 0) -> None:
+    """Translation and heading error of each method over time for one pair."""
+    a = job.arrays
+    times = a["times"]
+    T_true = se2_from_params(a["truth"][pair])
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for ax in axes:
+        _shade_overlap(ax, times, a["overlap"][pair])
+    for method in methods:
+        est = a[f"est_{method}"][pair]
+        has = ~np.isnan(est[:, 0])
+        err = np.full((len(times), 2), np.nan)
+        if has.any():
+            err[has] = se2_error(T_true[has], se2_from_params(est[has]))
+        color, line = _style(method)
+        axes[0].plot(times, err[:, 0], line, color=color, lw=1.3, label=label(method))
+        axes[1].plot(times, np.degrees(err[:, 1]), line, color=color, lw=1.3)
+    i, j = job.pairs[pair]
+    axes[0].set_ylabel("translation error [m]")
+    axes[1].set_ylabel("heading error [deg]")
+    for ax in axes:
+        ax.set_yscale("symlog", linthresh=0.1)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8, ncol=2)
+    axes[0].set_title(f"{job.scenario} (seed {job.seed}): error of T_o{i}_o{j}; gaps = no "
+                      f"estimate; grey = maps overlap")
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def clipper_sweep(path: Path, summary: dict, methods: MethodsConfig) -> None:
+    """Single-shot CLIPPER against its threshold k, TCAFF as horizontal lines."""
+    ks = methods.clipper_k
+    panels = (("false_accept", "false-accept share", 1.0),
+              ("availability", "availability", 1.0),
+              ("translation_error_m_mean", "mean translation error [m]", 1.0))
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for c, (scenario, by_method) in enumerate(summary.items()):
+        color = colors[c % len(colors)]
+        for ax, (key, name, _) in zip(axes, panels, strict=True):
+            values = [by_method[f"clipper_k{k}"][key] for k in ks]
+            ax.plot(ks, [np.nan if v is None else v for v in values], "o-", color=color,
+                    ms=4, label=scenario)
+            tcaff = by_method.get("tcaff", {}).get(key)
+            if tcaff is not None:
+                ax.axhline(tcaff, color=color, ls="--", lw=1)
+            ax.set_title(name)
+            ax.set_xlabel("k: fewest associations accepted")
+            ax.grid(alpha=0.3)
+    axes[2].set_yscale("symlog", linthresh=0.1)
+    axes[0].legend(fontsize=8, title="solid: CLIPPER; dashed: TCAFF", title_fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def scenarios_overview(path: Path, jobs: list) -> None:
+    """Each scenario's objects (sized by width), walls and true robot paths."""
+    first = list({j.scenario: j for j in reversed(jobs)}.values())[::-1]
+    n = len(first)
+    cols = min(n, 3)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 4.5 * rows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.axis("off")
+    for ax, job in zip(axes.flat, first, strict=False):
+        a = job.arrays
+        for wall in a["walls"]:
+            ax.plot(wall[:, 0], wall[:, 1], color="0.3", lw=2)
+        ax.scatter(a["world_xy"][:, 0], a["world_xy"][:, 1], s=20 * a["world_widths"] ** 2 + 4,
+                   color="0.55", marker="s", label="objects")
+        for r, poses in enumerate(a["poses_true"]):
+            ax.plot(poses[:, 0], poses[:, 1], lw=1.2, label=f"robot {r}")
+            ax.plot(*poses[0, :2], "o", color=ax.lines[-1].get_color(), ms=5)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(job.scenario, fontsize=10)
+        ax.legend(fontsize=7, loc="best")
+        ax.grid(alpha=0.2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def draw_all(folder: Path, jobs: list, summary: dict, methods: MethodsConfig) -> list[Path]:
+    """Every figure of a study into `folder`; returns the files written."""
+    from .methods import method_names
+
+    folder.mkdir(parents=True, exist_ok=True)
+    written = []
+    names = method_names(methods)
+    shown = [m for m in names if not m.startswith("clipper_k") and m != "ground_truth"]
+    if "clipper" in methods.methods:
+        shown.append(f"clipper_k{methods.clipper_k_shown}")
+    first = {}
+    for job in jobs:
+        first.setdefault(job.scenario, job)
+    return_job = first.get("indoor_return", next(iter(first.values())))
+    if "est_tcaff" in return_job.arrays:
+        leave_and_return(folder / "leave_and_return.png", return_job)
+        written.append(folder / "leave_and_return.png")
+    for scenario, job in first.items():
+        path = folder / f"errors_{scenario}.png"
+        errors_over_time(path, job, shown)
+        written.append(path)
+    if "clipper" in methods.methods:
+        clipper_sweep(folder / "clipper_sweep.png", summary, methods)
+        written.append(folder / "clipper_sweep.png")
+    scenarios_overview(folder / "scenarios.png", jobs)
+    written.append(folder / "scenarios.png")
+    return written

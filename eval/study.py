@@ -1,0 +1,307 @@
+"""The comparison study: scenarios x methods x seeds, in parallel processes.
+
+Each job (one scenario, one seed) simulates the run, runs every method over every directed pair
+and scores them. A finished job is written to `<output>/<timestamp>/runs/` at once, so an
+interrupted or partly failed study keeps everything it finished. At the end the study writes
+metrics.json, metrics.csv and the figures, and points `<output>/latest` at the folder.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import multiprocessing
+import queue
+import traceback
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params
+
+from .config import MethodsConfig, ScenarioConfig, StudyConfig, dump_study
+from .methods import method_names, run_methods
+from .metrics import PairTrace, Thresholds, pooled_metrics
+from .sim.simulate import simulate
+
+__all__ = ["JobResult", "StudyOutcome", "run_job", "run_study"]
+
+log = logging.getLogger(__name__)
+
+SIMULATION_SHARE = 0.2  # of a job's progress bar
+
+
+@dataclass
+class JobResult:
+    """One scenario and seed, every method scored.
+
+    Attributes:
+        scenario, seed: what ran.
+        pairs: directed pairs (i, j).
+        arrays: everything the figures need, as saved in runs/<scenario>-seed<seed>.npz:
+            times (S,), poses_true and poses_odom (n, S, 3), truth (P, S, 3), overlap (P, S),
+            est_<method> (P, S, 3), cand_steps_<p> (M,), cand_z_<p> (M, 3), world_xy (n, 2),
+            world_widths (n,), walls (m, 2, 2).
+        metrics: method -> {"all": report over the pairs, "i->j": report of one pair}.
+        seconds: method -> compute time.
+    """
+
+    scenario: str
+    seed: int
+    pairs: list[tuple[int, int]]
+    arrays: dict[str, np.ndarray]
+    metrics: dict[str, dict[str, dict]]
+    seconds: dict[str, float]
+
+    @property
+    def stem(self) -> str:
+        return f"{self.scenario}-seed{self.seed}"
+
+    def traces(self, method: str) -> list[PairTrace]:
+        """The method's PairTrace of every pair."""
+        a = self.arrays
+        T_odom = se2_from_params(a["poses_odom"])
+        return [PairTrace(a["times"], se2_from_params(a["truth"][p]), a[f"est_{method}"][p],
+                          a["overlap"][p], T_odom[i], T_odom[j])
+                for p, (i, j) in enumerate(self.pairs)]
+
+    def save(self, folder: Path) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        with open(folder / f"{self.stem}.npz", "wb") as file:
+            np.savez_compressed(file, **self.arrays)
+        (folder / f"{self.stem}.json").write_text(json.dumps(
+            {"scenario": self.scenario, "seed": self.seed, "pairs": self.pairs,
+             "seconds": self.seconds, "metrics": self.metrics}, indent=1))
+
+
+def _report(job_traces: dict[str, list[PairTrace]], pairs, thresholds: Thresholds) -> dict:
+    out = {}
+    for method, traces in job_traces.items():
+        out[method] = {"all": pooled_metrics(traces, thresholds).as_report()}
+        for (i, j), trace in zip(pairs, traces, strict=True):
+            out[method][f"{i}->{j}"] = pooled_metrics([trace], thresholds).as_report()
+    return out
+
+
+def thresholds_of(methods: MethodsConfig) -> Thresholds:
+    return Thresholds(methods.thresholds.translation,
+                      np.radians(methods.thresholds.heading_deg))
+
+
+def run_job(scenario: ScenarioConfig, methods: MethodsConfig, seed: int,
+            progress: Callable[[float], None] | None = None) -> JobResult:
+    """Simulate one scenario with one seed, run every method, score them."""
+    def report(share: float, start: float, span: float) -> None:
+        if progress is not None:
+            progress(start + span * share)
+
+    run = simulate(scenario, seed, lambda s: report(s, 0.0, SIMULATION_SHARE))
+    runs = run_methods(run, methods,
+                       lambda s: report(s, SIMULATION_SHARE, 1.0 - SIMULATION_SHARE))
+    arrays = {
+        "times": run.times, "poses_true": run.poses_true, "poses_odom": run.poses_odom,
+        "truth": np.array([se2_to_params(run.T_true(i, j)) for i, j in runs.pairs]),
+        "overlap": np.array([run.overlap(i, j) for i, j in runs.pairs]),
+        "world_xy": run.world.xy, "world_widths": run.world.widths, "walls": run.world.walls,
+    }
+    for name, est in runs.estimates.items():
+        arrays[f"est_{name}"] = est
+    for p, (steps, z) in enumerate(runs.candidates):
+        arrays[f"cand_steps_{p}"], arrays[f"cand_z_{p}"] = steps, z
+    job = JobResult(scenario.name, seed, runs.pairs, arrays, {}, runs.seconds)
+    job.metrics = _report({m: job.traces(m) for m in runs.estimates}, runs.pairs,
+                          thresholds_of(methods))
+    return job
+
+
+@dataclass
+class StudyOutcome:
+    """What a study produced, including when it stopped early."""
+
+    folder: Path
+    jobs: list[JobResult]
+    failed: list[dict]
+    interrupted: bool
+    summary: dict[str, dict[str, dict]]
+
+
+def _job_in_worker(scenario: ScenarioConfig, methods: MethodsConfig, seed: int, key: int,
+                   updates) -> JobResult:
+    return run_job(scenario, methods, seed, lambda share: updates.put((key, share)))
+
+
+def _new_folder(root: Path) -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    folder, n = root / stamp, 1
+    while folder.exists():
+        n += 1
+        folder = root / f"{stamp}-{n}"
+    folder.mkdir(parents=True)
+    return folder
+
+
+def summarize(jobs: list[JobResult], methods: MethodsConfig) -> dict[str, dict[str, dict]]:
+    """scenario -> method -> report pooled over every pair and seed."""
+    summary: dict[str, dict[str, dict]] = {}
+    thresholds = thresholds_of(methods)
+    for name in dict.fromkeys(j.scenario for j in jobs):
+        mine = [j for j in jobs if j.scenario == name]
+        summary[name] = {m: pooled_metrics([t for j in mine for t in j.traces(m)],
+                                           thresholds).as_report()
+                         for m in method_names(methods)}
+        pair_steps = sum(len(j.pairs) * len(j.arrays["times"]) for j in mine)
+        for m, report in summary[name].items():
+            report["ms_per_pair_step"] = 1e3 * sum(j.seconds.get(m, 0.0) for j in mine) / pair_steps
+    return summary
+
+
+def _write_tables(folder: Path, study: StudyConfig, outcome: StudyOutcome) -> None:
+    (folder / "metrics.json").write_text(json.dumps({
+        "study": study.name, "interrupted": outcome.interrupted, "failed": outcome.failed,
+        "summary": outcome.summary,
+        "runs": [{"scenario": j.scenario, "seed": j.seed, "metrics": j.metrics}
+                 for j in outcome.jobs]}, indent=1))
+    rows = []
+    for j in outcome.jobs:
+        for method, by_pair in j.metrics.items():
+            for pair, report in by_pair.items():
+                rows.append({"scenario": j.scenario, "seed": j.seed, "method": method,
+                             "pair": pair, **report})
+    for scenario, by_method in outcome.summary.items():
+        for method, report in by_method.items():
+            rows.append({"scenario": scenario, "seed": "all", "method": method, "pair": "all",
+                         **report})
+    if rows:
+        with open(folder / "metrics.csv", "w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=list(dict.fromkeys(
+                k for row in rows for k in row)))
+            writer.writeheader()
+            writer.writerows(rows)
+
+
+def _link_latest(root: Path, folder: Path) -> None:
+    latest = root / "latest"
+    try:
+        if latest.is_symlink() or latest.exists():
+            latest.unlink()
+        latest.symlink_to(folder.name, target_is_directory=True)
+    except OSError as exc:  # some file systems have no symbolic links; results are still there
+        log.warning("could not link %s: %s", latest, exc)
+
+
+class Progress:
+    """What the study reports while it runs; the CLI draws it as progress bars."""
+
+    def start(self, key: int, label: str) -> None: ...
+    def advance(self, key: int, share: float) -> None: ...
+    def finish(self, key: int, ok: bool) -> None: ...
+
+
+def run_study(study: StudyConfig, progress: Progress | None = None,
+              on_job_done: Callable[[JobResult], None] | None = None,
+              figures: bool = True) -> StudyOutcome:
+    """Run a resolved study (see `config.resolve_study`) and write its results.
+
+    Jobs run in `study.workers` processes (in this process when 1). Ctrl-C stops the study: the
+    jobs already finished are summarised and written, and `interrupted` is set.
+
+    Args:
+        on_job_done: called in this process with each finished job, after it is saved.
+        figures: draw the PNG figures.
+    """
+    from . import plots
+
+    progress = progress or Progress()
+    root = Path(study.output)
+    folder = _new_folder(root)
+    (folder / "config.yaml").write_text(dump_study(study))
+    methods: MethodsConfig = study.methods  # type: ignore[assignment]
+    todo = [(s, seed) for s in study.scenarios for seed in study.seeds]
+    jobs: list[JobResult] = []
+    failed: list[dict] = []
+    interrupted = False
+
+    def done(key: int, job: JobResult) -> None:
+        job.save(folder / "runs")
+        jobs.append(job)
+        progress.finish(key, True)
+        if on_job_done is not None:
+            on_job_done(job)
+
+    def fail(key: int, scenario: ScenarioConfig, seed: int, exc: BaseException) -> None:
+        log.error("%s seed %d failed: %s", scenario.name, seed, exc)
+        failed.append({"scenario": scenario.name, "seed": seed, "error": str(exc),
+                       "traceback": "".join(traceback.format_exception(exc))})
+        progress.finish(key, False)
+
+    for key, (scenario, seed) in enumerate(todo):
+        progress.start(key, f"{scenario.name} seed {seed}")
+    try:
+        if study.workers == 1 or len(todo) == 1:
+            for key, (scenario, seed) in enumerate(todo):
+                try:
+                    job = run_job(scenario, methods, seed,
+                                  lambda share, key=key: progress.advance(key, share))
+                except Exception as exc:
+                    fail(key, scenario, seed, exc)
+                    continue
+                done(key, job)
+        else:
+            _run_parallel(todo, methods, min(study.workers, len(todo)), progress, done, fail)
+    except KeyboardInterrupt:
+        interrupted = True
+        log.warning("interrupted: writing the %d finished jobs", len(jobs))
+    order = {(s.name, seed): k for k, (s, seed) in enumerate(todo)}
+    jobs.sort(key=lambda j: order[(j.scenario, j.seed)])
+    outcome = StudyOutcome(folder, jobs, failed, interrupted,
+                           summarize(jobs, methods) if jobs else {})
+    _write_tables(folder, study, outcome)
+    if figures and jobs:
+        plots.draw_all(folder / "figures", jobs, outcome.summary, methods)
+    _link_latest(root, folder)
+    return outcome
+
+
+def _run_parallel(todo, methods: MethodsConfig, workers: int, progress: Progress,
+                  done, fail) -> None:
+    context = multiprocessing.get_context("spawn")  # fork would copy numba and gtsam state
+    with context.Manager() as manager:
+        updates = manager.Queue()
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+        futures: dict[Future, int] = {
+            pool.submit(_job_in_worker, scenario, methods, seed, key, updates): key
+            for key, (scenario, seed) in enumerate(todo)}
+        try:
+            pending = set(futures)
+            while pending:
+                finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                _drain(updates, progress)
+                for future in finished:
+                    key = futures[future]
+                    scenario, seed = todo[key]
+                    try:
+                        job = future.result()
+                    except Exception as exc:
+                        fail(key, scenario, seed, exc)
+                        continue
+                    done(key, job)
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            for process in list(getattr(pool, "_processes", {}).values()):
+                process.terminate()
+            raise
+        pool.shutdown()
+
+
+def _drain(updates, progress: Progress) -> None:
+    while True:
+        try:
+            key, share = updates.get_nowait()
+        except queue.Empty:
+            return
+        progress.advance(key, share)
