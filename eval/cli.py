@@ -14,6 +14,14 @@ import typer
 from rich import box
 from rich.console import Console
 from rich.markup import escape
+from rich.progress import (
+    BarColumn,
+    SpinnerColumn,
+    TaskProgressColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
+from rich.progress import Progress as RichProgress
 from rich.table import Table
 
 from tcaff_gtsam.errors import TcaffError
@@ -22,7 +30,11 @@ from tcaff_gtsam.geometry import compose, invert, se2_to_params
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.params import ClipperParams, FrameAlignerParams
 
-from .sim.maps import MapPair, grid_maps, overlapping_maps
+from . import plots
+from .config import MethodsConfig, StudyConfig, load_study
+from .methods import method_names
+from .sim.maps import overlapping_maps
+from .study import Progress, run_study
 
 app = typer.Typer(
     help="Align the coordinate frames of robots from their object maps (TCAFF).",
@@ -133,39 +145,126 @@ def make_maps(
                   f"(true x={x:.2f} m, y={y:.2f} m, theta={math.degrees(theta):.1f} deg)")
 
 
-def _demo_case(title: str, pair: MapPair, aligner: FrameAligner) -> None:
+class _Bars(Progress):
+    """The study's progress as rich bars: one for the whole study, one per running job."""
+
+    def __init__(self, bars: RichProgress, n_jobs: int) -> None:
+        self.bars = bars
+        self.total = bars.add_task("study", total=n_jobs)
+        self.tasks: dict[int, int] = {}
+        self.labels: dict[int, str] = {}
+        self.shares: dict[int, float] = {}
+
+    def start(self, key: int, label: str) -> None:
+        self.labels[key] = label
+
+    def advance(self, key: int, share: float) -> None:
+        if key not in self.tasks:
+            self.tasks[key] = self.bars.add_task(self.labels[key], total=1.0)
+        self.bars.update(self.tasks[key], completed=share)
+        self.shares[key] = share
+        self.bars.update(self.total, completed=sum(self.shares.values()))
+
+    def finish(self, key: int, ok: bool) -> None:
+        self.shares[key] = 1.0
+        self.bars.update(self.total, completed=sum(self.shares.values()))
+        if key in self.tasks:
+            self.bars.remove_task(self.tasks[key])
+        console.print(f"{'done' if ok else '[red]failed[/]'}: {escape(self.labels[key])}")
+
+
+def _cell(report: dict, key: str, scale: float = 1.0, digits: int = 2) -> str:
+    value = report.get(key)
+    return "-" if value is None else f"{scale * value:.{digits}f}"
+
+
+def _summary_table(summary: dict, methods: MethodsConfig) -> Table:
+    table = Table(title="Frame alignment, pooled over directed pairs and seeds (mean ± std)",
+                  title_justify="left", box=box.SIMPLE_HEAD)
+    for name in ("method", "translation [m]", "heading [deg]", "available", "false acc.",
+                 "1st correct [s]", "RPE [m]", "ms"):
+        table.add_column(escape(name), justify="left" if name == "method" else "right",
+                         no_wrap=True, min_width=len(name))
+    shown = [m for m in method_names(methods) if not m.startswith("clipper_k")
+             or m == f"clipper_k{methods.clipper_k_shown}"]
+    for scenario, by_method in summary.items():
+        table.add_row(f"[bold]{escape(scenario)}[/]")
+        for row, method in enumerate(shown):
+            r = by_method[method]
+            table.add_row(
+                "  " + escape(plots.label(method)),
+                f"{_cell(r, 'translation_error_m_mean')} ± {_cell(r, 'translation_error_m_std')}",
+                f"{_cell(r, 'heading_error_deg_mean')} ± {_cell(r, 'heading_error_deg_std')}",
+                _cell(r, "availability", 100, 0) + " %", _cell(r, "false_accept", 100, 1) + " %",
+                _cell(r, "time_to_first_correct_s", digits=0),
+                _cell(r, "rpe_translation_m"), _cell(r, "ms_per_pair_step", digits=2),
+                end_section=row == len(shown) - 1)
+    return table
+
+
+def _run(study_config: StudyConfig, figures: bool) -> None:
+    n_jobs = len(study_config.scenarios) * len(study_config.seeds)
+    console.print(f"study [bold]{study_config.name}[/]: {len(study_config.scenarios)} "
+                  f"scenarios x {len(study_config.seeds)} seeds, {study_config.workers} "
+                  f"worker(s)")
     start = time.perf_counter()
-    candidates = aligner.measurements(pair.ego, pair.other, pair.now)
-    elapsed_ms = 1e3 * (time.perf_counter() - start)
-    x, y, theta = se2_to_params(pair.T_oi_oj)
-    console.print(f"\n[bold]{title}[/]: {len(pair.ego)} and {len(pair.other)} objects, "
-                  f"{len(pair.true_pairs)} shared; truth x={x:.2f} m, y={y:.2f} m, "
-                  f"theta={math.degrees(theta):.1f} deg; aligned in {elapsed_ms:.1f} ms")
-    if candidates:
-        console.print(_candidates_table("candidates", candidates, pair.T_oi_oj))
-    else:
-        console.print("no candidate alignment")
+    with RichProgress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
+                      TaskProgressColumn(), TimeElapsedColumn(), console=console,
+                      transient=True) as bars:
+        outcome = run_study(study_config, _Bars(bars, n_jobs), figures=figures)
+    if outcome.summary:
+        console.print(_summary_table(outcome.summary, study_config.methods))
+        console.print("CLIPPER's whole sweep, every pair and seed: metrics.csv and "
+                      "figures/clipper_sweep.png. ms is each method's own time per pair "
+                      "and step; the TCAFF methods share the MNO-CLIPPER candidates on top.")
+    console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
+    if outcome.interrupted:
+        err_console.print(f"interrupted: {len(outcome.jobs)} of {n_jobs} runs finished and "
+                          f"were written")
+        raise SystemExit(130)
+    if outcome.failed:
+        for fail in outcome.failed:
+            err_console.print(f"[red]failed:[/] {fail['scenario']} seed {fail['seed']}: "
+                              f"{escape(fail['error'])}", soft_wrap=True)
+        raise SystemExit(1)
 
 
 @app.command()
-def demo(seed: Annotated[int, typer.Option(help="Random seed.")] = 0) -> None:
-    """Align simulated map pairs with known truth and show the candidates against it."""
-    aligner = FrameAligner()
-    aligner.measurements(*_warmup_maps())
-    rng = np.random.default_rng(seed)
-    _demo_case("Overlapping maps with clutter", overlapping_maps(
-        rng, 40, 0.6, 0.1, clutter=10), aligner)
-    _demo_case("Little overlap", overlapping_maps(rng, 40, 0.2, 0.1, clutter=10), aligner)
-    _demo_case("No overlap (every candidate is wrong)",
-               overlapping_maps(rng, 40, 0.0, 0.1, clutter=10), aligner)
-    _demo_case("Ambiguous grid of identical objects (needs temporal consistency)",
-               grid_maps(2, 4), aligner)
+def study(
+    config: Annotated[str, typer.Argument(
+        help="A study YAML file, or the name of a shipped one (demo, paper).")] = "paper",
+    scenario: Annotated[list[str] | None, typer.Option(
+        "--scenario", "-s", help="Run only this scenario (name or YAML path); repeatable.")
+    ] = None,
+    methods: Annotated[str | None, typer.Option(
+        help="Method set: a YAML path or a shipped name (default, tcaff_only).")] = None,
+    seeds: Annotated[int | None, typer.Option(
+        help="Run seeds 0 .. N-1 instead of the config's.", min=1)] = None,
+    workers: Annotated[int | None, typer.Option(help="Parallel processes.", min=1)] = None,
+    output: Annotated[Path | None, typer.Option(
+        help="Folder for results/<timestamp>/ and the results/latest link.")] = None,
+    figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
+) -> None:
+    """Compare the methods over scenarios x seeds; write metrics.json, metrics.csv, figures.
+
+    Scenarios: indoor_return, same_direction, opposite_directions, four_robots,
+    ambiguous_grid (eval/configs/scenarios/). Methods: TCAFF, its reference preset, TCAFF +
+    iSAM2 (causal and smoothed), single-shot CLIPPER for each threshold k, ICP from the true
+    initial alignment, ground truth. Ctrl-C keeps the runs already finished.
+    """
+    overrides = {"scenarios": scenario or None, "methods": methods,
+                 "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
+                 "output": None if output is None else str(output)}
+    _run(load_study(config, {k: v for k, v in overrides.items() if v is not None}), figures)
 
 
-def _warmup_maps() -> tuple[ObjectMap, ObjectMap, float]:
-    """A small map pair that compiles the solver before anything is timed."""
-    pair = overlapping_maps(np.random.default_rng(1), 12, 1.0, 0.05)
-    return pair.ego, pair.other, pair.now
+@app.command()
+def demo(
+    output: Annotated[Path, typer.Option(help="Folder for the results.")] = Path("results"),
+    workers: Annotated[int, typer.Option(help="Parallel processes.", min=1)] = 2,
+) -> None:
+    """The study on every scenario with one seed (about a minute): table, metrics, figures."""
+    _run(load_study("demo", {"output": str(output), "workers": workers}), True)
 
 
 def main() -> None:

@@ -11,7 +11,6 @@ configuration a study writes next to its results has everything inline and loads
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -86,6 +85,8 @@ class IndoorReturnLayout(_Model):
     room: float = Field(10.0, gt=2, description="m, side of the room")
     boxes: int = Field(14, ge=3)
     away_boxes: int = Field(14, ge=0, description="boxes in the room robot 1 visits")
+    away_similarity: float = Field(0.5, ge=0, le=1, description=(
+        "share of the away room's boxes laid out like the home room's, 0.3 m jitter"))
     leave_at: float = Field(70.0, ge=0, description="s")
     return_at: float = Field(190.0, ge=0, description="s, back in the room")
     speed: float = Field(0.5, gt=0, description="m/s")
@@ -138,6 +139,7 @@ class GridLayout(_Model):
     cols: int = Field(8, ge=2)
     spacing: float = Field(2.5, gt=0, description="m")
     size: float = Field(0.5, gt=0, description="m, width and height of every grid object")
+    holes: float = Field(0.0, ge=0, lt=1, description="share of grid places left empty")
     landmarks: int = Field(0, ge=0, description="distinct objects placed around the grid")
     speed: float = Field(0.5, gt=0, description="m/s")
 
@@ -157,6 +159,9 @@ class ScenarioConfig(_Model):
     sensor: SensorConfig = SensorConfig()
     mapping: MappingConfig = MappingConfig()
     window: int | None = Field(None, ge=1, description="TCAFF window W for this scenario")
+    graph_drift: tuple[float, float] | None = Field(
+        None, description="(m, deg) per step: the alignment drift the iSAM2 graph assumes; "
+                          "None: TCAFF's Q")
     min_shared: int = Field(5, ge=1, description="objects two maps must share to overlap")
 
     @property
@@ -166,6 +171,13 @@ class ScenarioConfig(_Model):
     def drift(self, robot: int) -> OdometryDrift:
         """The odometry drift of one robot."""
         return self.odometry[robot] if isinstance(self.odometry, list) else self.odometry
+
+    @field_validator("graph_drift")
+    @classmethod
+    def _drift(cls, value: tuple[float, float] | None) -> tuple[float, float] | None:
+        if value is not None and not (value[0] > 0 and value[1] > 0):
+            raise ValueError(f"need (metres > 0, degrees > 0), got {value}")
+        return value
 
     @model_validator(mode="after")
     def _per_robot(self) -> ScenarioConfig:
@@ -329,10 +341,17 @@ def load_methods(ref: str | Path) -> MethodsConfig:
     return _validate(MethodsConfig, _read_yaml(path), path.name)
 
 
-def load_study(ref: str | Path) -> StudyConfig:
-    """A study by shipped name or path, with its scenarios and method set loaded inline."""
+def load_study(ref: str | Path, overrides: dict[str, Any] | None = None) -> StudyConfig:
+    """A study by shipped name or path, with its scenarios and method set loaded inline.
+
+    Args:
+        overrides: top-level keys replacing the file's (validated like the file).
+    """
     path = _resolve(str(ref), "studies")
-    return resolve_study(_validate(StudyConfig, _read_yaml(path), path.name))
+    data = _read_yaml(path)
+    if overrides and isinstance(data, dict):
+        data = {**data, **overrides}
+    return resolve_study(_validate(StudyConfig, data, path.name))
 
 
 def resolve_study(study: StudyConfig) -> StudyConfig:
@@ -350,7 +369,3 @@ def dump_study(study: StudyConfig) -> str:
     """YAML of a resolved study, loadable again with `load_study`."""
     return yaml.safe_dump(study.model_dump(mode="json"), sort_keys=False)
 
-
-def heading_threshold(methods: MethodsConfig) -> float:
-    """The false-accept heading threshold in radians."""
-    return math.radians(methods.thresholds.heading_deg)

@@ -47,8 +47,15 @@ def _indoor_return(rng: np.random.Generator, lay: IndoorReturnLayout, duration: 
     mid = side / 2
     away_x0 = side + 6.0
     home = scatter(rng, lay.boxes, (1.0, 1.0, side - 1, side - 1), ("box",), min_gap=1.2)
-    away = scatter(rng, lay.away_boxes, (away_x0 + 1, 1.0, away_x0 + side - 1, side - 1),
-                   ("box",), min_gap=1.2)
+    # a similar-looking room: part of the home layout again, jittered, plus other boxes
+    n_copy = min(round(lay.away_similarity * lay.away_boxes), lay.boxes)
+    copied = rng.choice(lay.boxes, n_copy, replace=False)
+    similar = World(home.xy[copied] + (away_x0, 0.0) + rng.normal(0.0, 0.3, (n_copy, 2)),
+                    home.widths[copied] * rng.uniform(0.9, 1.1, n_copy),
+                    home.heights[copied] * rng.uniform(0.9, 1.1, n_copy), home.kinds[copied])
+    others = scatter(rng, lay.away_boxes - n_copy,
+                     (away_x0 + 1, 1.0, away_x0 + side - 1, side - 1), ("box",), min_gap=1.2)
+    away = combine(similar, others)
     walls = np.concatenate([room_walls(0, 0, side, side, door=(mid - 0.75, mid + 0.75)),
                             room_walls(away_x0, 0, away_x0 + side, side)[[0, 1, 3]]])
     world = combine(home, away, walls=walls)
@@ -132,14 +139,18 @@ def _grid(rng: np.random.Generator, lay: GridLayout, duration: float) -> Scene:
     s = lay.spacing
     x1, y1 = (lay.cols - 1) * s, (lay.rows - 1) * s
     objects = grid(lay.rows, lay.cols, s, lay.size)
+    keep = rng.permutation(len(objects)) >= round(lay.holes * len(objects))
+    objects = World(objects.xy[keep], objects.widths[keep], objects.heights[keep],
+                    objects.kinds[keep])
     ring = scatter(rng, lay.landmarks, (-s, -s, x1 + s, y1 + s), ("furniture", "bench", "sign"),
                    min_gap=1.5) if lay.landmarks else None
     world = combine(objects, *([ring] if ring is not None else []))
-    sweep_x = motion.lawnmower((-0.5 * s, 0.5 * s, x1 + 0.5 * s, y1 - 0.5 * s), lay.rows - 1)
-    sweep_y = motion.lawnmower((0.5 * s, -0.5 * s, x1 - 0.5 * s, y1 + 0.5 * s), lay.cols - 1,
-                               along_x=False)
-    knots = [motion.timed_waypoints(np.vstack([w, w[::-1]] * 20), lay.speed)
-             for w in (sweep_x, sweep_y)]
+    # The robots sweep the grid along the same lanes in opposite directions: their maps cover
+    # the same part of it only around their meetings, and in between the shifts that best
+    # match two different parts change from step to step.
+    sweep = motion.lawnmower((-0.5 * s, 0.5 * s, x1 + 0.5 * s, y1 - 0.5 * s), lay.rows - 1)
+    forth = np.vstack([sweep, sweep[::-1]] * 20)
+    knots = [motion.timed_waypoints(way, lay.speed) for way in (forth, forth[::-1])]
     return Scene(world, knots)
 
 
