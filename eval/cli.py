@@ -243,6 +243,8 @@ def study(
     workers: Annotated[int | None, typer.Option(help="Parallel processes.", min=1)] = None,
     output: Annotated[Path | None, typer.Option(
         help="Folder for results/<timestamp>/ and the results/latest link.")] = None,
+    duration: Annotated[float | None, typer.Option(
+        help="Cap every scenario's duration [s], for a quick look.", min=1.0)] = None,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
 ) -> None:
     """Compare the methods over scenarios x seeds; write metrics.json, metrics.csv, figures.
@@ -255,7 +257,12 @@ def study(
     overrides = {"scenarios": scenario or None, "methods": methods,
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
-    _run(load_study(config, {k: v for k, v in overrides.items() if v is not None}), figures)
+    study_config = load_study(config, {k: v for k, v in overrides.items() if v is not None})
+    if duration is not None:
+        study_config = study_config.model_copy(update={"scenarios": [
+            s.model_copy(update={"duration": min(s.duration, duration)})
+            for s in study_config.scenarios]})
+    _run(study_config, figures)
 
 
 @app.command()

@@ -287,16 +287,33 @@ class StudyConfig(_Model):
 # -- loading -----------------------------------------------------------------------------------
 
 
+_LAYOUT_KINDS = ("indoor_return", "same_direction", "opposite_directions", "room", "grid")
+
+
+def _path(loc: tuple) -> str:
+    """The key path of a pydantic error location, without union-branch and validator tags."""
+    parts: list[str] = []
+    for k, item in enumerate(loc):
+        item = str(item)
+        if (item.startswith("function-") or "[" in item or item[:1].isupper()
+                or item == "str" or (item in _LAYOUT_KINDS and k and loc[k - 1] == "layout")):
+            continue
+        parts.append(item)
+    return ".".join(parts) or "(top level)"
+
+
 def _format(source: str, error: ValidationError) -> str:
+    items = error.errors()
+    # a name-or-inline field fails as a string too; that branch's complaint is noise
+    detailed = [e for e in items if not (e["type"] == "string_type" and "str" in e["loc"])]
     parts = []
-    for item in error.errors():
-        path = ".".join(str(p) for p in item["loc"]) or "(top level)"
+    for item in detailed or items:
         message = item["msg"].removeprefix("Value error, ")
         if item["type"] not in ("missing", "extra_forbidden") and not isinstance(
                 item.get("input"), dict):
             message += f" (got {item.get('input')!r})"
-        parts.append(f"{path}: {message}")
-    return f"{source}: " + "; ".join(parts)
+        parts.append(f"{_path(item['loc'])}: {message}")
+    return f"{source}: " + "; ".join(dict.fromkeys(parts))
 
 
 def _read_yaml(path: Path) -> Any:
@@ -325,7 +342,8 @@ def _resolve(ref: str, folder: str) -> Path:
     shipped = CONFIG_DIR / folder / f"{ref}.yaml"
     if not shipped.is_file():
         names = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
-        raise ConfigError(f"no {folder[:-1]} config named {ref!r}; shipped: {', '.join(names)}")
+        kind = {"scenarios": "scenario", "methods": "method set", "studies": "study"}[folder]
+        raise ConfigError(f"no {kind} config named {ref!r}; shipped: {', '.join(names)}")
     return shipped
 
 

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from tcaff_gtsam.eval.cli import app
 from typer.testing import CliRunner
 
@@ -18,7 +19,7 @@ TCAFF = str(Path(sys.executable).parent / "tcaff")
 def test_help_lists_the_commands():
     result = runner.invoke(app, ["--help"])
     assert result.exit_code == 0
-    for command in ("align-maps", "make-maps", "demo"):
+    for command in ("align-maps", "make-maps", "study", "demo"):
         assert command in result.output
 
 
@@ -57,8 +58,54 @@ def test_bad_option_is_a_clear_error(tmp_path):
     assert "dim" in done.stderr and "Traceback" not in done.stderr
 
 
-def test_demo_shows_correct_candidates():
-    result = runner.invoke(app, ["demo"])
+SCENARIOS = ["indoor_return", "same_direction", "opposite_directions", "four_robots",
+             "ambiguous_grid"]
+
+
+@pytest.mark.parametrize("scenario", SCENARIOS)
+def test_study_runs_each_shipped_scenario(tmp_path, scenario):
+    result = runner.invoke(app, ["study", "demo", "--scenario", scenario, "--duration", "12",
+                                 "--workers", "1", "--output", str(tmp_path), "--no-figures"])
     assert result.exit_code == 0, result.output
-    assert "correct" in result.output
-    assert "Ambiguous grid" in result.output
+    assert scenario in result.output and "TCAFF+iSAM2 smoothed" in result.output
+    summary = json.loads((tmp_path / "latest" / "metrics.json").read_text())["summary"]
+    assert list(summary) == [scenario]
+
+
+@pytest.mark.parametrize("methods", ["default", "tcaff_only"])
+def test_study_runs_each_shipped_method_set(tmp_path, methods):
+    result = runner.invoke(app, ["study", "demo", "-s", "indoor_return", "--methods", methods,
+                                 "--duration", "12", "--output", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    figures = {p.name for p in (tmp_path / "latest" / "figures").glob("*.png")}
+    assert "leave_and_return.png" in figures
+    assert ("clipper_sweep.png" in figures) == (methods == "default")
+
+
+@pytest.mark.parametrize("study", ["demo", "paper"])
+def test_study_runs_each_shipped_study(tmp_path, study):
+    result = runner.invoke(app, ["study", study, "--seeds", "1", "--duration", "8",
+                                 "--workers", "1", "--output", str(tmp_path), "--no-figures"])
+    assert result.exit_code == 0, result.output
+    assert len(json.loads((tmp_path / "latest" / "metrics.json").read_text())["summary"]) == 5
+
+
+def test_bad_study_config_is_one_line_and_exit_2(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("scenarios: [indoor_return]\nworkers: 0\n")
+    done = subprocess.run([TCAFF, "study", str(bad)], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert done.stderr.strip() == ("error: bad.yaml: workers: Input should be greater than or "
+                                   "equal to 1 (got 0)")
+
+
+def test_demo_prints_the_table_and_writes_the_figures(tmp_path):
+    done = subprocess.run([TCAFF, "demo", "--output", str(tmp_path)], capture_output=True,
+                          text=True)
+    assert done.returncode == 0, done.stderr
+    for name in SCENARIOS:
+        assert name in done.stdout
+    assert "CLIPPER k>=10" in done.stdout
+    figures = {p.name for p in (tmp_path / "latest" / "figures").glob("*.png")}
+    assert figures == {"leave_and_return.png", "clipper_sweep.png", "scenarios.png",
+                       *(f"errors_{name}.png" for name in SCENARIOS)}

@@ -1,0 +1,161 @@
+"""The study: every scenario produces every output; results survive interruption and failure;
+the acceptance figures of the comparison hold on the shipped scenarios."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from tcaff_gtsam.eval import study as study_module
+from tcaff_gtsam.eval.config import MethodsConfig, StudyConfig, load_scenario, load_study
+from tcaff_gtsam.eval.methods import method_names
+from tcaff_gtsam.eval.study import JobResult, run_job, run_study
+
+QUICK_METHODS = MethodsConfig(clipper_k=[3, 5], clipper_k_shown=5)
+
+
+def short(name: str, duration: float = 25.0):
+    return load_scenario(name).model_copy(update={"duration": duration})
+
+
+def quick_study(tmp_path, scenarios, seeds=(0,), workers=1) -> StudyConfig:
+    return StudyConfig(name="t", scenarios=list(scenarios), methods=QUICK_METHODS,
+                       seeds=list(seeds), workers=workers, output=str(tmp_path / "results"))
+
+
+@pytest.mark.parametrize("name", ["indoor_return", "same_direction", "opposite_directions",
+                                  "four_robots", "ambiguous_grid"])
+def test_each_scenario_produces_every_output(name):
+    job = run_job(short(name), QUICK_METHODS, seed=1)
+    n = 4 if name == "four_robots" else 2
+    assert len(job.pairs) == n * (n - 1)
+    names = method_names(QUICK_METHODS)
+    assert set(job.metrics) == set(names)
+    steps = len(job.arrays["times"])
+    assert steps == 25
+    for method in names:
+        assert job.arrays[f"est_{method}"].shape == (len(job.pairs), steps, 3)
+        assert set(job.metrics[method]) == {"all"} | {f"{i}->{j}" for i, j in job.pairs}
+    truth = job.metrics["ground_truth"]["all"]
+    assert truth["translation_error_m_mean"] < 1e-9 and truth["availability"] == 1.0
+    assert job.arrays["overlap"].shape == (len(job.pairs), steps)
+
+
+def test_study_writes_tables_figures_runs_and_the_latest_link(tmp_path):
+    cfg = quick_study(tmp_path, [short("indoor_return", 40), short("ambiguous_grid", 30)])
+    outcome = run_study(cfg)
+    folder = outcome.folder
+    assert not outcome.interrupted and not outcome.failed
+    assert (tmp_path / "results" / "latest").resolve() == folder.resolve()
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert set(metrics["summary"]) == {"indoor_return", "ambiguous_grid"}
+    assert metrics["summary"]["indoor_return"]["ground_truth"]["false_accept"] == 0.0
+    csv_lines = (folder / "metrics.csv").read_text().splitlines()
+    assert csv_lines[0].startswith("scenario,seed,method,pair,translation_error_m_mean")
+    # per pair and pooled rows for each method of each run, plus the summary rows
+    n_methods = len(method_names(QUICK_METHODS))
+    assert len(csv_lines) == 1 + 2 * n_methods * 3 + 2 * n_methods
+    figures = sorted(p.name for p in (folder / "figures").glob("*.png"))
+    assert figures == ["clipper_sweep.png", "errors_ambiguous_grid.png",
+                       "errors_indoor_return.png", "leave_and_return.png", "scenarios.png"]
+    assert all((folder / "figures" / f).stat().st_size > 10_000 for f in figures)
+    assert sorted(p.name for p in (folder / "runs").iterdir()) == [
+        "ambiguous_grid-seed0.json", "ambiguous_grid-seed0.npz",
+        "indoor_return-seed0.json", "indoor_return-seed0.npz"]
+    assert load_study(folder / "config.yaml") == cfg
+
+
+def test_saved_run_reproduces_its_metrics(tmp_path):
+    job = run_job(short("indoor_return", 30), QUICK_METHODS, seed=0)
+    job.save(tmp_path)
+    meta = json.loads((tmp_path / f"{job.stem}.json").read_text())
+    with np.load(tmp_path / f"{job.stem}.npz") as data:
+        arrays = dict(data)
+    again = JobResult(meta["scenario"], meta["seed"], [tuple(p) for p in meta["pairs"]],
+                      arrays, {}, meta["seconds"])
+    trace = again.traces("tcaff")[0]
+    assert np.array_equal(trace.estimate, job.arrays["est_tcaff"][0], equal_nan=True)
+    assert meta["metrics"] == json.loads(json.dumps(job.metrics))
+
+
+def test_same_seed_same_results():
+    a = run_job(short("ambiguous_grid", 20), QUICK_METHODS, seed=4)
+    b = run_job(short("ambiguous_grid", 20), QUICK_METHODS, seed=4)
+    for key, value in a.arrays.items():
+        assert np.array_equal(value, b.arrays[key], equal_nan=True), key
+
+
+def test_interrupted_study_keeps_the_finished_runs(tmp_path):
+    cfg = quick_study(tmp_path, [short("indoor_return", 20), short("ambiguous_grid", 20)])
+    finished = []
+
+    def stop_after_first(job):
+        finished.append(job.stem)
+        raise KeyboardInterrupt
+
+    outcome = run_study(cfg, on_job_done=stop_after_first)
+    assert outcome.interrupted
+    assert finished == ["indoor_return-seed0"]
+    metrics = json.loads((outcome.folder / "metrics.json").read_text())
+    assert metrics["interrupted"] is True
+    assert list(metrics["summary"]) == ["indoor_return"]
+    assert (outcome.folder / "runs" / "indoor_return-seed0.npz").is_file()
+    assert not (outcome.folder / "runs" / "ambiguous_grid-seed0.npz").exists()
+    assert (outcome.folder / "figures" / "leave_and_return.png").is_file()
+
+
+def test_a_failing_run_does_not_lose_the_others(tmp_path, monkeypatch):
+    real = study_module.simulate
+
+    def simulate(scenario, seed, progress=None):
+        if scenario.name == "indoor_return":
+            raise RuntimeError("sensor exploded")
+        return real(scenario, seed, progress)
+
+    monkeypatch.setattr(study_module, "simulate", simulate)
+    cfg = quick_study(tmp_path, [short("indoor_return", 20), short("ambiguous_grid", 20)])
+    outcome = run_study(cfg, figures=False)
+    assert [f["scenario"] for f in outcome.failed] == ["indoor_return"]
+    assert "sensor exploded" in outcome.failed[0]["error"]
+    assert [j.scenario for j in outcome.jobs] == ["ambiguous_grid"]
+    metrics = json.loads((outcome.folder / "metrics.json").read_text())
+    assert metrics["failed"][0]["error"] == "sensor exploded"
+
+
+def test_parallel_workers_give_the_serial_results(tmp_path):
+    scenarios = [short("indoor_return", 20), short("opposite_directions", 20)]
+    serial = run_study(quick_study(tmp_path / "a", scenarios), figures=False)
+    parallel = run_study(quick_study(tmp_path / "b", scenarios, workers=2), figures=False)
+    assert [j.stem for j in parallel.jobs] == [j.stem for j in serial.jobs]
+    for a, b in zip(serial.jobs, parallel.jobs, strict=True):
+        assert np.array_equal(a.arrays["est_tcaff"], b.arrays["est_tcaff"], equal_nan=True)
+
+
+# -- the acceptance figures of the comparison, on the shipped scenarios at full length ---------
+
+
+def test_indoor_tcaff_meets_the_papers_figures():
+    job = run_job(load_scenario("indoor_return"), MethodsConfig(
+        methods=["tcaff", "tcaff_isam2"]), seed=0)
+    tcaff = job.metrics["tcaff"]["all"]
+    assert tcaff["translation_error_m_mean"] <= 0.35
+    assert tcaff["heading_error_deg_mean"] <= 1.1
+    assert tcaff["availability"] >= 0.8
+    assert tcaff["false_accept"] == 0.0
+    causal = job.metrics["tcaff_isam2_causal"]["all"]
+    smoothed = job.metrics["tcaff_isam2_smoothed"]["all"]
+    assert smoothed["translation_error_m_mean"] <= causal["translation_error_m_mean"]
+    assert smoothed["heading_error_deg_mean"] <= causal["heading_error_deg_mean"]
+
+
+def test_ambiguous_grid_fools_single_shot_clipper_but_not_tcaff():
+    job = run_job(load_scenario("ambiguous_grid"), MethodsConfig(
+        methods=["tcaff", "clipper"], clipper_k=[3, 6, 10]), seed=0)
+    for k in (3, 6, 10):
+        assert job.metrics[f"clipper_k{k}"]["all"]["false_accept"] > 0.02
+    tcaff = job.metrics["tcaff"]["all"]
+    assert tcaff["false_accept"] <= 0.01
+    assert tcaff["availability"] >= 0.8
+    assert not math.isnan(tcaff["translation_error_m_mean"] or math.nan)
