@@ -75,7 +75,8 @@ class MappingConfig(_Model):
 
     nu: int = Field(3, ge=1, description="sightings before an object enters the map")
     kappa: float = Field(20.0, gt=0, description="s; objects unseen longer leave the map")
-    frame_rate: float = Field(10.0, gt=0, le=100, description="Hz of detections")
+    frame_rate: float = Field(10.0, ge=1, le=100,
+                              description="Hz of detections, at least the 1 Hz map exchange")
 
 
 class IndoorReturnLayout(_Model):
@@ -141,6 +142,9 @@ class GridLayout(_Model):
     size: float = Field(0.5, gt=0, description="m, width and height of every grid object")
     holes: float = Field(0.0, ge=0, lt=1, description="share of grid places left empty")
     landmarks: int = Field(0, ge=0, description="distinct objects placed around the grid")
+    formation: Literal["abreast", "opposite"] = Field(
+        "abreast", description="abreast: robot 1 sweeps beside robot 0, half a lane over; "
+                               "opposite: it starts at the far end and sweeps back")
     speed: float = Field(0.5, gt=0, description="m/s")
 
 

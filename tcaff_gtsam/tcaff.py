@@ -193,8 +193,9 @@ class TCAFF:
 
     def _consider_switch(self, complete: Leaves) -> None:
         """Switch to a rival hypothesis: one inconsistent with the main tree's best leaf, below
-        tau and `switch_margin` better, that has held for `switch_after` steps in a row. Steps
-        on which no exploring tree completes neither extend nor break the streak."""
+        tau and `switch_margin` better, that has held for `switch_after` steps in a row, each
+        a step on which the main tree's best path took no measurement. Steps on which no
+        exploring tree completes neither extend nor break the streak."""
         prm = self.params
         if len(complete) == 0:
             return
@@ -203,7 +204,9 @@ class TCAFF:
         m = int(np.argmin(main_cost))
         rival = (~self._consistent(complete, self._main.take([m])) & (cost < prm.tau)
                  & (cost + prm.switch_margin < main_cost[m]))
-        if not rival.any():
+        # a main hypothesis that a measurement confirmed this step is not abandoned: in a
+        # repetitive world a wrong rival can hold a full window while the truth has gaps
+        if not rival.any() or self._main.since[m] == 0:
             self._switch_streak, self._rival = 0, None
             return
         best = int(np.flatnonzero(rival)[np.argmin(cost[rival])])

@@ -19,8 +19,8 @@ SCENARIOS = sorted(p.stem for p in (CONFIG_DIR / "scenarios").glob("*.yaml"))
 
 
 def test_every_scenario_of_the_paper_ships():
-    assert SCENARIOS == ["ambiguous_grid", "four_robots", "indoor_return",
-                         "opposite_directions", "same_direction"]
+    assert set(SCENARIOS) >= {"ambiguous_grid", "four_robots", "indoor_return",
+                              "opposite_directions", "same_direction"}
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
@@ -38,7 +38,7 @@ def test_shipped_method_sets_load(name):
 @pytest.mark.parametrize("name", ["demo", "paper"])
 def test_shipped_studies_load_with_everything_inline(name):
     study = load_study(name)
-    assert {s.name for s in study.scenarios} == set(SCENARIOS)
+    assert {s.name for s in study.scenarios} == set(SCENARIOS) - {"ambiguous_grid_opposite"}
     assert isinstance(study.methods, MethodsConfig)
 
 

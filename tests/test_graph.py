@@ -337,3 +337,37 @@ def test_bad_keys_poses_and_estimates_are_data_errors():
         graph.add_tcaff_estimate(0, 0, 1, est, zs[:0], R[None][:0])
     with pytest.raises(DataError, match="planar graph"):
         InterRobotGraph(2, GraphParams(dim=3)).add_tcaff_estimate(0, 0, 1, est, zs, R[None])
+
+
+def test_reacquired_agreeing_hypothesis_keeps_the_dropped_ones_factors():
+    rng = np.random.default_rng(5)
+    graph = InterRobotGraph(2)
+    filt = TCAFF()
+    x = np.array([1.0, 2.0, 0.3])
+    for k in range(160):  # seen, then 60 empty steps (the tree is dropped), then seen again
+        zs = (x + rng.normal(0, [0.05, 0.05, 0.005]))[None] if not 30 <= k < 90 else np.zeros(
+            (0, 3))
+        Rs = np.broadcast_to(R, (len(zs), 3, 3))
+        graph.add_tcaff_estimate(k, 0, 1, filt.update(zs, Rs), zs, Rs)
+        graph.update(k)
+    hypotheses = {f.tag[3] for f in graph._active.values()
+                  if f.tag is not None and f.tag[0] == "alignment"}
+    assert hypotheses == {1, 2}  # the first visit's factors survived the drop
+
+
+def test_reacquired_disagreeing_hypothesis_removes_the_dropped_ones_factors():
+    rng = np.random.default_rng(6)
+    graph = InterRobotGraph(2)
+    filt = TCAFF()
+    first, second = np.array([1.0, 2.0, 0.3]), np.array([-6.0, 3.0, -1.0])
+    for k in range(160):
+        x = first if k < 30 else second
+        zs = (x + rng.normal(0, [0.05, 0.05, 0.005]))[None] if not 30 <= k < 90 else np.zeros(
+            (0, 3))
+        Rs = np.broadcast_to(R, (len(zs), 3, 3))
+        graph.add_tcaff_estimate(k, 0, 1, filt.update(zs, Rs), zs, Rs)
+        graph.update(k)
+    hypotheses = {f.tag[3] for f in graph._active.values()
+                  if f.tag is not None and f.tag[0] == "alignment"}
+    assert hypotheses == {2}
+    assert pose_error(se2_from_params(second), graph.alignment(0, 1)[0])[0] < 0.1

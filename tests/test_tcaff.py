@@ -335,3 +335,26 @@ def test_switch_needs_the_same_rival_for_switch_after_steps():
     assert persistent[-1].hypothesis == 2
     assert np.hypot(*(persistent[-1].x - far_a)[:2]) < 0.3
     assert all(e is None or e.hypothesis == 1 for e in alternating[20:59])
+
+
+def test_a_main_hypothesis_confirmed_every_other_step_is_not_abandoned():
+    """A rival with a full window beats a main tree with gaps on cost; while measurements keep
+    confirming the main tree it stays (a repetitive world makes such rivals)."""
+    rng = np.random.default_rng(3)
+    truth, rival = np.array([0.0, 0.0, 0.0]), np.array([5.0, 0.0, 2.0])
+
+    def noisy(x):
+        return x + rng.normal(0, [0.05, 0.05, 0.01])
+
+    zs = []
+    for t in range(100):
+        z = [noisy(truth)] if t < 20 or t % 2 == 0 else []
+        if t >= 20:
+            z.append(noisy(rival))
+        zs.append(np.array(z).reshape(-1, 3))
+    estimates = run(TCAFF(), zs)
+    assert all(e.hypothesis == 1 and np.hypot(*e.x[:2]) < 0.3 for e in estimates[20:])
+    # the same rival does win once the truth stops appearing
+    zs[60:] = [np.array([noisy(rival)]) for _ in range(40)]
+    estimates = run(TCAFF(), zs)
+    assert estimates[-1].hypothesis == 2 and np.hypot(*(estimates[-1].x - rival)[:2]) < 0.3

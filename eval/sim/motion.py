@@ -55,7 +55,8 @@ def lawnmower(bounds: tuple[float, float, float, float], lanes: int, along_x: bo
     x0, y0, x1, y1 = bounds
     points = []
     for k, c in enumerate(np.linspace(y0 if along_x else x0, y1 if along_x else x1, lanes)):
-        a, b = (x0, x1) if k % 2 == 0 else (x1, x0)
+        lo, hi = (x0, x1) if along_x else (y0, y1)
+        a, b = (lo, hi) if k % 2 == 0 else (hi, lo)
         points += [(a, c), (b, c)] if along_x else [(c, a), (c, b)]
     return np.asarray(points, dtype=float)
 
@@ -72,15 +73,19 @@ def poses_along(knot_t: np.ndarray, knot_xy: np.ndarray, times: np.ndarray,
         times - lookahead, knot_t, knot_xy[:, 0])
     dy = np.interp(times + lookahead, knot_t, knot_xy[:, 1]) - np.interp(
         times - lookahead, knot_t, knot_xy[:, 1])
+    # While standing still the robot keeps the heading of the last leg it drove (the first
+    # leg's before it starts), which depends on the knots only, not on the query times.
+    step = np.diff(knot_xy, axis=0)
+    leg = np.where(np.hypot(step[:, 0], step[:, 1]) > 1e-9,
+                   np.arctan2(step[:, 1], step[:, 0]), np.nan)
+    if len(leg) == 0 or np.all(np.isnan(leg)):
+        leg = np.zeros(max(len(leg), 1))
+    driven = np.flatnonzero(~np.isnan(leg))
+    last = np.maximum.accumulate(np.where(np.isnan(leg), -1, np.arange(len(leg))))
+    leg = leg[np.where(last < 0, driven[0], last)]
+    current = np.clip(np.searchsorted(knot_t, times, side="right") - 1, 0, len(leg) - 1)
     moving = np.hypot(dx, dy) > 1e-6
-    heading = np.arctan2(dy, dx)
-    if moving.any():
-        # carry the last moving heading through stops, and the first one back to the start
-        last = np.maximum.accumulate(np.where(moving, np.arange(len(times)), -1))
-        last[last < 0] = np.flatnonzero(moving)[0]
-        heading = heading[last]
-    else:
-        heading = np.zeros_like(times)
+    heading = np.where(moving, np.arctan2(dy, dx), leg[current])
     return np.column_stack([x, y, heading])
 
 

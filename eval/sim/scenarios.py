@@ -145,12 +145,13 @@ def _grid(rng: np.random.Generator, lay: GridLayout, duration: float) -> Scene:
     ring = scatter(rng, lay.landmarks, (-s, -s, x1 + s, y1 + s), ("furniture", "bench", "sign"),
                    min_gap=1.5) if lay.landmarks else None
     world = combine(objects, *([ring] if ring is not None else []))
-    # The robots sweep the grid along the same lanes in opposite directions: their maps cover
-    # the same part of it only around their meetings, and in between the shifts that best
-    # match two different parts change from step to step.
     sweep = motion.lawnmower((-0.5 * s, 0.5 * s, x1 + 0.5 * s, y1 - 0.5 * s), lay.rows - 1)
     forth = np.vstack([sweep, sweep[::-1]] * 20)
-    knots = [motion.timed_waypoints(way, lay.speed) for way in (forth, forth[::-1])]
+    if lay.formation == "abreast":
+        other = forth + np.array([0.0, 0.5 * s])
+    else:
+        other = np.vstack([sweep[::-1], sweep] * 20)  # from where robot 0's first sweep ends
+    knots = [motion.timed_waypoints(way, lay.speed) for way in (forth, other)]
     return Scene(world, knots)
 
 

@@ -45,7 +45,9 @@ def observe(rng: np.random.Generator, world: World, pose_true: np.ndarray,
     # camera by half the unseen depth: a bias that depends on the viewpoint.
     share_w = rng.uniform(sensor.partial_view, 1.0, k)
     share_h = rng.uniform(sensor.partial_view, 1.0, k)
-    pull = (1.0 - share_w) * world.widths[index] / 2 / np.maximum(rng_m[index], 1e-6)
+    # at most halfway to the camera, for objects as wide as they are near
+    pull = np.minimum((1.0 - share_w) * world.widths[index] / 2
+                      / np.maximum(rng_m[index], 1e-6), 0.5)
     body = np.column_stack([fwd[index] * (1 - pull), left[index] * (1 - pull),
                             world.heights[index] * share_h / 2])
     body += rng.normal(0.0, 1.0, (k, 3)) * sigma[:, None]
@@ -57,7 +59,8 @@ def observe(rng: np.random.Generator, world: World, pose_true: np.ndarray,
     widths, heights = seen(world.widths[index], share_w), seen(world.heights[index], share_h)
     n_false = rng.poisson(sensor.false_per_frame)
     if n_false:
-        r = rng.uniform(max(sensor.range_min, 0.5), sensor.range_max, n_false)
+        r = rng.uniform(max(sensor.range_min, min(0.5, sensor.range_max)), sensor.range_max,
+                        n_false)
         a = rng.uniform(-half_fov, half_fov, n_false)
         false_h = rng.uniform(0.1, 0.6, n_false)
         body = np.vstack([body, np.column_stack([r * np.cos(a), r * np.sin(a), false_h / 2])])
