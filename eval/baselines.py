@@ -3,8 +3,9 @@
 - Single-shot CLIPPER (the paper's baseline): one standard CLIPPER solution per step, accepted
   as the alignment when it holds at least k associations, otherwise no alignment that step.
 - ICP (Open3D, point to point) on the two maps' recent centroids, given the true alignment at
-  the start and then started from its own previous estimate, as a local method must be. When
-  fewer than the required correspondences are found it keeps its previous estimate.
+  the start and then started from its own previous estimate, as a local method must be. It
+  reports nothing until its first registration with enough correspondences; after that, a step
+  with too few keeps the previous estimate.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ class CentroidICP:
     def __init__(self, T_init: np.ndarray, kappa: float, max_correspondence_distance: float,
                  min_correspondences: int, max_iterations: int) -> None:
         self.T = np.asarray(T_init, dtype=float).copy()
+        self.registered = False
         self.kappa = kappa
         self.max_distance = max_correspondence_distance
         self.min_correspondences = min_correspondences
@@ -48,7 +50,8 @@ class CentroidICP:
         self.estimation = o3d.pipelines.registration.TransformationEstimationPointToPoint()
 
     def update(self, t: float, ego: ObjectMap, other: ObjectMap) -> np.ndarray:
-        """(3,) (x, y, theta) of the current T_oi_oj estimate after one ICP step at time t."""
+        """(3,) (x, y, theta) of the T_oi_oj estimate after one ICP step at time t; NaN before
+        the first successful registration."""
         target = ego.recent(t, self.kappa).centroids
         source = other.recent(t, self.kappa).centroids
         if min(len(target), len(source)) >= self.min_correspondences:
@@ -57,7 +60,8 @@ class CentroidICP:
                 self.estimation, self.criteria)
             if len(result.correspondence_set) >= self.min_correspondences:
                 self.T = se3_to_se2(np.asarray(result.transformation))
-        return se2_to_params(self.T)
+                self.registered = True
+        return se2_to_params(self.T) if self.registered else np.full(3, np.nan)
 
 
 def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:

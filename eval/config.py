@@ -114,6 +114,13 @@ class PathLayout(_Model):
     separation: float = Field(15.0, gt=0, description="m")
     speed: float = Field(1.2, gt=0, description="m/s")
 
+    @model_validator(mode="after")
+    def _fits(self) -> PathLayout:
+        if self.separation >= self.length:
+            raise ValueError(f"separation ({self.separation}) must be shorter than the path "
+                             f"({self.length})")
+        return self
+
     @field_validator("lateral")
     @classmethod
     def _lateral(cls, value: tuple[float, float]) -> tuple[float, float]:
@@ -157,7 +164,7 @@ class ScenarioConfig(_Model):
 
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
-    duration: float = Field(gt=0, le=7200, description="s")
+    duration: float = Field(ge=1, le=7200, description="s, at least one 1 Hz map exchange")
     layout: Layout
     odometry: OdometryDrift | list[OdometryDrift] = OdometryDrift()
     sensor: SensorConfig = SensorConfig()
@@ -373,17 +380,26 @@ def load_study(ref: str | Path, overrides: dict[str, Any] | None = None) -> Stud
     data = _read_yaml(path)
     if overrides and isinstance(data, dict):
         data = {**data, **overrides}
-    return resolve_study(_validate(StudyConfig, data, path.name))
+    return resolve_study(_validate(StudyConfig, data, path.name), path.parent)
 
 
-def resolve_study(study: StudyConfig) -> StudyConfig:
-    """The same study with every scenario and the method set inline."""
-    scenarios = [s if isinstance(s, ScenarioConfig) else load_scenario(s) for s in study.scenarios]
+def resolve_study(study: StudyConfig, folder: Path | None = None) -> StudyConfig:
+    """The same study with every scenario and the method set inline; relative YAML paths are
+    taken from `folder` (the study file's) when the file is there."""
+    def near(ref: str) -> str:
+        path = Path(ref)
+        if folder is not None and path.suffix in (".yaml", ".yml") and not path.is_absolute():
+            if (folder / path).is_file():
+                return str(folder / path)
+        return ref
+
+    scenarios = [s if isinstance(s, ScenarioConfig) else load_scenario(near(s))
+                 for s in study.scenarios]
     names = [s.name for s in scenarios]
     if len(set(names)) != len(names):
         raise ConfigError(f"study {study.name}: scenario names must be distinct, got {names}")
     methods = (study.methods if isinstance(study.methods, MethodsConfig)
-               else load_methods(study.methods))
+               else load_methods(near(study.methods)))
     return study.model_copy(update={"scenarios": scenarios, "methods": methods})
 
 

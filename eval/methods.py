@@ -5,8 +5,9 @@ All methods advance together, one 1 Hz step at a time, on the same maps:
 - tcaff: the paper's filter (default preset) on MNO-CLIPPER candidates.
 - tcaff_reference: the authors' released settings on the same candidates, without this project's
   residual check and with the original's constant R.
-- tcaff_isam2_causal / tcaff_isam2_smoothed: every pair's TCAFF output in one iSAM2 graph, read
-  at each step (causal) and once more at the end (smoothed), at the steps TCAFF has an estimate.
+- tcaff_isam2_causal / tcaff_isam2_smoothed: the TCAFF output of every pair (i, j) with i < j in
+  one iSAM2 graph ((j, i) aligns the same two maps), read for every directed pair at each step
+  (causal) and once more at the end (smoothed), at the steps that pair's TCAFF has an estimate.
 - clipper_k<k>: single-shot CLIPPER accepting a solution of at least k associations.
 - icp: ICP on centroids from the true initial alignment.
 - ground_truth: the true alignment (a check on the evaluation itself).
@@ -75,8 +76,11 @@ def method_names(methods: MethodsConfig) -> list[str]:
 
 def _tcaff_params(scenario: ScenarioConfig, methods: MethodsConfig,
                   reference: bool) -> TCAFFParams:
+    """The scenario's window applies to both presets; the method set's overrides to the
+    default preset only (the reference preset is the released code as it is)."""
     base = TCAFFParams.reference() if reference else TCAFFParams()
-    overrides = {k: v for k, v in methods.tcaff.model_dump().items() if v is not None}
+    overrides = {} if reference else {
+        k: v for k, v in methods.tcaff.model_dump().items() if v is not None}
     if scenario.window is not None:
         overrides.setdefault("window", scenario.window)
     return replace(base, **overrides)
@@ -168,7 +172,9 @@ def run_methods(run: SimRun, methods: MethodsConfig,
         if graph is not None:
             start = time.perf_counter()
             for p, (est, zs, Rs) in tcaff_out.items():
-                graph.add_tcaff_estimate(s, *pairs[p], est, zs, Rs)
+                i, j = pairs[p]
+                if i < j:  # (j, i) aligns the same two maps: its factors would count them twice
+                    graph.add_tcaff_estimate(s, i, j, est, zs, Rs)
             graph.update(s)
             for p, (est, _, _) in tcaff_out.items():
                 if est is not None:

@@ -1,7 +1,8 @@
 """The study's figures (matplotlib, PNG).
 
 - leave_and_return.png: the paper's figure: x, y and theta of T_oi_oj over time, MNO-CLIPPER
-  candidates as dots, the ground truth and the TCAFF estimate.
+  candidates as dots, the ground truth and the TCAFF estimate (of indoor_return, or of the first
+  scenario when the study has no indoor_return).
 - errors_<scenario>.png: translation and heading error over time, one line per method.
 - clipper_sweep.png: single-shot CLIPPER's false-accept share, availability and error against its
   association threshold k, with TCAFF as a reference line.
@@ -19,9 +20,10 @@ matplotlib.use("Agg")  # files only; never open a window
 import matplotlib.pyplot as plt
 import numpy as np
 
-from tcaff_gtsam.geometry import se2_error, se2_from_params
+from tcaff_gtsam.geometry import se2_from_params, wrap_angle
 
 from .config import MethodsConfig
+from .metrics import step_errors
 
 __all__ = ["draw_all", "label"]
 
@@ -59,9 +61,14 @@ def _shade_overlap(ax, times: np.ndarray, overlap: np.ndarray) -> None:
 def leave_and_return(path: Path, job, pair: int = 0) -> None:
     """x, y, theta of T_oi_oj: candidates, ground truth, TCAFF estimate."""
     a = job.arrays
-    times, truth = a["times"], a["truth"][pair]
-    est = a["est_tcaff"][pair] if "est_tcaff" in a else None
-    steps, z = a[f"cand_steps_{pair}"], a[f"cand_z_{pair}"]
+    times, truth = a["times"], a["truth"][pair].copy()
+    est = a["est_tcaff"][pair].copy() if "est_tcaff" in a else None
+    steps, z = a[f"cand_steps_{pair}"], a[f"cand_z_{pair}"].copy()
+    # draw headings on the truth's unwrapped branch, so nothing jumps at +-180 degrees
+    truth[:, 2] = np.unwrap(truth[:, 2])
+    z[:, 2] = truth[steps, 2] + wrap_angle(z[:, 2] - truth[steps, 2])
+    if est is not None:
+        est[:, 2] = truth[:, 2] + wrap_angle(est[:, 2] - truth[:, 2])
     i, j = job.pairs[pair]
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     scale = (1.0, 1.0, 180 / np.pi)
@@ -95,11 +102,7 @@ def errors_over_time(path: Path, job, methods: list[str], pair: int = 0) -> None
     for ax in axes:
         _shade_overlap(ax, times, a["overlap"][pair])
     for method in methods:
-        est = a[f"est_{method}"][pair]
-        has = ~np.isnan(est[:, 0])
-        err = np.full((len(times), 2), np.nan)
-        if has.any():
-            err[has] = se2_error(T_true[has], se2_from_params(est[has]))
+        err = step_errors(T_true, a[f"est_{method}"][pair])
         color, line = _style(method)
         axes[0].plot(times, err[:, 0], line, color=color, lw=1.3, label=label(method))
         axes[1].plot(times, np.degrees(err[:, 1]), line, color=color, lw=1.3)
@@ -148,7 +151,7 @@ def clipper_sweep(path: Path, summary: dict, methods: MethodsConfig) -> None:
 
 def scenarios_overview(path: Path, jobs: list) -> None:
     """Each scenario's objects (sized by width), walls and true robot paths."""
-    first = list({j.scenario: j for j in reversed(jobs)}.values())[::-1]
+    first = list({j.scenario: j for j in reversed(jobs)}.values())[::-1]  # first seed of each
     n = len(first)
     cols = min(n, 3)
     rows = -(-n // cols)

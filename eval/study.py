@@ -137,12 +137,15 @@ def _job_in_worker(scenario: ScenarioConfig, methods: MethodsConfig, seed: int, 
 
 def _new_folder(root: Path) -> Path:
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    folder, n = root / stamp, 1
-    while folder.exists():
-        n += 1
-        folder = root / f"{stamp}-{n}"
-    folder.mkdir(parents=True)
-    return folder
+    root.mkdir(parents=True, exist_ok=True)
+    for n in range(1, 1000):
+        folder = root / (stamp if n == 1 else f"{stamp}-{n}")
+        try:
+            folder.mkdir()  # atomic: two studies started in the same second get two folders
+            return folder
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{root}: no free results folder for {stamp}")
 
 
 def summarize(jobs: list[JobResult], methods: MethodsConfig) -> dict[str, dict[str, dict]]:
@@ -263,7 +266,8 @@ def run_study(study: StudyConfig, progress: Progress | None = None,
     _write_tables(folder, study, outcome)
     if figures and jobs:
         plots.draw_all(folder / "figures", jobs, outcome.summary, methods)
-    _link_latest(root, folder)
+    if jobs:
+        _link_latest(root, folder)
     return outcome
 
 
@@ -276,24 +280,38 @@ def _run_parallel(todo, methods: MethodsConfig, workers: int, progress: Progress
         futures: dict[Future, int] = {
             pool.submit(_job_in_worker, scenario, methods, seed, key, updates): key
             for key, (scenario, seed) in enumerate(todo)}
+        handled: set[Future] = set()
+
+        def collect(future: Future) -> None:
+            handled.add(future)
+            key = futures[future]
+            scenario, seed = todo[key]
+            try:
+                job = future.result()
+            except Exception as exc:
+                fail(key, scenario, seed, exc)
+                return
+            done(key, job)
+
         try:
             pending = set(futures)
             while pending:
                 finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
                 _drain(updates, progress)
                 for future in finished:
-                    key = futures[future]
-                    scenario, seed = todo[key]
-                    try:
-                        job = future.result()
-                    except Exception as exc:
-                        fail(key, scenario, seed, exc)
-                        continue
-                    done(key, job)
+                    collect(future)
         except BaseException:
+            processes = list((pool._processes or {}).values())  # gone after shutdown()
             pool.shutdown(wait=False, cancel_futures=True)
-            for process in list(getattr(pool, "_processes", {}).values()):
+            for process in processes:
                 process.terminate()
+            # jobs that finished meanwhile are kept like the others
+            for future in futures:
+                if future not in handled and future.done() and not future.cancelled():
+                    try:
+                        collect(future)
+                    except BaseException:
+                        continue
             raise
         pool.shutdown()
 

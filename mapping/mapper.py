@@ -16,6 +16,7 @@ from scipy.optimize import linear_sum_assignment
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap
+from tcaff_gtsam.params import _require
 
 __all__ = ["MapperParams", "ObjectMapper"]
 
@@ -24,11 +25,6 @@ __all__ = ["MapperParams", "ObjectMapper"]
 _SIZE_FLOOR = 1e-3
 # Slack on the size gate so that a ratio of exactly `size_gate` passes despite rounding in log.
 _LOG_TOL = 1e-12
-
-
-def _require(condition: bool, owner: str, name: str, value, rule: str) -> None:
-    if not condition:
-        raise ConfigError(f"{owner}.{name} = {value!r}: {rule}")
 
 
 def _int_at_least(value, low: int) -> bool:

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
+from scipy.stats import chi2
 
 from .errors import DataError
 from .geometry import se2_from_params, se2_to_params, se3_from_xyz_yaw, se3_to_se2
@@ -39,7 +40,7 @@ __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 
 log = logging.getLogger(__name__)
 
-_AGREE_CHI2 = 16.266  # chi-square quantile 0.999 at 3 degrees of freedom
+_AGREE_CHI2 = float(chi2.ppf(0.999, 3))
 
 # One symbol character; kind, robot and index share the symbol's index, which is all that g2o
 # files keep, so exported vertex ids stay unique.

@@ -159,3 +159,18 @@ def test_ambiguous_grid_fools_single_shot_clipper_but_not_tcaff():
     assert tcaff["false_accept"] <= 0.01
     assert tcaff["availability"] >= 0.8
     assert not math.isnan(tcaff["translation_error_m_mean"] or math.nan)
+
+
+def test_interrupting_a_parallel_study_keeps_the_finished_runs(tmp_path):
+    cfg = quick_study(tmp_path, [short("indoor_return", 15), short("ambiguous_grid", 15),
+                                 short("opposite_directions", 15)], workers=2)
+
+    def stop(job):
+        raise KeyboardInterrupt
+
+    outcome = run_study(cfg, on_job_done=stop, figures=False)
+    assert outcome.interrupted and outcome.jobs
+    metrics = json.loads((outcome.folder / "metrics.json").read_text())
+    assert metrics["interrupted"] is True
+    for job in outcome.jobs:
+        assert (outcome.folder / "runs" / f"{job.stem}.npz").is_file()
