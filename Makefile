@@ -35,6 +35,7 @@ bench: install
 	$(PY) scripts/bench_association.py
 	$(PY) scripts/bench_tcaff.py
 	$(PY) scripts/bench_graph.py
+	$(PY) scripts/bench_study.py
 
 lint: install
 	$(VENV)/bin/ruff check .
