@@ -48,6 +48,7 @@ class MethodRuns:
 
     Attributes:
         pairs: the directed pairs (i, j), i the ego robot.
+        truth: (n_pairs, S, 3) the true (x, y, theta) of T_oi_oj.
         estimates: method name -> (n_pairs, S, 3) (x, y, theta) of T_oi_oj; NaN rows where the
             method had no estimate.
         candidates: per pair, (steps (M,), z (M, 3)): every candidate the TCAFF filter saw.
@@ -56,6 +57,7 @@ class MethodRuns:
     """
 
     pairs: list[tuple[int, int]]
+    truth: np.ndarray
     estimates: dict[str, np.ndarray]
     candidates: list[tuple[np.ndarray, np.ndarray]]
     seconds: dict[str, float] = field(default_factory=dict)
@@ -123,7 +125,7 @@ def run_methods(run: SimRun, methods: MethodsConfig,
     graph = (InterRobotGraph(run.n_robots, _graph_params(scenario, methods))
              if "tcaff_isam2" in chosen else None)
     T_true = [run.T_true(i, j) for i, j in pairs]
-    truths = [se2_to_params(T) for T in T_true]
+    truths = se2_to_params(np.array(T_true)).reshape(len(pairs), n_steps, 3)
     icps = ([CentroidICP(T_true[p][0], kappa,
                          methods.icp.max_correspondence_distance,
                          methods.icp.min_correspondences, methods.icp.max_iterations)
@@ -191,5 +193,5 @@ def run_methods(run: SimRun, methods: MethodsConfig,
         seconds["tcaff_isam2_smoothed"] += time.perf_counter() - start
     candidates = [(np.array(candidate_steps[p], dtype=np.int64),
                    np.array(candidate_z[p]).reshape(-1, 3)) for p in range(len(pairs))]
-    return MethodRuns(pairs, estimates, candidates, seconds)
+    return MethodRuns(pairs, truths, estimates, candidates, seconds)
 

@@ -149,9 +149,9 @@ def clipper_sweep(path: Path, summary: dict, methods: MethodsConfig) -> None:
     plt.close(fig)
 
 
-def scenarios_overview(path: Path, jobs: list) -> None:
-    """Each scenario's objects (sized by width), walls and true robot paths."""
-    first = list({j.scenario: j for j in reversed(jobs)}.values())[::-1]  # first seed of each
+def scenarios_overview(path: Path, first: list) -> None:
+    """Each scenario's objects (sized by width), walls and true robot paths, from one job of
+    each scenario."""
     n = len(first)
     cols = min(n, 3)
     rows = -(-n // cols)
@@ -201,6 +201,6 @@ def draw_all(folder: Path, jobs: list, summary: dict, methods: MethodsConfig) ->
     if "clipper" in methods.methods:
         clipper_sweep(folder / "clipper_sweep.png", summary, methods)
         written.append(folder / "clipper_sweep.png")
-    scenarios_overview(folder / "scenarios.png", jobs)
+    scenarios_overview(folder / "scenarios.png", list(first.values()))
     written.append(folder / "scenarios.png")
     return written

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tcaff_gtsam.geometry import se2_from_params, se2_to_params
+from tcaff_gtsam.geometry import se2_from_params
 
 from .config import MethodsConfig, ScenarioConfig, StudyConfig, dump_study
 from .methods import method_names, run_methods
@@ -105,7 +105,7 @@ def run_job(scenario: ScenarioConfig, methods: MethodsConfig, seed: int,
                        lambda s: report(s, SIMULATION_SHARE, 1.0 - SIMULATION_SHARE))
     arrays = {
         "times": run.times, "poses_true": run.poses_true, "poses_odom": run.poses_odom,
-        "truth": np.array([se2_to_params(run.T_true(i, j)) for i, j in runs.pairs]),
+        "truth": runs.truth,
         "overlap": np.array([run.overlap(i, j) for i, j in runs.pairs]),
         "world_xy": run.world.xy, "world_widths": run.world.widths, "walls": run.world.walls,
     }

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.object_map import ObjectMap
+from tcaff_gtsam.object_map import ObjectMap, object_arrays
 from tcaff_gtsam.params import _require
 
 __all__ = ["MapperParams", "ObjectMapper"]
@@ -87,14 +87,6 @@ class MapperParams:
                  "must be a finite number >= 0 metres")
         _require(_real(self.tentative_timeout) and self.tentative_timeout > 0, o,
                  "tentative_timeout", self.tentative_timeout, "must be a number > 0 seconds")
-
-
-def _as_float_array(name: str, value) -> np.ndarray:
-    try:
-        return np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"ObjectMapper.update: {name} must be numbers, "
-                        f"got {type(value).__name__}") from exc
 
 
 def _log_size(sizes: np.ndarray) -> np.ndarray:
@@ -212,32 +204,8 @@ class ObjectMapper:
         if self._t_last is not None and t < self._t_last:
             raise DataError(f"{o}: t = {t} is earlier than the previous update's "
                             f"t = {self._t_last}")
-        C = _as_float_array("centroids", centroids)
-        if C.size == 0:
-            C = C.reshape(0, 3)
-        if C.ndim != 2 or C.shape[1] != 3:
-            raise DataError(f"{o}: centroids must have shape (k, 3), got {C.shape}")
-        k = C.shape[0]
-        arrays = {"centroids": C}
-        for name, value in (("widths", widths), ("heights", heights)):
-            arr = _as_float_array(name, value)
-            if arr.size == 0:
-                arr = arr.reshape(0)
-            if arr.shape != (k,):
-                raise DataError(f"{o}: {name} must have shape ({k},) to match centroids, "
-                                f"got {arr.shape}")
-            arrays[name] = arr
-        for name, arr in arrays.items():
-            bad = ~np.isfinite(arr)
-            if bad.any():
-                idx = tuple(int(i) for i in np.argwhere(bad)[0])
-                raise DataError(f"{o}: {name} has non-finite value {arr[idx]} at index "
-                                f"{idx if len(idx) > 1 else idx[0]}")
-        for name in ("widths", "heights"):
-            negative = np.flatnonzero(arrays[name] < 0)
-            if negative.size:
-                i = int(negative[0])
-                raise DataError(f"{o}: {name} must be >= 0, got {arrays[name][i]} at index {i}")
+        arrays = object_arrays(f"{o}: ", centroids, widths, heights)
+        C = arrays["centroids"]
         return t, C, arrays["widths"], arrays["heights"]
 
     def _forget(self, t: float) -> None:

@@ -10,18 +10,53 @@ import numpy as np
 
 from .errors import DataError
 
-__all__ = ["ObjectMap"]
+__all__ = ["ObjectMap", "object_arrays"]
 
 _FIELDS = ("centroids", "widths", "heights", "last_seen")
 
 
-def _as_float_array(name: str, value, shape_text: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"ObjectMap.{name}: expected numbers with shape {shape_text}, "
-                        f"got {type(value).__name__}") from exc
-    return arr
+def object_arrays(prefix: str, centroids, widths, heights, **per_object
+                  ) -> dict[str, np.ndarray]:
+    """Validated float copies of object fields: centroids (k, 3), widths (k,) and heights (k,)
+    in metres, sizes >= 0, plus any other (k,) fields; everything finite. k = 0 is legal.
+
+    Raises:
+        DataError: named after the field, `<prefix><field> must have shape (k, 3), got (4, 2)`.
+    """
+    def as_float(name: str, value) -> np.ndarray:
+        try:
+            return np.array(value, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"{prefix}{name} must be numbers, got {type(value).__name__}"
+                            ) from exc
+
+    C = as_float("centroids", centroids)
+    if C.size == 0:
+        C = C.reshape(0, 3)
+    if C.ndim != 2 or C.shape[1] != 3:
+        raise DataError(f"{prefix}centroids must have shape (k, 3), got {C.shape}")
+    k = C.shape[0]
+    arrays = {"centroids": C}
+    for name, value in {"widths": widths, "heights": heights, **per_object}.items():
+        arr = as_float(name, value)
+        if arr.size == 0:
+            arr = arr.reshape(0)
+        if arr.shape != (k,):
+            raise DataError(f"{prefix}{name} must have shape ({k},) to match centroids, "
+                            f"got {arr.shape}")
+        arrays[name] = arr
+    for name, arr in arrays.items():
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            idx = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise DataError(f"{prefix}{name} has non-finite value {arr[idx]} at index "
+                            f"{idx if len(idx) > 1 else idx[0]}")
+    for name in ("widths", "heights"):
+        negative = np.flatnonzero(arrays[name] < 0)
+        if negative.size:
+            i = int(negative[0])
+            raise DataError(f"{prefix}{name} must be >= 0, got {arrays[name][i]} at index {i}")
+    return arrays
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,34 +79,8 @@ class ObjectMap:
     last_seen: np.ndarray
 
     def __post_init__(self) -> None:
-        centroids = _as_float_array("centroids", self.centroids, "(n, 3)")
-        if centroids.size == 0:
-            centroids = centroids.reshape(0, 3)
-        if centroids.ndim != 2 or centroids.shape[1] != 3:
-            raise DataError(f"ObjectMap.centroids: expected shape (n, 3), got {centroids.shape}")
-        n = centroids.shape[0]
-        arrays = {"centroids": centroids}
-        for name in ("widths", "heights", "last_seen"):
-            arr = _as_float_array(name, getattr(self, name), "(n,)")
-            if arr.size == 0:
-                arr = arr.reshape(0)
-            if arr.shape != (n,):
-                raise DataError(f"ObjectMap.{name}: expected shape ({n},) to match "
-                                f"centroids, got {arr.shape}")
-            arrays[name] = arr
-        for name, arr in arrays.items():
-            bad = ~np.isfinite(arr)
-            if bad.any():
-                index = np.argwhere(bad)[0]
-                idx = tuple(int(i) for i in index)
-                raise DataError(f"ObjectMap.{name}: non-finite value {arr[idx]} at index "
-                                f"{idx if len(idx) > 1 else idx[0]}")
-        for name in ("widths", "heights"):
-            negative = np.flatnonzero(arrays[name] < 0)
-            if negative.size:
-                i = int(negative[0])
-                raise DataError(f"ObjectMap.{name}: sizes must be >= 0, got {arrays[name][i]} "
-                                f"at index {i}")
+        arrays = object_arrays("ObjectMap.", self.centroids, self.widths, self.heights,
+                               last_seen=self.last_seen)
         for name, arr in arrays.items():
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)

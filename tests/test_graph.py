@@ -339,27 +339,12 @@ def test_bad_keys_poses_and_estimates_are_data_errors():
         InterRobotGraph(2, GraphParams(dim=3)).add_tcaff_estimate(0, 0, 1, est, zs, R[None])
 
 
-def test_reacquired_agreeing_hypothesis_keeps_the_dropped_ones_factors():
-    rng = np.random.default_rng(5)
+def leave_and_return(seed: int, first, second) -> tuple[InterRobotGraph, set[int]]:
+    """TCAFF sees `first` for 30 steps, nothing for 60 (its tree is dropped), then `second`;
+    returns the graph and the hypotheses its alignment factors carry."""
+    rng = np.random.default_rng(seed)
     graph = InterRobotGraph(2)
     filt = TCAFF()
-    x = np.array([1.0, 2.0, 0.3])
-    for k in range(160):  # seen, then 60 empty steps (the tree is dropped), then seen again
-        zs = (x + rng.normal(0, [0.05, 0.05, 0.005]))[None] if not 30 <= k < 90 else np.zeros(
-            (0, 3))
-        Rs = np.broadcast_to(R, (len(zs), 3, 3))
-        graph.add_tcaff_estimate(k, 0, 1, filt.update(zs, Rs), zs, Rs)
-        graph.update(k)
-    hypotheses = {f.tag[3] for f in graph._active.values()
-                  if f.tag is not None and f.tag[0] == "alignment"}
-    assert hypotheses == {1, 2}  # the first visit's factors survived the drop
-
-
-def test_reacquired_disagreeing_hypothesis_removes_the_dropped_ones_factors():
-    rng = np.random.default_rng(6)
-    graph = InterRobotGraph(2)
-    filt = TCAFF()
-    first, second = np.array([1.0, 2.0, 0.3]), np.array([-6.0, 3.0, -1.0])
     for k in range(160):
         x = first if k < 30 else second
         zs = (x + rng.normal(0, [0.05, 0.05, 0.005]))[None] if not 30 <= k < 90 else np.zeros(
@@ -367,7 +352,18 @@ def test_reacquired_disagreeing_hypothesis_removes_the_dropped_ones_factors():
         Rs = np.broadcast_to(R, (len(zs), 3, 3))
         graph.add_tcaff_estimate(k, 0, 1, filt.update(zs, Rs), zs, Rs)
         graph.update(k)
-    hypotheses = {f.tag[3] for f in graph._active.values()
-                  if f.tag is not None and f.tag[0] == "alignment"}
+    return graph, {f.tag[3] for f in graph._active.values()
+                   if f.tag is not None and f.tag[0] == "alignment"}
+
+
+def test_reacquired_agreeing_hypothesis_keeps_the_dropped_ones_factors():
+    x = np.array([1.0, 2.0, 0.3])
+    _, hypotheses = leave_and_return(5, x, x)
+    assert hypotheses == {1, 2}  # the first visit's factors survived the drop
+
+
+def test_reacquired_disagreeing_hypothesis_removes_the_dropped_ones_factors():
+    second = np.array([-6.0, 3.0, -1.0])
+    graph, hypotheses = leave_and_return(6, np.array([1.0, 2.0, 0.3]), second)
     assert hypotheses == {2}
     assert pose_error(se2_from_params(second), graph.alignment(0, 1)[0])[0] < 0.1

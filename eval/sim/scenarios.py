@@ -1,4 +1,4 @@
-"""The five simulated scenarios, after the paper's experiments.
+"""The simulated scenarios, after the paper's experiments.
 
 Each builder turns a layout configuration into a `Scene`: the world and, per robot, the knots
 (times, positions) of its true path. The simulator samples poses from the knots.
