@@ -70,6 +70,22 @@ class SensorConfig(_Model):
         return self
 
 
+class CameraConfig(_Model):
+    """A rendered RGB-D camera: when a scenario has one, every frame is ray-cast and mapped by
+    the real front end (depth segmenter, lifting, tracker) instead of the object-level sensor."""
+
+    width: int = Field(320, ge=32, le=4096, description="pixels")
+    height: int = Field(240, ge=32, le=4096, description="pixels")
+    hfov_deg: float = Field(87.0, gt=10, lt=170, description="horizontal field of view")
+    mount_height: float = Field(0.6, gt=0, description="m above the floor")
+    pitch_deg: float = Field(5.0, ge=-45, le=45, description="deg looking down")
+    depth_noise: float = Field(0.0025, ge=0, le=0.1,
+                               description="m of depth std at 1 m; grows with range squared")
+    depth_max: float = Field(6.0, gt=0.5, description="m, farthest depth return")
+    clearance: float = Field(0.4, ge=0, description=(
+        "m; objects closer than this to a robot's path are left out so no camera enters one"))
+
+
 class MappingConfig(_Model):
     """The object mapper each robot runs, and the window of recent objects it shares."""
 
@@ -168,6 +184,8 @@ class ScenarioConfig(_Model):
     layout: Layout
     odometry: OdometryDrift | list[OdometryDrift] = OdometryDrift()
     sensor: SensorConfig = SensorConfig()
+    camera: CameraConfig | None = Field(None, description=(
+        "render RGB-D and map it with the real front end; `sensor` is then unused"))
     mapping: MappingConfig = MappingConfig()
     window: int | None = Field(None, ge=1, description="TCAFF window W for this scenario")
     graph_drift: tuple[float, float] | None = Field(

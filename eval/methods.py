@@ -179,7 +179,8 @@ def run_methods(run: SimRun, methods: MethodsConfig,
                     graph.add_tcaff_estimate(s, i, j, est, zs, Rs)
             graph.update(s)
             for p, (est, _, _) in tcaff_out.items():
-                if est is not None:
+                # Before its first factor a pair's graph alignment is only the gauge's guess.
+                if est is not None and graph.connected(*pairs[p]):
                     estimates["tcaff_isam2_causal"][p, s] = graph.alignment_params(*pairs[p], s)
             seconds["tcaff_isam2_causal"] += time.perf_counter() - start
         if progress is not None:

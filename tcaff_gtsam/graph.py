@@ -457,6 +457,24 @@ class InterRobotGraph:
         J = np.hstack([-Ad_inv, np.eye(Ad_inv.shape[0])])
         return T, self._params_cov(T, J @ joint @ J.T)
 
+    def connected(self, i: int, j: int) -> bool:
+        """Whether committed alignment factors link robots i and j (directly or through other
+        robots). When they do not, `alignment(i, j)` is only the gauge's guess: its value is
+        arbitrary and its covariance huge."""
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        parent = {r: r for r in range(self.n_robots)}
+
+        def root(r: int) -> int:
+            while parent[r] != r:
+                r = parent[r]
+            return r
+
+        for (a, b), count in self._links.items():
+            if count > 0 and a[0] == "A" and b[0] == "A":
+                parent[root(a[1])] = root(b[1])
+        return root(i) == root(j)
+
     def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """T_oi_oj at every committed step from the current (smoothed) solution.
 

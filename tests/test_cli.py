@@ -59,7 +59,7 @@ def test_bad_option_is_a_clear_error(tmp_path):
 
 
 SCENARIOS = ["indoor_return", "same_direction", "opposite_directions", "four_robots",
-             "ambiguous_grid"]
+             "ambiguous_grid", "indoor_rgbd"]
 
 
 @pytest.mark.parametrize("scenario", SCENARIOS)
@@ -87,7 +87,7 @@ def test_study_runs_each_shipped_study(tmp_path, study):
     result = runner.invoke(app, ["study", study, "--seeds", "1", "--duration", "8",
                                  "--workers", "1", "--output", str(tmp_path), "--no-figures"])
     assert result.exit_code == 0, result.output
-    assert len(json.loads((tmp_path / "latest" / "metrics.json").read_text())["summary"]) == 5
+    assert len(json.loads((tmp_path / "latest" / "metrics.json").read_text())["summary"]) == 6
 
 
 def test_bad_study_config_is_one_line_and_exit_2(tmp_path):

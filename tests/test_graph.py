@@ -367,3 +367,22 @@ def test_reacquired_disagreeing_hypothesis_removes_the_dropped_ones_factors():
     graph, hypotheses = leave_and_return(6, np.array([1.0, 2.0, 0.3]), second)
     assert hypotheses == {2}
     assert pose_error(se2_from_params(second), graph.alignment(0, 1)[0])[0] < 0.1
+
+
+def test_connected_follows_committed_alignments_through_other_robots():
+    _, truth = team()
+    graph = InterRobotGraph(3)
+    graph.update(0)
+    assert not graph.connected(0, 1) and graph.connected(1, 1)
+    graph.add_alignment(1, 1, 2, truth[(1, 2)], R, hypothesis=4)
+    assert not graph.connected(1, 2)  # queued, not committed
+    graph.update(1)
+    assert graph.connected(1, 2) and graph.connected(2, 1) and not graph.connected(0, 2)
+    graph.add_alignment(2, 0, 1, truth[(0, 1)], R)
+    graph.update(2)
+    assert graph.connected(0, 2)  # through robot 1
+    graph.remove_hypothesis(1, 2, 4)
+    graph.update(3)
+    assert graph.connected(0, 1) and not graph.connected(0, 2)
+    with pytest.raises(DataError, match="not a robot"):
+        graph.connected(0, 3)

@@ -14,6 +14,7 @@ from tcaff_gtsam.eval.config import (
     RoomLayout,
     ScenarioConfig,
     SensorConfig,
+    load_methods,
     load_scenario,
 )
 from tcaff_gtsam.eval.sim.maps import OBJECT_CLASSES
@@ -26,10 +27,12 @@ from tcaff_gtsam.eval.sim.motion import (
     timed_waypoints,
     wait,
 )
+from tcaff_gtsam.eval.sim.rgbd import clear_paths
 from tcaff_gtsam.eval.sim.scenarios import build_scene
 from tcaff_gtsam.eval.sim.sensor import observe
 from tcaff_gtsam.eval.sim.simulate import SimRun, simulate
 from tcaff_gtsam.eval.sim.world import World, along_path, combine, grid, room_walls, scatter
+from tcaff_gtsam.eval.study import run_job
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import (
@@ -921,3 +924,34 @@ def test_frame_rate_below_the_map_exchange_rate_is_refused():
                 mapping=MappingConfig(nu=1, kappa=20.0, frame_rate=1.0))
     run = simulate(cfg, 0)
     assert all(len(run.maps[r]) == len(run.times) for r in range(run.n_robots))
+
+
+# -- rendered RGB-D perception -------------------------------------------------------------------
+
+
+def test_clear_paths_moves_objects_off_the_paths_and_keeps_them_apart():
+    rng = np.random.default_rng(3)
+    world = scatter(rng, 12, (0.0, 0.0, 10.0, 10.0), ("box", "bin"), min_gap=1.2)
+    path = np.column_stack([np.linspace(0, 10, 400), np.full(400, 5.0)])
+    cleared = clear_paths(rng, world, [path], clearance=0.4)
+    assert len(cleared) == len(world)  # a 10 x 10 m room has room for all of them
+    reach = 0.4 + cleared.widths / np.sqrt(2)
+    assert np.all(np.abs(cleared.xy[:, 1] - 5.0) > reach - 1e-9)
+    untouched = np.abs(world.xy[:, 1] - 5.0) > 0.4 + world.widths / np.sqrt(2)
+    np.testing.assert_array_equal(cleared.xy[untouched], world.xy[untouched])
+
+
+def test_rendered_scenario_maps_only_real_objects_and_tcaff_aligns_them():
+    """The indoor RGB-D scenario runs the real front end: every map entry is a real object
+    (nothing from the floor or walls), few are duplicates, and TCAFF's alignment is right."""
+    config = load_scenario("indoor_rgbd").model_copy(update={"duration": 60.0})
+    run = simulate(config, seed=0)
+    final = [run.labels[r][-1] for r in range(run.n_robots)]
+    for labels in final:
+        assert labels.size >= 4
+        assert np.all(labels >= 0)
+        assert np.unique(labels).size >= labels.size - 1  # at most one duplicate per map
+    job = run_job(config, load_methods("tcaff_only"), seed=0)
+    tcaff = job.metrics["tcaff"]["all"]
+    assert tcaff["false_accept"] == 0.0
+    assert tcaff["translation_error_m_mean"] < 0.35

@@ -26,7 +26,7 @@ def quick_study(tmp_path, scenarios, seeds=(0,), workers=1) -> StudyConfig:
 
 
 @pytest.mark.parametrize("name", ["indoor_return", "same_direction", "opposite_directions",
-                                  "four_robots", "ambiguous_grid"])
+                                  "four_robots", "ambiguous_grid", "indoor_rgbd"])
 def test_each_scenario_produces_every_output(name):
     job = run_job(short(name), QUICK_METHODS, seed=1)
     n = 4 if name == "four_robots" else 2

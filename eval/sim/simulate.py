@@ -2,6 +2,8 @@
 
 Each robot detects objects at the mapping frame rate in its drifting odometry frame and tracks
 them with the real `ObjectMapper` (confirmed after nu sightings, dropped after kappa s unseen).
+Detections come from the object-level sensor model, or, when the scenario has a camera, from
+rendered RGB-D frames mapped by the real front end (segmentation, lifting, tracking).
 Once per second every robot's map is recorded, along with which world object each map entry
 really is, so that the truth of every alignment and of every map overlap is known.
 """
@@ -20,6 +22,8 @@ from tcaff_gtsam.object_map import ObjectMap
 
 from ..config import ScenarioConfig
 from .motion import drifting_odometry, poses_along
+from .render import RgbdScene
+from .rgbd import RenderedCamera, clear_paths
 from .scenarios import build_scene
 from .sensor import observe
 from .world import World
@@ -92,6 +96,12 @@ def simulate(config: ScenarioConfig, seed: int,
     exchange_frames = np.searchsorted(frame_times, exchange_times + 1e-9) - 1
     mapper_params = MapperParams(nu=config.mapping.nu, kappa=config.mapping.kappa)
     n = config.n_robots
+    world = scene.world
+    rendered = None
+    if config.camera is not None:
+        paths = [poses_along(*knots, frame_times) for knots in scene.knots]
+        world = clear_paths(rng, world, paths, config.camera.clearance)
+        rendered = RgbdScene.from_world(world)
     poses_true = np.zeros((n, len(exchange_times), 3))
     poses_odom = np.zeros_like(poses_true)
     maps: list[list[ObjectMap]] = []
@@ -102,15 +112,22 @@ def simulate(config: ScenarioConfig, seed: int,
         odom = drifting_odometry(rng, true, dt, np.radians(drift.heading_rw_deg),
                                  drift.position_rw)[1:]
         true = true[1:]
-        mapper = ObjectMapper(mapper_params)
+        if rendered is None:
+            mapper = ObjectMapper(mapper_params)
+        else:
+            camera = RenderedCamera(rendered, config.camera, mapper_params)
+            mapper = camera.front_end.mapper
         votes: dict[int, Counter] = {}
         robot_maps, robot_labels = [], []
         next_exchange = 0
         for f, t in enumerate(frame_times):
-            centroids, widths, heights, seen = observe(rng, scene.world, true[f], odom[f],
-                                                       config.sensor)
-            for track, label in zip(mapper.update(t, centroids, widths, heights).tolist(),
-                                    seen.tolist(), strict=True):
+            if rendered is None:
+                centroids, widths, heights, seen = observe(rng, world, true[f], odom[f],
+                                                           config.sensor)
+                tracks = mapper.update(t, centroids, widths, heights)
+            else:
+                tracks, seen = camera.step(rng, t, true[f], odom[f])
+            for track, label in zip(tracks.tolist(), seen.tolist(), strict=True):
                 votes.setdefault(track, Counter())[label] += 1
             while next_exchange < len(exchange_frames) and exchange_frames[next_exchange] == f:
                 robot_maps.append(mapper.object_map())
@@ -124,5 +141,4 @@ def simulate(config: ScenarioConfig, seed: int,
         labels.append(robot_labels)
         if progress is not None:
             progress((robot + 1) / n)
-    return SimRun(config, seed, exchange_times, poses_true, poses_odom, maps, labels,
-                  scene.world)
+    return SimRun(config, seed, exchange_times, poses_true, poses_odom, maps, labels, world)

@@ -1,0 +1,190 @@
+"""Camera geometry: pinhole intrinsics, the optical-frame axes, depth images and registration.
+
+Frames: a camera's optical frame has x right, y down and z forward (OpenCV and ROS
+`*_optical_frame`); a robot's body frame has x forward, y left and z up. `T_a_b` maps points in
+frame b into frame a (4 x 4 homogeneous). Depth images hold raw values; metres = raw /
+depth_scale (1000 for 16-bit millimetre images, 1 for float images in metres), 0 = no return.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.params import _require
+
+__all__ = [
+    "R_BODY_OPTICAL",
+    "PinholeCamera",
+    "T_body_camera",
+    "depth_in_metres",
+    "register_depth",
+    "rigid_transform",
+]
+
+#: (3, 3) rotation of a camera's optical axes into a forward-looking body frame: optical z
+#: (forward) is body x, optical x (right) is body -y, optical y (down) is body -z.
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+_DEPTH_DTYPES = (np.uint16, np.float32, np.float64)
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """A pinhole camera without distortion.
+
+    Attributes:
+        width, height: image size in pixels.
+        fx, fy: focal lengths in pixels; cx, cy: principal point in pixels (0 = the centre of
+            the first pixel).
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self) -> None:
+        o = "PinholeCamera"
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            _require(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1, o,
+                     name, v, "must be an int >= 1 pixels")
+        for name in ("fx", "fy", "cx", "cy"):
+            v = getattr(self, name)
+            _require(isinstance(v, (int, float, np.integer, np.floating))
+                     and not isinstance(v, bool) and math.isfinite(v), o, name, v,
+                     "must be a finite number of pixels")
+        _require(self.fx > 0, o, "fx", self.fx, "must be > 0 pixels")
+        _require(self.fy > 0, o, "fy", self.fy, "must be > 0 pixels")
+
+    @classmethod
+    def from_K(cls, K, width: int, height: int) -> PinholeCamera:
+        """From a (3, 3) intrinsic matrix (a ROS CameraInfo `K`, row-major, may be flat)."""
+        K = np.asarray(K, dtype=float)
+        if K.size != 9 or not np.all(np.isfinite(K)):
+            raise DataError(f"PinholeCamera.from_K: K must hold 9 finite numbers, got {K!r}")
+        K = K.reshape(3, 3)
+        return cls(int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+                   float(K[1, 2]))
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, hfov_deg: float) -> PinholeCamera:
+        """Square pixels, the principal point at the image centre, horizontal field of view."""
+        f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
+        return cls(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width) of its images."""
+        return self.height, self.width
+
+    def rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) each: x / z and y / z of every pixel's ray in the optical frame, so that a
+        pixel with depth z sees the point (x_over_z z, y_over_z z, z)."""
+        u = (np.arange(self.width) - self.cx) / self.fx
+        v = (np.arange(self.height) - self.cy) / self.fy
+        return np.broadcast_to(u, self.shape), np.broadcast_to(v[:, None], self.shape)
+
+
+def T_body_camera(height: float, pitch_deg: float = 0.0,
+                  forward: float = 0.0) -> np.ndarray:
+    """(4, 4) a forward-looking camera's optical frame in the body frame.
+
+    Args:
+        height: metres above the body origin; forward: metres ahead of it.
+        pitch_deg: degrees the camera looks down (positive) from horizontal.
+    """
+    p = math.radians(pitch_deg)
+    # pitch down about body y (left): positive angle turns x (forward) towards -z
+    R_pitch = np.array([[math.cos(p), 0.0, math.sin(p)], [0.0, 1.0, 0.0],
+                        [-math.sin(p), 0.0, math.cos(p)]])
+    T = np.eye(4)
+    T[:3, :3] = R_pitch @ R_BODY_OPTICAL
+    T[:3, 3] = (forward, 0.0, height)
+    return T
+
+
+def rigid_transform(name: str, T, error: type[Exception] = DataError) -> np.ndarray:
+    """`T` as a (4, 4) float array if it is a finite rigid transform (orthonormal rotation with
+    determinant 1, last row 0 0 0 1); else `error` naming `name`."""
+    try:
+        M = np.asarray(T, dtype=float)
+    except (TypeError, ValueError):
+        raise error(f"{name} must be a (4, 4) matrix, got {type(T).__name__}") from None
+    if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+        raise error(f"{name} must be a finite (4, 4) matrix, got shape {M.shape}")
+    R = M[:3, :3]
+    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
+            and np.allclose(M[3], (0, 0, 0, 1))):
+        raise error(f"{name} is not a rigid transform (its rotation is not orthonormal with "
+                    "determinant 1, or its last row is not 0 0 0 1)")
+    return M
+
+
+def depth_in_metres(depth, depth_scale: float, shape: tuple[int, int] | None = None,
+                    name: str = "depth") -> np.ndarray:
+    """A raw depth image as (H, W) float32 metres, 0 where there is no return.
+
+    Args:
+        depth: (H, W) uint16, float32 or float64 raw depth; NaN and inf count as no return.
+        depth_scale: raw units per metre (> 0).
+        shape: the (H, W) the image must have, if given.
+
+    Raises:
+        DataError: wrong type, dtype or shape, or negative depth.
+    """
+    if not isinstance(depth, np.ndarray):
+        raise DataError(f"{name} must be a numpy array, got {type(depth).__name__}")
+    if depth.dtype not in _DEPTH_DTYPES:
+        raise DataError(f"{name} has dtype {depth.dtype}; expected uint16 (raw units) or "
+                        "float32/float64")
+    if depth.ndim != 2 or (shape is not None and depth.shape != tuple(shape)):
+        want = "(H, W)" if shape is None else str(tuple(shape))
+        raise DataError(f"{name} has shape {depth.shape}; expected {want}")
+    if not (math.isfinite(depth_scale) and depth_scale > 0):
+        raise DataError(f"depth_scale = {depth_scale!r}: must be a finite number > 0")
+    metres = depth.astype(np.float32) / np.float32(depth_scale)
+    metres[~np.isfinite(metres)] = 0.0
+    if (metres < 0).any():
+        raise DataError(f"{name} has negative value {float(metres.min())} m")
+    return metres
+
+
+def register_depth(depth_m: np.ndarray, depth_camera: PinholeCamera,
+                   color_camera: PinholeCamera, T_color_depth: np.ndarray,
+                   depth_max: float = 20.0) -> np.ndarray:
+    """Re-project a depth image into another camera (the colour camera), nearest return kept.
+
+    Args:
+        depth_m: (H_d, W_d) float32 metres in the depth camera, 0 = no return.
+        T_color_depth: (4, 4) the depth camera's optical frame in the colour camera's.
+        depth_max: metres; returns beyond this are dropped.
+
+    Returns:
+        (H_c, W_c) float32 metres in the colour camera, 0 where no point projects.
+    """
+    depth_m = depth_in_metres(depth_m, 1.0, depth_camera.shape, "depth_m")
+    T = rigid_transform("T_color_depth", T_color_depth)
+    x_over_z, y_over_z = depth_camera.rays()
+    valid = (depth_m > 0) & (depth_m <= depth_max)
+    z = depth_m[valid]
+    points = np.column_stack([x_over_z[valid] * z, y_over_z[valid] * z, z])
+    cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(points.astype(np.float32)))
+    # Open3D keeps the nearest point per pixel (a z-buffer), so occlusions come out right.
+    image = cloud.project_to_depth_image(
+        color_camera.width, color_camera.height,
+        o3d.core.Tensor(color_camera.K, o3d.core.float64),
+        o3d.core.Tensor(T, o3d.core.float64), depth_scale=1.0, depth_max=depth_max)
+    return np.asarray(image.as_tensor().numpy()[..., 0], dtype=np.float32)

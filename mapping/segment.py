@@ -1,0 +1,354 @@
+"""Segmentation: the `Segmenter` protocol, the mask filters, and the weight-free depth segmenter.
+
+A segmenter turns one RGB-D frame into instance masks, (k, H, W) bool, one per candidate object.
+`filter_masks` then drops the masks the original systems also dropped: touching the image
+border (a cut-off object has a wrong centroid and size), too small, too large, too elongated,
+or with too little valid depth to lift. FastSAM through onnxruntime is in `fastsam.py`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import cv2
+import numpy as np
+
+from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.params import _require
+
+from .camera import PinholeCamera, depth_in_metres
+
+__all__ = [
+    "DepthSegmenter",
+    "DepthSegmenterParams",
+    "MaskFilter",
+    "Segmenter",
+    "check_rgb",
+    "filter_masks",
+]
+
+
+@runtime_checkable
+class Segmenter(Protocol):
+    """Anything that turns an RGB-D frame into instance masks."""
+
+    def segment(self, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Masks of one frame.
+
+        Args:
+            rgb: (H, W, 3) uint8, RGB order.
+            depth: (H, W) raw depth registered to the colour image (see `camera.py`).
+
+        Returns:
+            (k, H, W) bool, one mask per candidate object (k may be 0).
+        """
+        ...
+
+
+def check_rgb(rgb, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """`rgb` as given if it is an (H, W, 3) uint8 image (of `shape` (H, W) if given); else
+    DataError."""
+    if not isinstance(rgb, np.ndarray):
+        raise DataError(f"rgb must be a numpy array, got {type(rgb).__name__}")
+    if rgb.dtype != np.uint8:
+        raise DataError(f"rgb has dtype {rgb.dtype}; expected uint8")
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or (shape is not None and rgb.shape[:2] != shape):
+        want = "(H, W, 3)" if shape is None else str((*shape, 3))
+        raise DataError(f"rgb has shape {rgb.shape}; expected {want}")
+    return rgb
+
+
+def _positive_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 0
+
+
+@dataclass(frozen=True)
+class MaskFilter:
+    """Which masks are worth lifting to objects.
+
+    Attributes:
+        min_area: pixels; smaller masks are dropped.
+        max_area_share: share of the image; larger masks (floor, walls, sky) are dropped.
+        border: pixels; masks reaching within this distance of the image edge are dropped
+            (0 keeps them).
+        max_elongation: largest ratio of the mask's principal standard deviations (long over
+            short axis); thin masks are edges, poles cut by the frame or segmentation slivers.
+        min_depth_share: smallest share of mask pixels with a depth return.
+    """
+
+    min_area: int = 400
+    max_area_share: float = 0.25
+    border: int = 2
+    max_elongation: float = 6.0
+    min_depth_share: float = 0.5
+
+    def __post_init__(self) -> None:
+        o = "MaskFilter"
+        _require(_positive_int(self.min_area), o, "min_area", self.min_area,
+                 "must be an int >= 0 pixels")
+        _require(_positive_int(self.border), o, "border", self.border,
+                 "must be an int >= 0 pixels")
+        _require(isinstance(self.max_area_share, (int, float))
+                 and 0 < self.max_area_share <= 1, o, "max_area_share", self.max_area_share,
+                 "must be in (0, 1]")
+        _require(isinstance(self.max_elongation, (int, float)) and self.max_elongation >= 1, o,
+                 "max_elongation", self.max_elongation, "must be a number >= 1")
+        _require(isinstance(self.min_depth_share, (int, float))
+                 and 0 <= self.min_depth_share <= 1, o, "min_depth_share",
+                 self.min_depth_share, "must be in [0, 1]")
+
+    def area_ok(self, area: np.ndarray, image_area: int) -> np.ndarray:
+        """(k,) bool: pixel areas within [min_area, max_area_share * image_area]."""
+        return (area >= self.min_area) & (area <= self.max_area_share * image_area)
+
+
+def _elongation(ys: np.ndarray, xs: np.ndarray) -> float:
+    """Ratio of the principal standard deviations of a set of pixel coordinates."""
+    cov = np.cov(np.vstack([xs, ys]).astype(float), bias=True) + np.eye(2) / 12.0  # pixel extent
+    low, high = np.linalg.eigvalsh(cov)
+    return math.sqrt(high / low)
+
+
+def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter) -> np.ndarray:
+    """Indices of the masks that pass `mask_filter`.
+
+    Args:
+        masks: (k, H, W) bool.
+        depth_m: (H, W) metres, 0 = no return.
+
+    Returns:
+        (k',) int64 indices into `masks`, increasing.
+    """
+    if not (isinstance(masks, np.ndarray) and masks.dtype == np.bool_ and masks.ndim == 3
+            and masks.shape[1:] == depth_m.shape):
+        raise DataError(f"masks must be (k, {depth_m.shape[0]}, {depth_m.shape[1]}) bool, got "
+                        f"{getattr(masks, 'shape', None)} {getattr(masks, 'dtype', type(masks))}")
+    k, H, W = masks.shape
+    f = mask_filter
+    rows_hit = masks.any(axis=2)  # (k, H)
+    cols_hit = masks.any(axis=1)  # (k, W)
+    keep = []
+    for i in range(k):
+        rows, cols = np.flatnonzero(rows_hit[i]), np.flatnonzero(cols_hit[i])
+        if rows.size == 0:
+            continue
+        r0, r1, c0, c1 = rows[0], rows[-1], cols[0], cols[-1]
+        if f.border and (r0 < f.border or c0 < f.border or r1 >= H - f.border
+                         or c1 >= W - f.border):
+            continue
+        crop = masks[i, r0:r1 + 1, c0:c1 + 1]
+        ys, xs = np.nonzero(crop)
+        if not f.area_ok(np.array([ys.size]), H * W)[0]:
+            continue
+        if np.count_nonzero(depth_m[r0:r1 + 1, c0:c1 + 1][crop] > 0) < f.min_depth_share * ys.size:
+            continue
+        if _elongation(ys, xs) > f.max_elongation:
+            continue
+        keep.append(i)
+    return np.asarray(keep, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class DepthSegmenterParams:
+    """Settings of `DepthSegmenter`.
+
+    Attributes:
+        median: pixels, odd kernel size (3 or 5) of the median filter applied to depth first.
+        jump: metres; a pixel is an occlusion edge when a 4-neighbour is nearer by more than
+            jump + jump_per_m * its depth.
+        jump_per_m: metres of extra jump allowed per metre of depth.
+        max_planes: largest number of dominant planes (floor, walls) removed.
+        plane_share: a plane must hold this share of the valid pixels to count as dominant.
+        plane_distance: metres; a pixel belongs to a plane within this distance plus
+            plane_distance_per_m2 * depth^2 (noise grows with the square of range).
+        plane_distance_per_m2: metres per square metre of depth.
+        plane_min_extent: metres; a part of a plane's pixels that does not reach the image
+            border is still floor or wall when it spans this far (objects are smaller).
+        ransac_iterations: plane hypotheses tried per plane.
+        ransac_stride: pixels; RANSAC scores hypotheses on every stride-th pixel per axis.
+        seed: RANSAC's random seed; the same frame always gives the same masks.
+        min_area: pixels; smaller components are dropped.
+        max_area_share: share of the image; larger components are dropped.
+        depth_min, depth_max: metres; depths outside are treated as no return.
+    """
+
+    median: int = 5
+    jump: float = 0.05
+    jump_per_m: float = 0.04
+    max_planes: int = 4
+    plane_share: float = 0.08
+    plane_distance: float = 0.015
+    plane_distance_per_m2: float = 0.002
+    plane_min_extent: float = 1.5
+    ransac_iterations: int = 120
+    ransac_stride: int = 8
+    seed: int = 0
+    min_area: int = 200
+    max_area_share: float = 0.5
+    depth_min: float = 0.2
+    depth_max: float = 8.0
+
+    def __post_init__(self) -> None:
+        o = "DepthSegmenterParams"
+        _require(self.median in (1, 3, 5), o, "median", self.median, "must be 1, 3 or 5")
+        for name in ("jump", "jump_per_m", "plane_distance", "plane_distance_per_m2",
+                     "plane_min_extent"):
+            v = getattr(self, name)
+            _require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, o, name, v,
+                     "must be a finite number >= 0")
+        for name in ("max_planes", "ransac_iterations", "ransac_stride", "min_area", "seed"):
+            v = getattr(self, name)
+            _require(_positive_int(v), o, name, v, "must be an int >= 0")
+        _require(self.ransac_stride >= 1, o, "ransac_stride", self.ransac_stride, "must be >= 1")
+        _require(isinstance(self.plane_share, (int, float)) and 0 < self.plane_share <= 1, o,
+                 "plane_share", self.plane_share, "must be in (0, 1]")
+        _require(isinstance(self.max_area_share, (int, float)) and 0 < self.max_area_share <= 1,
+                 o, "max_area_share", self.max_area_share, "must be in (0, 1]")
+        _require(0 <= self.depth_min < self.depth_max, o, "depth_max", self.depth_max,
+                 f"must be > depth_min = {self.depth_min}")
+
+
+def _structure_parts(band: np.ndarray, z: np.ndarray, fx: float, fy: float,
+                     min_extent: float) -> np.ndarray:
+    """(H, W) bool: the 8-connected parts of a plane's band of pixels that are structure (a
+    floor or wall), not an object face: those that reach the image border or span at least
+    `min_extent` metres (2D box in pixels times mean depth over focal length)."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(band.view(np.uint8),
+                                                                connectivity=8)
+    edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    mean_z = (np.bincount(labels.ravel(), weights=z.ravel(), minlength=count)
+              / np.maximum(stats[:, cv2.CC_STAT_AREA], 1))
+    extent = mean_z * np.maximum(stats[:, cv2.CC_STAT_WIDTH] / fx,
+                                 stats[:, cv2.CC_STAT_HEIGHT] / fy)
+    structure = extent >= min_extent
+    structure[edge] = True
+    structure[0] = False
+    return structure[labels]
+
+
+class DepthSegmenter:
+    """Weight-free segmentation of objects from depth alone.
+
+    Dominant planes (floor, walls) found by a seeded RANSAC are removed, occlusion edges cut
+    surfaces at depth jumps, and the connected components of what is left are the masks. The
+    colour image is not used. The same frame always gives the same masks.
+
+    Args:
+        camera: intrinsics of the (registered) depth image.
+        depth_scale: raw depth units per metre (1000 for millimetres, 1 for metres).
+        params: `DepthSegmenterParams`.
+    """
+
+    def __init__(self, camera: PinholeCamera, depth_scale: float = 1000.0,
+                 params: DepthSegmenterParams | None = None) -> None:
+        self.camera = camera
+        self.depth_scale = depth_scale
+        self.params = DepthSegmenterParams() if params is None else params
+        self._x_over_z, self._y_over_z = camera.rays()
+
+    def segment(self, rgb: np.ndarray | None, depth: np.ndarray) -> np.ndarray:
+        """(k, H, W) bool masks, largest first; `rgb` is only checked (it may be None)."""
+        labels, count = self.label(rgb, depth)
+        if count == 0:
+            return np.zeros((0, *self.camera.shape), dtype=bool)
+        return labels[None] == np.arange(1, count + 1, dtype=labels.dtype)[:, None, None]
+
+    def label(self, rgb: np.ndarray | None, depth: np.ndarray) -> tuple[np.ndarray, int]:
+        """(H, W) int32 label image (0: background, 1..count: masks, largest first) and count."""
+        p = self.params
+        if rgb is not None:
+            check_rgb(rgb, self.camera.shape)
+        z = depth_in_metres(depth, self.depth_scale, self.camera.shape)
+        if p.median > 1:
+            z = cv2.medianBlur(z, p.median)
+        z[(z < p.depth_min) | (z > p.depth_max)] = 0.0
+        valid = z > 0
+        foreground = valid & ~self._planes(z, valid) & ~self._occlusion_edges(z, valid)
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(
+            foreground.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+        area = stats[1:, cv2.CC_STAT_AREA]
+        ok = (area >= p.min_area) & (area <= p.max_area_share * z.size)
+        order = np.flatnonzero(ok)[np.argsort(-area[ok], kind="stable")]
+        relabel = np.zeros(count, dtype=np.int32)
+        relabel[order + 1] = np.arange(1, order.size + 1, dtype=np.int32)
+        return relabel[labels], int(order.size)
+
+    def _occlusion_edges(self, z: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """(H, W) bool: pixels with a nearer 4-neighbour beyond the jump threshold. Only the
+        far side of a jump is marked, so the nearer object keeps its whole silhouette."""
+        p = self.params
+        near = np.where(valid, z, np.inf)
+        nearest = near.copy()
+        np.minimum(nearest[1:], near[:-1], out=nearest[1:])
+        np.minimum(nearest[:-1], near[1:], out=nearest[:-1])
+        np.minimum(nearest[:, 1:], near[:, :-1], out=nearest[:, 1:])
+        np.minimum(nearest[:, :-1], near[:, 1:], out=nearest[:, :-1])
+        return valid & (z - nearest > p.jump + p.jump_per_m * z)
+
+    def _planes(self, z: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """(H, W) bool: pixels on dominant planes (floor, walls).
+
+        Each RANSAC plane's band of pixels is split into connected parts, and only the parts
+        that reach the image border or span `plane_min_extent` metres are removed, if together
+        they hold `plane_share` of the valid pixels. An object face that happens to lie on the
+        plane, or that RANSAC fitted a plane to, is kept unless it reaches the border (the
+        mask filter drops those anyway).
+        """
+        p = self.params
+        out = np.zeros(z.shape, dtype=bool)
+        if p.max_planes == 0 or not valid.any():
+            return out
+        s = p.ransac_stride
+        zs = z[::s, ::s]
+        keep = valid[::s, ::s]
+        pts = np.stack([self._x_over_z[::s, ::s] * zs, self._y_over_z[::s, ::s] * zs, zs],
+                       axis=-1)[keep].astype(float)
+        tol = p.plane_distance + p.plane_distance_per_m2 * pts[:, 2] ** 2
+        need = p.plane_share * pts.shape[0]
+        need_full = p.plane_share * np.count_nonzero(valid)
+        rng = np.random.default_rng(p.seed)
+        full = full_tol = None
+        accepted = 0
+        for _ in range(p.max_planes + 3):
+            if pts.shape[0] < max(need, 3):
+                break
+            normal, offset = self._ransac_plane(rng, pts, tol)
+            if normal is None:
+                break
+            inliers = np.abs(pts @ normal + offset) <= tol
+            if inliers.sum() < need:
+                break
+            if full is None:
+                full = np.stack([self._x_over_z * z, self._y_over_z * z, z], axis=-1)
+                full_tol = p.plane_distance + p.plane_distance_per_m2 * z**2
+            band = valid & ~out & (np.abs(full @ normal + offset) <= full_tol)
+            on_plane = _structure_parts(band, z, self.camera.fx, self.camera.fy,
+                                        p.plane_min_extent)
+            if np.count_nonzero(on_plane) >= need_full:
+                out |= on_plane
+                accepted += 1
+                if accepted == p.max_planes:
+                    break
+            pts, tol = pts[~inliers], tol[~inliers]
+        return out
+
+    def _ransac_plane(self, rng: np.random.Generator, pts: np.ndarray, tol: np.ndarray):
+        """The plane (unit normal (3,), offset) with most inliers among random hypotheses,
+        refined by least squares on its inliers; (None, 0) if every sample was degenerate."""
+        n = pts.shape[0]
+        tri = pts[rng.integers(n, size=(self.params.ransac_iterations, 3))]
+        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        norm = np.linalg.norm(normals, axis=1)
+        ok = norm > 1e-9
+        if not ok.any():
+            return None, 0.0
+        normals = normals[ok] / norm[ok, None]
+        offsets = -np.einsum("ij,ij->i", normals, tri[ok, 0])
+        counts = (np.abs(pts @ normals.T + offsets) <= tol[:, None]).sum(axis=0)
+        best = int(np.argmax(counts))
+        inl = pts[np.abs(pts @ normals[best] + offsets[best]) <= tol]
+        centre = inl.mean(axis=0)
+        normal = np.linalg.svd(inl - centre, full_matrices=False)[2][-1]
+        return normal, -float(normal @ centre)

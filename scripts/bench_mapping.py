@@ -1,0 +1,85 @@
+"""Time the mapping front end per RGB-D frame, split into its stages.
+
+Rings of boxes and bins (cylinders) are rendered at 640 x 480 from a robot driving towards them;
+each frame goes through `RgbdFrontEnd` (depth segmenter, mask filter, Open3D lifting, tracker).
+Prints the median and 90th percentile of each stage, and the number of masks lifted per frame.
+Targets: lifting + tracking <= 15 ms with about 20 masks (the paper's whole mapping step took
+13.5 ms); depth segmenter <= 60 ms.
+
+    python scripts/bench_mapping.py [--frames 60] [--rings 4] [--width 640 --height 480]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+from tcaff_gtsam.eval.sim.render import RgbdScene, render
+from tcaff_gtsam.eval.sim.world import World
+from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
+from tcaff_gtsam.mapping.frontend import RgbdFrontEnd
+
+from tcaff_gtsam.geometry import se3_from_xyz_yaw
+
+STAGES = ("register", "segment", "filter", "lift", "track")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=60, help="frames to time")
+    parser.add_argument("--rings", type=int, default=5, help="rings of 7 objects ahead")
+    parser.add_argument("--width", type=int, default=640, help="image width, pixels")
+    parser.add_argument("--height", type=int, default=480, help="image height, pixels")
+    parser.add_argument("--noise", type=float, default=0.0025,
+                        help="depth noise std at 1 m (grows with range squared)")
+    args = parser.parse_args()
+
+    rng = np.random.default_rng(0)
+    # Rings of objects ahead of the robot, staggered so that each row shows between the
+    # objects of the row in front: about 20 are in view at once.
+    xy = []
+    for ring, radius in enumerate(np.linspace(2.0, 6.0, args.rings)):
+        bearings = np.linspace(-0.6, 0.6, 7) + (0.1 if ring % 2 else 0.0)
+        xy += [radius * np.array([np.cos(b), np.sin(b)]) for b in bearings]
+    xy = np.array(xy)
+    n = len(xy)
+    kinds = np.where(np.arange(n) % 3 == 0, "bin", "box")
+    world = World(xy, rng.uniform(0.2, 0.35, n), rng.uniform(0.3, 0.8, n), kinds)
+    scene = RgbdScene.from_world(world, yaws=rng.uniform(0, np.pi / 2, n))
+    camera = PinholeCamera.from_fov(args.width, args.height, 87.0)
+    front_end = RgbdFrontEnd(camera, T_body_camera(0.6, 5.0), depth_scale=1.0)
+
+    frames = []
+    for f in range(args.frames + 5):
+        heading = 0.1 * np.sin(2 * np.pi * f / args.frames)  # sway the view left and right
+        T_world_body = se3_from_xyz_yaw(-0.5 + 0.01 * f, 0.0, 0.0, heading)
+        frame = render(scene, T_world_body @ front_end.T_body_camera, camera, args.noise, rng)
+        result = front_end.process(0.1 * f, frame.rgb, frame.depth, T_world_body)
+        if f >= 5:  # after warm-up (first calls initialise Open3D and OpenCV)
+            frames.append(result)
+
+    ms = {s: 1e3 * np.array([r.seconds[s] for r in frames]) for s in STAGES}
+    ms["lift + track"] = ms["lift"] + ms["track"]
+    ms["total"] = sum(ms[s] for s in STAGES)
+    masks = np.array([r.n_masks for r in frames])
+    lifted = np.array([len(r.observations) for r in frames])
+
+    table = Table(title=f"Mapping front end per {args.width} x {args.height} frame "
+                        f"({args.frames} frames; masks per frame: {np.median(masks):.0f} from "
+                        f"the segmenter, {np.median(lifted):.0f} lifted, median)")
+    table.add_column("stage")
+    table.add_column("median [ms]", justify="right")
+    table.add_column("p90 [ms]", justify="right")
+    table.add_column("target", justify="right")
+    targets = {"segment": "<= 60 ms", "lift + track": "<= 15 ms"}
+    for name, values in ms.items():
+        table.add_row(name, f"{np.median(values):.2f}", f"{np.percentile(values, 90):.2f}",
+                      targets.get(name, ""))
+    Console().print(table)
+    print(f"objects in the map: {len(front_end.object_map())} of {len(world)} in the room")
+
+
+if __name__ == "__main__":
+    main()
