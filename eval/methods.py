@@ -7,7 +7,8 @@ All methods advance together, one 1 Hz step at a time, on the same maps:
   residual check and with the original's constant R.
 - tcaff_isam2_causal / tcaff_isam2_smoothed: the TCAFF output of every pair (i, j) with i < j in
   one iSAM2 graph ((j, i) aligns the same two maps), read for every directed pair at each step
-  (causal) and once more at the end (smoothed), at the steps that pair's TCAFF has an estimate.
+  (causal) and once more at the end (smoothed), at the steps that pair's TCAFF has an estimate
+  and the graph links the two robots (causal: by then; smoothed: by the end).
 - clipper_k<k>: single-shot CLIPPER accepting a solution of at least k associations.
 - icp: ICP on centroids from the true initial alignment.
 - ground_truth: the true alignment (a check on the evaluation itself).
@@ -124,6 +125,7 @@ def run_methods(run: SimRun, methods: MethodsConfig,
                    name == "tcaff" and "tcaff_isam2" in chosen)}
     graph = (InterRobotGraph(run.n_robots, _graph_params(scenario, methods))
              if "tcaff_isam2" in chosen else None)
+    filtered = np.zeros((len(pairs), n_steps), dtype=bool)  # TCAFF had an estimate
     T_true = [run.T_true(i, j) for i, j in pairs]
     truths = se2_to_params(np.array(T_true)).reshape(len(pairs), n_steps, 3)
     icps = ([CentroidICP(T_true[p][0], kappa,
@@ -179,6 +181,7 @@ def run_methods(run: SimRun, methods: MethodsConfig,
                     graph.add_tcaff_estimate(s, i, j, est, zs, Rs)
             graph.update(s)
             for p, (est, _, _) in tcaff_out.items():
+                filtered[p, s] = est is not None
                 # Before its first factor a pair's graph alignment is only the gauge's guess.
                 if est is not None and graph.connected(*pairs[p]):
                     estimates["tcaff_isam2_causal"][p, s] = graph.alignment_params(*pairs[p], s)
@@ -188,8 +191,10 @@ def run_methods(run: SimRun, methods: MethodsConfig,
     if graph is not None:
         start = time.perf_counter()
         for p, pair in enumerate(pairs):
+            if not graph.connected(*pair):
+                continue
             steps, T = graph.alignment_history(*pair)
-            held = ~np.isnan(estimates["tcaff_isam2_causal"][p, steps, 0])
+            held = filtered[p, steps]
             estimates["tcaff_isam2_smoothed"][p, steps[held]] = se2_to_params(T[held])
         seconds["tcaff_isam2_smoothed"] += time.perf_counter() - start
     candidates = [(np.array(candidate_steps[p], dtype=np.int64),

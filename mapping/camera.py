@@ -11,16 +11,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import open3d as o3d
 
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.params import _require
 
 __all__ = [
     "R_BODY_OPTICAL",
     "PinholeCamera",
     "T_body_camera",
+    "check_camera",
+    "check_depth_scale",
     "depth_in_metres",
     "register_depth",
     "rigid_transform",
@@ -31,6 +34,10 @@ __all__ = [
 R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 _DEPTH_DTYPES = (np.uint16, np.float32, np.float64)
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 @dataclass(frozen=True)
@@ -54,8 +61,7 @@ class PinholeCamera:
         o = "PinholeCamera"
         for name in ("width", "height"):
             v = getattr(self, name)
-            _require(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1, o,
-                     name, v, "must be an int >= 1 pixels")
+            _require(_is_int(v) and v >= 1, o, name, v, "must be an int >= 1 pixels")
         for name in ("fx", "fy", "cx", "cy"):
             v = getattr(self, name)
             _require(isinstance(v, (int, float, np.integer, np.floating))
@@ -67,16 +73,26 @@ class PinholeCamera:
     @classmethod
     def from_K(cls, K, width: int, height: int) -> PinholeCamera:
         """From a (3, 3) intrinsic matrix (a ROS CameraInfo `K`, row-major, may be flat)."""
-        K = np.asarray(K, dtype=float)
+        try:
+            K = np.asarray(K, dtype=float)
+        except (TypeError, ValueError):
+            raise DataError(f"PinholeCamera.from_K: K must hold 9 numbers, got {K!r}") from None
         if K.size != 9 or not np.all(np.isfinite(K)):
             raise DataError(f"PinholeCamera.from_K: K must hold 9 finite numbers, got {K!r}")
         K = K.reshape(3, 3)
-        return cls(int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+        return cls(width, height, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
                    float(K[1, 2]))
 
     @classmethod
     def from_fov(cls, width: int, height: int, hfov_deg: float) -> PinholeCamera:
-        """Square pixels, the principal point at the image centre, horizontal field of view."""
+        """Square pixels, the principal point at the image centre, horizontal field of view in
+        degrees (0 to 180, exclusive)."""
+        _require(isinstance(hfov_deg, (int, float, np.integer, np.floating))
+                 and not isinstance(hfov_deg, bool) and 0 < hfov_deg < 180,
+                 "PinholeCamera.from_fov", "hfov_deg", hfov_deg, "must be in (0, 180) degrees")
+        for name, value in (("width", width), ("height", height)):
+            _require(_is_int(value) and value >= 1, "PinholeCamera.from_fov", name, value,
+                     "must be an int >= 1 pixels")
         f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
         return cls(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
 
@@ -116,6 +132,24 @@ def T_body_camera(height: float, pitch_deg: float = 0.0,
     return T
 
 
+def check_camera(name: str, camera) -> PinholeCamera:
+    """`camera` if it is a PinholeCamera; else ConfigError naming `name`."""
+    if not isinstance(camera, PinholeCamera):
+        raise ConfigError(f"{name} = {camera!r}: must be a PinholeCamera")
+    return camera
+
+
+def check_depth_scale(name: str, depth_scale) -> float:
+    """`depth_scale` (raw depth units per metre) as a float if finite and > 0; else
+    ConfigError naming `name`."""
+    ok = (isinstance(depth_scale, (int, float, np.integer, np.floating))
+          and not isinstance(depth_scale, bool) and math.isfinite(depth_scale)
+          and depth_scale > 0)
+    _require(ok, name.rsplit(".", 1)[0], name.rsplit(".", 1)[-1], depth_scale,
+             "must be a finite number > 0 (raw units per metre: 1000 for mm, 1 for m)")
+    return float(depth_scale)
+
+
 def rigid_transform(name: str, T, error: type[Exception] = DataError) -> np.ndarray:
     """`T` as a (4, 4) float array if it is a finite rigid transform (orthonormal rotation with
     determinant 1, last row 0 0 0 1); else `error` naming `name`."""
@@ -153,7 +187,8 @@ def depth_in_metres(depth, depth_scale: float, shape: tuple[int, int] | None = N
     if depth.ndim != 2 or (shape is not None and depth.shape != tuple(shape)):
         want = "(H, W)" if shape is None else str(tuple(shape))
         raise DataError(f"{name} has shape {depth.shape}; expected {want}")
-    if not (math.isfinite(depth_scale) and depth_scale > 0):
+    if not (isinstance(depth_scale, (int, float, np.integer, np.floating))
+            and math.isfinite(depth_scale) and depth_scale > 0):
         raise DataError(f"depth_scale = {depth_scale!r}: must be a finite number > 0")
     metres = depth.astype(np.float32) / np.float32(depth_scale)
     metres[~np.isfinite(metres)] = 0.0
@@ -167,18 +202,26 @@ def register_depth(depth_m: np.ndarray, depth_camera: PinholeCamera,
                    depth_max: float = 20.0) -> np.ndarray:
     """Re-project a depth image into another camera (the colour camera), nearest return kept.
 
+    When a depth pixel covers more than one colour pixel (a coarser or wider depth camera),
+    each point fills its footprint: holes are filled with the nearest return in a window as
+    wide as one depth pixel seen in the colour image.
+
     Args:
         depth_m: (H_d, W_d) float32 metres in the depth camera, 0 = no return.
         T_color_depth: (4, 4) the depth camera's optical frame in the colour camera's.
-        depth_max: metres; returns beyond this are dropped.
+        depth_max: metres (> 0); returns beyond this are dropped.
 
     Returns:
         (H_c, W_c) float32 metres in the colour camera, 0 where no point projects.
     """
     depth_m = depth_in_metres(depth_m, 1.0, depth_camera.shape, "depth_m")
     T = rigid_transform("T_color_depth", T_color_depth)
+    if not (isinstance(depth_max, (int, float)) and depth_max > 0):
+        raise DataError(f"depth_max = {depth_max!r}: must be a number > 0 metres")
     x_over_z, y_over_z = depth_camera.rays()
     valid = (depth_m > 0) & (depth_m <= depth_max)
+    if not valid.any():
+        return np.zeros(color_camera.shape, dtype=np.float32)
     z = depth_m[valid]
     points = np.column_stack([x_over_z[valid] * z, y_over_z[valid] * z, z])
     cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(points.astype(np.float32)))
@@ -187,4 +230,14 @@ def register_depth(depth_m: np.ndarray, depth_camera: PinholeCamera,
         color_camera.width, color_camera.height,
         o3d.core.Tensor(color_camera.K, o3d.core.float64),
         o3d.core.Tensor(T, o3d.core.float64), depth_scale=1.0, depth_max=depth_max)
-    return np.asarray(image.as_tensor().numpy()[..., 0], dtype=np.float32)
+    out = np.asarray(image.as_tensor().numpy()[..., 0], dtype=np.float32)
+    footprint = max(color_camera.fx / depth_camera.fx, color_camera.fy / depth_camera.fy)
+    if footprint > 1.0:
+        k = 2 * math.ceil(footprint / 2) + 1  # odd window covering one depth pixel
+        none = np.float32(2 * depth_max)  # stands for "no return" in the min filter
+        nearest = cv2.erode(np.where(out > 0, out, none).astype(np.float32),
+                            np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                            borderValue=float(none))
+        holes = (out == 0) & (nearest < none)
+        out[holes] = nearest[holes]
+    return out

@@ -15,10 +15,17 @@ import numpy as np
 from tcaff_gtsam.errors import ConfigError
 from tcaff_gtsam.object_map import ObjectMap
 
-from .camera import PinholeCamera, depth_in_metres, register_depth, rigid_transform
+from .camera import (
+    PinholeCamera,
+    check_camera,
+    check_depth_scale,
+    depth_in_metres,
+    register_depth,
+    rigid_transform,
+)
 from .lift import LiftParams, MaskLifter, Observations
 from .mapper import MapperParams, ObjectMapper
-from .segment import DepthSegmenter, MaskFilter, Segmenter, check_rgb, filter_masks
+from .segment import DepthSegmenter, MaskFilter, Segmenter, check_masks, check_rgb, filter_masks
 
 __all__ = ["DepthRegistration", "FrameResult", "RgbdFrontEnd"]
 
@@ -75,14 +82,21 @@ class RgbdFrontEnd:
                  registration: DepthRegistration | None = None,
                  mask_filter: MaskFilter | None = None, lift_params: LiftParams | None = None,
                  mapper_params: MapperParams | None = None) -> None:
-        self.camera = camera
+        self.camera = check_camera("RgbdFrontEnd.camera", camera)
         self.T_body_camera = rigid_transform("RgbdFrontEnd.T_body_camera", T_body_camera,
                                              ConfigError)
+        if registration is not None:
+            if not isinstance(registration, DepthRegistration):
+                raise ConfigError(f"RgbdFrontEnd.registration = {registration!r}: must be a "
+                                  "DepthRegistration or None")
+            check_camera("DepthRegistration.camera", registration.camera)
+            rigid_transform("DepthRegistration.T_color_depth", registration.T_color_depth,
+                            ConfigError)
         self.registration = registration
-        self.depth_scale = depth_scale
+        self.depth_scale = check_depth_scale("RgbdFrontEnd.depth_scale", depth_scale)
         # Every stage after the first is given float32 metres (depth_scale 1).
         self.segmenter = DepthSegmenter(camera, 1.0) if segmenter is None else segmenter
-        if not isinstance(self.segmenter, Segmenter):
+        if not callable(getattr(self.segmenter, "segment", None)):
             raise ConfigError(f"RgbdFrontEnd.segmenter = {segmenter!r}: needs a "
                               "segment(rgb, depth) method")
         self.mask_filter = MaskFilter() if mask_filter is None else mask_filter
@@ -118,7 +132,8 @@ class RgbdFrontEnd:
             z = register_depth(depth_in_metres(depth, self.depth_scale, reg.camera.shape),
                                reg.camera, self.camera, reg.T_color_depth)
         lap("register")
-        masks = self.segmenter.segment(rgb, z)
+        masks = check_masks(self.segmenter.segment(rgb, z), self.camera.shape,
+                            f"{type(self.segmenter).__name__}.segment's masks")
         lap("segment")
         kept = filter_masks(masks, z, self.mask_filter)
         lap("filter")

@@ -18,10 +18,10 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.params import _require
 
-from .camera import PinholeCamera, depth_in_metres, rigid_transform
+from .camera import PinholeCamera, check_camera, check_depth_scale, depth_in_metres, rigid_transform
+from .segment import check_masks
 
 __all__ = ["LiftParams", "MaskLifter", "Observations"]
 
@@ -127,9 +127,11 @@ class MaskLifter:
 
     def __init__(self, camera: PinholeCamera, depth_scale: float = 1000.0,
                  params: LiftParams | None = None) -> None:
-        self.camera = camera
-        self.depth_scale = depth_scale
+        self.camera = check_camera("MaskLifter.camera", camera)
+        self.depth_scale = check_depth_scale("MaskLifter.depth_scale", depth_scale)
         self.params = LiftParams() if params is None else params
+        _require(isinstance(self.params, LiftParams), "MaskLifter", "params", params,
+                 "must be a LiftParams")
         x_over_z, y_over_z = camera.rays()
         self._rays = np.stack([x_over_z.ravel(), y_over_z.ravel()], axis=1)
 
@@ -144,11 +146,7 @@ class MaskLifter:
         """
         H, W = self.camera.shape
         z = depth_in_metres(depth, self.depth_scale, (H, W))
-        if not (isinstance(masks, np.ndarray) and masks.dtype == np.bool_ and masks.ndim == 3
-                and masks.shape[1:] == (H, W)):
-            raise DataError(f"masks must be (k, {H}, {W}) bool, got "
-                            f"{getattr(masks, 'shape', None)} "
-                            f"{getattr(masks, 'dtype', type(masks).__name__)}")
+        check_masks(masks, (H, W))
         T = rigid_transform("T_odom_camera", T_odom_camera)
         p = self.params
         z_flat = z.ravel()
@@ -170,7 +168,9 @@ class MaskLifter:
             g = max(1, int(math.sqrt(ys.size / p.max_points)))
             outline = np.zeros(ys.size, dtype=bool)
             if g > 1:
-                outline = ~cv2.erode(inside.view(np.uint8), _CROSS).view(bool)[ys, xs]
+                # pixels beyond the crop count as outside, so the mask's lowest row is outline
+                outline = ~cv2.erode(inside.view(np.uint8), _CROSS, borderType=cv2.BORDER_CONSTANT,
+                                     borderValue=0).view(bool)[ys, xs]
                 on_row, on_col = ys % g == 0, xs % g == 0
                 on_grid = on_row & on_col
                 keep = on_grid | (outline & (on_row | on_col))

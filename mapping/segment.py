@@ -18,13 +18,14 @@ import numpy as np
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.params import _require
 
-from .camera import PinholeCamera, depth_in_metres
+from .camera import PinholeCamera, check_camera, check_depth_scale, depth_in_metres
 
 __all__ = [
     "DepthSegmenter",
     "DepthSegmenterParams",
     "MaskFilter",
     "Segmenter",
+    "check_masks",
     "check_rgb",
     "filter_masks",
 ]
@@ -39,7 +40,8 @@ class Segmenter(Protocol):
 
         Args:
             rgb: (H, W, 3) uint8, RGB order.
-            depth: (H, W) raw depth registered to the colour image (see `camera.py`).
+            depth: (H, W) depth registered to the colour image; `RgbdFrontEnd` passes float32
+                metres (0 = no return).
 
         Returns:
             (k, H, W) bool, one mask per candidate object (k may be 0).
@@ -111,6 +113,17 @@ def _elongation(ys: np.ndarray, xs: np.ndarray) -> float:
     return math.sqrt(high / low)
 
 
+def check_masks(masks, shape: tuple[int, int], owner: str = "masks") -> np.ndarray:
+    """`masks` as given if it is a (k, H, W) bool array with (H, W) = `shape`; else
+    DataError naming `owner`."""
+    if not (isinstance(masks, np.ndarray) and masks.dtype == np.bool_ and masks.ndim == 3
+            and masks.shape[1:] == tuple(shape)):
+        got = (f"{masks.shape} {masks.dtype}" if isinstance(masks, np.ndarray)
+               else type(masks).__name__)
+        raise DataError(f"{owner} must be a (k, {shape[0]}, {shape[1]}) bool array, got {got}")
+    return masks
+
+
 def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter) -> np.ndarray:
     """Indices of the masks that pass `mask_filter`.
 
@@ -121,10 +134,7 @@ def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter
     Returns:
         (k',) int64 indices into `masks`, increasing.
     """
-    if not (isinstance(masks, np.ndarray) and masks.dtype == np.bool_ and masks.ndim == 3
-            and masks.shape[1:] == depth_m.shape):
-        raise DataError(f"masks must be (k, {depth_m.shape[0]}, {depth_m.shape[1]}) bool, got "
-                        f"{getattr(masks, 'shape', None)} {getattr(masks, 'dtype', type(masks))}")
+    check_masks(masks, depth_m.shape)
     k, H, W = masks.shape
     f = mask_filter
     rows_hit = masks.any(axis=2)  # (k, H)
@@ -192,7 +202,8 @@ class DepthSegmenterParams:
 
     def __post_init__(self) -> None:
         o = "DepthSegmenterParams"
-        _require(self.median in (1, 3, 5), o, "median", self.median, "must be 1, 3 or 5")
+        _require(_positive_int(self.median) and self.median in (1, 3, 5), o, "median",
+                 self.median, "must be 1, 3 or 5")
         for name in ("jump", "jump_per_m", "plane_distance", "plane_distance_per_m2",
                      "plane_min_extent"):
             v = getattr(self, name)
@@ -206,8 +217,10 @@ class DepthSegmenterParams:
                  "plane_share", self.plane_share, "must be in (0, 1]")
         _require(isinstance(self.max_area_share, (int, float)) and 0 < self.max_area_share <= 1,
                  o, "max_area_share", self.max_area_share, "must be in (0, 1]")
-        _require(0 <= self.depth_min < self.depth_max, o, "depth_max", self.depth_max,
-                 f"must be > depth_min = {self.depth_min}")
+        _require(isinstance(self.depth_min, (int, float)) and self.depth_min >= 0, o,
+                 "depth_min", self.depth_min, "must be a number >= 0 metres")
+        _require(isinstance(self.depth_max, (int, float)) and self.depth_max > self.depth_min,
+                 o, "depth_max", self.depth_max, f"must be > depth_min = {self.depth_min}")
 
 
 def _structure_parts(band: np.ndarray, z: np.ndarray, fx: float, fy: float,
@@ -243,9 +256,11 @@ class DepthSegmenter:
 
     def __init__(self, camera: PinholeCamera, depth_scale: float = 1000.0,
                  params: DepthSegmenterParams | None = None) -> None:
-        self.camera = camera
-        self.depth_scale = depth_scale
+        self.camera = check_camera("DepthSegmenter.camera", camera)
+        self.depth_scale = check_depth_scale("DepthSegmenter.depth_scale", depth_scale)
         self.params = DepthSegmenterParams() if params is None else params
+        _require(isinstance(self.params, DepthSegmenterParams), "DepthSegmenter", "params",
+                 params, "must be a DepthSegmenterParams")
         self._x_over_z, self._y_over_z = camera.rays()
 
     def segment(self, rgb: np.ndarray | None, depth: np.ndarray) -> np.ndarray:

@@ -54,6 +54,23 @@ def _check_index(name: str, value, bits: int) -> int:
     return int(value)
 
 
+def _components(nodes: set, links: Counter):
+    """Union-find over `nodes` joined by the links (a, b) with a positive count; returns the
+    function mapping a node to its group's root. Links to other nodes are ignored."""
+    parent = {n: n for n in nodes}
+
+    def root(n):
+        while parent[n] != n:
+            parent[n] = parent[parent[n]]
+            n = parent[n]
+        return n
+
+    for (a, b), count in links.items():
+        if count > 0 and a in parent and b in parent:
+            parent[root(a)] = root(b)
+    return root
+
+
 def alignment_key(robot: int, step: int) -> int:
     """gtsam key of A_robot(step); robot < 2^16, step < 2^36."""
     robot = _check_index("robot", robot, _KIND_SHIFT - _ROBOT_SHIFT)
@@ -362,23 +379,13 @@ class InterRobotGraph:
         (a first alignment, a removed hypothesis) in the same update."""
         chains = ({("A", r) for r in range(self.n_robots)} if self._steps else set())
         chains |= {("X", r) for r, frames in self._keyframes.items() if frames}
-        parent = {c: c for c in chains}
-
-        def root(c):
-            while parent[c] != c:
-                parent[c] = parent[parent[c]]
-                c = parent[c]
-            return c
-
         links = Counter(self._links)
         for index in self._to_remove:
             if self._active[index].link:
                 links[self._active[index].link] -= 1
         links.update(q.link for q in self._queued if q.link)
-        for (a, b), count in links.items():
-            if count > 0:
-                parent[root(a)] = root(b)
-        anchored = {root(c) for c in (("A", 0), ("X", 0)) if c in parent}
+        root = _components(chains, links)
+        anchored = {root(c) for c in (("A", 0), ("X", 0)) if c in chains}
         free = {c: i for c, i in self._free.items() if i not in self._to_remove}
         groups: dict[tuple, list] = defaultdict(list)
         for c in sorted(chains):
@@ -463,17 +470,8 @@ class InterRobotGraph:
         arbitrary and its covariance huge."""
         self._check_robot("i", i)
         self._check_robot("j", j)
-        parent = {r: r for r in range(self.n_robots)}
-
-        def root(r: int) -> int:
-            while parent[r] != r:
-                r = parent[r]
-            return r
-
-        for (a, b), count in self._links.items():
-            if count > 0 and a[0] == "A" and b[0] == "A":
-                parent[root(a[1])] = root(b[1])
-        return root(i) == root(j)
+        root = _components({("A", r) for r in range(self.n_robots)}, self._links)
+        return root(("A", i)) == root(("A", j))
 
     def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """T_oi_oj at every committed step from the current (smoothed) solution.

@@ -360,3 +360,45 @@ def test_no_objects_in_view_gives_an_empty_result():
         check_result(result)
         assert len(result.observations) == 0
     assert len(front.object_map().centroids) == 0
+
+
+def test_coarse_depth_camera_fills_the_colour_image():
+    """A depth camera with half the colour camera's resolution: every depth point fills its
+    footprint in the colour image, so the registered depth has no grid of holes."""
+    coarse = PinholeCamera(160, 120, CAM.fx / 2, CAM.fy / 2, CAM.cx / 2, CAM.cy / 2)
+    scene = ring_room()
+    T_wc = loop_poses(30)[10] @ T_BC
+    color = render(scene, T_wc, CAM)
+    depth = render(scene, T_wc @ T_COLOR_DEPTH, coarse)
+    registered = register_depth(depth.depth, coarse, CAM, T_COLOR_DEPTH)
+    both = (registered > 0) & (color.depth > 0)
+    assert both.sum() > 0.97 * np.count_nonzero(color.depth)
+    rel = np.abs(registered[both] - color.depth[both]) / color.depth[both]
+    assert np.median(rel) < 0.01
+    # no return at all: an empty image of the colour camera's shape, not a (0, 0) array
+    empty = register_depth(np.zeros(coarse.shape, np.float32), coarse, CAM, T_COLOR_DEPTH)
+    assert empty.shape == CAM.shape and not empty.any()
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"depth_scale": 0}, "depth_scale"),
+    ({"depth_scale": "mm"}, "depth_scale"),
+    ({"camera": None}, "camera"),
+    ({"registration": "x"}, "registration"),
+    ({"registration": DepthRegistration(DEPTH_CAM, np.ones((4, 4)))}, "T_color_depth"),
+    ({"segmenter": type("Seg", (), {"segment": 3})()}, "segmenter"),
+])
+def test_bad_front_end_settings_raise_config_error(kwargs, match):
+    settings_ = {"camera": CAM, "T_body_camera": T_BC, **kwargs}
+    with pytest.raises(ConfigError, match=match):
+        RgbdFrontEnd(**settings_)
+
+
+@pytest.mark.parametrize("masks", [None, [[[True]]], np.zeros((2, 5, 5), bool),
+                                   np.zeros((240, 320), bool)])
+def test_a_segmenter_returning_bad_masks_is_named(masks):
+    seg = type("BrokenSegmenter", (), {"segment": lambda self, rgb, depth: masks})()
+    front = RgbdFrontEnd(CAM, T_BC, depth_scale=1.0, segmenter=seg)
+    frame = render(ring_room(), loop_poses(5)[0] @ T_BC, CAM)
+    with pytest.raises(DataError, match=r"BrokenSegmenter\.segment's masks"):
+        front.process(0.0, frame.rgb, frame.depth, np.eye(4))

@@ -333,3 +333,18 @@ def test_bad_depth_raises(depth, match):
 def test_bad_lift_params_raise_config_error(kwargs):
     with pytest.raises(ConfigError):
         LiftParams(**kwargs)
+
+
+def test_height_does_not_depend_on_where_the_grid_falls():
+    """A mask sampled on a coarse grid keeps its lowest and highest rows (its outline), so
+    shifting the mask by a pixel does not change the height."""
+    z = np.full(CAMERA.shape, 2.0, np.float32)
+    heights = []
+    for shift in range(4):
+        mask = np.zeros(CAMERA.shape, bool)
+        mask[150 + shift:250 + shift, 200:300] = True
+        obs = MaskLifter(CAMERA, 1.0).lift(mask[None], z, T_body_camera(0.0))  # level camera
+        heights.append(obs.heights[0])
+    truth = 100 * 2.0 / CAMERA.fy  # 100 rows of a wall 2 m ahead
+    assert np.ptp(heights) < 0.01
+    assert np.allclose(heights, truth, rtol=0.05)

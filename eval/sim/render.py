@@ -184,7 +184,7 @@ def render(scene: RgbdScene, T_world_camera: np.ndarray, camera: PinholeCamera,
         rng: random generator for the noise (required when depth_noise > 0).
         depth_max: metres; farther surfaces give no return (depth 0).
     """
-    if depth_noise < 0 or (depth_noise > 0 and rng is None):
+    if not depth_noise >= 0 or (depth_noise > 0 and rng is None):  # NaN fails too
         raise DataError(f"render: depth_noise = {depth_noise} needs to be >= 0 and, when > 0, "
                         "an rng")
     hit = scene.cast(T_world_camera, camera)
