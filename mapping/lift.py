@@ -178,9 +178,9 @@ class MaskLifter:
             pixels = (ys + r0) * W + xs
             zm = z_flat[pixels]
             points_cam = np.column_stack([self._rays[pixels] * zm[:, None], zm])
-            depth = float(zm.mean())
-            spacing = max(p.voxel_size, g * depth / self.camera.fx)  # metres between samples
-            eps = max(p.cluster_eps * spacing, p.cluster_eps_per_m * depth)
+            z_mean = float(zm.mean())
+            spacing = max(p.voxel_size, g * z_mean / self.camera.fx)  # metres between samples
+            eps = max(p.cluster_eps * spacing, p.cluster_eps_per_m * z_mean)
             cloud, on_grid = self._clean(points_cam @ T[:3, :3].T + T[:3, 3], outline, eps)
             if on_grid.sum() < p.min_points:
                 continue
