@@ -16,7 +16,7 @@ import numpy as np
 import open3d as o3d
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.params import _require
+from tcaff_gtsam.params import _int_at_least, _real, _require
 
 __all__ = [
     "R_BODY_OPTICAL",
@@ -34,10 +34,6 @@ __all__ = [
 R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 _DEPTH_DTYPES = (np.uint16, np.float32, np.float64)
-
-
-def _is_int(value) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 @dataclass(frozen=True)
@@ -61,11 +57,10 @@ class PinholeCamera:
         o = "PinholeCamera"
         for name in ("width", "height"):
             v = getattr(self, name)
-            _require(_is_int(v) and v >= 1, o, name, v, "must be an int >= 1 pixels")
+            _require(_int_at_least(v, 1), o, name, v, "must be an int >= 1 pixels")
         for name in ("fx", "fy", "cx", "cy"):
             v = getattr(self, name)
-            _require(isinstance(v, (int, float, np.integer, np.floating))
-                     and not isinstance(v, bool) and math.isfinite(v), o, name, v,
+            _require(_real(v) and math.isfinite(v), o, name, v,
                      "must be a finite number of pixels")
         _require(self.fx > 0, o, "fx", self.fx, "must be > 0 pixels")
         _require(self.fy > 0, o, "fy", self.fy, "must be > 0 pixels")
@@ -87,11 +82,10 @@ class PinholeCamera:
     def from_fov(cls, width: int, height: int, hfov_deg: float) -> PinholeCamera:
         """Square pixels, the principal point at the image centre, horizontal field of view in
         degrees (0 to 180, exclusive)."""
-        _require(isinstance(hfov_deg, (int, float, np.integer, np.floating))
-                 and not isinstance(hfov_deg, bool) and 0 < hfov_deg < 180,
+        _require(_real(hfov_deg) and 0 < hfov_deg < 180,
                  "PinholeCamera.from_fov", "hfov_deg", hfov_deg, "must be in (0, 180) degrees")
         for name, value in (("width", width), ("height", height)):
-            _require(_is_int(value) and value >= 1, "PinholeCamera.from_fov", name, value,
+            _require(_int_at_least(value, 1), "PinholeCamera.from_fov", name, value,
                      "must be an int >= 1 pixels")
         f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
         return cls(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
@@ -142,9 +136,7 @@ def check_camera(name: str, camera) -> PinholeCamera:
 def check_depth_scale(name: str, depth_scale) -> float:
     """`depth_scale` (raw depth units per metre) as a float if finite and > 0; else
     ConfigError naming `name`."""
-    ok = (isinstance(depth_scale, (int, float, np.integer, np.floating))
-          and not isinstance(depth_scale, bool) and math.isfinite(depth_scale)
-          and depth_scale > 0)
+    ok = _real(depth_scale) and math.isfinite(depth_scale) and depth_scale > 0
     _require(ok, name.rsplit(".", 1)[0], name.rsplit(".", 1)[-1], depth_scale,
              "must be a finite number > 0 (raw units per metre: 1000 for mm, 1 for m)")
     return float(depth_scale)
@@ -187,8 +179,7 @@ def depth_in_metres(depth, depth_scale: float, shape: tuple[int, int] | None = N
     if depth.ndim != 2 or (shape is not None and depth.shape != tuple(shape)):
         want = "(H, W)" if shape is None else str(tuple(shape))
         raise DataError(f"{name} has shape {depth.shape}; expected {want}")
-    if not (isinstance(depth_scale, (int, float, np.integer, np.floating))
-            and math.isfinite(depth_scale) and depth_scale > 0):
+    if not (_real(depth_scale) and math.isfinite(depth_scale) and depth_scale > 0):
         raise DataError(f"depth_scale = {depth_scale!r}: must be a finite number > 0")
     metres = depth.astype(np.float32) / np.float32(depth_scale)
     metres[~np.isfinite(metres)] = 0.0
@@ -216,7 +207,7 @@ def register_depth(depth_m: np.ndarray, depth_camera: PinholeCamera,
     """
     depth_m = depth_in_metres(depth_m, 1.0, depth_camera.shape, "depth_m")
     T = rigid_transform("T_color_depth", T_color_depth)
-    if not (isinstance(depth_max, (int, float)) and depth_max > 0):
+    if not (_real(depth_max) and depth_max > 0):
         raise DataError(f"depth_max = {depth_max!r}: must be a number > 0 metres")
     x_over_z, y_over_z = depth_camera.rays()
     valid = (depth_m > 0) & (depth_m <= depth_max)

@@ -28,7 +28,7 @@ import numpy as np
 import onnxruntime as ort
 
 from tcaff_gtsam.errors import ConfigError, DataError, ModelError
-from tcaff_gtsam.params import _require
+from tcaff_gtsam.params import _int_at_least, _real, _require
 
 from .camera import depth_in_metres
 from .segment import MaskFilter, check_rgb
@@ -213,21 +213,17 @@ class FastSamOnnx:
                  max_det: int = 300, num_threads: int = 2) -> None:
         o = "FastSamOnnx"
 
-        def is_int(v) -> bool:
-            return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-
         def is_unit(v) -> bool:
-            return (isinstance(v, (int, float, np.integer, np.floating))
-                    and not isinstance(v, bool) and 0 < v <= 1)
+            return _real(v) and 0 < v <= 1
 
-        _require(is_int(imgsz) and imgsz > 0 and imgsz % 32 == 0, o, "imgsz", imgsz,
+        _require(_int_at_least(imgsz, 1) and imgsz % 32 == 0, o, "imgsz", imgsz,
                  "must be a positive multiple of 32 pixels")
         _require(is_unit(conf), o, "conf", conf, "must be in (0, 1]")
         _require(is_unit(iou), o, "iou", iou, "must be in (0, 1]")
         _require(mask_filter is None or isinstance(mask_filter, MaskFilter), o, "mask_filter",
                  mask_filter, "must be a MaskFilter or None")
-        _require(is_int(max_det) and max_det > 0, o, "max_det", max_det, "must be an int > 0")
-        _require(is_int(num_threads) and num_threads > 0, o, "num_threads", num_threads,
+        _require(_int_at_least(max_det, 1), o, "max_det", max_det, "must be an int > 0")
+        _require(_int_at_least(num_threads, 1), o, "num_threads", num_threads,
                  "must be an int > 0")
         if providers is None:
             providers = ["CPUExecutionProvider"]

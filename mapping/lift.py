@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from tcaff_gtsam.params import _require
+from tcaff_gtsam.params import _int_at_least, _real, _require
 
 from .camera import PinholeCamera, check_camera, check_depth_scale, depth_in_metres, rigid_transform
 from .segment import check_masks
@@ -67,13 +67,12 @@ class LiftParams:
         for name in ("voxel_size", "outlier_std", "cluster_eps", "cluster_eps_per_m",
                      "depth_max"):
             v = getattr(self, name)
-            _require(isinstance(v, (int, float)) and math.isfinite(v) and v > 0, o, name, v,
+            _require(_real(v) and math.isfinite(v) and v > 0, o, name, v,
                      "must be a finite number > 0")
         for name in ("max_points", "outlier_neighbors", "cluster_min_points", "min_points"):
             v = getattr(self, name)
-            _require(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1, o,
-                     name, v, "must be an int >= 1")
-        _require(isinstance(self.depth_min, (int, float)) and 0 <= self.depth_min < self.depth_max,
+            _require(_int_at_least(v, 1), o, name, v, "must be an int >= 1")
+        _require(_real(self.depth_min) and 0 <= self.depth_min < self.depth_max,
                  o, "depth_min", self.depth_min, f"must be in [0, depth_max = {self.depth_max})")
 
 

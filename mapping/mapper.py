@@ -16,7 +16,7 @@ from scipy.optimize import linear_sum_assignment
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap, object_arrays
-from tcaff_gtsam.params import _require
+from tcaff_gtsam.params import _int_at_least, _real, _require
 
 __all__ = ["MapperParams", "ObjectMapper"]
 
@@ -25,14 +25,6 @@ __all__ = ["MapperParams", "ObjectMapper"]
 _SIZE_FLOOR = 1e-3
 # Slack on the size gate so that a ratio of exactly `size_gate` passes despite rounding in log.
 _LOG_TOL = 1e-12
-
-
-def _int_at_least(value, low: int) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low
-
-
-def _real(value) -> bool:
-    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.params import _require
+from tcaff_gtsam.params import _int_at_least, _real, _require
 
 from .camera import PinholeCamera, check_camera, check_depth_scale, depth_in_metres
 
@@ -62,10 +62,6 @@ def check_rgb(rgb, shape: tuple[int, int] | None = None) -> np.ndarray:
     return rgb
 
 
-def _positive_int(value) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 0
-
-
 @dataclass(frozen=True)
 class MaskFilter:
     """Which masks are worth lifting to objects.
@@ -88,16 +84,16 @@ class MaskFilter:
 
     def __post_init__(self) -> None:
         o = "MaskFilter"
-        _require(_positive_int(self.min_area), o, "min_area", self.min_area,
+        _require(_int_at_least(self.min_area, 0), o, "min_area", self.min_area,
                  "must be an int >= 0 pixels")
-        _require(_positive_int(self.border), o, "border", self.border,
+        _require(_int_at_least(self.border, 0), o, "border", self.border,
                  "must be an int >= 0 pixels")
-        _require(isinstance(self.max_area_share, (int, float))
+        _require(_real(self.max_area_share)
                  and 0 < self.max_area_share <= 1, o, "max_area_share", self.max_area_share,
                  "must be in (0, 1]")
-        _require(isinstance(self.max_elongation, (int, float)) and self.max_elongation >= 1, o,
+        _require(_real(self.max_elongation) and self.max_elongation >= 1, o,
                  "max_elongation", self.max_elongation, "must be a number >= 1")
-        _require(isinstance(self.min_depth_share, (int, float))
+        _require(_real(self.min_depth_share)
                  and 0 <= self.min_depth_share <= 1, o, "min_depth_share",
                  self.min_depth_share, "must be in [0, 1]")
 
@@ -202,24 +198,24 @@ class DepthSegmenterParams:
 
     def __post_init__(self) -> None:
         o = "DepthSegmenterParams"
-        _require(_positive_int(self.median) and self.median in (1, 3, 5), o, "median",
+        _require(_int_at_least(self.median, 0) and self.median in (1, 3, 5), o, "median",
                  self.median, "must be 1, 3 or 5")
         for name in ("jump", "jump_per_m", "plane_distance", "plane_distance_per_m2",
                      "plane_min_extent"):
             v = getattr(self, name)
-            _require(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, o, name, v,
+            _require(_real(v) and math.isfinite(v) and v >= 0, o, name, v,
                      "must be a finite number >= 0")
         for name in ("max_planes", "ransac_iterations", "ransac_stride", "min_area", "seed"):
             v = getattr(self, name)
-            _require(_positive_int(v), o, name, v, "must be an int >= 0")
+            _require(_int_at_least(v, 0), o, name, v, "must be an int >= 0")
         _require(self.ransac_stride >= 1, o, "ransac_stride", self.ransac_stride, "must be >= 1")
-        _require(isinstance(self.plane_share, (int, float)) and 0 < self.plane_share <= 1, o,
+        _require(_real(self.plane_share) and 0 < self.plane_share <= 1, o,
                  "plane_share", self.plane_share, "must be in (0, 1]")
-        _require(isinstance(self.max_area_share, (int, float)) and 0 < self.max_area_share <= 1,
+        _require(_real(self.max_area_share) and 0 < self.max_area_share <= 1,
                  o, "max_area_share", self.max_area_share, "must be in (0, 1]")
-        _require(isinstance(self.depth_min, (int, float)) and self.depth_min >= 0, o,
+        _require(_real(self.depth_min) and self.depth_min >= 0, o,
                  "depth_min", self.depth_min, "must be a number >= 0 metres")
-        _require(isinstance(self.depth_max, (int, float)) and self.depth_max > self.depth_min,
+        _require(_real(self.depth_max) and self.depth_max > self.depth_min,
                  o, "depth_max", self.depth_max, f"must be > depth_min = {self.depth_min}")
 
 

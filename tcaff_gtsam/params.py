@@ -25,6 +25,16 @@ def _require(condition: bool, owner: str, name: str, value, rule: str) -> None:
         raise ConfigError(f"{owner}.{name} = {value!r}: {rule}")
 
 
+def _int_at_least(value, low: int) -> bool:
+    """An int (Python or numpy, not a bool) >= low."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low
+
+
+def _real(value) -> bool:
+    """A real number (Python or numpy, not a bool); may be NaN or infinite."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
 def constant_alignment_covariance() -> np.ndarray:
     """The original code's fixed measurement covariance diag(0.5 m, 0.5 m, 5 deg)^2, (3, 3)."""
     return np.diag([0.5**2, 0.5**2, math.radians(5.0) ** 2])
@@ -166,10 +176,6 @@ class FrameAlignerParams:
     def reference(cls) -> FrameAlignerParams:
         """The authors' released settings, without this project's residual check."""
         return cls(max_rmse=None)
-
-
-def _int_at_least(value, low: int) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= low
 
 
 @dataclass(frozen=True)
