@@ -11,10 +11,12 @@ height (its extent along the odometry frame's z axis, which is up).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 import open3d as o3d
 
@@ -26,6 +28,8 @@ from .segment import check_masks
 __all__ = ["LiftParams", "MaskLifter", "Observations"]
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+# metres between the clouds of different masks while they are cleaned together
+_SEPARATION = 1000.0
 
 
 @dataclass(frozen=True)
@@ -97,22 +101,53 @@ class Observations:
         return self.centroids.shape[0]
 
 
-def _footprint_width(xy: np.ndarray) -> float:
-    """Longer side of the smallest-perimeter rectangle around (n, 2) points.
+def _footprint_widths(xy: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Longer side of the smallest-perimeter rectangle around each cloud's footprint.
 
-    Not the smallest-area one: for the L of a box's two visible faces the smallest-area
-    rectangle ties between the box itself and one along the diagonal, while the smallest
-    perimeter picks the box. One side of the optimal rectangle lies along a hull edge.
+    Args:
+        xy: (n, 2) metres, the clouds' points on the ground plane, one cloud after another;
+        starts, ends: (c,) each cloud's slice of `xy`.
+    Returns:
+        (c,) metres.
+
+    Not the smallest-area rectangle: for the L of a box's two visible faces that one ties
+    between the box itself and one along the diagonal, while the smallest perimeter picks the
+    box. One side of the optimal rectangle lies along a hull edge.
     """
-    hull = cv2.convexHull(xy.astype(np.float32)).reshape(-1, 2).astype(float)
-    if hull.shape[0] < 3:
-        return float(np.ptp(hull, axis=0).max()) if hull.shape[0] == 2 else 0.0
-    edges = np.roll(hull, -1, axis=0) - hull
-    u = edges / np.maximum(np.linalg.norm(edges, axis=1, keepdims=True), 1e-12)
-    along = np.ptp(hull @ u.T, axis=0)  # (h,) extent along each edge direction
-    across = np.ptp(hull @ np.column_stack([-u[:, 1], u[:, 0]]).T, axis=0)
-    best = int(np.argmin(along + across))
-    return float(max(along[best], across[best]))
+    hulls = [cv2.convexHull(xy[a:b].astype(np.float32)).reshape(-1, 2) for a, b in
+             zip(starts, ends, strict=True)]
+    sizes = np.array([h.shape[0] for h in hulls], dtype=np.int64)
+    stacked = np.concatenate(hulls).astype(np.float64) if hulls else np.zeros((0, 2))
+    return _calipers(stacked, np.concatenate([[0], np.cumsum(sizes)]))
+
+
+@numba.njit(cache=True)
+def _calipers(hulls: np.ndarray, bounds: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """`_footprint_widths` on convex hulls stacked one after another, hull g being
+    hulls[bounds[g]:bounds[g + 1]]."""
+    widths = np.zeros(bounds.size - 1)
+    for g in range(bounds.size - 1):
+        pts = hulls[bounds[g]:bounds[g + 1]]
+        h = pts.shape[0]
+        best = np.inf
+        for i in range(h):
+            ex = pts[(i + 1) % h, 0] - pts[i, 0]
+            ey = pts[(i + 1) % h, 1] - pts[i, 1]
+            norm = np.sqrt(ex * ex + ey * ey)
+            if norm < 1e-12:
+                continue
+            ux, uy = ex / norm, ey / norm
+            lo_a = lo_c = np.inf
+            hi_a = hi_c = -np.inf
+            for j in range(h):
+                along = pts[j, 0] * ux + pts[j, 1] * uy
+                across = pts[j, 1] * ux - pts[j, 0] * uy
+                lo_a, hi_a = min(lo_a, along), max(hi_a, along)
+                lo_c, hi_c = min(lo_c, across), max(hi_c, across)
+            if (hi_a - lo_a) + (hi_c - lo_c) < best:
+                best = (hi_a - lo_a) + (hi_c - lo_c)
+                widths[g] = max(hi_a - lo_a, hi_c - lo_c)
+    return widths
 
 
 class MaskLifter:
@@ -148,95 +183,176 @@ class MaskLifter:
         check_masks(masks, (H, W))
         T = rigid_transform("T_odom_camera", T_odom_camera)
         p = self.params
-        z_flat = z.ravel()
         usable = (z >= p.depth_min) & (z <= p.depth_max) & (z > 0)
-        rows_hit = masks.any(axis=2)  # (k, H): one pass, then work inside each mask's rows
-        rows = []
+        rows_hit, cols_hit = masks.any(axis=2), masks.any(axis=1)  # (k, H), (k, W)
+        z_flat = z.ravel()
+        pixels, outlines, sources, eps = [], [], [], []
         for m in range(masks.shape[0]):
-            hit = np.flatnonzero(rows_hit[m])
-            if hit.size == 0:
+            sample = self._sample(masks[m], usable, rows_hit[m], cols_hit[m])
+            if sample is None:
                 continue
-            r0, r1 = hit[0], hit[-1] + 1
-            inside = masks[m, r0:r1] & usable[r0:r1]
-            ys, xs = np.nonzero(inside)
-            if ys.size < p.min_points:
-                continue
-            # Keep every g-th pixel along both image axes, so that about max_points remain (the
-            # cleaning steps cost more than linearly in points), plus the outline pixels on
-            # those rows and columns, so that the extent is not cut short by the grid.
-            g = max(1, int(math.sqrt(ys.size / p.max_points)))
-            outline = np.zeros(ys.size, dtype=bool)
-            if g > 1:
-                # pixels beyond the crop count as outside, so the mask's lowest row is outline
-                outline = ~cv2.erode(inside.view(np.uint8), _CROSS, borderType=cv2.BORDER_CONSTANT,
-                                     borderValue=0).view(bool)[ys, xs]
-                on_row, on_col = ys % g == 0, xs % g == 0
-                on_grid = on_row & on_col
-                keep = on_grid | (outline & (on_row | on_col))
-                ys, xs, outline = ys[keep], xs[keep], ~on_grid[keep]
-            pixels = (ys + r0) * W + xs
-            zm = z_flat[pixels]
-            points_cam = np.column_stack([self._rays[pixels] * zm[:, None], zm])
-            z_mean = float(zm.mean())
-            spacing = max(p.voxel_size, g * z_mean / self.camera.fx)  # metres between samples
-            eps = max(p.cluster_eps * spacing, p.cluster_eps_per_m * z_mean)
-            cloud, on_grid = self._clean(points_cam @ T[:3, :3].T + T[:3, 3], outline, eps)
-            if on_grid.sum() < p.min_points:
-                continue
-            rows.append((m, cloud, on_grid))
-        k = len(rows)
-        centroids, widths, heights = np.zeros((k, 3)), np.zeros(k), np.zeros(k)
-        counts = np.zeros(k, dtype=np.int64)
-        for r, (_, cloud, on_grid) in enumerate(rows):
-            # The outline samples only extend the extent; the grid samples the surface evenly.
-            centroids[r] = cloud[on_grid].mean(axis=0)
-            # Voxel averaging pulls the extreme points about half a voxel inside each edge.
-            widths[r] = _footprint_width(cloud[:, :2]) + p.voxel_size
-            heights[r] = np.ptp(cloud[:, 2]) + p.voxel_size
-            counts[r] = on_grid.sum()
-        return Observations(centroids, widths, heights, counts,
-                            np.array([row[0] for row in rows], dtype=np.int64))
+            pix, outline, step = sample
+            z_mean = float(z_flat[pix].mean())
+            spacing = max(p.voxel_size, step * z_mean / self.camera.fx)  # metres between samples
+            eps.append(max(p.cluster_eps * spacing, p.cluster_eps_per_m * z_mean))
+            pixels.append(pix)
+            outlines.append(outline)
+            sources.append(m)
+        if not sources:
+            return _no_observations()
+        sizes = np.array([pix.size for pix in pixels])
+        pix = np.concatenate(pixels)
+        zs = z_flat[pix]
+        points_cam = np.column_stack([self._rays[pix] * zs[:, None], zs])
+        owner = np.repeat(np.arange(len(sources)), sizes)
+        points, on_grid, owner = self._clean(points_cam, np.concatenate(outlines), owner,
+                                             np.array(eps))
+        points = points @ T[:3, :3].T + T[:3, 3]  # camera -> odometry frame
+        counts = np.bincount(owner, weights=on_grid, minlength=len(sources)).astype(np.int64)
+        enough = counts[owner] >= p.min_points
+        points, on_grid, owner = points[enough], on_grid[enough], owner[enough]
+        if owner.size == 0:
+            return _no_observations()
+        lifted, starts = np.unique(owner, return_index=True)
+        ends = np.r_[starts[1:], owner.size]
+        # The outline samples only extend the extent; the grid samples the surface evenly.
+        centroids = np.add.reduceat(points * on_grid[:, None], starts) / counts[lifted, None]
+        # Voxel averaging pulls the extreme points about half a voxel inside each edge.
+        widths = _footprint_widths(points[:, :2], starts, ends) + p.voxel_size
+        heights = (np.maximum.reduceat(points[:, 2], starts)
+                   - np.minimum.reduceat(points[:, 2], starts) + p.voxel_size)
+        return Observations(centroids, widths, heights, counts[lifted],
+                            np.array(sources, dtype=np.int64)[lifted])
 
-    def _clean(self, points: np.ndarray, outline: np.ndarray, eps: float
-               ) -> tuple[np.ndarray, np.ndarray]:
-        """Voxel downsampling, statistical outlier removal, and the largest DBSCAN cluster
-        (radius `eps` metres).
+    def _sample(self, mask: np.ndarray, usable: np.ndarray, rows_hit: np.ndarray,
+                cols_hit: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """The pixels of one mask to lift, or None when it has too few with depth.
 
         Args:
-            points: (n, 3); outline: (n,) bool, which points are extra outline samples.
+            mask: (H, W) bool; usable: (H, W) bool, pixels with depth in range;
+            rows_hit, cols_hit: (H,), (W,) bool, the rows and columns the mask touches.
         Returns:
-            the kept points (m, 3) and which of them are grid samples (m,) bool.
+            flat pixel indices (n,), which of them are outline samples (n,) bool, and the
+            grid step in pixels.
 
-        The outline flag rides through the voxel averaging as a colour channel. DBSCAN runs on
-        the centroids of cells eps / 2 wide, and each point takes its cell's label: Open3D's
-        DBSCAN slows down with the number of neighbours within eps, and a few cells per eps
-        are enough to tell one surface from another behind a gap.
+        Masks with more than `max_points` pixels are sampled on a grid of every `step`-th
+        image row and column (`step` need not be a whole number, so that about `max_points`
+        remain: the cleaning steps cost more than linearly in points), plus the outline pixels
+        on those rows and columns, so that the extent is not cut short by the grid.
         """
         p = self.params
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        hit_rows, hit_cols = np.flatnonzero(rows_hit), np.flatnonzero(cols_hit)
+        if hit_rows.size == 0:
+            return None
+        r0, r1, c0, c1 = hit_rows[0], hit_rows[-1] + 1, hit_cols[0], hit_cols[-1] + 1
+        inside = mask[r0:r1, c0:c1] & usable[r0:r1, c0:c1]
+        n = np.count_nonzero(inside)
+        if n < p.min_points:
+            return None
+        W = self.camera.shape[1]
+        step = math.sqrt(n / p.max_points)
+        if step <= 1.0:
+            ys, xs = np.nonzero(inside)
+            return (ys + r0) * W + (xs + c0), np.zeros(ys.size, dtype=bool), 1.0
+        grid_rows, grid_cols = _grid_lines(r0, r1, step), _grid_lines(c0, c1, step)
+        # pixels beyond the crop count as outside, so the crop's edge pixels are outline
+        edge = inside & ~cv2.erode(inside.view(np.uint8), _CROSS, borderType=cv2.BORDER_CONSTANT,
+                                   borderValue=0).view(bool)
+        gy, gx = np.nonzero(inside[np.ix_(grid_rows, grid_cols)])
+        on_rows = edge[grid_rows]  # outline on the grid rows, off the grid columns
+        on_rows[:, grid_cols] = False
+        ry, rx = np.nonzero(on_rows)
+        on_cols = edge[:, grid_cols]  # outline on the grid columns, off the grid rows
+        on_cols[grid_rows] = False
+        cy, cx = np.nonzero(on_cols)
+        ys = np.concatenate([grid_rows[gy], grid_rows[ry], cy])
+        xs = np.concatenate([grid_cols[gx], rx, grid_cols[cx]])
+        outline = np.ones(ys.size, dtype=bool)
+        outline[:gy.size] = False
+        return (ys + r0) * W + (xs + c0), outline, step
+
+    def _clean(self, points: np.ndarray, outline: np.ndarray, owner: np.ndarray,
+               eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Voxel downsampling, statistical outlier removal, and the largest DBSCAN cluster of
+        every mask's cloud.
+
+        Args:
+            points: (n, 3) metres; outline: (n,) bool, which points are extra outline samples;
+            owner: (n,) int, non-decreasing, which cloud each point belongs to;
+            eps: (c,) metres, each cloud's DBSCAN radius.
+        Returns:
+            the kept points (m, 3), which of them are grid samples (m,) bool, and their owners
+            (m,), non-decreasing.
+
+        The clouds are cleaned together, each moved `_SEPARATION` metres from the previous
+        one, so that Open3D is called once per step rather than once per mask; only the
+        outlier removal, whose statistics are per cloud, runs cloud by cloud. The outline
+        flag rides through the voxel averaging as a colour channel. DBSCAN runs on the
+        centroids of cells eps / 2 wide, in coordinates scaled by each cloud's eps, and each
+        point takes its cell's label: Open3D's DBSCAN slows down with the number of neighbours
+        within eps, and a few cells per eps are enough to tell one surface from another
+        behind a gap.
+        """
+        p = self.params
+        shift = np.zeros((eps.size, 3))
+        shift[:, 0] = _SEPARATION * np.arange(eps.size)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points + shift[owner]))
         flag = np.zeros((points.shape[0], 3))
         flag[:, 0] = outline
         cloud.colors = o3d.utility.Vector3dVector(flag)
         cloud = cloud.voxel_down_sample(p.voxel_size)
-        if len(cloud.points) > p.outlier_neighbors:
-            cloud, _ = cloud.remove_statistical_outlier(p.outlier_neighbors, p.outlier_std)
         out = np.asarray(cloud.points)
-        on_grid = np.asarray(cloud.colors)[:, 0] < 0.5
-        if out.shape[0] == 0:
-            return out, on_grid
-        ijk = np.floor(out / (eps / 2)).astype(np.int64)
+        owner = np.rint(out[:, 0] / _SEPARATION).astype(np.int64)
+        order = np.argsort(owner, kind="stable")
+        owner, out = owner[order], out[order] - shift[owner[order]]
+        on_grid = np.asarray(cloud.colors)[order, 0] < 0.5
+
+        keep = np.ones(owner.size, dtype=bool)
+        bounds = np.searchsorted(owner, np.arange(eps.size + 1))
+        for a, b in itertools.pairwise(bounds):
+            if b - a > p.outlier_neighbors:
+                one = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(out[a:b]))
+                _, inliers = one.remove_statistical_outlier(p.outlier_neighbors, p.outlier_std)
+                keep[a:b] = False
+                keep[a + np.asarray(inliers, dtype=np.int64)] = True
+        out, on_grid, owner = out[keep], on_grid[keep], owner[keep]
+        if owner.size == 0:
+            return out, on_grid, owner
+
+        scaled = out / eps[owner, None]  # in units of the cloud's eps
+        ijk = np.floor(2.0 * scaled).astype(np.int64)
         ijk -= ijk.min(axis=0)
         span = ijk.max(axis=0) + 1
-        key = (ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]
+        key = ((owner * span[0] + ijk[:, 0]) * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]
         _, cell, count = np.unique(key, return_inverse=True, return_counts=True)
-        centres = np.zeros((count.size, 3))
-        np.add.at(centres, cell, out)
+        centres = np.column_stack([np.bincount(cell, weights=scaled[:, d]) for d in range(3)])
         centres /= count[:, None]
+        cell_owner = np.zeros(count.size, dtype=np.int64)
+        cell_owner[cell] = owner
+        centres[:, 0] += (2.0 * np.abs(centres).max() + 10.0) * cell_owner  # apart by > eps
         coarse = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(centres))
-        labels = np.asarray(coarse.cluster_dbscan(eps, p.cluster_min_points))
-        if labels.max(initial=-1) < 0:
-            return out[:0], on_grid[:0]
-        # the cluster holding the most points (not the most cells)
-        largest = np.argmax(np.bincount(labels[labels >= 0], weights=count[labels >= 0]))
-        kept = labels[cell] == largest
-        return out[kept], on_grid[kept]
+        labels = np.asarray(coarse.cluster_dbscan(1.0, p.cluster_min_points))
+        clustered = labels >= 0
+        # each cloud keeps its cluster holding the most points (not the most cells)
+        weight = np.bincount(labels[clustered], weights=count[clustered])
+        cluster_owner = np.zeros(weight.size, dtype=np.int64)
+        cluster_owner[labels[clustered]] = cell_owner[clustered]
+        ranked = np.lexsort((-weight, cluster_owner))
+        first = ranked[np.r_[True, np.diff(cluster_owner[ranked]) != 0]]
+        best = np.full(eps.size, -2)
+        best[cluster_owner[first]] = first
+        kept = labels[cell] == best[owner]
+        return out[kept], on_grid[kept], owner[kept]
+
+
+def _grid_lines(start: int, stop: int, step: float) -> np.ndarray:
+    """Image rows (or columns) in [start, stop) on a grid of every `step`-th line (step >= 1),
+    anchored at line 0 of the image, as offsets from `start`."""
+    j = np.arange(math.floor(start / step), math.ceil(stop / step) + 1)
+    lines = np.ceil(j * step).astype(np.int64)
+    return lines[(lines >= start) & (lines < stop)] - start
+
+
+def _no_observations() -> Observations:
+    return Observations(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64),
+                        np.zeros(0, dtype=np.int64))

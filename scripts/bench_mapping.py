@@ -29,7 +29,7 @@ STAGES = ("register", "segment", "filter", "lift", "track")
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=60, help="frames to time")
-    parser.add_argument("--rings", type=int, default=5, help="rings of 7 objects ahead")
+    parser.add_argument("--rings", type=int, default=7, help="rings of 7 objects ahead")
     parser.add_argument("--width", type=int, default=640, help="image width, pixels")
     parser.add_argument("--height", type=int, default=480, help="image height, pixels")
     parser.add_argument("--noise", type=float, default=0.0025,

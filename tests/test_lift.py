@@ -21,7 +21,13 @@ from rgbd_scenes import (
 from tcaff_gtsam.eval.sim.render import RgbdScene, render
 from tcaff_gtsam.eval.sim.world import room_walls
 from tcaff_gtsam.mapping.camera import T_body_camera
-from tcaff_gtsam.mapping.lift import LiftParams, MaskLifter, Observations
+from tcaff_gtsam.mapping.lift import (
+    LiftParams,
+    MaskLifter,
+    Observations,
+    _footprint_widths,
+    _grid_lines,
+)
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se3_from_xyz_yaw, transform_points
@@ -348,3 +354,54 @@ def test_height_does_not_depend_on_where_the_grid_falls():
     truth = 100 * 2.0 / CAMERA.fy  # 100 rows of a wall 2 m ahead
     assert np.ptp(heights) < 0.01
     assert np.allclose(heights, truth, rtol=0.05)
+
+
+@given(st.integers(0, 400), st.integers(1, 200), st.floats(1.0, 9.0))
+def test_grid_lines_are_anchored_and_about_step_apart(start, length, step):
+    lines = _grid_lines(start, start + length, step) + start
+    assert np.all((lines >= start) & (lines < start + length))
+    # the same lines as the whole image's grid, cut to the range
+    whole = _grid_lines(0, start + length, step)
+    np.testing.assert_array_equal(lines, whole[whole >= start])
+    gaps = np.diff(whole)
+    assert np.all((gaps >= math.floor(step)) & (gaps <= math.ceil(step)))
+    assert whole[0] == 0
+
+
+@given(st.lists(st.tuples(st.floats(0.05, 3.0), st.floats(0.05, 3.0), st.floats(-np.pi, np.pi),
+                          st.floats(-50, 50), st.floats(-50, 50)), min_size=1, max_size=5),
+       st.integers(0, 2**31))
+def test_footprint_widths_are_the_longer_side_of_each_rectangle(rects, seed):
+    """Points filling turned rectangles, several clouds at once: each width is the longer
+    side, whatever the turn."""
+    rng = np.random.default_rng(seed)
+    clouds = []
+    for a, b, turn, x, y in rects:
+        corners = np.array([[0, 0], [a, 0], [a, b], [0, b]]) - [a / 2, b / 2]
+        inner = rng.uniform(-0.5, 0.5, (30, 2)) * [a, b]
+        R = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+        clouds.append(np.vstack([corners, inner]) @ R.T + [x, y])
+    ends = np.cumsum([c.shape[0] for c in clouds])
+    widths = _footprint_widths(np.vstack(clouds), ends - 34, ends)
+    # the hull is computed in float32, about 1e-5 m at 50 m
+    np.testing.assert_allclose(widths, [max(a, b) for a, b, *_ in rects], atol=1e-4)
+
+
+def test_masks_lifted_together_match_each_lifted_alone():
+    """The clouds of all masks are cleaned together; no mask may see another's points."""
+    scene = RgbdScene([[2.5, 0.4], [2.6, -0.1], [4.0, -1.0], [2.0, -0.6]], [0.4, 0.5, 0.6, 0.3],
+                      [1.0, 0.9, 0.7, 0.8], [True, False, False, True], [0.0, 0.3, 0.0, 0.0])
+    T = camera_pose(0.0, 0.0, 0.0)
+    frame = render(scene, T, CAMERA, depth_noise=NOISE, rng=np.random.default_rng(3))
+    masks = np.stack([frame.instance == k for k in (1, 2, 3, 4)])
+    assert all(m.sum() > 400 for m in masks)
+    lifter = MaskLifter(CAMERA, 1.0)
+    together = lifter.lift(masks, frame.depth, T)
+    np.testing.assert_array_equal(together.mask_indices, [0, 1, 2, 3])
+    for i in range(4):
+        alone = lifter.lift(masks[i:i + 1], frame.depth, T)
+        # the voxel grid's corner follows the lowest point of the batch: at most a voxel apart
+        np.testing.assert_allclose(together.centroids[i], alone.centroids[0], atol=0.005)
+        assert together.widths[i] == pytest.approx(alone.widths[0], abs=0.02)
+        assert together.heights[i] == pytest.approx(alone.heights[0], abs=0.02)
+        assert together.point_counts[i] == pytest.approx(alone.point_counts[0], rel=0.1)
