@@ -21,9 +21,11 @@ from tcaff_gtsam.errors import ConfigError
 
 __all__ = [
     "CONFIG_DIR",
+    "KimeraMultiConfig",
     "MethodsConfig",
     "ScenarioConfig",
     "StudyConfig",
+    "load_kimera_multi",
     "load_methods",
     "load_scenario",
     "load_study",
@@ -313,6 +315,72 @@ class StudyConfig(_Model):
         return value
 
 
+class ExtrinsicsConfig(_Model):
+    """A sensor frame in a parent frame: `xyz` metres, then `rpy_deg` (roll, pitch, yaw about
+    the parent's fixed x, y, z axes, ROS order). `matrix` (16 numbers, row-major 4 x 4) replaces
+    both when given."""
+
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    matrix: list[float] | None = Field(None, min_length=16, max_length=16)
+
+
+class RgbdRigConfig(_Model):
+    """The RGB-D camera of a robot in a recorded data set."""
+
+    body_color: ExtrinsicsConfig = Field(
+        ExtrinsicsConfig(xyz=(0.2, 0.0, 0.6), rpy_deg=(0.0, 5.0, 0.0)), description=(
+            "the colour camera in the body frame (x forward, y left, z up). Without `matrix`, "
+            "xyz/rpy place a camera link looking along its x axis and the optical frame "
+            "(x right, y down, z forward) is turned from it; `matrix` is the optical frame "
+            "itself, as in Kimera's T_BS"))
+    color_depth: ExtrinsicsConfig = Field(
+        ExtrinsicsConfig(xyz=(-0.059, 0.0, 0.0)),
+        description="the depth camera's optical frame in the colour camera's optical frame")
+    depth_scale: float = Field(1000.0, gt=0, description="raw depth units per metre")
+
+
+class TopicsConfig(_Model):
+    """Topic names of one robot; `{robot}` is replaced by its name."""
+
+    color: str = "/{robot}/forward/color/image_raw/compressed"
+    color_info: str = "/{robot}/forward/color/camera_info"
+    depth: str = "/{robot}/forward/depth/image_rect_raw"
+    depth_info: str = "/{robot}/forward/depth/camera_info"
+    odometry: str = "/{robot}/jackal_velocity_controller/odom"
+
+
+class KimeraMultiConfig(_Model):
+    """One Kimera-Multi test: which robots' bags to map and align, and how."""
+
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = ""
+    robots: list[str] = Field(min_length=2)
+    bags: str = Field("*{robot}*.bag", description=(
+        "glob under --data for each robot's bags, `{robot}` replaced by its name"))
+    ground_truth: str = Field("{robot}_gt_odom.csv",
+                              description="each robot's ground-truth CSV under --data")
+    topics: TopicsConfig = TopicsConfig()
+    rig: RgbdRigConfig = RgbdRigConfig()
+    stride: int = Field(1, ge=1, description=(
+        "of the frames kept at mapping.frame_rate, map every stride-th"))
+    sync_tolerance: float = Field(0.02, ge=0, description="s, colour to depth stamp")
+    start: float | None = Field(None, ge=0, description="s after the first frame to begin")
+    duration: float | None = Field(None, gt=0, description="s of data to use (default: all)")
+    mapping: MappingConfig = MappingConfig()
+    window: int | None = Field(None, ge=1, description="TCAFF window W")
+    graph_drift: tuple[float, float] | None = Field(
+        None, description="iSAM2 between-step drift (m, deg) per 1 Hz step")
+    methods: str | MethodsConfig = "default"
+
+    @field_validator("robots")
+    @classmethod
+    def _robots(cls, value: list[str]) -> list[str]:
+        if len(set(value)) != len(value) or not all(value):
+            raise ValueError(f"robots must be distinct non-empty names, got {value}")
+        return value
+
+
 # -- loading -----------------------------------------------------------------------------------
 
 
@@ -371,7 +439,8 @@ def _resolve(ref: str, folder: str) -> Path:
     shipped = CONFIG_DIR / folder / f"{ref}.yaml"
     if not shipped.is_file():
         names = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
-        kind = {"scenarios": "scenario", "methods": "method set", "studies": "study"}[folder]
+        kind = {"scenarios": "scenario", "methods": "method set", "studies": "study",
+                "kimera_multi": "Kimera-Multi test"}[folder]
         raise ConfigError(f"no {kind} config named {ref!r}; shipped: {', '.join(names)}")
     return shipped
 
@@ -419,6 +488,18 @@ def resolve_study(study: StudyConfig, folder: Path | None = None) -> StudyConfig
     methods = (study.methods if isinstance(study.methods, MethodsConfig)
                else load_methods(near(study.methods)))
     return study.model_copy(update={"scenarios": scenarios, "methods": methods})
+
+
+def load_kimera_multi(ref: str | Path) -> KimeraMultiConfig:
+    """A Kimera-Multi test by shipped name (`same_direction`) or path, its method set loaded
+    inline."""
+    path = _resolve(str(ref), "kimera_multi")
+    config = _validate(KimeraMultiConfig, _read_yaml(path), path.name)
+    if isinstance(config.methods, str):
+        near = path.parent / config.methods
+        ref = str(near) if near.suffix in (".yaml", ".yml") and near.is_file() else config.methods
+        config = config.model_copy(update={"methods": load_methods(ref)})
+    return config
 
 
 def dump_study(study: StudyConfig) -> str:

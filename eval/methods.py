@@ -21,12 +21,15 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 
+from tcaff_gtsam.errors import ConfigError
 from tcaff_gtsam.frame_aligner import FrameAligner
 from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.graph import InterRobotGraph
+from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.params import (
     ClipperParams,
     FrameAlignerParams,
@@ -37,10 +40,9 @@ from tcaff_gtsam.params import (
 from tcaff_gtsam.tcaff import TCAFF
 
 from .baselines import CentroidICP, single_shot
-from .config import MethodsConfig, ScenarioConfig
-from .sim.simulate import SimRun
+from .config import MethodsConfig
 
-__all__ = ["MethodRuns", "method_names", "run_methods"]
+__all__ = ["AlignmentRun", "MethodRuns", "RunSettings", "method_names", "run_methods"]
 
 
 @dataclass
@@ -77,34 +79,73 @@ def method_names(methods: MethodsConfig) -> list[str]:
     return names
 
 
-def _tcaff_params(scenario: ScenarioConfig, methods: MethodsConfig,
+@dataclass(frozen=True)
+class RunSettings:
+    """What the methods take from a run's configuration.
+
+    Attributes:
+        kappa: s, objects of a map seen longer ago are not aligned.
+        window: the TCAFF window W of this run (None: the preset's).
+        graph_drift: iSAM2 between-step drift (m, deg) per step (None: the default).
+    """
+
+    kappa: float
+    window: int | None = None
+    graph_drift: tuple[float, float] | None = None
+
+
+class AlignmentRun(Protocol):
+    """The robots' maps at the 1 Hz exchanges, and the truth to score against.
+
+    Attributes:
+        settings: `RunSettings`. times: (S,) seconds of the exchanges, on the maps' clock.
+        maps: maps[r][s], robot r's map at exchange s, in its odometry frame.
+    """
+
+    settings: RunSettings
+    times: np.ndarray
+    maps: list[list[ObjectMap]]
+
+    @property
+    def n_robots(self) -> int: ...
+
+    def T_true(self, i: int, j: int) -> np.ndarray:
+        """(S, 3, 3) the true T_oi_oj at each exchange (NaN where unknown)."""
+        ...
+
+
+def _tcaff_params(settings: RunSettings, methods: MethodsConfig,
                   reference: bool) -> TCAFFParams:
-    """The scenario's window applies to both presets; the method set's overrides to the
+    """The run's window applies to both presets; the method set's overrides to the
     default preset only (the reference preset is the released code as it is)."""
     base = TCAFFParams.reference() if reference else TCAFFParams()
     overrides = {} if reference else {
         k: v for k, v in methods.tcaff.model_dump().items() if v is not None}
-    if scenario.window is not None:
-        overrides.setdefault("window", scenario.window)
+    if settings.window is not None:
+        overrides.setdefault("window", settings.window)
     return replace(base, **overrides)
 
 
-def _graph_params(scenario: ScenarioConfig, methods: MethodsConfig) -> GraphParams:
-    if scenario.graph_drift is None:
+def _graph_params(settings: RunSettings, methods: MethodsConfig) -> GraphParams:
+    if settings.graph_drift is None:
         return GraphParams(robust=methods.graph.robust)
-    metres, degrees = scenario.graph_drift
+    metres, degrees = settings.graph_drift
     Q = np.diag([metres**2, metres**2, np.radians(degrees) ** 2])
     return GraphParams(robust=methods.graph.robust, Q=Q)
 
 
-def run_methods(run: SimRun, methods: MethodsConfig,
+def run_methods(run: AlignmentRun, methods: MethodsConfig,
                 progress: Callable[[float], None] | None = None) -> MethodRuns:
     """Every method of the set over every directed pair of the run.
 
     Args:
+        run: a simulated (`SimRun`) or recorded run.
         progress: called after each step with the share of steps done.
+    Raises:
+        ConfigError: ICP or ground truth is asked for but the truth is unknown.
     """
-    scenario, kappa = run.scenario, run.scenario.mapping.kappa
+    settings = run.settings
+    kappa = settings.kappa
     n_steps, chosen = len(run.times), set(methods.methods)
     pairs = [(i, j) for i in range(run.n_robots) for j in range(run.n_robots) if i != j]
     names = method_names(methods)
@@ -119,15 +160,22 @@ def run_methods(run: SimRun, methods: MethodsConfig,
     single = FrameAligner(FrameAlignerParams(
         kappa=kappa, n_solutions=1, min_associations=min(methods.clipper_k), max_rmse=None,
         clipper=clipper))
-    filters = {name: [TCAFF(_tcaff_params(scenario, methods, name == "tcaff_reference"))
+    filters = {name: [TCAFF(_tcaff_params(settings, methods, name == "tcaff_reference"))
                       for _ in pairs]
                for name in ("tcaff", "tcaff_reference") if name in chosen or (
                    name == "tcaff" and "tcaff_isam2" in chosen)}
-    graph = (InterRobotGraph(run.n_robots, _graph_params(scenario, methods))
+    graph = (InterRobotGraph(run.n_robots, _graph_params(settings, methods))
              if "tcaff_isam2" in chosen else None)
     filtered = np.zeros((len(pairs), n_steps), dtype=bool)  # TCAFF had an estimate
-    T_true = [run.T_true(i, j) for i, j in pairs]
-    truths = se2_to_params(np.array(T_true)).reshape(len(pairs), n_steps, 3)
+    T_true = np.array([run.T_true(i, j) for i, j in pairs]).reshape(len(pairs), n_steps, 3, 3)
+    known = np.all(np.isfinite(T_true), axis=(2, 3))
+    truths = np.full((len(pairs), n_steps, 3), np.nan)
+    if known.any():
+        truths[known] = se2_to_params(T_true[known])
+    needs_truth = chosen & {"icp", "ground_truth"}
+    if needs_truth and not np.all(np.isfinite(truths)):
+        raise ConfigError(f"methods {sorted(needs_truth)} need the true alignment at every "
+                          f"step, which this run does not have")
     icps = ([CentroidICP(T_true[p][0], kappa,
                          methods.icp.max_correspondence_distance,
                          methods.icp.min_correspondences, methods.icp.max_iterations)

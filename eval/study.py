@@ -114,9 +114,14 @@ def run_job(scenario: ScenarioConfig, methods: MethodsConfig, seed: int,
     for p, (steps, z) in enumerate(runs.candidates):
         arrays[f"cand_steps_{p}"], arrays[f"cand_z_{p}"] = steps, z
     job = JobResult(scenario.name, seed, runs.pairs, arrays, {}, runs.seconds)
-    job.metrics = _report({m: job.traces(m) for m in runs.estimates}, runs.pairs,
-                          thresholds_of(methods))
+    score(job, methods)
     return job
+
+
+def score(job: JobResult, methods: MethodsConfig) -> None:
+    """Fill `job.metrics`: every method, pooled over the pairs and per pair."""
+    job.metrics = _report({m: job.traces(m) for m in method_names(methods)}, job.pairs,
+                          thresholds_of(methods))
 
 
 @dataclass

@@ -21,6 +21,7 @@ from tcaff_gtsam.geometry import invert, se2_from_params
 from tcaff_gtsam.object_map import ObjectMap
 
 from ..config import ScenarioConfig
+from ..methods import RunSettings
 from .motion import drifting_odometry, poses_along
 from .render import RgbdScene
 from .rgbd import RenderedCamera, clear_paths
@@ -58,6 +59,11 @@ class SimRun:
     @property
     def n_robots(self) -> int:
         return self.poses_true.shape[0]
+
+    @property
+    def settings(self) -> RunSettings:
+        s = self.scenario
+        return RunSettings(s.mapping.kappa, s.window, s.graph_drift)
 
     def T_w_o(self, robot: int) -> np.ndarray:
         """(S, 3, 3) robot's odometry frame in the world frame: T_w_b T_o_b^-1."""

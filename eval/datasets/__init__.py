@@ -1,0 +1,1 @@
+"""Loaders of recorded multi-robot data sets."""

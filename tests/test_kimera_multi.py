@@ -1,0 +1,283 @@
+"""Tests for the Kimera-Multi reader's parts that need no bag: the ground-truth CSV, pose
+interpolation, the configured extrinsics and the truth of a recorded run."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bag_script import load_bag_script
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+from tcaff_gtsam.eval.cli import app
+from tcaff_gtsam.eval.config import ExtrinsicsConfig, load_kimera_multi
+from tcaff_gtsam.eval.datasets.kimera_multi import (
+    GT_HEADER,
+    KimeraTopics,
+    interpolate_poses,
+    read_ground_truth,
+)
+from tcaff_gtsam.eval.kimera import RecordedRun, extrinsic, run_kimera_multi
+from tcaff_gtsam.eval.methods import RunSettings
+from tcaff_gtsam.mapping.camera import T_body_camera
+from typer.testing import CliRunner
+
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params
+
+
+def pose(x, y, z, yaw, pitch=0.0, roll=0.0) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("zyx", [yaw, pitch, roll]).as_matrix()
+    T[:3, 3] = (x, y, z)
+    return T
+
+
+def write_gt(path, stamps_ns, poses) -> None:
+    rows = []
+    for t, T in zip(stamps_ns, poses, strict=True):
+        qx, qy, qz, qw = Rotation.from_matrix(T[:3, :3]).as_quat()
+        values = [T[0, 3], T[1, 3], T[2, 3], qw, qx, qy, qz]
+        rows.append(f"{t}," + ",".join(repr(float(v)) for v in values))
+    path.write_text(GT_HEADER + "\n" + "\n".join(rows) + "\n")
+
+
+def test_ground_truth_round_trip_keeps_w_first_quaternions(tmp_path):
+    stamps = 1_634_000_000_000_000_000 + np.arange(5) * 100_000_000
+    poses = [pose(1.0 * k, -2.0, 0.1, 0.3 * k, 0.05, -0.02) for k in range(5)]
+    write_gt(tmp_path / "a_gt_odom.csv", stamps, poses)
+    times, T = read_ground_truth(tmp_path / "a_gt_odom.csv")
+    np.testing.assert_allclose(times - times[0], 0.1 * np.arange(5), atol=1e-6)
+    np.testing.assert_allclose(T, np.array(poses), atol=1e-9)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("timestamp,x,y,z,qx,qy,qz,qw\n1,0,0,0,0,0,0,1\n", "header"),
+    (GT_HEADER + "\n1,0,0,0,1,0,0\n", "8 values|bad ground-truth row"),
+    (GT_HEADER + "\n1,0,0,nan,1,0,0,0\n", "non-finite"),
+    (GT_HEADER + "\n1,0,0,0,0,0,0,0\n", "zero quaternion"),
+    (GT_HEADER + "\n2,0,0,0,1,0,0,0\n1,0,0,0,1,0,0,0\n", "increase"),
+    (GT_HEADER + "\n1,a,0,0,1,0,0,0\n", "bad ground-truth row"),
+])
+def test_bad_ground_truth_raises_data_error(tmp_path, text, match):
+    path = tmp_path / "r_gt_odom.csv"
+    path.write_text(text)
+    with pytest.raises(DataError, match=match):
+        read_ground_truth(path)
+
+
+def test_missing_ground_truth_raises_data_error(tmp_path):
+    with pytest.raises(DataError, match="cannot read"):
+        read_ground_truth(tmp_path / "none.csv")
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.floats(-math.pi, math.pi), st.floats(0.0, 1.0),
+       st.floats(-10, 10), st.floats(-10, 10))
+def test_interpolated_pose_lies_between_its_neighbours(yaw0, yaw1, share, x0, x1):
+    times = np.array([10.0, 11.0])
+    poses = np.array([pose(x0, 0.0, 0.0, yaw0), pose(x1, 1.0, 0.0, yaw1)])
+    T, inside = interpolate_poses(times, poses, [10.0 + share])
+    assert inside[0]
+    assert T[0, 0, 3] == pytest.approx(x0 + share * (x1 - x0), abs=1e-9)
+    turn = math.remainder(yaw1 - yaw0, 2 * math.pi)  # slerp takes the short way round
+    yaw = math.atan2(T[0, 1, 0], T[0, 0, 0])
+    assert math.remainder(yaw - (yaw0 + share * turn), 2 * math.pi) == pytest.approx(0, abs=1e-6)
+
+
+def test_interpolation_outside_the_span_is_flagged():
+    times = np.array([1.0, 2.0, 3.0])
+    poses = np.array([pose(k, 0, 0, 0) for k in range(3)])
+    T, inside = interpolate_poses(times, poses, [0.5, 1.0, 3.0, 3.5])
+    np.testing.assert_array_equal(inside, [False, True, True, False])
+    np.testing.assert_allclose(T[[0, 3], 0, 3], [0.0, 2.0])
+
+
+@given(st.floats(0.0, 2.0), st.floats(-30, 30), st.floats(-1, 1))
+def test_configured_extrinsics_match_the_camera_mount(height, pitch, forward):
+    """xyz + rpy place a camera link; the optical frame is turned from it exactly as
+    `T_body_camera` does (pitch positive = looking down)."""
+    config = ExtrinsicsConfig(xyz=(forward, 0.0, height), rpy_deg=(0.0, pitch, 0.0))
+    np.testing.assert_allclose(extrinsic(config, optical=True),
+                               T_body_camera(height, pitch, forward), atol=1e-12)
+
+
+def test_extrinsics_matrix_is_used_as_given_and_checked():
+    T = T_body_camera(0.5, 10.0, 0.1)
+    given_matrix = ExtrinsicsConfig(matrix=T.ravel().tolist())
+    np.testing.assert_allclose(extrinsic(given_matrix, optical=True), T)
+    bent = T.copy()
+    bent[0, 0] = 2.0
+    with pytest.raises(DataError, match="rigid"):
+        extrinsic(ExtrinsicsConfig(matrix=bent.ravel().tolist()), optical=True)
+    with pytest.raises(ValueError):
+        ExtrinsicsConfig(matrix=[1.0] * 15)
+
+
+def test_recorded_run_truth_is_the_planar_alignment():
+    rng = np.random.default_rng(0)
+    S = 4
+    T_map_odom = np.array([[pose(*rng.uniform(-5, 5, 3), rng.uniform(-3, 3), 0.01, 0.02)
+                            for _ in range(S)] for _ in range(2)])
+    run = RecordedRun(RunSettings(15.0), np.arange(S, dtype=float), [[], []], T_map_odom)
+    T = run.T_true(0, 1)
+    for s in range(S):
+        rel = np.linalg.inv(T_map_odom[0, s]) @ T_map_odom[1, s]
+        x, y, yaw = se2_to_params(T[s])
+        assert (x, y) == pytest.approx((rel[0, 3], rel[1, 3]))
+        assert yaw == pytest.approx(math.atan2(rel[1, 0], rel[0, 0]))
+    np.testing.assert_allclose(T[0], se2_from_params(se2_to_params(T[0])))
+    missing = T_map_odom.copy()
+    missing[1] = np.nan
+    assert np.all(np.isnan(RecordedRun(RunSettings(15.0), np.arange(S, dtype=float), [[], []],
+                                       missing).T_true(0, 1)))
+
+
+def test_topics_follow_the_robot_name():
+    topics = KimeraTopics().of("sparkal1")
+    assert topics["color"] == "/sparkal1/forward/color/image_raw/compressed"
+    assert topics["odometry"] == "/sparkal1/jackal_velocity_controller/odom"
+
+
+def test_shipped_tests_are_the_papers():
+    same, opposite = load_kimera_multi("same_direction"), load_kimera_multi("opposite_directions")
+    assert same.robots == ["acl_jackal2", "sparkal2"]
+    assert opposite.robots == ["sparkal2", "sparkal1"]
+    for test in (same, opposite):
+        assert test.mapping.kappa == 15.0 and test.window == 5
+    with pytest.raises(ConfigError, match="Kimera-Multi test"):
+        load_kimera_multi("nope")
+
+
+# ---------------------------------------------------------------------------------------------
+# end to end: Kimera-like bags written from the simulator -> `tcaff kimera-multi`
+
+SCENARIO = Path(__file__).parent / "data" / "small_room_rgbd.yaml"
+ROBOTS = ("acl_jackal2", "sparkal2")
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    """30 s of two robots at 320 x 240, 5 Hz, and the simulation's truth."""
+    data = tmp_path_factory.mktemp("kimera_like")
+    truth = load_bag_script().write_sequence(data, ROBOTS, 30.0, 5.0, 320, 240, seed=1,
+                                             scenario=str(SCENARIO))
+    return data, truth
+
+
+def copy_of(data: Path, target: Path, skip: tuple[str, ...] = ()) -> Path:
+    """The data folder again, files linked, without `skip`."""
+    target.mkdir()
+    for path in data.iterdir():
+        if path.name not in skip:
+            (target / path.name).symlink_to(path)
+    return target
+
+
+def true_alignment(truth, i: int, j: int, t: np.ndarray) -> np.ndarray:
+    """(S, 3) the simulation's planar T_oi_oj at seconds since T0 (frames on the 5 Hz grid)."""
+    out = []
+    for s in t:
+        T = []
+        for robot in (ROBOTS[i], ROBOTS[j]):
+            k = int(np.argmin(np.abs(truth.times[robot] - s)))
+            T.append(truth.T_world_body[robot][k] @ np.linalg.inv(truth.T_odom_body[robot][k]))
+        rel = np.linalg.inv(T[0]) @ T[1]
+        out.append((rel[0, 3], rel[1, 3], math.atan2(rel[1, 0], rel[0, 0])))
+    return np.array(out)
+
+
+def test_command_aligns_the_robots_as_the_simulation_did(sequence, tmp_path):
+    data, truth = sequence
+    result = CliRunner().invoke(app, ["kimera-multi", "--data", str(data), "--output",
+                                      str(tmp_path), "--methods", "tcaff_only"])
+    assert result.exit_code == 0, result.output
+    assert "Mapping" in result.output and "TCAFF" in result.output
+    folder = tmp_path / "same_direction"
+    for name in ("maps/acl_jackal2.npz", "maps/sparkal2.json", "metrics.json", "metrics.csv",
+                 "table.md", "figures/errors_0_1.png", "same_direction-seed0.npz"):
+        assert (folder / name).is_file(), name
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert all(fps > 0 for fps in metrics["frames_per_second"].values())
+    with np.load(folder / "same_direction-seed0.npz") as a:
+        first = a["est_tcaff"]
+        exchanges = a["t0"] + a["times"] - 1_634_000_000  # seconds since the sequence began
+        for p, (i, j) in enumerate([(0, 1), (1, 0)]):
+            # the truth read from the bags and CSVs is the simulation's (frames, axes, stamps)
+            sim = true_alignment(truth, i, j, exchanges)
+            np.testing.assert_allclose(a["truth"][p][:, :2], sim[:, :2], atol=0.02)
+            np.testing.assert_allclose(np.cos(a["truth"][p][:, 2] - sim[:, 2]), 1.0, atol=1e-4)
+            est = a["est_tcaff"][p]
+            has = ~np.isnan(est[:, 0])
+            assert has.sum() >= 5, f"TCAFF estimated only {has.sum()} steps of pair {i}->{j}"
+            err = np.linalg.norm(est[has, :2] - sim[has, :2], axis=1)
+            assert err.max() < 0.3
+            heading = np.abs(np.angle(np.exp(1j * (est[has, 2] - sim[has, 2]))))
+            assert np.degrees(heading).max() < 3.0
+    table = (folder / "table.md").read_text()
+    assert "translation error [m]" in table and "TCAFF" in table
+
+    # a second run reuses both robots' maps and gives the same estimates
+    again = CliRunner().invoke(app, ["kimera-multi", "--data", str(data), "--output",
+                                     str(tmp_path), "--methods", "tcaff_only", "--no-figures"])
+    assert again.exit_code == 0, again.output
+    assert again.output.count("reused") == 2
+    with np.load(folder / "same_direction-seed0.npz") as b:
+        np.testing.assert_array_equal(b["est_tcaff"], first)
+
+
+def test_missing_topic_lists_the_topics_present(sequence, tmp_path):
+    data, _ = sequence
+    config = load_kimera_multi("same_direction")
+    config = config.model_copy(update={"topics": config.topics.model_copy(
+        update={"odometry": "/{robot}/kimera_vio_ros/odometry"})})
+    with pytest.raises(DataError, match=r"kimera_vio_ros/odometry.*topics present.*"
+                                        r"jackal_velocity_controller/odom"):
+        run_kimera_multi(config, data, tmp_path)
+
+
+@pytest.mark.parametrize("damage", ["truncated", "overwritten"])
+def test_damaged_bag_keeps_the_robots_already_mapped(sequence, tmp_path, damage):
+    data, _ = sequence
+    broken = copy_of(data, tmp_path / "data", skip=("sparkal2.bag",))
+    raw = (data / "sparkal2.bag").read_bytes()
+    if damage == "truncated":
+        raw = raw[:len(raw) // 2]
+    else:
+        middle = len(raw) // 2
+        raw = raw[:middle] + bytes(100_000) + raw[middle + 100_000:]
+    (broken / "sparkal2.bag").write_bytes(raw)
+    result = CliRunner().invoke(app, ["kimera-multi", "--data", str(broken), "--output",
+                                      str(tmp_path / "out"), "--methods", "tcaff_only"])
+    assert result.exit_code != 0
+    assert isinstance(result.exception, DataError)
+    assert "sparkal2" in str(result.exception)
+    assert "damaged" in str(result.exception)
+    maps = tmp_path / "out" / "same_direction" / "maps"
+    assert (maps / "acl_jackal2.npz").is_file()
+    assert not (maps / "sparkal2.npz").exists()
+
+
+def test_without_ground_truth_alignments_are_still_saved(sequence, tmp_path):
+    data, _ = sequence
+    bare = copy_of(data, tmp_path / "data", skip=("sparkal2_gt_odom.csv",))
+    config = load_kimera_multi("same_direction")
+    outcome = run_kimera_multi(config, bare, tmp_path / "out", figures=False)
+    assert outcome.summary == {}
+    assert "icp" not in outcome.methods.methods and "ground_truth" not in outcome.methods.methods
+    with np.load(outcome.folder / "same_direction-seed0.npz") as a:
+        assert np.isnan(a["truth"]).all()
+        assert (~np.isnan(a["est_tcaff"][:, :, 0])).sum() >= 5
+    assert not (outcome.folder / "metrics.json").exists()
+
+
+def test_missing_bags_and_data_folder_raise(tmp_path):
+    config = load_kimera_multi("same_direction")
+    with pytest.raises(DataError, match="not a folder"):
+        run_kimera_multi(config, tmp_path / "nowhere", tmp_path)
+    with pytest.raises(DataError, match="no bag matches"):
+        run_kimera_multi(config, tmp_path, tmp_path / "out")
