@@ -30,7 +30,7 @@ from tcaff_gtsam.mapping.camera import R_BODY_OPTICAL
 from tcaff_gtsam.mapping.frontend import DepthRegistration, RgbdFrontEnd
 from tcaff_gtsam.mapping.mapper import MapperParams
 
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se2_from_params
 from tcaff_gtsam.object_map import ObjectMap
 
@@ -60,7 +60,7 @@ def extrinsic(config: ExtrinsicsConfig, optical: bool) -> np.ndarray:
         R = T[:3, :3]
         if (not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
                 or np.linalg.det(R) < 0):
-            raise DataError(f"extrinsics matrix {config.matrix} is not a rigid transform")
+            raise ConfigError(f"extrinsics matrix {config.matrix} is not a rigid transform")
         return T
     T = np.eye(4)
     T[:3, :3] = Rotation.from_euler("xyz", config.rpy_deg, degrees=True).as_matrix()
@@ -88,6 +88,8 @@ class RobotMapping:
         T_map_body: (S, 4, 4) the true body pose in the shared map frame (NaN: no ground truth).
         maps: the map at each exchange, in the odometry frame.
         frames: frames mapped; seconds: wall time of reading and mapping them.
+        fingerprint: of the settings and files the maps came from (see `_fingerprint`).
+        stage_seconds: the front end's time per stage, summed over the frames.
     """
 
     robot: str

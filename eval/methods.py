@@ -173,7 +173,7 @@ def run_methods(run: AlignmentRun, methods: MethodsConfig,
     if known.any():
         truths[known] = se2_to_params(T_true[known])
     needs_truth = chosen & {"icp", "ground_truth"}
-    if needs_truth and not np.all(np.isfinite(truths)):
+    if needs_truth and not known.all():
         raise ConfigError(f"methods {sorted(needs_truth)} need the true alignment at every "
                           f"step, which this run does not have")
     icps = ([CentroidICP(T_true[p][0], kappa,

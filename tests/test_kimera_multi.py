@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from tcaff_gtsam.eval.cli import app
-from tcaff_gtsam.eval.config import ExtrinsicsConfig, load_kimera_multi
+from tcaff_gtsam.eval.config import ExtrinsicsConfig, load_kimera_multi, load_methods
 from tcaff_gtsam.eval.datasets.kimera_multi import (
     GT_HEADER,
     KimeraTopics,
@@ -22,12 +22,13 @@ from tcaff_gtsam.eval.datasets.kimera_multi import (
     read_ground_truth,
 )
 from tcaff_gtsam.eval.kimera import RecordedRun, extrinsic, run_kimera_multi
-from tcaff_gtsam.eval.methods import RunSettings
+from tcaff_gtsam.eval.methods import RunSettings, run_methods
 from tcaff_gtsam.mapping.camera import T_body_camera
 from typer.testing import CliRunner
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params, se2_to_params
+from tcaff_gtsam.object_map import ObjectMap
 
 
 def pose(x, y, z, yaw, pitch=0.0, roll=0.0) -> np.ndarray:
@@ -112,7 +113,7 @@ def test_extrinsics_matrix_is_used_as_given_and_checked():
     np.testing.assert_allclose(extrinsic(given_matrix, optical=True), T)
     bent = T.copy()
     bent[0, 0] = 2.0
-    with pytest.raises(DataError, match="rigid"):
+    with pytest.raises(ConfigError, match="rigid"):
         extrinsic(ExtrinsicsConfig(matrix=bent.ravel().tolist()), optical=True)
     with pytest.raises(ValueError):
         ExtrinsicsConfig(matrix=[1.0] * 15)
@@ -135,6 +136,18 @@ def test_recorded_run_truth_is_the_planar_alignment():
     missing[1] = np.nan
     assert np.all(np.isnan(RecordedRun(RunSettings(15.0), np.arange(S, dtype=float), [[], []],
                                        missing).T_true(0, 1)))
+
+
+def test_methods_that_need_the_truth_refuse_a_run_without_it():
+    empty = ObjectMap(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0))
+    run = RecordedRun(RunSettings(15.0), np.arange(3, dtype=float), [[empty] * 3] * 2,
+                      np.full((2, 3, 4, 4), np.nan))
+    methods = load_methods("default")
+    with pytest.raises(ConfigError, match=r"icp.*true alignment"):
+        run_methods(run, methods)
+    tcaff_only = methods.model_copy(update={"methods": ["tcaff", "tcaff_isam2"]})
+    runs = run_methods(run, tcaff_only)
+    assert np.isnan(runs.truth).all() and np.isnan(runs.estimates["tcaff"]).all()
 
 
 def test_topics_follow_the_robot_name():
