@@ -36,6 +36,7 @@ bench: install
 	$(PY) scripts/bench_tcaff.py
 	$(PY) scripts/bench_graph.py
 	$(PY) scripts/bench_study.py
+	$(PY) scripts/bench_mapping.py
 
 lint: install
 	$(VENV)/bin/ruff check .
