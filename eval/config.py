@@ -15,7 +15,15 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from tcaff_gtsam.errors import ConfigError
 
@@ -34,6 +42,16 @@ __all__ = [
 CONFIG_DIR = Path(__file__).parent / "configs"
 
 METHOD_SETS = ("tcaff", "tcaff_reference", "tcaff_isam2", "clipper", "icp", "ground_truth")
+
+
+def _check_drift(value: tuple[float, float] | None) -> tuple[float, float] | None:
+    if value is not None and not (value[0] > 0 and value[1] > 0):
+        raise ValueError(f"need (metres > 0, degrees > 0), got {value}")
+    return value
+
+
+#: an iSAM2 between-step drift (metres, degrees), or None
+GraphDrift = Annotated[tuple[float, float] | None, AfterValidator(_check_drift)]
 
 
 class _Model(BaseModel):
@@ -190,7 +208,7 @@ class ScenarioConfig(_Model):
         "render RGB-D and map it with the real front end; `sensor` is then unused"))
     mapping: MappingConfig = MappingConfig()
     window: int | None = Field(None, ge=1, description="TCAFF window W for this scenario")
-    graph_drift: tuple[float, float] | None = Field(
+    graph_drift: GraphDrift = Field(
         None, description="(m, deg) per step: the alignment drift the iSAM2 graph assumes; "
                           "None: TCAFF's Q")
     min_shared: int = Field(5, ge=1, description="objects two maps must share to overlap")
@@ -202,13 +220,6 @@ class ScenarioConfig(_Model):
     def drift(self, robot: int) -> OdometryDrift:
         """The odometry drift of one robot."""
         return self.odometry[robot] if isinstance(self.odometry, list) else self.odometry
-
-    @field_validator("graph_drift")
-    @classmethod
-    def _drift(cls, value: tuple[float, float] | None) -> tuple[float, float] | None:
-        if value is not None and not (value[0] > 0 and value[1] > 0):
-            raise ValueError(f"need (metres > 0, degrees > 0), got {value}")
-        return value
 
     @model_validator(mode="after")
     def _per_robot(self) -> ScenarioConfig:
@@ -349,6 +360,10 @@ class TopicsConfig(_Model):
     depth_info: str = "/{robot}/forward/depth/camera_info"
     odometry: str = "/{robot}/jackal_velocity_controller/odom"
 
+    def of(self, robot: str) -> dict[str, str]:
+        """Role -> topic name for `robot`."""
+        return {role: topic.replace("{robot}", robot) for role, topic in self}
+
 
 class KimeraMultiConfig(_Model):
     """One Kimera-Multi test: which robots' bags to map and align, and how."""
@@ -369,8 +384,8 @@ class KimeraMultiConfig(_Model):
     duration: float | None = Field(None, gt=0, description="s of data to use (default: all)")
     mapping: MappingConfig = MappingConfig()
     window: int | None = Field(None, ge=1, description="TCAFF window W")
-    graph_drift: tuple[float, float] | None = Field(
-        None, description="iSAM2 between-step drift (m, deg) per 1 Hz step")
+    graph_drift: GraphDrift = Field(
+        None, description="iSAM2 between-step drift (m, deg) per 1 Hz step; None: TCAFF's Q")
     methods: str | MethodsConfig = "default"
 
     @field_validator("robots")
@@ -445,6 +460,16 @@ def _resolve(ref: str, folder: str) -> Path:
     return shipped
 
 
+def _near(ref: str, folder: Path | None) -> str:
+    """`ref`, or the YAML file of that relative path in `folder` (a config's own folder) when
+    it is there."""
+    path = Path(ref)
+    if folder is not None and path.suffix in (".yaml", ".yml") and not path.is_absolute():
+        if (folder / path).is_file():
+            return str(folder / path)
+    return ref
+
+
 def load_scenario(ref: str | Path) -> ScenarioConfig:
     """A scenario by shipped name or path."""
     path = _resolve(str(ref), "scenarios")
@@ -473,20 +498,13 @@ def load_study(ref: str | Path, overrides: dict[str, Any] | None = None) -> Stud
 def resolve_study(study: StudyConfig, folder: Path | None = None) -> StudyConfig:
     """The same study with every scenario and the method set inline; relative YAML paths are
     taken from `folder` (the study file's) when the file is there."""
-    def near(ref: str) -> str:
-        path = Path(ref)
-        if folder is not None and path.suffix in (".yaml", ".yml") and not path.is_absolute():
-            if (folder / path).is_file():
-                return str(folder / path)
-        return ref
-
-    scenarios = [s if isinstance(s, ScenarioConfig) else load_scenario(near(s))
+    scenarios = [s if isinstance(s, ScenarioConfig) else load_scenario(_near(s, folder))
                  for s in study.scenarios]
     names = [s.name for s in scenarios]
     if len(set(names)) != len(names):
         raise ConfigError(f"study {study.name}: scenario names must be distinct, got {names}")
     methods = (study.methods if isinstance(study.methods, MethodsConfig)
-               else load_methods(near(study.methods)))
+               else load_methods(_near(study.methods, folder)))
     return study.model_copy(update={"scenarios": scenarios, "methods": methods})
 
 
@@ -496,9 +514,8 @@ def load_kimera_multi(ref: str | Path) -> KimeraMultiConfig:
     path = _resolve(str(ref), "kimera_multi")
     config = _validate(KimeraMultiConfig, _read_yaml(path), path.name)
     if isinstance(config.methods, str):
-        near = path.parent / config.methods
-        ref = str(near) if near.suffix in (".yaml", ".yml") and near.is_file() else config.methods
-        config = config.model_copy(update={"methods": load_methods(ref)})
+        config = config.model_copy(
+            update={"methods": load_methods(_near(config.methods, path.parent))})
     return config
 
 

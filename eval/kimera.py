@@ -14,7 +14,6 @@ Results go to `<output>/<test name>/`:
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import json
 import logging
@@ -26,24 +25,23 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from tcaff_gtsam.mapping.camera import R_BODY_OPTICAL
+from tcaff_gtsam.mapping.camera import R_BODY_OPTICAL, rigid_transform
 from tcaff_gtsam.mapping.frontend import DepthRegistration, RgbdFrontEnd
 from tcaff_gtsam.mapping.mapper import MapperParams
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.geometry import invert, se2_from_params
+from tcaff_gtsam.geometry import invert, se3_from_rt, se3_to_se2
 from tcaff_gtsam.object_map import ObjectMap
 
 from . import plots
 from .config import ExtrinsicsConfig, KimeraMultiConfig, MethodsConfig
 from .datasets.kimera_multi import (
-    KimeraTopics,
+    PoseTrack,
     RobotBags,
-    interpolate_poses,
     read_ground_truth,
 )
 from .methods import RunSettings, method_names, run_methods
-from .study import JobResult, score, summarize
+from .study import JobResult, job_from_runs, score, summarize, write_csv
 
 __all__ = ["KimeraOutcome", "RobotMapping", "align_robots", "map_robot", "run_kimera_multi"]
 
@@ -56,22 +54,15 @@ def extrinsic(config: ExtrinsicsConfig, optical: bool) -> np.ndarray:
     """(4, 4) the configured frame in its parent. With `optical`, xyz/rpy place a camera link
     (x forward) and the optical frame (x right, y down, z forward) is turned from it."""
     if config.matrix is not None:
-        T = np.asarray(config.matrix, dtype=float).reshape(4, 4)
-        R = T[:3, :3]
-        if (not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
-                or np.linalg.det(R) < 0):
-            raise ConfigError(f"extrinsics matrix {config.matrix} is not a rigid transform")
-        return T
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("xyz", config.rpy_deg, degrees=True).as_matrix()
-    if optical:
-        T[:3, :3] = T[:3, :3] @ R_BODY_OPTICAL
-    T[:3, 3] = config.xyz
-    return T
+        return rigid_transform("extrinsics matrix", np.reshape(config.matrix, (4, 4)),
+                               ConfigError)
+    R = Rotation.from_euler("xyz", config.rpy_deg, degrees=True).as_matrix()
+    return se3_from_rt(R @ R_BODY_OPTICAL if optical else R, config.xyz)
 
 
 def _planar(T: np.ndarray) -> np.ndarray:
-    """(..., 3) x, y, yaw of (..., 4, 4) poses."""
+    """(..., 3) x, y, yaw of (..., 4, 4) poses; NaN poses (no ground truth) give NaN rows,
+    where `se3_to_se2` would refuse them."""
     yaw = np.arctan2(T[..., 1, 0], T[..., 0, 0])
     return np.stack([T[..., 0, 3], T[..., 1, 3], yaw], axis=-1)
 
@@ -104,6 +95,10 @@ class RobotMapping:
     stage_seconds: dict[str, float] = field(default_factory=dict)
 
     @property
+    def frames_per_second(self) -> float | None:
+        return self.frames / self.seconds if self.seconds > 0 else None
+
+    @property
     def has_truth(self) -> bool:
         return bool(np.all(np.isfinite(self.T_map_body)))
 
@@ -120,7 +115,7 @@ class RobotMapping:
         (folder / f"{self.robot}.json").write_text(json.dumps({
             "robot": self.robot, "version": MAPS_VERSION, "fingerprint": self.fingerprint,
             "frames": self.frames, "seconds": self.seconds,
-            "frames_per_second": self.frames / self.seconds if self.seconds > 0 else None,
+            "frames_per_second": self.frames_per_second,
             "stage_seconds": self.stage_seconds, "exchanges": len(self.times)}, indent=1))
 
     @classmethod
@@ -179,7 +174,7 @@ def map_robot(config: KimeraMultiConfig, robot: str, data: Path,
     if truth is None:
         log.warning("robot %s: no ground truth at %s; its alignments are not scored", robot,
                     gt_path)
-    with RobotBags(paths, robot, KimeraTopics(**config.topics.model_dump())) as bags:
+    with RobotBags(paths, robot, config.topics) as bags:
         calibration = bags.calibration()
         T_color_depth = extrinsic(config.rig.color_depth, optical=False)
         registration = DepthRegistration(calibration.depth, T_color_depth)
@@ -217,7 +212,7 @@ def map_robot(config: KimeraMultiConfig, robot: str, data: Path,
     frame_times = np.array(frame_times)
     T_map_body = np.full((len(times), 4, 4), np.nan)
     if truth is not None:
-        T, inside = interpolate_poses(*truth, frame_times)
+        T, inside = PoseTrack(*truth)(frame_times)
         T_map_body[inside] = T[inside]
         if not inside.all():
             log.warning("robot %s: ground truth covers %d of %d exchanges", robot,
@@ -244,7 +239,7 @@ class RecordedRun:
         """(S, 3, 3) the true planar T_oi_oj (NaN without ground truth)."""
         if not np.all(np.isfinite(self.T_map_odom[[i, j]])):
             return np.full((len(self.times), 3, 3), np.nan)
-        return se2_from_params(_planar(invert(self.T_map_odom[i]) @ self.T_map_odom[j]))
+        return se3_to_se2(invert(self.T_map_odom[i]) @ self.T_map_odom[j])
 
 
 def align_robots(config: KimeraMultiConfig, mappings: list[RobotMapping],
@@ -276,18 +271,13 @@ def align_robots(config: KimeraMultiConfig, mappings: list[RobotMapping],
     settings = RunSettings(config.mapping.kappa, config.window, config.graph_drift)
     run = RecordedRun(settings, common, maps, T_map_odom)
     runs = run_methods(run, methods, progress)
-    arrays = {
+    job = job_from_runs(config.name, 0, runs, {
         "times": common - common[0], "t0": np.array(common[0]),
         "poses_true": _planar(T_map_body), "poses_odom": _planar(T_odom_body),
-        "truth": runs.truth, "overlap": np.ones((len(runs.pairs), common.size), dtype=bool),
+        "overlap": np.ones((len(runs.pairs), common.size), dtype=bool),
         "world_xy": np.zeros((0, 2)), "world_widths": np.zeros(0),
         "walls": np.zeros((0, 2, 2)),
-    }
-    for name, est in runs.estimates.items():
-        arrays[f"est_{name}"] = est
-    for p, (steps, z) in enumerate(runs.candidates):
-        arrays[f"cand_steps_{p}"], arrays[f"cand_z_{p}"] = steps, z
-    job = JobResult(config.name, 0, runs.pairs, arrays, {}, runs.seconds)
+    })
     if truth:
         score(job, methods)
     return job, methods
@@ -373,14 +363,11 @@ def _write_tables(folder: Path, config: KimeraMultiConfig, outcome: KimeraOutcom
     (folder / "metrics.json").write_text(json.dumps(
         {"test": config.name, "robots": config.robots, "summary": outcome.summary,
          "pairs": job.metrics,
-         "frames_per_second": {m.robot: m.frames / m.seconds for m in outcome.mappings
-                               if m.seconds > 0}}, indent=1))
-    rows = [{"method": method, "pair": pair, **report}
-            for method, by_pair in job.metrics.items() for pair, report in by_pair.items()]
-    with open(folder / "metrics.csv", "w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
-        writer.writeheader()
-        writer.writerows(rows)
+         "frames_per_second": {m.robot: m.frames_per_second for m in outcome.mappings}},
+        indent=1))
+    write_csv(folder / "metrics.csv", [{"method": method, "pair": pair, **report}
+                                       for method, by_pair in job.metrics.items()
+                                       for pair, report in by_pair.items()])
     lines = [f"| {config.name} | translation error [m] | heading error [deg] | available |",
              "|---|---|---|---|"]
     for method, r in outcome.summary.items():

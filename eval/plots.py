@@ -124,14 +124,13 @@ def errors_over_time(path: Path, job, methods: list[str], pair: int = 0) -> None
 def clipper_sweep(path: Path, summary: dict, methods: MethodsConfig) -> None:
     """Single-shot CLIPPER against its threshold k, TCAFF as horizontal lines."""
     ks = methods.clipper_k
-    panels = (("false_accept", "false-accept share", 1.0),
-              ("availability", "availability", 1.0),
-              ("translation_error_m_mean", "mean translation error [m]", 1.0))
+    panels = (("false_accept", "false-accept share"), ("availability", "availability"),
+              ("translation_error_m_mean", "mean translation error [m]"))
     fig, axes = plt.subplots(1, 3, figsize=(13, 4))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for c, (scenario, by_method) in enumerate(summary.items()):
         color = colors[c % len(colors)]
-        for ax, (key, name, _) in zip(axes, panels, strict=True):
+        for ax, (key, name) in zip(axes, panels, strict=True):
             values = [by_method[f"clipper_k{k}"][key] for k in ks]
             ax.plot(ks, [np.nan if v is None else v for v in values], "o-", color=color,
                     ms=4, label=scenario)

@@ -25,9 +25,9 @@ import numpy as np
 from tcaff_gtsam.geometry import se2_from_params
 
 from .config import MethodsConfig, ScenarioConfig, StudyConfig, dump_study
-from .methods import method_names, run_methods
-from .metrics import PairTrace, Thresholds, pooled_metrics
-from .sim.simulate import simulate
+from .methods import MethodRuns, method_names, run_methods
+from .metrics import PairTrace, Thresholds, pair_metrics, pooled_metrics
+from .sim.simulate import SimRun, simulate
 
 __all__ = ["JobResult", "StudyOutcome", "run_job", "run_study"]
 
@@ -84,7 +84,7 @@ def _report(job_traces: dict[str, list[PairTrace]], pairs, thresholds: Threshold
     for method, traces in job_traces.items():
         out[method] = {"all": pooled_metrics(traces, thresholds).as_report()}
         for (i, j), trace in zip(pairs, traces, strict=True):
-            out[method][f"{i}->{j}"] = pooled_metrics([trace], thresholds).as_report()
+            out[method][f"{i}->{j}"] = pair_metrics(trace, thresholds).as_report()
     return out
 
 
@@ -101,21 +101,33 @@ def run_job(scenario: ScenarioConfig, methods: MethodsConfig, seed: int,
             progress(start + span * share)
 
     run = simulate(scenario, seed, lambda s: report(s, 0.0, SIMULATION_SHARE))
-    runs = run_methods(run, methods,
-                       lambda s: report(s, SIMULATION_SHARE, 1.0 - SIMULATION_SHARE))
-    arrays = {
+    return score_run(run, methods,
+                     lambda s: report(s, SIMULATION_SHARE, 1.0 - SIMULATION_SHARE))
+
+
+def score_run(run: SimRun, methods: MethodsConfig,
+              progress: Callable[[float], None] | None = None) -> JobResult:
+    """Run every method over a simulated run and score them."""
+    runs = run_methods(run, methods, progress)
+    job = job_from_runs(run.scenario.name, run.seed, runs, {
         "times": run.times, "poses_true": run.poses_true, "poses_odom": run.poses_odom,
-        "truth": runs.truth,
         "overlap": np.array([run.overlap(i, j) for i, j in runs.pairs]),
         "world_xy": run.world.xy, "world_widths": run.world.widths, "walls": run.world.walls,
-    }
-    for name, est in runs.estimates.items():
-        arrays[f"est_{name}"] = est
-    for p, (steps, z) in enumerate(runs.candidates):
-        arrays[f"cand_steps_{p}"], arrays[f"cand_z_{p}"] = steps, z
-    job = JobResult(scenario.name, seed, runs.pairs, arrays, {}, runs.seconds)
+    })
     score(job, methods)
     return job
+
+
+def job_from_runs(name: str, seed: int, runs: MethodRuns, arrays: dict[str, np.ndarray]
+                  ) -> JobResult:
+    """A `JobResult` (unscored) of the methods' runs; `arrays` holds the run's own arrays
+    (times, poses, overlap, world), the truth, estimates and candidates are added."""
+    arrays = {**arrays, "truth": runs.truth}
+    for method, est in runs.estimates.items():
+        arrays[f"est_{method}"] = est
+    for p, (steps, z) in enumerate(runs.candidates):
+        arrays[f"cand_steps_{p}"], arrays[f"cand_z_{p}"] = steps, z
+    return JobResult(name, seed, runs.pairs, arrays, {}, runs.seconds)
 
 
 def score(job: JobResult, methods: MethodsConfig) -> None:
@@ -185,11 +197,15 @@ def _write_tables(folder: Path, study: StudyConfig, outcome: StudyOutcome) -> No
             rows.append({"scenario": scenario, "seed": "all", "method": method, "pair": "all",
                          **report})
     if rows:
-        with open(folder / "metrics.csv", "w", newline="") as file:
-            writer = csv.DictWriter(file, fieldnames=list(dict.fromkeys(
-                k for row in rows for k in row)))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_csv(folder / "metrics.csv", rows)
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """Rows of dictionaries as CSV, the columns in order of first appearance."""
+    with open(path, "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def _link_latest(root: Path, folder: Path) -> None:

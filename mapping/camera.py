@@ -16,6 +16,7 @@ import numpy as np
 import open3d as o3d
 
 from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.geometry import se3_from_rt
 from tcaff_gtsam.params import _int_at_least, _real, _require
 
 __all__ = [
@@ -120,10 +121,7 @@ def T_body_camera(height: float, pitch_deg: float = 0.0,
     # pitch down about body y (left): positive angle turns x (forward) towards -z
     R_pitch = np.array([[math.cos(p), 0.0, math.sin(p)], [0.0, 1.0, 0.0],
                         [-math.sin(p), 0.0, math.cos(p)]])
-    T = np.eye(4)
-    T[:3, :3] = R_pitch @ R_BODY_OPTICAL
-    T[:3, 3] = (forward, 0.0, height)
-    return T
+    return se3_from_rt(R_pitch @ R_BODY_OPTICAL, (forward, 0.0, height))
 
 
 def check_camera(name: str, camera) -> PinholeCamera:
@@ -188,9 +186,9 @@ def depth_in_metres(depth, depth_scale: float, shape: tuple[int, int] | None = N
     return metres
 
 
-def register_depth(depth_m: np.ndarray, depth_camera: PinholeCamera,
+def register_depth(depth: np.ndarray, depth_camera: PinholeCamera,
                    color_camera: PinholeCamera, T_color_depth: np.ndarray,
-                   depth_max: float = 20.0) -> np.ndarray:
+                   depth_max: float = 20.0, depth_scale: float = 1.0) -> np.ndarray:
     """Re-project a depth image into another camera (the colour camera), nearest return kept.
 
     When a depth pixel covers more than one colour pixel (a coarser or wider depth camera),
@@ -198,14 +196,15 @@ def register_depth(depth_m: np.ndarray, depth_camera: PinholeCamera,
     wide as one depth pixel seen in the colour image.
 
     Args:
-        depth_m: (H_d, W_d) float32 metres in the depth camera, 0 = no return.
+        depth: (H_d, W_d) raw depth in the depth camera, 0 = no return.
         T_color_depth: (4, 4) the depth camera's optical frame in the colour camera's.
         depth_max: metres (> 0); returns beyond this are dropped.
+        depth_scale: raw depth units per metre (1 for metres, 1000 for millimetres).
 
     Returns:
         (H_c, W_c) float32 metres in the colour camera, 0 where no point projects.
     """
-    depth_m = depth_in_metres(depth_m, 1.0, depth_camera.shape, "depth_m")
+    depth_m = depth_in_metres(depth, depth_scale, depth_camera.shape, "depth")
     T = rigid_transform("T_color_depth", T_color_depth)
     if not (_real(depth_max) and depth_max > 0):
         raise DataError(f"depth_max = {depth_max!r}: must be a number > 0 metres")

@@ -129,15 +129,16 @@ class RgbdFrontEnd:
         if reg is None:
             z = depth_in_metres(depth, self.depth_scale, self.camera.shape)
         else:
-            z = register_depth(depth_in_metres(depth, self.depth_scale, reg.camera.shape),
-                               reg.camera, self.camera, reg.T_color_depth)
+            z = register_depth(depth, reg.camera, self.camera, reg.T_color_depth,
+                               depth_scale=self.depth_scale)
         lap("register")
         masks = check_masks(self.segmenter.segment(rgb, z), self.camera.shape,
                             f"{type(self.segmenter).__name__}.segment's masks")
         lap("segment")
         kept = filter_masks(masks, z, self.mask_filter)
         lap("filter")
-        obs = self.lifter.lift(masks[kept], z, T_ob @ self.T_body_camera)
+        # z, the masks and the pose are checked above: the lifter need not check them again
+        obs = self.lifter._lift(masks[kept], z, T_ob @ self.T_body_camera)
         lifted = kept[obs.mask_indices]
         obs = Observations(obs.centroids, obs.widths, obs.heights, obs.point_counts, lifted)
         lap("lift")

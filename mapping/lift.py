@@ -178,10 +178,13 @@ class MaskLifter:
             T_odom_camera: (4, 4) the camera's optical frame in the odometry frame at the
                 frame's time.
         """
-        H, W = self.camera.shape
-        z = depth_in_metres(depth, self.depth_scale, (H, W))
-        check_masks(masks, (H, W))
-        T = rigid_transform("T_odom_camera", T_odom_camera)
+        shape = self.camera.shape
+        z = depth_in_metres(depth, self.depth_scale, shape)
+        check_masks(masks, shape)
+        return self._lift(masks, z, rigid_transform("T_odom_camera", T_odom_camera))
+
+    def _lift(self, masks: np.ndarray, z: np.ndarray, T: np.ndarray) -> Observations:
+        """`lift` on inputs already checked: z (H, W) float metres, T (4, 4) rigid."""
         p = self.params
         usable = (z >= p.depth_min) & (z <= p.depth_max) & (z > 0)
         rows_hit, cols_hit = masks.any(axis=2), masks.any(axis=1)  # (k, H), (k, W)

@@ -165,7 +165,7 @@ class ObjectMapper:
             self._last_seen = np.concatenate([self._last_seen, np.full(n_new, t)])
             touched = np.concatenate([touched, np.ones(n_new, dtype=bool)])
 
-        out = self._ids[rows].astype(np.int64)
+        out = self._ids[rows]  # int64, and fancy indexing copies
         self._merge(touched, out)
         return out
 

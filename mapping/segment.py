@@ -99,7 +99,11 @@ class MaskFilter:
 
     def area_ok(self, area: np.ndarray, image_area: int) -> np.ndarray:
         """(k,) bool: pixel areas within [min_area, max_area_share * image_area]."""
-        return (area >= self.min_area) & (area <= self.max_area_share * image_area)
+        return _area_ok(area, self.min_area, self.max_area_share, image_area)
+
+
+def _area_ok(area: np.ndarray, min_area: int, max_share: float, image_area: int) -> np.ndarray:
+    return (area >= min_area) & (area <= max_share * image_area)
 
 
 def _elongation(ys: np.ndarray, xs: np.ndarray) -> float:
@@ -280,7 +284,7 @@ class DepthSegmenter:
         count, labels, stats, _ = cv2.connectedComponentsWithStats(
             foreground.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         area = stats[1:, cv2.CC_STAT_AREA]
-        ok = (area >= p.min_area) & (area <= p.max_area_share * z.size)
+        ok = _area_ok(area, p.min_area, p.max_area_share, z.size)
         order = np.flatnonzero(ok)[np.argsort(-area[ok], kind="stable")]
         relabel = np.zeros(count, dtype=np.int32)
         relabel[order + 1] = np.arange(1, order.size + 1, dtype=np.int32)

@@ -6,7 +6,7 @@ Prints the median and 90th percentile of each stage, and the number of masks lif
 Targets: lifting + tracking <= 15 ms with about 20 masks (the paper's whole mapping step took
 13.5 ms); depth segmenter <= 60 ms.
 
-    python scripts/bench_mapping.py [--frames 60] [--rings 4] [--width 640 --height 480]
+    python scripts/bench_mapping.py [--frames 60] [--rings 7] [--width 640 --height 480]
 """
 
 from __future__ import annotations

@@ -41,6 +41,7 @@ from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 
 from tcaff_gtsam.errors import ConfigError
 from tcaff_gtsam.geometry import se3_from_xyz_yaw
+from tcaff_gtsam.params import _int_at_least, _real
 
 T0_NS = 1_634_000_000 * 10**9
 ODOM_RATE, GT_RATE = 50, 10  # Hz
@@ -117,8 +118,7 @@ def _odometry(header, child: str, pose: np.ndarray):
 
 
 def _number(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) \
-        and math.isfinite(v)
+    return _real(v) and math.isfinite(v)
 
 
 def _check(robots: tuple, seconds, rate, width, height, depth_noise, mount: tuple) -> None:
@@ -131,8 +131,8 @@ def _check(robots: tuple, seconds, rate, width, height, depth_noise, mount: tupl
          "rate", rate, f"must divide the {ODOM_RATE} Hz odometry rate (1, 2, 5, 10, 25, 50 Hz)"),
         (_number(seconds) and _number(rate) and seconds * rate >= 1, "seconds", seconds,
          "must be finite and hold a frame (>= 1 / rate)"),
-        (isinstance(width, (int, np.integer)) and width >= 8, "width", width, pixels),
-        (isinstance(height, (int, np.integer)) and height >= 8, "height", height, pixels),
+        (_int_at_least(width, 8), "width", width, pixels),
+        (_int_at_least(height, 8), "height", height, pixels),
         (_number(depth_noise) and 0 <= depth_noise <= 0.1, "depth_noise", depth_noise,
          "must be in [0, 0.1] m at 1 m"),
         *((_number(v), name, v, "must be a finite number") for name, v in zip(

@@ -33,7 +33,7 @@ from scipy.stats import chi2
 
 from .errors import DataError
 from .geometry import se2_from_params, se2_to_params, se3_from_xyz_yaw, se3_to_se2
-from .params import GraphParams
+from .params import GraphParams, _int_at_least
 from .tcaff import AlignmentEstimate
 
 __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
@@ -141,7 +141,7 @@ class InterRobotGraph:
     """
 
     def __init__(self, n_robots: int, params: GraphParams | None = None) -> None:
-        if not isinstance(n_robots, int) or n_robots < 1:
+        if not _int_at_least(n_robots, 1):
             raise DataError(f"InterRobotGraph: n_robots must be an int >= 1, got {n_robots!r}")
         self.n_robots = n_robots
         self.params = params or GraphParams()
@@ -169,6 +169,11 @@ class InterRobotGraph:
 
     @property
     def _n_param(self) -> int:
+        return 3 if self._planar else 4
+
+    @property
+    def _side(self) -> int:
+        """Rows of a homogeneous matrix: 3 for SE(2), 4 for SE(3)."""
         return 3 if self._planar else 4
 
     def _pose(self, T: np.ndarray):
@@ -265,7 +270,7 @@ class InterRobotGraph:
 
     def _rigid(self, name: str, T) -> np.ndarray:
         """A homogeneous rigid transform of this graph's dimension, else DataError."""
-        size = 3 if self._planar else 4
+        size = self._side
         T = _check_finite(name, T, (size, size))
         R = T[: size - 1, : size - 1]
         if (np.abs(R.T @ R - np.eye(size - 1)).max() > 1e-6 or np.linalg.det(R) < 0
@@ -404,14 +409,12 @@ class InterRobotGraph:
     def _add_step(self, step: int) -> None:
         prm = self.params
         previous = self._steps[-1] if self._steps else None
-        identity = np.eye(3 if self._planar else 4)
+        identity = np.eye(self._side)
         if previous is not None:
             span = step - previous
             if span not in self._drift_noise:
                 drift = self._tangent_cov(identity, prm.Q * span / 2.0)
                 self._drift_noise[span] = self._noise(drift, False)
-            identity_pose = self._pose(identity)
-            between = gtsam.BetweenFactorPose2 if self._planar else gtsam.BetweenFactorPose3
         for r in range(self.n_robots):
             key = alignment_key(r, step)
             if previous is None:
@@ -421,7 +424,7 @@ class InterRobotGraph:
             else:
                 before = alignment_key(r, previous)
                 self._insert(key, self._value(before))
-                self._queue(between(before, key, identity_pose, self._drift_noise[span]))
+                self._queue(self._between(before, key, identity, self._drift_noise[span]))
         self._steps.append(step)
         self._step_set.add(step)
 
@@ -485,7 +488,7 @@ class InterRobotGraph:
         get = estimate.atPose2 if self._planar else estimate.atPose3
         T = np.array([np.linalg.inv(get(alignment_key(i, k)).matrix())
                       @ get(alignment_key(j, k)).matrix() for k in self._steps])
-        size = 3 if self._planar else 4
+        size = self._side
         return np.array(self._steps, np.int64), T.reshape(-1, size, size)
 
     def alignment_params(self, i: int, j: int, step: int | None = None) -> np.ndarray:
@@ -644,7 +647,7 @@ class InterRobotGraph:
         estimate = self._isam.calculateEstimate()
         indices = np.array(sorted(i for i in self._keyframes[robot]
                                   if estimate.exists(keyframe_key(robot, i))), np.int64)
-        size = 3 if self._planar else 4
+        size = self._side
         get = estimate.atPose2 if self._planar else estimate.atPose3
         poses = np.array([get(keyframe_key(robot, int(i))).matrix() for i in indices])
         return indices, poses.reshape(-1, size, size)

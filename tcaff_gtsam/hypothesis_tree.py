@@ -66,6 +66,11 @@ class CostModel:
     no_measurement_cost: float
 
 
+#: every field of `Leaves`, in order, with its dtype
+LEAF_DTYPES = {"x": np.float64, "P": np.float64, "choice": np.int32, "edge": np.float64,
+               "since": np.int64, "tree": np.int64}
+
+
 @dataclass(frozen=True, eq=False)
 class Leaves:
     """The leaves of one or more hypothesis trees.
@@ -88,8 +93,9 @@ class Leaves:
 
     @classmethod
     def empty(cls, d: int, columns: int) -> Leaves:
-        return cls(np.empty((0, d)), np.empty((0, d, d)), np.empty((0, columns), np.int32),
-                   np.empty((0, columns)), np.empty(0, np.int64), np.empty(0, np.int64))
+        shapes = ((0, d), (0, d, d), (0, columns), (0, columns), (0,), (0,))
+        return cls(*(np.empty(shape, LEAF_DTYPES[f]) for f, shape in
+                     zip(LEAF_DTYPES, shapes, strict=True)))
 
     def __len__(self) -> int:
         return self.x.shape[0]
@@ -107,8 +113,7 @@ class Leaves:
 
     @staticmethod
     def concat(parts: list[Leaves]) -> Leaves:
-        return Leaves(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                        ("x", "P", "choice", "edge", "since", "tree")))
+        return Leaves(*(np.concatenate([getattr(p, f) for p in parts]) for f in LEAF_DTYPES))
 
 
 def seed(x0: np.ndarray, P0: np.ndarray, tree_ids: np.ndarray, root_choice: np.ndarray,
@@ -417,7 +422,6 @@ def extend(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: CostModel,
     tree = leaves.tree[parents]
     keep = prune(edge[:, 2:].sum(axis=1), choice, tree)
     parents, meas = parents[keep], meas[keep]
-    x, P = _kalman_children(leaves.x, leaves.P, parents, meas, zs, Rs, model.Q, model.angular,
-                            model.reference)
+    x, P = kalman_children(leaves, parents, meas, zs, Rs, model)
     since = np.where(meas >= 0, 0, leaves.since[parents] + 1)
     return Leaves(x, P, choice[keep], edge[keep], since, tree[keep])

@@ -100,8 +100,8 @@ class ClipperParams:
         _require(0 < self.beta < 1, o, "beta", self.beta, "must be in (0, 1)")
         for name in ("max_outer", "max_inner", "max_line_search"):
             value = getattr(self, name)
-            _require(isinstance(value, int) and value >= 1, o, name, value, "must be an int >= 1")
-        _require(isinstance(self.power_iterations, int) and self.power_iterations >= 0, o,
+            _require(_int_at_least(value, 1), o, name, value, "must be an int >= 1")
+        _require(_int_at_least(self.power_iterations, 0), o,
                  "power_iterations", self.power_iterations, "must be an int >= 0")
 
 
@@ -155,11 +155,11 @@ class FrameAlignerParams:
         _require(self.dim in (2, 3), o, "dim", self.dim, "must be 2 or 3")
         _require(isinstance(self.clipper, ClipperParams), o, "clipper", self.clipper,
                  "must be a ClipperParams")
-        _require(isinstance(self.n_solutions, int) and self.n_solutions >= 1, o, "n_solutions",
+        _require(_int_at_least(self.n_solutions, 1), o, "n_solutions",
                  self.n_solutions, "must be an int >= 1")
         _require(0 <= self.mno_downweight < 1, o, "mno_downweight", self.mno_downweight,
                  "must be in [0, 1)")
-        _require(isinstance(self.min_associations, int) and self.min_associations >= 2, o,
+        _require(_int_at_least(self.min_associations, 2), o,
                  "min_associations", self.min_associations, "must be an int >= 2")
         _require(0 <= self.min_score_ratio <= 1, o, "min_score_ratio", self.min_score_ratio,
                  "must be in [0, 1]")
@@ -265,7 +265,7 @@ class TCAFFParams:
                  "must be in (0, 1)")
         _require(math.isfinite(self.tau), o, "tau", self.tau, "must be a finite number")
         angles = tuple(self.angle_indices)
-        _require(all(isinstance(a, int) and 0 <= a < d for a in angles)
+        _require(all(_int_at_least(a, 0) and a < d for a in angles)
                  and len(set(angles)) == len(angles), o, "angle_indices", self.angle_indices,
                  f"must be distinct ints in [0, {d})")
         object.__setattr__(self, "angle_indices", angles)
@@ -373,7 +373,7 @@ class GraphParams:
         for name in ("robust_k", "anchor_sigma", "gravity_sigma", "relinearize_threshold",
                      "settle_threshold"):
             value = getattr(self, name)
-            _require(isinstance(value, (int, float)) and math.isfinite(value) and value > 0, o,
+            _require(_real(value) and math.isfinite(value) and value > 0, o,
                      name, value, "must be a finite number > 0")
         sig = np.asarray(self.free_sigmas, dtype=float) if np.ndim(self.free_sigmas) == 1 else None
         _require(sig is not None and sig.shape == (2,) and bool(np.all(np.isfinite(sig)))

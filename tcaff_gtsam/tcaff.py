@@ -30,6 +30,7 @@ from .errors import DataError, TcaffError
 from .geometry import se2_from_params, wrap_angle
 from .hypothesis_tree import (
     BEFORE_ROOT,
+    LEAF_DTYPES,
     CostModel,
     Leaves,
     best_per_tree,
@@ -109,7 +110,6 @@ class TCAFF:
         d = self.params.dim
         self.step = 0
         self.hypothesis = 0
-        self.last_event: str | None = None
         self._main: Leaves | None = None
         self._explore = Leaves.empty(d, self._columns)
         self._next_tree = 0
@@ -138,12 +138,11 @@ class TCAFF:
         zs, Rs = self._validated(zs, Rs)
         prm = self.params
         self.step += 1
-        self.last_event = None
-        self._bank.append((zs, Rs))
+        if prm.promotion == "reseed":  # only the released code's promotion replays steps
+            self._bank.append((zs, Rs))
         if self._main is not None and self._main_is_stale():
             log.debug("step %d: main tree %d dropped", self.step, self.hypothesis)
             self._main = None
-            self.last_event = "dropped"
         if self._main is not None:
             self._main = extend(self._main, zs, Rs, self._model, prm.max_children,
                                 lambda cost, choice, _: self._main_keep(cost, choice))
@@ -189,7 +188,6 @@ class TCAFF:
         best = int(np.argmin(complete.cost))
         if complete.cost[best] < self.params.tau:
             self._accept(complete, best)
-            self.last_event = "accepted"
 
     def _consider_switch(self, complete: Leaves) -> None:
         """Switch to a rival hypothesis: one inconsistent with the main tree's best leaf, below
@@ -218,7 +216,6 @@ class TCAFF:
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
             self._accept(complete, best)
-            self.last_event = "switched"
 
     def _consistent(self, leaves: Leaves, other: Leaves) -> np.ndarray:
         """(L,) whether each leaf's state agrees with the single leaf `other`'s (Mahalanobis
@@ -332,7 +329,6 @@ class TCAFF:
         zs[:, angles] = wrap_angle(zs[:, angles])
         return zs, np.ascontiguousarray(Rs)
 
-    _LEAF_FIELDS = ("x", "P", "choice", "edge", "since", "tree")
     _COUNTERS = ("step", "hypothesis", "_next_tree", "_switch_streak", "_empty_windows")
     _TREES = ("main", "explore", "rival")
 
@@ -342,7 +338,7 @@ class TCAFF:
         for name in self._TREES:
             leaves = getattr(self, f"_{name}")
             if leaves is not None:
-                for f in self._LEAF_FIELDS:
+                for f in LEAF_DTYPES:
                     state[f"{name}.{f}"] = getattr(leaves, f).copy()
         d = self.params.dim
         state["bank.sizes"] = np.array([zs.shape[0] for zs, _ in self._bank], dtype=np.int64)
@@ -360,9 +356,8 @@ class TCAFF:
         d, columns = self.params.dim, self._columns
         try:
             counters = {c: int(np.asarray(state[c]).item()) for c in self._COUNTERS}
-            trees = {name: Leaves(*(np.array(state[f"{name}.{f}"], dtype=dtype) for f, dtype in
-                                    zip(self._LEAF_FIELDS, (float, float, np.int32, float,
-                                                            np.int64, np.int64), strict=True)))
+            trees = {name: Leaves(*(np.array(state[f"{name}.{f}"], dtype=dtype)
+                                    for f, dtype in LEAF_DTYPES.items()))
                      for name in self._TREES if f"{name}.x" in state}
             sizes = np.array(state["bank.sizes"], dtype=np.int64)
             bank_zs = np.array(state["bank.zs"], dtype=float)
@@ -374,7 +369,7 @@ class TCAFF:
         if "explore" not in trees:
             raise DataError("TCAFF state: missing entry 'explore.x'")
         for name, leaves in trees.items():
-            counts = {f: np.shape(getattr(leaves, f))[:1] for f in self._LEAF_FIELDS}
+            counts = {f: np.shape(getattr(leaves, f))[:1] for f in LEAF_DTYPES}
             if len(set(counts.values())) != 1:
                 raise DataError(f"TCAFF state: the {name} arrays disagree on the number of "
                                 f"leaves: {counts}")
@@ -397,14 +392,14 @@ class TCAFF:
         bounds = np.r_[0, np.cumsum(sizes)]
         self._bank = deque(((bank_zs[a:b], bank_Rs[a:b]) for a, b in pairwise(bounds)),
                            maxlen=self.params.window + 1)
-        self.last_event = None
         self._estimate = self._main_estimate()
 
     def save(self, path: str | Path) -> None:
         """Write parameters and state to an .npz file."""
         params = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                   for k, v in asdict(self.params).items()}
-        np.savez_compressed(path, params=np.array(json.dumps(params)), **self.state_dict())
+        with open(Path(path), "wb") as file:  # a file object stops numpy appending ".npz"
+            np.savez_compressed(file, params=np.array(json.dumps(params)), **self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> TCAFF:

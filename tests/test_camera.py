@@ -42,15 +42,6 @@ def project(camera: PinholeCamera, points: np.ndarray) -> np.ndarray:
 
 
 @PROPS
-@given(cameras(), st.floats(0.1, 20.0), st.floats(-1.0, 1.0), st.floats(-1.0, 1.0))
-def test_projection_matches_the_pinhole_model(camera, z, sx, sy):
-    point = np.array([sx * z, sy * z, z])
-    u, v = project(camera, point[None])[0]
-    assert u == pytest.approx(camera.fx * point[0] / z + camera.cx, abs=1e-9)
-    assert v == pytest.approx(camera.fy * point[1] / z + camera.cy, abs=1e-9)
-
-
-@PROPS
 @given(cameras(), st.data(), st.floats(0.1, 20.0))
 def test_rays_times_depth_reproduce_the_point_seen_at_a_pixel(camera, data, z):
     x_over_z, y_over_z = camera.rays()

@@ -118,11 +118,12 @@ def test_cycle_consistency_of_the_graph_but_not_of_pairwise_filters():
             zs = streams.pairs[pair].zs[k]
             last[pair] = filt.update(zs, np.broadcast_to(R, (len(zs), 3, 3)))
     filter_gap = pose_error(last[(0, 1)].T @ last[(1, 2)].T, last[(0, 2)].T)
-    graph_gap = pose_error(graph.alignment(0, 1)[0] @ graph.alignment(1, 2)[0],
-                           graph.alignment(0, 2)[0])
-    # the graph closes every cycle by construction (all pairs read the same chains); the
-    # point is that the three independent filters do not
-    assert max(graph_gap) < 1e-9
+    # the graph closes every cycle by construction (all pairs read the same chains), so what
+    # can be checked is that its closed cycle is right; the three independent filters do not
+    # close theirs
+    truth = np.linalg.inv(streams.A[0, -1]) @ streams.A[2, -1]
+    graph_error = pose_error(truth, graph.alignment(0, 2)[0])
+    assert graph_error[0] < 0.3 and graph_error[1] < 1.5
     assert filter_gap[0] > 1e-3
 
 

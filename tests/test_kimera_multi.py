@@ -14,11 +14,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from tcaff_gtsam.eval.cli import app
-from tcaff_gtsam.eval.config import ExtrinsicsConfig, load_kimera_multi, load_methods
+from tcaff_gtsam.eval.config import (
+    ExtrinsicsConfig,
+    TopicsConfig,
+    load_kimera_multi,
+    load_methods,
+)
 from tcaff_gtsam.eval.datasets.kimera_multi import (
     GT_HEADER,
-    KimeraTopics,
-    interpolate_poses,
+    PoseTrack,
     read_ground_truth,
 )
 from tcaff_gtsam.eval.kimera import RecordedRun, extrinsic, run_kimera_multi
@@ -82,7 +86,7 @@ def test_missing_ground_truth_raises_data_error(tmp_path):
 def test_interpolated_pose_lies_between_its_neighbours(yaw0, yaw1, share, x0, x1):
     times = np.array([10.0, 11.0])
     poses = np.array([pose(x0, 0.0, 0.0, yaw0), pose(x1, 1.0, 0.0, yaw1)])
-    T, inside = interpolate_poses(times, poses, [10.0 + share])
+    T, inside = PoseTrack(times, poses)([10.0 + share])
     assert inside[0]
     assert T[0, 0, 3] == pytest.approx(x0 + share * (x1 - x0), abs=1e-9)
     turn = math.remainder(yaw1 - yaw0, 2 * math.pi)  # slerp takes the short way round
@@ -93,7 +97,7 @@ def test_interpolated_pose_lies_between_its_neighbours(yaw0, yaw1, share, x0, x1
 def test_interpolation_outside_the_span_is_flagged():
     times = np.array([1.0, 2.0, 3.0])
     poses = np.array([pose(k, 0, 0, 0) for k in range(3)])
-    T, inside = interpolate_poses(times, poses, [0.5, 1.0, 3.0, 3.5])
+    T, inside = PoseTrack(times, poses)([0.5, 1.0, 3.0, 3.5])
     np.testing.assert_array_equal(inside, [False, True, True, False])
     np.testing.assert_allclose(T[[0, 3], 0, 3], [0.0, 2.0])
 
@@ -151,7 +155,7 @@ def test_methods_that_need_the_truth_refuse_a_run_without_it():
 
 
 def test_topics_follow_the_robot_name():
-    topics = KimeraTopics().of("sparkal1")
+    topics = TopicsConfig().of("sparkal1")
     assert topics["color"] == "/sparkal1/forward/color/image_raw/compressed"
     assert topics["odometry"] == "/sparkal1/jackal_velocity_controller/odom"
 

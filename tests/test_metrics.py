@@ -10,7 +10,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from tcaff_gtsam.eval.metrics import (
-    Metrics,
     PairTrace,
     Thresholds,
     pair_metrics,
@@ -278,12 +277,6 @@ def test_pooled_time_to_first_correct_is_mean_over_pairs_that_have_one():
     assert pooled_metrics([a, b, never]).time_to_first_correct == pytest.approx(3.125)
     assert math.isnan(pooled_metrics([never, never]).time_to_first_correct)
     assert pooled_metrics([a, b]).false_accept == pytest.approx(2 / 8)
-
-
-def test_pooled_single_equals_pair():
-    trace = hand_trace()
-    assert pooled_metrics([trace]) == pair_metrics(trace)
-    assert isinstance(pair_metrics(trace), Metrics)
 
 
 def test_pooled_empty_raises():

@@ -358,3 +358,12 @@ def test_a_main_hypothesis_confirmed_every_other_step_is_not_abandoned():
     zs[60:] = [np.array([noisy(rival)]) for _ in range(40)]
     estimates = run(TCAFF(), zs)
     assert estimates[-1].hypothesis == 2 and np.hypot(*(estimates[-1].x - rival)[:2]) < 0.3
+
+
+def test_save_writes_exactly_the_path_given(tmp_path):
+    """numpy appends .npz to a path without it; a saved filter must load from its own path."""
+    f = TCAFF()
+    f.update(np.array([[1.0, 2.0, 0.3]]), np.broadcast_to(np.eye(3) * 0.1, (1, 3, 3)))
+    f.save(tmp_path / "filter.state")
+    assert not (tmp_path / "filter.state.npz").exists()
+    assert TCAFF.load(tmp_path / "filter.state").step == 1

@@ -32,34 +32,19 @@ from tcaff_gtsam.mapping.camera import PinholeCamera
 
 from tcaff_gtsam.errors import DataError
 
+from ..config import TopicsConfig
+
 __all__ = [
     "CameraCalibration",
-    "KimeraTopics",
+    "PoseTrack",
     "RgbdFrame",
     "RobotBags",
-    "interpolate_poses",
     "read_ground_truth",
 ]
 
 log = logging.getLogger(__name__)
 
 GT_HEADER = "#timestamp_kf,x,y,z,qw,qx,qy,qz"
-
-
-@dataclass(frozen=True)
-class KimeraTopics:
-    """One robot's topic names; `{robot}` is replaced by the robot's name."""
-
-    color: str = "/{robot}/forward/color/image_raw/compressed"
-    color_info: str = "/{robot}/forward/color/camera_info"
-    depth: str = "/{robot}/forward/depth/image_rect_raw"
-    depth_info: str = "/{robot}/forward/depth/camera_info"
-    odometry: str = "/{robot}/jackal_velocity_controller/odom"
-
-    def of(self, robot: str) -> dict[str, str]:
-        """Role -> topic name for `robot`."""
-        return {role: getattr(self, role).replace("{robot}", robot)
-                for role in ("color", "color_info", "depth", "depth_info", "odometry")}
 
 
 @dataclass(frozen=True)
@@ -136,27 +121,33 @@ def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return times, _poses(rows[:, 1:4], rows[:, [5, 6, 7, 4]])  # w first in the file
 
 
-def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Poses at `query` times: positions linearly, rotations by slerp.
+class PoseTrack:
+    """Poses over time, interpolated: positions linearly, rotations by slerp. Built once per
+    trajectory, so that each query costs only the lookup.
 
     Args:
-        times: (n,) strictly increasing seconds; poses: (n, 4, 4); query: (m,) seconds.
-    Returns:
-        (m, 4, 4) poses and (m,) bool, which queries lie within [times[0], times[-1]] (the
-        others hold the nearest end's pose).
+        times: (n,) strictly increasing seconds; poses: (n, 4, 4).
     """
-    query = np.atleast_1d(np.asarray(query, dtype=float))
-    inside = (query >= times[0]) & (query <= times[-1])
-    q = np.clip(query, times[0], times[-1])
-    out = np.tile(np.eye(4), (q.size, 1, 1))
-    if times.size == 1:
-        out[:] = poses[0]
+
+    def __init__(self, times: np.ndarray, poses: np.ndarray) -> None:
+        self.times, self.poses = times, poses
+        self._slerp = (Slerp(times, Rotation.from_matrix(poses[:, :3, :3])) if times.size > 1
+                       else None)
+
+    def __call__(self, query) -> tuple[np.ndarray, np.ndarray]:
+        """(m, 4, 4) poses at the (m,) `query` seconds and (m,) bool, which queries lie within
+        [times[0], times[-1]] (the others hold the nearest end's pose)."""
+        times = self.times
+        query = np.atleast_1d(np.asarray(query, dtype=float))
+        inside = (query >= times[0]) & (query <= times[-1])
+        q = np.clip(query, times[0], times[-1])
+        if self._slerp is None:
+            return np.repeat(self.poses[:1], q.size, axis=0), inside
+        out = np.tile(np.eye(4), (q.size, 1, 1))
+        out[:, :3, :3] = self._slerp(q).as_matrix()
+        for axis in range(3):
+            out[:, axis, 3] = np.interp(q, times, self.poses[:, axis, 3])
         return out, inside
-    out[:, :3, :3] = Slerp(times, Rotation.from_matrix(poses[:, :3, :3]))(q).as_matrix()
-    for axis in range(3):
-        out[:, axis, 3] = np.interp(q, times, poses[:, axis, 3])
-    return out, inside
 
 
 def _camera(msg, topic: str) -> PinholeCamera:
@@ -197,14 +188,14 @@ class RobotBags:
     Args:
         paths: the robot's ROS1 bag files (read together, in time order).
         robot: its name, for the topics and messages.
-        topics: topic names.
+        topics: topic names (default: Kimera-Multi's).
     Raises:
         DataError: a missing, truncated or corrupt bag, or a topic the bags do not hold (the
         message lists the topics they do hold).
     """
 
     def __init__(self, paths: Sequence[Path], robot: str,
-                 topics: KimeraTopics = KimeraTopics()) -> None:
+                 topics: TopicsConfig | None = None) -> None:
         self.paths = [Path(p) for p in paths]
         if not self.paths:
             raise DataError(f"robot {robot}: no bag files given")
@@ -212,7 +203,7 @@ class RobotBags:
         if missing:
             raise DataError(f"robot {robot}: bag files not found: {missing}")
         self.robot = robot
-        self.topics = topics.of(robot)
+        self.topics = (topics or TopicsConfig()).of(robot)
         self._reader = AnyReader(self.paths)
         try:
             self._reader.open()
@@ -254,10 +245,6 @@ class RobotBags:
     def time_span(self) -> tuple[float, float]:
         """Seconds of the bags' first and last message."""
         return self._reader.start_time * 1e-9, self._reader.end_time * 1e-9
-
-    def message_count(self, role: str) -> int:
-        """Messages on one role's topic."""
-        return sum(c.msgcount for c in self._connections[role])
 
     def calibration(self) -> CameraCalibration:
         """The first camera_info message of each camera."""
@@ -309,7 +296,8 @@ class RobotBags:
         if stride < 1 or tolerance < 0 or (rate is not None and rate <= 0):
             raise DataError(f"frames: stride = {stride} must be >= 1, tolerance = {tolerance} "
                             f">= 0 and rate = {rate} > 0 or None")
-        odom_times, odom_poses = self.odometry()
+        odometry = PoseTrack(*self.odometry())
+        odom_times = odometry.times
         # (t, msg): colour images waiting for a depth image after them, and recent depth
         # images; bounded, so that a topic that stops cannot fill the memory
         colors: deque = deque(maxlen=64)
@@ -332,7 +320,7 @@ class RobotBags:
             counted += 1
             if (counted - 1) % stride:
                 return None
-            T, _ = interpolate_poses(odom_times, odom_poses, [t])
+            T, _ = odometry([t])
             return RgbdFrame(t, _decode_color(color, self.topics["color"], t),
                              _decode_depth(best[1], self.topics["depth"], best[0]), T[0])
 

@@ -199,5 +199,4 @@ def render(scene: RgbdScene, T_world_camera: np.ndarray, camera: PinholeCamera,
     lambert = np.abs(hit["normal"] @ _LIGHT)
     base = scene.colour_of(hit["geometry"])
     rgb = np.clip(base * (0.35 + 0.65 * lambert)[..., None], 0, 255).astype(np.uint8)
-    rgb[~np.isfinite(hit["depth"])] = 0
     return RgbdFrame(rgb, depth, instance)
