@@ -37,6 +37,7 @@ bench: install
 	$(PY) scripts/bench_graph.py
 	$(PY) scripts/bench_study.py
 	$(PY) scripts/bench_mapping.py
+	$(PY) scripts/bench_mot.py
 
 lint: install
 	$(VENV)/bin/ruff check .

@@ -68,7 +68,18 @@ class OdometryDrift(_Model):
     position_rw: float = Field(0.01, ge=0, le=1, description="m per sqrt(s), per axis")
 
 
-class SensorConfig(_Model):
+class _Detector(_Model):
+    """A detector with a field of view between range_min and range_max (set by subclasses)."""
+
+    @model_validator(mode="after")
+    def _ranges(self) -> _Detector:
+        if self.range_max <= self.range_min:
+            raise ValueError(f"range_max ({self.range_max}) must exceed range_min "
+                             f"({self.range_min})")
+        return self
+
+
+class SensorConfig(_Detector):
     """Object detections of a forward-looking RGB-D camera after segmentation and lifting."""
 
     fov_deg: float = Field(90.0, gt=0, le=360)
@@ -81,13 +92,6 @@ class SensorConfig(_Model):
     partial_view: float = Field(0.6, gt=0, le=1,
                                 description="smallest share of an extent a view shows")
     false_per_frame: float = Field(0.2, ge=0, description="mean false segments per frame")
-
-    @model_validator(mode="after")
-    def _ranges(self) -> SensorConfig:
-        if self.range_max <= self.range_min:
-            raise ValueError(f"range_max ({self.range_max}) must exceed range_min "
-                             f"({self.range_min})")
-        return self
 
 
 class CameraConfig(_Model):
@@ -195,6 +199,75 @@ Layout = Annotated[IndoorReturnLayout | PathLayout | RoomLayout | GridLayout,
                    Field(discriminator="kind")]
 
 
+def _check_range(value: tuple[float, float]) -> tuple[float, float]:
+    if not 0 <= value[0] <= value[1]:
+        raise ValueError(f"need 0 <= low <= high, got {value}")
+    return value
+
+
+#: a (low, high) range of non-negative numbers
+Range = Annotated[tuple[float, float], AfterValidator(_check_range)]
+
+
+class PersonDetectorConfig(_Detector):
+    """A person detector on each robot: people in its field of view and range, each found with
+    some probability, placed with noise that grows with range, plus false detections."""
+
+    fov_deg: float = Field(90.0, gt=0, le=360)
+    range_min: float = Field(0.5, ge=0, description="m")
+    range_max: float = Field(8.0, gt=0, description="m")
+    p_detect: float = Field(0.85, gt=0, le=1, description="chance to detect a person in view")
+    noise: float = Field(0.1, ge=0, description="m, position std per axis at zero range")
+    noise_per_m: float = Field(0.02, ge=0, description="m of std per m of range")
+    false_per_frame: float = Field(0.3, ge=0, description="mean false detections per frame")
+
+
+class TrackerConfig(_Model):
+    """The multi-object tracker each robot runs on its own and its neighbours' detections:
+    constant-velocity Kalman filters, global nearest neighbour association (Hungarian),
+    confirmation after a few frames with a detection; unconfirmed tracks are deleted after a
+    few frames without one, confirmed tracks after max_coast seconds without one."""
+
+    accel_noise: float = Field(1.5, gt=0, description="m/s^2, white acceleration std")
+    detection_noise: float = Field(0.3, gt=0, description=(
+        "m, detection std per axis the filter assumes (own and neighbours' detections)"))
+    initial_speed: float = Field(1.5, gt=0, description="m/s, velocity std of a new track")
+    gate: float = Field(9.21, gt=0, description=(
+        "squared Mahalanobis distance beyond which a detection cannot update a track "
+        "(9.21: 99 % for 2 dof)"))
+    confirm_hits: int = Field(3, ge=1, description="frames with a detection before a track "
+                                                   "is reported")
+    tentative_misses: int = Field(1, ge=1, description=(
+        "frames in a row without a detection that delete an unconfirmed track"))
+    max_coast: float = Field(1.0, ge=0, description=(
+        "s; a confirmed track without a detection for longer is deleted"))
+
+
+class PedestriansConfig(_Model):
+    """People walking between random waypoints; every robot detects them, shares its
+    detections with its neighbours through each method's frame alignment and tracks them."""
+
+    count: int = Field(6, ge=1, le=200)
+    speed: Range = Field((0.5, 1.2), description="m/s, each leg's speed drawn from this range")
+    pause: Range = Field((0.0, 3.0), description="s standing at each waypoint")
+    margin: float = Field(1.0, ge=0, description=(
+        "m; waypoints lie in the bounding box of the robots' paths grown by this much"))
+    rate: float = Field(5.0, gt=0, le=100, description=(
+        "Hz of detections and tracking; must divide mapping.frame_rate"))
+    detector: PersonDetectorConfig = PersonDetectorConfig()
+    tracker: TrackerConfig = TrackerConfig()
+    match_distance: float = Field(1.0, gt=0, description=(
+        "m; MOTA counts a track within this distance of a person as tracking them"))
+    mota_window: float = Field(10.0, gt=0, description="s, the rolling MOTA window")
+
+    @field_validator("speed")
+    @classmethod
+    def _moving(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if value[0] <= 0:
+            raise ValueError(f"people must walk: need a lowest speed > 0, got {value}")
+        return value
+
+
 class ScenarioConfig(_Model):
     """One simulated world, its robots and their sensors."""
 
@@ -212,6 +285,8 @@ class ScenarioConfig(_Model):
         None, description="(m, deg) per step: the alignment drift the iSAM2 graph assumes; "
                           "None: TCAFF's Q")
     min_shared: int = Field(5, ge=1, description="objects two maps must share to overlap")
+    pedestrians: PedestriansConfig | None = Field(None, description=(
+        "people to detect and track together (multi-object tracking, MOTA); None: no people"))
 
     @property
     def n_robots(self) -> int:
@@ -226,6 +301,16 @@ class ScenarioConfig(_Model):
         if isinstance(self.odometry, list) and len(self.odometry) != self.n_robots:
             raise ValueError(f"odometry: a list needs one entry per robot ({self.n_robots}), "
                              f"got {len(self.odometry)}")
+        return self
+
+    @model_validator(mode="after")
+    def _people_frames(self) -> ScenarioConfig:
+        if self.pedestrians is None:
+            return self
+        every = self.mapping.frame_rate / self.pedestrians.rate
+        if abs(every - round(every)) > 1e-9 or round(every) < 1:
+            raise ValueError(f"pedestrians.rate ({self.pedestrians.rate} Hz) must divide "
+                             f"mapping.frame_rate ({self.mapping.frame_rate} Hz)")
         return self
 
 

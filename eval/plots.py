@@ -7,10 +7,16 @@
 - clipper_sweep.png: single-shot CLIPPER's false-accept share, availability and error against its
   association threshold k, with TCAFF as a reference line.
 - scenarios.png: each world's objects and the robots' true paths.
+- mot_<scenario>.png (scenarios with people): the paper's figure: MOTA over a rolling window,
+  averaged over the robots, above the frame alignment error averaged over the directed pairs,
+  with the single-shot CLIPPER threshold that tracked best.
+- mot_sweep.png: MOTA against single-shot CLIPPER's threshold k, the other methods as
+  horizontal lines.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import matplotlib
@@ -24,6 +30,7 @@ from tcaff_gtsam.geometry import se2_from_params, wrap_angle
 
 from .config import MethodsConfig
 from .metrics import step_errors
+from .mot import NO_SHARING, rolling_mota
 
 __all__ = ["draw_all", "label"]
 
@@ -34,6 +41,7 @@ STYLE = {
     "tcaff_isam2_smoothed": ("TCAFF+iSAM2 smoothed", "tab:pink", ":"),
     "icp": ("ICP, true init", "tab:brown", "-"),
     "ground_truth": ("ground truth", "tab:green", "-"),
+    NO_SHARING: ("no sharing", "0.5", ":"),
 }
 CLIPPER_COLOR = "tab:blue"
 
@@ -148,6 +156,76 @@ def clipper_sweep(path: Path, summary: dict, methods: MethodsConfig) -> None:
     plt.close(fig)
 
 
+def mot_over_time(path: Path, job, methods: list[str], window: float) -> None:
+    """Rolling MOTA (robot average) above the alignment error (average over directed pairs
+    with an estimate) of each method over time."""
+    a = job.arrays
+    T_true = se2_from_params(a["truth"])
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True,
+                             gridspec_kw={"height_ratios": (2, 1, 1)})
+    for method in methods:
+        color, line = _style(method)
+        mota = rolling_mota(a["mot_times"], a[f"mot_counts_{method}"], window)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # steps where no pair has one
+            axes[0].plot(a["mot_times"], np.nanmean(mota, axis=0), line, color=color, lw=1.3,
+                         label=label(method))
+            if method == NO_SHARING:
+                continue
+            err = np.array([step_errors(T, est) for T, est in
+                            zip(T_true, a[f"est_{method}"], strict=True)])
+            mean = np.nanmean(err, axis=0)
+        axes[1].plot(a["times"], mean[:, 0], line, color=color, lw=1.3)
+        axes[2].plot(a["times"], np.degrees(mean[:, 1]), line, color=color, lw=1.3)
+    axes[0].set_ylabel(f"MOTA, last {window:g} s")
+    axes[0].set_ylim(max(axes[0].get_ylim()[0], -1.0), 1.0)
+    axes[1].set_ylabel("translation error [m]")
+    axes[2].set_ylabel("heading error [deg]")
+    for ax in axes[1:]:
+        ax.set_yscale("symlog", linthresh=0.1)
+        ax.set_ylim(bottom=0.0)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="lower right", fontsize=8, ncol=3)
+    axes[0].set_title(f"{job.scenario} (seed {job.seed}): MOTA averaged over the robots, "
+                      f"alignment error over the pairs with an estimate", fontsize=10)
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def mot_sweep(path: Path, mot_summary: dict, methods: MethodsConfig) -> None:
+    """MOTA of single-shot CLIPPER against its threshold k; the other methods as lines."""
+    ks = methods.clipper_k
+    fig, axes = plt.subplots(1, len(mot_summary), figsize=(6 * len(mot_summary), 4.2),
+                             squeeze=False)
+    for ax, (scenario, by_method) in zip(axes[0], mot_summary.items(), strict=True):
+        if all(f"clipper_k{k}" in by_method for k in ks):
+            reports = [by_method[f"clipper_k{k}"] for k in ks]
+            ax.errorbar(ks, [_none_nan(r["mota"]) for r in reports],
+                        yerr=[_none_nan(r["mota_std"]) for r in reports], fmt="o-",
+                        color=CLIPPER_COLOR, ms=4, capsize=3, label="single-shot CLIPPER")
+        for method, report in by_method.items():
+            if method.startswith("clipper_k") or report["mota"] is None:
+                continue
+            color, line = _style(method)
+            ax.axhline(report["mota"], color=color, ls=line if line != "-" else "--", lw=1.3,
+                       label=f"{label(method)} {report['mota']:.3f}")
+        ax.set_title(f"{scenario}: MOTA (mean over seeds, bars: std)", fontsize=10)
+        ax.set_xlabel("k: fewest associations accepted")
+        ax.set_ylabel("MOTA")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _none_nan(value: float | None) -> float:
+    return np.nan if value is None else value
+
+
 def scenarios_overview(path: Path, first: list) -> None:
     """Each scenario's objects (sized by width), walls and true robot paths, from one job of
     each scenario."""
@@ -176,7 +254,8 @@ def scenarios_overview(path: Path, first: list) -> None:
     plt.close(fig)
 
 
-def draw_all(folder: Path, jobs: list, summary: dict, methods: MethodsConfig) -> list[Path]:
+def draw_all(folder: Path, jobs: list, summary: dict, methods: MethodsConfig,
+             mot_summary: dict | None = None) -> list[Path]:
     """Every figure of a study into `folder`; returns the files written."""
     from .methods import method_names
 
@@ -202,4 +281,18 @@ def draw_all(folder: Path, jobs: list, summary: dict, methods: MethodsConfig) ->
         written.append(folder / "clipper_sweep.png")
     scenarios_overview(folder / "scenarios.png", list(first.values()))
     written.append(folder / "scenarios.png")
+    for scenario, job in first.items():
+        if job.mot:
+            # as in the paper, the CLIPPER threshold with the best tracking
+            sweep = {m: r["mota"] for m, r in (mot_summary or {}).get(scenario, {}).items()
+                     if m.startswith("clipper_k") and r["mota"] is not None}
+            tracked = [m for m in (NO_SHARING, "ground_truth", "tcaff", "tcaff_isam2_causal",
+                                   "icp") if m in job.mot]
+            path = folder / f"mot_{scenario}.png"
+            mot_over_time(path, job, tracked + ([max(sweep, key=sweep.get)] if sweep else []),
+                          float(job.arrays["mot_window"]))
+            written.append(path)
+    if mot_summary:
+        mot_sweep(folder / "mot_sweep.png", mot_summary, methods)
+        written.append(folder / "mot_sweep.png")
     return written

@@ -13,10 +13,11 @@ import json
 import logging
 import multiprocessing
 import queue
+import time
 import traceback
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
@@ -27,13 +28,15 @@ from tcaff_gtsam.geometry import se2_from_params
 from .config import MethodsConfig, ScenarioConfig, StudyConfig, dump_study
 from .methods import MethodRuns, method_names, run_methods
 from .metrics import PairTrace, Thresholds, pair_metrics, pooled_metrics
+from .mot import COUNTS, collaborative_mot
 from .sim.simulate import SimRun, simulate
 
-__all__ = ["JobResult", "StudyOutcome", "run_job", "run_study"]
+__all__ = ["JobResult", "StudyOutcome", "run_job", "run_study", "summarize_mot"]
 
 log = logging.getLogger(__name__)
 
 SIMULATION_SHARE = 0.2  # of a job's progress bar
+TRACKING_SHARE = 0.7    # of the rest, when the scenario has people to track
 
 
 @dataclass
@@ -46,9 +49,14 @@ class JobResult:
         arrays: everything the figures need, as saved in runs/<scenario>-seed<seed>.npz:
             times (S,), poses_true and poses_odom (n, S, 3), truth (P, S, 3), overlap (P, S),
             est_<method> (P, S, 3), cand_steps_<p> (M,), cand_z_<p> (M, 3), world_xy (n, 2),
-            world_widths (n,), walls (m, 2, 2).
+            world_widths (n,), walls (m, 2, 2); with people to track also mot_times (F,),
+            mot_window (the rolling MOTA window, s) and mot_counts_<method> (n, F, 4): per
+            robot and frame the people to track, false positives, misses and identity
+            switches.
         metrics: method -> {"all": report over the pairs, "i->j": report of one pair}.
         seconds: method -> compute time.
+        mot: method -> {"mota": averaged over the robots, "robots": [per robot summary]};
+            empty without people.
     """
 
     scenario: str
@@ -57,6 +65,7 @@ class JobResult:
     arrays: dict[str, np.ndarray]
     metrics: dict[str, dict[str, dict]]
     seconds: dict[str, float]
+    mot: dict[str, dict] = field(default_factory=dict)
 
     @property
     def stem(self) -> str:
@@ -76,7 +85,7 @@ class JobResult:
             np.savez_compressed(file, **self.arrays)
         (folder / f"{self.stem}.json").write_text(json.dumps(
             {"scenario": self.scenario, "seed": self.seed, "pairs": self.pairs,
-             "seconds": self.seconds, "metrics": self.metrics}, indent=1))
+             "seconds": self.seconds, "metrics": self.metrics, "mot": self.mot}, indent=1))
 
 
 def _report(job_traces: dict[str, list[PairTrace]], pairs, thresholds: Thresholds) -> dict:
@@ -107,14 +116,32 @@ def run_job(scenario: ScenarioConfig, methods: MethodsConfig, seed: int,
 
 def score_run(run: SimRun, methods: MethodsConfig,
               progress: Callable[[float], None] | None = None) -> JobResult:
-    """Run every method over a simulated run and score them."""
-    runs = run_methods(run, methods, progress)
+    """Run every method over a simulated run and score them; with people in the run, also
+    track them with every method's alignments and score the tracking (MOTA)."""
+    aligning = 1.0 if run.people is None else 1.0 - TRACKING_SHARE
+
+    def report(share: float, start: float, span: float) -> None:
+        if progress is not None:
+            progress(start + span * share)
+
+    runs = run_methods(run, methods, lambda s: report(s, 0.0, aligning))
     job = job_from_runs(run.scenario.name, run.seed, runs, {
         "times": run.times, "poses_true": run.poses_true, "poses_odom": run.poses_odom,
         "overlap": np.array([run.overlap(i, j) for i, j in runs.pairs]),
         "world_xy": run.world.xy, "world_widths": run.world.widths, "walls": run.world.walls,
     })
     score(job, methods)
+    if run.people is not None:
+        start = time.perf_counter()
+        scores = collaborative_mot(run.people, run.times, runs.pairs, runs.estimates,
+                                   run.scenario.pedestrians,
+                                   lambda s: report(s, aligning, TRACKING_SHARE))
+        job.seconds["tracking"] = time.perf_counter() - start
+        job.arrays["mot_times"] = run.people.times
+        job.arrays["mot_window"] = np.float64(run.scenario.pedestrians.mota_window)
+        for method, mot in scores.items():
+            job.arrays[f"mot_counts_{method}"] = mot.counts
+            job.mot[method] = {"mota": mot.mota, "robots": mot.robots}
     return job
 
 
@@ -145,6 +172,7 @@ class StudyOutcome:
     failed: list[dict]
     interrupted: bool
     summary: dict[str, dict[str, dict]]
+    mot_summary: dict[str, dict[str, dict]] = field(default_factory=dict)
 
 
 def _job_in_worker(scenario: ScenarioConfig, methods: MethodsConfig, seed: int, key: int,
@@ -180,11 +208,34 @@ def summarize(jobs: list[JobResult], methods: MethodsConfig) -> dict[str, dict[s
     return summary
 
 
+def summarize_mot(jobs: list[JobResult]) -> dict[str, dict[str, dict]]:
+    """scenario -> method -> tracking summary over its seeds: mota (mean of each seed's
+    robot-averaged MOTA) and mota_std, and false_positives_share, misses_share and
+    switches_share: shares of the people to track, pooled over robots and seeds. Scenarios
+    without people are left out.
+    """
+    summary: dict[str, dict[str, dict]] = {}
+    for name in dict.fromkeys(j.scenario for j in jobs if j.mot):
+        mine = [j for j in jobs if j.scenario == name and j.mot]
+        summary[name] = {}
+        for method in mine[0].mot:
+            motas = [j.mot[method]["mota"] for j in mine if j.mot[method]["mota"] is not None]
+            totals = sum(j.arrays[f"mot_counts_{method}"].sum(axis=(0, 1)) for j in mine)
+            objects = int(totals[0])
+            shares = {f"{key}_share": float(total / objects) if objects else None
+                      for key, total in zip(COUNTS[1:], totals[1:], strict=True)}
+            summary[name][method] = {
+                "mota": float(np.mean(motas)) if motas else None,
+                "mota_std": float(np.std(motas)) if motas else None,
+                "seeds": len(motas), "objects": objects, **shares}
+    return summary
+
+
 def _write_tables(folder: Path, study: StudyConfig, outcome: StudyOutcome) -> None:
     (folder / "metrics.json").write_text(json.dumps({
         "study": study.name, "interrupted": outcome.interrupted, "failed": outcome.failed,
-        "summary": outcome.summary,
-        "runs": [{"scenario": j.scenario, "seed": j.seed, "metrics": j.metrics}
+        "summary": outcome.summary, "mot_summary": outcome.mot_summary,
+        "runs": [{"scenario": j.scenario, "seed": j.seed, "metrics": j.metrics, "mot": j.mot}
                  for j in outcome.jobs]}, indent=1))
     rows = []
     for j in outcome.jobs:
@@ -198,6 +249,19 @@ def _write_tables(folder: Path, study: StudyConfig, outcome: StudyOutcome) -> No
                          **report})
     if rows:
         write_csv(folder / "metrics.csv", rows)
+    mot_rows = []
+    for j in outcome.jobs:
+        for method, mot in j.mot.items():
+            mot_rows.append({"scenario": j.scenario, "seed": j.seed, "method": method,
+                             "robot": "mean", "mota": mot["mota"]})
+            mot_rows += [{"scenario": j.scenario, "seed": j.seed, "method": method,
+                          "robot": r, **report} for r, report in enumerate(mot["robots"])]
+    for scenario, by_method in outcome.mot_summary.items():
+        for method, report in by_method.items():
+            mot_rows.append({"scenario": scenario, "seed": "all", "method": method,
+                             "robot": "all", **report})
+    if mot_rows:
+        write_csv(folder / "mot.csv", mot_rows)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:
@@ -283,10 +347,10 @@ def run_study(study: StudyConfig, progress: Progress | None = None,
     order = {(s.name, seed): k for k, (s, seed) in enumerate(todo)}
     jobs.sort(key=lambda j: order[(j.scenario, j.seed)])
     outcome = StudyOutcome(folder, jobs, failed, interrupted,
-                           summarize(jobs, methods) if jobs else {})
+                           summarize(jobs, methods) if jobs else {}, summarize_mot(jobs))
     _write_tables(folder, study, outcome)
     if figures and jobs:
-        plots.draw_all(folder / "figures", jobs, outcome.summary, methods)
+        plots.draw_all(folder / "figures", jobs, outcome.summary, methods, outcome.mot_summary)
     if jobs:
         _link_latest(root, folder)
     return outcome

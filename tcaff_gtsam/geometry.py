@@ -26,6 +26,7 @@ __all__ = [
     "se3_to_se2",
     "se3_to_xyz_quat",
     "transform_points",
+    "transform_points_batch",
     "wrap_angle",
 ]
 
@@ -173,3 +174,16 @@ def transform_points(T_a_b, points_b) -> np.ndarray:
     if points_b.ndim != 2 or points_b.shape[1] != d:
         raise DataError(f"points: expected shape (n, {d}), got {points_b.shape}")
     return points_b @ T_a_b[:d, :d].T + T_a_b[:d, d]
+
+
+def transform_points_batch(T_a_b, points_b) -> np.ndarray:
+    """Points (..., d) mapped from frame b into frame a by transforms (..., d+1, d+1), the two
+    broadcast against each other: one transform per point ((k, 3, 3) with (k, 2)), or one per
+    set of points ((F, 1, 3, 3) with (F, n, 2))."""
+    T_a_b = np.asarray(T_a_b, dtype=float)
+    points_b = np.asarray(points_b, dtype=float)
+    d = T_a_b.shape[-1] - 1
+    if T_a_b.shape[-2:] not in ((3, 3), (4, 4)) or points_b.shape[-1:] != (d,):
+        raise DataError(f"transform_points_batch: need T (..., d+1, d+1) with d = 2 or 3 and "
+                        f"points (..., d), got {T_a_b.shape} and {points_b.shape}")
+    return np.einsum("...ij,...j->...i", T_a_b[..., :d, :d], points_b) + T_a_b[..., :d, d]

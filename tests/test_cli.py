@@ -59,7 +59,7 @@ def test_bad_option_is_a_clear_error(tmp_path):
 
 
 SCENARIOS = ["indoor_return", "same_direction", "opposite_directions", "four_robots",
-             "ambiguous_grid", "indoor_rgbd"]
+             "ambiguous_grid", "indoor_rgbd", "mot"]
 
 
 @pytest.mark.parametrize("scenario", SCENARIOS)
@@ -68,8 +68,11 @@ def test_study_runs_each_shipped_scenario(tmp_path, scenario):
                                  "--workers", "1", "--output", str(tmp_path), "--no-figures"])
     assert result.exit_code == 0, result.output
     assert scenario in result.output and "TCAFF+iSAM2 smoothed" in result.output
-    summary = json.loads((tmp_path / "latest" / "metrics.json").read_text())["summary"]
-    assert list(summary) == [scenario]
+    metrics = json.loads((tmp_path / "latest" / "metrics.json").read_text())
+    assert list(metrics["summary"]) == [scenario]
+    tracked = scenario == "mot"  # the only shipped scenario with people
+    assert ("Tracking people together" in result.output) == tracked
+    assert list(metrics["mot_summary"]) == ([scenario] if tracked else [])
 
 
 @pytest.mark.parametrize("methods", ["default", "tcaff_only"])
@@ -87,7 +90,9 @@ def test_study_runs_each_shipped_study(tmp_path, study):
     result = runner.invoke(app, ["study", study, "--seeds", "1", "--duration", "8",
                                  "--workers", "1", "--output", str(tmp_path), "--no-figures"])
     assert result.exit_code == 0, result.output
-    assert len(json.loads((tmp_path / "latest" / "metrics.json").read_text())["summary"]) == 6
+    metrics = json.loads((tmp_path / "latest" / "metrics.json").read_text())
+    assert list(metrics["summary"]) == SCENARIOS
+    assert list(metrics["mot_summary"]) == ["mot"]
 
 
 def test_bad_study_config_is_one_line_and_exit_2(tmp_path):
@@ -106,6 +111,8 @@ def test_demo_prints_the_table_and_writes_the_figures(tmp_path):
     for name in SCENARIOS:
         assert name in done.stdout
     assert "CLIPPER k>=10" in done.stdout
+    assert "Tracking people together" in done.stdout and "no sharing" in done.stdout
     figures = {p.name for p in (tmp_path / "latest" / "figures").glob("*.png")}
     assert figures == {"leave_and_return.png", "clipper_sweep.png", "scenarios.png",
+                       "mot_mot.png", "mot_sweep.png",
                        *(f"errors_{name}.png" for name in SCENARIOS)}

@@ -19,7 +19,7 @@ SCENARIOS = sorted(p.stem for p in (CONFIG_DIR / "scenarios").glob("*.yaml"))
 
 
 def test_every_scenario_of_the_paper_ships():
-    assert set(SCENARIOS) >= {"ambiguous_grid", "four_robots", "indoor_return",
+    assert set(SCENARIOS) >= {"ambiguous_grid", "four_robots", "indoor_return", "mot",
                               "opposite_directions", "same_direction"}
 
 
@@ -27,7 +27,7 @@ def test_every_scenario_of_the_paper_ships():
 def test_shipped_scenarios_load(name):
     cfg = load_scenario(name)
     assert cfg.name == name
-    assert cfg.n_robots == (4 if name == "four_robots" else 2)
+    assert cfg.n_robots == (4 if name in ("four_robots", "mot") else 2)
 
 
 @pytest.mark.parametrize("name", ["default", "tcaff_only"])

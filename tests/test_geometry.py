@@ -24,6 +24,7 @@ from tcaff_gtsam.geometry import (
     se3_to_se2,
     se3_to_xyz_quat,
     transform_points,
+    transform_points_batch,
     wrap_angle,
 )
 
@@ -434,3 +435,22 @@ def test_se2_error_is_the_size_of_the_right_perturbation(x, y, th, dx, dy, dth):
     err = se2_error(T, T @ se2_from_params([dx, dy, dth]))
     np.testing.assert_allclose(err, [math.hypot(dx, dy), abs(dth)], atol=1e-9)
     assert se2_error(np.stack([T, T]), np.stack([T, T])).shape == (2, 2)
+
+
+def test_transform_points_batch_applies_one_transform_per_point_or_per_set():
+    rng = np.random.default_rng(0)
+    T = se2_from_params(np.column_stack([rng.normal(size=(6, 2)), rng.uniform(-3, 3, 6)]))
+    xy = rng.normal(size=(6, 4, 2))
+    per_set = transform_points_batch(T[:, None], xy)
+    assert per_set.shape == (6, 4, 2)
+    for f in range(6):
+        assert np.allclose(per_set[f], transform_points(T[f], xy[f]), atol=1e-12)
+    per_point = transform_points_batch(T, xy[:, 0])
+    assert np.allclose(per_point, per_set[:, 0], atol=1e-12)
+    T3 = np.array([se3_from_xyz_yaw(*rng.normal(size=3), rng.uniform(-3, 3))
+                   for _ in range(5)])
+    p3 = rng.normal(size=(5, 3))
+    assert np.allclose(transform_points_batch(T3, p3),
+                       [transform_points(T3[k], p3[k:k + 1])[0] for k in range(5)])
+    with pytest.raises(DataError, match="transform_points_batch"):
+        transform_points_batch(T, rng.normal(size=(6, 3)))

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.geometry import wrap_angle
+from tcaff_gtsam.geometry import invert, se2_from_params, wrap_angle
 
-__all__ = ["drifting_odometry", "lawnmower", "loop", "poses_along", "then", "timed_waypoints",
-           "wait"]
+__all__ = ["drifting_odometry", "lawnmower", "loop", "odometry_frame", "poses_along", "then",
+           "timed_waypoints", "wait"]
 
 
 def timed_waypoints(waypoints, speed: float, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -115,3 +115,9 @@ def drifting_odometry(rng: np.random.Generator, poses: np.ndarray, dt: float,
         [c * step_xy[:, 0] - s * step_xy[:, 1], s * step_xy[:, 0] + c * step_xy[:, 1]]),
         axis=0)])
     return np.column_stack([xy, wrap_angle(theta)])
+
+
+def odometry_frame(poses_true: np.ndarray, poses_odom: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) T_w_o, a robot's odometry frame in the world frame, T_w_b T_o_b^-1, from its
+    true poses (..., 3) and odometry poses (..., 3) at the same times."""
+    return se2_from_params(poses_true) @ invert(se2_from_params(poses_odom))

@@ -17,12 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 from tcaff_gtsam.mapping.mapper import MapperParams, ObjectMapper
 
-from tcaff_gtsam.geometry import invert, se2_from_params
+from tcaff_gtsam.geometry import invert
 from tcaff_gtsam.object_map import ObjectMap
 
 from ..config import ScenarioConfig
 from ..methods import RunSettings
-from .motion import drifting_odometry, poses_along
+from .motion import drifting_odometry, odometry_frame, poses_along
+from .people import PeopleRun, simulate_people
 from .render import RgbdScene
 from .rgbd import RenderedCamera, clear_paths
 from .scenarios import build_scene
@@ -45,6 +46,8 @@ class SimRun:
         labels: labels[r][s] (len(maps[r][s]),) int, the world object of each map entry
             (-1: built from false segments).
         world: the objects.
+        people: the walking people and every robot's detections of them (None: the scenario
+            has no pedestrians).
     """
 
     scenario: ScenarioConfig
@@ -55,6 +58,7 @@ class SimRun:
     maps: list[list[ObjectMap]]
     labels: list[list[np.ndarray]]
     world: World
+    people: PeopleRun | None = None
 
     @property
     def n_robots(self) -> int:
@@ -67,8 +71,7 @@ class SimRun:
 
     def T_w_o(self, robot: int) -> np.ndarray:
         """(S, 3, 3) robot's odometry frame in the world frame: T_w_b T_o_b^-1."""
-        return se2_from_params(self.poses_true[robot]) @ invert(
-            se2_from_params(self.poses_odom[robot]))
+        return odometry_frame(self.poses_true[robot], self.poses_odom[robot])
 
     def T_true(self, i: int, j: int) -> np.ndarray:
         """(S, 3, 3) the true T_oi_oj at each exchange."""
@@ -112,12 +115,21 @@ def simulate(config: ScenarioConfig, seed: int,
     poses_odom = np.zeros_like(poses_true)
     maps: list[list[ObjectMap]] = []
     labels: list[list[np.ndarray]] = []
+    walkers = config.pedestrians
+    people_frames = np.zeros(0, dtype=np.int64)  # the frames people are detected at
+    if walkers is not None:
+        every = round(config.mapping.frame_rate / walkers.rate)
+        people_frames = np.arange(every - 1, len(frame_times), every)
+    driven, people_true, people_odom = [], [], []
     for robot in range(n):
         drift = config.drift(robot)
         true = poses_along(*scene.knots[robot], np.r_[0.0, frame_times])
         odom = drifting_odometry(rng, true, dt, np.radians(drift.heading_rw_deg),
                                  drift.position_rw)[1:]
         true = true[1:]
+        driven.append(true[:, :2])
+        people_true.append(true[people_frames])
+        people_odom.append(odom[people_frames])
         if rendered is None:
             mapper = ObjectMapper(mapper_params)
         else:
@@ -147,4 +159,11 @@ def simulate(config: ScenarioConfig, seed: int,
         labels.append(robot_labels)
         if progress is not None:
             progress((robot + 1) / n)
-    return SimRun(config, seed, exchange_times, poses_true, poses_odom, maps, labels, world)
+    people = None
+    if walkers is not None:
+        # a generator of its own, so that adding people leaves the robots' maps unchanged
+        people = simulate_people(np.random.default_rng([seed, 1]), walkers,
+                                 frame_times[people_frames], driven, np.array(people_true),
+                                 np.array(people_odom))
+    return SimRun(config, seed, exchange_times, poses_true, poses_odom, maps, labels, world,
+                  people)

@@ -1,0 +1,219 @@
+"""Collaborative multi-object tracking of people, and its MOTA, for every alignment method.
+
+Every robot tracks people with a `MultiObjectTracker` on its own detections and on its
+neighbours' detections moved into its odometry frame through a method's current alignment
+T_oi_oj: the estimate of the latest 1 Hz exchange at or before the frame. A neighbour whose
+alignment the method does not know yet is not used. `no_sharing` is the robot alone.
+
+Each robot's tracks are scored against the truth in its own odometry frame (where it would
+place the people if it saw them without error) with `motmetrics` (CLEAR MOT). The people to
+track in a frame are those in some robot's field of view; a track on a person nobody sees
+right now (a track coasting after the person walked out of view) is neither a hit nor a false
+positive: it is left out before scoring.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import motmetrics as mm
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.geometry import se2_from_params, transform_points_batch
+
+from .config import PedestriansConfig
+from .sim.people import PeopleRun
+from .tracker import MultiObjectTracker
+
+__all__ = ["COUNTS", "NO_SHARING", "MotScore", "collaborative_mot", "held_alignment",
+           "mot_methods", "robot_alignments", "rolling_mota", "score_tracks", "track_robot"]
+
+NO_SHARING = "no_sharing"
+#: the per-frame counts kept for each robot, in this order
+COUNTS = ("objects", "false_positives", "misses", "switches")
+_NOT_CAUSAL = ("tcaff_isam2_smoothed",)  # built from later steps' factors: not usable online
+_METRICS = ["mota", "motp", "idf1", "num_objects", "num_false_positives", "num_misses",
+            "num_switches"]
+
+
+@dataclass
+class MotScore:
+    """One method's tracking over a run.
+
+    Attributes:
+        counts: (n_robots, F, 4) int, per robot and frame: people to track, false positives,
+            misses and identity switches (`COUNTS`).
+        robots: per robot, motmetrics' summary: mota, motp (m, mean distance of matched
+            tracks), idf1, objects, false_positives, misses, switches.
+    """
+
+    counts: np.ndarray
+    robots: list[dict]
+
+    @property
+    def mota(self) -> float | None:
+        """MOTA averaged over the robots that had people to track."""
+        values = [r["mota"] for r in self.robots if r["mota"] is not None]
+        return float(np.mean(values)) if values else None
+
+
+def mot_methods(names: list[str]) -> list[str]:
+    """The methods whose alignments can drive online tracking, after `no_sharing`."""
+    return [NO_SHARING, *(n for n in names if n not in _NOT_CAUSAL)]
+
+
+def held_alignment(times: np.ndarray, exchange_times: np.ndarray, estimate: np.ndarray
+                   ) -> np.ndarray:
+    """(F, 3, 3) the alignment of the latest exchange at or before each frame; NaN before the
+    first exchange and where the method had no estimate.
+
+    Args:
+        times: (F,) seconds of the frames. exchange_times: (S,) seconds of the exchanges.
+        estimate: (S, 3) (x, y, theta) of T_oi_oj at each exchange, NaN rows where none.
+    """
+    estimate = np.asarray(estimate, dtype=float)
+    if estimate.shape != (len(exchange_times), 3):
+        raise DataError(f"held_alignment: estimate must be ({len(exchange_times)}, 3), one row "
+                        f"per exchange, got {estimate.shape}")
+    step = np.searchsorted(exchange_times, times + 1e-9, side="right") - 1
+    params = np.full((len(times), 3), np.nan)
+    params[step >= 0] = estimate[step[step >= 0]]
+    return se2_from_params(params)
+
+
+def robot_alignments(people: PeopleRun, exchange_times: np.ndarray,
+                     pairs: list[tuple[int, int]], estimates: np.ndarray, robot: int
+                     ) -> dict[int, np.ndarray]:
+    """Neighbour j -> (F, 3, 3) the T_oi_oj robot i = `robot` uses at each frame (NaN: none).
+
+    Args:
+        estimates: (n_pairs, S, 3) one method's estimates of the directed `pairs`.
+    """
+    return {j: held_alignment(people.times, exchange_times, estimates[p])
+            for p, (i, j) in enumerate(pairs) if i == robot}
+
+
+def track_robot(people: PeopleRun, robot: int, T_i: dict[int, np.ndarray],
+                tracker: MultiObjectTracker) -> list[tuple[np.ndarray, np.ndarray]]:
+    """One robot's confirmed tracks at every frame.
+
+    Args:
+        T_i: neighbour j -> (F, 3, 3) T_oi_oj used at each frame (NaN: not shared then).
+    Returns:
+        per frame, (ids (m,), xy (m, 2) in the robot's odometry frame).
+    """
+    n_frames = len(people.times)
+    sources = []  # (bounds (F + 1,), xy (D, 2) in this robot's frame)
+    for j in [robot, *sorted(T_i)]:
+        frame, xy, _ = people.detections[j]
+        if j != robot:
+            xy = transform_points_batch(T_i[j][frame], xy)
+        sources.append((np.searchsorted(frame, np.arange(n_frames + 1)), xy))
+    out = []
+    for f, t in enumerate(people.times):
+        sets = [xy[bounds[f]:bounds[f + 1]] for bounds, xy in sources]
+        out.append(tracker.step(float(t), [z for z in sets if len(z) and np.isfinite(z[0, 0])]))
+    return out
+
+
+def score_tracks(truth: np.ndarray, in_view: np.ndarray,
+                 tracks: list[tuple[np.ndarray, np.ndarray]], match_distance: float
+                 ) -> tuple[np.ndarray, dict]:
+    """CLEAR MOT of one robot's tracks.
+
+    Args:
+        truth: (F, n, 2) the people's true positions in the robot's frame.
+        in_view: (F, n) bool, the people to track in each frame.
+        tracks: per frame, (ids (m,), xy (m, 2)).
+        match_distance: metres; a track further from a person does not track them.
+    Returns:
+        counts (F, 4) (`COUNTS`) and the summary (mota and motp None without people to track).
+    """
+    acc = mm.MOTAccumulator(auto_id=False)
+    person_ids = np.arange(truth.shape[1])
+    for f, (ids, xy) in enumerate(tracks):
+        seen = in_view[f]
+        if not seen.all() and len(ids):
+            # A track on a person out of everyone's view is neither right nor wrong. Everyone
+            # is assigned at once, so a hidden person never takes a visible one's track.
+            d = np.linalg.norm(truth[f][:, None] - xy[None], axis=2)
+            rows, cols = linear_sum_assignment(np.where(d <= match_distance, d, 1e12))
+            on_hidden = (d[rows, cols] <= match_distance) & ~seen[rows]
+            keep = np.ones(len(ids), dtype=bool)
+            keep[cols[on_hidden]] = False
+            ids, xy = ids[keep], xy[keep]
+        d2 = mm.distances.norm2squared_matrix(truth[f, seen], xy, max_d2=match_distance**2)
+        acc.update(person_ids[seen], ids, np.sqrt(d2), frameid=f)
+    events = acc.mot_events
+    per_type = (events.groupby([events.index.get_level_values("FrameId"), "Type"]).size()
+                .unstack(fill_value=0).reindex(range(len(tracks)), fill_value=0))
+
+    def column(name: str) -> np.ndarray:
+        return (per_type[name].to_numpy() if name in per_type
+                else np.zeros(len(tracks), dtype=np.int64))
+
+    counts = np.column_stack([column("MATCH") + column("SWITCH") + column("MISS"),
+                              column("FP"), column("MISS"), column("SWITCH")]).astype(np.int64)
+    summary = mm.metrics.create().compute(acc, metrics=_METRICS, return_dataframe=False)
+    has_people = summary["num_objects"] > 0
+    report = {
+        "mota": float(summary["mota"]) if has_people else None,
+        "motp": float(summary["motp"]) if has_people and np.isfinite(summary["motp"]) else None,
+        "idf1": float(summary["idf1"]) if np.isfinite(summary["idf1"]) else None,
+        "objects": int(summary["num_objects"]),
+        "false_positives": int(summary["num_false_positives"]),
+        "misses": int(summary["num_misses"]),
+        "switches": int(summary["num_switches"]),
+    }
+    return counts, report
+
+
+def collaborative_mot(people: PeopleRun, exchange_times: np.ndarray,
+                      pairs: list[tuple[int, int]], estimates: dict[str, np.ndarray],
+                      config: PedestriansConfig,
+                      progress: Callable[[float], None] | None = None) -> dict[str, MotScore]:
+    """Every robot tracks the people with each method's alignments; each is scored.
+
+    Args:
+        exchange_times: (S,) seconds of the 1 Hz exchanges the estimates belong to.
+        pairs: the directed pairs (i, j) of the estimates' first axis.
+        estimates: method -> (n_pairs, S, 3) (x, y, theta) of T_oi_oj, NaN where none; only
+            the names of `mot_methods` are tracked (`no_sharing` needs no estimate).
+        progress: called after each method with the share of methods done.
+    """
+    out = {}
+    names = mot_methods(list(estimates))
+    for done, method in enumerate(names, start=1):
+        counts, robots = [], []
+        for i in range(people.n_robots):
+            T_i = ({} if method == NO_SHARING else
+                   robot_alignments(people, exchange_times, pairs, estimates[method], i))
+            tracks = track_robot(people, i, T_i, MultiObjectTracker(config.tracker))
+            c, report = score_tracks(people.truth_in_odom(i), people.in_view, tracks,
+                                     config.match_distance)
+            counts.append(c)
+            robots.append(report)
+        out[method] = MotScore(np.array(counts), robots)
+        if progress is not None:
+            progress(done / len(names))
+    return out
+
+
+def rolling_mota(times: np.ndarray, counts: np.ndarray, window: float) -> np.ndarray:
+    """(..., F) MOTA over the frames in (t - window, t] at each frame t; NaN where no person
+    was to be tracked in the window.
+
+    Args:
+        times: (F,) seconds. counts: (..., F, 4) per-frame counts (`COUNTS`).
+    """
+    total = np.concatenate([np.zeros((*counts.shape[:-2], 1, 4)), np.cumsum(counts, axis=-2)],
+                           axis=-2)
+    start = np.searchsorted(times, times - window + 1e-9, side="right")  # robust to rounding
+    summed = total[..., 1:, :] - total[..., start, :]
+    objects = summed[..., 0]
+    errors = summed[..., 1:].sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(objects > 0, 1.0 - errors / objects, np.nan)
