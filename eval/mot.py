@@ -186,14 +186,14 @@ def collaborative_mot(people: PeopleRun, exchange_times: np.ndarray,
     """
     out = {}
     names = mot_methods(list(estimates))
+    truths = [people.truth_in_odom(i) for i in range(people.n_robots)]
     for done, method in enumerate(names, start=1):
         counts, robots = [], []
-        for i in range(people.n_robots):
+        for i, truth in enumerate(truths):
             T_i = ({} if method == NO_SHARING else
                    robot_alignments(people, exchange_times, pairs, estimates[method], i))
             tracks = track_robot(people, i, T_i, MultiObjectTracker(config.tracker))
-            c, report = score_tracks(people.truth_in_odom(i), people.in_view, tracks,
-                                     config.match_distance)
+            c, report = score_tracks(truth, people.in_view, tracks, config.match_distance)
             counts.append(c)
             robots.append(report)
         out[method] = MotScore(np.array(counts), robots)
