@@ -165,16 +165,17 @@ def mot_over_time(path: Path, job, methods: list[str], window: float) -> None:
                              gridspec_kw={"height_ratios": (2, 1, 1)})
     for method in methods:
         color, line = _style(method)
-        mota = rolling_mota(a["mot_times"], a[f"mot_counts_{method}"], window)
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # steps where no pair has one
-            axes[0].plot(a["mot_times"], np.nanmean(mota, axis=0), line, color=color, lw=1.3,
-                         label=label(method))
-            if method == NO_SHARING:
-                continue
-            err = np.array([step_errors(T, est) for T, est in
-                            zip(T_true, a[f"est_{method}"], strict=True)])
-            mean = np.nanmean(err, axis=0)
+        rolling = rolling_mota(a["mot_times"], a[f"mot_counts_{method}"], window)
+        err = (np.array([step_errors(T, est) for T, est in
+                         zip(T_true, a[f"est_{method}"], strict=True)])
+               if method != NO_SHARING else None)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # frames or steps with no value
+            mota = np.nanmean(rolling, axis=0)  # over the robots
+            mean = None if err is None else np.nanmean(err, axis=0)  # over the pairs
+        axes[0].plot(a["mot_times"], mota, line, color=color, lw=1.3, label=label(method))
+        if mean is None:
+            continue
         axes[1].plot(a["times"], mean[:, 0], line, color=color, lw=1.3)
         axes[2].plot(a["times"], np.degrees(mean[:, 1]), line, color=color, lw=1.3)
     axes[0].set_ylabel(f"MOTA, last {window:g} s")
