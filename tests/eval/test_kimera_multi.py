@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bag_script import load_bag_script
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -27,6 +26,7 @@ from tcaff_gtsam.eval.datasets.kimera_multi import (
 )
 from tcaff_gtsam.eval.kimera import RecordedRun, extrinsic, run_kimera_multi
 from tcaff_gtsam.eval.methods import RunSettings, run_methods
+from tcaff_gtsam.eval.sim import kimera_bags
 from tcaff_gtsam.mapping.camera import T_body_camera
 from typer.testing import CliRunner
 
@@ -181,7 +181,7 @@ ROBOTS = ("acl_jackal2", "sparkal2")
 def sequence(tmp_path_factory):
     """30 s of two robots at 320 x 240, 5 Hz, and the simulation's truth."""
     data = tmp_path_factory.mktemp("kimera_like")
-    truth = load_bag_script().write_sequence(data, ROBOTS, 30.0, 5.0, 320, 240, seed=1,
+    truth = kimera_bags.write_sequence(data, ROBOTS, 30.0, 5.0, 320, 240, seed=1,
                                              scenario=str(SCENARIO))
     return data, truth
 

@@ -9,12 +9,13 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from bag_script import SCRIPT, load_bag_script
 from rosbags.highlevel import AnyReader
+from tcaff_gtsam.eval.sim import kimera_bags
 from tcaff_gtsam.eval.sim.render import RgbdScene, render
 
 from tcaff_gtsam.errors import ConfigError
@@ -24,7 +25,8 @@ SECONDS, RATE, WIDTH, HEIGHT = 2.0, 10.0, 160, 120
 T0_NS = 1_634_000_000 * 10**9
 
 
-script = load_bag_script()
+script = kimera_bags
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "make_kimera_like_bag.py"
 
 
 @pytest.fixture(scope="module")
