@@ -11,9 +11,11 @@ configuration a study writes next to its results has everything inline and loads
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import yaml
 from pydantic import (
     AfterValidator,
@@ -26,6 +28,7 @@ from pydantic import (
 )
 
 from tcaff_gtsam.errors import ConfigError
+from tcaff_gtsam.params import ClipperParams, FrameAlignerParams, GraphParams, TCAFFParams
 
 __all__ = [
     "CONFIG_DIR",
@@ -367,6 +370,32 @@ class MethodsConfig(_Model):
     icp: IcpConfig = IcpConfig()
     graph: GraphConfig = GraphConfig()
     thresholds: ThresholdConfig = ThresholdConfig()
+
+    def aligner_params(self, kappa: float) -> FrameAlignerParams:
+        """The FrameAligner of the TCAFF methods, objects seen within `kappa` s (the run's)."""
+        a = self.aligner
+        return FrameAlignerParams(
+            kappa=kappa, n_solutions=a.n_solutions, min_associations=a.min_associations,
+            covariance=a.covariance, max_rmse=a.max_rmse, clipper=ClipperParams(seed=a.seed))
+
+    def tcaff_params(self, reference: bool, window: int | None) -> TCAFFParams:
+        """The default preset with this set's overrides, or (`reference`) the released code's
+        settings as they are; `window` (the run's W, None: the preset's) applies to both."""
+        base = TCAFFParams.reference() if reference else TCAFFParams()
+        overrides = {} if reference else {
+            k: v for k, v in self.tcaff.model_dump().items() if v is not None}
+        if window is not None:
+            overrides.setdefault("window", window)
+        return replace(base, **overrides)
+
+    def graph_params(self, drift: tuple[float, float] | None) -> GraphParams:
+        """The iSAM2 graph, assuming `drift` (metres, degrees) of alignment drift per step
+        (None: TCAFF's Q)."""
+        if drift is None:
+            return GraphParams(robust=self.graph.robust)
+        metres, degrees = drift
+        Q = np.diag([metres**2, metres**2, np.radians(degrees) ** 2])
+        return GraphParams(robust=self.graph.robust, Q=Q)
 
     @field_validator("methods")
     @classmethod

@@ -31,10 +31,7 @@ from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.graph import InterRobotGraph
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.params import (
-    ClipperParams,
     FrameAlignerParams,
-    GraphParams,
-    TCAFFParams,
     constant_alignment_covariance,
 )
 from tcaff_gtsam.tcaff import TCAFF
@@ -114,26 +111,6 @@ class AlignmentRun(Protocol):
         ...
 
 
-def _tcaff_params(settings: RunSettings, methods: MethodsConfig,
-                  reference: bool) -> TCAFFParams:
-    """The run's window applies to both presets; the method set's overrides to the
-    default preset only (the reference preset is the released code as it is)."""
-    base = TCAFFParams.reference() if reference else TCAFFParams()
-    overrides = {} if reference else {
-        k: v for k, v in methods.tcaff.model_dump().items() if v is not None}
-    if settings.window is not None:
-        overrides.setdefault("window", settings.window)
-    return replace(base, **overrides)
-
-
-def _graph_params(settings: RunSettings, methods: MethodsConfig) -> GraphParams:
-    if settings.graph_drift is None:
-        return GraphParams(robust=methods.graph.robust)
-    metres, degrees = settings.graph_drift
-    Q = np.diag([metres**2, metres**2, np.radians(degrees) ** 2])
-    return GraphParams(robust=methods.graph.robust, Q=Q)
-
-
 def run_methods(run: AlignmentRun, methods: MethodsConfig,
                 progress: Callable[[float], None] | None = None) -> MethodRuns:
     """Every method of the set over every directed pair of the run.
@@ -151,20 +128,17 @@ def run_methods(run: AlignmentRun, methods: MethodsConfig,
     names = method_names(methods)
     estimates = {name: np.full((len(pairs), n_steps, 3), np.nan) for name in names}
     seconds = dict.fromkeys(["candidates", *names], 0.0)
-    cfg = methods.aligner
-    clipper = ClipperParams(seed=cfg.seed)
+    cfg = methods.aligner_params(kappa)
     # max_rmse is applied below, so that the reference preset sees the unfiltered candidates
-    aligner = FrameAligner(FrameAlignerParams(
-        kappa=kappa, n_solutions=cfg.n_solutions, min_associations=cfg.min_associations,
-        covariance=cfg.covariance, max_rmse=None, clipper=clipper))
+    aligner = FrameAligner(replace(cfg, max_rmse=None))
     single = FrameAligner(FrameAlignerParams(
         kappa=kappa, n_solutions=1, min_associations=min(methods.clipper_k), max_rmse=None,
-        clipper=clipper))
-    filters = {name: [TCAFF(_tcaff_params(settings, methods, name == "tcaff_reference"))
+        clipper=cfg.clipper))
+    filters = {name: [TCAFF(methods.tcaff_params(name == "tcaff_reference", settings.window))
                       for _ in pairs]
                for name in ("tcaff", "tcaff_reference") if name in chosen or (
                    name == "tcaff" and "tcaff_isam2" in chosen)}
-    graph = (InterRobotGraph(run.n_robots, _graph_params(settings, methods))
+    graph = (InterRobotGraph(run.n_robots, methods.graph_params(settings.graph_drift))
              if "tcaff_isam2" in chosen else None)
     filtered = np.zeros((len(pairs), n_steps), dtype=bool)  # TCAFF had an estimate
     T_true = np.array([run.T_true(i, j) for i, j in pairs]).reshape(len(pairs), n_steps, 3, 3)
