@@ -25,6 +25,7 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import se2_from_params, transform_points_batch
 
 from .config import PedestriansConfig
+from .methods import describe
 from .sim.people import PeopleRun
 from .tracker import MultiObjectTracker
 
@@ -34,7 +35,6 @@ __all__ = ["COUNTS", "NO_SHARING", "MotScore", "collaborative_mot", "held_alignm
 NO_SHARING = "no_sharing"
 #: the per-frame counts kept for each robot, in this order
 COUNTS = ("objects", "false_positives", "misses", "switches")
-_NOT_CAUSAL = ("tcaff_isam2_smoothed",)  # built from later steps' factors: not usable online
 _METRICS = ["mota", "motp", "idf1", "num_objects", "num_false_positives", "num_misses",
             "num_switches"]
 
@@ -62,7 +62,7 @@ class MotScore:
 
 def mot_methods(names: list[str]) -> list[str]:
     """The methods whose alignments can drive online tracking, after `no_sharing`."""
-    return [NO_SHARING, *(n for n in names if n not in _NOT_CAUSAL)]
+    return [NO_SHARING, *(n for n in names if describe(n).causal)]
 
 
 def held_alignment(times: np.ndarray, exchange_times: np.ndarray, estimate: np.ndarray

@@ -29,39 +29,40 @@ import numpy as np
 from tcaff_gtsam.geometry import se2_from_params, wrap_angle
 
 from .config import MethodsConfig
+from .methods import Estimate, describe, estimate_names
 from .metrics import step_errors
 from .mot import NO_SHARING, rolling_mota
 
 __all__ = ["draw_all", "label"]
 
-STYLE = {
-    "tcaff": ("TCAFF", "tab:red", "-"),
-    "tcaff_reference": ("TCAFF reference", "tab:orange", "--"),
-    "tcaff_isam2_causal": ("TCAFF+iSAM2 causal", "tab:purple", "-"),
-    "tcaff_isam2_smoothed": ("TCAFF+iSAM2 smoothed", "tab:pink", ":"),
-    "icp": ("ICP, true init", "tab:brown", "-"),
-    "ground_truth": ("ground truth", "tab:green", "-"),
-    NO_SHARING: ("no sharing", "0.5", ":"),
-}
-CLIPPER_COLOR = "tab:blue"
+#: the tracking baseline, which is not an alignment method
+_NO_SHARING = Estimate("no sharing", "0.5", ":")
+
+
+def _estimate(method: str) -> Estimate:
+    return _NO_SHARING if method == NO_SHARING else describe(method)
 
 
 def label(method: str) -> str:
-    """A method's name as printed in tables and legends."""
-    if method.startswith("clipper_k"):
-        return f"CLIPPER k>={method.removeprefix('clipper_k')}"
-    return STYLE.get(method, (method,))[0]
+    """An estimate stream's name as printed in tables and legends."""
+    return _estimate(method).label
 
 
 def _style(method: str) -> tuple[str, str]:
-    if method.startswith("clipper_k"):
-        return CLIPPER_COLOR, "-"
-    return STYLE[method][1], STYLE[method][2]
+    estimate = _estimate(method)
+    return estimate.color, estimate.line
 
 
-def _shade_overlap(ax, times: np.ndarray, overlap: np.ndarray) -> None:
-    """Grey bands where the two maps overlap enough for an alignment."""
-    edges = np.flatnonzero(np.diff(np.r_[0, overlap.astype(int), 0]))
+def _title(job) -> str:
+    return job.name if job.seed is None else f"{job.name} (seed {job.seed})"
+
+
+def _shade_overlap(ax, times: np.ndarray, overlap: np.ndarray | None, pair: int) -> None:
+    """Grey bands where the maps of a pair overlap enough for an alignment (none when the run
+    does not know)."""
+    if overlap is None:
+        return
+    edges = np.flatnonzero(np.diff(np.r_[0, overlap[pair].astype(int), 0]))
     for start, stop in zip(edges[::2], edges[1::2], strict=True):
         ax.axvspan(times[start] - 0.5, times[stop - 1] + 0.5, color="0.92", lw=0, zorder=0)
 
@@ -81,7 +82,7 @@ def leave_and_return(path: Path, job, pair: int = 0) -> None:
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     scale = (1.0, 1.0, 180 / np.pi)
     for k, (ax, name) in enumerate(zip(axes, ("x [m]", "y [m]", "theta [deg]"), strict=True)):
-        _shade_overlap(ax, times, a["overlap"][pair])
+        _shade_overlap(ax, times, job.arrays.get("overlap"), pair)
         ax.plot(times[steps], z[:, k] * scale[k], ".", color="tab:blue", ms=3,
                 label="MNO-CLIPPER candidates")
         ax.plot(times, truth[:, k] * scale[k], color="tab:green", lw=2, label="ground truth")
@@ -94,7 +95,7 @@ def leave_and_return(path: Path, job, pair: int = 0) -> None:
         pad = max(hi - lo, 6.0 if k < 2 else 60.0)
         ax.set_ylim(lo - pad, hi + pad)
     axes[0].legend(loc="upper right", fontsize=8, ncol=3)
-    axes[0].set_title(f"{job.scenario} (seed {job.seed}): T_o{i}_o{j}; grey = maps overlap")
+    axes[0].set_title(f"{_title(job)}: T_o{i}_o{j}; grey = maps overlap")
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -108,7 +109,7 @@ def errors_over_time(path: Path, job, methods: list[str], pair: int = 0) -> None
     T_true = se2_from_params(a["truth"][pair])
     fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     for ax in axes:
-        _shade_overlap(ax, times, a["overlap"][pair])
+        _shade_overlap(ax, times, job.arrays.get("overlap"), pair)
     for method in methods:
         err = step_errors(T_true, a[f"est_{method}"][pair])
         color, line = _style(method)
@@ -121,7 +122,7 @@ def errors_over_time(path: Path, job, methods: list[str], pair: int = 0) -> None
         ax.set_yscale("symlog", linthresh=0.1)
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8, ncol=2)
-    axes[0].set_title(f"{job.scenario} (seed {job.seed}): error of T_o{i}_o{j}; gaps = no "
+    axes[0].set_title(f"{_title(job)}: error of T_o{i}_o{j}; gaps = no "
                       f"estimate; grey = maps overlap")
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
@@ -188,7 +189,7 @@ def mot_over_time(path: Path, job, methods: list[str], window: float) -> None:
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[0].legend(loc="lower right", fontsize=8, ncol=3)
-    axes[0].set_title(f"{job.scenario} (seed {job.seed}): MOTA averaged over the robots, "
+    axes[0].set_title(f"{_title(job)}: MOTA averaged over the robots, "
                       f"alignment error over the pairs with an estimate", fontsize=10)
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
@@ -206,7 +207,8 @@ def mot_sweep(path: Path, mot_summary: dict, methods: MethodsConfig) -> None:
             reports = [by_method[f"clipper_k{k}"] for k in ks]
             ax.errorbar(ks, [_none_nan(r["mota"]) for r in reports],
                         yerr=[_none_nan(r["mota_std"]) for r in reports], fmt="o-",
-                        color=CLIPPER_COLOR, ms=4, capsize=3, label="single-shot CLIPPER")
+                        color=describe(f"clipper_k{ks[0]}").color, ms=4, capsize=3,
+                        label="single-shot CLIPPER")
         for method, report in by_method.items():
             if method.startswith("clipper_k") or report["mota"] is None:
                 continue
@@ -247,7 +249,7 @@ def scenarios_overview(path: Path, first: list) -> None:
             ax.plot(poses[:, 0], poses[:, 1], lw=3.0 - 0.6 * r, alpha=0.8, label=f"robot {r}")
             ax.plot(*poses[0, :2], "o", color=ax.lines[-1].get_color(), ms=5)
         ax.set_aspect("equal", adjustable="datalim")
-        ax.set_title(job.scenario, fontsize=10)
+        ax.set_title(job.name, fontsize=10)
         ax.legend(fontsize=7, loc="best")
         ax.grid(alpha=0.2)
     fig.tight_layout()
@@ -258,17 +260,15 @@ def scenarios_overview(path: Path, first: list) -> None:
 def draw_all(folder: Path, jobs: list, summary: dict, methods: MethodsConfig,
              mot_summary: dict | None = None) -> list[Path]:
     """Every figure of a study into `folder`; returns the files written."""
-    from .methods import method_names
-
     folder.mkdir(parents=True, exist_ok=True)
     written = []
-    names = method_names(methods)
+    names = estimate_names(methods)
     shown = [m for m in names if not m.startswith("clipper_k") and m != "ground_truth"]
     if "clipper" in methods.methods:
         shown.append(f"clipper_k{methods.clipper_k_shown}")
     first = {}
     for job in jobs:
-        first.setdefault(job.scenario, job)
+        first.setdefault(job.name, job)
     return_job = first.get("indoor_return", next(iter(first.values())))
     if "est_tcaff" in return_job.arrays:
         leave_and_return(folder / "leave_and_return.png", return_job)

@@ -18,27 +18,42 @@ w first. All times here are float seconds of ROS time.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
+import math
+import time
+import zipfile
 from collections import deque
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 from rosbags.highlevel import AnyReader
 from scipy.spatial.transform import Rotation, Slerp
-from tcaff_gtsam.mapping.camera import PinholeCamera
+from tcaff_gtsam.mapping.camera import R_BODY_OPTICAL, PinholeCamera, rigid_transform
+from tcaff_gtsam.mapping.frontend import DepthRegistration, RgbdFrontEnd
+from tcaff_gtsam.mapping.mapper import MapperParams
 
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.geometry import invert, se3_from_rt
+from tcaff_gtsam.object_map import ObjectMap
 
-from ..config import TopicsConfig
+from ..config import ExtrinsicsConfig, KimeraMultiConfig, TopicsConfig
+from ..runs import RecordedRun, RunSettings
 
 __all__ = [
     "CameraCalibration",
+    "KimeraProgress",
     "PoseTrack",
     "RgbdFrame",
     "RobotBags",
+    "RobotMapping",
+    "extrinsic",
+    "load_run",
+    "map_robot",
     "read_ground_truth",
 ]
 
@@ -346,3 +361,240 @@ class RobotBags:
         yield from ready(np.inf)
         if any(skipped.values()):
             log.info("robot %s: skipped colour frames: %s", self.robot, skipped)
+
+
+# -- mapping a robot's bags ---------------------------------------------------------------------
+
+MAPS_VERSION = 1  # bump when the saved maps' meaning changes
+
+
+def extrinsic(config: ExtrinsicsConfig, optical: bool) -> np.ndarray:
+    """(4, 4) the configured frame in its parent. With `optical`, xyz/rpy place a camera link
+    (x forward) and the optical frame (x right, y down, z forward) is turned from it."""
+    if config.matrix is not None:
+        return rigid_transform("extrinsics matrix", np.reshape(config.matrix, (4, 4)),
+                               ConfigError)
+    R = Rotation.from_euler("xyz", config.rpy_deg, degrees=True).as_matrix()
+    return se3_from_rt(R @ R_BODY_OPTICAL if optical else R, config.xyz)
+
+
+@dataclass
+class RobotMapping:
+    """One robot's maps at the 1 Hz exchanges.
+
+    Attributes:
+        robot: its name.
+        times: (S,) s, whole seconds of ROS time at which maps are exchanged.
+        frame_times: (S,) s, the last mapped frame at or before each exchange.
+        T_odom_body: (S, 4, 4) the body pose in the odometry frame at those frames.
+        T_map_body: (S, 4, 4) the true body pose in the shared map frame (NaN: no ground truth).
+        maps: the map at each exchange, in the odometry frame.
+        frames: frames mapped; seconds: wall time of reading and mapping them.
+        fingerprint: of the settings and files the maps came from (see `_fingerprint`).
+        stage_seconds: the front end's time per stage, summed over the frames.
+    """
+
+    robot: str
+    times: np.ndarray
+    frame_times: np.ndarray
+    T_odom_body: np.ndarray
+    T_map_body: np.ndarray
+    maps: list[ObjectMap]
+    frames: int
+    seconds: float
+    fingerprint: str = ""
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def frames_per_second(self) -> float | None:
+        return self.frames / self.seconds if self.seconds > 0 else None
+
+    @property
+    def has_truth(self) -> bool:
+        return bool(np.all(np.isfinite(self.T_map_body)))
+
+    def save(self, folder: Path) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        sizes = np.array([len(m) for m in self.maps], dtype=np.int64)
+        entries = {key: np.concatenate([getattr(m, key) for m in self.maps])
+                   for key in ("centroids", "widths", "heights", "last_seen")}
+        with open(folder / f"{self.robot}.npz", "wb") as file:
+            np.savez_compressed(
+                file, times=self.times, frame_times=self.frame_times,
+                T_odom_body=self.T_odom_body, T_map_body=self.T_map_body, map_sizes=sizes,
+                **entries)
+        (folder / f"{self.robot}.json").write_text(json.dumps({
+            "robot": self.robot, "version": MAPS_VERSION, "fingerprint": self.fingerprint,
+            "frames": self.frames, "seconds": self.seconds,
+            "frames_per_second": self.frames_per_second,
+            "stage_seconds": self.stage_seconds, "exchanges": len(self.times)}, indent=1))
+
+    @classmethod
+    def load(cls, folder: Path, robot: str) -> RobotMapping | None:
+        """The saved mapping of `robot`, or None when there is none or it cannot be read
+        (missing, truncated, of another version or lacking a key: then with a warning, and
+        the robot is mapped again)."""
+        if not (folder / f"{robot}.json").exists():
+            return None
+        try:
+            meta = json.loads((folder / f"{robot}.json").read_text())
+            if meta.get("version") != MAPS_VERSION:
+                return None
+            with np.load(folder / f"{robot}.npz") as a:
+                arrays = {k: a[k] for k in a.files}
+            ends = np.cumsum(arrays["map_sizes"])
+            maps = [ObjectMap(arrays["centroids"][e - n:e], arrays["widths"][e - n:e],
+                              arrays["heights"][e - n:e], arrays["last_seen"][e - n:e])
+                    for n, e in zip(arrays["map_sizes"], ends, strict=True)]
+            return cls(robot, arrays["times"], arrays["frame_times"], arrays["T_odom_body"],
+                       arrays["T_map_body"], maps, int(meta["frames"]),
+                       float(meta["seconds"]), meta["fingerprint"],
+                       meta.get("stage_seconds", {}))
+        except (OSError, EOFError, ValueError, KeyError, TypeError, AttributeError,
+                zipfile.BadZipFile) as err:
+            log.warning("no reusable maps of %s in %s (%s: %s); mapping it again", robot,
+                        folder, type(err).__name__, err)
+            return None
+
+
+def _bag_paths(config: KimeraMultiConfig, robot: str, data: Path) -> list[Path]:
+    pattern = config.bags.replace("{robot}", robot)
+    paths = sorted(data.glob(pattern))
+    if not paths:
+        present = sorted(p.name for p in data.glob("*.bag"))
+        raise DataError(f"robot {robot}: no bag matches {pattern!r} in {data}; bags there: "
+                        f"{present}")
+    return paths
+
+
+def _fingerprint(config: KimeraMultiConfig, robot: str, paths: list[Path], gt: Path) -> str:
+    """Changes when anything that shapes the robot's maps changes."""
+    files = [(p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in paths]
+    if gt.is_file():
+        files.append((gt.name, gt.stat().st_size, gt.stat().st_mtime_ns))
+    keys = ("topics", "rig", "stride", "sync_tolerance", "start", "duration", "mapping")
+    settings = config.model_dump(mode="json", include=set(keys))
+    blob = json.dumps({"robot": robot, "files": files, "settings": settings}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def map_robot(config: KimeraMultiConfig, robot: str, data: Path,
+              progress: Callable[[float], None] | None = None) -> RobotMapping:
+    """Map one robot's bags and record its map at every whole second of ROS time.
+
+    Raises:
+        DataError: missing or damaged bags, missing topics, bad messages.
+    """
+    paths = _bag_paths(config, robot, data)
+    gt_path = data / config.ground_truth.replace("{robot}", robot)
+    truth = read_ground_truth(gt_path) if gt_path.is_file() else None
+    if truth is None:
+        log.warning("robot %s: no ground truth at %s; its alignments are not scored", robot,
+                    gt_path)
+    with RobotBags(paths, robot, config.topics) as bags:
+        calibration = bags.calibration()
+        T_color_depth = extrinsic(config.rig.color_depth, optical=False)
+        registration = DepthRegistration(calibration.depth, T_color_depth)
+        front_end = RgbdFrontEnd(
+            calibration.color, extrinsic(config.rig.body_color, optical=True),
+            config.rig.depth_scale, registration=registration,
+            mapper_params=MapperParams(nu=config.mapping.nu, kappa=config.mapping.kappa))
+        first, last = bags.time_span()
+        begin = first + (config.start or 0.0)
+        end = last if config.duration is None else min(last, begin + config.duration)
+        times, frame_times, poses, maps = [], [], [], []
+        stage_seconds: dict[str, float] = {}
+        frames, clock = 0, time.perf_counter()
+        exchange, previous = None, None
+        for frame in bags.frames(config.mapping.frame_rate, config.stride,
+                                 config.sync_tolerance, begin, end + 1e-9):
+            if exchange is None:
+                exchange = math.ceil(frame.t)
+            while frame.t > exchange and previous is not None:
+                times.append(exchange)
+                frame_times.append(previous.t)
+                poses.append(previous.T_odom_body)
+                maps.append(front_end.object_map())
+                exchange += 1
+            result = front_end.process(frame.t, frame.rgb, frame.depth, frame.T_odom_body)
+            for stage, s in result.seconds.items():
+                stage_seconds[stage] = stage_seconds.get(stage, 0.0) + s
+            previous, frames = frame, frames + 1
+            if progress is not None and end > begin:
+                progress(min(1.0, (frame.t - begin) / (end - begin)))
+        seconds = time.perf_counter() - clock
+    if not times:
+        raise DataError(f"robot {robot}: {frames} frames mapped, not enough for one 1 Hz map "
+                        f"exchange (check the topics' stamps and sync_tolerance)")
+    frame_times = np.array(frame_times)
+    T_map_body = np.full((len(times), 4, 4), np.nan)
+    if truth is not None:
+        T, inside = PoseTrack(*truth)(frame_times)
+        T_map_body[inside] = T[inside]
+        if not inside.all():
+            log.warning("robot %s: ground truth covers %d of %d exchanges", robot,
+                        inside.sum(), inside.size)
+    return RobotMapping(robot, np.array(times, dtype=float), frame_times, np.array(poses),
+                        T_map_body, maps, frames, seconds,
+                        _fingerprint(config, robot, paths, gt_path), stage_seconds)
+
+
+class KimeraProgress:
+    """Hooks for the loader's progress reports; the default reports nothing."""
+
+    def robot(self, robot: str, reused: bool) -> None: ...
+    def mapping(self, robot: str, share: float) -> None: ...
+
+
+def load_run(config: KimeraMultiConfig, data: Path, maps_folder: Path, resume: bool = True,
+             progress: KimeraProgress | None = None
+             ) -> tuple[RecordedRun, list[RobotMapping], list[str]]:
+    """Map every robot's bags (reusing maps saved in `maps_folder` by an earlier run with the
+    same settings and files when `resume`), and the run at the exchanges all robots share.
+
+    Each robot's maps are saved as soon as it is mapped, so a failure in one robot's bags
+    never loses the robots already mapped.
+
+    Returns:
+        The run, every robot's mapping, and the robots whose saved maps were reused.
+    Raises:
+        DataError: `data` is not a folder, a robot's data cannot be read, or the robots'
+            recordings share no exchange.
+    """
+    progress = progress or KimeraProgress()
+    data = Path(data)
+    if not data.is_dir():
+        raise DataError(f"--data {data}: not a folder")
+    mappings, reused = [], []
+    for robot in config.robots:
+        saved = RobotMapping.load(maps_folder, robot) if resume else None
+        if saved is not None:
+            paths = _bag_paths(config, robot, data)
+            gt = data / config.ground_truth.replace("{robot}", robot)
+            if saved.fingerprint == _fingerprint(config, robot, paths, gt):
+                progress.robot(robot, True)
+                mappings.append(saved)
+                reused.append(robot)
+                continue
+        progress.robot(robot, False)
+        mapping = map_robot(config, robot, data, lambda s, r=robot: progress.mapping(r, s))
+        mapping.save(maps_folder)
+        mappings.append(mapping)
+    return _common_run(config, mappings), mappings, reused
+
+
+def _common_run(config: KimeraMultiConfig, mappings: list[RobotMapping]) -> RecordedRun:
+    """The robots' maps at the whole seconds of ROS time every robot has a map for."""
+    common = mappings[0].times
+    for m in mappings[1:]:
+        common = np.intersect1d(common, m.times)
+    if common.size == 0:
+        spans = {m.robot: (m.times[0], m.times[-1]) for m in mappings}
+        raise DataError(f"the robots' recordings share no whole second of ROS time: {spans}")
+    index = [np.searchsorted(m.times, common) for m in mappings]
+    maps = [[m.maps[k] for k in idx] for m, idx in zip(mappings, index, strict=True)]
+    T_odom_body = np.array([m.T_odom_body[idx] for m, idx in zip(mappings, index, strict=True)])
+    T_map_body = np.array([m.T_map_body[idx] for m, idx in zip(mappings, index, strict=True)])
+    settings = RunSettings(config.mapping.kappa, config.window, config.graph_drift)
+    return RecordedRun(config.name, settings, common, maps, T_map_body @ invert(T_odom_body),
+                       T_odom_body, robot_names=tuple(config.robots))

@@ -21,7 +21,7 @@ from tcaff_gtsam.geometry import invert
 from tcaff_gtsam.object_map import ObjectMap
 
 from ..config import ScenarioConfig
-from ..methods import RunSettings
+from ..runs import RunSettings
 from .motion import drifting_odometry, odometry_frame, poses_along
 from .people import PeopleRun, simulate_people
 from .render import RgbdScene

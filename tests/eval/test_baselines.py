@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from tcaff_gtsam.eval.baselines import CentroidICP, single_shot
+from tcaff_gtsam.eval.methods.baselines import CentroidICP, single_shot
 from tcaff_gtsam.eval.sim.maps import overlapping_maps
 
 from tcaff_gtsam.frame_aligner import FrameAligner

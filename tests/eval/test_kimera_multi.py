@@ -123,12 +123,21 @@ def test_extrinsics_matrix_is_used_as_given_and_checked():
         ExtrinsicsConfig(matrix=[1.0] * 15)
 
 
+EMPTY = ObjectMap(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0))
+
+
+def recorded(S: int, T_world_odom: np.ndarray) -> RecordedRun:
+    """A two-robot recorded run of S empty maps."""
+    return RecordedRun("t", RunSettings(15.0), np.arange(S, dtype=float), [[EMPTY] * S] * 2,
+                       T_world_odom, np.broadcast_to(np.eye(4), (2, S, 4, 4)))
+
+
 def test_recorded_run_truth_is_the_planar_alignment():
     rng = np.random.default_rng(0)
     S = 4
     T_map_odom = np.array([[pose(*rng.uniform(-5, 5, 3), rng.uniform(-3, 3), 0.01, 0.02)
                             for _ in range(S)] for _ in range(2)])
-    run = RecordedRun(RunSettings(15.0), np.arange(S, dtype=float), [[], []], T_map_odom)
+    run = recorded(S, T_map_odom)
     T = run.T_true(0, 1)
     for s in range(S):
         rel = np.linalg.inv(T_map_odom[0, s]) @ T_map_odom[1, s]
@@ -138,14 +147,11 @@ def test_recorded_run_truth_is_the_planar_alignment():
     np.testing.assert_allclose(T[0], se2_from_params(se2_to_params(T[0])))
     missing = T_map_odom.copy()
     missing[1] = np.nan
-    assert np.all(np.isnan(RecordedRun(RunSettings(15.0), np.arange(S, dtype=float), [[], []],
-                                       missing).T_true(0, 1)))
+    assert np.all(np.isnan(recorded(S, missing).T_true(0, 1)))
 
 
 def test_methods_that_need_the_truth_refuse_a_run_without_it():
-    empty = ObjectMap(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0))
-    run = RecordedRun(RunSettings(15.0), np.arange(3, dtype=float), [[empty] * 3] * 2,
-                      np.full((2, 3, 4, 4), np.nan))
+    run = recorded(3, np.full((2, 3, 4, 4), np.nan))
     methods = load_methods("default")
     with pytest.raises(ConfigError, match=r"icp.*true alignment"):
         run_methods(run, methods)
@@ -216,11 +222,11 @@ def test_command_aligns_the_robots_as_the_simulation_did(sequence, tmp_path):
     assert "Mapping" in result.output and "TCAFF" in result.output
     folder = tmp_path / "same_direction"
     for name in ("maps/acl_jackal2.npz", "maps/sparkal2.json", "metrics.json", "metrics.csv",
-                 "table.md", "figures/errors_0_1.png", "same_direction-seed0.npz"):
+                 "table.md", "figures/errors_0_1.png", "same_direction.npz"):
         assert (folder / name).is_file(), name
     metrics = json.loads((folder / "metrics.json").read_text())
     assert all(fps > 0 for fps in metrics["frames_per_second"].values())
-    with np.load(folder / "same_direction-seed0.npz") as a:
+    with np.load(folder / "same_direction.npz") as a:
         first = a["est_tcaff"]
         exchanges = a["t0"] + a["times"] - 1_634_000_000  # seconds since the sequence began
         for p, (i, j) in enumerate([(0, 1), (1, 0)]):
@@ -243,7 +249,7 @@ def test_command_aligns_the_robots_as_the_simulation_did(sequence, tmp_path):
                                      str(tmp_path), "--methods", "tcaff_only", "--no-figures"])
     assert again.exit_code == 0, again.output
     assert again.output.count("reused") == 2
-    with np.load(folder / "same_direction-seed0.npz") as b:
+    with np.load(folder / "same_direction.npz") as b:
         np.testing.assert_array_equal(b["est_tcaff"], first)
 
 
@@ -284,12 +290,14 @@ def test_without_ground_truth_alignments_are_still_saved(sequence, tmp_path):
     bare = copy_of(data, tmp_path / "data", skip=("sparkal2_gt_odom.csv",))
     config = load_kimera_multi("same_direction")
     outcome = run_kimera_multi(config, bare, tmp_path / "out", figures=False)
-    assert outcome.summary == {}
-    assert "icp" not in outcome.methods.methods and "ground_truth" not in outcome.methods.methods
-    with np.load(outcome.folder / "same_direction-seed0.npz") as a:
+    assert outcome.recorded.summary == {}
+    methods = outcome.recorded.methods.methods
+    assert "icp" not in methods and "ground_truth" not in methods
+    with np.load(outcome.folder / "same_direction.npz") as a:
         assert np.isnan(a["truth"]).all()
         assert (~np.isnan(a["est_tcaff"][:, :, 0])).sum() >= 5
     assert not (outcome.folder / "metrics.json").exists()
+    assert not (outcome.folder / "figures").exists()
 
 
 def test_missing_bags_and_data_folder_raise(tmp_path):
@@ -298,3 +306,37 @@ def test_missing_bags_and_data_folder_raise(tmp_path):
         run_kimera_multi(config, tmp_path / "nowhere", tmp_path)
     with pytest.raises(DataError, match="no bag matches"):
         run_kimera_multi(config, tmp_path, tmp_path / "out")
+
+
+def test_recorded_run_checks_its_shapes():
+    with pytest.raises(DataError, match="one map per exchange"):
+        RecordedRun("t", RunSettings(15.0), np.arange(3.0), [[EMPTY] * 3, [EMPTY] * 2],
+                    np.zeros((2, 3, 4, 4)), np.zeros((2, 3, 4, 4)))
+    with pytest.raises(DataError, match=r"T_odom_body.*\(2, 3, 4, 4\)"):
+        RecordedRun("t", RunSettings(15.0), np.arange(3.0), [[EMPTY] * 3] * 2,
+                    np.zeros((2, 3, 4, 4)), np.zeros((2, 3, 4)))
+    with pytest.raises(DataError, match="two robots"):
+        RecordedRun("t", RunSettings(15.0), np.arange(3.0), [[EMPTY] * 3],
+                    np.zeros((1, 3, 4, 4)), np.zeros((1, 3, 4, 4)))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("damage", ["truncated", "keyless"])
+def test_a_damaged_saved_map_is_mapped_again_with_a_warning(sequence, tmp_path, damage, caplog):
+    """--resume (the default) treats an unreadable map file as no reusable map."""
+    data, _ = sequence
+    config = load_kimera_multi("same_direction").model_copy(
+        update={"methods": load_methods("tcaff_only")})
+    first = run_kimera_multi(config, data, tmp_path, figures=False)
+    saved = first.folder / "maps" / "sparkal2.npz"
+    if damage == "truncated":
+        saved.write_bytes(saved.read_bytes()[:200])
+    else:
+        with np.load(saved) as a:
+            arrays = {k: a[k] for k in a.files if k != "map_sizes"}
+        np.savez_compressed(saved, **arrays)
+    again = run_kimera_multi(config, data, tmp_path, figures=False)
+    assert again.reused == ["acl_jackal2"]
+    assert "no reusable maps of sparkal2" in caplog.text
+    np.testing.assert_array_equal(again.recorded.job.arrays["est_tcaff"],
+                                  first.recorded.job.arrays["est_tcaff"])

@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 from tcaff_gtsam.eval.config import MethodsConfig, StudyConfig, load_scenario
-from tcaff_gtsam.eval.methods import method_names
+from tcaff_gtsam.eval.jobs import simulated_job
+from tcaff_gtsam.eval.methods import estimate_names
 from tcaff_gtsam.eval.mot import (
     NO_SHARING,
     collaborative_mot,
@@ -18,7 +19,7 @@ from tcaff_gtsam.eval.mot import (
     score_tracks,
 )
 from tcaff_gtsam.eval.sim.simulate import simulate
-from tcaff_gtsam.eval.study import run_job, run_study
+from tcaff_gtsam.eval.study import run_study
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import se2_from_params, se2_to_params, transform_points_batch
@@ -136,7 +137,7 @@ def test_each_frame_uses_the_latest_exchange_at_or_before_it():
 
 
 def test_smoothed_estimates_are_not_tracked_with():
-    names = method_names(MethodsConfig())
+    names = estimate_names(MethodsConfig())
     tracked = mot_methods(names)
     assert tracked[0] == NO_SHARING
     assert "tcaff_isam2_smoothed" in names and "tcaff_isam2_smoothed" not in tracked
@@ -207,7 +208,7 @@ def test_a_study_with_people_writes_mota_tables_and_figures(tmp_path):
                       workers=1, output=str(tmp_path))
     outcome = run_study(cfg)
     assert not outcome.failed
-    tracked = mot_methods(method_names(QUICK_METHODS))
+    tracked = mot_methods(estimate_names(QUICK_METHODS))
     assert list(outcome.mot_summary["mot"]) == tracked
     motas = [j.mot["ground_truth"]["mota"] for j in outcome.jobs]
     truth = outcome.mot_summary["mot"]["ground_truth"]
@@ -230,5 +231,5 @@ def test_a_study_with_people_writes_mota_tables_and_figures(tmp_path):
 
 def test_a_job_without_people_has_no_tracking():
     scenario = load_scenario("four_robots").model_copy(update={"duration": 10.0})
-    job = run_job(scenario, QUICK_METHODS, seed=0)
+    job = simulated_job(scenario, QUICK_METHODS, seed=0)
     assert job.mot == {} and "mot_times" not in job.arrays

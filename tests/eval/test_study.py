@@ -8,10 +8,12 @@ import math
 
 import numpy as np
 import pytest
-from tcaff_gtsam.eval import study as study_module
+from tcaff_gtsam.eval import jobs as jobs_module
 from tcaff_gtsam.eval.config import MethodsConfig, StudyConfig, load_scenario, load_study
-from tcaff_gtsam.eval.methods import method_names
-from tcaff_gtsam.eval.study import JobResult, run_job, run_study, score
+from tcaff_gtsam.eval.jobs import simulated_job
+from tcaff_gtsam.eval.methods import estimate_names
+from tcaff_gtsam.eval.results import JobResult, score, thresholds_of
+from tcaff_gtsam.eval.study import run_study
 
 QUICK_METHODS = MethodsConfig(clipper_k=[3, 5], clipper_k_shown=5)
 
@@ -28,10 +30,10 @@ def quick_study(tmp_path, scenarios, seeds=(0,), workers=1) -> StudyConfig:
 @pytest.mark.parametrize("name", ["indoor_return", "same_direction", "opposite_directions",
                                   "four_robots", "ambiguous_grid", "indoor_rgbd"])
 def test_each_scenario_produces_every_output(name):
-    job = run_job(short(name), QUICK_METHODS, seed=1)
+    job = simulated_job(short(name), QUICK_METHODS, seed=1)
     n = 4 if name == "four_robots" else 2
     assert len(job.pairs) == n * (n - 1)
-    names = method_names(QUICK_METHODS)
+    names = estimate_names(QUICK_METHODS)
     assert set(job.metrics) == set(names)
     steps = len(job.arrays["times"])
     assert steps == 25
@@ -55,7 +57,7 @@ def test_study_writes_tables_figures_runs_and_the_latest_link(tmp_path):
     csv_lines = (folder / "metrics.csv").read_text().splitlines()
     assert csv_lines[0].startswith("scenario,seed,method,pair,translation_error_m_mean")
     # per pair and pooled rows for each method of each run, plus the summary rows
-    n_methods = len(method_names(QUICK_METHODS))
+    n_methods = len(estimate_names(QUICK_METHODS))
     assert len(csv_lines) == 1 + 2 * n_methods * 3 + 2 * n_methods
     figures = sorted(p.name for p in (folder / "figures").glob("*.png"))
     assert figures == ["clipper_sweep.png", "errors_ambiguous_grid.png",
@@ -68,22 +70,22 @@ def test_study_writes_tables_figures_runs_and_the_latest_link(tmp_path):
 
 
 def test_saved_run_reproduces_its_metrics(tmp_path):
-    job = run_job(short("indoor_return", 30), QUICK_METHODS, seed=0)
+    job = simulated_job(short("indoor_return", 30), QUICK_METHODS, seed=0)
     job.save(tmp_path)
     meta = json.loads((tmp_path / f"{job.stem}.json").read_text())
     with np.load(tmp_path / f"{job.stem}.npz") as data:
         arrays = dict(data)
-    again = JobResult(meta["scenario"], meta["seed"], [tuple(p) for p in meta["pairs"]],
-                      arrays, {}, meta["seconds"])
+    again = JobResult(meta["name"], meta["seed"], [tuple(p) for p in meta["pairs"]],
+                      arrays, seconds=meta["seconds"])
     trace = again.traces("tcaff")[0]
     assert np.array_equal(trace.estimate, job.arrays["est_tcaff"][0], equal_nan=True)
-    score(again, QUICK_METHODS)
+    score(again, estimate_names(QUICK_METHODS), thresholds_of(QUICK_METHODS))
     assert json.loads(json.dumps(again.metrics)) == meta["metrics"]
 
 
 def test_same_seed_same_results():
-    a = run_job(short("ambiguous_grid", 20), QUICK_METHODS, seed=4)
-    b = run_job(short("ambiguous_grid", 20), QUICK_METHODS, seed=4)
+    a = simulated_job(short("ambiguous_grid", 20), QUICK_METHODS, seed=4)
+    b = simulated_job(short("ambiguous_grid", 20), QUICK_METHODS, seed=4)
     for key, value in a.arrays.items():
         assert np.array_equal(value, b.arrays[key], equal_nan=True), key
 
@@ -108,19 +110,19 @@ def test_interrupted_study_keeps_the_finished_runs(tmp_path):
 
 
 def test_a_failing_run_does_not_lose_the_others(tmp_path, monkeypatch):
-    real = study_module.simulate
+    real = jobs_module.simulate
 
     def simulate(scenario, seed, progress=None):
         if scenario.name == "indoor_return":
             raise RuntimeError("sensor exploded")
         return real(scenario, seed, progress)
 
-    monkeypatch.setattr(study_module, "simulate", simulate)
+    monkeypatch.setattr(jobs_module, "simulate", simulate)
     cfg = quick_study(tmp_path, [short("indoor_return", 20), short("ambiguous_grid", 20)])
     outcome = run_study(cfg, figures=False)
     assert [f["scenario"] for f in outcome.failed] == ["indoor_return"]
     assert "sensor exploded" in outcome.failed[0]["error"]
-    assert [j.scenario for j in outcome.jobs] == ["ambiguous_grid"]
+    assert [j.name for j in outcome.jobs] == ["ambiguous_grid"]
     metrics = json.loads((outcome.folder / "metrics.json").read_text())
     assert metrics["failed"][0]["error"] == "sensor exploded"
 
@@ -138,7 +140,7 @@ def test_parallel_workers_give_the_serial_results(tmp_path):
 
 
 def test_indoor_tcaff_meets_the_papers_figures():
-    job = run_job(load_scenario("indoor_return"), MethodsConfig(
+    job = simulated_job(load_scenario("indoor_return"), MethodsConfig(
         methods=["tcaff", "tcaff_isam2"]), seed=0)
     tcaff = job.metrics["tcaff"]["all"]
     assert tcaff["translation_error_m_mean"] <= 0.35
@@ -152,7 +154,7 @@ def test_indoor_tcaff_meets_the_papers_figures():
 
 
 def test_ambiguous_grid_fools_single_shot_clipper_but_not_tcaff():
-    job = run_job(load_scenario("ambiguous_grid"), MethodsConfig(
+    job = simulated_job(load_scenario("ambiguous_grid"), MethodsConfig(
         methods=["tcaff", "clipper"], clipper_k=[3, 6, 10]), seed=0)
     for k in (3, 6, 10):
         assert job.metrics[f"clipper_k{k}"]["all"]["false_accept"] > 0.02
@@ -181,7 +183,7 @@ def test_graph_estimates_wait_for_the_first_factor_and_smoothed_fills_every_filt
     """Causal graph estimates start only once the pair is linked by a factor (before, the
     graph holds only its gauge's guess); the smoothed read-out covers every step at which
     TCAFF had an estimate, once the pair is linked at all."""
-    job = run_job(short("indoor_return", 40), QUICK_METHODS, seed=0)
+    job = simulated_job(short("indoor_return", 40), QUICK_METHODS, seed=0)
     tcaff = ~np.isnan(job.arrays["est_tcaff"][..., 0])
     causal = ~np.isnan(job.arrays["est_tcaff_isam2_causal"][..., 0])
     smoothed = ~np.isnan(job.arrays["est_tcaff_isam2_smoothed"][..., 0])

@@ -1,4 +1,5 @@
-"""The methods TCAFF is compared with: single-shot CLIPPER and ICP on object centroids.
+"""The methods TCAFF is compared with, and their runners: single-shot CLIPPER, ICP on object
+centroids, and the ground truth.
 
 - Single-shot CLIPPER (the paper's baseline): one standard CLIPPER solution per step, accepted
   as the alignment when it holds at least k associations, otherwise no alignment that step.
@@ -13,11 +14,15 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from tcaff_gtsam.frame_aligner import AlignmentMeasurement
+from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner
 from tcaff_gtsam.geometry import se2_to_params, se2_to_se3, se3_to_se2
 from tcaff_gtsam.object_map import ObjectMap
+from tcaff_gtsam.params import FrameAlignerParams
 
-__all__ = ["CentroidICP", "single_shot"]
+from ..config import MethodsConfig
+from .stages import RunSetup, SharedStages
+
+__all__ = ["CentroidICP", "ClipperRunner", "IcpRunner", "TruthRunner", "single_shot"]
 
 
 def single_shot(solution: AlignmentMeasurement | None, k: int) -> np.ndarray:
@@ -66,3 +71,61 @@ class CentroidICP:
 
 def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(points, dtype=np.float64)))
+
+
+class ClipperRunner:
+    """`clipper`: one single-shot CLIPPER solution per pair and step serves every threshold k
+    of `clipper_k` (each stream is charged the whole time)."""
+
+    def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
+        self.setup, self.ks = setup, methods.clipper_k
+        self.aligner = FrameAligner(FrameAlignerParams(
+            kappa=setup.run.settings.kappa, n_solutions=1, min_associations=min(self.ks),
+            max_rmse=None, clipper=stages.aligner.params.clipper))
+        self.estimates = {f"clipper_k{k}": setup.empty() for k in self.ks}
+        self.step_streams, self.finish_streams = list(self.estimates), []
+
+    def step(self, s: int, t: float) -> None:
+        for p in range(len(self.setup.pairs)):
+            found = self.aligner.measurements(*self.setup.maps(p, s), t)
+            best = found[0] if found else None
+            for k in self.ks:
+                self.estimates[f"clipper_k{k}"][p, s] = single_shot(best, k)
+
+    def finish(self) -> None:
+        pass
+
+
+class IcpRunner:
+    """`icp`: `CentroidICP` of every pair, started from the true alignment."""
+
+    def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
+        icp, kappa = methods.icp, setup.run.settings.kappa
+        self.setup = setup
+        self.icps = [CentroidICP(setup.T_true[p][0], kappa, icp.max_correspondence_distance,
+                                 icp.min_correspondences, icp.max_iterations)
+                     for p in range(len(setup.pairs))]
+        self.estimates = {"icp": setup.empty()}
+        self.step_streams, self.finish_streams = ["icp"], []
+
+    def step(self, s: int, t: float) -> None:
+        for p, icp in enumerate(self.icps):
+            self.estimates["icp"][p, s] = icp.update(t, *self.setup.maps(p, s))
+
+    def finish(self) -> None:
+        pass
+
+
+class TruthRunner:
+    """`ground_truth`: the true alignment, a check on the evaluation itself."""
+
+    def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
+        self.truth = setup.truth
+        self.estimates = {"ground_truth": setup.empty()}
+        self.step_streams, self.finish_streams = ["ground_truth"], []
+
+    def step(self, s: int, t: float) -> None:
+        self.estimates["ground_truth"][:, s] = self.truth[:, s]
+
+    def finish(self) -> None:
+        pass

@@ -1,0 +1,225 @@
+"""The compared methods: one runner per method behind one protocol, a registry keyed by name.
+
+A method set (`MethodsConfig.methods`) names methods; each method produces one or more estimate
+streams (T_oi_oj of every directed pair at every exchange), named and drawn as `METHODS` says:
+
+- tcaff: the paper's filter (default preset) on MNO-CLIPPER candidates.
+- tcaff_reference: the authors' released settings on the same candidates, without this project's
+  residual check and with the original's constant R.
+- tcaff_isam2 -> tcaff_isam2_causal, tcaff_isam2_smoothed: the TCAFF output of every pair
+  (i, j) with i < j in one iSAM2 graph ((j, i) aligns the same two maps), read for every
+  directed pair at each step (causal) and once more at the end (smoothed), at the steps that
+  pair's TCAFF has an estimate and the graph links the two robots.
+- clipper -> clipper_k<k>: single-shot CLIPPER accepting a solution of at least k associations,
+  one stream per k of `clipper_k`.
+- icp: ICP on centroids from the true initial alignment.
+- ground_truth: the true alignment (a check on the evaluation itself).
+
+The MNO-CLIPPER candidates and the default TCAFF filter are computed once per pair and step
+(`stages.SharedStages`) and handed to every runner that wants them. Adding a method means a
+runner class (see `MethodRunner`) and one `Method` entry here. This module is light: runners
+are imported when a run needs them.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from tcaff_gtsam.errors import ConfigError
+
+if TYPE_CHECKING:
+    from ..config import MethodsConfig
+    from ..runs import AlignmentRun
+
+__all__ = ["METHODS", "Estimate", "Method", "MethodRunner", "MethodRuns", "describe",
+           "estimate_names", "run_methods"]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """How one estimate stream is named in tables and drawn.
+
+    Attributes:
+        label: printed name; `{k}` is the swept value of a swept stream.
+        color, line: matplotlib colour and line style.
+        causal: built only from what was known at each step (usable online, e.g. for tracking).
+    """
+
+    label: str
+    color: str
+    line: str = "-"
+    causal: bool = True
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered method.
+
+    Attributes:
+        runner: "module:Class" of its `MethodRunner`, relative to this package.
+        streams: suffix -> `Estimate`; a stream is named method name + suffix. A suffix with
+            `{k}` gives one stream per value of the method set's list `swept`.
+        needs_truth: it needs the true alignment at every step.
+        swept: the `MethodsConfig` field a `{k}` suffix takes its values from.
+    """
+
+    runner: str
+    streams: dict[str, Estimate]
+    needs_truth: bool = False
+    swept: str | None = None
+
+
+METHODS: dict[str, Method] = {
+    "tcaff": Method("tcaff:TcaffRunner", {"": Estimate("TCAFF", "tab:red")}),
+    "tcaff_reference": Method("tcaff:ReferenceRunner", {
+        "": Estimate("TCAFF reference", "tab:orange", "--")}),
+    "tcaff_isam2": Method("tcaff:GraphRunner", {
+        "_causal": Estimate("TCAFF+iSAM2 causal", "tab:purple"),
+        "_smoothed": Estimate("TCAFF+iSAM2 smoothed", "tab:pink", ":", causal=False)}),
+    "clipper": Method("baselines:ClipperRunner", {
+        "_k{k}": Estimate("CLIPPER k>={k}", "tab:blue")}, swept="clipper_k"),
+    "icp": Method("baselines:IcpRunner", {"": Estimate("ICP, true init", "tab:brown")},
+                  needs_truth=True),
+    "ground_truth": Method("baselines:TruthRunner", {
+        "": Estimate("ground truth", "tab:green")}, needs_truth=True),
+}
+
+
+def _streams(name: str, methods: MethodsConfig) -> list[str]:
+    method = METHODS[name]
+    out = []
+    for suffix in method.streams:
+        if "{k}" in suffix:
+            out += [name + suffix.format(k=k) for k in getattr(methods, method.swept)]
+        else:
+            out.append(name + suffix)
+    return out
+
+
+def estimate_names(methods: MethodsConfig) -> list[str]:
+    """The estimate streams a method set produces, in table order."""
+    return [stream for name in methods.methods for stream in _streams(name, methods)]
+
+
+def describe(stream: str) -> Estimate:
+    """The `Estimate` of a stream name, its label filled in.
+
+    Raises:
+        ConfigError: no registered method produces a stream of that name.
+    """
+    for name, method in METHODS.items():
+        for suffix, estimate in method.streams.items():
+            if "{k}" not in suffix:
+                if stream == name + suffix:
+                    return estimate
+                continue
+            head, tail = (name + suffix).split("{k}")
+            match = re.fullmatch(re.escape(head) + r"(-?\d+)" + re.escape(tail), stream)
+            if match:
+                return Estimate(estimate.label.format(k=match.group(1)), estimate.color,
+                                estimate.line, estimate.causal)
+    raise ConfigError(f"no method produces an estimate named {stream!r}; methods: "
+                      f"{', '.join(METHODS)}")
+
+
+class MethodRunner(Protocol):
+    """One method over every directed pair of a run, one exchange at a time.
+
+    Built as `Runner(setup, stages, methods)` (`stages.RunSetup`, `stages.SharedStages`, the
+    method set). `estimates`
+    maps each of its streams to a (P, S, 3) array of (x, y, theta) of T_oi_oj, NaN rows where it
+    has no estimate, filled by `step` (and `finish`). The run charges the time of `step` to the
+    streams in `step_streams` and that of `finish` to `finish_streams`, less the shared stages'
+    time.
+    """
+
+    estimates: dict[str, np.ndarray]
+    step_streams: list[str]
+    finish_streams: list[str]
+
+    def step(self, s: int, t: float) -> None:
+        """Estimate every pair at exchange s (time t, s)."""
+        ...
+
+    def finish(self) -> None:
+        """After the last exchange (smoothing)."""
+        ...
+
+
+@dataclass
+class MethodRuns:
+    """What every method estimated over one run.
+
+    Attributes:
+        pairs: the directed pairs (i, j), i the ego robot.
+        truth: (P, S, 3) the true (x, y, theta) of T_oi_oj (NaN where unknown).
+        estimates: stream name -> (P, S, 3) (x, y, theta) of T_oi_oj; NaN rows where the
+            method had no estimate.
+        candidates: per pair, (steps (M,), z (M, 3)): every candidate the TCAFF filter saw.
+        seconds: stream name (and shared stage, "candidates") -> compute time over the run.
+    """
+
+    pairs: list[tuple[int, int]]
+    truth: np.ndarray
+    estimates: dict[str, np.ndarray]
+    candidates: list[tuple[np.ndarray, np.ndarray]]
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def _runner_class(name: str) -> type:
+    module, cls = METHODS[name].runner.split(":")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), cls)
+
+
+def run_methods(run: AlignmentRun, methods: MethodsConfig,
+                progress: Callable[[float], None] | None = None) -> MethodRuns:
+    """Every method of the set over every directed pair of the run, all advancing together one
+    exchange at a time on the same maps.
+
+    Args:
+        run: a simulated (`SimRun`) or recorded (`RecordedRun`) run.
+        progress: called after each step with the share of steps done.
+    Raises:
+        ConfigError: a method needs the truth at every step and the run does not have it.
+    """
+    from .stages import RunSetup, SharedStages, warm_up
+
+    setup = RunSetup.of(run, methods)
+    needs_truth = [m for m in methods.methods if METHODS[m].needs_truth]
+    if needs_truth and not setup.known.all():
+        raise ConfigError(f"methods {sorted(needs_truth)} need the true alignment at every "
+                          f"step, which this run does not have")
+    warm_up()  # numba compiles on first use: keep it out of every method's time
+    stages = SharedStages(setup, methods)
+    runners: list[MethodRunner] = [_runner_class(m)(setup, stages, methods)
+                                   for m in methods.methods]
+    seconds = dict.fromkeys(["candidates", *estimate_names(methods)], 0.0)
+
+    def timed(call: Callable[[], None], streams: list[str]) -> None:
+        before, start = stages.seconds_total(), time.perf_counter()
+        call()
+        own = time.perf_counter() - start - (stages.seconds_total() - before)
+        for stream in streams:
+            seconds[stream] += own
+
+    n_steps = len(run.times)
+    for s, t in enumerate(run.times):
+        stages.begin(s, float(t))
+        for runner in runners:
+            timed(lambda r=runner, s=s, t=float(t): r.step(s, t), runner.step_streams)
+        if progress is not None:
+            progress((s + 1) / n_steps)
+    for runner in runners:
+        timed(runner.finish, runner.finish_streams)
+    seconds["candidates"] += stages.seconds["candidates"]
+    if "tcaff" in seconds:
+        seconds["tcaff"] += stages.seconds["tcaff"]
+    estimates = {stream: est for r in runners for stream, est in r.estimates.items()}
+    return MethodRuns(setup.pairs, setup.truth, estimates, stages.candidate_history(), seconds)

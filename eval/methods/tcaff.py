@@ -1,0 +1,97 @@
+"""Runners of the TCAFF methods: the default filter, the released code's preset, and the default
+filter's output smoothed in one iSAM2 graph."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tcaff_gtsam.geometry import se2_to_params
+from tcaff_gtsam.graph import InterRobotGraph
+from tcaff_gtsam.params import constant_alignment_covariance
+from tcaff_gtsam.tcaff import TCAFF
+
+from ..config import MethodsConfig
+from .stages import RunSetup, SharedStages
+
+__all__ = ["GraphRunner", "ReferenceRunner", "TcaffRunner"]
+
+
+class TcaffRunner:
+    """`tcaff`: the default preset's estimate (the shared filter of `SharedStages.tcaff`)."""
+
+    def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
+        self.pairs, self.stages = range(len(setup.pairs)), stages
+        self.estimates = {"tcaff": setup.empty()}
+        self.step_streams, self.finish_streams = ["tcaff"], []
+
+    def step(self, s: int, t: float) -> None:
+        for p in self.pairs:
+            est = self.stages.tcaff(p)[0]
+            if est is not None:
+                self.estimates["tcaff"][p, s] = est.x
+
+    def finish(self) -> None:
+        pass
+
+
+class ReferenceRunner:
+    """`tcaff_reference`: the released code's preset on every candidate (no residual check),
+    each with the original's constant R."""
+
+    def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
+        params = methods.tcaff_params(True, setup.run.settings.window)
+        self.filters = [TCAFF(params) for _ in setup.pairs]
+        self.stages = stages
+        self.R = constant_alignment_covariance()
+        self.estimates = {"tcaff_reference": setup.empty()}
+        self.step_streams, self.finish_streams = ["tcaff_reference"], []
+
+    def step(self, s: int, t: float) -> None:
+        for p, tcaff in enumerate(self.filters):
+            found = self.stages.candidates(p)
+            zs = np.array([m.z for m in found]).reshape(-1, 3)
+            est = tcaff.update(zs, np.broadcast_to(self.R, (len(found), 3, 3)))
+            if est is not None:
+                self.estimates["tcaff_reference"][p, s] = est.x
+
+    def finish(self) -> None:
+        pass
+
+
+class GraphRunner:
+    """`tcaff_isam2`: the default TCAFF output of every pair (i, j), i < j, in one iSAM2 graph
+    ((j, i) aligns the same two maps: its factors would count them twice). Causal: the graph's
+    alignment at each step; smoothed: its whole history once more at the end. Both only at
+    steps where the pair's TCAFF has an estimate and the graph links the two robots."""
+
+    def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
+        settings = setup.run.settings
+        self.graph = InterRobotGraph(setup.run.n_robots,
+                                     methods.graph_params(settings.graph_drift))
+        self.pairs, self.stages = setup.pairs, stages
+        self.filtered = np.zeros((len(setup.pairs), setup.n_steps), dtype=bool)
+        self.estimates = {"tcaff_isam2_causal": setup.empty(),
+                          "tcaff_isam2_smoothed": setup.empty()}
+        self.step_streams, self.finish_streams = ["tcaff_isam2_causal"], ["tcaff_isam2_smoothed"]
+
+    def step(self, s: int, t: float) -> None:
+        outputs = [self.stages.tcaff(p) for p in range(len(self.pairs))]
+        for (i, j), (est, zs, Rs) in zip(self.pairs, outputs, strict=True):
+            if i < j:
+                self.graph.add_tcaff_estimate(s, i, j, est, zs, Rs)
+        self.graph.update(s)
+        causal = self.estimates["tcaff_isam2_causal"]
+        for p, (est, _, _) in enumerate(outputs):
+            self.filtered[p, s] = est is not None
+            # Before its first factor a pair's graph alignment is only the gauge's guess.
+            if est is not None and self.graph.connected(*self.pairs[p]):
+                causal[p, s] = self.graph.alignment_params(*self.pairs[p], s)
+
+    def finish(self) -> None:
+        smoothed = self.estimates["tcaff_isam2_smoothed"]
+        for p, pair in enumerate(self.pairs):
+            if not self.graph.connected(*pair):
+                continue
+            steps, T = self.graph.alignment_history(*pair)
+            held = self.filtered[p, steps]
+            smoothed[p, steps[held]] = se2_to_params(T[held])
