@@ -17,6 +17,7 @@ from tcaff_gtsam.eval.config import (
     load_methods,
     load_scenario,
 )
+from tcaff_gtsam.eval.jobs import evaluate_simulated
 from tcaff_gtsam.eval.sim.maps import OBJECT_CLASSES
 from tcaff_gtsam.eval.sim.motion import (
     drifting_odometry,
@@ -32,7 +33,6 @@ from tcaff_gtsam.eval.sim.scenarios import build_scene
 from tcaff_gtsam.eval.sim.sensor import observe
 from tcaff_gtsam.eval.sim.simulate import SimRun, simulate
 from tcaff_gtsam.eval.sim.world import World, along_path, combine, grid, room_walls, scatter
-from tcaff_gtsam.eval.study import score_run
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import (
@@ -951,7 +951,7 @@ def test_rendered_scenario_maps_only_real_objects_and_tcaff_aligns_them():
         assert labels.size >= 4
         assert np.all(labels >= 0)
         assert np.unique(labels).size >= labels.size - 1  # at most one duplicate per map
-    job = score_run(run, load_methods("tcaff_only"))
+    job = evaluate_simulated(run, load_methods("tcaff_only"))
     tcaff = job.metrics["tcaff"]["all"]
     assert tcaff["false_accept"] == 0.0
     assert tcaff["translation_error_m_mean"] < 0.35
