@@ -22,7 +22,9 @@ $(STAMP): pyproject.toml
 	fi
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[dev]"
+	@# setuptools' notice that an editable install is one (a UserWarning re-raised by pip) is
+	@# the only output left; the layout it warns about is deliberate (tests/test_packaging.py).
+	PYTHONWARNINGS="ignore:Editable installation:UserWarning" $(PY) -m pip install -q -e ".[dev]"
 	@touch $(STAMP)
 
 demo: install
@@ -32,6 +34,7 @@ test: install
 	$(VENV)/bin/pytest -q
 
 bench: install
+	$(PY) scripts/bench_startup.py
 	$(PY) scripts/bench_association.py
 	$(PY) scripts/bench_tcaff.py
 	$(PY) scripts/bench_graph.py

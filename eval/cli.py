@@ -1,47 +1,38 @@
-"""The `tcaff` command line."""
+"""The `tcaff` command line.
+
+Building the app loads typer and the aligner's parameter defaults (numpy) only; every command
+imports what it uses (gtsam, Open3D, numba, matplotlib, the study), so `tcaff --help` is instant.
+"""
 
 from __future__ import annotations
 
-import json
-import logging
-import math
-import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 import typer
-from rich import box
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import (
-    BarColumn,
-    SpinnerColumn,
-    TaskProgressColumn,
-    TextColumn,
-    TimeElapsedColumn,
-)
-from rich.progress import Progress as RichProgress
-from rich.table import Table
 
-from tcaff_gtsam.errors import TcaffError
-from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner
-from tcaff_gtsam.geometry import se2_to_params
-from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.params import ClipperParams, FrameAlignerParams
+# The align-maps defaults are the library's own; params needs numpy only.
+from tcaff_gtsam.params import FrameAlignerParams
 
-from . import plots
-from .config import (
-    MethodsConfig,
-    StudyConfig,
-    load_kimera_multi,
-    load_methods,
-    load_study,
-)
-from .kimera import KimeraProgress, run_kimera_multi
-from .methods import method_names
-from .sim.maps import overlapping_maps
-from .study import Progress, run_study
+if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.progress import Progress as RichProgress
+    from rich.table import Table
+
+    from tcaff_gtsam.frame_aligner import AlignmentMeasurement
+
+    from .config import MethodsConfig, StudyConfig
+
+_ALIGNER = FrameAlignerParams()
+# The same folder as config.CONFIG_DIR, found without importing config (pydantic).
+_CONFIG_DIR = Path(__file__).parent / "configs"
+
+
+def _shipped(kind: str) -> str:
+    """The shipped configs of one kind (a folder of `configs/`), as a comma-separated list."""
+    names = sorted(path.stem for path in (_CONFIG_DIR / kind).glob("*.yaml"))
+    return ", ".join(names) if names else "none shipped"
+
 
 app = typer.Typer(
     help="Align the coordinate frames of robots from their object maps (TCAFF).",
@@ -49,31 +40,82 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-console = Console()
-if not console.is_terminal:
-    console.width = 120  # piped output and CI logs: do not squeeze tables into 80 columns
-err_console = Console(stderr=True)
+
+_consoles: dict[bool, Console] = {}
+
+
+def _console(stderr: bool = False) -> Console:
+    """The rich console of stdout (or stderr), made on first use."""
+    if stderr not in _consoles:
+        from rich.console import Console
+
+        console = Console(stderr=stderr)
+        if not stderr and not console.is_terminal:
+            console.width = 120  # piped output and CI logs: do not squeeze tables into 80 columns
+        _consoles[stderr] = console
+    return _consoles[stderr]
+
+
+def _table(title: str) -> Table:
+    """A table of numbers: first column labels, the others values, see `_keep_numbers_whole`."""
+    from rich import box
+    from rich.table import Table
+
+    # Compact padding: the study table then fits 120 columns without wrapping a label.
+    return Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, collapse_padding=True,
+                 pad_edge=False)
+
+
+def _add_columns(table: Table, names: tuple[str, ...], labelled: bool = True) -> None:
+    """Columns named `names`; with `labelled` the first holds labels (left-aligned)."""
+    from rich.markup import escape
+
+    for index, name in enumerate(names):
+        table.add_column(escape(name), justify="left" if labelled and index == 0 else "right",
+                         overflow="fold")
+
+
+def _keep_numbers_whole(table: Table, labelled: bool = True) -> Table:
+    """Give every value column (all but the first when `labelled`) the width of its longest word.
+
+    On a narrow terminal rich squeezes columns and folds or cuts what no longer fits; with these
+    minimum widths it can still wrap a cell at a space ("0.12 ±" over "0.03") and fold headers
+    and labels, but never breaks a number. Call once all rows are added.
+    """
+    from rich.cells import cell_len
+    from rich.text import Text
+
+    for column in table.columns[1 if labelled else 0:]:
+        words = [word for cell in column.cells if isinstance(cell, str)
+                 for word in Text.from_markup(cell).plain.split()]
+        column.min_width = max(map(cell_len, words), default=None)
+    return table
 
 
 def _candidates_table(title: str, candidates: list[AlignmentMeasurement]) -> Table:
-    table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD)
-    for name in ("#", "x [m]", "y [m]", "theta [deg]", "assoc", "score", "rmse [m]",
-                 "sd [m, deg]"):
-        table.add_column(escape(name), justify="right")
+    import math
+
+    import numpy as np
+
+    table = _table(title)
+    _add_columns(table, ("#", "x [m]", "y [m]", "theta [deg]", "assoc", "score", "rmse [m]",
+                         "sd [m, deg]"), labelled=False)
     for rank, meas in enumerate(candidates, start=1):
         x, y, theta = meas.z
         sd = np.sqrt(np.diag(meas.R))
         table.add_row(str(rank), f"{x:.2f}", f"{y:.2f}", f"{math.degrees(theta):.1f}",
                       str(len(meas.associations)), f"{meas.score:.2f}", f"{meas.rmse:.3f}",
                       f"{max(sd[0], sd[1]):.2f}, {math.degrees(sd[2]):.1f}")
-    return table
+    return _keep_numbers_whole(table, labelled=False)
 
 
 def _aligner_params(kappa: float, dim: int, solutions: int, min_associations: int,
                     covariance: str, seed: int) -> FrameAlignerParams:
-    return FrameAlignerParams(kappa=kappa, dim=dim, n_solutions=solutions,
-                              min_associations=min_associations, covariance=covariance,
-                              clipper=ClipperParams(seed=seed))
+    from dataclasses import replace
+
+    return replace(_ALIGNER, kappa=kappa, dim=dim, n_solutions=solutions,
+                   min_associations=min_associations, covariance=covariance,
+                   clipper=replace(_ALIGNER.clipper, seed=seed))
 
 
 @app.command("align-maps")
@@ -81,19 +123,30 @@ def align_maps(
     ego: Annotated[Path, typer.Argument(help="Ego robot's map (.npz from ObjectMap.save).")],
     other: Annotated[Path, typer.Argument(help="Other robot's map (.npz).")],
     now: Annotated[float | None, typer.Option(
-        help="Current time [s]; default: the latest last_seen in either map.")] = None,
-    kappa: Annotated[float, typer.Option(help="Use objects seen less than kappa s ago.")] = 20.0,
-    dim: Annotated[int, typer.Option(help="Match 2D (x, y) or 3D centroids.")] = 2,
-    solutions: Annotated[int, typer.Option(help="MNO-CLIPPER solutions N.")] = 4,
-    min_associations: Annotated[int, typer.Option(help="Fewest associations kept.")] = 5,
+        help="Current time (s); default: the latest last_seen in either map.")] = None,
+    kappa: Annotated[float, typer.Option(
+        help="Use objects seen less than kappa seconds ago.")] = _ALIGNER.kappa,
+    dim: Annotated[int, typer.Option(help="Match 2D (x, y) or 3D centroids.")] = _ALIGNER.dim,
+    solutions: Annotated[int, typer.Option(
+        help="MNO-CLIPPER solutions N.")] = _ALIGNER.n_solutions,
+    min_associations: Annotated[int, typer.Option(
+        help="Fewest associations kept.")] = _ALIGNER.min_associations,
     covariance: Annotated[str, typer.Option(
         help="'constant' (the original's R) or 'residual' (from the registration).")
-    ] = "constant",
-    seed: Annotated[int, typer.Option(help="Seed of CLIPPER's start vector.")] = 0,
+    ] = _ALIGNER.covariance,
+    seed: Annotated[int, typer.Option(
+        help="Seed of CLIPPER's start vector.")] = _ALIGNER.clipper.seed,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")
                        ] = False,
 ) -> None:
     """Print the candidate alignments T_oi_oj (other's odometry frame into the ego's)."""
+    import json
+
+    import numpy as np
+
+    from tcaff_gtsam.frame_aligner import FrameAligner
+    from tcaff_gtsam.object_map import ObjectMap
+
     ego_map, other_map = ObjectMap.load(ego), ObjectMap.load(other)
     if now is None:
         stamps = np.r_[ego_map.last_seen, other_map.last_seen]
@@ -106,6 +159,7 @@ def align_maps(
                            "associations": m.associations.tolist(), "score": m.score,
                            "rmse": m.rmse} for m in candidates], indent=2))
         return
+    console = _console()
     if not candidates:
         console.print(f"no candidate alignment ({len(ego_map)} and {len(other_map)} objects, "
                       f"now = {now:.2f} s)")
@@ -119,11 +173,20 @@ def make_maps(
     out_dir: Annotated[Path, typer.Argument(help="Folder for ego.npz, other.npz, truth.json.")],
     objects: Annotated[int, typer.Option(help="Objects per map.")] = 40,
     overlap: Annotated[float, typer.Option(help="Share of objects both maps hold.")] = 0.6,
-    noise: Annotated[float, typer.Option(help="Centroid noise per axis [m].")] = 0.1,
+    noise: Annotated[float, typer.Option(help="Centroid noise per axis (m).")] = 0.1,
     clutter: Annotated[int, typer.Option(help="Spurious objects per map.")] = 10,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ) -> None:
     """Write two simulated overlapping maps with a known alignment, for trying align-maps."""
+    import json
+    import math
+
+    import numpy as np
+
+    from tcaff_gtsam.geometry import se2_to_params
+
+    from .sim.maps import overlapping_maps
+
     pair = overlapping_maps(np.random.default_rng(seed), objects, overlap, noise,
                             clutter=clutter)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -132,43 +195,59 @@ def make_maps(
     x, y, theta = se2_to_params(pair.T_oi_oj)
     (out_dir / "truth.json").write_text(json.dumps(
         {"T_oi_oj": {"x": x, "y": y, "theta": theta}, "now": pair.now}, indent=2))
-    console.print(f"wrote {out_dir}/ego.npz, other.npz and truth.json "
-                  f"(true x={x:.2f} m, y={y:.2f} m, theta={math.degrees(theta):.1f} deg)")
+    _console().print(f"wrote {out_dir}/ego.npz, other.npz and truth.json "
+                     f"(true x={x:.2f} m, y={y:.2f} m, theta={math.degrees(theta):.1f} deg)")
 
 
 def _bars() -> RichProgress:
     """Progress bars that vanish when done, elapsed time on the right."""
+    from rich.progress import (
+        BarColumn,
+        SpinnerColumn,
+        TaskProgressColumn,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+    from rich.progress import Progress as RichProgress
+
     return RichProgress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
-                        TaskProgressColumn(), TimeElapsedColumn(), console=console,
+                        TaskProgressColumn(), TimeElapsedColumn(), console=_console(),
                         transient=True)
 
 
-class _Bars(Progress):
+def _study_bars(bars: RichProgress, n_jobs: int):
     """The study's progress as rich bars: one for the whole study, one per running job."""
+    from rich.markup import escape
 
-    def __init__(self, bars: RichProgress, n_jobs: int) -> None:
-        self.bars = bars
-        self.total = bars.add_task("study", total=n_jobs)
-        self.tasks: dict[int, int] = {}
-        self.labels: dict[int, str] = {}
-        self.shares: dict[int, float] = {}
+    from .study import Progress
 
-    def start(self, key: int, label: str) -> None:
-        self.labels[key] = label
+    # Defined here: the base class lives in the study module, which loads the whole stack.
+    class _Bars(Progress):
+        def __init__(self) -> None:
+            self.total = bars.add_task("study", total=n_jobs)
+            self.tasks: dict[int, int] = {}
+            self.labels: dict[int, str] = {}
+            self.shares: dict[int, float] = {}
 
-    def advance(self, key: int, share: float) -> None:
-        if key not in self.tasks:
-            self.tasks[key] = self.bars.add_task(self.labels[key], total=1.0)
-        self.bars.update(self.tasks[key], completed=share)
-        self.shares[key] = share
-        self.bars.update(self.total, completed=sum(self.shares.values()))
+        def start(self, key: int, label: str) -> None:
+            self.labels[key] = label
 
-    def finish(self, key: int, ok: bool) -> None:
-        self.shares[key] = 1.0
-        self.bars.update(self.total, completed=sum(self.shares.values()))
-        if key in self.tasks:
-            self.bars.remove_task(self.tasks[key])
-        console.print(f"{'done' if ok else '[red]failed[/]'}: {escape(self.labels[key])}")
+        def advance(self, key: int, share: float) -> None:
+            if key not in self.tasks:
+                self.tasks[key] = bars.add_task(self.labels[key], total=1.0)
+            bars.update(self.tasks[key], completed=share)
+            self.shares[key] = share
+            bars.update(self.total, completed=sum(self.shares.values()))
+
+        def finish(self, key: int, ok: bool) -> None:
+            self.shares[key] = 1.0
+            bars.update(self.total, completed=sum(self.shares.values()))
+            if key in self.tasks:
+                bars.remove_task(self.tasks[key])
+            _console().print(f"{'done' if ok else '[red]failed[/]'}: "
+                             f"{escape(self.labels[key])}")
+
+    return _Bars()
 
 
 def _cell(report: dict, key: str, scale: float = 1.0, digits: int = 2) -> str:
@@ -177,37 +256,45 @@ def _cell(report: dict, key: str, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def _summary_table(summary: dict, methods: MethodsConfig) -> Table:
-    table = Table(title="Frame alignment, pooled over directed pairs and seeds (mean ± std)",
-                  title_justify="left", box=box.SIMPLE_HEAD)
-    for name in ("method", "translation [m]", "heading [deg]", "available", "false acc.",
-                 "1st correct [s]", "RPE [m]", "ms"):
-        table.add_column(escape(name), justify="left" if name == "method" else "right",
-                         no_wrap=True, min_width=len(name))
-    shown = [m for m in method_names(methods) if not m.startswith("clipper_k")
+    """The study table of the methods a method set shows, labelled as in the figures."""
+    from .methods import describe, estimate_names
+
+    shown = [m for m in estimate_names(methods) if not m.startswith("clipper_k")
              or m == f"clipper_k{methods.clipper_k_shown}"]
+    return _pooled_table(summary, {method: describe(method).label for method in shown})
+
+
+def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
+    """summary: scenario -> method -> report; labels: method -> printed name, in table order."""
+    from rich.markup import escape
+
+    table = _table("Frame alignment, pooled over directed pairs and seeds (mean ± std)")
+    _add_columns(table, ("method", "translation [m]", "heading [deg]", "available",
+                         "false acc.", "1st correct [s]", "RPE [m]", "ms"))
     for scenario, by_method in summary.items():
         table.add_row(f"[bold]{escape(scenario)}[/]")
-        for row, method in enumerate(shown):
+        for row, (method, label) in enumerate(labels.items()):
             r = by_method[method]
             table.add_row(
-                "  " + escape(plots.label(method)),
+                "  " + escape(label),
                 f"{_cell(r, 'translation_error_m_mean')} ± {_cell(r, 'translation_error_m_std')}",
                 f"{_cell(r, 'heading_error_deg_mean')} ± {_cell(r, 'heading_error_deg_std')}",
                 _cell(r, "availability", 100, 0) + " %", _cell(r, "false_accept", 100, 1) + " %",
                 _cell(r, "time_to_first_correct_s", digits=0),
                 _cell(r, "rpe_translation_m"), _cell(r, "ms_per_pair_step", digits=2),
-                end_section=row == len(shown) - 1)
-    return table
+                end_section=row == len(labels) - 1)
+    return _keep_numbers_whole(table)
 
 
 def _mot_table(mot_summary: dict) -> Table:
-    table = Table(title="Tracking people together: MOTA averaged over the robots, mean ± std "
-                        "over seeds; errors as shares of the people to track, pooled over "
-                        "robots and seeds",
-                  title_justify="left", box=box.SIMPLE_HEAD)
-    for name in ("method", "MOTA", "false pos.", "misses", "switches"):
-        table.add_column(name, justify="left" if name == "method" else "right", no_wrap=True,
-                         min_width=13 if name == "MOTA" else len(name))
+    from rich.markup import escape
+
+    from . import plots
+
+    table = _table("Tracking people together: MOTA averaged over the robots, mean ± std over "
+                   "seeds; errors as shares of the people to track, pooled over robots and "
+                   "seeds")
+    _add_columns(table, ("method", "MOTA", "false pos.", "misses", "switches"))
 
     def share(report: dict, key: str) -> str:
         value = _cell(report, f"{key}_share", 100, 1)
@@ -220,17 +307,24 @@ def _mot_table(mot_summary: dict) -> Table:
                           f"{_cell(r, 'mota', digits=3)} ± {_cell(r, 'mota_std', digits=3)}",
                           share(r, "false_positives"), share(r, "misses"),
                           share(r, "switches"), end_section=row == len(by_method) - 1)
-    return table
+    return _keep_numbers_whole(table)
 
 
 def _run(study_config: StudyConfig, figures: bool) -> None:
+    import time
+
+    from rich.markup import escape
+
+    from .study import run_study
+
+    console, err_console = _console(), _console(stderr=True)
     n_jobs = len(study_config.scenarios) * len(study_config.seeds)
     console.print(f"study [bold]{study_config.name}[/]: {len(study_config.scenarios)} "
                   f"scenarios x {len(study_config.seeds)} seeds, {study_config.workers} "
                   f"worker(s)")
     start = time.perf_counter()
     with _bars() as bars:
-        outcome = run_study(study_config, _Bars(bars, n_jobs), figures=figures)
+        outcome = run_study(study_config, _study_bars(bars, n_jobs), figures=figures)
     if outcome.summary:
         console.print(_summary_table(outcome.summary, study_config.methods))
         console.print("CLIPPER's whole sweep, every pair and seed: metrics.csv and "
@@ -252,15 +346,27 @@ def _run(study_config: StudyConfig, figures: bool) -> None:
         raise SystemExit(1)
 
 
-@app.command()
+_STUDY_HELP = f"""\
+Compare the methods over scenarios x seeds; write metrics.json, metrics.csv, figures.
+
+Scenarios: {_shipped("scenarios")} (eval/configs/scenarios/). Methods: TCAFF, its reference
+preset, TCAFF + iSAM2 (causal and smoothed), single-shot CLIPPER for each threshold k, ICP
+from the true initial alignment, ground truth. In scenarios with people (mot) every robot
+also tracks them with its own and its neighbours' detections, shared through each method's
+alignment, and the tracking is scored with MOTA. Ctrl-C keeps the runs already finished.
+"""
+
+
+@app.command(help=_STUDY_HELP)
 def study(
     config: Annotated[str, typer.Argument(
-        help="A study YAML file, or the name of a shipped one (demo, paper).")] = "paper",
+        help=f"A study YAML file, or the name of a shipped one ({_shipped('studies')}).")
+    ] = "paper",
     scenario: Annotated[list[str] | None, typer.Option(
         "--scenario", "-s", help="Run only this scenario (name or YAML path); repeatable.")
     ] = None,
     methods: Annotated[str | None, typer.Option(
-        help="Method set: a YAML path or a shipped name (default, tcaff_only).")] = None,
+        help=f"Method set: a YAML path or a shipped name ({_shipped('methods')}).")] = None,
     seeds: Annotated[int | None, typer.Option(
         help="Run seeds 0 .. N-1 instead of the config's.", min=1)] = None,
     workers: Annotated[int | None, typer.Option(help="Parallel processes.", min=1)] = None,
@@ -270,15 +376,8 @@ def study(
         help="Cap every scenario's duration (seconds), for a quick look.", min=1.0)] = None,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
 ) -> None:
-    """Compare the methods over scenarios x seeds; write metrics.json, metrics.csv, figures.
+    from .config import load_study
 
-    Scenarios: indoor_return, same_direction, opposite_directions, four_robots,
-    ambiguous_grid, indoor_rgbd, mot (eval/configs/scenarios/). Methods: TCAFF, its reference
-    preset, TCAFF + iSAM2 (causal and smoothed), single-shot CLIPPER for each threshold k, ICP
-    from the true initial alignment, ground truth. In scenarios with people (mot) every robot
-    also tracks them with its own and its neighbours' detections, shared through each method's
-    alignment, and the tracking is scored with MOTA. Ctrl-C keeps the runs already finished.
-    """
     overrides = {"scenarios": scenario or None, "methods": methods,
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
@@ -296,28 +395,37 @@ def demo(
     workers: Annotated[int, typer.Option(help="Parallel processes.", min=1)] = 2,
 ) -> None:
     """The study on every scenario with one seed (about a minute): table, metrics, figures."""
+    from .config import load_study
+
     _run(load_study("demo", {"output": str(output), "workers": workers}), True)
 
 
-class _KimeraBars(KimeraProgress):
-    def __init__(self, bars: RichProgress) -> None:
-        self.bars = bars
-        self.tasks: dict[str, int] = {}
+def _kimera_bars(bars: RichProgress):
+    from rich.markup import escape
 
-    def robot(self, robot: str, reused: bool) -> None:
-        if reused:
-            console.print(f"{escape(robot)}: maps of an earlier run with the same settings "
-                          f"reused")
-        else:
-            self.tasks[robot] = self.bars.add_task(f"mapping {robot}", total=1.0)
+    from .recorded import KimeraProgress
 
-    def mapping(self, robot: str, share: float) -> None:
-        self.bars.update(self.tasks[robot], completed=share)
+    # Defined here: the base class lives in the recorded module, which loads the whole stack.
+    class _KimeraBars(KimeraProgress):
+        def __init__(self) -> None:
+            self.tasks: dict[str, int] = {}
 
-    def aligning(self, share: float) -> None:
-        if "align" not in self.tasks:
-            self.tasks["align"] = self.bars.add_task("aligning every pair", total=1.0)
-        self.bars.update(self.tasks["align"], completed=share)
+        def robot(self, robot: str, reused: bool) -> None:
+            if reused:
+                _console().print(f"{escape(robot)}: maps of an earlier run with the same "
+                                 f"settings reused")
+            else:
+                self.tasks[robot] = bars.add_task(f"mapping {robot}", total=1.0)
+
+        def mapping(self, robot: str, share: float) -> None:
+            bars.update(self.tasks[robot], completed=share)
+
+        def aligning(self, share: float) -> None:
+            if "align" not in self.tasks:
+                self.tasks["align"] = bars.add_task("aligning every pair", total=1.0)
+            bars.update(self.tasks["align"], completed=share)
+
+    return _KimeraBars()
 
 
 @app.command("kimera-multi")
@@ -325,8 +433,8 @@ def kimera_multi(
     data: Annotated[Path, typer.Option(
         help="Folder with every robot's bags and <robot>_gt_odom.csv files.")],
     config: Annotated[str, typer.Option(
-        help="A Kimera-Multi test YAML, or a shipped one: same_direction, "
-             "opposite_directions.")] = "same_direction",
+        help=f"A Kimera-Multi test YAML, or a shipped one: {_shipped('kimera_multi')}.")
+    ] = "same_direction",
     output: Annotated[Path, typer.Option(
         help="Results go to OUTPUT/<test name>/.")] = Path("results/kimera_multi"),
     resume: Annotated[bool, typer.Option(
@@ -335,17 +443,29 @@ def kimera_multi(
     duration: Annotated[float | None, typer.Option(
         help="Use only this many seconds of data, for a quick look.", min=1.0)] = None,
     methods: Annotated[str | None, typer.Option(
-        help="Method set: a YAML path or a shipped name (default, tcaff_only).")] = None,
+        help=f"Method set: a YAML path or a shipped name ({_shipped('methods')}).")] = None,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
 ) -> None:
-    """Offline evaluation on Kimera-Multi rosbags: map each robot's RGB-D frames (depth
-    segmenter, Open3D lifting, tracker), exchange maps at 1 Hz, align every directed pair with
-    TCAFF, TCAFF + iSAM2 and the baselines, and score them against the ground-truth CSVs.
+    """Offline evaluation on Kimera-Multi rosbags: map, align every pair, score.
+
+    Maps each robot's RGB-D frames (depth segmenter, Open3D lifting, tracker), exchanges maps at
+    1 Hz, aligns every directed pair with TCAFF, TCAFF + iSAM2 and the baselines, and scores
+    them against the ground-truth CSVs.
 
     Prints the paper's table (mean +- std translation and heading error per method) and each
     robot's mapping throughput; writes maps/, metrics.json, metrics.csv, table.md and
     figures/ under OUTPUT/<test>/. Without ground truth the alignments are still written.
     """
+    import time
+
+    from rich.markup import escape
+
+    from tcaff_gtsam.errors import TcaffError
+
+    from .config import load_kimera_multi, load_methods
+    from .recorded import run_kimera_multi
+
+    console, err_console = _console(), _console(stderr=True)
     test = load_kimera_multi(config)
     if duration is not None:
         test = test.model_copy(update={"duration": duration})
@@ -356,7 +476,7 @@ def kimera_multi(
     start = time.perf_counter()
     try:
         with _bars() as bars:
-            outcome = run_kimera_multi(test, data, output, resume, figures, _KimeraBars(bars))
+            outcome = run_kimera_multi(test, data, output, resume, figures, _kimera_bars(bars))
     except TcaffError:
         maps = output / test.name / "maps"
         saved = sorted(p.stem for p in maps.glob("*.npz")) if maps.is_dir() else []
@@ -364,10 +484,9 @@ def kimera_multi(
             err_console.print(f"the maps of {', '.join(saved)} are saved in {maps}; a rerun "
                               f"reuses them")
         raise
-    throughput = Table(title="Mapping", title_justify="left", box=box.SIMPLE_HEAD)
-    for name in ("robot", "frames", "seconds", "frames/s", "ms per frame: segment", "lift",
-                 "track"):
-        throughput.add_column(name, justify="left" if name == "robot" else "right")
+    throughput = _table("Mapping")
+    _add_columns(throughput, ("robot", "frames", "seconds", "frames/s", "ms per frame: segment",
+                              "lift", "track"))
     for m in outcome.mappings:
         ms = {k: 1e3 * v / max(m.frames, 1) for k, v in m.stage_seconds.items()}
         throughput.add_row(escape(m.robot) + (" (saved)" if m.robot in outcome.reused else ""),
@@ -375,9 +494,10 @@ def kimera_multi(
                            "-" if m.frames_per_second is None else f"{m.frames_per_second:.1f}",
                            f"{ms.get('segment', 0):.1f}", f"{ms.get('lift', 0):.1f}",
                            f"{ms.get('track', 0):.2f}")
-    console.print(throughput)
-    if outcome.summary:
-        console.print(_summary_table({test.name: outcome.summary}, outcome.methods))
+    console.print(_keep_numbers_whole(throughput))
+    recorded = outcome.recorded
+    if recorded.summary:
+        console.print(_summary_table({test.name: recorded.summary}, recorded.methods))
     else:
         console.print("no ground truth for every robot: alignments written, not scored")
     console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
@@ -385,9 +505,15 @@ def kimera_multi(
 
 def main() -> None:
     """Console entry point: library errors become a one-line message and exit status 2."""
+    import logging
+
+    from rich.markup import escape
+
+    from tcaff_gtsam.errors import TcaffError
+
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         app()
     except TcaffError as exc:
-        err_console.print(f"[red]error:[/] {escape(str(exc))}", soft_wrap=True)
+        _console(stderr=True).print(f"[red]error:[/] {escape(str(exc))}", soft_wrap=True)
         raise SystemExit(2) from None

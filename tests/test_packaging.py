@@ -18,6 +18,7 @@ import subprocess
 import sys
 import zipfile
 from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 
@@ -101,6 +102,28 @@ def test_pyproject_declares_the_package_dir_mapping():
     assert config["project"]["scripts"]["tcaff"] == "tcaff_gtsam.eval.cli:main"
 
 
+def test_pyproject_lists_every_package_folder():
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    setuptools_cfg = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    on_disk = set()
+    for folder, package in (("tcaff_gtsam", "tcaff_gtsam"), ("mapping", "tcaff_gtsam.mapping"),
+                            ("eval", "tcaff_gtsam.eval")):
+        for init in (REPO / folder).rglob("__init__.py"):
+            parts = init.parent.relative_to(REPO / folder).parts
+            on_disk.add(".".join((package, *parts)))
+    # A package missing from the list is silently left out of the wheel.
+    assert on_disk == set(setuptools_cfg["packages"])
+
+
+def test_pyproject_ships_the_configs_as_package_data_only():
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    setuptools_cfg = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    # With include-package-data on, setuptools takes each configs/ sub-folder for a package
+    # and prints a page of warnings per folder on every install.
+    assert setuptools_cfg["include-package-data"] is False
+    assert "configs/*/*.yaml" in setuptools_cfg["package-data"]["tcaff_gtsam.eval"]
+
+
 # ---------------------------------------------------------------------------------------------
 # (b) a normal (non-editable) wheel install
 
@@ -108,12 +131,18 @@ _IGNORE = shutil.ignore_patterns(".venv", ".git", "build", "dist", "*.egg-info",
                                  ".pytest_cache", ".hypothesis", ".ruff_cache", "results")
 
 
+class Built(NamedTuple):
+    wheel: Path
+    site: Path
+    log: str
+
+
 @pytest.fixture(scope="module")
 def wheel_install(tmp_path_factory):
     """Build a wheel from a copy of the repository and pip-install it into a --target folder.
 
     The copy keeps the build's `build/` and `*.egg-info` output out of the working tree.
-    Returns (wheel path, site folder).
+    Returns the wheel path, the site folder and the build's output.
     """
     base = tmp_path_factory.mktemp("wheel")
     src = base / "src"
@@ -122,7 +151,7 @@ def wheel_install(tmp_path_factory):
     # Absolute paths throughout: pip would read a bare word as a package name to download.
     build = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
-         "-w", str(dist), str(src)],
+         "-v", "-w", str(dist), str(src)],
         capture_output=True, text=True, timeout=300, env=clean_env(),
     )
     assert build.returncode == 0, build.stdout + build.stderr
@@ -135,14 +164,29 @@ def wheel_install(tmp_path_factory):
         capture_output=True, text=True, timeout=300, env=clean_env(),
     )
     assert install.returncode == 0, install.stdout + install.stderr
-    return wheels[0], site
+    return Built(wheels[0], site, build.stdout + build.stderr)
 
 
 class TestWheelInstall:
     """Slow-ish (a few seconds): builds and installs a real wheel with pip."""
 
+    def test_wheel_build_is_quiet(self, wheel_install):
+        # `pip wheel -v` shows the build backend's warnings, as an install does.
+        for warning in ("Package would be ignored", "is absent from the `packages`",
+                        "as data is deprecated"):
+            assert warning not in wheel_install.log, wheel_install.log
+
+    def test_wheel_ships_every_config(self, wheel_install):
+        with zipfile.ZipFile(wheel_install.wheel) as zf:
+            names = set(zf.namelist())
+        configs = sorted((REPO / "eval" / "configs").rglob("*.yaml"))
+        assert configs
+        for path in configs:
+            rel = path.relative_to(REPO / "eval").as_posix()
+            assert f"tcaff_gtsam/eval/{rel}" in names, f"{path} missing from the wheel"
+
     def test_wheel_file_list(self, wheel_install):
-        wheel, _ = wheel_install
+        wheel = wheel_install.wheel
         with zipfile.ZipFile(wheel) as zf:
             names = set(zf.namelist())
         for required in ("tcaff_gtsam/__init__.py", "tcaff_gtsam/geometry.py",
@@ -162,7 +206,7 @@ class TestWheelInstall:
                 assert f"{package}/{rel}" in names, f"{py} missing from the wheel"
 
     def test_wheel_entry_points_and_top_level(self, wheel_install):
-        wheel, _ = wheel_install
+        wheel = wheel_install.wheel
         with zipfile.ZipFile(wheel) as zf:
             names = zf.namelist()
             entry = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
@@ -175,7 +219,7 @@ class TestWheelInstall:
         assert "mapping" not in top_names and "eval" not in top_names
 
     def test_wheel_install_imports_from_target(self, wheel_install, tmp_path):
-        _, site = wheel_install
+        site = wheel_install.site
         assert not (site / "mapping").exists()
         assert not (site / "eval").exists()
         out = run_probe(tmp_path, clean_env(PYTHONPATH=str(site)))
@@ -188,7 +232,7 @@ class TestWheelInstall:
         assert out["top"] == {"mapping": False, "eval": False}
 
     def test_wheel_console_script_runs(self, wheel_install, tmp_path):
-        _, site = wheel_install
+        site = wheel_install.site
         script = site / "bin" / "tcaff"
         assert script.is_file()
         proc = subprocess.run([sys.executable, str(script), "--help"], cwd=tmp_path,

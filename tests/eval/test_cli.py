@@ -4,16 +4,30 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from rich.console import Console
+from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.cli import app
+from tcaff_gtsam.eval.config import CONFIG_DIR
+from typer.main import get_command
 from typer.testing import CliRunner
 
 runner = CliRunner()
 TCAFF = str(Path(sys.executable).parent / "tcaff")
+COMMANDS = get_command(app).commands  # name -> click command
+
+
+def help_of(command: str) -> str:
+    """`tcaff COMMAND --help` as one line: wide enough that no help text wraps, runs of spaces
+    collapsed."""
+    result = runner.invoke(app, [command, "--help"], env={"COLUMNS": "300"})
+    assert result.exit_code == 0, result.output
+    return " ".join(result.output.split())
 
 
 def test_help_lists_the_commands():
@@ -21,6 +35,86 @@ def test_help_lists_the_commands():
     assert result.exit_code == 0
     for command in ("align-maps", "make-maps", "study", "demo"):
         assert command in result.output
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_every_option_help_is_shown_whole(command):
+    # rich reads "[s]" or "[m]" in a help text as markup and drops it.
+    shown = help_of(command)
+    for param in COMMANDS[command].params:
+        if getattr(param, "help", None):
+            assert " ".join(param.help.split()) in shown, (param.name, param.help)
+
+
+def test_help_keeps_the_units():
+    assert "Current time (s); default: the latest last_seen" in help_of("align-maps")
+    assert "Centroid noise per axis (m)." in help_of("make-maps")
+
+
+@pytest.mark.parametrize(("folder", "commands"), [
+    ("scenarios", ["study"]), ("studies", ["study"]), ("methods", ["study", "kimera-multi"]),
+    ("kimera_multi", ["kimera-multi"])])
+def test_help_lists_every_shipped_config(folder, commands):
+    names = sorted(path.stem for path in (CONFIG_DIR / folder).glob("*.yaml"))
+    assert names
+    for command in commands:
+        shown = help_of(command)
+        for name in names:
+            assert re.search(rf"\b{name}\b", shown), (command, folder, name)
+
+
+def test_cli_finds_the_configs_where_the_loader_does():
+    assert cli._CONFIG_DIR.resolve() == CONFIG_DIR.resolve()
+
+
+ALIGNER_DEFAULTS_PROBE = """
+import dataclasses, json
+import tcaff_gtsam.params as params
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Changed(params.FrameAlignerParams):
+    kappa: float = 7.5
+    dim: int = 3
+    n_solutions: int = 9
+    min_associations: int = 3
+    covariance: str = "residual"
+    clipper: params.ClipperParams = dataclasses.field(
+        default_factory=lambda: params.ClipperParams(seed=11))
+
+params.FrameAlignerParams = Changed
+from typer.main import get_command
+from tcaff_gtsam.eval.cli import app
+print(json.dumps({p.name: p.default for p in get_command(app).commands["align-maps"].params}))
+"""
+
+
+def test_align_maps_defaults_come_from_the_aligner_params():
+    done = subprocess.run([sys.executable, "-c", ALIGNER_DEFAULTS_PROBE], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    defaults = json.loads(done.stdout)
+    assert {k: defaults[k] for k in ("kappa", "dim", "solutions", "min_associations",
+                                     "covariance", "seed")} == {
+        "kappa": 7.5, "dim": 3, "solutions": 9, "min_associations": 3,
+        "covariance": "residual", "seed": 11}
+
+
+REPORT = {"translation_error_m_mean": 0.12, "translation_error_m_std": 0.03,
+          "heading_error_deg_mean": 1.25, "heading_error_deg_std": 10.5, "availability": 1.0,
+          "false_accept": 0.125, "time_to_first_correct_s": 14.0, "rpe_translation_m": 0.05,
+          "ms_per_pair_step": 12345.67}
+
+
+@pytest.mark.parametrize("width", [60, 80, 120])
+def test_study_table_never_cuts_a_number(width):
+    labels = {"tcaff": "TCAFF", "smoothed": "TCAFF+iSAM2 smoothed", "truth": "ground truth"}
+    summary = {"ambiguous_grid_opposite": dict.fromkeys(labels, REPORT)}
+    console = Console(width=width, record=True)
+    console.print(cli._pooled_table(summary, labels))
+    text = console.export_text()
+    assert max(map(len, text.splitlines())) <= width
+    for number in ("12345.67", "0.12", "0.03", "1.25", "10.50", "100", "12.5", "14", "0.05"):
+        assert re.search(rf"(?<![\d.]){re.escape(number)}(?![\d.])", text), (number, text)
 
 
 def test_make_maps_then_align_maps_finds_the_truth(tmp_path):

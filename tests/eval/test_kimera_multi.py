@@ -22,10 +22,12 @@ from tcaff_gtsam.eval.config import (
 from tcaff_gtsam.eval.datasets.kimera_multi import (
     GT_HEADER,
     PoseTrack,
+    extrinsic,
     read_ground_truth,
 )
-from tcaff_gtsam.eval.kimera import RecordedRun, extrinsic, run_kimera_multi
-from tcaff_gtsam.eval.methods import RunSettings, run_methods
+from tcaff_gtsam.eval.methods import run_methods
+from tcaff_gtsam.eval.recorded import run_kimera_multi
+from tcaff_gtsam.eval.runs import RecordedRun, RunSettings
 from tcaff_gtsam.eval.sim import kimera_bags
 from tcaff_gtsam.mapping.camera import T_body_camera
 from typer.testing import CliRunner
