@@ -7,11 +7,19 @@ message names the key's path, for example
 A study names its scenarios and method set either by the name of a file shipped in
 `eval/configs/` (`indoor_return`, `default`) or by a path, or holds them inline. The effective
 configuration a study writes next to its results has everything inline and loads again as is.
+
+Settings of an algorithm are not mirrored here: a key that holds them is validated by building
+the algorithm's parameter dataclass (`FrameAlignerParams`, `TCAFFParams`, `GraphParams`,
+`TrackerParams`; `MapperParams` for `mapping.nu` and `mapping.kappa`) from the keys given, so
+its defaults and rules are the only ones, and its `ConfigError` comes out with the key's path.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+import dataclasses
+import math
+import typing
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -22,13 +30,24 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PlainSerializer,
+    PlainValidator,
     ValidationError,
     field_validator,
     model_validator,
 )
+from tcaff_gtsam.mapping.mapper import MapperParams
 
 from tcaff_gtsam.errors import ConfigError
-from tcaff_gtsam.params import ClipperParams, FrameAlignerParams, GraphParams, TCAFFParams
+from tcaff_gtsam.params import (
+    FrameAlignerParams,
+    GraphParams,
+    ParameterError,
+    TCAFFParams,
+    _int_at_least,
+    _real,
+    _require,
+)
 
 __all__ = [
     "CONFIG_DIR",
@@ -36,6 +55,7 @@ __all__ = [
     "MethodsConfig",
     "ScenarioConfig",
     "StudyConfig",
+    "TrackerParams",
     "load_kimera_multi",
     "load_methods",
     "load_scenario",
@@ -59,6 +79,95 @@ GraphDrift = Annotated[tuple[float, float] | None, AfterValidator(_check_drift)]
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# -- parameter dataclasses as config values ----------------------------------------------------
+
+
+class _EntryError(ValueError):
+    """A bad entry of a mapping a parameter object is built from; `keys` (from the mapping
+    down) extend the key path of the error, `value` is the entry's value (None with
+    `show_value` False: an unknown key)."""
+
+    def __init__(self, keys: tuple[str, ...], message: str, value: Any = None,
+                 show_value: bool = True) -> None:
+        super().__init__(f"{'.'.join(keys)}: {message}")
+        self.keys, self.message, self.value, self.show_value = keys, message, value, show_value
+
+    def within(self, key: str) -> _EntryError:
+        return _EntryError((key, *self.keys), self.message, self.value, self.show_value)
+
+
+def _build(cls: type, data: Any, fixed: dict[str, str]) -> Any:
+    """A `cls` (a frozen parameter dataclass) from a mapping of some of its fields, the rest
+    keeping the dataclass's defaults; an instance passes as it is. Fields in `fixed` (name ->
+    why) belong to the run, not to this mapping, and are refused unless left at the default."""
+    if isinstance(data, cls):
+        default = cls()
+        for name, why in fixed.items():
+            if replace(default, **{name: getattr(data, name)}) != default:
+                raise _EntryError((name,), why, getattr(data, name))
+        return data
+    if not isinstance(data, dict):
+        raise ValueError(f"must be a mapping of {cls.__name__} fields")
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    types = typing.get_type_hints(cls)
+    kwargs = {}
+    for key, value in data.items():
+        if key in fixed:
+            raise _EntryError((key,), fixed[key], value)
+        if key not in names:
+            raise _EntryError((str(key),), "Extra inputs are not permitted", show_value=False)
+        if dataclasses.is_dataclass(types[key]):
+            try:
+                value = _build(types[key], value, {})
+            except _EntryError as exc:
+                raise exc.within(key) from None
+            except ValueError as exc:
+                raise _EntryError((key,), str(exc), value) from None
+        kwargs[key] = value
+    try:
+        return cls(**kwargs)
+    except ParameterError as exc:
+        raise _EntryError((exc.name,), exc.rule, exc.value) from None
+
+
+def _plain(value: Any, skip: tuple[str, ...] = ()) -> Any:
+    """`value` as YAML-safe data: dataclasses as mappings of their fields (but `skip`), arrays
+    and tuples as lists, numpy scalars as Python numbers."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)
+                if f.init and f.name not in skip}
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (tuple, list)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _params(cls: type, **fixed: str) -> Any:
+    """The config type of parameter dataclass `cls`: in YAML a mapping of some of its fields,
+    in Python an instance; written out (JSON mode) as the mapping of all its fields but the
+    `fixed` ones (name -> why they are set elsewhere), which loads again as the same object."""
+    return Annotated[cls, PlainValidator(lambda data: _build(cls, data, fixed)),
+                     PlainSerializer(lambda value: _plain(value, tuple(fixed)), when_used="json")]
+
+
+def _rule_of(cls: type, name: str) -> AfterValidator:
+    """Checks a config value (None passes) by the rule of field `name` of `cls`, so that the
+    rule is written once, in the dataclass."""
+
+    def check(value: Any) -> Any:
+        if value is not None:
+            try:
+                cls(**{name: value})
+            except ParameterError as exc:
+                raise ValueError(exc.rule) from None
+        return value
+
+    return AfterValidator(check)
 
 
 # -- scenarios ---------------------------------------------------------------------------------
@@ -116,8 +225,11 @@ class CameraConfig(_Model):
 class MappingConfig(_Model):
     """The object mapper each robot runs, and the window of recent objects it shares."""
 
-    nu: int = Field(3, ge=1, description="sightings before an object enters the map")
-    kappa: float = Field(20.0, gt=0, description="s; objects unseen longer leave the map")
+    nu: Annotated[int, _rule_of(MapperParams, "nu")] = Field(
+        MapperParams.nu, description="sightings before an object enters the map")
+    kappa: Annotated[float, _rule_of(MapperParams, "kappa")] = Field(
+        MapperParams.kappa, description="s; objects unseen longer leave the map, and only "
+                                        "objects seen within kappa are aligned")
     frame_rate: float = Field(10.0, ge=1, le=100,
                               description="Hz of detections, at least the 1 Hz map exchange")
 
@@ -225,25 +337,52 @@ class PersonDetectorConfig(_Detector):
     false_per_frame: float = Field(0.3, ge=0, description="mean false detections per frame")
 
 
-class TrackerConfig(_Model):
-    """The multi-object tracker each robot runs on its own and its neighbours' detections:
-    constant-velocity Kalman filters, global nearest neighbour association (Hungarian),
-    confirmation after a few frames with a detection; unconfirmed tracks are deleted after a
-    few frames without one, confirmed tracks after max_coast seconds without one."""
+# The tracker's parameters live here, not in tracker.py (which re-exports them): the run
+# sources (sim/, datasets/) load scenarios through this module and must not import the
+# tracking layer above them (tests/eval/test_layers.py).
+@dataclass(frozen=True)
+class TrackerParams:
+    """Settings of `tracker.MultiObjectTracker`, the tracker each robot runs on its own and its
+    neighbours' detections.
 
-    accel_noise: float = Field(1.5, gt=0, description="m/s^2, white acceleration std")
-    detection_noise: float = Field(0.3, gt=0, description=(
-        "m, detection std per axis the filter assumes (own and neighbours' detections)"))
-    initial_speed: float = Field(1.5, gt=0, description="m/s, velocity std of a new track")
-    gate: float = Field(9.21, gt=0, description=(
-        "squared Mahalanobis distance beyond which a detection cannot update a track "
-        "(9.21: 99 % for 2 dof)"))
-    confirm_hits: int = Field(3, ge=1, description="frames with a detection before a track "
-                                                   "is reported")
-    tentative_misses: int = Field(1, ge=1, description=(
-        "frames in a row without a detection that delete an unconfirmed track"))
-    max_coast: float = Field(1.0, ge=0, description=(
-        "s; a confirmed track without a detection for longer is deleted"))
+    Attributes:
+        accel_noise: m/s^2, std of the white acceleration that drives the constant-velocity
+            model.
+        detection_noise: metres, the detection std per axis the filter assumes (own and
+            neighbours' detections alike).
+        initial_speed: m/s, velocity std of a new track.
+        gate: squared Mahalanobis distance beyond which a detection cannot update a track
+            (9.21: 99 % for 2 degrees of freedom).
+        confirm_hits: frames with a detection before a track is reported.
+        tentative_misses: frames in a row without a detection that delete an unconfirmed track.
+        max_coast: seconds; a confirmed track without a detection for longer is deleted
+            (math.inf keeps it).
+    """
+
+    accel_noise: float = 1.5
+    detection_noise: float = 0.3
+    initial_speed: float = 1.5
+    gate: float = 9.21
+    confirm_hits: int = 3
+    tentative_misses: int = 1
+    max_coast: float = 1.0
+
+    def __post_init__(self) -> None:
+        o = "TrackerParams"
+        for name, unit in (("accel_noise", "m/s^2"), ("detection_noise", "metres"),
+                           ("initial_speed", "m/s")):
+            value = getattr(self, name)
+            _require(_real(value) and 0 < value < math.inf, o, name, value,
+                     f"must be a finite number > 0 {unit}")
+        _require(_real(self.gate) and self.gate > 0, o, "gate", self.gate, "must be a number > 0")
+        for name in ("confirm_hits", "tentative_misses"):
+            value = getattr(self, name)
+            _require(_int_at_least(value, 1), o, name, value, "must be an int >= 1")
+        _require(_real(self.max_coast) and self.max_coast >= 0, o, "max_coast", self.max_coast,
+                 "must be a number >= 0 seconds")
+
+
+_Tracker = _params(TrackerParams)
 
 
 class PedestriansConfig(_Model):
@@ -258,7 +397,7 @@ class PedestriansConfig(_Model):
     rate: float = Field(5.0, gt=0, le=100, description=(
         "Hz of detections and tracking; must divide mapping.frame_rate"))
     detector: PersonDetectorConfig = PersonDetectorConfig()
-    tracker: TrackerConfig = TrackerConfig()
+    tracker: _Tracker = TrackerParams()
     match_distance: float = Field(1.0, gt=0, description=(
         "m; MOTA counts a track within this distance of a person as tracking them"))
     mota_window: float = Field(10.0, gt=0, description="s, the rolling MOTA window")
@@ -283,7 +422,8 @@ class ScenarioConfig(_Model):
     camera: CameraConfig | None = Field(None, description=(
         "render RGB-D and map it with the real front end; `sensor` is then unused"))
     mapping: MappingConfig = MappingConfig()
-    window: int | None = Field(None, ge=1, description="TCAFF window W for this scenario")
+    window: Annotated[int | None, _rule_of(TCAFFParams, "window")] = Field(
+        None, description="TCAFF window W of every TCAFF method; None: each preset's")
     graph_drift: GraphDrift = Field(
         None, description="(m, deg) per step: the alignment drift the iSAM2 graph assumes; "
                           "None: TCAFF's Q")
@@ -320,34 +460,12 @@ class ScenarioConfig(_Model):
 # -- methods -----------------------------------------------------------------------------------
 
 
-class AlignerConfig(_Model):
-    """FrameAligner settings shared by the TCAFF methods (kappa comes from the scenario)."""
-
-    n_solutions: int = Field(4, ge=1, le=20)
-    min_associations: int = Field(5, ge=2)
-    covariance: Literal["constant", "residual"] = "constant"
-    max_rmse: float | None = Field(0.5, gt=0, description="m; None keeps every solution")
-    seed: int = 0
-
-
-class TcaffConfig(_Model):
-    """Overrides of the default TCAFF preset; None keeps the paper's value."""
-
-    tau: float | None = None
-    window: int | None = Field(None, ge=1)
-    p_no_measurement: float | None = Field(None, gt=0, lt=1)
-
-
 class IcpConfig(_Model):
     """ICP on object centroids, started from the true alignment, then from its last estimate."""
 
     max_correspondence_distance: float = Field(1.0, gt=0, description="m")
     min_correspondences: int = Field(5, ge=3)
     max_iterations: int = Field(30, ge=1)
-
-
-class GraphConfig(_Model):
-    robust: Literal["huber", "cauchy", "none"] = "huber"
 
 
 class ThresholdConfig(_Model):
@@ -357,45 +475,52 @@ class ThresholdConfig(_Model):
     heading_deg: float = Field(5.0, gt=0, le=180)
 
 
+_PER_RUN = "is set per scenario/data set ({}), not per method set"
+_Aligner = _params(FrameAlignerParams, kappa=_PER_RUN.format("mapping.kappa"))
+_Tcaff = _params(TCAFFParams, window="the TCAFF window W " + _PER_RUN.format("window"))
+_Graph = _params(GraphParams, Q="the alignment drift " + _PER_RUN.format("graph_drift"),
+                 dim="the compared methods align planar frames: dim is 2")
+
+
 class MethodsConfig(_Model):
-    """Which methods a study compares, and their settings."""
+    """Which methods a study compares, and their settings.
+
+    `aligner` (the FrameAligner of the TCAFF methods), `tcaff` (the default TCAFF preset;
+    `tcaff_reference` is always the released code's) and `graph` (the iSAM2 graph) take any
+    fields of their parameter dataclass; the rest keep its defaults. What belongs to the run is
+    set by the scenario or data set and refused here: kappa (`mapping.kappa`), the window W
+    (`window`) and the graph's drift (`graph_drift`).
+    """
 
     name: str = Field("methods", min_length=1)
     methods: list[Literal[METHOD_SETS]] = Field(default_factory=lambda: list(METHOD_SETS),
                                                 min_length=1)
     clipper_k: list[int] = Field(default_factory=lambda: list(range(3, 13)), min_length=1)
     clipper_k_shown: int = Field(10, description="the single-shot threshold drawn over time")
-    aligner: AlignerConfig = AlignerConfig()
-    tcaff: TcaffConfig = TcaffConfig()
+    aligner: _Aligner = FrameAlignerParams()
+    tcaff: _Tcaff = TCAFFParams()
     icp: IcpConfig = IcpConfig()
-    graph: GraphConfig = GraphConfig()
+    graph: _Graph = GraphParams()
     thresholds: ThresholdConfig = ThresholdConfig()
 
     def aligner_params(self, kappa: float) -> FrameAlignerParams:
         """The FrameAligner of the TCAFF methods, objects seen within `kappa` s (the run's)."""
-        a = self.aligner
-        return FrameAlignerParams(
-            kappa=kappa, n_solutions=a.n_solutions, min_associations=a.min_associations,
-            covariance=a.covariance, max_rmse=a.max_rmse, clipper=ClipperParams(seed=a.seed))
+        return replace(self.aligner, kappa=kappa)
 
     def tcaff_params(self, reference: bool, window: int | None) -> TCAFFParams:
-        """The default preset with this set's overrides, or (`reference`) the released code's
-        settings as they are; `window` (the run's W, None: the preset's) applies to both."""
-        base = TCAFFParams.reference() if reference else TCAFFParams()
-        overrides = {} if reference else {
-            k: v for k, v in self.tcaff.model_dump().items() if v is not None}
-        if window is not None:
-            overrides.setdefault("window", window)
-        return replace(base, **overrides)
+        """This set's TCAFF preset, or (`reference`) the released code's settings as they are,
+        with the run's window W (None: the preset's)."""
+        base = TCAFFParams.reference() if reference else self.tcaff
+        return base if window is None else replace(base, window=window)
 
     def graph_params(self, drift: tuple[float, float] | None) -> GraphParams:
-        """The iSAM2 graph, assuming `drift` (metres, degrees) of alignment drift per step
-        (None: TCAFF's Q)."""
+        """This set's iSAM2 graph, assuming `drift` (metres, degrees) of alignment drift per
+        step (None: TCAFF's Q)."""
         if drift is None:
-            return GraphParams(robust=self.graph.robust)
+            return self.graph
         metres, degrees = drift
         Q = np.diag([metres**2, metres**2, np.radians(degrees) ** 2])
-        return GraphParams(robust=self.graph.robust, Q=Q)
+        return replace(self.graph, Q=Q)
 
     @field_validator("methods")
     @classmethod
@@ -497,7 +622,8 @@ class KimeraMultiConfig(_Model):
     start: float | None = Field(None, ge=0, description="s after the first frame to begin")
     duration: float | None = Field(None, gt=0, description="s of data to use (default: all)")
     mapping: MappingConfig = MappingConfig()
-    window: int | None = Field(None, ge=1, description="TCAFF window W")
+    window: Annotated[int | None, _rule_of(TCAFFParams, "window")] = Field(
+        None, description="TCAFF window W of every TCAFF method; None: each preset's")
     graph_drift: GraphDrift = Field(
         None, description="iSAM2 between-step drift (m, deg) per 1 Hz step; None: TCAFF's Q")
     methods: str | MethodsConfig = "default"
@@ -534,11 +660,17 @@ def _format(source: str, error: ValidationError) -> str:
     detailed = [e for e in items if not (e["type"] == "string_type" and "str" in e["loc"])]
     parts = []
     for item in detailed or items:
+        path, value = _path(item["loc"]), item.get("input")
         message = item["msg"].removeprefix("Value error, ")
-        if item["type"] not in ("missing", "extra_forbidden") and not isinstance(
-                item.get("input"), dict):
-            message += f" (got {item.get('input')!r})"
-        parts.append(f"{_path(item['loc'])}: {message}")
+        show = item["type"] not in ("missing", "extra_forbidden") and not isinstance(value, dict)
+        entry = item.get("ctx", {}).get("error")
+        if isinstance(entry, _EntryError):
+            # after _path, which drops capitalised parts (union tags) and fields such as Q
+            path = ".".join([*(p for p in [path] if p != "(top level)"), *entry.keys])
+            message, value, show = entry.message, entry.value, entry.show_value
+        if show:
+            message += f" (got {value!r})"
+        parts.append(f"{path}: {message}")
     return f"{source}: " + "; ".join(dict.fromkeys(parts))
 
 

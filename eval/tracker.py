@@ -22,10 +22,11 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.params import _require
 
-from .config import TrackerConfig
+from .config import TrackerParams
 
-__all__ = ["MultiObjectTracker"]
+__all__ = ["MultiObjectTracker", "TrackerParams"]
 
 _H = np.eye(2, 4)
 _FAR = 1e12  # the cost of a pair outside the gate; linear_sum_assignment needs finite costs
@@ -36,10 +37,15 @@ class MultiObjectTracker:
 
     Call `step` once per frame with the frame's time and detection sets; it returns the
     confirmed tracks.
+
+    Args:
+        params: `TrackerParams` (None: the defaults).
     """
 
-    def __init__(self, config: TrackerConfig | None = None) -> None:
-        self.config = config or TrackerConfig()
+    def __init__(self, params: TrackerParams | None = None) -> None:
+        self.params = TrackerParams() if params is None else params
+        _require(isinstance(self.params, TrackerParams), "MultiObjectTracker", "params", params,
+                 "must be a TrackerParams")
         self.x = np.zeros((0, 4))        # (n, 4) x, y [m], vx, vy [m/s]
         self.P = np.zeros((0, 4, 4))
         self.ids = np.zeros(0, dtype=np.int64)
@@ -49,9 +55,9 @@ class MultiObjectTracker:
         self.confirmed = np.zeros(0, dtype=bool)
         self.time: float | None = None
         self._next_id = 0
-        r = self.config.detection_noise ** 2
+        r = self.params.detection_noise ** 2
         self._R = r * np.eye(2)
-        v = self.config.initial_speed ** 2
+        v = self.params.initial_speed ** 2
         self._P0 = np.diag([r, r, v, v])
 
     def __len__(self) -> int:
@@ -95,7 +101,7 @@ class MultiObjectTracker:
             return
         F = np.eye(4)
         F[0, 2] = F[1, 3] = dt
-        q = self.config.accel_noise ** 2
+        q = self.params.accel_noise ** 2
         Q = np.zeros((4, 4))
         Q[[0, 1], [0, 1]] = q * dt**4 / 4
         Q[[0, 1, 2, 3], [2, 3, 0, 1]] = q * dt**3 / 2
@@ -110,7 +116,7 @@ class MultiObjectTracker:
         S_inv, det = _inverse_2x2(self.P[:, :2, :2] + self._R)
         diff = z[None, :, :] - self.x[:, None, :2]                  # (n, k, 2)
         d2 = np.einsum("nki,nij,nkj->nk", diff, S_inv, diff)
-        inside = d2 <= self.config.gate
+        inside = d2 <= self.params.gate
         # The negative log-likelihood, not d2 alone: otherwise a new, uncertain track wins a
         # detection from the settled track of the same person and the person gets two tracks.
         cost = d2 + np.log(det)[:, None]
@@ -142,15 +148,15 @@ class MultiObjectTracker:
         self.confirmed = np.concatenate([self.confirmed, zeros.astype(bool)])
 
     def _bookkeep(self, hit: np.ndarray, t: float) -> None:
-        cfg = self.config
+        prm = self.params
         self.hits += hit
         self.misses = np.where(hit, 0, self.misses + 1)
         self.last_hit = np.where(hit, t, self.last_hit)
-        self.confirmed |= self.hits >= cfg.confirm_hits
+        self.confirmed |= self.hits >= prm.confirm_hits
         # the tolerance keeps a gap of exactly max_coast on a clock like 0.2 k from being
         # deleted or kept by rounding
-        dead = np.where(self.confirmed, t - self.last_hit > cfg.max_coast + 1e-9,
-                        self.misses >= cfg.tentative_misses)
+        dead = np.where(self.confirmed, t - self.last_hit > prm.max_coast + 1e-9,
+                        self.misses >= prm.tentative_misses)
         if dead.any():
             keep = ~dead
             self.x, self.P, self.ids = self.x[keep], self.P[keep], self.ids[keep]

@@ -137,8 +137,7 @@ class RgbdFrontEnd:
         lap("segment")
         kept = filter_masks(masks, z, self.mask_filter)
         lap("filter")
-        # z, the masks and the pose are checked above: the lifter need not check them again
-        obs = self.lifter._lift(masks[kept], z, T_ob @ self.T_body_camera)
+        obs = self.lifter.measure(masks[kept], z, T_ob @ self.T_body_camera)
         lifted = kept[obs.mask_indices]
         obs = Observations(obs.centroids, obs.widths, obs.heights, obs.point_counts, lifted)
         lap("lift")

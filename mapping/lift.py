@@ -20,6 +20,7 @@ import numba
 import numpy as np
 import open3d as o3d
 
+from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.params import _int_at_least, _real, _require
 
 from .camera import PinholeCamera, check_camera, check_depth_scale, depth_in_metres, rigid_transform
@@ -178,13 +179,28 @@ class MaskLifter:
             T_odom_camera: (4, 4) the camera's optical frame in the odometry frame at the
                 frame's time.
         """
-        shape = self.camera.shape
-        z = depth_in_metres(depth, self.depth_scale, shape)
-        check_masks(masks, shape)
-        return self._lift(masks, z, rigid_transform("T_odom_camera", T_odom_camera))
+        return self.measure(masks, depth_in_metres(depth, self.depth_scale, self.camera.shape),
+                            T_odom_camera)
 
-    def _lift(self, masks: np.ndarray, z: np.ndarray, T: np.ndarray) -> Observations:
-        """`lift` on inputs already checked: z (H, W) float metres, T (4, 4) rigid."""
+    def measure(self, masks: np.ndarray, z: np.ndarray, T_odom_camera) -> Observations:
+        """`lift` on depth already in metres, for a pipeline that has converted and checked it.
+
+        Args:
+            masks: (k, H, W) bool, in the image of `camera`.
+            z: (H, W) float metres registered to that image; pixels at 0, negative or not
+                finite have no return. Its values are not scanned again (that is `lift`'s
+                job); only its type and shape are checked.
+            T_odom_camera: (4, 4) the camera's optical frame in the odometry frame.
+        Raises:
+            DataError: masks or z of the wrong type, dtype or shape; T_odom_camera not rigid.
+        """
+        shape = self.camera.shape
+        check_masks(masks, shape)
+        if not (isinstance(z, np.ndarray) and z.dtype.kind == "f" and z.shape == tuple(shape)):
+            got = f"{z.shape} {z.dtype}" if isinstance(z, np.ndarray) else type(z).__name__
+            raise DataError(f"MaskLifter.measure: z must be a {tuple(shape)} float array of "
+                            f"metres, got {got}")
+        T = rigid_transform("T_odom_camera", T_odom_camera)
         p = self.params
         usable = (z >= p.depth_min) & (z <= p.depth_max) & (z > 0)
         rows_hit, cols_hit = masks.any(axis=2), masks.any(axis=1)  # (k, H), (k, W)

@@ -12,11 +12,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap, object_arrays
-from tcaff_gtsam.params import _int_at_least, _real, _require
+from tcaff_gtsam.params import FrameAlignerParams, _int_at_least, _real, _require
 
 __all__ = ["MapperParams", "ObjectMapper"]
 
@@ -34,7 +33,8 @@ class MapperParams:
     Attributes:
         nu: sightings (hits) before a track is confirmed and appears in the map.
         kappa: seconds; a track unseen for longer than kappa (t - last_seen > kappa) is
-            removed. math.inf keeps tracks forever.
+            removed. math.inf keeps tracks forever. The default is the frame aligner's
+            (`FrameAlignerParams.kappa`, the paper's 20 s): the map holds what it aligns.
         gate: metres; largest 3D centroid distance between an observation and a track it may
             be associated with.
         size_gate: largest ratio larger / smaller of width, and of height, for an association
@@ -52,7 +52,7 @@ class MapperParams:
     """
 
     nu: int = 3
-    kappa: float = 20.0
+    kappa: float = FrameAlignerParams.kappa
     gate: float = 1.0
     size_gate: float = 2.0
     size_weight: float = 0.5
@@ -244,6 +244,10 @@ class ObjectMapper:
         max_feasible = p.gate + 2.0 * p.size_weight * self._log_size_gate
         big = max_feasible * min(r_idx.size, c_idx.size) + 1.0
         sub = np.where(feasible, cost, big)[np.ix_(r_idx, c_idx)]
+        # imported here: scipy.optimize takes half a second to load, and loading a YAML
+        # configuration imports MapperParams for its defaults
+        from scipy.optimize import linear_sum_assignment
+
         r, c = linear_sum_assignment(sub)
         ok = feasible[r_idx[r], c_idx[c]]
         rows[r_idx[r[ok]]] = cand[c_idx[c[ok]]]

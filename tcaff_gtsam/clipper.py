@@ -15,7 +15,7 @@ import numpy as np
 from scipy import sparse
 
 from .errors import DataError
-from .params import ClipperParams
+from .params import ClipperParams, _int_at_least, _real, _require
 
 __all__ = ["ClipperSolution", "ConsistencyGraph", "clipper_solve", "consistency_graph",
            "mno_clipper"]
@@ -166,9 +166,16 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         ego_points: (n1, d) metres, d = 2 (x, y) or 3, in the ego robot's odometry frame.
         other_points: (n2, d) metres, in the other robot's odometry frame.
         associations: (m, 2) int (ego index, other index).
-        epsilon, sigma: metres.
+        epsilon, sigma: metres, finite and > 0.
         prior: optional (m,) non-negative prior weight per association (affinity diagonal).
+
+    Raises:
+        ConfigError: epsilon or sigma not a finite number > 0.
+        DataError: points, associations or prior of the wrong shape or out of range.
     """
+    for name, value in (("epsilon", epsilon), ("sigma", sigma)):
+        _require(_real(value) and 0 < value < np.inf, "consistency_graph", name, value,
+                 "must be a finite number > 0 metres")
     ego_points = np.asarray(ego_points, dtype=float)
     other_points = np.asarray(other_points, dtype=float)
     associations = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
@@ -183,9 +190,6 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
               or associations[:, 1].max() >= len(other_points)):
         raise DataError(f"consistency_graph: association indices out of range for maps of "
                         f"{len(ego_points)} and {len(other_points)} points")
-    if not (epsilon > 0 and sigma > 0):
-        raise DataError(f"consistency_graph: need epsilon > 0 and sigma > 0, "
-                        f"got {epsilon}, {sigma}")
     if prior is None:
         diag = np.ones(m)
     else:
@@ -476,10 +480,15 @@ def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
     0 (the paper) zeroes them, diagonal included, which removes those associations from later
     solutions. The graph is reused, not rebuilt. Each solution is scored on the original
     affinity. Returns up to `n_solutions` non-empty solutions, in the order found.
+
+    Raises:
+        ConfigError: n_solutions not an int >= 1, or downweight not in [0, 1).
     """
     params = params or ClipperParams()
-    if not 0 <= downweight < 1:
-        raise DataError(f"mno_clipper: downweight must be in [0, 1), got {downweight}")
+    _require(_int_at_least(n_solutions, 1), "mno_clipper", "n_solutions", n_solutions,
+             "must be an int >= 1")
+    _require(_real(downweight) and 0 <= downweight < 1, "mno_clipper", "downweight", downweight,
+             "must be in [0, 1)")
     rng = np.random.default_rng(params.seed)
     weights = graph.weights.copy()
     diag = graph.diag.copy()

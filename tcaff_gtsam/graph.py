@@ -279,7 +279,7 @@ class InterRobotGraph:
         return T
 
     def _check_robot(self, name: str, robot) -> None:
-        if not isinstance(robot, (int, np.integer)) or not 0 <= robot < self.n_robots:
+        if not (_int_at_least(robot, 0) and robot < self.n_robots):
             raise DataError(f"{name} = {robot!r} is not a robot of this graph (0 to "
                             f"{self.n_robots - 1})")
 

@@ -4,8 +4,8 @@ is silent); every object validates itself and raises `ConfigError` naming the fi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Literal
+from dataclasses import dataclass, field, fields
+from typing import Any, Literal
 
 import numpy as np
 
@@ -15,14 +15,35 @@ __all__ = [
     "ClipperParams",
     "FrameAlignerParams",
     "GraphParams",
+    "ParameterError",
     "TCAFFParams",
     "constant_alignment_covariance",
 ]
 
 
+class ParameterError(ConfigError):
+    """A `ConfigError` about one field of a parameter object.
+
+    Attributes:
+        owner: the parameter class (or function) the field belongs to.
+        name: the field.
+        value: the rejected value.
+        rule: what the field must be, e.g. "must be an int >= 1".
+    """
+
+    def __init__(self, owner: str, name: str, value: Any, rule: str) -> None:
+        super().__init__(f"{owner}.{name} = {value!r}: {rule}")
+        self.owner, self.name, self.value, self.rule = owner, name, value, rule
+
+    def __reduce__(self):
+        # the default rebuilds from `args` (the message alone), which this __init__ refuses;
+        # errors of study jobs travel between processes
+        return type(self), (self.owner, self.name, self.value, self.rule)
+
+
 def _require(condition: bool, owner: str, name: str, value, rule: str) -> None:
     if not condition:
-        raise ConfigError(f"{owner}.{name} = {value!r}: {rule}")
+        raise ParameterError(owner, name, value, rule)
 
 
 def _int_at_least(value, low: int) -> bool:
@@ -35,6 +56,65 @@ def _real(value) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
 
 
+def _one_of(value, choices: tuple) -> bool:
+    """One of `choices` (strings or ints) by type as well as value: 2.0 is not 2, True not 1."""
+    return (isinstance(value, (str, int, np.integer)) and not isinstance(value, bool)
+            and value in choices)
+
+
+def _reals(value) -> tuple[float, ...] | None:
+    """A sequence (tuple, list or 1-D array) of real numbers as a tuple of floats, else None."""
+    if isinstance(value, np.ndarray) and value.ndim == 1:
+        value = value.tolist()
+    if not isinstance(value, (tuple, list)) or not all(_real(v) for v in value):
+        return None
+    return tuple(float(v) for v in value)
+
+
+def _spd(matrix, d: int | None, owner: str, name: str) -> np.ndarray:
+    """`matrix` as a new float (d, d) array if it is a symmetric positive definite matrix of
+    real numbers (d None: of any size >= 1); else `ParameterError`."""
+    try:
+        M = np.array(matrix) if isinstance(matrix, (tuple, list, np.ndarray)) else None
+    except ValueError:  # ragged nested lists
+        M = None
+    ok = (M is not None and M.dtype.kind in "iuf" and M.ndim == 2 and M.shape[0] >= 1
+          and M.shape[0] == M.shape[1] and (d is None or M.shape[0] == d))
+    if ok:
+        # + 0.0 turns -0.0 into 0.0, so matrices equal by value are equal byte for byte
+        M = M.astype(float) + 0.0
+        ok = (bool(np.all(np.isfinite(M))) and np.allclose(M, M.T)
+              and bool(np.all(np.linalg.eigvalsh(M) > 0)))
+    size = "(d, d)" if d is None else f"({d}, {d})"
+    _require(ok, owner, name, matrix, f"must be a symmetric positive definite {size} matrix")
+    return M
+
+
+def _frozen(value):
+    """`value`, or for an array a hashable stand-in equal exactly when the arrays are."""
+    if isinstance(value, np.ndarray):
+        return value.shape, value.dtype.str, value.tobytes()
+    return value
+
+
+class _ByValue:
+    """Equality and hashing of a frozen parameter dataclass by the values of its fields, arrays
+    included (the dataclass's own `__eq__` compares arrays elementwise and cannot hash them).
+    Its subclasses are declared with `eq=False` so that these methods stay in place. The arrays
+    are the object's own copies and must not be modified in place."""
+
+    def _key(self) -> tuple:
+        return tuple(_frozen(getattr(self, f.name)) for f in fields(self))
+
+    def __eq__(self, other) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
+
+
 def constant_alignment_covariance() -> np.ndarray:
     """The original code's fixed measurement covariance diag(0.5 m, 0.5 m, 5 deg)^2, (3, 3)."""
     return np.diag([0.5**2, 0.5**2, math.radians(5.0) ** 2])
@@ -43,14 +123,6 @@ def constant_alignment_covariance() -> np.ndarray:
 def _alignment_process_noise() -> np.ndarray:
     """Drift of T_oi_oj per step, diag(0.1 m, 0.1 m, 0.5 deg)^2, (3, 3) (the original's Q)."""
     return np.diag([0.1**2, 0.1**2, math.radians(0.5) ** 2])
-
-
-def _check_spd(matrix, d: int, owner: str, name: str) -> np.ndarray:
-    M = np.asarray(matrix, dtype=float)
-    ok = (M.shape == (d, d) and bool(np.all(np.isfinite(M))) and np.allclose(M, M.T)
-          and bool(np.all(np.linalg.eigvalsh(M) > 0)))
-    _require(ok, owner, name, matrix, f"must be a symmetric positive definite ({d}, {d}) matrix")
-    return M
 
 
 @dataclass(frozen=True)
@@ -70,7 +142,7 @@ class ClipperParams:
         max_outer, max_inner, max_line_search: iteration caps of homotopy, ascent and line search.
         power_iterations: power-method steps that shape the seeded random start vector (each
             costs a full pass over the graph; more than 5 changed no solution we measured).
-        seed: seed of the start vector; same seed, same graph -> same solution.
+        seed: seed (an int >= 0) of the start vector; same seed, same graph -> same solution.
     """
 
     sigma: float = 0.15
@@ -88,25 +160,26 @@ class ClipperParams:
 
     def __post_init__(self) -> None:
         o = "ClipperParams"
-        _require(self.sigma > 0 and math.isfinite(self.sigma), o, "sigma", self.sigma,
-                 "must be a finite number > 0")
-        _require(self.epsilon > 0 and math.isfinite(self.epsilon), o, "epsilon", self.epsilon,
-                 "must be a finite number > 0")
-        _require(self.rounding in ("size", "threshold"), o, "rounding", self.rounding,
-                 "must be 'size' or 'threshold'")
-        _require(0 < self.threshold < 1, o, "threshold", self.threshold, "must be in (0, 1)")
-        _require(self.tol_u > 0, o, "tol_u", self.tol_u, "must be > 0")
-        _require(self.eps > 0, o, "eps", self.eps, "must be > 0")
-        _require(0 < self.beta < 1, o, "beta", self.beta, "must be in (0, 1)")
-        for name in ("max_outer", "max_inner", "max_line_search"):
+        for name in ("sigma", "epsilon"):
             value = getattr(self, name)
-            _require(_int_at_least(value, 1), o, name, value, "must be an int >= 1")
-        _require(_int_at_least(self.power_iterations, 0), o,
-                 "power_iterations", self.power_iterations, "must be an int >= 0")
+            _require(_real(value) and 0 < value < math.inf, o, name, value,
+                     "must be a finite number > 0 metres")
+        _require(_one_of(self.rounding, ("size", "threshold")), o, "rounding", self.rounding,
+                 "must be 'size' or 'threshold'")
+        for name in ("threshold", "beta"):
+            value = getattr(self, name)
+            _require(_real(value) and 0 < value < 1, o, name, value, "must be in (0, 1)")
+        for name in ("tol_u", "eps"):
+            value = getattr(self, name)
+            _require(_real(value) and value > 0, o, name, value, "must be a number > 0")
+        for name, low in (("max_outer", 1), ("max_inner", 1), ("max_line_search", 1),
+                          ("power_iterations", 0), ("seed", 0)):
+            value = getattr(self, name)
+            _require(_int_at_least(value, low), o, name, value, f"must be an int >= {low}")
 
 
-@dataclass(frozen=True)
-class FrameAlignerParams:
+@dataclass(frozen=True, eq=False)
+class FrameAlignerParams(_ByValue):
     """Settings of `FrameAligner` (two object maps -> candidate alignments of T_oi_oj).
 
     Attributes:
@@ -148,29 +221,32 @@ class FrameAlignerParams:
 
     def __post_init__(self) -> None:
         o = "FrameAlignerParams"
-        _require(self.kappa > 0, o, "kappa", self.kappa, "must be > 0 seconds")
-        _require(self.size_ratio >= 1, o, "size_ratio", self.size_ratio, "must be >= 1")
-        _require(self.size_abs_diff >= 0, o, "size_abs_diff", self.size_abs_diff,
-                 "must be >= 0 metres")
-        _require(self.dim in (2, 3), o, "dim", self.dim, "must be 2 or 3")
+        _require(_real(self.kappa) and self.kappa > 0, o, "kappa", self.kappa,
+                 "must be a number > 0 seconds")
+        _require(_real(self.size_ratio) and self.size_ratio >= 1, o, "size_ratio",
+                 self.size_ratio, "must be a number >= 1")
+        _require(_real(self.size_abs_diff) and self.size_abs_diff >= 0, o, "size_abs_diff",
+                 self.size_abs_diff, "must be a number >= 0 metres")
+        _require(_one_of(self.dim, (2, 3)), o, "dim", self.dim, "must be 2 or 3")
         _require(isinstance(self.clipper, ClipperParams), o, "clipper", self.clipper,
                  "must be a ClipperParams")
         _require(_int_at_least(self.n_solutions, 1), o, "n_solutions",
                  self.n_solutions, "must be an int >= 1")
-        _require(0 <= self.mno_downweight < 1, o, "mno_downweight", self.mno_downweight,
-                 "must be in [0, 1)")
+        _require(_real(self.mno_downweight) and 0 <= self.mno_downweight < 1, o,
+                 "mno_downweight", self.mno_downweight, "must be in [0, 1)")
         _require(_int_at_least(self.min_associations, 2), o,
                  "min_associations", self.min_associations, "must be an int >= 2")
-        _require(0 <= self.min_score_ratio <= 1, o, "min_score_ratio", self.min_score_ratio,
-                 "must be in [0, 1]")
-        _require(self.weight_offset > 0, o, "weight_offset", self.weight_offset, "must be > 0")
-        _require(self.max_rmse is None or self.max_rmse > 0, o, "max_rmse", self.max_rmse,
-                 "must be > 0 metres or None")
-        _require(self.covariance in ("constant", "residual"), o, "covariance", self.covariance,
-                 "must be 'constant' or 'residual'")
-        object.__setattr__(self, "R_constant", _check_spd(self.R_constant, 3, o, "R_constant"))
-        _require(self.residual_floor > 0, o, "residual_floor", self.residual_floor,
-                 "must be > 0 metres")
+        _require(_real(self.min_score_ratio) and 0 <= self.min_score_ratio <= 1, o,
+                 "min_score_ratio", self.min_score_ratio, "must be in [0, 1]")
+        _require(_real(self.weight_offset) and self.weight_offset > 0, o, "weight_offset",
+                 self.weight_offset, "must be a number > 0 seconds^2")
+        _require(self.max_rmse is None or (_real(self.max_rmse) and self.max_rmse > 0), o,
+                 "max_rmse", self.max_rmse, "must be a number > 0 metres or None")
+        _require(_one_of(self.covariance, ("constant", "residual")), o, "covariance",
+                 self.covariance, "must be 'constant' or 'residual'")
+        object.__setattr__(self, "R_constant", _spd(self.R_constant, 3, o, "R_constant"))
+        _require(_real(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
+                 self.residual_floor, "must be a number > 0 metres")
 
     @classmethod
     def reference(cls) -> FrameAlignerParams:
@@ -178,8 +254,8 @@ class FrameAlignerParams:
         return cls(max_rmse=None)
 
 
-@dataclass(frozen=True)
-class TCAFFParams:
+@dataclass(frozen=True, eq=False)
+class TCAFFParams(_ByValue):
     """Settings of the TCAFF filter (paper, "Multiple Hypothesis Formulation" and "Frame
     Alignment Filter"). The defaults are the paper's equations and values; `reference()` is the
     authors' released code, quirks included.
@@ -250,46 +326,46 @@ class TCAFFParams:
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
-        Q = np.asarray(self.Q, dtype=float)
-        _require(Q.ndim == 2 and Q.shape[0] == Q.shape[1] and Q.shape[0] >= 1, o, "Q", self.Q,
-                 "must be a square (d, d) matrix")
+        Q = _spd(self.Q, None, o, "Q")
         d = Q.shape[0]
-        object.__setattr__(self, "Q", _check_spd(Q, d, o, "Q"))
-        object.__setattr__(self, "P0", _check_spd(self.P0, d, o, "P0"))
+        object.__setattr__(self, "Q", Q)
+        object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0"))
         for name, low in (("window", 1), ("max_leaves", 1), ("max_children", 1),
                           ("explore_max_leaves", 1), ("explore_max_children", 1),
                           ("drop_after", 1)):
             value = getattr(self, name)
             _require(_int_at_least(value, low), o, name, value, f"must be an int >= {low}")
-        _require(0 < self.p_no_measurement < 1, o, "p_no_measurement", self.p_no_measurement,
-                 "must be in (0, 1)")
-        _require(math.isfinite(self.tau), o, "tau", self.tau, "must be a finite number")
-        angles = tuple(self.angle_indices)
-        _require(all(_int_at_least(a, 0) and a < d for a in angles)
-                 and len(set(angles)) == len(angles), o, "angle_indices", self.angle_indices,
-                 f"must be distinct ints in [0, {d})")
-        object.__setattr__(self, "angle_indices", angles)
-        _require(self.gate in ("mahalanobis", "box"), o, "gate", self.gate,
+        for name in ("p_no_measurement", "gate_probability"):
+            value = getattr(self, name)
+            _require(_real(value) and 0 < value < 1, o, name, value, "must be in (0, 1)")
+        _require(_real(self.tau) and math.isfinite(self.tau), o, "tau", self.tau,
+                 "must be a finite number (nats)")
+        angles = self.angle_indices
+        if isinstance(angles, np.ndarray) and angles.ndim == 1:
+            angles = angles.tolist()
+        ok = (isinstance(angles, (tuple, list))
+              and all(_int_at_least(a, 0) and a < d for a in angles)
+              and len(set(angles)) == len(angles))
+        _require(ok, o, "angle_indices", self.angle_indices, f"must be distinct ints in [0, {d})")
+        object.__setattr__(self, "angle_indices", tuple(int(a) for a in angles))
+        _require(_one_of(self.gate, ("mahalanobis", "box")), o, "gate", self.gate,
                  "must be 'mahalanobis' or 'box'")
-        _require(0 < self.gate_probability < 1, o, "gate_probability", self.gate_probability,
-                 "must be in (0, 1)")
-        box = (2.0,) * d if self.gate_box is None else tuple(
-            float(v) for v in np.atleast_1d(self.gate_box))
-        _require(len(box) == d and all(v > 0 for v in box), o, "gate_box", self.gate_box,
-                 f"must hold {d} numbers > 0")
+        box = (2.0,) * d if self.gate_box is None else _reals(self.gate_box)
+        _require(box is not None and len(box) == d and all(v > 0 for v in box), o, "gate_box",
+                 self.gate_box, f"must hold {d} numbers > 0, or be None")
         object.__setattr__(self, "gate_box", box)
-        _require(self.cost_model in ("paper", "reference"), o, "cost_model", self.cost_model,
-                 "must be 'paper' or 'reference'")
+        _require(_one_of(self.cost_model, ("paper", "reference")), o, "cost_model",
+                 self.cost_model, "must be 'paper' or 'reference'")
         _require(isinstance(self.root_in_window, bool), o, "root_in_window",
                  self.root_in_window, "must be True or False")
-        _require(self.promotion in ("branch", "reseed"), o, "promotion", self.promotion,
+        _require(_one_of(self.promotion, ("branch", "reseed")), o, "promotion", self.promotion,
                  "must be 'branch' or 'reseed'")
-        _require(self.drop_rule in ("best_path", "window"), o, "drop_rule", self.drop_rule,
-                 "must be 'best_path' or 'window'")
+        _require(_one_of(self.drop_rule, ("best_path", "window")), o, "drop_rule",
+                 self.drop_rule, "must be 'best_path' or 'window'")
         _require(self.switch_after is None or _int_at_least(self.switch_after, 1), o,
                  "switch_after", self.switch_after, "must be an int >= 1 or None")
-        _require(self.switch_margin >= 0 and math.isfinite(self.switch_margin), o,
-                 "switch_margin", self.switch_margin, "must be a finite number >= 0")
+        _require(_real(self.switch_margin) and 0 <= self.switch_margin < math.inf, o,
+                 "switch_margin", self.switch_margin, "must be a finite number >= 0 (nats)")
 
     @property
     def dim(self) -> int:
@@ -310,8 +386,8 @@ def _default_odometry_cov(dim: int) -> np.ndarray:
     return np.diag([(0.5 * deg) ** 2, (0.5 * deg) ** 2, deg**2, 0.05**2, 0.05**2, 0.05**2])
 
 
-@dataclass(frozen=True)
-class GraphParams:
+@dataclass(frozen=True, eq=False)
+class GraphParams(_ByValue):
     """Settings of `InterRobotGraph` (iSAM2 smoothing of frame alignments and trajectories).
 
     Attributes:
@@ -357,28 +433,28 @@ class GraphParams:
 
     def __post_init__(self) -> None:
         o = "GraphParams"
-        _require(self.dim in (2, 3), o, "dim", self.dim, "must be 2 or 3")
+        _require(_one_of(self.dim, (2, 3)), o, "dim", self.dim, "must be 2 or 3")
         n_param = 3 if self.dim == 2 else 4
         if self.Q is None:
             q = np.diag(_alignment_process_noise())
             Q = np.diag(q if self.dim == 2 else [q[0], q[1], q[0], q[2]])
         else:
-            Q = _check_spd(self.Q, n_param, o, "Q")
+            Q = _spd(self.Q, n_param, o, "Q")
         object.__setattr__(self, "Q", Q)
         odo = (_default_odometry_cov(self.dim) if self.odometry_cov is None
-               else _check_spd(self.odometry_cov, 3 if self.dim == 2 else 6, o, "odometry_cov"))
+               else _spd(self.odometry_cov, 3 if self.dim == 2 else 6, o, "odometry_cov"))
         object.__setattr__(self, "odometry_cov", odo)
-        _require(self.robust in ("huber", "cauchy", "none"), o, "robust", self.robust,
+        _require(_one_of(self.robust, ("huber", "cauchy", "none")), o, "robust", self.robust,
                  "must be 'huber', 'cauchy' or 'none'")
         for name in ("robust_k", "anchor_sigma", "gravity_sigma", "relinearize_threshold",
                      "settle_threshold"):
             value = getattr(self, name)
             _require(_real(value) and math.isfinite(value) and value > 0, o,
                      name, value, "must be a finite number > 0")
-        sig = np.asarray(self.free_sigmas, dtype=float) if np.ndim(self.free_sigmas) == 1 else None
-        _require(sig is not None and sig.shape == (2,) and bool(np.all(np.isfinite(sig)))
-                 and bool(np.all(sig > 0)), o, "free_sigmas", self.free_sigmas,
-                 "must be (metres, radians), finite and > 0")
+        sig = _reals(self.free_sigmas)
+        _require(sig is not None and len(sig) == 2 and all(0 < v < math.inf for v in sig), o,
+                 "free_sigmas", self.free_sigmas, "must be (metres, radians), finite and > 0")
+        object.__setattr__(self, "free_sigmas", sig)
         _require(_int_at_least(self.relinearize_skip, 1), o, "relinearize_skip",
                  self.relinearize_skip, "must be an int >= 1")
         _require(_int_at_least(self.max_iterations, 0), o, "max_iterations",

@@ -6,6 +6,7 @@ import numpy as np
 
 from .errors import DataError
 from .object_map import ObjectMap
+from .params import _real, _require
 
 __all__ = ["arun_weights", "putative_associations", "registration_rmse", "weighted_arun"]
 
@@ -28,10 +29,13 @@ def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
     Returns:
         (m, 2) int64 array of (ego index, other index), sorted by ego then other index;
         (0, 2) when either map is empty or nothing passes.
+    Raises:
+        ConfigError: ratio not a number >= 1, or abs_diff not a number >= 0.
     """
-    if ratio < 1 or abs_diff < 0:
-        raise DataError(f"size gate: need ratio >= 1 and abs_diff >= 0, "
-                        f"got ratio={ratio}, abs_diff={abs_diff}")
+    _require(_real(ratio) and ratio >= 1, "putative_associations", "ratio", ratio,
+             "must be a number >= 1")
+    _require(_real(abs_diff) and abs_diff >= 0, "putative_associations", "abs_diff", abs_diff,
+             "must be a number >= 0 metres")
     similar = (_sizes_similar(ego.widths, other.widths, ratio, abs_diff)
                & _sizes_similar(ego.heights, other.heights, ratio, abs_diff))
     return np.argwhere(similar).astype(np.int64).reshape(-1, 2)

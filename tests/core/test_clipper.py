@@ -8,7 +8,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from tcaff_gtsam.eval.sim.maps import registration_problem
 
-from tcaff_gtsam import ClipperParams, DataError, clipper_solve, consistency_graph, mno_clipper
+from tcaff_gtsam import (
+    ClipperParams,
+    ConfigError,
+    DataError,
+    clipper_solve,
+    consistency_graph,
+    mno_clipper,
+)
 from tcaff_gtsam.geometry import invert, se2_from_params, transform_points
 from tcaff_gtsam.registration import weighted_arun
 
@@ -160,8 +167,27 @@ def test_mno_downweight_keeps_nodes_available():
     softened = mno_clipper(graph, 6, downweight=0.5)
     assert len(removed) == 4  # 16 associations, four disjoint cliques of four
     assert len(softened) == 6  # down-weighted cliques can be found again
-    with pytest.raises(DataError, match="downweight"):
+    with pytest.raises(ConfigError, match=r"mno_clipper.downweight = 1.5: must be in \[0, 1\)"):
         mno_clipper(graph, 2, downweight=1.5)
+
+
+@pytest.mark.parametrize(("kwargs", "name"), [
+    ({"downweight": 1.0}, "downweight"), ({"downweight": "0"}, "downweight"),
+    ({"downweight": None}, "downweight"), ({"n_solutions": 0}, "n_solutions"),
+    ({"n_solutions": 2.0}, "n_solutions"),
+])
+def test_mno_parameters_are_config_errors(kwargs, name):
+    graph = consistency_graph(rectangle(), rectangle(), np.argwhere(np.ones((4, 4), bool)))
+    with pytest.raises(ConfigError, match=f"mno_clipper.{name} = "):
+        mno_clipper(graph, **{"n_solutions": 2, **kwargs})
+
+
+@pytest.mark.parametrize("name", ["epsilon", "sigma"])
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), float("inf"), "0.2", None, True])
+def test_graph_parameters_are_config_errors(name, value):
+    p = np.zeros((3, 2))
+    with pytest.raises(ConfigError, match=f"consistency_graph.{name} = "):
+        consistency_graph(p, p, np.array([[0, 0]]), **{name: value})
 
 
 def test_mno_scores_use_the_original_affinity():

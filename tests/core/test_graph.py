@@ -281,6 +281,18 @@ def test_bad_input_is_a_data_error(call, match):
         call(InterRobotGraph(2))
 
 
+@pytest.mark.parametrize("robot", [True, np.True_, 1.0, "1", None])
+def test_a_robot_is_an_int_not_a_bool(robot):
+    graph = InterRobotGraph(2)
+    graph.update(0)
+    with pytest.raises(DataError, match="not a robot"):
+        graph.add_alignment(0, 0, robot, np.eye(3), R)
+    with pytest.raises(DataError, match="not a robot"):
+        graph.alignment(robot, 0)
+    with pytest.raises(DataError, match="not a robot"):
+        graph.connected(0, robot)
+
+
 def test_steps_must_increase_and_alignments_must_have_a_step():
     graph = InterRobotGraph(2)
     graph.update(3)

@@ -243,8 +243,10 @@ def test_recent_keeps_exactly_the_recent_objects(stamps, now, kappa):
 @pytest.mark.parametrize(("now", "kappa"), [(1.0, 0.0), (1.0, -1.0), (np.nan, 1.0),
                                             (1.0, np.inf), (np.inf, 1.0)])
 def test_recent_rejects_bad_arguments(now, kappa):
-    with pytest.raises(DataError):
+    with pytest.raises(DataError, match=r"^ObjectMap\.recent_indices: "):
         make_map().recent(now, kappa)
+    with pytest.raises(DataError, match=r"^ObjectMap\.recent_indices: "):
+        make_map().recent_indices(now, kappa)
 
 
 def test_ages_clip_future_stamps_to_zero():

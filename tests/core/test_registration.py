@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.registration import (
     arun_weights,
@@ -383,10 +383,14 @@ def test_putative_associations_nothing_passes():
     assert pairs.dtype == np.int64
 
 
-@pytest.mark.parametrize(("ratio", "abs_diff"), [(0.9, 0.1), (1.35, -0.01)])
-def test_putative_associations_rejects_bad_gate(ratio, abs_diff):
+@pytest.mark.parametrize(("ratio", "abs_diff", "name"), [
+    (0.9, 0.1, "ratio"), (1.35, -0.01, "abs_diff"), ("1.35", 0.1, "ratio"),
+    (None, 0.1, "ratio"), (float("nan"), 0.1, "ratio"), (1.35, [0.1], "abs_diff"),
+    (True, 0.1, "ratio"),
+])
+def test_putative_associations_rejects_bad_gate_as_a_config_error(ratio, abs_diff, name):
     m = random_map(np.random.default_rng(0), 3)
-    with pytest.raises(DataError):
+    with pytest.raises(ConfigError, match=f"putative_associations.{name} = "):
         putative_associations(m, m, ratio=ratio, abs_diff=abs_diff)
 
 

@@ -2,18 +2,28 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 import yaml
+from pydantic import ValidationError
 from tcaff_gtsam.eval.config import (
     CONFIG_DIR,
     MethodsConfig,
+    PedestriansConfig,
+    ScenarioConfig,
+    TrackerParams,
     dump_study,
     load_methods,
     load_scenario,
     load_study,
 )
+from tcaff_gtsam.eval.tracker import TrackerParams as TrackerParamsOfTheTracker
+from tcaff_gtsam.mapping.mapper import MapperParams
 
 from tcaff_gtsam.errors import ConfigError
+from tcaff_gtsam.params import FrameAlignerParams, GraphParams, TCAFFParams
 
 SCENARIOS = sorted(p.stem for p in (CONFIG_DIR / "scenarios").glob("*.yaml"))
 
@@ -93,6 +103,39 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
      "clipper_k_shown (10) must be one of clipper_k [3, 4]"),
     ({"scenarios": ["indoor_return", "indoor_return"]}, "scenario names must be distinct"),
     ({"scenarios": ["atlantis"]}, "no scenario config named 'atlantis'; shipped: "),
+    # values the core parameter objects refuse, with the key's path
+    ({"scenarios": ["indoor_return"], "methods": {"aligner": {"n_solutions": 0}}},
+     "methods.aligner.n_solutions: must be an int >= 1 (got 0)"),
+    ({"scenarios": ["indoor_return"], "methods": {"aligner": {"clipper": {"sigma": "a"}}}},
+     "methods.aligner.clipper.sigma: must be a finite number > 0 metres (got 'a')"),
+    ({"scenarios": ["indoor_return"], "methods": {"aligner": {"clipper": 3}}},
+     "methods.aligner.clipper: must be a mapping of ClipperParams fields (got 3)"),
+    ({"scenarios": ["indoor_return"], "methods": {"aligner": 5}},
+     "methods.aligner: must be a mapping of FrameAlignerParams fields (got 5)"),
+    ({"scenarios": ["indoor_return"], "methods": {"aligner": {"kappa": 5}}},
+     "methods.aligner.kappa: is set per scenario/data set (mapping.kappa), not per method set "
+     "(got 5)"),
+    ({"scenarios": ["indoor_return"], "methods": {"tcaff": {"tau": None}}},
+     "methods.tcaff.tau: must be a finite number (nats) (got None)"),
+    ({"scenarios": ["indoor_return"], "methods": {"tcaff": {"Q": [[1, 0], [0, -1]]}}},
+     "methods.tcaff.Q: must be a symmetric positive definite (d, d) matrix "
+     "(got [[1, 0], [0, -1]])"),
+    ({"scenarios": ["indoor_return"], "methods": {"tcaff": {"bogus": 1}}},
+     "methods.tcaff.bogus: Extra inputs are not permitted"),
+    ({"scenarios": ["indoor_return"], "methods": {"graph": {"robust": "tukey"}}},
+     "methods.graph.robust: must be 'huber', 'cauchy' or 'none' (got 'tukey')"),
+    ({"scenarios": ["indoor_return"], "methods": {"graph": {"Q": [[1, 0], [0, 1]]}}},
+     "methods.graph.Q: the alignment drift is set per scenario/data set (graph_drift)"),
+    ({"scenarios": [{**SCENARIO, "mapping": {"nu": 0}}]},
+     "scenarios.0.mapping.nu: must be an int >= 1 (got 0)"),
+    ({"scenarios": [{**SCENARIO, "mapping": {"kappa": -1}}]},
+     "scenarios.0.mapping.kappa: must be a number > 0 seconds (got -1)"),
+    ({"scenarios": [{**SCENARIO, "window": 0}]},
+     "scenarios.0.window: must be an int >= 1 (got 0)"),
+    ({"scenarios": [{**SCENARIO, "pedestrians": {"tracker": {"gate": -1}}}]},
+     "scenarios.0.pedestrians.tracker.gate: must be a number > 0 (got -1)"),
+    ({"scenarios": [{**SCENARIO, "pedestrians": {"tracker": {"confirm_hits": "3"}}}]},
+     "scenarios.0.pedestrians.tracker.confirm_hits: must be an int >= 1 (got '3')"),
     ("scenarios: [\n", "not valid YAML"),
     ("- just\n- a list\n", "expected a mapping of keys, got list"),
 ])
@@ -113,3 +156,69 @@ def test_configs_are_frozen():
     cfg = load_scenario("indoor_return")
     with pytest.raises(Exception, match="frozen"):
         cfg.duration = 5.0
+
+
+def test_window_is_set_per_run_not_per_method_set(tmp_path):
+    path = tmp_path / "methods.yaml"
+    path.write_text(yaml.safe_dump({"name": "w", "tcaff": {"window": 5}}))
+    with pytest.raises(ConfigError) as info:
+        load_methods(path)
+    assert str(info.value) == (
+        "methods.yaml: tcaff.window: the TCAFF window W is set per scenario/data set (window), "
+        "not per method set (got 5)")
+    with pytest.raises(ValidationError, match="window W is set per scenario"):
+        MethodsConfig(tcaff=TCAFFParams(window=5))
+
+
+def test_the_runs_window_applies_to_every_tcaff_preset():
+    methods = MethodsConfig(tcaff={"tau": 7.0})
+    default, reference = methods.tcaff_params(False, 5), methods.tcaff_params(True, 5)
+    assert (default.window, default.tau) == (5, 7.0)
+    assert (reference.window, reference.tau) == (5, TCAFFParams.reference().tau)
+    assert methods.tcaff_params(False, None) == replace(TCAFFParams(), tau=7.0)
+    assert methods.tcaff_params(True, None) == TCAFFParams.reference()
+
+
+@pytest.mark.parametrize("name", ["default", "tcaff_only"])
+def test_method_sets_take_the_parameter_objects_defaults(name):
+    methods = load_methods(name)
+    assert methods.aligner_params(15.0) == FrameAlignerParams(kappa=15.0)
+    assert methods.tcaff_params(False, None) == TCAFFParams()
+    assert methods.graph_params(None) == GraphParams()
+    drift = methods.graph_params((1.0, 1.0))
+    assert drift == GraphParams(Q=np.diag([1.0, 1.0, np.radians(1.0) ** 2]))
+    assert methods.graph.robust == "huber"
+
+
+def test_scenarios_take_the_mapper_and_tracker_defaults():
+    scenario = ScenarioConfig(name="s", duration=10, layout={"kind": "indoor_return"})
+    mapper = MapperParams()
+    assert (scenario.mapping.nu, scenario.mapping.kappa) == (mapper.nu, mapper.kappa)
+    assert mapper.kappa == FrameAlignerParams().kappa
+    assert PedestriansConfig().tracker == TrackerParams()
+    assert load_scenario("mot").pedestrians.tracker == TrackerParams()
+    assert TrackerParamsOfTheTracker is TrackerParams
+
+
+def test_effective_config_with_changed_parameters_loads_again(tmp_path):
+    methods = {"aligner": {"covariance": "residual", "clipper": {"seed": 3},
+                           "R_constant": np.diag([1.0, 2.0, 0.1]).tolist()},
+               "tcaff": {"tau": 7.5, "Q": np.diag([0.02, 0.02, 1e-4]).tolist(),
+                         "gate_box": [1, 1, 0.5]},
+               "graph": {"robust": "cauchy"}}
+    scenario = {**SCENARIO, "window": 4,
+                "pedestrians": {"tracker": {"gate": 5.99, "max_coast": 2}}}
+    study = load_study(_write(tmp_path, {"scenarios": [scenario], "methods": methods}))
+    text = dump_study(study)
+    dumped = yaml.safe_load(text)["methods"]
+    assert "window" not in dumped["tcaff"] and "kappa" not in dumped["aligner"]
+    assert "Q" not in dumped["graph"] and "dim" not in dumped["graph"]
+    path = tmp_path / "config.yaml"
+    path.write_text(text)
+    again = load_study(path)
+    assert again == study
+    m = again.methods
+    assert m.aligner_params(20.0).clipper.seed == 3 and m.aligner.covariance == "residual"
+    assert m.tcaff_params(False, again.scenarios[0].window) == replace(
+        TCAFFParams(tau=7.5, Q=np.diag([0.02, 0.02, 1e-4]), gate_box=(1, 1, 0.5)), window=4)
+    assert again.scenarios[0].pedestrians.tracker == TrackerParams(gate=5.99, max_coast=2)

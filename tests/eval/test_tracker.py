@@ -4,25 +4,26 @@ deletion), on hand-made walks whose right answer is known."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from tcaff_gtsam.eval.config import TrackerConfig
-from tcaff_gtsam.eval.tracker import MultiObjectTracker
+from tcaff_gtsam.eval.tracker import MultiObjectTracker, TrackerParams
 
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 
 FEW = settings(max_examples=25, deadline=None)
 
 DT = 0.2  # s between frames
 #: the tracker of the shipped `mot` scenario
-MOT = TrackerConfig(accel_noise=1.5, detection_noise=0.3, initial_speed=1.5, gate=9.21,
+MOT = TrackerParams(accel_noise=1.5, detection_noise=0.3, initial_speed=1.5, gate=9.21,
                     confirm_hits=3, tentative_misses=1, max_coast=1.0)
 
 
 def tracker(**update) -> MultiObjectTracker:
-    return MultiObjectTracker(MOT.model_copy(update=update))
+    return MultiObjectTracker(replace(MOT, **update))
 
 
 def line(start, velocity, times) -> np.ndarray:
@@ -348,3 +349,36 @@ def test_a_settled_track_keeps_a_detection_a_new_track_is_nearer_to_by_mahalanob
     assert old_id in mot.ids
     assert mot.x[mot.ids == old_id, 0][0] > 0.05  # the settled track took the detection
     assert len(mot) == 1  # the new track got nothing and was dropped as a tentative miss
+
+
+# -- parameters ----------------------------------------------------------------------------------
+
+#: values of the wrong kind for every field: the tracker must refuse them, naming the field
+JUNK = (None, "1", [1.0], {}, True, float("nan"))
+
+
+@pytest.mark.parametrize("field", [f for f in vars(MOT)])
+@pytest.mark.parametrize("value", JUNK, ids=repr)
+def test_tracker_params_refuse_junk_naming_the_field(field, value):
+    with pytest.raises(ConfigError, match=f"^TrackerParams.{field} = "):
+        TrackerParams(**{field: value})
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("accel_noise", 0.0), ("detection_noise", float("inf")), ("initial_speed", -1.0),
+    ("gate", 0), ("confirm_hits", 0), ("confirm_hits", 2.0), ("tentative_misses", 0),
+    ("max_coast", -0.1),
+])
+def test_tracker_params_refuse_values_out_of_range(field, value):
+    with pytest.raises(ConfigError, match=f"TrackerParams.{field} = {value!r}"):
+        TrackerParams(**{field: value})
+
+
+def test_tracker_params_defaults_are_the_mot_scenarios_and_compare_by_value():
+    assert TrackerParams() == MOT and hash(TrackerParams()) == hash(MOT)
+    assert MultiObjectTracker().params == MOT
+
+
+def test_tracker_takes_only_tracker_params():
+    with pytest.raises(ConfigError, match=r"MultiObjectTracker\.params = "):
+        MultiObjectTracker({"gate": 9.21})

@@ -316,6 +316,33 @@ def test_pose_as_nested_list_is_accepted():
     np.testing.assert_array_equal(a.centroids, b.centroids)
 
 
+def test_measure_is_lift_on_depth_in_metres():
+    """The front end converts and checks depth itself, then calls the public `measure`."""
+    setup, frame, masks = small_frame()
+    lifter = MaskLifter(CAMERA, 1000.0)
+    millimetres = np.round(frame.depth * 1000.0).astype(np.uint16)
+    lifted = lifter.lift(masks, millimetres, setup.T_world_camera)
+    measured = lifter.measure(masks, millimetres.astype(np.float32) / np.float32(1000.0),
+                              setup.T_world_camera)
+    assert len(measured) == len(lifted) > 0
+    for name in ("centroids", "widths", "heights", "point_counts", "mask_indices"):
+        np.testing.assert_array_equal(getattr(measured, name), getattr(lifted, name))
+
+
+@pytest.mark.parametrize(("args", "match"), [
+    (lambda m, z, T: (m, z.astype(np.uint16), T), "z must be"),
+    (lambda m, z, T: (m, z[:-1], T), "z must be"),
+    (lambda m, z, T: (m, z.tolist(), T), "z must be"),
+    (lambda m, z, T: (m[0], z, T), "masks"),
+    (lambda m, z, T: (m, z, T[:3]), "T_odom_camera"),
+])
+def test_measure_checks_types_and_shapes(args, match):
+    setup, frame, masks = small_frame()
+    z = frame.depth.astype(np.float32)
+    with pytest.raises(DataError, match=match):
+        MaskLifter(CAMERA, 1.0).measure(*args(masks, z, setup.T_world_camera))
+
+
 @pytest.mark.parametrize("depth, match", [
     (lambda d: d.astype(np.int32), "dtype"),
     (lambda d: d.astype(np.complex64), "dtype"),
@@ -339,6 +366,13 @@ def test_bad_depth_raises(depth, match):
 def test_bad_lift_params_raise_config_error(kwargs):
     with pytest.raises(ConfigError):
         LiftParams(**kwargs)
+
+
+@pytest.mark.parametrize("field", [f for f in vars(LiftParams())])
+@pytest.mark.parametrize("value", [None, "1", [1.0], True, math.nan], ids=repr)
+def test_lift_params_refuse_junk_naming_the_field(field, value):
+    with pytest.raises(ConfigError, match=f"^LiftParams.{field} = "):
+        LiftParams(**{field: value})
 
 
 def test_height_does_not_depend_on_where_the_grid_falls():

@@ -13,6 +13,7 @@ from tcaff_gtsam.mapping.mapper import MapperParams, ObjectMapper
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap
+from tcaff_gtsam.params import FrameAlignerParams
 
 DT = 0.1  # seconds between frames (10 Hz)
 
@@ -477,6 +478,18 @@ def test_bad_input_is_rejected_before_any_change():
 def test_bad_params_raise_config_error_naming_field_and_value(field, value):
     with pytest.raises(ConfigError, match=re.escape(f"MapperParams.{field} = {value!r}")):
         MapperParams(**{field: value})
+
+
+@pytest.mark.parametrize("field", [f for f in vars(MapperParams())])
+@pytest.mark.parametrize("value", [None, "1", [1.0], True, math.nan], ids=repr)
+def test_params_refuse_junk_naming_the_field(field, value):
+    with pytest.raises(ConfigError, match=f"^MapperParams.{field} = "):
+        MapperParams(**{field: value})
+
+
+def test_kappa_defaults_to_the_frame_aligners():
+    """One kappa (the paper's 20 s): the map keeps what the aligner uses."""
+    assert MapperParams().kappa == FrameAlignerParams().kappa == 20.0
 
 
 def test_mapper_rejects_wrong_params_type():
