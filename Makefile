@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 SYSTEM_LIBS := libusb-1.0-0
 
-.PHONY: install demo test bench lint clean
+.PHONY: install demo test test-fast bench lint clean
 
 install: $(STAMP)
 
@@ -32,6 +32,10 @@ demo: install
 
 test: install
 	$(VENV)/bin/pytest -q
+
+# the quick subset for development: everything but the end-to-end runs marked `slow`
+test-fast: install
+	$(VENV)/bin/pytest -q -m "not slow"
 
 bench: install
 	$(PY) scripts/bench_startup.py

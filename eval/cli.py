@@ -382,22 +382,30 @@ def study(
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
     study_config = load_study(config, {k: v for k, v in overrides.items() if v is not None})
-    if duration is not None:
-        study_config = study_config.model_copy(update={"scenarios": [
-            s.model_copy(update={"duration": min(s.duration, duration)})
-            for s in study_config.scenarios]})
-    _run(study_config, figures)
+    _run(_capped(study_config, duration), figures)
+
+
+def _capped(study_config: StudyConfig, duration: float | None) -> StudyConfig:
+    """The study with every scenario's duration capped at `duration` seconds (None: as is)."""
+    if duration is None:
+        return study_config
+    return study_config.model_copy(update={"scenarios": [
+        s.model_copy(update={"duration": min(s.duration, duration)})
+        for s in study_config.scenarios]})
 
 
 @app.command()
 def demo(
     output: Annotated[Path, typer.Option(help="Folder for the results.")] = Path("results"),
     workers: Annotated[int, typer.Option(help="Parallel processes.", min=1)] = 2,
+    duration: Annotated[float | None, typer.Option(
+        help="Cap every scenario's duration (seconds), for a quick look.", min=1.0)] = None,
 ) -> None:
     """The study on every scenario with one seed (about a minute): table, metrics, figures."""
     from .config import load_study
 
-    _run(load_study("demo", {"output": str(output), "workers": workers}), True)
+    _run(_capped(load_study("demo", {"output": str(output), "workers": workers}), duration),
+         True)
 
 
 def _kimera_bars(bars: RichProgress):

@@ -17,9 +17,8 @@ its defaults and rules are the only ones, and its `ConfigError` comes out with t
 from __future__ import annotations
 
 import dataclasses
-import math
 import typing
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -44,10 +43,10 @@ from tcaff_gtsam.params import (
     GraphParams,
     ParameterError,
     TCAFFParams,
-    _int_at_least,
-    _real,
-    _require,
 )
+
+from .registry import METHODS
+from .tracker import TrackerParams
 
 __all__ = [
     "CONFIG_DIR",
@@ -55,7 +54,6 @@ __all__ = [
     "MethodsConfig",
     "ScenarioConfig",
     "StudyConfig",
-    "TrackerParams",
     "load_kimera_multi",
     "load_methods",
     "load_scenario",
@@ -64,7 +62,6 @@ __all__ = [
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 
-METHOD_SETS = ("tcaff", "tcaff_reference", "tcaff_isam2", "clipper", "icp", "ground_truth")
 
 
 def _check_drift(value: tuple[float, float] | None) -> tuple[float, float] | None:
@@ -337,51 +334,6 @@ class PersonDetectorConfig(_Detector):
     false_per_frame: float = Field(0.3, ge=0, description="mean false detections per frame")
 
 
-# The tracker's parameters live here, not in tracker.py (which re-exports them): the run
-# sources (sim/, datasets/) load scenarios through this module and must not import the
-# tracking layer above them (tests/eval/test_layers.py).
-@dataclass(frozen=True)
-class TrackerParams:
-    """Settings of `tracker.MultiObjectTracker`, the tracker each robot runs on its own and its
-    neighbours' detections.
-
-    Attributes:
-        accel_noise: m/s^2, std of the white acceleration that drives the constant-velocity
-            model.
-        detection_noise: metres, the detection std per axis the filter assumes (own and
-            neighbours' detections alike).
-        initial_speed: m/s, velocity std of a new track.
-        gate: squared Mahalanobis distance beyond which a detection cannot update a track
-            (9.21: 99 % for 2 degrees of freedom).
-        confirm_hits: frames with a detection before a track is reported.
-        tentative_misses: frames in a row without a detection that delete an unconfirmed track.
-        max_coast: seconds; a confirmed track without a detection for longer is deleted
-            (math.inf keeps it).
-    """
-
-    accel_noise: float = 1.5
-    detection_noise: float = 0.3
-    initial_speed: float = 1.5
-    gate: float = 9.21
-    confirm_hits: int = 3
-    tentative_misses: int = 1
-    max_coast: float = 1.0
-
-    def __post_init__(self) -> None:
-        o = "TrackerParams"
-        for name, unit in (("accel_noise", "m/s^2"), ("detection_noise", "metres"),
-                           ("initial_speed", "m/s")):
-            value = getattr(self, name)
-            _require(_real(value) and 0 < value < math.inf, o, name, value,
-                     f"must be a finite number > 0 {unit}")
-        _require(_real(self.gate) and self.gate > 0, o, "gate", self.gate, "must be a number > 0")
-        for name in ("confirm_hits", "tentative_misses"):
-            value = getattr(self, name)
-            _require(_int_at_least(value, 1), o, name, value, "must be an int >= 1")
-        _require(_real(self.max_coast) and self.max_coast >= 0, o, "max_coast", self.max_coast,
-                 "must be a number >= 0 seconds")
-
-
 _Tracker = _params(TrackerParams)
 
 
@@ -493,8 +445,8 @@ class MethodsConfig(_Model):
     """
 
     name: str = Field("methods", min_length=1)
-    methods: list[Literal[METHOD_SETS]] = Field(default_factory=lambda: list(METHOD_SETS),
-                                                min_length=1)
+    methods: list[str] = Field(default_factory=lambda: list(METHODS), min_length=1,
+                               description="names in the registry (registry.METHODS)")
     clipper_k: list[int] = Field(default_factory=lambda: list(range(3, 13)), min_length=1)
     clipper_k_shown: int = Field(10, description="the single-shot threshold drawn over time")
     aligner: _Aligner = FrameAlignerParams()
@@ -525,6 +477,9 @@ class MethodsConfig(_Model):
     @field_validator("methods")
     @classmethod
     def _unique(cls, value: list[str]) -> list[str]:
+        unknown = [m for m in value if m not in METHODS]
+        if unknown:
+            raise ValueError(f"unknown methods {unknown}; registered: {', '.join(METHODS)}")
         if len(set(value)) != len(value):
             raise ValueError(f"methods must not repeat, got {value}")
         return value

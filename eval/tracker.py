@@ -16,17 +16,59 @@ gating and updates are vectorised over tracks and detections.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.params import _require
-
-from .config import TrackerParams
+from tcaff_gtsam.params import _int_at_least, _real, _require
 
 __all__ = ["MultiObjectTracker", "TrackerParams"]
+
+@dataclass(frozen=True)
+class TrackerParams:
+    """Settings of `tracker.MultiObjectTracker`, the tracker each robot runs on its own and its
+    neighbours' detections.
+
+    Attributes:
+        accel_noise: m/s^2, std of the white acceleration that drives the constant-velocity
+            model.
+        detection_noise: metres, the detection std per axis the filter assumes (own and
+            neighbours' detections alike).
+        initial_speed: m/s, velocity std of a new track.
+        gate: squared Mahalanobis distance beyond which a detection cannot update a track
+            (9.21: 99 % for 2 degrees of freedom).
+        confirm_hits: frames with a detection before a track is reported.
+        tentative_misses: frames in a row without a detection that delete an unconfirmed track.
+        max_coast: seconds; a confirmed track without a detection for longer is deleted
+            (math.inf keeps it).
+    """
+
+    accel_noise: float = 1.5
+    detection_noise: float = 0.3
+    initial_speed: float = 1.5
+    gate: float = 9.21
+    confirm_hits: int = 3
+    tentative_misses: int = 1
+    max_coast: float = 1.0
+
+    def __post_init__(self) -> None:
+        o = "TrackerParams"
+        for name, unit in (("accel_noise", "m/s^2"), ("detection_noise", "metres"),
+                           ("initial_speed", "m/s")):
+            value = getattr(self, name)
+            _require(_real(value) and 0 < value < math.inf, o, name, value,
+                     f"must be a finite number > 0 {unit}")
+        _require(_real(self.gate) and self.gate > 0, o, "gate", self.gate, "must be a number > 0")
+        for name in ("confirm_hits", "tentative_misses"):
+            value = getattr(self, name)
+            _require(_int_at_least(value, 1), o, name, value, "must be an int >= 1")
+        _require(_real(self.max_coast) and self.max_coast >= 0, o, "max_coast", self.max_coast,
+                 "must be a number >= 0 seconds")
+
 
 _H = np.eye(2, 4)
 _FAR = 1e12  # the cost of a pair outside the gate; linear_sum_assignment needs finite costs

@@ -179,6 +179,7 @@ def test_study_runs_each_shipped_method_set(tmp_path, methods):
     assert ("clipper_sweep.png" in figures) == (methods == "default")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("study", ["demo", "paper"])
 def test_study_runs_each_shipped_study(tmp_path, study):
     result = runner.invoke(app, ["study", study, "--seeds", "1", "--duration", "8",
@@ -198,9 +199,11 @@ def test_bad_study_config_is_one_line_and_exit_2(tmp_path):
                                    "equal to 1 (got 0)")
 
 
+@pytest.mark.slow
 def test_demo_prints_the_table_and_writes_the_figures(tmp_path):
-    done = subprocess.run([TCAFF, "demo", "--output", str(tmp_path)], capture_output=True,
-                          text=True)
+    """`make demo`'s job, through the installed command (every scenario shortened)."""
+    done = subprocess.run([TCAFF, "demo", "--output", str(tmp_path), "--duration", "45"],
+                          capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     for name in SCENARIOS:
         assert name in done.stdout

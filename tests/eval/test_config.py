@@ -96,7 +96,7 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
                                             "return_at": 80}}]},
      "return_at (80.0) must be after leave_at (90.0)"),
     ({"scenarios": ["indoor_return"], "methods": {"methods": ["tcaff", "magic"]}},
-     "methods.methods.1: Input should be"),
+     "methods.methods: unknown methods ['magic']; registered: tcaff"),
     ({"scenarios": ["indoor_return"], "methods": {"clipper_k": [3, 3]}},
      "clipper_k must be distinct ints >= 2"),
     ({"scenarios": ["indoor_return"], "methods": {"clipper_k": [3, 4], "clipper_k_shown": 10}},

@@ -216,6 +216,7 @@ def true_alignment(truth, i: int, j: int, t: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
+@pytest.mark.slow
 def test_command_aligns_the_robots_as_the_simulation_did(sequence, tmp_path):
     data, truth = sequence
     result = CliRunner().invoke(app, ["kimera-multi", "--data", str(data), "--output",
@@ -255,6 +256,7 @@ def test_command_aligns_the_robots_as_the_simulation_did(sequence, tmp_path):
         np.testing.assert_array_equal(b["est_tcaff"], first)
 
 
+@pytest.mark.slow
 def test_missing_topic_lists_the_topics_present(sequence, tmp_path):
     data, _ = sequence
     config = load_kimera_multi("same_direction")
@@ -265,6 +267,7 @@ def test_missing_topic_lists_the_topics_present(sequence, tmp_path):
         run_kimera_multi(config, data, tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncated", "overwritten"])
 def test_damaged_bag_keeps_the_robots_already_mapped(sequence, tmp_path, damage):
     data, _ = sequence
@@ -287,6 +290,7 @@ def test_damaged_bag_keeps_the_robots_already_mapped(sequence, tmp_path, damage)
     assert not (maps / "sparkal2.npz").exists()
 
 
+@pytest.mark.slow
 def test_without_ground_truth_alignments_are_still_saved(sequence, tmp_path):
     data, _ = sequence
     bare = copy_of(data, tmp_path / "data", skip=("sparkal2_gt_odom.csv",))

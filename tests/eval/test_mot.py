@@ -202,6 +202,7 @@ def test_a_wrong_alignment_costs_tracking_accuracy(mot_run):
 QUICK_METHODS = MethodsConfig(clipper_k=[3, 5], clipper_k_shown=5)
 
 
+@pytest.mark.slow
 def test_a_study_with_people_writes_mota_tables_and_figures(tmp_path):
     scenario = load_scenario("mot").model_copy(update={"duration": 30.0})
     cfg = StudyConfig(name="t", scenarios=[scenario], methods=QUICK_METHODS, seeds=[0, 1],

@@ -941,6 +941,7 @@ def test_clear_paths_moves_objects_off_the_paths_and_keeps_them_apart():
     np.testing.assert_array_equal(cleared.xy[untouched], world.xy[untouched])
 
 
+@pytest.mark.slow
 def test_rendered_scenario_maps_only_real_objects_and_tcaff_aligns_them():
     """The indoor RGB-D scenario runs the real front end: every map entry is a real object
     (nothing from the floor or walls), few are duplicates, and TCAFF's alignment is right."""

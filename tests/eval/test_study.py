@@ -45,6 +45,7 @@ def test_each_scenario_produces_every_output(name):
     assert job.arrays["overlap"].shape == (len(job.pairs), steps)
 
 
+@pytest.mark.slow
 def test_study_writes_tables_figures_runs_and_the_latest_link(tmp_path):
     cfg = quick_study(tmp_path, [short("indoor_return", 40), short("ambiguous_grid", 30)])
     outcome = run_study(cfg)
@@ -127,6 +128,7 @@ def test_a_failing_run_does_not_lose_the_others(tmp_path, monkeypatch):
     assert metrics["failed"][0]["error"] == "sensor exploded"
 
 
+@pytest.mark.slow
 def test_parallel_workers_give_the_serial_results(tmp_path):
     scenarios = [short("indoor_return", 20), short("opposite_directions", 20)]
     serial = run_study(quick_study(tmp_path / "a", scenarios), figures=False)
@@ -139,6 +141,7 @@ def test_parallel_workers_give_the_serial_results(tmp_path):
 # -- the acceptance figures of the comparison, on the shipped scenarios at full length ---------
 
 
+@pytest.mark.slow
 def test_indoor_tcaff_meets_the_papers_figures():
     job = simulated_job(load_scenario("indoor_return"), MethodsConfig(
         methods=["tcaff", "tcaff_isam2"]), seed=0)
@@ -153,6 +156,7 @@ def test_indoor_tcaff_meets_the_papers_figures():
     assert smoothed["heading_error_deg_mean"] <= causal["heading_error_deg_mean"]
 
 
+@pytest.mark.slow
 def test_ambiguous_grid_fools_single_shot_clipper_but_not_tcaff():
     job = simulated_job(load_scenario("ambiguous_grid"), MethodsConfig(
         methods=["tcaff", "clipper"], clipper_k=[3, 6, 10]), seed=0)
@@ -164,6 +168,7 @@ def test_ambiguous_grid_fools_single_shot_clipper_but_not_tcaff():
     assert not math.isnan(tcaff["translation_error_m_mean"] or math.nan)
 
 
+@pytest.mark.slow
 def test_interrupting_a_parallel_study_keeps_the_finished_runs(tmp_path):
     cfg = quick_study(tmp_path, [short("indoor_return", 15), short("ambiguous_grid", 15),
                                  short("opposite_directions", 15)], workers=2)

@@ -1,0 +1,350 @@
+"""UTIAS MRCLAM data sets: five robots, fifteen identical landmarks, Vicon truth.
+
+A data set folder holds whitespace-separated text files (`#` comment lines at the top, times in
+Unix seconds):
+
+- `Barcodes.dat`: subject, barcode. Subjects 1-5 are the robots, 6-20 the landmarks.
+- `Landmark_Groundtruth.dat`: subject, x [m], y [m], x std, y std (world frame).
+- `Robot<N>_Odometry.dat`: time, forward velocity [m/s], angular velocity [rad/s] (commanded).
+- `Robot<N>_Measurement.dat`: time, barcode, range [m], bearing [rad] (camera sightings).
+- `Robot<N>_Groundtruth.dat`: time, x [m], y [m], orientation [rad] (Vicon, world frame).
+
+`read_dataset` reads and checks them; `load_run` turns them into a `RecordedRun` of object maps:
+
+- Odometry: `raw` dead-reckons the commanded velocities; `vio` is the Vicon truth with seeded
+  visual-inertial-like drift: the heading takes a random walk (`heading_rw_deg`, degrees per
+  sqrt(minute): after t minutes its std is heading_rw_deg * sqrt(t)) and every distance driven is
+  scaled by (1 + e), e drawn once per robot with std `scale_std` (0.01: 1 % of distance). Each
+  robot's odometry frame is its pose when the run starts.
+- Maps: a robot's sightings of landmarks are placed in its odometry frame through its odometry
+  pose at the sighting. At each 1 Hz exchange its map holds every landmark it sighted at least
+  `nu` times in the last `kappa` seconds, at the mean of those sightings, stamped with the last
+  one. Sightings are grouped by the barcode the robot's own camera read (its own data
+  association, which a robot has); the map it shares carries no identity, so aligners see only
+  geometry. The landmarks are identical tubes: every entry has the same width and height.
+  Sightings of robots are left out.
+- Truth: T_oi_oj from Vicon and the odometry at every exchange; two maps overlap when they hold
+  at least `min_shared` of the same landmarks.
+
+Rows the published data sets are known to hold and that cannot be used are skipped and counted
+in `MrclamData.skipped` (sightings of a barcode in no table: data set 6 has six). Anything else
+wrong (a missing file, a short or non-numeric row, a non-finite value, times that go backwards,
+no usable rows) is a `DataError` naming the file and line.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.geometry import se2_from_params, se2_to_se3, wrap_angle
+from tcaff_gtsam.object_map import ObjectMap
+
+from ..runs import RecordedRun, RunSettings
+
+__all__ = ["LANDMARK_SIZE", "MrclamData", "RobotRecord", "load_run", "read_dataset",
+           "read_table"]
+
+ROBOTS = range(1, 6)        # subjects
+LANDMARKS = range(6, 21)    # subjects
+#: width and height [m] given to every landmark of a map (the tubes are identical)
+LANDMARK_SIZE = (0.2, 0.5)
+_VIO_STEP = 0.1  # s between the truth samples the VIO-like odometry integrates
+
+
+def read_table(path: Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of one MRCLAM file.
+
+    Returns:
+        rows (k, columns) float64, and lines (k,) int: each row's line number (1-based).
+    Raises:
+        DataError: the file is missing or unreadable, or a row has the wrong number of
+            columns, a non-numeric or non-finite entry (naming file and line).
+    """
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read ({exc})") from exc
+    numbers, lines = [], []
+    for k, line in enumerate(text.splitlines(), start=1):
+        content = line.split("#", 1)[0]
+        if content.strip():
+            numbers.append(content)
+            lines.append(k)
+    try:  # one conversion for the whole file; only a bad file is read row by row
+        values = np.array(" ".join(numbers).split(), dtype=float)
+        rows = values.reshape(len(numbers), columns)
+        ok = all(len(n.split()) == columns for n in numbers) if rows.size else True
+    except ValueError:
+        ok = False
+    if not ok:
+        for number, line in zip(numbers, lines, strict=True):
+            fields = number.split()
+            if len(fields) != columns:
+                raise DataError(f"{path}:{line}: expected {columns} columns, got {len(fields)} "
+                                f"({number.strip()!r})")
+            try:
+                [float(f) for f in fields]
+            except ValueError:
+                raise DataError(f"{path}:{line}: not a number in {number.strip()!r}") from None
+    bad = ~np.all(np.isfinite(rows), axis=1)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise DataError(f"{path}:{lines[k]}: non-finite value in {numbers[k].strip()!r}")
+    return rows, np.array(lines, dtype=np.int64)
+
+
+def _check_times(path: Path, times: np.ndarray, lines: np.ndarray) -> None:
+    back = np.flatnonzero(np.diff(times) < 0)
+    if back.size:
+        k = int(back[0]) + 1
+        raise DataError(f"{path}:{lines[k]}: time goes backwards ({times[k]:.3f} s after "
+                        f"{times[k - 1]:.3f} s on line {lines[k - 1]})")
+
+
+@dataclass(frozen=True)
+class RobotRecord:
+    """One robot's files.
+
+    Attributes:
+        odometry: (k, 3) time [s], forward velocity [m/s], angular velocity [rad/s].
+        sightings: (m, 4) time [s], subject, range [m], bearing [rad]; landmarks only.
+        truth: (g, 4) time [s], x [m], y [m], heading [rad] in the world frame.
+    """
+
+    odometry: np.ndarray
+    sightings: np.ndarray
+    truth: np.ndarray
+
+
+@dataclass(frozen=True)
+class MrclamData:
+    """A whole data set as read from its folder.
+
+    Attributes:
+        folder: where it was read from.
+        landmarks: subject -> (x, y) [m] in the world frame.
+        robots: robot subject (1-5) -> its record, for the robots with files.
+        skipped: what was left out, and how often: {"sightings of unknown barcodes": 6}.
+    """
+
+    folder: Path
+    landmarks: dict[int, np.ndarray]
+    robots: dict[int, RobotRecord]
+    skipped: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def span(self) -> tuple[float, float]:
+        """(start, end) s: the time every robot has odometry and truth."""
+        start = max(max(r.odometry[0, 0], r.truth[0, 0]) for r in self.robots.values())
+        end = min(min(r.odometry[-1, 0], r.truth[-1, 0]) for r in self.robots.values())
+        return start, end
+
+
+def _timed(path: Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    rows, lines = read_table(path, columns)
+    if rows.shape[0] == 0:
+        raise DataError(f"{path}: no rows")
+    _check_times(path, rows[:, 0], lines)
+    return rows, lines
+
+
+def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
+    """Read an MRCLAM data set folder.
+
+    Args:
+        robots: robot subjects to read (default: 1-5).
+    Raises:
+        DataError: see the module's notes.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"--data {folder}: not a folder")
+    robots = list(ROBOTS) if robots is None else robots
+    path = folder / "Barcodes.dat"
+    codes, lines = read_table(path, 2)
+    if codes.shape[0] == 0:
+        raise DataError(f"{path}: no rows")
+    subject_of = {}
+    for (subject, barcode), line in zip(codes, lines, strict=True):
+        if subject != int(subject) or barcode != int(barcode) or barcode in subject_of:
+            raise DataError(f"{path}:{line}: expected a subject and a new barcode, got "
+                            f"{subject:g} {barcode:g}")
+        subject_of[int(barcode)] = int(subject)
+    path = folder / "Landmark_Groundtruth.dat"
+    table, _ = read_table(path, 5)
+    landmarks = {int(row[0]): row[1:3].copy() for row in table if int(row[0]) in LANDMARKS}
+    if not landmarks:
+        raise DataError(f"{path}: no landmark (subjects {LANDMARKS.start}-{LANDMARKS.stop - 1})")
+    unknown = 0
+    records = {}
+    for robot in robots:
+        odometry, _ = _timed(folder / f"Robot{robot}_Odometry.dat", 3)
+        truth, _ = _timed(folder / f"Robot{robot}_Groundtruth.dat", 4)
+        path = folder / f"Robot{robot}_Measurement.dat"
+        seen, lines = read_table(path, 4)
+        _check_times(path, seen[:, 0], lines) if len(seen) else None
+        subjects = np.array([subject_of.get(int(b), -1) if b == int(b) else -1
+                             for b in seen[:, 1]], dtype=np.int64)
+        unknown += int(np.sum(subjects < 0))
+        keep = np.isin(subjects, list(landmarks))
+        sightings = np.column_stack([seen[keep, 0], subjects[keep], seen[keep, 2:4]])
+        records[robot] = RobotRecord(odometry, sightings.reshape(-1, 4), truth)
+    skipped = {"sightings of unknown barcodes": unknown} if unknown else {}
+    data = MrclamData(folder, landmarks, records, skipped)
+    start, end = data.span
+    if end - start < 1.0:
+        raise DataError(f"{folder}: the robots' odometry and truth share less than a second "
+                        f"({start:.3f} to {end:.3f} s)")
+    return data
+
+
+# -- odometry ----------------------------------------------------------------------------------
+
+
+def _interpolate(times: np.ndarray, poses: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """(q, 3) poses (x, y, theta) at `at` [s], linear between the samples (angles unwrapped)."""
+    heading = np.unwrap(poses[:, 2])
+    return np.column_stack([np.interp(at, times, poses[:, 0]), np.interp(at, times, poses[:, 1]),
+                            wrap_angle(np.interp(at, times, heading))])
+
+
+def dead_reckoning(odometry: np.ndarray, start: float) -> tuple[np.ndarray, np.ndarray]:
+    """Poses integrated from commanded velocities, the odometry frame at the pose at `start`.
+
+    Each (v, w) holds until the next record (exact arcs of a unicycle).
+    Returns: times (k,) s and poses (k, 3) (x, y, theta) in the odometry frame.
+    """
+    t, v, w = odometry[:, 0], odometry[:, 1], odometry[:, 2]
+    dt = np.diff(t)
+    dtheta = w[:-1] * dt
+    theta = np.r_[0.0, np.cumsum(dtheta)]
+    # chord of the arc: length v dt sinc(dtheta / 2), at the mid heading
+    chord = v[:-1] * dt * np.sinc(dtheta / (2 * np.pi))
+    mid = theta[:-1] + dtheta / 2
+    xy = np.vstack([np.zeros(2), np.cumsum(np.column_stack([chord * np.cos(mid),
+                                                            chord * np.sin(mid)]), axis=0)])
+    poses = np.column_stack([xy, theta])
+    origin = se2_from_params(_interpolate(t, poses, np.array([start]))[0])
+    local = np.linalg.solve(origin, se2_from_params(poses))
+    return t, np.column_stack([local[:, 0, 2], local[:, 1, 2],
+                               np.arctan2(local[:, 1, 0], local[:, 0, 0])])
+
+
+def vio_like(rng: np.random.Generator, truth: np.ndarray, start: float, end: float,
+             heading_rw_deg: float, scale_std: float) -> tuple[np.ndarray, np.ndarray]:
+    """The Vicon truth with VIO-like drift, sampled every 0.1 s over [start, end].
+
+    Args:
+        truth: (g, 4) time, x, y, heading in the world frame.
+        heading_rw_deg: heading random walk, deg per sqrt(minute).
+        scale_std: std of the robot's distance scale error (0.01: 1 % of distance).
+    Returns: times (k,) s and poses (k, 3) in the odometry frame (its pose at `start`).
+    """
+    times = np.arange(start, end + 1e-9, _VIO_STEP)
+    T = se2_from_params(_interpolate(truth[:, 0], truth[:, 1:4], times))
+    step = np.linalg.solve(T[:-1], T[1:])  # body-frame increments
+    scale = 1.0 + scale_std * rng.standard_normal()
+    sigma = math.radians(heading_rw_deg) / math.sqrt(60.0) * math.sqrt(_VIO_STEP)
+    drift = np.cumsum(sigma * rng.standard_normal(len(step)))
+    heading = np.r_[0.0, np.cumsum(np.arctan2(step[:, 1, 0], step[:, 0, 0]))] + np.r_[0.0, drift]
+    moved = scale * step[:, :2, 2]
+    c, s = np.cos(heading[:-1]), np.sin(heading[:-1])
+    xy = np.vstack([np.zeros(2), np.cumsum(np.column_stack([c * moved[:, 0] - s * moved[:, 1],
+                                                            s * moved[:, 0] + c * moved[:, 1]]),
+                                           axis=0)])
+    return times, np.column_stack([xy, wrap_angle(heading)])
+
+
+# -- maps --------------------------------------------------------------------------------------
+
+
+def _maps(sightings: np.ndarray, odom_times: np.ndarray, odom_poses: np.ndarray,
+          exchanges: np.ndarray, kappa: float, nu: int) -> tuple[list[ObjectMap], list[np.ndarray]]:
+    """The robot's map at each exchange, and the landmark subject of each entry."""
+    t = sightings[:, 0]
+    pose = _interpolate(odom_times, odom_poses, t)
+    r, b = sightings[:, 2], sightings[:, 3]
+    x = pose[:, 0] + r * np.cos(pose[:, 2] + b)
+    y = pose[:, 1] + r * np.sin(pose[:, 2] + b)
+    subject = sightings[:, 1].astype(np.int64)
+    maps, labels = [], []
+    width, height = LANDMARK_SIZE
+    for now in exchanges:
+        window = (t <= now) & (now - t < kappa)
+        ids, inverse, counts = np.unique(subject[window], return_inverse=True, return_counts=True)
+        keep = counts >= nu
+        n = len(ids)
+        cx = np.bincount(inverse, x[window], n) / np.maximum(counts, 1)
+        cy = np.bincount(inverse, y[window], n) / np.maximum(counts, 1)
+        last = np.full(n, -np.inf)
+        np.maximum.at(last, inverse, t[window])
+        k = int(keep.sum())
+        maps.append(ObjectMap(np.column_stack([cx[keep], cy[keep], np.zeros(k)]),
+                              np.full(k, width), np.full(k, height), last[keep]))
+        labels.append(ids[keep])
+    return maps, labels
+
+
+def load_run(data: MrclamData, odometry: str, seed: int, kappa: float, nu: int,
+             min_shared: int, heading_rw_deg: float, scale_std: float,
+             window: int | None = None, graph_drift: tuple[float, float] | None = None,
+             duration: float | None = None, name: str | None = None
+             ) -> tuple[RecordedRun, list[list[np.ndarray]]]:
+    """The data set as a recorded run of object maps at 1 Hz exchanges.
+
+    Args:
+        odometry: "raw" or "vio" (see the module's notes); `seed` draws the VIO-like drift.
+        kappa, nu: a map holds the landmarks sighted at least nu times in the last kappa s.
+        min_shared: landmarks two maps must share to count as overlapping.
+        window, graph_drift: the run's TCAFF window and iSAM2 drift (None: the defaults).
+        duration: s of data to use from the start (None: all).
+    Returns:
+        The run (times: s since the start), and labels[r][s]: the landmark subject of each
+        entry of robot r's map at exchange s (for scoring; never handed to an aligner).
+    """
+    if odometry not in ("raw", "vio"):
+        raise DataError(f"odometry: expected 'raw' or 'vio', got {odometry!r}")
+    start, end = data.span
+    if duration is not None:
+        end = min(end, start + duration)
+    exchanges = start + np.arange(1.0, math.floor(end - start) + 1.0)
+    if exchanges.size == 0:
+        raise DataError(f"{data.folder}: less than one second of data to align")
+    rng = np.random.default_rng(seed)
+    maps, labels, T_world_odom, T_odom_body = [], [], [], []
+    for record in data.robots.values():
+        if odometry == "raw":
+            odom_t, odom = dead_reckoning(record.odometry, start)
+        else:
+            odom_t, odom = vio_like(rng, record.truth, start, end, heading_rw_deg, scale_std)
+        # maps are stamped on the run's clock: seconds since the start
+        sightings = record.sightings.copy()
+        sightings[:, 0] -= start
+        robot_maps, robot_labels = _maps(sightings, odom_t - start, odom, exchanges - start,
+                                         kappa, nu)
+        maps.append(robot_maps)
+        labels.append(robot_labels)
+        T_ob = se2_from_params(_interpolate(odom_t, odom, exchanges))
+        T_wb = se2_from_params(_interpolate(record.truth[:, 0], record.truth[:, 1:4],
+                                            exchanges))
+        T_world_odom.append(se2_to_se3(T_wb @ np.linalg.inv(T_ob)))
+        T_odom_body.append(se2_to_se3(T_ob))
+    n = len(maps)
+    shared = np.zeros((n, n, exchanges.size), dtype=bool)
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                shared[i, j] = [np.intersect1d(a, b).size >= min_shared
+                                for a, b in zip(labels[i], labels[j], strict=True)]
+    settings = RunSettings(kappa, window, graph_drift)
+    run = RecordedRun(name or data.folder.name, settings, exchanges - start, maps,
+                      np.array(T_world_odom), np.array(T_odom_body), shared,
+                      tuple(f"robot{r}" for r in data.robots))
+    return run, labels

@@ -1,0 +1,104 @@
+"""The registry of compared methods, keyed by name: what each method produces and how its
+estimates are named and drawn. Data only (its runners live in `methods/` and are imported when a
+run needs them), so configs can check method names without loading any runner.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from tcaff_gtsam.errors import ConfigError
+
+if TYPE_CHECKING:
+    from .config import MethodsConfig
+
+__all__ = ["METHODS", "Estimate", "Method", "describe", "estimate_names"]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """How one estimate stream is named in tables and drawn.
+
+    Attributes:
+        label: printed name; `{k}` is the swept value of a swept stream.
+        color, line: matplotlib colour and line style.
+        causal: built only from what was known at each step (usable online, e.g. for tracking).
+    """
+
+    label: str
+    color: str
+    line: str = "-"
+    causal: bool = True
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered method.
+
+    Attributes:
+        runner: "module:Class" of its `MethodRunner`, relative to this package.
+        streams: suffix -> `Estimate`; a stream is named method name + suffix. A suffix with
+            `{k}` gives one stream per value of the method set's list `swept`.
+        needs_truth: it needs the true alignment at every step.
+        swept: the `MethodsConfig` field a `{k}` suffix takes its values from.
+    """
+
+    runner: str
+    streams: dict[str, Estimate]
+    needs_truth: bool = False
+    swept: str | None = None
+
+
+METHODS: dict[str, Method] = {
+    "tcaff": Method("tcaff:TcaffRunner", {"": Estimate("TCAFF", "tab:red")}),
+    "tcaff_reference": Method("tcaff:ReferenceRunner", {
+        "": Estimate("TCAFF reference", "tab:orange", "--")}),
+    "tcaff_isam2": Method("tcaff:GraphRunner", {
+        "_causal": Estimate("TCAFF+iSAM2 causal", "tab:purple"),
+        "_smoothed": Estimate("TCAFF+iSAM2 smoothed", "tab:pink", ":", causal=False)}),
+    "clipper": Method("baselines:ClipperRunner", {
+        "_k{k}": Estimate("CLIPPER k>={k}", "tab:blue")}, swept="clipper_k"),
+    "icp": Method("baselines:IcpRunner", {"": Estimate("ICP, true init", "tab:brown")},
+                  needs_truth=True),
+    "ground_truth": Method("baselines:TruthRunner", {
+        "": Estimate("ground truth", "tab:green")}, needs_truth=True),
+}
+
+
+def _streams(name: str, methods: MethodsConfig) -> list[str]:
+    method = METHODS[name]
+    out = []
+    for suffix in method.streams:
+        if "{k}" in suffix:
+            out += [name + suffix.format(k=k) for k in getattr(methods, method.swept)]
+        else:
+            out.append(name + suffix)
+    return out
+
+
+def estimate_names(methods: MethodsConfig) -> list[str]:
+    """The estimate streams a method set produces, in table order."""
+    return [stream for name in methods.methods for stream in _streams(name, methods)]
+
+
+def describe(stream: str) -> Estimate:
+    """The `Estimate` of a stream name, its label filled in.
+
+    Raises:
+        ConfigError: no registered method produces a stream of that name.
+    """
+    for name, method in METHODS.items():
+        for suffix, estimate in method.streams.items():
+            if "{k}" not in suffix:
+                if stream == name + suffix:
+                    return estimate
+                continue
+            head, tail = (name + suffix).split("{k}")
+            match = re.fullmatch(re.escape(head) + r"(-?\d+)" + re.escape(tail), stream)
+            if match:
+                return Estimate(estimate.label.format(k=match.group(1)), estimate.color,
+                                estimate.line, estimate.causal)
+    raise ConfigError(f"no method produces an estimate named {stream!r}; methods: "
+                      f"{', '.join(METHODS)}")
