@@ -52,12 +52,15 @@ __all__ = [
     "CONFIG_DIR",
     "KimeraMultiConfig",
     "MethodsConfig",
+    "MrclamConfig",
     "ScenarioConfig",
     "StudyConfig",
     "load_kimera_multi",
     "load_methods",
+    "load_mrclam",
     "load_scenario",
     "load_study",
+    "override",
 ]
 
 CONFIG_DIR = Path(__file__).parent / "configs"
@@ -591,6 +594,38 @@ class KimeraMultiConfig(_Model):
         return value
 
 
+class VioDriftConfig(_Model):
+    """Visual-inertial-like odometry made from the true poses: the heading takes a random walk
+    and every distance driven is scaled by (1 + e), e drawn once per robot."""
+
+    heading_rw_deg: float = Field(1.0, ge=0, le=60, description=(
+        "deg per sqrt(minute): after t minutes the heading error's std is this * sqrt(t)"))
+    scale_std: float = Field(0.01, ge=0, lt=0.5, description=(
+        "std of each robot's distance scale error (0.01: 1 % of the distance driven)"))
+
+
+class MrclamConfig(_Model):
+    """An evaluation on a UTIAS MRCLAM data set: how its sightings become maps and which
+    methods align them. Robots, landmarks and truth come from the data set's folder."""
+
+    name: str = Field("mrclam", min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = ""
+    odometry: Literal["raw", "vio"] = Field("vio", description=(
+        "raw: dead-reckoned commanded velocities; vio: the truth with VIO-like drift"))
+    vio: VioDriftConfig = VioDriftConfig()
+    kappa: Annotated[float, _rule_of(MapperParams, "kappa")] = Field(
+        MapperParams.kappa, description="s; a map holds the landmarks sighted this recently")
+    nu: Annotated[int, _rule_of(MapperParams, "nu")] = Field(
+        1, description="sightings within kappa before a landmark enters the map")
+    min_shared: int = Field(3, ge=1, description="landmarks two maps must share to overlap")
+    window: Annotated[int | None, _rule_of(TCAFFParams, "window")] = Field(
+        None, description="TCAFF window W of every TCAFF method; None: each preset's")
+    graph_drift: GraphDrift = Field(
+        None, description="iSAM2 between-step drift (m, deg) per 1 Hz step; None: TCAFF's Q")
+    duration: float | None = Field(None, gt=0, description="s of data to use (default: all)")
+    methods: str | MethodsConfig = "default"
+
+
 # -- loading -----------------------------------------------------------------------------------
 
 
@@ -656,7 +691,7 @@ def _resolve(ref: str, folder: str) -> Path:
     if not shipped.is_file():
         names = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
         kind = {"scenarios": "scenario", "methods": "method set", "studies": "study",
-                "kimera_multi": "Kimera-Multi test"}[folder]
+                "kimera_multi": "Kimera-Multi test", "mrclam": "MRCLAM evaluation"}[folder]
         raise ConfigError(f"no {kind} config named {ref!r}; shipped: {', '.join(names)}")
     return shipped
 
@@ -709,15 +744,33 @@ def resolve_study(study: StudyConfig, folder: Path | None = None) -> StudyConfig
     return study.model_copy(update={"scenarios": scenarios, "methods": methods})
 
 
-def load_kimera_multi(ref: str | Path) -> KimeraMultiConfig:
-    """A Kimera-Multi test by shipped name (`same_direction`) or path, its method set loaded
-    inline."""
-    path = _resolve(str(ref), "kimera_multi")
-    config = _validate(KimeraMultiConfig, _read_yaml(path), path.name)
+def _load_with_methods(model: type[_Model], ref: str | Path, folder: str) -> Any:
+    path = _resolve(str(ref), folder)
+    config = _validate(model, _read_yaml(path), path.name)
     if isinstance(config.methods, str):
         config = config.model_copy(
             update={"methods": load_methods(_near(config.methods, path.parent))})
     return config
+
+
+def override(config: _Model, source: str, **updates: Any) -> Any:
+    """`config` with some top-level keys replaced (None values are ignored), validated like a
+    file; errors name `source` (e.g. "command line")."""
+    data = {name: getattr(config, name) for name in type(config).model_fields}
+    data.update({k: v for k, v in updates.items() if v is not None})
+    return _validate(type(config), data, source)
+
+
+def load_kimera_multi(ref: str | Path) -> KimeraMultiConfig:
+    """A Kimera-Multi test by shipped name (`same_direction`) or path, its method set loaded
+    inline."""
+    return _load_with_methods(KimeraMultiConfig, ref, "kimera_multi")
+
+
+def load_mrclam(ref: str | Path) -> MrclamConfig:
+    """An MRCLAM evaluation by shipped name (`default`) or path, its method set loaded
+    inline."""
+    return _load_with_methods(MrclamConfig, ref, "mrclam")
 
 
 def dump_study(study: StudyConfig) -> str:

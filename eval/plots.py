@@ -297,3 +297,20 @@ def draw_all(folder: Path, jobs: list, summary: dict, methods: MethodsConfig,
         mot_sweep(folder / "mot_sweep.png", mot_summary, methods)
         written.append(folder / "mot_sweep.png")
     return written
+
+
+def draw_recorded(folder: Path, job, shown: list[str]) -> list[Path]:
+    """A recorded run's figures into `folder`: every pair's errors over time (`shown` methods)
+    and candidates against the truth, and the arena when the job has its objects."""
+    folder.mkdir(parents=True, exist_ok=True)
+    written = []
+    for p, (i, j) in enumerate(job.pairs):
+        written.append(folder / f"errors_{i}_{j}.png")
+        errors_over_time(written[-1], job, shown, p)
+        if f"cand_z_{p}" in job.arrays and "est_tcaff" in job.arrays:
+            written.append(folder / f"candidates_{i}_{j}.png")
+            leave_and_return(written[-1], job, p)
+    if "world_xy" in job.arrays:
+        written.append(folder / "arena.png")
+        scenarios_overview(written[-1], [job])
+    return written

@@ -5,26 +5,36 @@ Results of a data set `name` go to `<output>/<name>/`:
 - `<name>.npz` / `.json`: every method's estimate of every pair at every exchange (`JobResult`);
 - `metrics.json`, `metrics.csv`, `table.md` (the paper's table: mean +- std translation and
   heading error, availability), when there is truth;
-- `figures/errors_<i>_<j>.png`, when there is truth and figures are asked for.
+- `figures/`, when there is truth and figures are asked for: `errors_<i>_<j>.png` (error over
+  time), `candidates_<i>_<j>.png` (MNO-CLIPPER candidates, the truth and TCAFF) of every pair,
+  and `arena.png` (the landmarks and every robot's path) when the data set knows the landmarks.
 A loader may keep its own files there too (Kimera-Multi: `maps/`).
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .config import KimeraMultiConfig, MethodsConfig
-from .datasets import kimera_multi
+from tcaff_gtsam.errors import DataError
+
+from .config import KimeraMultiConfig, MethodsConfig, MrclamConfig
+from .datasets import kimera_multi, mrclam
 from .jobs import evaluate
 from .methods import METHODS, describe, estimate_names
 from .results import JobResult, summarize, thresholds_of, write_tables
 from .runs import RecordedRun, planar_poses
 
-__all__ = ["KimeraOutcome", "RecordedOutcome", "evaluate_recorded", "run_kimera_multi"]
+__all__ = ["KimeraOutcome", "MrclamOutcome", "RecordedOutcome", "evaluate_recorded",
+           "mrclam_name", "run_kimera_multi", "run_mrclam"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -47,7 +57,9 @@ class RecordedOutcome:
 
 def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
                       figures: bool = True, header: dict | None = None,
-                      progress: Callable[[float], None] | None = None) -> RecordedOutcome:
+                      progress: Callable[[float], None] | None = None,
+                      arrays: dict[str, np.ndarray] | None = None,
+                      info: dict | None = None) -> RecordedOutcome:
     """Every method over every directed pair of a recorded run; results into `folder`.
 
     Without truth for every robot, the methods that need it are left out and nothing is scored;
@@ -55,6 +67,9 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
 
     Args:
         header: extra entries of metrics.json (the data set's own facts).
+        arrays: extra arrays of the job (world_xy (m, 2), world_widths (m,) and walls
+            (w, 2, 2) draw the arena).
+        info: kept in the job's JSON (`JobResult.info`).
     """
     if not run.has_truth:
         kept = [m for m in methods.methods if not METHODS[m].needs_truth]
@@ -63,7 +78,9 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
     job = evaluate(run, methods, run.name, None, {
         "times": run.times - run.times[0], "t0": np.array(run.times[0]),
         "poses_true": planar_poses(T_world_body), "poses_odom": planar_poses(run.T_odom_body),
+        **(arrays or {}),
     }, progress)
+    job.info = {"robots": list(run.robot_names), **(info or {})}
     folder.mkdir(parents=True, exist_ok=True)
     job.save(folder)
     summary: dict[str, dict] = {}
@@ -77,9 +94,7 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
 
             shown = [m for m in estimate_names(methods) if m in (
                 "tcaff", "tcaff_isam2_smoothed", f"clipper_k{methods.clipper_k_shown}")]
-            (folder / "figures").mkdir(exist_ok=True)
-            for p, (i, j) in enumerate(job.pairs):
-                plots.errors_over_time(folder / "figures" / f"errors_{i}_{j}.png", job, shown, p)
+            plots.draw_recorded(folder / "figures", job, shown)
     return RecordedOutcome(folder, job, summary, methods)
 
 
@@ -142,3 +157,89 @@ def run_kimera_multi(config: KimeraMultiConfig, data: Path, output: Path,
     header = {"frames_per_second": {m.robot: m.frames_per_second for m in mappings}}
     recorded = evaluate_recorded(run, methods, folder, figures, header, progress.aligning)
     return KimeraOutcome(folder, mappings, reused, recorded)
+
+
+# -- UTIAS MRCLAM ------------------------------------------------------------------------------
+
+
+def mrclam_name(data: Path, odometry: str, seed: int) -> str:
+    """The results' name of one data set, odometry and seed (raw odometry has no seed)."""
+    return f"{Path(data).name}-{odometry}" + (f"-seed{seed}" if odometry == "vio" else "")
+
+
+def _fingerprint(config: MrclamConfig, data: Path, odometry: str, seed: int,
+                 pairs: list[tuple[int, int]] | None) -> str:
+    """Changes when anything that shapes the results changes: settings and the files."""
+    files = sorted((f.name, f.stat().st_size, f.stat().st_mtime_ns)
+                   for f in Path(data).glob("*.dat"))
+    blob = json.dumps({"config": config.model_dump(mode="json"), "files": files,
+                       "odometry": odometry, "seed": seed, "pairs": pairs}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+@dataclass
+class MrclamOutcome:
+    """One data set, odometry and seed: the evaluation, or the one saved by an earlier run with
+    the same settings and files (`reused`)."""
+
+    odometry: str
+    seed: int
+    recorded: RecordedOutcome
+    reused: bool
+    skipped: dict[str, int]
+
+
+def run_mrclam(config: MrclamConfig, data: Path, output: Path, odometries: list[str],
+               seeds: list[int], pairs: list[tuple[int, int]] | None = None,
+               resume: bool = True, figures: bool = True,
+               progress: Callable[[str, float], None] | None = None) -> list[MrclamOutcome]:
+    """Every method over every directed pair of an MRCLAM data set, for each odometry and seed
+    (raw odometry once: it has no seed), each into `<output>/<set>-<odometry>[-seed<s>]/`.
+
+    A run whose results are already there, from the same settings and files, is reused when
+    `resume`; a run that fails leaves the finished ones in place.
+
+    Args:
+        pairs: directed pairs of robot subjects (1-5) to align (None: all 20).
+        progress: called with the run's name and the share done.
+    Raises:
+        DataError: the data set cannot be read (see `datasets.mrclam`).
+    """
+    methods = config.methods
+    assert isinstance(methods, MethodsConfig)
+    dataset = mrclam.read_dataset(data)
+    todo = [(o, s) for o in dict.fromkeys(odometries) for s in
+            (dict.fromkeys(seeds) if o == "vio" else seeds[:1])]
+    outcomes = []
+    for odometry, seed in todo:
+        name = mrclam_name(data, odometry, seed)
+        folder = Path(output) / name
+        fingerprint = _fingerprint(config, data, odometry, seed, pairs)
+        if resume and (folder / f"{name}.json").is_file():
+            try:
+                job = JobResult.load(folder, name)
+            except DataError as exc:
+                log.warning("%s: results not reusable (%s); running again", name, exc)
+            else:
+                if job.info.get("fingerprint") == fingerprint:
+                    summary = summarize([job], estimate_names(methods),
+                                        thresholds_of(methods))[name] if job.metrics else {}
+                    outcomes.append(MrclamOutcome(odometry, seed, RecordedOutcome(
+                        folder, job, summary, methods), True, dataset.skipped))
+                    continue
+        run, _ = mrclam.load_run(
+            dataset, odometry, seed, config.kappa, config.nu, config.min_shared,
+            config.vio.heading_rw_deg, config.vio.scale_std, config.window, config.graph_drift,
+            config.duration, name, pairs)
+        landmarks = np.array(list(dataset.landmarks.values()))
+        arrays = {"world_xy": landmarks,
+                  "world_widths": np.full(len(landmarks), mrclam.LANDMARK_SIZE[0]),
+                  "walls": np.zeros((0, 2, 2))}
+        header = {"data": str(data), "odometry": odometry, "seed": seed,
+                  "skipped": dataset.skipped}
+        recorded = evaluate_recorded(
+            run, methods, folder, figures, header,
+            None if progress is None else (lambda share, n=name: progress(n, share)),
+            arrays, {"fingerprint": fingerprint, "odometry": odometry, "seed": seed})
+        outcomes.append(MrclamOutcome(odometry, seed, recorded, False, dataset.skipped))
+    return outcomes

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import csv
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import se2_from_params
 
 from .config import MethodsConfig
@@ -52,6 +54,8 @@ class JobResult:
             compilation excluded.
         mot: method -> {"mota": averaged over the robots, "robots": [per robot summary]};
             empty without people.
+        info: what the source wants kept with the job (JSON-ready), e.g. the fingerprint of
+            the settings and files a recorded job came from.
     """
 
     name: str
@@ -61,6 +65,7 @@ class JobResult:
     metrics: dict[str, dict[str, dict]] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     mot: dict[str, dict] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
 
     @property
     def stem(self) -> str:
@@ -92,7 +97,25 @@ class JobResult:
             np.savez_compressed(file, **self.arrays)
         (folder / f"{self.stem}.json").write_text(json.dumps(
             {"name": self.name, "seed": self.seed, "pairs": self.pairs,
-             "seconds": self.seconds, "metrics": self.metrics, "mot": self.mot}, indent=1))
+             "seconds": self.seconds, "metrics": self.metrics, "mot": self.mot,
+             "info": self.info}, indent=1))
+
+    @classmethod
+    def load(cls, folder: Path, stem: str) -> JobResult:
+        """A job written by `save`.
+
+        Raises:
+            DataError: the files are missing, truncated or not a saved job.
+        """
+        try:
+            meta = json.loads((folder / f"{stem}.json").read_text())
+            with np.load(folder / f"{stem}.npz") as data:
+                arrays = {k: data[k] for k in data.files}
+            return cls(meta["name"], meta["seed"], [tuple(p) for p in meta["pairs"]], arrays,
+                       meta["metrics"], meta["seconds"], meta["mot"], meta.get("info", {}))
+        except (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
+            raise DataError(f"{folder / stem}.*: not a saved job ({type(exc).__name__}: "
+                            f"{exc})") from exc
 
 
 def thresholds_of(methods: MethodsConfig) -> Thresholds:

@@ -42,11 +42,13 @@ class AlignmentRun(Protocol):
         settings: `RunSettings`.
         times: (S,) s of the exchanges, on the maps' clock.
         maps: maps[r][s], robot r's map at exchange s, in its odometry frame.
+        pairs: the directed pairs (i, j) to align; None: every ordered pair of robots.
     """
 
     settings: RunSettings
     times: np.ndarray
     maps: list[list[ObjectMap]]
+    pairs: list[tuple[int, int]] | None
 
     @property
     def n_robots(self) -> int: ...
@@ -84,6 +86,7 @@ class RecordedRun:
         T_odom_body: (n, S, 4, 4) each robot's body in its odometry frame.
         shared: (n, n, S) bool, maps i and j share enough objects at step s (None: unknown).
         robot_names: one name per robot.
+        pairs: the directed pairs (i, j) to align, robot indices (None: every pair).
     """
 
     name: str
@@ -94,6 +97,7 @@ class RecordedRun:
     T_odom_body: np.ndarray
     shared: np.ndarray | None = None
     robot_names: tuple[str, ...] = ()
+    pairs: list[tuple[int, int]] | None = None
 
     def __post_init__(self) -> None:
         n, S = len(self.maps), len(self.times)
@@ -112,6 +116,10 @@ class RecordedRun:
                             f"{np.shape(self.shared)}")
         if not self.robot_names:
             object.__setattr__(self, "robot_names", tuple(str(r) for r in range(n)))
+        if self.pairs is not None and (not self.pairs or any(
+                not (0 <= i < n and 0 <= j < n and i != j) for i, j in self.pairs)):
+            raise DataError(f"RecordedRun.pairs: need directed pairs of two different robots "
+                            f"among {n}, got {self.pairs}")
 
     @property
     def n_robots(self) -> int:

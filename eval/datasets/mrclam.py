@@ -285,17 +285,20 @@ def _maps(sightings: np.ndarray, odom_times: np.ndarray, odom_poses: np.ndarray,
         cy = np.bincount(inverse, y[window], n) / np.maximum(counts, 1)
         last = np.full(n, -np.inf)
         np.maximum.at(last, inverse, t[window])
-        k = int(keep.sum())
-        maps.append(ObjectMap(np.column_stack([cx[keep], cy[keep], np.zeros(k)]),
-                              np.full(k, width), np.full(k, height), last[keep]))
-        labels.append(ids[keep])
+        # entries in order of position, not of identity: the order must not tell them apart
+        order = np.flatnonzero(keep)[np.lexsort((cy[keep], cx[keep]))]
+        k = order.size
+        maps.append(ObjectMap(np.column_stack([cx[order], cy[order], np.zeros(k)]),
+                              np.full(k, width), np.full(k, height), last[order]))
+        labels.append(ids[order])
     return maps, labels
 
 
 def load_run(data: MrclamData, odometry: str, seed: int, kappa: float, nu: int,
              min_shared: int, heading_rw_deg: float, scale_std: float,
              window: int | None = None, graph_drift: tuple[float, float] | None = None,
-             duration: float | None = None, name: str | None = None
+             duration: float | None = None, name: str | None = None,
+             pairs: list[tuple[int, int]] | None = None
              ) -> tuple[RecordedRun, list[list[np.ndarray]]]:
     """The data set as a recorded run of object maps at 1 Hz exchanges.
 
@@ -305,6 +308,7 @@ def load_run(data: MrclamData, odometry: str, seed: int, kappa: float, nu: int,
         min_shared: landmarks two maps must share to count as overlapping.
         window, graph_drift: the run's TCAFF window and iSAM2 drift (None: the defaults).
         duration: s of data to use from the start (None: all).
+        pairs: directed pairs of robot subjects (i, j) to align (None: all of them).
     Returns:
         The run (times: s since the start), and labels[r][s]: the landmark subject of each
         entry of robot r's map at exchange s (for scoring; never handed to an aligner).
@@ -344,7 +348,14 @@ def load_run(data: MrclamData, odometry: str, seed: int, kappa: float, nu: int,
                 shared[i, j] = [np.intersect1d(a, b).size >= min_shared
                                 for a, b in zip(labels[i], labels[j], strict=True)]
     settings = RunSettings(kappa, window, graph_drift)
+    index = {robot: k for k, robot in enumerate(data.robots)}
+    if pairs is not None:
+        unknown = sorted({r for pair in pairs for r in pair} - set(index))
+        if unknown or any(i == j for i, j in pairs):
+            raise DataError(f"pairs: robots {sorted(index)} of the data set, two different ones "
+                            f"per pair; got {pairs}")
+        pairs = [(index[i], index[j]) for i, j in pairs]
     run = RecordedRun(name or data.folder.name, settings, exchanges - start, maps,
                       np.array(T_world_odom), np.array(T_odom_body), shared,
-                      tuple(f"robot{r}" for r in data.robots))
+                      tuple(f"robot{r}" for r in data.robots), pairs)
     return run, labels

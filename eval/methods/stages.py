@@ -41,7 +41,7 @@ class RunSetup:
     @classmethod
     def of(cls, run: AlignmentRun, methods: MethodsConfig) -> RunSetup:
         n, n_steps = run.n_robots, len(run.times)
-        pairs = [(i, j) for i in range(n) for j in range(n) if i != j]
+        pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
         T_true = np.array([run.T_true(i, j) for i, j in pairs]).reshape(len(pairs), n_steps, 3, 3)
         known = np.all(np.isfinite(T_true), axis=(2, 3))
         truth = np.full((len(pairs), n_steps, 3), np.nan)

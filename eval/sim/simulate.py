@@ -60,6 +60,9 @@ class SimRun:
     world: World
     people: PeopleRun | None = None
 
+    #: every directed pair of robots is aligned
+    pairs = None
+
     @property
     def n_robots(self) -> int:
         return self.poses_true.shape[0]
