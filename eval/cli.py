@@ -257,11 +257,9 @@ def _cell(report: dict, key: str, scale: float = 1.0, digits: int = 2) -> str:
 
 def _summary_table(summary: dict, methods: MethodsConfig) -> Table:
     """The study table of the methods a method set shows, labelled as in the figures."""
-    from .methods import describe, estimate_names
+    from .registry import describe, shown_streams
 
-    shown = [m for m in estimate_names(methods) if not m.startswith("clipper_k")
-             or m == f"clipper_k{methods.clipper_k_shown}"]
-    return _pooled_table(summary, {method: describe(method).label for method in shown})
+    return _pooled_table(summary, {m: describe(m).label for m in shown_streams(methods)})
 
 
 def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
@@ -529,7 +527,7 @@ def _parse_pairs(text: str | None) -> list[tuple[int, int]] | None:
 
 def _pairs_table(recorded, shown: list[str]) -> Table:
     """Per directed pair: each shown method's false accepts and availability."""
-    from .methods import describe
+    from .registry import describe
 
     table = _table("Per directed pair (robot names as in the data set): false accepts / "
                    "availability")
@@ -622,11 +620,10 @@ def mrclam(
         if recorded.summary:
             console.print(_summary_table({recorded.job.name: recorded.summary},
                                          recorded.methods))
-            from .methods import estimate_names
+            from .registry import describe, shown_streams
 
-            shown = [m for m in estimate_names(recorded.methods)
-                     if m in ("tcaff", "tcaff_reference", "tcaff_isam2_causal",
-                              f"clipper_k{recorded.methods.clipper_k_shown}")]
+            shown = [m for m in shown_streams(recorded.methods)
+                     if describe(m).causal and m != "ground_truth"]
             if shown:
                 console.print(_pairs_table(recorded, shown))
         console.print(f"results: {recorded.folder}")

@@ -598,8 +598,8 @@ class VioDriftConfig(_Model):
     """Visual-inertial-like odometry made from the true poses: the heading takes a random walk
     and every distance driven is scaled by (1 + e), e drawn once per robot."""
 
-    heading_rw_deg: float = Field(1.0, ge=0, le=60, description=(
-        "deg per sqrt(minute): after t minutes the heading error's std is this * sqrt(t)"))
+    heading_rw_deg_per_sqrt_min: float = Field(1.0, ge=0, le=60, description=(
+        "after t minutes the heading error's std is this * sqrt(t) degrees"))
     scale_std: float = Field(0.01, ge=0, lt=0.5, description=(
         "std of each robot's distance scale error (0.01: 1 % of the distance driven)"))
 
@@ -608,7 +608,6 @@ class MrclamConfig(_Model):
     """An evaluation on a UTIAS MRCLAM data set: how its sightings become maps and which
     methods align them. Robots, landmarks and truth come from the data set's folder."""
 
-    name: str = Field("mrclam", min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
     odometry: Literal["raw", "vio"] = Field("vio", description=(
         "raw: dead-reckoned commanded velocities; vio: the truth with VIO-like drift"))

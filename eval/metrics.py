@@ -209,8 +209,8 @@ class Metrics:
     """Scores of one directed pair, or of several pooled together.
 
     Counts: n_steps, n_estimates (steps with an estimate), n_overlap (steps with map overlap).
-    translation_mean/std [m], heading_mean/std [rad]: over the steps with an estimate, population
-    standard deviation (ddof=0); NaN if there is no estimate.
+    translation_mean/std/median [m], heading_mean/std [rad]: over the steps with an estimate,
+    population standard deviation (ddof=0); NaN if there is no estimate.
     availability: share of overlap steps that have an estimate (NaN if no overlap).
     false_accept: share of estimates whose error exceeds either threshold (NaN if no estimates).
     time_to_first_correct [s]: from the first overlap step to the first step, at or after it, whose
@@ -225,6 +225,7 @@ class Metrics:
     n_overlap: int
     translation_mean: float
     translation_std: float
+    translation_median: float
     heading_mean: float
     heading_std: float
     availability: float
@@ -243,6 +244,7 @@ class Metrics:
         return {
             "translation_error_m_mean": num(self.translation_mean),
             "translation_error_m_std": num(self.translation_std),
+            "translation_error_m_median": num(self.translation_median),
             "heading_error_deg_mean": num(self.heading_mean, deg),
             "heading_error_deg_std": num(self.heading_std, deg),
             "availability": num(self.availability),
@@ -323,6 +325,7 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
         n_overlap=n_overlap,
         translation_mean=translation_mean,
         translation_std=translation_std,
+        translation_median=float(np.median(err[:, 0])) if n_estimates else math.nan,
         heading_mean=heading_mean,
         heading_std=heading_std,
         availability=_share(n_available, n_overlap),

@@ -25,7 +25,7 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import se2_from_params, transform_points_batch
 
 from .config import PedestriansConfig
-from .methods import describe
+from .registry import describe
 from .sim.people import PeopleRun
 from .tracker import MultiObjectTracker
 

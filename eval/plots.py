@@ -29,9 +29,9 @@ import numpy as np
 from tcaff_gtsam.geometry import se2_from_params, wrap_angle
 
 from .config import MethodsConfig
-from .methods import Estimate, describe, estimate_names
 from .metrics import step_errors
 from .mot import NO_SHARING, rolling_mota
+from .registry import Estimate, describe, shown_streams
 
 __all__ = ["draw_all", "label"]
 
@@ -262,10 +262,7 @@ def draw_all(folder: Path, jobs: list, summary: dict, methods: MethodsConfig,
     """Every figure of a study into `folder`; returns the files written."""
     folder.mkdir(parents=True, exist_ok=True)
     written = []
-    names = estimate_names(methods)
-    shown = [m for m in names if not m.startswith("clipper_k") and m != "ground_truth"]
-    if "clipper" in methods.methods:
-        shown.append(f"clipper_k{methods.clipper_k_shown}")
+    shown = [m for m in shown_streams(methods) if m != "ground_truth"]
     first = {}
     for job in jobs:
         first.setdefault(job.name, job)

@@ -27,11 +27,11 @@ from tcaff_gtsam.errors import DataError
 from .config import KimeraMultiConfig, MethodsConfig, MrclamConfig
 from .datasets import kimera_multi, mrclam
 from .jobs import evaluate
-from .methods import METHODS, describe, estimate_names
+from .registry import METHODS, describe, estimate_names, shown_streams
 from .results import JobResult, summarize, thresholds_of, write_tables
 from .runs import RecordedRun, planar_poses
 
-__all__ = ["KimeraOutcome", "MrclamOutcome", "RecordedOutcome", "evaluate_recorded",
+__all__ = ["KimeraOutcome", "MrclamOutcome", "RecordedOutcome", "evaluate_recorded", "evaluate_run",
            "mrclam_name", "run_kimera_multi", "run_mrclam"]
 
 log = logging.getLogger(__name__)
@@ -55,6 +55,25 @@ class RecordedOutcome:
     methods: MethodsConfig
 
 
+def evaluate_run(run: RecordedRun, methods: MethodsConfig,
+                 progress: Callable[[float], None] | None = None,
+                 arrays: dict[str, np.ndarray] | None = None
+                 ) -> tuple[JobResult, MethodsConfig]:
+    """`jobs.evaluate` of a recorded run, writing nothing: the job and the method set that ran
+    (without the methods that need the truth, when the run has none). Times in the job are
+    seconds since the first exchange; `t0` is that exchange's time on the run's clock."""
+    if not run.has_truth:
+        kept = [m for m in methods.methods if not METHODS[m].needs_truth]
+        methods = methods.model_copy(update={"methods": kept})
+    T_world_body = run.T_world_odom @ run.T_odom_body
+    job = evaluate(run, methods, run.name, None, {
+        "times": run.times - run.times[0], "t0": np.array(run.times[0]),
+        "poses_true": planar_poses(T_world_body), "poses_odom": planar_poses(run.T_odom_body),
+        **(arrays or {}),
+    }, progress)
+    return job, methods
+
+
 def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
                       figures: bool = True, header: dict | None = None,
                       progress: Callable[[float], None] | None = None,
@@ -71,18 +90,9 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
             (w, 2, 2) draw the arena).
         info: kept in the job's JSON (`JobResult.info`).
     """
-    if not run.has_truth:
-        kept = [m for m in methods.methods if not METHODS[m].needs_truth]
-        methods = methods.model_copy(update={"methods": kept})
-    T_world_body = run.T_world_odom @ run.T_odom_body
-    job = evaluate(run, methods, run.name, None, {
-        "times": run.times - run.times[0], "t0": np.array(run.times[0]),
-        "poses_true": planar_poses(T_world_body), "poses_odom": planar_poses(run.T_odom_body),
-        **(arrays or {}),
-    }, progress)
+    job, methods = evaluate_run(run, methods, progress, arrays)
     job.info = {"robots": list(run.robot_names), **(info or {})}
     folder.mkdir(parents=True, exist_ok=True)
-    job.save(folder)
     summary: dict[str, dict] = {}
     if job.metrics:
         summary = summarize([job], estimate_names(methods), thresholds_of(methods))[run.name]
@@ -90,12 +100,16 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
                               **(header or {})}, [job], {run.name: summary})
         _write_markdown(folder / "table.md", run.name, summary)
         if figures:
-            from . import plots
-
-            shown = [m for m in estimate_names(methods) if m in (
-                "tcaff", "tcaff_isam2_smoothed", f"clipper_k{methods.clipper_k_shown}")]
-            plots.draw_recorded(folder / "figures", job, shown)
+            _draw(folder, job, methods)
+    job.save(folder)  # last: a saved job means the tables and figures were written
     return RecordedOutcome(folder, job, summary, methods)
+
+
+def _draw(folder: Path, job: JobResult, methods: MethodsConfig) -> None:
+    from . import plots
+
+    shown = [m for m in shown_streams(methods) if m != "ground_truth"]
+    plots.draw_recorded(folder / "figures", job, shown)
 
 
 def _write_markdown(path: Path, name: str, summary: dict[str, dict]) -> None:
@@ -162,12 +176,12 @@ def run_kimera_multi(config: KimeraMultiConfig, data: Path, output: Path,
 # -- UTIAS MRCLAM ------------------------------------------------------------------------------
 
 
-def mrclam_name(data: Path, odometry: str, seed: int) -> str:
-    """The results' name of one data set, odometry and seed (raw odometry has no seed)."""
-    return f"{Path(data).name}-{odometry}" + (f"-seed{seed}" if odometry == "vio" else "")
+def mrclam_name(data: Path, odometry: str, seed: int | None) -> str:
+    """The results' name of one data set, odometry and seed (raw odometry has none)."""
+    return f"{Path(data).name}-{odometry}" + ("" if seed is None else f"-seed{seed}")
 
 
-def _fingerprint(config: MrclamConfig, data: Path, odometry: str, seed: int,
+def _fingerprint(config: MrclamConfig, data: Path, odometry: str, seed: int | None,
                  pairs: list[tuple[int, int]] | None) -> str:
     """Changes when anything that shapes the results changes: settings and the files."""
     files = sorted((f.name, f.stat().st_size, f.stat().st_mtime_ns)
@@ -179,14 +193,35 @@ def _fingerprint(config: MrclamConfig, data: Path, odometry: str, seed: int,
 
 @dataclass
 class MrclamOutcome:
-    """One data set, odometry and seed: the evaluation, or the one saved by an earlier run with
-    the same settings and files (`reused`)."""
+    """One data set, odometry and seed (None for raw odometry): the evaluation, or the one saved
+    by an earlier run with the same settings and files (`reused`)."""
 
     odometry: str
-    seed: int
+    seed: int | None
     recorded: RecordedOutcome
     reused: bool
     skipped: dict[str, int]
+
+
+def _saved(folder: Path, name: str, fingerprint: str, methods: MethodsConfig,
+           figures: bool) -> RecordedOutcome | None:
+    """The results an earlier run with the same fingerprint left in `folder`, or None. The
+    job is written last, so its presence means the tables were written too; figures missing
+    from a run without them are drawn."""
+    if not (folder / f"{name}.json").is_file():
+        return None
+    try:
+        job = JobResult.load(folder, name)
+    except DataError as exc:
+        log.warning("%s: results not reusable (%s); running again", name, exc)
+        return None
+    if job.info.get("fingerprint") != fingerprint:
+        return None
+    summary = (summarize([job], estimate_names(methods), thresholds_of(methods))[name]
+               if job.metrics else {})
+    if figures and job.metrics and not (folder / "figures").is_dir():
+        _draw(folder, job, methods)
+    return RecordedOutcome(folder, job, summary, methods)
 
 
 def run_mrclam(config: MrclamConfig, data: Path, output: Path, odometries: list[str],
@@ -208,29 +243,21 @@ def run_mrclam(config: MrclamConfig, data: Path, output: Path, odometries: list[
     methods = config.methods
     assert isinstance(methods, MethodsConfig)
     dataset = mrclam.read_dataset(data)
-    todo = [(o, s) for o in dict.fromkeys(odometries) for s in
-            (dict.fromkeys(seeds) if o == "vio" else seeds[:1])]
+    todo = [(o, s) for o in dict.fromkeys(odometries)
+            for s in (dict.fromkeys(seeds) if o == "vio" else [None])]
     outcomes = []
     for odometry, seed in todo:
         name = mrclam_name(data, odometry, seed)
         folder = Path(output) / name
         fingerprint = _fingerprint(config, data, odometry, seed, pairs)
-        if resume and (folder / f"{name}.json").is_file():
-            try:
-                job = JobResult.load(folder, name)
-            except DataError as exc:
-                log.warning("%s: results not reusable (%s); running again", name, exc)
-            else:
-                if job.info.get("fingerprint") == fingerprint:
-                    summary = summarize([job], estimate_names(methods),
-                                        thresholds_of(methods))[name] if job.metrics else {}
-                    outcomes.append(MrclamOutcome(odometry, seed, RecordedOutcome(
-                        folder, job, summary, methods), True, dataset.skipped))
-                    continue
+        saved = _saved(folder, name, fingerprint, methods, figures) if resume else None
+        if saved is not None:
+            outcomes.append(MrclamOutcome(odometry, seed, saved, True, dataset.skipped))
+            continue
         run, _ = mrclam.load_run(
             dataset, odometry, seed, config.kappa, config.nu, config.min_shared,
-            config.vio.heading_rw_deg, config.vio.scale_std, config.window, config.graph_drift,
-            config.duration, name, pairs)
+            config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std, config.window,
+            config.graph_drift, config.duration, name, pairs)
         landmarks = np.array(list(dataset.landmarks.values()))
         arrays = {"world_xy": landmarks,
                   "world_widths": np.full(len(landmarks), mrclam.LANDMARK_SIZE[0]),

@@ -14,7 +14,7 @@ from tcaff_gtsam.errors import ConfigError
 if TYPE_CHECKING:
     from .config import MethodsConfig
 
-__all__ = ["METHODS", "Estimate", "Method", "describe", "estimate_names"]
+__all__ = ["METHODS", "Estimate", "Method", "describe", "estimate_names", "shown_streams"]
 
 
 @dataclass(frozen=True)
@@ -43,12 +43,14 @@ class Method:
             `{k}` gives one stream per value of the method set's list `swept`.
         needs_truth: it needs the true alignment at every step.
         swept: the `MethodsConfig` field a `{k}` suffix takes its values from.
+        shown: the `MethodsConfig` field holding the one swept value tables and figures show.
     """
 
     runner: str
     streams: dict[str, Estimate]
     needs_truth: bool = False
     swept: str | None = None
+    shown: str | None = None
 
 
 METHODS: dict[str, Method] = {
@@ -59,7 +61,8 @@ METHODS: dict[str, Method] = {
         "_causal": Estimate("TCAFF+iSAM2 causal", "tab:purple"),
         "_smoothed": Estimate("TCAFF+iSAM2 smoothed", "tab:pink", ":", causal=False)}),
     "clipper": Method("baselines:ClipperRunner", {
-        "_k{k}": Estimate("CLIPPER k>={k}", "tab:blue")}, swept="clipper_k"),
+        "_k{k}": Estimate("CLIPPER k>={k}", "tab:blue")}, swept="clipper_k",
+        shown="clipper_k_shown"),
     "icp": Method("baselines:IcpRunner", {"": Estimate("ICP, true init", "tab:brown")},
                   needs_truth=True),
     "ground_truth": Method("baselines:TruthRunner", {
@@ -81,6 +84,20 @@ def _streams(name: str, methods: MethodsConfig) -> list[str]:
 def estimate_names(methods: MethodsConfig) -> list[str]:
     """The estimate streams a method set produces, in table order."""
     return [stream for name in methods.methods for stream in _streams(name, methods)]
+
+
+def shown_streams(methods: MethodsConfig) -> list[str]:
+    """The streams tables and figures show: every stream, but of a swept method only the one
+    of the value the set shows (e.g. `clipper_k_shown`)."""
+    shown = []
+    for name in methods.methods:
+        method = METHODS[name]
+        if method.swept is None:
+            shown += _streams(name, methods)
+        else:
+            k = getattr(methods, method.shown)
+            shown += [name + suffix.format(k=k) for suffix in method.streams]
+    return shown
 
 
 def describe(stream: str) -> Estimate:

@@ -21,7 +21,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.params import _int_at_least, _real, _require
@@ -97,6 +96,10 @@ class MultiObjectTracker:
         self.confirmed = np.zeros(0, dtype=bool)
         self.time: float | None = None
         self._next_id = 0
+        # imported here, not with the module: configs import this module for TrackerParams
+        from scipy.optimize import linear_sum_assignment
+
+        self._assign = linear_sum_assignment
         r = self.params.detection_noise ** 2
         self._R = r * np.eye(2)
         v = self.params.initial_speed ** 2
@@ -162,7 +165,7 @@ class MultiObjectTracker:
         # The negative log-likelihood, not d2 alone: otherwise a new, uncertain track wins a
         # detection from the settled track of the same person and the person gets two tracks.
         cost = d2 + np.log(det)[:, None]
-        rows, cols = linear_sum_assignment(np.where(inside, cost, _FAR))
+        rows, cols = self._assign(np.where(inside, cost, _FAR))
         keep = inside[rows, cols]
         return rows[keep], cols[keep]
 

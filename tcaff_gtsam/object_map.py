@@ -102,8 +102,9 @@ class ObjectMap:
                          self.last_seen[index])
 
     def recent_indices(self, now: float, kappa: float) -> np.ndarray:
-        """(k,) int indices of objects seen less than `kappa` seconds before `now` (l < kappa)."""
-        if not np.isfinite(now) or not np.isfinite(kappa) or kappa <= 0:
+        """(k,) int indices of objects seen less than `kappa` seconds before `now` (l < kappa);
+        kappa = inf keeps every object."""
+        if not np.isfinite(now) or np.isnan(kappa) or kappa <= 0:
             raise DataError(f"ObjectMap.recent_indices: need finite now and kappa > 0, "
                             f"got now={now}, kappa={kappa}")
         return np.flatnonzero(now - self.last_seen < kappa)

@@ -46,7 +46,7 @@ def test_cli_help_loads_no_heavy_library():
     out = loaded_after(
         "from tcaff_gtsam.eval.cli import app\n"
         "for args in (['--help'], ['align-maps', '--help'], ['study', '--help'],\n"
-        "             ['kimera-multi', '--help']):\n"
+        "             ['kimera-multi', '--help'], ['mrclam', '--help']):\n"
         "    try:\n"
         "        app(args, prog_name='tcaff')\n"
         "    except SystemExit as exc:\n"

@@ -439,6 +439,9 @@ class RobotMapping:
         try:
             meta = json.loads((folder / f"{robot}.json").read_text())
             if meta.get("version") != MAPS_VERSION:
+                log.warning("the saved maps of %s in %s are of another version (%s, not %d); "
+                            "mapping it again", robot, folder, meta.get("version"),
+                            MAPS_VERSION)
                 return None
             with np.load(folder / f"{robot}.npz") as a:
                 arrays = {k: a[k] for k in a.files}

@@ -12,10 +12,10 @@ Unix seconds):
 `read_dataset` reads and checks them; `load_run` turns them into a `RecordedRun` of object maps:
 
 - Odometry: `raw` dead-reckons the commanded velocities; `vio` is the Vicon truth with seeded
-  visual-inertial-like drift: the heading takes a random walk (`heading_rw_deg`, degrees per
-  sqrt(minute): after t minutes its std is heading_rw_deg * sqrt(t)) and every distance driven is
-  scaled by (1 + e), e drawn once per robot with std `scale_std` (0.01: 1 % of distance). Each
-  robot's odometry frame is its pose when the run starts.
+  visual-inertial-like drift: the heading takes a random walk (after t minutes its error's std
+  is `heading_rw_deg_per_sqrt_min` * sqrt(t) degrees) and every distance driven is scaled by
+  (1 + e), e drawn once per robot with std `scale_std` (0.01: 1 % of distance). Each robot's
+  odometry frame is its pose when the run starts.
 - Maps: a robot's sightings of landmarks are placed in its odometry frame through its odometry
   pose at the sighting. At each 1 Hz exchange its map holds every landmark it sighted at least
   `nu` times in the last `kappa` seconds, at the mean of those sightings, stamped with the last
@@ -167,6 +167,8 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
     if not folder.is_dir():
         raise DataError(f"--data {folder}: not a folder")
     robots = list(ROBOTS) if robots is None else robots
+    if not robots or any(r not in ROBOTS for r in robots):
+        raise DataError(f"robots: need some of the robot subjects 1-5, got {robots}")
     path = folder / "Barcodes.dat"
     codes, lines = read_table(path, 2)
     if codes.shape[0] == 0:
@@ -189,9 +191,13 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
         truth, _ = _timed(folder / f"Robot{robot}_Groundtruth.dat", 4)
         path = folder / f"Robot{robot}_Measurement.dat"
         seen, lines = read_table(path, 4)
-        _check_times(path, seen[:, 0], lines) if len(seen) else None
-        subjects = np.array([subject_of.get(int(b), -1) if b == int(b) else -1
-                             for b in seen[:, 1]], dtype=np.int64)
+        _check_times(path, seen[:, 0], lines)
+        fractional = np.flatnonzero(seen[:, 1] != np.round(seen[:, 1]))
+        if fractional.size:
+            k = int(fractional[0])
+            raise DataError(f"{path}:{lines[k]}: a barcode is a whole number, got "
+                            f"{seen[k, 1]:g}")
+        subjects = np.array([subject_of.get(int(b), -1) for b in seen[:, 1]], dtype=np.int64)
         unknown += int(np.sum(subjects < 0))
         keep = np.isin(subjects, list(landmarks))
         sightings = np.column_stack([seen[keep, 0], subjects[keep], seen[keep, 2:4]])
@@ -238,20 +244,23 @@ def dead_reckoning(odometry: np.ndarray, start: float) -> tuple[np.ndarray, np.n
 
 
 def vio_like(rng: np.random.Generator, truth: np.ndarray, start: float, end: float,
-             heading_rw_deg: float, scale_std: float) -> tuple[np.ndarray, np.ndarray]:
-    """The Vicon truth with VIO-like drift, sampled every 0.1 s over [start, end].
+             heading_rw_deg_per_sqrt_min: float, scale_std: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The Vicon truth with VIO-like drift, sampled every 0.1 s from `start` to past `end`.
 
     Args:
         truth: (g, 4) time, x, y, heading in the world frame.
-        heading_rw_deg: heading random walk, deg per sqrt(minute).
+        heading_rw_deg_per_sqrt_min: heading random walk: after t minutes the heading error's
+            std is this * sqrt(t) degrees.
         scale_std: std of the robot's distance scale error (0.01: 1 % of distance).
     Returns: times (k,) s and poses (k, 3) in the odometry frame (its pose at `start`).
     """
-    times = np.arange(start, end + 1e-9, _VIO_STEP)
+    # one sample past the end, so that a pose at `end` is interpolated, never clamped
+    times = start + _VIO_STEP * np.arange(math.ceil((end - start) / _VIO_STEP) + 2)
     T = se2_from_params(_interpolate(truth[:, 0], truth[:, 1:4], times))
     step = np.linalg.solve(T[:-1], T[1:])  # body-frame increments
     scale = 1.0 + scale_std * rng.standard_normal()
-    sigma = math.radians(heading_rw_deg) / math.sqrt(60.0) * math.sqrt(_VIO_STEP)
+    sigma = math.radians(heading_rw_deg_per_sqrt_min) / math.sqrt(60.0) * math.sqrt(_VIO_STEP)
     drift = np.cumsum(sigma * rng.standard_normal(len(step)))
     heading = np.r_[0.0, np.cumsum(np.arctan2(step[:, 1, 0], step[:, 0, 0]))] + np.r_[0.0, drift]
     moved = scale * step[:, :2, 2]
@@ -294,8 +303,8 @@ def _maps(sightings: np.ndarray, odom_times: np.ndarray, odom_poses: np.ndarray,
     return maps, labels
 
 
-def load_run(data: MrclamData, odometry: str, seed: int, kappa: float, nu: int,
-             min_shared: int, heading_rw_deg: float, scale_std: float,
+def load_run(data: MrclamData, odometry: str, seed: int | None, kappa: float, nu: int,
+             min_shared: int, heading_rw_deg_per_sqrt_min: float, scale_std: float,
              window: int | None = None, graph_drift: tuple[float, float] | None = None,
              duration: float | None = None, name: str | None = None,
              pairs: list[tuple[int, int]] | None = None
@@ -303,7 +312,8 @@ def load_run(data: MrclamData, odometry: str, seed: int, kappa: float, nu: int,
     """The data set as a recorded run of object maps at 1 Hz exchanges.
 
     Args:
-        odometry: "raw" or "vio" (see the module's notes); `seed` draws the VIO-like drift.
+        odometry: "raw" or "vio" (see the module's notes); `seed` draws the VIO-like drift
+            (raw odometry has no randomness: None).
         kappa, nu: a map holds the landmarks sighted at least nu times in the last kappa s.
         min_shared: landmarks two maps must share to count as overlapping.
         window, graph_drift: the run's TCAFF window and iSAM2 drift (None: the defaults).
@@ -315,21 +325,25 @@ def load_run(data: MrclamData, odometry: str, seed: int, kappa: float, nu: int,
     """
     if odometry not in ("raw", "vio"):
         raise DataError(f"odometry: expected 'raw' or 'vio', got {odometry!r}")
+    if odometry == "vio" and seed is None:
+        raise DataError("seed: VIO-like odometry needs a seed")
     start, end = data.span
     if duration is not None:
         end = min(end, start + duration)
     exchanges = start + np.arange(1.0, math.floor(end - start) + 1.0)
     if exchanges.size == 0:
         raise DataError(f"{data.folder}: less than one second of data to align")
-    rng = np.random.default_rng(seed)
     maps, labels, T_world_odom, T_odom_body = [], [], [], []
-    for record in data.robots.values():
+    for robot, record in data.robots.items():
         if odometry == "raw":
             odom_t, odom = dead_reckoning(record.odometry, start)
         else:
-            odom_t, odom = vio_like(rng, record.truth, start, end, heading_rw_deg, scale_std)
-        # maps are stamped on the run's clock: seconds since the start
-        sightings = record.sightings.copy()
+            # a generator per robot: its drift does not depend on the other robots or duration
+            odom_t, odom = vio_like(np.random.default_rng([seed, robot]), record.truth, start,
+                                    end, heading_rw_deg_per_sqrt_min, scale_std)
+        # maps are stamped on the run's clock: seconds since the start; sightings from before
+        # it have no odometry pose
+        sightings = record.sightings[record.sightings[:, 0] >= start].copy()
         sightings[:, 0] -= start
         robot_maps, robot_labels = _maps(sightings, odom_t - start, odom, exchanges - start,
                                          kappa, nu)

@@ -11,13 +11,14 @@ centroids, and the ground truth.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import open3d as o3d
 
 from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner
 from tcaff_gtsam.geometry import se2_to_params, se2_to_se3, se3_to_se2
 from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.params import FrameAlignerParams
 
 from ..config import MethodsConfig
 from .stages import RunSetup, SharedStages
@@ -79,9 +80,9 @@ class ClipperRunner:
 
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
         self.setup, self.ks = setup, methods.clipper_k
-        self.aligner = FrameAligner(FrameAlignerParams(
-            kappa=setup.run.settings.kappa, n_solutions=1, min_associations=min(self.ks),
-            max_rmse=None, clipper=stages.aligner.params.clipper))
+        # the TCAFF methods' aligner (size gate, CLIPPER, kappa), keeping one solution
+        self.aligner = FrameAligner(replace(stages.aligner.params, n_solutions=1,
+                                            min_associations=min(self.ks), max_rmse=None))
         self.estimates = {f"clipper_k{k}": setup.empty() for k in self.ks}
         self.step_streams, self.finish_streams = list(self.estimates), []
 

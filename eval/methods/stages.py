@@ -39,7 +39,7 @@ class RunSetup:
     known: np.ndarray
 
     @classmethod
-    def of(cls, run: AlignmentRun, methods: MethodsConfig) -> RunSetup:
+    def of(cls, run: AlignmentRun) -> RunSetup:
         n, n_steps = run.n_robots, len(run.times)
         pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
         T_true = np.array([run.T_true(i, j) for i, j in pairs]).reshape(len(pairs), n_steps, 3, 3)

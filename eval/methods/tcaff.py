@@ -20,12 +20,12 @@ class TcaffRunner:
     """`tcaff`: the default preset's estimate (the shared filter of `SharedStages.tcaff`)."""
 
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
-        self.pairs, self.stages = range(len(setup.pairs)), stages
+        self.n_pairs, self.stages = len(setup.pairs), stages
         self.estimates = {"tcaff": setup.empty()}
         self.step_streams, self.finish_streams = ["tcaff"], []
 
     def step(self, s: int, t: float) -> None:
-        for p in self.pairs:
+        for p in range(self.n_pairs):
             est = self.stages.tcaff(p)[0]
             if est is not None:
                 self.estimates["tcaff"][p, s] = est.x
@@ -59,8 +59,9 @@ class ReferenceRunner:
 
 
 class GraphRunner:
-    """`tcaff_isam2`: the default TCAFF output of every pair (i, j), i < j, in one iSAM2 graph
-    ((j, i) aligns the same two maps: its factors would count them twice). Causal: the graph's
+    """`tcaff_isam2`: the default TCAFF output of one directed pair of each unordered pair in
+    one iSAM2 graph ((i, j) with i < j when both are run: (j, i) aligns the same two maps, so
+    its factors would count them twice). Causal: the graph's
     alignment at each step; smoothed: its whole history once more at the end. Both only at
     steps where the pair's TCAFF has an estimate and the graph links the two robots."""
 
@@ -69,6 +70,9 @@ class GraphRunner:
         self.graph = InterRobotGraph(setup.run.n_robots,
                                      methods.graph_params(settings.graph_drift))
         self.pairs, self.stages = setup.pairs, stages
+        # one pair of each unordered pair gives the factors: (j, i) aligns the same two maps
+        self.factored = [p for p, (i, j) in enumerate(self.pairs)
+                         if i < j or (j, i) not in self.pairs]
         self.filtered = np.zeros((len(setup.pairs), setup.n_steps), dtype=bool)
         self.estimates = {"tcaff_isam2_causal": setup.empty(),
                           "tcaff_isam2_smoothed": setup.empty()}
@@ -76,9 +80,9 @@ class GraphRunner:
 
     def step(self, s: int, t: float) -> None:
         outputs = [self.stages.tcaff(p) for p in range(len(self.pairs))]
-        for (i, j), (est, zs, Rs) in zip(self.pairs, outputs, strict=True):
-            if i < j:
-                self.graph.add_tcaff_estimate(s, i, j, est, zs, Rs)
+        for p in self.factored:
+            i, j = self.pairs[p]
+            self.graph.add_tcaff_estimate(s, i, j, *outputs[p])
         self.graph.update(s)
         causal = self.estimates["tcaff_isam2_causal"]
         for p, (est, _, _) in enumerate(outputs):

@@ -213,6 +213,8 @@ def test_recent_hand_made():
     np.testing.assert_array_equal(r.widths, [3.0, 4.0, 5.0])
     np.testing.assert_array_equal(r.heights, [0.3, 0.4, 0.5])
     np.testing.assert_array_equal(r.centroids, m.centroids[2:])
+    # an infinite kappa (FrameAlignerParams allows it: no limit) keeps every object
+    assert len(m.recent(now=10.0, kappa=np.inf)) == 5
     assert len(m.recent(now=10.0, kappa=5.5)) == 4
     assert len(m.recent(now=100.0, kappa=1.0)) == 0
 
@@ -241,7 +243,7 @@ def test_recent_keeps_exactly_the_recent_objects(stamps, now, kappa):
 
 
 @pytest.mark.parametrize(("now", "kappa"), [(1.0, 0.0), (1.0, -1.0), (np.nan, 1.0),
-                                            (1.0, np.inf), (np.inf, 1.0)])
+                                            (1.0, np.nan), (1.0, -np.inf), (np.inf, 1.0)])
 def test_recent_rejects_bad_arguments(now, kappa):
     with pytest.raises(DataError, match=r"^ObjectMap\.recent_indices: "):
         make_map().recent(now, kappa)

@@ -123,8 +123,11 @@ def test_parameters_hold_their_own_copy_of_a_matrix():
 
 
 def test_a_hot_path_reads_the_stored_array():
-    params = TCAFFParams()
-    assert params.Q is params.Q and params.Q.dtype == np.float64 and params.Q.shape == (3, 3)
+    """The matrix is converted once, when the parameters are made, not on every read."""
+    Q = np.diag([0.01, 0.01, 0.0001]).astype(np.float32)
+    params = TCAFFParams(Q=Q)
+    assert params.Q.dtype == np.float64 and params.Q.shape == (3, 3)
+    assert params.Q is params.Q and params.Q is not Q
 
 
 def test_parameter_errors_name_the_field_and_survive_pickling():

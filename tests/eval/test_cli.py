@@ -52,8 +52,9 @@ def test_help_keeps_the_units():
 
 
 @pytest.mark.parametrize(("folder", "commands"), [
-    ("scenarios", ["study"]), ("studies", ["study"]), ("methods", ["study", "kimera-multi"]),
-    ("kimera_multi", ["kimera-multi"])])
+    ("scenarios", ["study"]), ("studies", ["study"]),
+    ("methods", ["study", "kimera-multi", "mrclam"]),
+    ("kimera_multi", ["kimera-multi"]), ("mrclam", ["mrclam"])])
 def test_help_lists_every_shipped_config(folder, commands):
     names = sorted(path.stem for path in (CONFIG_DIR / folder).glob("*.yaml"))
     assert names

@@ -99,7 +99,7 @@ def test_the_walk_finds_an_upward_import():
 
 def test_importing_the_run_sources_loads_nothing_above_them():
     code = ("import sys, tcaff_gtsam.eval.sim.simulate, tcaff_gtsam.eval.sim.kimera_bags, "
-            "tcaff_gtsam.eval.datasets.kimera_multi\n"
+            "tcaff_gtsam.eval.datasets.kimera_multi, tcaff_gtsam.eval.datasets.mrclam\n"
             f"print(sorted(m for m in sys.modules if m.startswith('{PACKAGE}.')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout

@@ -135,6 +135,7 @@ def test_pair_metrics_hand_trace():
     assert m.time_to_first_correct == pytest.approx(3.25)
     assert m.translation_mean == pytest.approx(np.mean(TRANS))
     assert m.translation_std == pytest.approx(np.std(TRANS))
+    assert m.translation_median == pytest.approx(np.median(TRANS))
     assert m.heading_mean == pytest.approx(np.mean(HEAD))
     assert m.heading_std == pytest.approx(np.std(HEAD))
     # with robot j at the origin of its odometry frame the RPE is the alignment error itself
@@ -173,6 +174,7 @@ def test_no_estimates():
                                 [False, True, True, False, True]))
     assert (m.n_steps, m.n_estimates, m.n_overlap) == (5, 0, 3)
     assert math.isnan(m.translation_mean) and math.isnan(m.translation_std)
+    assert math.isnan(m.translation_median)
     assert math.isnan(m.heading_mean) and math.isnan(m.rpe_translation_mean)
     assert m.availability == 0.0
     assert math.isnan(m.false_accept)
@@ -197,7 +199,8 @@ def test_as_report_keys_units_and_json():
     m = pair_metrics(hand_trace())
     report = m.as_report()
     assert set(report) == {
-        "translation_error_m_mean", "translation_error_m_std", "heading_error_deg_mean",
+        "translation_error_m_mean", "translation_error_m_std", "translation_error_m_median",
+        "heading_error_deg_mean",
         "heading_error_deg_std", "availability", "false_accept", "time_to_first_correct_s",
         "rpe_translation_m", "rpe_heading_deg", "n_steps", "n_estimates", "n_overlap"}
     assert report["heading_error_deg_mean"] == pytest.approx(math.degrees(np.mean(HEAD)))

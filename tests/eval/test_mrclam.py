@@ -78,8 +78,8 @@ def dataset(tmp_path_factory) -> Path:
 
 def run_of(folder: Path, odometry: str = "vio", **kwargs):
     data = mrclam.read_dataset(folder)
-    options = {"seed": 0, "kappa": 20.0, "nu": 1, "min_shared": 3, "heading_rw_deg": 0.0,
-               "scale_std": 0.0, **kwargs}
+    options = {"seed": 0, "kappa": 20.0, "nu": 1, "min_shared": 3,
+               "heading_rw_deg_per_sqrt_min": 0.0, "scale_std": 0.0, **kwargs}
     return data, *mrclam.load_run(data, odometry, **options)
 
 
@@ -304,3 +304,40 @@ def test_first_minute_of_data_set_6_places_sightings_on_the_landmarks():
     T = run.T_true(0, 1)
     np.testing.assert_allclose(T @ run.T_true(1, 0), np.broadcast_to(np.eye(3), T.shape),
                                atol=1e-9)
+
+
+def test_a_shorter_look_is_a_prefix_of_the_whole_run(dataset):
+    """Each robot's drift has its own generator: using less data, or seeing fewer robots'
+    results, changes nothing of what remains."""
+    options = {"heading_rw_deg_per_sqrt_min": 5.0, "scale_std": 0.05, "seed": 4}
+    _, whole, _ = run_of(dataset, **options)
+    _, short, _ = run_of(dataset, duration=15.0, **options)
+    S = len(short.times)
+    np.testing.assert_allclose(short.T_odom_body, whole.T_odom_body[:, :S], atol=1e-9)
+    for r in range(whole.n_robots):
+        for a, b in zip(short.maps[r], whole.maps[r][:S], strict=True):
+            np.testing.assert_allclose(a.centroids, b.centroids, atol=1e-9)
+
+
+def test_sightings_before_the_run_starts_are_left_out(dataset, tmp_path):
+    early = damaged(dataset, tmp_path, "Robot2_Measurement.dat",
+                    lambda lines: [*lines[:2], f"{T0 - 2.0:.3f}\t{10 + 3 * 13}\t9.0\t0.0\n",
+                                   *lines[2:]])
+    _, run, _ = run_of(dataset)
+    _, run_early, _ = run_of(early)
+    for a, b in zip(run.maps[1], run_early.maps[1], strict=True):
+        np.testing.assert_array_equal(a.centroids, b.centroids)
+
+
+def test_the_graph_links_a_pair_run_in_one_direction_only(dataset):
+    """With only (j, i) chosen, its TCAFF output still feeds the iSAM2 graph."""
+    from tcaff_gtsam.eval.config import load_methods
+    from tcaff_gtsam.eval.methods import run_methods
+
+    _, run, _ = run_of(dataset, pairs=[(5, 4)])
+    runs = run_methods(run, load_methods("tcaff_only"))
+    tcaff = ~np.isnan(runs.estimates["tcaff"][0, :, 0])
+    causal = ~np.isnan(runs.estimates["tcaff_isam2_causal"][0, :, 0])
+    assert tcaff.sum() >= 5 and causal.sum() >= tcaff.sum() - 2
+    err = runs.estimates["tcaff_isam2_smoothed"][0, tcaff, :2] - runs.truth[0, tcaff, :2]
+    assert np.abs(err).max() < 0.1
