@@ -254,9 +254,10 @@ def test_robots_sightings_are_not_landmarks(dataset, tmp_path):
 # -- the command -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_command_scores_every_pair_and_resumes(dataset, tmp_path):
     args = ["mrclam", "--data", str(dataset), "--output", str(tmp_path), "--methods",
-            "tcaff_only", "--duration", "30", "--odometry", "vio", "--odometry", "raw"]
+            "tcaff_only", "--duration", "20", "--odometry", "vio", "--odometry", "raw"]
     first = CliRunner().invoke(app, args)
     assert first.exit_code == 0, first.output
     for name in ("Synthetic-vio-seed0", "Synthetic-raw"):
