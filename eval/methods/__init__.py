@@ -47,11 +47,10 @@ class MethodRunner(Protocol):
     """One method over every directed pair of a run, one exchange at a time.
 
     Built as `Runner(setup, stages, methods)` (`stages.RunSetup`, `stages.SharedStages`, the
-    method set). `estimates`
-    maps each of its streams to a (P, S, 3) array of (x, y, theta) of T_oi_oj, NaN rows where it
-    has no estimate, filled by `step` (and `finish`). The run charges the time of `step` to the
-    streams in `step_streams` and that of `finish` to `finish_streams`, less the shared stages'
-    time.
+    method set). `estimates` maps each of its streams to a (P, S, 3) array of (x, y, theta) of
+    T_oi_oj, NaN rows where it has no estimate, filled by `step` (and `finish`). The run charges
+    the time of `step` to the streams in `step_streams` and that of `finish` to
+    `finish_streams`, less the shared stages' time.
     """
 
     estimates: dict[str, np.ndarray]
