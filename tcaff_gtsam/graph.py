@@ -106,6 +106,21 @@ class _Factor:
     link: tuple | None = None
 
 
+@dataclass
+class _Abandoned:
+    """A hypothesis TCAFF switched away from, whose factors wait for the new one to hold.
+
+    Attributes:
+        hypothesis: its tag; x (3,), P (3, 3): the graph's alignment of the pair when it was
+            abandoned; held: steps the hypotheses after it have been reported.
+    """
+
+    hypothesis: int
+    x: np.ndarray
+    P: np.ndarray
+    held: int = 0
+
+
 def _check_finite(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     if arr.shape != shape:
@@ -164,6 +179,8 @@ class InterRobotGraph:
         self._free: dict[tuple, int] = {}  # chain -> index of its gauge prior
         self._drift_noise: dict[int, gtsam.noiseModel.Base] = {}  # chain noise per step span
         self._hypothesis: dict[tuple[int, int], int] = {}
+        # pair -> an abandoned hypothesis whose factors wait for removal
+        self._abandoned: dict[tuple[int, int], _Abandoned] = {}
 
     # -- pose helpers --------------------------------------------------------------------------
 
@@ -521,7 +538,10 @@ class InterRobotGraph:
         stay. When the filter next reports a different hypothesis (after a drop, or by
         switching), the earlier hypothesis's factors are kept if the new estimate agrees with
         the graph's current alignment of the pair (squared Mahalanobis distance under the sum
-        of both covariances within the chi-square 0.999 quantile), and removed otherwise.
+        of both covariances within the chi-square 0.999 quantile). Otherwise they are removed
+        once the new hypothesis has been reported at `switch_hold` steps; a switch back before
+        then removes the short-lived hypothesis's factors instead, and a switch to a third one
+        removes the one in between.
 
         Args:
             estimate: what `TCAFF.update(zs, Rs)` returned for this step.
@@ -541,29 +561,49 @@ class InterRobotGraph:
                 raise DataError(f"add_tcaff_estimate: estimate.measurement = "
                                 f"{estimate.measurement} must index zs (k, 3) and Rs (k, 3, 3), "
                                 f"got shapes {zs.shape} and {Rs.shape}")
-        previous = self._hypothesis.get((i, j))
+        pair = (i, j)
+        previous = self._hypothesis.get(pair)
         current = estimate.hypothesis
+        waiting = self._abandoned.get(pair)
         if previous is not None and previous != current:
-            if self._agrees(i, j, estimate):
+            if waiting is not None and self._agrees(estimate, waiting.x, waiting.P):
+                # back to the abandoned alignment before the hold ended: the short-lived
+                # hypothesis goes, and TCAFF's new id for the old alignment continues it
+                self.remove_hypothesis(i, j, previous)
+                del self._abandoned[pair]
+                waiting = None
+            elif self._steps and self._agrees(estimate, *self._latest(i, j)):
                 log.debug("pair (%d, %d): hypothesis %s agrees with %s, factors kept", i, j,
                           current, previous)
-            else:
-                removed = self.remove_hypothesis(i, j, previous)
+            elif waiting is not None:  # a third alignment: the one in between goes now
+                self.remove_hypothesis(i, j, previous)
+                waiting.held = 0
+            elif self._steps:
+                waiting = self._abandoned[pair] = _Abandoned(previous,
+                                                              *self._latest(i, j))
+        self._hypothesis[pair] = current
+        if waiting is not None:
+            waiting.held += 1
+            if waiting.held >= self.params.switch_hold:
+                removed = self.remove_hypothesis(i, j, waiting.hypothesis)
                 log.debug("pair (%d, %d): hypothesis %s abandoned, %d factors removed", i, j,
-                          previous, removed)
-        self._hypothesis[(i, j)] = current
+                          waiting.hypothesis, removed)
+                del self._abandoned[pair]
         if estimate.measurement >= 0:
             m = estimate.measurement
             self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
 
-    def _agrees(self, i: int, j: int, estimate: AlignmentEstimate) -> bool:
-        """Whether a TCAFF estimate is consistent with the graph's latest alignment of (i, j)."""
-        if not self._steps:
-            return False
+    def _latest(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """(x, y, theta) of the graph's latest T_oi_oj and its covariance."""
         T, cov = self.alignment(i, j)
-        residual = np.asarray(estimate.x, dtype=float) - self._params(T)
+        return self._params(T), cov
+
+    @staticmethod
+    def _agrees(estimate: AlignmentEstimate, x: np.ndarray, P: np.ndarray) -> bool:
+        """Whether a TCAFF estimate is consistent with the alignment x (3,), covariance P."""
+        residual = np.asarray(estimate.x, dtype=float) - x
         residual[2] = math.remainder(residual[2], 2 * math.pi)
-        S = cov + np.asarray(estimate.P, dtype=float)
+        S = P + np.asarray(estimate.P, dtype=float)
         return float(residual @ np.linalg.solve(S, residual)) <= _AGREE_CHI2
 
     # -- keyframes -----------------------------------------------------------------------------

@@ -416,6 +416,10 @@ class GraphParams(_ByValue):
             run while a variable the update touched is more than `settle_threshold` (metres or
             radians, tangent) from its linearisation point: big corrections such as a first
             alignment or a removed hypothesis are nonlinear.
+        switch_hold: when TCAFF switches a pair to a hypothesis that disagrees with the graph,
+            the earlier hypothesis's factors are removed only once the new one has been
+            reported at this many steps (the default window W): a late or passing switch then
+            leaves the smoothed history in place. 1 removes them at the switch.
     """
 
     dim: Literal[2, 3] = 2
@@ -430,6 +434,7 @@ class GraphParams(_ByValue):
     relinearize_skip: int = 1
     max_iterations: int = 10
     settle_threshold: float = 0.5
+    switch_hold: int = TCAFFParams.window
 
     def __post_init__(self) -> None:
         o = "GraphParams"
@@ -459,3 +464,5 @@ class GraphParams(_ByValue):
                  self.relinearize_skip, "must be an int >= 1")
         _require(_int_at_least(self.max_iterations, 0), o, "max_iterations",
                  self.max_iterations, "must be an int >= 0")
+        _require(_int_at_least(self.switch_hold, 1), o, "switch_hold", self.switch_hold,
+                 "must be an int >= 1")

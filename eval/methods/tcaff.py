@@ -61,9 +61,9 @@ class ReferenceRunner:
 class GraphRunner:
     """`tcaff_isam2`: the default TCAFF output of one directed pair of each unordered pair in
     one iSAM2 graph ((i, j) with i < j when both are run: (j, i) aligns the same two maps, so
-    its factors would count them twice). Causal: the graph's
-    alignment at each step; smoothed: its whole history once more at the end. Both only at
-    steps where the pair's TCAFF has an estimate and the graph links the two robots."""
+    its factors would count them twice). Causal: the graph's alignment at each step at which
+    the pair's TCAFF has an estimate and factors link the two robots. Smoothed: once more at
+    the end, the graph's alignment at every step, when factors link the two robots at all."""
 
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
         settings = setup.run.settings
@@ -73,7 +73,6 @@ class GraphRunner:
         # one pair of each unordered pair gives the factors: (j, i) aligns the same two maps
         self.factored = [p for p, (i, j) in enumerate(self.pairs)
                          if i < j or (j, i) not in self.pairs]
-        self.filtered = np.zeros((len(setup.pairs), setup.n_steps), dtype=bool)
         self.estimates = {"tcaff_isam2_causal": setup.empty(),
                           "tcaff_isam2_smoothed": setup.empty()}
         self.step_streams, self.finish_streams = ["tcaff_isam2_causal"], ["tcaff_isam2_smoothed"]
@@ -86,7 +85,6 @@ class GraphRunner:
         self.graph.update(s)
         causal = self.estimates["tcaff_isam2_causal"]
         for p, (est, _, _) in enumerate(outputs):
-            self.filtered[p, s] = est is not None
             # Before its first factor a pair's graph alignment is only the gauge's guess.
             if est is not None and self.graph.connected(*self.pairs[p]):
                 causal[p, s] = self.graph.alignment_params(*self.pairs[p], s)
@@ -94,8 +92,6 @@ class GraphRunner:
     def finish(self) -> None:
         smoothed = self.estimates["tcaff_isam2_smoothed"]
         for p, pair in enumerate(self.pairs):
-            if not self.graph.connected(*pair):
-                continue
-            steps, T = self.graph.alignment_history(*pair)
-            held = self.filtered[p, steps]
-            smoothed[p, steps[held]] = se2_to_params(T[held])
+            if self.graph.connected(*pair):
+                steps, T = self.graph.alignment_history(*pair)
+                smoothed[p, steps] = se2_to_params(T)

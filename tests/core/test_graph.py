@@ -190,6 +190,59 @@ def test_tcaff_switch_removes_the_abandoned_factors():
     assert pose_error(se2_from_params(T_b), graph.alignment(0, 1)[0])[0] < 0.1
 
 
+def switch_late(switch_at: int, steps: int, hold: int, back_at: int | None = None
+                ) -> InterRobotGraph:
+    """TCAFF follows T_a, then from `switch_at` a far-off T_b (and T_a again from `back_at`)."""
+    rng = np.random.default_rng(7)
+    graph = InterRobotGraph(2, GraphParams(switch_hold=hold))
+    filt = TCAFF()
+    T_a, T_b = np.array([1.0, 2.0, 0.3]), np.array([-5.0, 4.0, 2.0])
+    for k in range(steps):
+        true = T_b if switch_at <= k < (back_at or steps) else T_a
+        zs = (true + rng.normal(0, [0.05, 0.05, 0.005]))[None]
+        graph.add_tcaff_estimate(k, 0, 1, filt.update(zs, R[None]), zs, R[None])
+        graph.update(k)
+    return graph
+
+
+def alignment_hypotheses(graph: InterRobotGraph) -> set[int]:
+    return {f.tag[3] for f in graph._active.values()
+            if f.tag is not None and f.tag[0] == "alignment"}
+
+
+def test_a_late_switch_leaves_the_smoothed_history_in_place():
+    """TCAFF switches at the end of the run: until the new hypothesis has held `switch_hold`
+    steps, the earlier one's factors stay and the smoothed history still follows them."""
+    T_a = se2_from_params(np.array([1.0, 2.0, 0.3]))
+    immediate = switch_late(40, 60, hold=1)
+    held = switch_late(40, 60, hold=100)
+    assert len(alignment_hypotheses(immediate)) == 1
+    assert len(alignment_hypotheses(held)) == 2
+    steps, T = held.alignment_history(0, 1)
+    early = steps < 30
+    assert max(pose_error(T_a, T[k])[0] for k in np.flatnonzero(early)) < 0.2
+    steps, T = immediate.alignment_history(0, 1)
+    assert min(pose_error(T_a, T[k])[0] for k in np.flatnonzero(steps < 30)) > 1.0
+
+
+def test_a_switch_that_holds_removes_the_abandoned_factors_after_the_hold():
+    graph = switch_late(40, 80, hold=8)
+    assert len(alignment_hypotheses(graph)) == 1
+    assert pose_error(se2_from_params(np.array([-5.0, 4.0, 2.0])), graph.alignment(0, 1)[0]
+                      )[0] < 0.1
+
+
+def test_switching_back_before_the_hold_removes_the_short_lived_hypothesis():
+    graph = switch_late(40, 90, hold=40, back_at=60)
+    hypotheses = alignment_hypotheses(graph)
+    T_a = se2_from_params(np.array([1.0, 2.0, 0.3]))
+    assert pose_error(T_a, graph.alignment(0, 1)[0])[0] < 0.1
+    steps, T = graph.alignment_history(0, 1)
+    assert max(pose_error(T_a, T[k])[0] for k in np.flatnonzero(steps < 35)) < 0.2
+    # the first hypothesis and TCAFF's new one for the same alignment; not the one between
+    assert hypotheses == {1, 3} and not graph._abandoned
+
+
 def test_g2o_export_reads_back():
     _, truth = team()
     graph = InterRobotGraph(3)
