@@ -57,6 +57,7 @@ METHODS: dict[str, Method] = {
     "tcaff": Method("tcaff:TcaffRunner", {"": Estimate("TCAFF", "tab:red")}),
     "tcaff_reference": Method("tcaff:ReferenceRunner", {
         "": Estimate("TCAFF reference", "tab:orange", "--")}),
+    "tcaff_team": Method("tcaff:TeamRunner", {"": Estimate("TCAFF+team", "tab:olive")}),
     "tcaff_isam2": Method("tcaff:GraphRunner", {
         "_causal": Estimate("TCAFF+iSAM2 causal", "tab:purple"),
         "_smoothed": Estimate("TCAFF+iSAM2 smoothed", "tab:pink", ":", causal=False)}),

@@ -1,8 +1,8 @@
 """tcaff-gtsam: robot frame alignment by temporal consistency (TCAFF) with a GTSAM back end.
 
 The estimation core: object maps, CLIPPER association, MNO-CLIPPER, weighted Arun, the frame
-aligner, the TCAFF filter and the iSAM2 inter-robot graph. No file formats beyond map and
-filter save/load, no printing, no plotting.
+aligner, the TCAFF filter, team consistency and the iSAM2 inter-robot graph. No file formats
+beyond map and filter save/load, no printing, no plotting.
 
 The public names below load their module on first use (PEP 562), so `import tcaff_gtsam` stays
 cheap: gtsam, numba and scipy are loaded only by the parts that need them.
@@ -28,6 +28,7 @@ if _TYPE_CHECKING:
     from .params import ClipperParams, FrameAlignerParams, GraphParams, TCAFFParams
     from .registration import putative_associations, weighted_arun
     from .tcaff import TCAFF, AlignmentEstimate
+    from .team import TeamConsistency, TeamEstimate, TeamParams
 
 __version__ = "0.1.0"
 
@@ -49,6 +50,9 @@ __all__ = [
     "PairwiseAligner",
     "TCAFFParams",
     "TcaffError",
+    "TeamConsistency",
+    "TeamEstimate",
+    "TeamParams",
     "clipper_solve",
     "consistency_graph",
     "mno_clipper",
@@ -76,13 +80,16 @@ _LAZY = {
     "weighted_arun": "registration",
     "TCAFF": "tcaff",
     "AlignmentEstimate": "tcaff",
+    "TeamConsistency": "team",
+    "TeamEstimate": "team",
+    "TeamParams": "team",
 }
 
 # Submodules an eager import used to bind as attributes (`tcaff_gtsam.geometry.wrap_angle`
 # after a bare `import tcaff_gtsam`); they stay reachable that way.
 _SUBMODULES = frozenset({"clipper", "errors", "frame_aligner", "geometry", "graph",
                          "hypothesis_tree", "object_map", "pairwise", "params", "registration",
-                         "tcaff"})
+                         "tcaff", "team"})
 
 
 def __getattr__(name: str) -> object:

@@ -593,6 +593,11 @@ class InterRobotGraph:
             m = estimate.measurement
             self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
 
+    def settled(self, i: int, j: int) -> bool:
+        """False while the pair (i, j) or (j, i) has an abandoned hypothesis whose factors wait
+        for the new one to hold (`GraphParams.switch_hold`): the graph then still weighs both."""
+        return (i, j) not in self._abandoned and (j, i) not in self._abandoned
+
     def _latest(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """(x, y, theta) of the graph's latest T_oi_oj and its covariance."""
         T, cov = self.alignment(i, j)

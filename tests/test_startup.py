@@ -83,7 +83,8 @@ def test_public_api_is_unchanged():
         "ConfigError", "ConsistencyGraph", "DataError", "FrameAligner", "FrameAlignerParams",
         "GraphParams", "InterRobotGraph", "ModelError", "ObjectMap", "PairwiseAligner",
         "TCAFFParams", "TcaffError", "clipper_solve", "consistency_graph", "mno_clipper",
-        "putative_associations", "weighted_arun"}
+        "putative_associations", "weighted_arun",
+        "TeamConsistency", "TeamEstimate", "TeamParams"}
     for name in tcaff_gtsam.__all__:
         value = getattr(tcaff_gtsam, name)
         assert value.__name__ == name

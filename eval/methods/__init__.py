@@ -6,6 +6,8 @@ streams (T_oi_oj of every directed pair at every exchange), named and drawn as `
 - tcaff: the paper's filter (default preset) on MNO-CLIPPER candidates.
 - tcaff_reference: the authors' released settings on the same candidates, without this project's
   residual check and with the original's constant R.
+- tcaff_team: the TCAFF estimates of every pair that agree around cycles of three robots,
+  and chains through a third robot for pairs without one (`tcaff_gtsam.TeamConsistency`).
 - tcaff_isam2 -> tcaff_isam2_causal, tcaff_isam2_smoothed: the TCAFF output of every pair
   (i, j) with i < j in one iSAM2 graph ((j, i) aligns the same two maps), read for every
   directed pair at each step (causal) and once more at the end (smoothed), at the steps that
@@ -133,7 +135,7 @@ def run_methods(run: AlignmentRun, methods: MethodsConfig,
         timed(runner.finish, runner.finish_streams)
     seconds["candidates"] += stages.seconds["candidates"]
     # the default filter's time: TCAFF's own, or the graph's when TCAFF is not run by itself
-    for stream in ("tcaff", "tcaff_isam2_causal"):
+    for stream in ("tcaff", "tcaff_team", "tcaff_isam2_causal"):
         if stream in seconds:
             seconds[stream] += stages.seconds["tcaff"]
             break

@@ -9,11 +9,12 @@ from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.graph import InterRobotGraph
 from tcaff_gtsam.params import constant_alignment_covariance
 from tcaff_gtsam.tcaff import TCAFF
+from tcaff_gtsam.team import TeamConsistency
 
 from ..config import MethodsConfig
 from .stages import RunSetup, SharedStages
 
-__all__ = ["GraphRunner", "ReferenceRunner", "TcaffRunner"]
+__all__ = ["GraphRunner", "ReferenceRunner", "TcaffRunner", "TeamRunner"]
 
 
 class TcaffRunner:
@@ -58,12 +59,36 @@ class ReferenceRunner:
         pass
 
 
+class TeamRunner:
+    """`tcaff_team`: the default TCAFF estimates of every pair, kept where they agree around
+    cycles of three robots (`TeamConsistency`), chained through a third robot where a pair has
+    none."""
+
+    def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
+        self.team = TeamConsistency(setup.run.n_robots)
+        self.pairs, self.stages = setup.pairs, stages
+        self.estimates = {"tcaff_team": setup.empty()}
+        self.step_streams, self.finish_streams = ["tcaff_team"], []
+
+    def step(self, s: int, t: float) -> None:
+        kept = self.team.update({pair: self.stages.tcaff(p)[0]
+                                 for p, pair in enumerate(self.pairs)})
+        for p, pair in enumerate(self.pairs):
+            if pair in kept:
+                self.estimates["tcaff_team"][p, s] = kept[pair].x
+
+    def finish(self) -> None:
+        pass
+
+
 class GraphRunner:
     """`tcaff_isam2`: the default TCAFF output of one directed pair of each unordered pair in
     one iSAM2 graph ((i, j) with i < j when both are run: (j, i) aligns the same two maps, so
     its factors would count them twice). Causal: the graph's alignment at each step at which
-    the pair's TCAFF has an estimate and factors link the two robots. Smoothed: once more at
-    the end, the graph's alignment at every step, when factors link the two robots at all."""
+    the pair's TCAFF has an estimate, factors link the two robots and no abandoned hypothesis
+    of the pair waits for removal. Smoothed: once more at the end, when factors still link the
+    two robots, the graph's alignment at every step from the pair's first TCAFF estimate to its
+    last, gaps included (outside that span the graph would only extrapolate the drift)."""
 
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
         settings = setup.run.settings
@@ -73,6 +98,7 @@ class GraphRunner:
         # one pair of each unordered pair gives the factors: (j, i) aligns the same two maps
         self.factored = [p for p, (i, j) in enumerate(self.pairs)
                          if i < j or (j, i) not in self.pairs]
+        self.filtered = np.zeros((len(setup.pairs), setup.n_steps), dtype=bool)
         self.estimates = {"tcaff_isam2_causal": setup.empty(),
                           "tcaff_isam2_smoothed": setup.empty()}
         self.step_streams, self.finish_streams = ["tcaff_isam2_causal"], ["tcaff_isam2_smoothed"]
@@ -85,13 +111,18 @@ class GraphRunner:
         self.graph.update(s)
         causal = self.estimates["tcaff_isam2_causal"]
         for p, (est, _, _) in enumerate(outputs):
-            # Before its first factor a pair's graph alignment is only the gauge's guess.
-            if est is not None and self.graph.connected(*self.pairs[p]):
+            self.filtered[p, s] = est is not None
+            # Before its first factor a pair's graph alignment is only the gauge's guess; while
+            # an abandoned hypothesis waits for removal it is a mixture of two.
+            if (est is not None and self.graph.connected(*self.pairs[p])
+                    and self.graph.settled(*self.pairs[p])):
                 causal[p, s] = self.graph.alignment_params(*self.pairs[p], s)
 
     def finish(self) -> None:
         smoothed = self.estimates["tcaff_isam2_smoothed"]
         for p, pair in enumerate(self.pairs):
-            if self.graph.connected(*pair):
+            held = np.flatnonzero(self.filtered[p])
+            if held.size and self.graph.connected(*pair):
                 steps, T = self.graph.alignment_history(*pair)
-                smoothed[p, steps] = se2_to_params(T)
+                inside = (steps >= held[0]) & (steps <= held[-1])
+                smoothed[p, steps[inside]] = se2_to_params(T[inside])

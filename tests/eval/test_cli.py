@@ -170,7 +170,7 @@ def test_study_runs_each_shipped_scenario(tmp_path, scenario):
     assert list(metrics["mot_summary"]) == ([scenario] if tracked else [])
 
 
-@pytest.mark.parametrize("methods", ["default", "tcaff_only"])
+@pytest.mark.parametrize("methods", ["default", "tcaff_only", "team"])
 def test_study_runs_each_shipped_method_set(tmp_path, methods):
     result = runner.invoke(app, ["study", "demo", "-s", "indoor_return", "--methods", methods,
                                  "--duration", "12", "--output", str(tmp_path)])

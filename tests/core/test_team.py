@@ -1,0 +1,129 @@
+"""TeamConsistency: the pairwise alignments that agree around cycles, and chains through a
+third robot."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tcaff_gtsam import TeamConsistency, TeamParams
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params
+
+P = np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2])
+
+
+def team_frames(rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, 3, 3) each robot's odometry frame in a common world."""
+    return se2_from_params(np.column_stack([rng.uniform(-20, 20, (n, 2)),
+                                            rng.uniform(-math.pi, math.pi, n)]))
+
+
+def true_estimates(frames: np.ndarray, pairs) -> dict:
+    return {(i, j): SimpleNamespace(x=se2_to_params(np.linalg.inv(frames[i]) @ frames[j]),
+                                    P=P) for i, j in pairs}
+
+
+def close(est, frames, i, j, tol=1e-6) -> bool:
+    true = se2_to_params(np.linalg.inv(frames[i]) @ frames[j])
+    d = est.x - true
+    d[2] = math.remainder(d[2], 2 * math.pi)
+    return bool(np.all(np.abs(d) < tol))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 6))
+def test_a_consistent_team_passes_whole(seed, n):
+    frames = team_frames(np.random.default_rng(seed), n)
+    pairs = list(itertools.permutations(range(n), 2))
+    out = TeamConsistency(n).update(true_estimates(frames, pairs))
+    assert set(out) == set(pairs)
+    assert all(close(out[p], frames, *p) and out[p].path == p for p in pairs)
+
+
+def test_a_wrong_alignment_inconsistent_with_two_others_is_rejected():
+    """Robots 0, 1, 2 agree pairwise except 0-2, off by 3 m: the cycle fails, two of the three
+    can stand together, and of those sets the most certain is kept (the wrong one is the least
+    certain here). Its place is taken by the chain through robot 1."""
+    frames = team_frames(np.random.default_rng(1), 3)
+    estimates = true_estimates(frames, [(0, 1), (1, 2), (0, 2)])
+    wrong = estimates[(0, 2)].x + np.array([3.0, 0.0, 0.0])
+    estimates[(0, 2)] = SimpleNamespace(x=wrong, P=4 * P)
+    team = TeamConsistency(3)
+    out = team.update(estimates)
+    assert team.rejected == [(0, 2)]
+    assert out[(0, 2)].path == (0, 1, 2) and close(out[(0, 2)], frames, 0, 2, 1e-9)
+    assert len(out) == 6
+
+
+def test_the_majority_of_cycles_decides_which_alignment_goes():
+    """With four robots, the wrong 0-2 fails both cycles it is in (0-1-2, 0-2-3); every other
+    alignment fails at most one. The largest consistent set drops exactly 0-2, which is then
+    chained through a robot whose alignments hold."""
+    frames = team_frames(np.random.default_rng(2), 4)
+    pairs = list(itertools.combinations(range(4), 2))
+    estimates = true_estimates(frames, pairs)
+    estimates[(0, 2)] = SimpleNamespace(x=estimates[(0, 2)].x + np.array([0.0, 2.5, 0.2]), P=P)
+    team = TeamConsistency(4)
+    out = team.update(estimates)
+    assert team.rejected == [(0, 2)]
+    assert out[(0, 2)].chained and close(out[(0, 2)], frames, 0, 2, 1e-9)
+    assert out[(2, 0)].chained and close(out[(2, 0)], frames, 2, 0, 1e-9)
+
+
+def test_pairs_without_an_alignment_are_chained_through_a_third_robot():
+    frames = team_frames(np.random.default_rng(3), 4)
+    out = TeamConsistency(4).update(true_estimates(frames, [(0, 1), (2, 1), (2, 3)]))
+    assert out[(0, 2)].path == (0, 1, 2) and close(out[(0, 2)], frames, 0, 2, 1e-9)
+    assert (0, 3) not in out  # three links: more than max_chain
+    longer = TeamConsistency(4, TeamParams(max_chain=3)).update(
+        true_estimates(frames, [(0, 1), (2, 1), (2, 3)]))
+    assert longer[(0, 3)].path == (0, 1, 2, 3) and close(longer[(0, 3)], frames, 0, 3, 1e-9)
+    # a chain is less certain than its links
+    assert np.trace(out[(0, 2)].P) > np.trace(out[(0, 1)].P)
+
+
+def test_the_two_directions_of_a_pair_must_agree():
+    frames = team_frames(np.random.default_rng(4), 2)
+    estimates = true_estimates(frames, [(0, 1), (1, 0)])
+    assert set(TeamConsistency(2).update(estimates)) == {(0, 1), (1, 0)}
+    estimates[(1, 0)] = SimpleNamespace(x=estimates[(1, 0)].x + np.array([1.0, 0.0, 0.0]), P=P)
+    assert TeamConsistency(2).update(estimates) == {}
+
+
+def test_the_greedy_search_of_a_large_team_drops_the_same_alignment():
+    frames = team_frames(np.random.default_rng(5), 6)
+    estimates = true_estimates(frames, itertools.combinations(range(6), 2))
+    estimates[(1, 4)] = SimpleNamespace(x=estimates[(1, 4)].x + np.array([0.0, 0.0, 0.5]), P=P)
+    exact, greedy = TeamConsistency(6), TeamConsistency(6, TeamParams(exact_up_to=0))
+    exact.update(estimates)
+    greedy.update(estimates)
+    assert exact.rejected == greedy.rejected == [(1, 4)]
+
+
+@pytest.mark.parametrize(("estimates", "match"), [
+    ({(0, 0): SimpleNamespace(x=np.zeros(3), P=P)}, "two different robots"),
+    ({(0, 5): SimpleNamespace(x=np.zeros(3), P=P)}, "two different robots"),
+    ({(True, 1): SimpleNamespace(x=np.zeros(3), P=P)}, "two different robots"),
+    ({(0, 1): SimpleNamespace(x=np.array([np.nan, 0, 0]), P=P)}, "finite"),
+    ({(0, 1): SimpleNamespace(x=np.zeros(2), P=P)}, "finite"),
+])
+def test_bad_input_is_a_data_error(estimates, match):
+    with pytest.raises(DataError, match=match):
+        TeamConsistency(3).update(estimates)
+
+
+@pytest.mark.parametrize(("kwargs", "field"), [
+    ({"cycle_probability": 1.0}, "cycle_probability"), ({"max_chain": 0}, "max_chain"),
+    ({"exact_up_to": 40}, "exact_up_to"), ({"cycle_probability": "x"}, "cycle_probability")])
+def test_bad_parameters_are_config_errors(kwargs, field):
+    with pytest.raises(ConfigError, match=field):
+        TeamParams(**kwargs)
+    with pytest.raises(ConfigError, match="n_robots"):
+        TeamConsistency(1)
