@@ -23,7 +23,7 @@ from pathlib import Path
 
 from .config import MethodsConfig, ScenarioConfig, StudyConfig, dump_study
 from .jobs import simulated_job
-from .methods import estimate_names
+from .registry import estimate_names
 from .results import JobResult, summarize, summarize_mot, thresholds_of, write_tables
 
 __all__ = ["Progress", "StudyOutcome", "run_study"]
