@@ -8,7 +8,12 @@ simulator's object size classes). Prints medians over the runs:
   solve      one CLIPPER solve [ms]
   mno        MNO-CLIPPER with N = 4, on a built graph [ms]
   graph+mno  the two together: the figure the targets refer to [ms]
-  aligner    FrameAligner.measurements end to end (kappa window, gate, graph, MNO, Arun) [ms]
+  unchecked  FrameAligner.measurements end to end (kappa window, gate, graph, MNO, Arun) without
+             the checks beyond MNO-CLIPPER (the released code's candidates) [ms]
+  aligner    the same with the default checks (objects explained, spread, ambiguity among the
+             step's solutions) [ms]
+  +memory    the default aligner also searching 10 earlier maps of each robot for look-alikes
+             (200 s at kappa = 20 s), the most a step costs [ms]
   precision, recall of the best solution's associations (recall over true pairs that passed
              the size gate)
 plus an all-to-all row (every pair of objects associated, no size gate) at n = 50.
@@ -26,10 +31,11 @@ import numpy as np
 from tcaff_gtsam.eval.sim.maps import overlapping_maps
 
 from tcaff_gtsam import ClipperParams, FrameAligner, clipper_solve, consistency_graph, mno_clipper
+from tcaff_gtsam.pairwise import unchecked
 from tcaff_gtsam.registration import putative_associations
 
-COLUMNS = ("n", "m", "edges", "graph", "solve", "mno", "graph+mno", "aligner", "precision",
-           "recall")
+COLUMNS = ("n", "m", "edges", "graph", "solve", "mno", "graph+mno", "unchecked", "aligner",
+           "+memory", "precision", "recall")
 
 
 def ms(start: float) -> float:
@@ -54,14 +60,25 @@ def one_run(n: int, seed: int, all_to_all: bool) -> dict[str, float]:
     start = time.perf_counter()
     mno_clipper(graph, 4, params)
     t_mno = ms(start)
+    aligner = FrameAligner()
     start = time.perf_counter()
-    FrameAligner().measurements(pair.ego, pair.other, pair.now)
+    FrameAligner(unchecked(aligner.params)).measurements(pair.ego, pair.other, pair.now)
+    t_unchecked = ms(start)
+    start = time.perf_counter()
+    aligner.measurements(pair.ego, pair.other, pair.now)
     t_aligner = ms(start)
+    earlier = [overlapping_maps(np.random.default_rng(1000 * seed + k), n, overlap=0.5,
+                                noise=0.1, size_noise=0.1) for k in range(10)]
+    start = time.perf_counter()
+    aligner.measurements(pair.ego, pair.other, pair.now, [(e.now, e.ego) for e in earlier],
+                         [(e.now, e.other) for e in earlier])
+    t_memory = ms(start)
     true = set(map(tuple, pair.true_pairs.tolist()))
     gated = true & set(map(tuple, associations.tolist()))
     chosen = set(map(tuple, solution.associations.tolist()))
     return {"n": n, "m": graph.m, "edges": graph.n_edges, "graph": t_graph, "solve": t_solve,
-            "mno": t_mno, "graph+mno": t_graph + t_mno, "aligner": t_aligner,
+            "mno": t_mno, "graph+mno": t_graph + t_mno, "unchecked": t_unchecked,
+            "aligner": t_aligner, "+memory": t_memory,
             "precision": len(chosen & true) / max(len(chosen), 1),
             "recall": len(chosen & gated) / max(len(gated), 1)}
 

@@ -21,8 +21,9 @@ if _TYPE_CHECKING:
         consistency_graph,
         mno_clipper,
     )
-    from .frame_aligner import AlignmentMeasurement, FrameAligner
+    from .frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory
     from .graph import InterRobotGraph
+    from .identities import ObjectIdentities
     from .object_map import ObjectMap
     from .pairwise import PairwiseAligner
     from .params import ClipperParams, FrameAlignerParams, GraphParams, TCAFFParams
@@ -45,7 +46,9 @@ __all__ = [
     "FrameAlignerParams",
     "GraphParams",
     "InterRobotGraph",
+    "MapMemory",
     "ModelError",
+    "ObjectIdentities",
     "ObjectMap",
     "PairwiseAligner",
     "TCAFFParams",
@@ -69,7 +72,9 @@ _LAZY = {
     "mno_clipper": "clipper",
     "AlignmentMeasurement": "frame_aligner",
     "FrameAligner": "frame_aligner",
+    "MapMemory": "frame_aligner",
     "InterRobotGraph": "graph",
+    "ObjectIdentities": "identities",
     "ObjectMap": "object_map",
     "PairwiseAligner": "pairwise",
     "ClipperParams": "params",
@@ -88,7 +93,7 @@ _LAZY = {
 # Submodules an eager import used to bind as attributes (`tcaff_gtsam.geometry.wrap_angle`
 # after a bare `import tcaff_gtsam`); they stay reachable that way.
 _SUBMODULES = frozenset({"clipper", "errors", "frame_aligner", "geometry", "graph",
-                         "hypothesis_tree", "object_map", "pairwise", "params", "registration",
+                         "hypothesis_tree", "identities", "object_map", "pairwise", "params", "registration",
                          "tcaff", "team"})
 
 

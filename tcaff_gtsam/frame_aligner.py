@@ -7,17 +7,34 @@ solutions, register each by weighted Arun, keep the good ones.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .clipper import consistency_graph, mno_clipper
-from .geometry import se2_from_params, se2_to_params, se3_to_se2
+from .geometry import se2_from_params, se2_to_params, se3_to_se2, wrap_angle
 from .object_map import ObjectMap
 from .params import FrameAlignerParams
-from .registration import arun_weights, putative_associations, registration_rmse, weighted_arun
+from .registration import (
+    arun_weights,
+    mutual_inliers,
+    putative_associations,
+    registration_rmse,
+    size_compatible,
+    spread,
+    weighted_arun,
+)
 
-__all__ = ["AlignmentMeasurement", "FrameAligner", "residual_covariance"]
+__all__ = [
+    "AlignmentMeasurement",
+    "FrameAligner",
+    "MapMemory",
+    "confirms",
+    "residual_covariance",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,6 +47,11 @@ class AlignmentMeasurement:
         associations: (k, 2) int64 (ego index, other index) into the maps that were aligned.
         score: MNO-CLIPPER score of the association set (u'Mu / u'u on the original affinity).
         rmse: metres, registration residual RMS of the associated centroids.
+        inliers: recent objects the candidate explains (`FrameAlignerParams.min_inliers`);
+            0 when the aligner does not count them.
+        ambiguous: another alignment, distinct from this one, explains at least as many
+            objects, in these maps or in the robots' earlier maps (`check_ambiguity`): the
+            maps alone do not tell the two apart.
     """
 
     z: np.ndarray
@@ -37,6 +59,8 @@ class AlignmentMeasurement:
     associations: np.ndarray
     score: float
     rmse: float
+    inliers: int = 0
+    ambiguous: bool = False
 
     @property
     def T(self) -> np.ndarray:
@@ -86,23 +110,67 @@ class FrameAligner:
     def __init__(self, params: FrameAlignerParams | None = None) -> None:
         self.params = params or FrameAlignerParams()
 
-    def measurements(self, ego: ObjectMap, other: ObjectMap, now: float
-                     ) -> list[AlignmentMeasurement]:
+    def measurements(self, ego: ObjectMap, other: ObjectMap, now: float,
+                     ego_past: Sequence[tuple[float, ObjectMap]] = (),
+                     other_past: Sequence[tuple[float, ObjectMap]] = (),
+                     held: np.ndarray | None = None) -> list[AlignmentMeasurement]:
         """Candidate alignments, best score first; empty when nothing qualifies.
 
         Args:
             ego: map of robot i in its odometry frame.
             other: map of robot j in its odometry frame.
             now: seconds, current time on the clock of the maps' `last_seen`.
+            ego_past, other_past: earlier maps of each robot with their times, (t, map)
+                (`MapMemory.snapshots`). With `check_ambiguity`, a candidate whose objects
+                also match somewhere else in them is flagged ambiguous.
+            held: (3,) the alignment the caller's filter holds, if any. Candidates within
+                `confirm_translation` and `confirm_heading` of it may confirm it even when
+                ambiguous, so only the step's own solutions are searched for their rivals,
+                not the earlier maps: a filter that holds a steady estimate costs no search.
         Raises:
             DataError: `now` is not finite.
         """
         prm = self.params
         ego_idx = ego.recent_indices(now, prm.kappa)
         other_idx = other.recent_indices(now, prm.kappa)
-        if min(ego_idx.size, other_idx.size) < prm.min_associations:
+        found = self._registered(ego.subset(ego_idx), other.subset(other_idx), now)
+        out: list[AlignmentMeasurement] = []
+        for f in found:
+            if not f.qualifies:
+                continue
+            if prm.min_inliers is not None and f.inliers < prm.min_inliers:
+                continue
+            if prm.min_spread > 0 and spread(f.p[:, :2]) < prm.min_spread:
+                continue
+            R = (prm.R_constant.copy() if prm.covariance == "constant"
+                 else residual_covariance(f.T, f.p[:, :2], f.q[:, :2], f.w, prm.residual_floor))
+            a = f.associations
+            associations = np.column_stack([ego_idx[a[:, 0]], other_idx[a[:, 1]]])
+            out.append(AlignmentMeasurement(f.z, R, associations, f.score, f.rmse, f.inliers,
+                                            False))
+        if out and prm.check_ambiguity:
+            out = [replace(m, ambiguous=self._has_rival(m, found)) for m in out]
+            search = [m for m in out if not m.ambiguous and not confirms(m.z, held, prm)]
+            if search and (ego_past or other_past):
+                rivals = []
+                for t, past in ego_past:
+                    rivals += self._registered(past.recent(t, prm.kappa),
+                                               other.subset(other_idx), now)
+                for t, past in other_past:
+                    rivals += self._registered(ego.subset(ego_idx),
+                                               past.recent(t, prm.kappa), now)
+                out = [replace(m, ambiguous=True) if any(m is c for c in search)
+                       and self._has_rival(m, rivals) else m for m in out]
+        out.sort(key=lambda meas: -meas.score)
+        return out
+
+    def _registered(self, ego_r: ObjectMap, other_r: ObjectMap, now: float) -> list[_Solution]:
+        """Every registrable MNO-CLIPPER solution between two maps of recent objects, with
+        whether it passes the size, score and residual checks and (when the aligner counts
+        them) the objects it explains. Those that do not pass are still rivals of the others."""
+        prm = self.params
+        if min(len(ego_r), len(other_r)) < prm.min_associations:
             return []
-        ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
         assoc = putative_associations(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
         if assoc.shape[0] < prm.min_associations:
             return []
@@ -114,10 +182,11 @@ class FrameAligner:
             return []
         best = max(s.score for s in solutions)
         ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
-        out: list[AlignmentMeasurement] = []
+        counting = prm.min_inliers is not None or prm.check_ambiguity
+        compatible = (size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
+                      if counting else None)
+        found = []
         for sol in solutions:
-            if len(sol) < prm.min_associations or sol.score < prm.min_score_ratio * best:
-                continue
             a = sol.associations
             p, q = p_all[a[:, 0]], q_all[a[:, 1]]
             w = arun_weights(ages_ego[a[:, 0]], ages_other[a[:, 1]], prm.weight_offset)
@@ -126,12 +195,78 @@ class FrameAligner:
                 continue
             T2 = se3_to_se2(T) if prm.dim == 3 else T
             rmse = registration_rmse(T2, p[:, :2], q[:, :2])
-            if prm.max_rmse is not None and rmse > prm.max_rmse:
+            qualifies = (len(sol) >= prm.min_associations
+                         and sol.score >= prm.min_score_ratio * best
+                         and (prm.max_rmse is None or rmse <= prm.max_rmse))
+            if not (qualifies or prm.check_ambiguity):
                 continue
-            z = se2_to_params(T2)
-            R = (prm.R_constant.copy() if prm.covariance == "constant"
-                 else residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor))
-            associations = np.column_stack([ego_idx[a[:, 0]], other_idx[a[:, 1]]])
-            out.append(AlignmentMeasurement(z, R, associations, sol.score, rmse))
-        out.sort(key=lambda meas: -meas.score)
-        return out
+            inliers = (mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,
+                                      prm.inlier_radius).shape[0] if counting else 0)
+            found.append(_Solution(a, sol.score, T2, se2_to_params(T2), p, q, w, rmse,
+                                   qualifies, inliers))
+        return found
+
+    def _has_rival(self, m: AlignmentMeasurement, rivals: list[_Solution]) -> bool:
+        """Whether a solution distinct from m explains at least as many objects."""
+        if not rivals:
+            return False
+        prm = self.params
+        zs = np.array([r.z for r in rivals])
+        inliers = np.array([r.inliers for r in rivals])
+        dz = zs - m.z
+        distinct = ((np.hypot(dz[:, 0], dz[:, 1]) > prm.distinct_translation)
+                    | (np.abs(wrap_angle(dz[:, 2])) > prm.distinct_heading))
+        return bool(np.any(distinct & (inliers >= m.inliers)))
+
+
+def confirms(z: np.ndarray, held: np.ndarray | None, params: FrameAlignerParams) -> bool:
+    """Whether alignment z (3,) lies within `confirm_translation` and `confirm_heading` of the
+    held alignment (3,) (False when nothing is held)."""
+    if held is None:
+        return False
+    dz = z - held
+    return bool(math.hypot(dz[0], dz[1]) <= params.confirm_translation
+                and abs(float(wrap_angle(dz[2]))) <= params.confirm_heading)
+
+
+@dataclass(frozen=True, eq=False)
+class _Solution:
+    """One registered MNO-CLIPPER solution (indices into the maps of recent objects)."""
+
+    associations: np.ndarray
+    score: float
+    T: np.ndarray
+    z: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    w: np.ndarray
+    rmse: float
+    qualifies: bool
+    inliers: int
+
+
+class MapMemory:
+    """Earlier maps of one robot, for the aligner's look-alike search: one snapshot every
+    `every` seconds, kept for `span` seconds.
+
+    Each snapshot is the map as it was, objects of every age; the aligner takes those seen
+    within kappa of the snapshot's time.
+    """
+
+    def __init__(self, span: float, every: float) -> None:
+        self.span, self.every = float(span), float(every)
+        self._snapshots: deque[tuple[float, ObjectMap]] = deque()
+
+    def snapshots(self) -> list[tuple[float, ObjectMap]]:
+        """(t, map) of the snapshots kept, oldest first."""
+        return list(self._snapshots)
+
+    def add(self, t: float, objects: ObjectMap) -> None:
+        """Offer the map of time t (s, increasing): kept when `every` has passed since the last
+        snapshot; snapshots older than `span` are dropped."""
+        if self.span <= 0:
+            return
+        if not self._snapshots or t - self._snapshots[-1][0] >= self.every:
+            self._snapshots.append((t, objects))
+        while self._snapshots and t - self._snapshots[0][0] > self.span:
+            self._snapshots.popleft()

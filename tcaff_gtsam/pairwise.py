@@ -3,16 +3,42 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from .errors import ConfigError, DataError
-from .frame_aligner import AlignmentMeasurement, FrameAligner
+from .frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory, confirms
+from .identities import ObjectIdentities
 from .object_map import ObjectMap
 from .params import FrameAlignerParams, TCAFFParams
 from .tcaff import TCAFF, AlignmentEstimate
 
-__all__ = ["PairwiseAligner"]
+__all__ = ["PairwiseAligner", "admitted", "evidence_of", "unchecked"]
+
+
+def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
+    """`params` without the checks beyond MNO-CLIPPER's (residual, objects explained, spread,
+    ambiguity): the candidates the released code sees."""
+    return replace(params, max_rmse=None, min_inliers=None, min_spread=0.0,
+                   check_ambiguity=False)
+
+
+def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | None,
+             params: FrameAlignerParams) -> list[AlignmentMeasurement]:
+    """The candidates a TCAFF filter may take: every unambiguous one, and an ambiguous one only
+    when it lies within `confirm_translation` and `confirm_heading` of the filter's estimate
+    (it may confirm what the filter holds, never start or move a hypothesis)."""
+    held = None if estimate is None else estimate.x
+    return [m for m in found if not m.ambiguous or confirms(m.z, held, params)]
+
+
+def evidence_of(found: list[AlignmentMeasurement], ego_ids: np.ndarray, other_ids: np.ndarray
+                ) -> list[np.ndarray]:
+    """Per candidate, the (ego object id, other object id) pairs it associates (k, 2), from
+    each map's persistent ids (`ObjectIdentities`) indexed like the maps."""
+    return [np.column_stack([ego_ids[m.associations[:, 0]], other_ids[m.associations[:, 1]]])
+            for m in found]
 
 
 class PairwiseAligner:
@@ -22,7 +48,7 @@ class PairwiseAligner:
     Attributes:
         aligner: the FrameAligner making candidate alignments.
         filter: the TCAFF filter choosing among them over time.
-        measurements: the candidates of the latest step.
+        measurements: the candidates of the latest step (ambiguous ones included).
     """
 
     def __init__(self, aligner_params: FrameAlignerParams | None = None,
@@ -36,6 +62,10 @@ class PairwiseAligner:
         self.filter = TCAFF(tcaff_params)
         self.measurements: list[AlignmentMeasurement] = []
         self._last_time: float | None = None
+        prm = self.aligner.params
+        span = prm.memory_span if prm.check_ambiguity else 0.0
+        self._memory = (MapMemory(span, prm.kappa), MapMemory(span, prm.kappa))
+        self._identities = (ObjectIdentities(), ObjectIdentities())
 
     @classmethod
     def reference(cls) -> PairwiseAligner:
@@ -60,7 +90,22 @@ class PairwiseAligner:
             raise DataError(f"PairwiseAligner.update: t = {t} is not after the previous step's "
                             f"t = {self._last_time}")
         self._last_time = t
-        self.measurements = self.aligner.measurements(ego_map, other_map, t)
-        zs = np.array([m.z for m in self.measurements]).reshape(-1, 3)
-        Rs = np.array([m.R for m in self.measurements]).reshape(-1, 3, 3)
-        return self.filter.update(zs, Rs)
+        ego_memory, other_memory = self._memory
+        held = None if self.filter.estimate is None else self.filter.estimate.x
+        self.measurements = self.aligner.measurements(
+            ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held)
+        ego_memory.add(t, ego_map)
+        other_memory.add(t, other_map)
+        ids = [self._object_ids(k, m, t) for k, m in enumerate((ego_map, other_map))]
+        kept = admitted(self.measurements, self.filter.estimate, self.aligner.params)
+        zs = np.array([m.z for m in kept]).reshape(-1, 3)
+        Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
+        return self.filter.update(zs, Rs, evidence_of(kept, *ids))
+
+    def _object_ids(self, k: int, objects: ObjectMap, t: float) -> np.ndarray:
+        """(n,) persistent ids of map k's objects (0 ego, 1 other); -1 for objects not seen
+        within kappa, which no candidate associates."""
+        recent = objects.recent_indices(t, self.aligner.params.kappa)
+        ids = np.full(len(objects), -1, np.int64)
+        ids[recent] = self._identities[k].update(objects.centroids[recent, :2])
+        return ids

@@ -202,6 +202,25 @@ class FrameAlignerParams(_ByValue):
             "residual" derives R from the registration residual and the associations' geometry.
         R_constant: (3, 3) covariance of (x [m], y [m], theta [rad]) for covariance="constant".
         residual_floor: metres, lower bound of the per-point noise used by covariance="residual".
+        min_inliers: a candidate must explain at least this many objects: pairs of recent
+            objects, one from each map, that are mutual nearest neighbours under the candidate
+            within `inlier_radius` and pass the size gate, counted over every recent object of
+            the two maps, not only the associated ones. None: no such check.
+        inlier_radius: metres.
+        min_spread: metres; the associated ego centroids must spread at least this far across
+            their least spread direction (`registration.spread`): a line of objects, or two
+            tight clusters, fixes no rotation about its own axis.
+        check_ambiguity: flag a candidate ambiguous when another alignment, distinct from it
+            (more than `distinct_translation` metres or `distinct_heading` radians away),
+            explains as many objects: another solution of the same maps, or a solution
+            between one robot's current map and the other's earlier maps (`memory_span`).
+            The maps then admit several alignments and the best score is no evidence for one
+            of them; an ambiguous candidate may confirm the estimate a filter holds, within
+            `confirm_translation` and `confirm_heading`, but never start or move one.
+        distinct_translation, distinct_heading: metres and radians.
+        memory_span: seconds of each robot's earlier maps searched for look-alikes, one map
+            every kappa seconds; 0 searches only the current maps.
+        confirm_translation, confirm_heading: metres and radians.
     """
 
     kappa: float = 20.0
@@ -218,6 +237,15 @@ class FrameAlignerParams(_ByValue):
     covariance: Literal["constant", "residual"] = "constant"
     R_constant: np.ndarray = field(default_factory=constant_alignment_covariance)
     residual_floor: float = 0.05
+    min_inliers: int | None = None
+    inlier_radius: float = 0.3
+    min_spread: float = 0.25
+    check_ambiguity: bool = True
+    distinct_translation: float = 1.0
+    distinct_heading: float = math.radians(5.0)
+    memory_span: float = 200.0
+    confirm_translation: float = 0.5
+    confirm_heading: float = math.radians(2.5)
 
     def __post_init__(self) -> None:
         o = "FrameAlignerParams"
@@ -247,18 +275,33 @@ class FrameAlignerParams(_ByValue):
         object.__setattr__(self, "R_constant", _spd(self.R_constant, 3, o, "R_constant"))
         _require(_real(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
                  self.residual_floor, "must be a number > 0 metres")
+        _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,
+                 "min_inliers", self.min_inliers, "must be an int >= 2 or None")
+        _require(isinstance(self.check_ambiguity, bool), o, "check_ambiguity",
+                 self.check_ambiguity, "must be True or False")
+        for name in ("inlier_radius", "distinct_translation", "distinct_heading",
+                     "confirm_translation", "confirm_heading"):
+            value = getattr(self, name)
+            _require(_real(value) and 0 < value < math.inf, o, name, value,
+                     "must be a finite number > 0")
+        _require(_real(self.min_spread) and 0 <= self.min_spread < math.inf, o, "min_spread",
+                 self.min_spread, "must be a finite number >= 0 metres")
+        _require(_real(self.memory_span) and 0 <= self.memory_span < math.inf, o,
+                 "memory_span", self.memory_span, "must be a finite number >= 0 seconds")
 
     @classmethod
     def reference(cls) -> FrameAlignerParams:
-        """The authors' released settings, without this project's residual check."""
-        return cls(max_rmse=None)
+        """The authors' released settings, without this project's residual, spread and
+        ambiguity checks."""
+        return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False)
 
 
 @dataclass(frozen=True, eq=False)
 class TCAFFParams(_ByValue):
     """Settings of the TCAFF filter (paper, "Multiple Hypothesis Formulation" and "Frame
-    Alignment Filter"). The defaults are the paper's equations and values; `reference()` is the
-    authors' released code, quirks included.
+    Alignment Filter"). The defaults are the paper's equations and values (`paper()` names
+    them); `min_distinct` = 2 with `switch_stale` counts distinct evidence, for repetitive
+    worlds; `reference()` is the authors' released code, quirks included.
 
     The state x has dimension d = Q.shape[0] (3 for (x [m], y [m], theta [rad]) of T_oi_oj);
     motion and measurement models are the identity. Costs are in nats (negative log
@@ -301,6 +344,16 @@ class TCAFFParams(_ByValue):
             better by `switch_margin` nats for this many consecutive steps. None never re-checks
             (released code).
         switch_margin: nats.
+        min_distinct: a hypothesis is accepted, or replaces the main one, only when its best
+            path over the window holds at least this many distinct pieces of evidence: a
+            measurement is distinct when it associates an object of each robot that no earlier
+            measurement of the path used (objects named by the `evidence` ids given to
+            `TCAFF.update`; a measurement without ids always counts). The same objects matched
+            again a second later are one piece of evidence, not W. 1 counts every measurement.
+        switch_stale: a main hypothesis confirmed by a measurement this step is not abandoned
+            (in a repetitive world a wrong rival can hold a full window while the truth has
+            gaps), unless (True) its best path has brought no distinct evidence for W steps:
+            then it only re-matches objects it already used.
     """
 
     window: int = 8
@@ -323,6 +376,8 @@ class TCAFFParams(_ByValue):
     drop_after: int = 40
     switch_after: int | None = 3
     switch_margin: float = 5.0
+    min_distinct: int = 1
+    switch_stale: bool = False
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
@@ -366,6 +421,10 @@ class TCAFFParams(_ByValue):
                  "switch_after", self.switch_after, "must be an int >= 1 or None")
         _require(_real(self.switch_margin) and 0 <= self.switch_margin < math.inf, o,
                  "switch_margin", self.switch_margin, "must be a finite number >= 0 (nats)")
+        _require(_int_at_least(self.min_distinct, 1), o, "min_distinct", self.min_distinct,
+                 "must be an int >= 1")
+        _require(isinstance(self.switch_stale, bool), o, "switch_stale", self.switch_stale,
+                 "must be True or False")
 
     @property
     def dim(self) -> int:
@@ -373,10 +432,17 @@ class TCAFFParams(_ByValue):
         return self.Q.shape[0]
 
     @classmethod
+    def paper(cls) -> TCAFFParams:
+        """The paper's equations alone: every measurement counts as evidence, and a main
+        hypothesis confirmed at a step is never abandoned at that step."""
+        return cls(min_distinct=1, switch_stale=False)
+
+    @classmethod
     def reference(cls) -> TCAFFParams:
         """The authors' released code: its threshold, gate, cost, promotion and deletion."""
         return cls(tau=9.0, gate="box", cost_model="reference", root_in_window=True,
-                   promotion="reseed", drop_rule="window", drop_after=40, switch_after=None)
+                   promotion="reseed", drop_rule="window", drop_after=40, switch_after=None,
+                   min_distinct=1, switch_stale=False)
 
 
 def _default_odometry_cov(dim: int) -> np.ndarray:

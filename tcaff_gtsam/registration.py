@@ -8,7 +8,14 @@ from .errors import DataError
 from .object_map import ObjectMap
 from .params import _real, _require
 
-__all__ = ["arun_weights", "putative_associations", "registration_rmse", "weighted_arun"]
+__all__ = [
+    "arun_weights",
+    "mutual_inliers",
+    "putative_associations",
+    "registration_rmse",
+    "spread",
+    "weighted_arun",
+]
 
 
 def _sizes_similar(a: np.ndarray, b: np.ndarray, ratio: float, abs_diff: float) -> np.ndarray:
@@ -36,9 +43,15 @@ def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
              "must be a number >= 1")
     _require(_real(abs_diff) and abs_diff >= 0, "putative_associations", "abs_diff", abs_diff,
              "must be a number >= 0 metres")
-    similar = (_sizes_similar(ego.widths, other.widths, ratio, abs_diff)
-               & _sizes_similar(ego.heights, other.heights, ratio, abs_diff))
+    similar = size_compatible(ego, other, ratio, abs_diff)
     return np.argwhere(similar).astype(np.int64).reshape(-1, 2)
+
+
+def size_compatible(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float
+                    ) -> np.ndarray:
+    """(n_ego, n_other) bool: the size gate of `putative_associations` for every pair."""
+    return (_sizes_similar(ego.widths, other.widths, ratio, abs_diff)
+            & _sizes_similar(ego.heights, other.heights, ratio, abs_diff))
 
 
 def arun_weights(ages_ego: np.ndarray, ages_other: np.ndarray, offset: float = 0.01) -> np.ndarray:
@@ -112,3 +125,36 @@ def registration_rmse(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
     d = p.shape[1]
     residual = p - (q @ T_a_b[:d, :d].T + T_a_b[:d, d])
     return float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
+
+
+def mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: np.ndarray,
+                   radius: float) -> np.ndarray:
+    """Pairs (p_k, q_l) that explain each other under T_a_b: mutual nearest neighbours among the
+    `compatible` pairs, within `radius`.
+
+    Args:
+        T_a_b: (3, 3) SE(2) transform; p: (n, 2) points in frame a; q: (m, 2) in frame b.
+        compatible: (n, m) bool, pairs allowed to match (e.g. by object size).
+        radius: metres.
+    Returns:
+        (k, 2) int64 (index into p, index into q), one row per inlier, sorted by p index.
+    """
+    if p.shape[0] == 0 or q.shape[0] == 0:
+        return np.empty((0, 2), np.int64)
+    moved = q @ T_a_b[:2, :2].T + T_a_b[:2, 2]
+    d2 = np.sum((p[:, None, :] - moved[None, :, :]) ** 2, axis=2)
+    d2[~compatible] = np.inf
+    nearest_q = np.argmin(d2, axis=1)
+    nearest_p = np.argmin(d2, axis=0)
+    rows = np.arange(p.shape[0])
+    keep = (nearest_p[nearest_q] == rows) & (d2[rows, nearest_q] <= radius * radius)
+    return np.column_stack([rows[keep], nearest_q[keep]]).astype(np.int64)
+
+
+def spread(points: np.ndarray) -> float:
+    """Metres: the standard deviation of (k, 2) points along their least spread direction (the
+    square root of the smallest eigenvalue of their covariance); 0 for fewer than two points.
+    Points on one line have spread 0."""
+    if points.shape[0] < 2:
+        return 0.0
+    return float(np.sqrt(max(np.linalg.eigvalsh(np.cov(points.T, bias=True))[0], 0.0)))

@@ -12,6 +12,10 @@ Kalman filter with identity motion; a sequence costs the sum over steps of
 exists, only those it gates out); when, W steps later, the best path of some exploring tree
 costs less than tau, that tree becomes the main tree and its best leaf is the estimate. Before
 that, the filter has no estimate.
+
+Beyond the paper, acceptance and switching count distinct evidence: a path's measurements that
+re-match only objects its earlier measurements used are one piece of evidence, not several
+(`TCAFFParams.min_distinct`, `switch_stale`; the object ids come with `update`).
 """
 
 from __future__ import annotations
@@ -117,6 +121,9 @@ class TCAFF:
         self._rival: Leaves | None = None  # best rival leaf of the current streak
         self._empty_windows = 0
         self._bank: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.params.window + 1)
+        # per step of the main tree's columns: each measurement's object-id pairs, or None
+        self._evidence: deque[list[list[tuple[int, int]] | None]] = deque(maxlen=self._columns)
+        self._fresh = 0  # last step at which the main's best path brought distinct evidence
         self._estimate: AlignmentEstimate | None = None
 
     @property
@@ -124,20 +131,27 @@ class TCAFF:
         """The estimate of the latest step, or None."""
         return self._estimate
 
-    def update(self, zs, Rs) -> AlignmentEstimate | None:
+    def update(self, zs, Rs, evidence=None) -> AlignmentEstimate | None:
         """One step.
 
         Args:
             zs: (k, d) measurements (k may be 0; an empty list is fine), angles in radians.
             Rs: (k, d, d) their covariances, symmetric positive definite.
+            evidence: None, or k entries, one per measurement: None or an (m, 2) int array of
+                the (ego object id, other object id) pairs the measurement associates, ids
+                that persist across steps (`ObjectIdentities`). Used by `min_distinct` and
+                `switch_stale`; without it every measurement is distinct evidence.
         Returns:
             The estimate from the main tree's best leaf, or None while there is no main tree.
         Raises:
-            DataError: wrong shapes, non-finite values, R not symmetric positive definite.
+            DataError: wrong shapes, non-finite values, R not symmetric positive definite,
+                evidence of the wrong length or shape.
         """
         zs, Rs = self._validated(zs, Rs)
+        evidence = self._validated_evidence(evidence, zs.shape[0])
         prm = self.params
         self.step += 1
+        self._evidence.append(evidence)
         if prm.promotion == "reseed":  # only the released code's promotion replays steps
             self._bank.append((zs, Rs))
         if self._main is not None and self._main_is_stale():
@@ -152,6 +166,10 @@ class TCAFF:
         elif prm.switch_after is not None:
             self._consider_switch(complete)
         self._estimate = self._main_estimate()
+        if self._main is not None and self._estimate.measurement >= 0:
+            best = int(np.argmin(self._main.cost))
+            if self._distinct(self._main.choice[best])[1]:
+                self._fresh = self.step
         if self._estimate is not None:
             has_measurement = self._estimate.n_measurements > 0
             self._empty_windows = 0 if has_measurement else self._empty_windows + 1
@@ -183,11 +201,11 @@ class TCAFF:
 
     def _accept_best(self, complete: Leaves) -> None:
         """With no main tree: accept the best complete exploring tree if it beats tau."""
-        if len(complete) == 0:
-            return
-        best = int(np.argmin(complete.cost))
-        if complete.cost[best] < self.params.tau:
-            self._accept(complete, best)
+        below = np.flatnonzero(complete.cost < self.params.tau)
+        for best in below[np.argsort(complete.cost[below], kind="stable")]:
+            if self._distinct_enough(complete, best):
+                self._accept(complete, int(best))
+                return
 
     def _consider_switch(self, complete: Leaves) -> None:
         """Switch to a rival hypothesis: one inconsistent with the main tree's best leaf, below
@@ -203,8 +221,12 @@ class TCAFF:
         rival = (~self._consistent(complete, self._main.take([m])) & (cost < prm.tau)
                  & (cost + prm.switch_margin < main_cost[m]))
         # a main hypothesis that a measurement confirmed this step is not abandoned: in a
-        # repetitive world a wrong rival can hold a full window while the truth has gaps
-        if not rival.any() or self._main.since[m] == 0:
+        # repetitive world a wrong rival can hold a full window while the truth has gaps. One
+        # that only re-matches objects it already used is confirmed by nothing new, though.
+        stale = prm.switch_stale and self.step - self._fresh >= prm.window
+        if rival.any() and prm.min_distinct > 1:
+            rival[rival] = [self._distinct_enough(complete, r) for r in np.flatnonzero(rival)]
+        if not rival.any() or (self._main.since[m] == 0 and not stale):
             self._switch_streak, self._rival = 0, None
             return
         best = int(np.flatnonzero(rival)[np.argmin(cost[rival])])
@@ -216,6 +238,34 @@ class TCAFF:
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
             self._accept(complete, best)
+
+    def _distinct_enough(self, leaves: Leaves, index: int) -> bool:
+        """Whether leaf `index`'s path holds `min_distinct` distinct pieces of evidence."""
+        need = self.params.min_distinct
+        return need <= 1 or self._distinct(leaves.choice[index])[0] >= need
+
+    def _distinct(self, path: np.ndarray) -> tuple[int, bool]:
+        """Distinct pieces of evidence on a path over the window, and whether the path's
+        measurement at the current step is one: a measurement is distinct when one of its
+        pairs joins an ego object and an other object that the path's earlier measurements
+        in the window did not use (a measurement without ids always is)."""
+        evidence = self._evidence
+        offset = self._columns - len(evidence)  # columns before the first step seen
+        used_ego: set[int] = set()
+        used_other: set[int] = set()
+        count, new = 0, False
+        for c in range(max(self._columns - self.params.window, offset), self._columns):
+            j = int(path[c])
+            if j < 0:
+                continue
+            pairs = evidence[c - offset][j] if evidence[c - offset] is not None else None
+            new = pairs is None or any(a not in used_ego and b not in used_other
+                                       for a, b in pairs)
+            count += new
+            if pairs is not None:
+                used_ego.update(a for a, _ in pairs)
+                used_other.update(b for _, b in pairs)
+        return count, bool(new and path[-1] >= 0)
 
     def _consistent(self, leaves: Leaves, other: Leaves) -> np.ndarray:
         """(L,) whether each leaf's state agrees with the single leaf `other`'s (Mahalanobis
@@ -232,6 +282,7 @@ class TCAFF:
         prm = self.params
         self.hypothesis += 1
         self._switch_streak, self._rival, self._empty_windows = 0, None, 0
+        self._fresh = self.step
         in_tree = np.flatnonzero(complete.tree == complete.tree[best])
         tree = complete.take(in_tree)
         best = int(np.searchsorted(in_tree, best))
@@ -329,7 +380,32 @@ class TCAFF:
         zs[:, angles] = wrap_angle(zs[:, angles])
         return zs, np.ascontiguousarray(Rs)
 
-    _COUNTERS = ("step", "hypothesis", "_next_tree", "_switch_streak", "_empty_windows")
+    @staticmethod
+    def _validated_evidence(evidence, k: int) -> list[list[tuple[int, int]] | None] | None:
+        if evidence is None:
+            return None
+        if isinstance(evidence, (str, bytes)) or not hasattr(evidence, "__len__"):
+            raise DataError(f"TCAFF.update: evidence must be None or a sequence of {k} "
+                            f"entries, got {type(evidence).__name__}")
+        if len(evidence) != k:
+            raise DataError(f"TCAFF.update: evidence has {len(evidence)} entries for {k} "
+                            f"measurements")
+        out: list[list[tuple[int, int]] | None] = []
+        for i, pairs in enumerate(evidence):
+            if pairs is None:
+                out.append(None)
+                continue
+            arr = np.asarray(pairs)
+            if arr.size == 0:
+                arr = arr.reshape(0, 2)
+            if arr.ndim != 2 or arr.shape[1] != 2 or arr.dtype.kind not in "iu":
+                raise DataError(f"TCAFF.update: evidence[{i}] must be an (m, 2) int array of "
+                                f"object-id pairs, got shape {arr.shape} of {arr.dtype}")
+            out.append([(int(a), int(b)) for a, b in arr])
+        return out
+
+    _COUNTERS = ("step", "hypothesis", "_next_tree", "_switch_streak", "_empty_windows",
+                 "_fresh")
     _TREES = ("main", "explore", "rival")
 
     def state_dict(self) -> dict[str, np.ndarray]:
@@ -345,6 +421,16 @@ class TCAFF:
         state["bank.zs"] = np.concatenate([zs for zs, _ in self._bank] or [np.empty((0, d))])
         state["bank.Rs"] = np.concatenate([Rs for _, Rs in self._bank]
                                           or [np.empty((0, d, d))])
+        # evidence per step: -1 for a step without, else its measurements; per measurement the
+        # number of pairs, -1 for none given
+        steps = list(self._evidence)
+        state["evidence.sizes"] = np.array([-1 if e is None else len(e) for e in steps],
+                                           dtype=np.int64)
+        per = [p for e in steps if e is not None for p in e]
+        state["evidence.counts"] = np.array([-1 if p is None else len(p) for p in per],
+                                            dtype=np.int64)
+        state["evidence.pairs"] = np.array([ab for p in per if p is not None for ab in p],
+                                           dtype=np.int64).reshape(-1, 2)
         return state
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
@@ -356,6 +442,7 @@ class TCAFF:
         d, columns = self.params.dim, self._columns
         try:
             counters = {c: int(np.asarray(state[c]).item()) for c in self._COUNTERS}
+            evidence = self._evidence_from(state)
             trees = {name: Leaves(*(np.array(state[f"{name}.{f}"], dtype=dtype)
                                     for f, dtype in LEAF_DTYPES.items()))
                      for name in self._TREES if f"{name}.x" in state}
@@ -392,7 +479,33 @@ class TCAFF:
         bounds = np.r_[0, np.cumsum(sizes)]
         self._bank = deque(((bank_zs[a:b], bank_Rs[a:b]) for a, b in pairwise(bounds)),
                            maxlen=self.params.window + 1)
+        self._evidence = deque(evidence, maxlen=self._columns)
         self._estimate = self._main_estimate()
+
+    def _evidence_from(self, state: dict[str, np.ndarray]
+                       ) -> list[list[list[tuple[int, int]] | None] | None]:
+        """The evidence bank of a `state_dict`; DataError when its arrays disagree."""
+        sizes = np.array(state["evidence.sizes"], dtype=np.int64)
+        counts = np.array(state["evidence.counts"], dtype=np.int64)
+        pairs = np.array(state["evidence.pairs"], dtype=np.int64)
+        if (sizes.ndim != 1 or sizes.size > self._columns or counts.ndim != 1
+                or np.any(sizes < -1) or np.any(counts < -1)
+                or counts.size != sizes[sizes > 0].sum() or pairs.ndim != 2
+                or pairs.shape != (counts[counts > 0].sum(), 2)):
+            raise DataError("TCAFF state: the stored evidence does not match evidence.sizes")
+        steps, m, row = [], 0, 0
+        for size in sizes:
+            if size < 0:
+                steps.append(None)
+                continue
+            step = []
+            for count in counts[m:m + size]:
+                step.append(None if count < 0 else
+                            [(int(a), int(b)) for a, b in pairs[row:row + count]])
+                row += max(int(count), 0)
+            m += int(size)
+            steps.append(step)
+        return steps
 
     def save(self, path: str | Path) -> None:
         """Write parameters and state to an .npz file."""

@@ -84,7 +84,7 @@ def test_public_api_is_unchanged():
         "GraphParams", "InterRobotGraph", "ModelError", "ObjectMap", "PairwiseAligner",
         "TCAFFParams", "TcaffError", "clipper_solve", "consistency_graph", "mno_clipper",
         "putative_associations", "weighted_arun",
-        "TeamConsistency", "TeamEstimate", "TeamParams"}
+        "TeamConsistency", "TeamEstimate", "TeamParams", "MapMemory", "ObjectIdentities"}
     for name in tcaff_gtsam.__all__:
         value = getattr(tcaff_gtsam, name)
         assert value.__name__ == name

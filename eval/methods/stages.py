@@ -8,9 +8,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner
+from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory
 from tcaff_gtsam.geometry import se2_to_params
+from tcaff_gtsam.identities import ObjectIdentities
 from tcaff_gtsam.object_map import ObjectMap
+from tcaff_gtsam.pairwise import admitted, evidence_of, unchecked
 from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
 from tcaff_gtsam.tcaff import TCAFF, AlignmentEstimate
 
@@ -66,19 +68,23 @@ class RunSetup:
 class SharedStages:
     """Stages several runners need, each computed at most once per pair and step, on demand.
 
-    `candidates(p)`: every MNO-CLIPPER solution of pair p at this step, without the residual
-    check (the reference preset sees them all). `tcaff(p)`: the default-preset TCAFF filter of
-    pair p fed the candidates that pass `max_rmse`, with their covariances. A filter is advanced
-    only through `tcaff(p)`, so every runner that uses it must ask for every pair at every step.
-    `seconds` holds each stage's time.
+    `candidates(p)`: every MNO-CLIPPER solution of pair p at this step, without the checks
+    beyond it (`pairwise.unchecked`: the reference preset sees them all). `tcaff(p)`: the
+    default-preset TCAFF filter of pair p fed the candidates that pass the method set's checks
+    and that it may take (`pairwise.admitted`), with their covariances and object evidence.
+    When the set's aligner checks more than the residual, its candidates are searched anew
+    (with each robot's earlier maps); otherwise they are `candidates(p)` filtered by residual.
+    A filter is advanced only through `tcaff(p)`, so every runner that uses it must ask for
+    every pair at every step. `seconds` holds each stage's time.
     """
 
     def __init__(self, setup: RunSetup, methods: MethodsConfig) -> None:
         settings = setup.run.settings
-        aligner = methods.aligner_params(settings.kappa)
         self.setup = setup
-        self.max_rmse = aligner.max_rmse
-        self.aligner = FrameAligner(replace(aligner, max_rmse=None))
+        self.checked = methods.aligner_params(settings.kappa)
+        self.aligner = FrameAligner(unchecked(self.checked))
+        self._verifier = (FrameAligner(self.checked) if self.checked != replace(
+            self.aligner.params, max_rmse=self.checked.max_rmse) else None)
         self.tcaff_params = methods.tcaff_params(False, settings.window)
         self.seconds = {"candidates": 0.0, "tcaff": 0.0}
         self._filters: list[TCAFF] | None = None
@@ -87,12 +93,21 @@ class SharedStages:
         self.s, self.t = -1, 0.0
         self._candidates: dict[int, list[AlignmentMeasurement]] = {}
         self._tcaff: dict[int, tuple[AlignmentEstimate | None, np.ndarray, np.ndarray]] = {}
+        n = setup.run.n_robots
+        span = self.checked.memory_span if self.checked.check_ambiguity else 0.0
+        self._memory = [MapMemory(span, self.checked.kappa) for _ in range(n)]
+        self._identities = [ObjectIdentities() for _ in range(n)]
+        self._ids: dict[int, np.ndarray] = {}
 
     def begin(self, s: int, t: float) -> None:
         """Start exchange s at time t (s)."""
+        if self.s >= 0:
+            for robot, memory in enumerate(self._memory):
+                memory.add(self.t, self.setup.run.maps[robot][self.s])
         self.s, self.t = s, t
         self._candidates.clear()
         self._tcaff.clear()
+        self._ids.clear()
 
     def seconds_total(self) -> float:
         return self.seconds["candidates"] + self.seconds["tcaff"]
@@ -104,21 +119,49 @@ class SharedStages:
             self.seconds["candidates"] += time.perf_counter() - start
         return self._candidates[p]
 
+    def _checked(self, p: int) -> list[AlignmentMeasurement]:
+        """Pair p's candidates under the method set's checks."""
+        if self._verifier is None:
+            max_rmse = self.checked.max_rmse
+            return [m for m in self.candidates(p) if max_rmse is None or m.rmse <= max_rmse]
+        i, j = self.setup.pairs[p]
+        estimate = None if self._filters is None else self._filters[p].estimate
+        start = time.perf_counter()
+        found = self._verifier.measurements(*self.setup.maps(p, self.s), self.t,
+                                            self._memory[i].snapshots(),
+                                            self._memory[j].snapshots(),
+                                            None if estimate is None else estimate.x)
+        self.seconds["candidates"] += time.perf_counter() - start
+        return found
+
     def tcaff(self, p: int) -> tuple[AlignmentEstimate | None, np.ndarray, np.ndarray]:
         """(estimate or None, zs (k, 3), Rs (k, 3, 3)) of pair p's default TCAFF at this step."""
         if p not in self._tcaff:
-            found = self.candidates(p)
+            found = self._checked(p)
             start = time.perf_counter()
-            kept = [m for m in found if self.max_rmse is None or m.rmse <= self.max_rmse]
             if self._filters is None:
                 self._filters = [TCAFF(self.tcaff_params) for _ in self.setup.pairs]
+            kept = admitted(found, self._filters[p].estimate, self.checked)
             zs = np.array([m.z for m in kept]).reshape(-1, 3)
             Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-            self._tcaff[p] = (self._filters[p].update(zs, Rs), zs, Rs)
+            i, j = self.setup.pairs[p]
+            evidence = evidence_of(kept, self.object_ids(i), self.object_ids(j))
+            self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence), zs, Rs)
             self._steps[p] += [self.s] * len(zs)
             self._z[p] += list(zs)
             self.seconds["tcaff"] += time.perf_counter() - start
         return self._tcaff[p]
+
+    def object_ids(self, robot: int) -> np.ndarray:
+        """(n,) persistent ids of the robot's map objects at this step (-1 for objects not
+        seen within kappa, which no candidate associates)."""
+        if robot not in self._ids:
+            objects = self.setup.run.maps[robot][self.s]
+            recent = objects.recent_indices(self.t, self.checked.kappa)
+            ids = np.full(len(objects), -1, np.int64)
+            ids[recent] = self._identities[robot].update(objects.centroids[recent, :2])
+            self._ids[robot] = ids
+        return self._ids[robot]
 
     def candidate_history(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per pair, (steps (M,), z (M, 3)): every candidate the default TCAFF saw."""

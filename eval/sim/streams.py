@@ -15,8 +15,10 @@ from tcaff_gtsam.geometry import se2_from_params, se2_to_params, wrap_angle
 
 __all__ = [
     "AlignmentStream",
+    "DecoyStream",
     "RobotTeamStreams",
     "alignment_stream",
+    "decoy_stream",
     "observe_alignments",
     "robot_team_streams",
     "wrong_alignments",
@@ -105,6 +107,96 @@ def observe_alignments(rng: np.random.Generator, truth: np.ndarray,
         correct.append(index)
     return AlignmentStream(np.asarray(truth, float).reshape(-1, 3), zs,
                            np.array(correct, np.int64))
+
+
+@dataclass(frozen=True)
+class DecoyStream:
+    """A stream in which a wrong but self-consistent alignment comes first.
+
+    Attributes:
+        truth: (n, 3) true (x [m], y [m], theta [rad]) of T_oi_oj per step.
+        zs: n arrays (k_t, 3) of measurements.
+        evidence: n lists of k_t arrays (m, 2) of the (ego id, other id) object pairs each
+            measurement associates (`TCAFF.update`'s evidence).
+        correct: (n,) index of the correct measurement in zs[t], -1 if none.
+        truth_from: first step with a correct measurement.
+        jump: step at which the truth jumps (-1 for none); its first correct measurement after
+            is `rejoin`.
+        rejoin: first step with a correct measurement after the jump (-1 for none).
+    """
+
+    truth: np.ndarray
+    zs: list[np.ndarray]
+    evidence: list[list[np.ndarray]]
+    correct: np.ndarray
+    truth_from: int
+    jump: int
+    rejoin: int
+
+    def __len__(self) -> int:
+        return len(self.zs)
+
+
+def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 30,
+                 p_truth: float = 0.9, p_decoy: float = 0.45, outliers: tuple[int, int] = (0, 2),
+                 jump_at: int | None = 80, gap: int = 10,
+                 jump=(3.0, -2.0, 40.0 * DEG), x0=(3.0, -2.0, 1.0),
+                 decoy_offset=(4.0, 3.0, 120.0 * DEG), noise=(0.2, 0.2, 2.0 * DEG),
+                 objects_per_match: int = 6, new_object_every: int = 2) -> DecoyStream:
+    """The decoy of a repetitive world: a look-alike cluster that matches a wrong alignment
+    (the truth composed with `decoy_offset`, so it drifts with the truth and is consistent
+    over time) and re-matches the same objects at every sighting, while the true match moves
+    through new objects as the robots move.
+
+    The decoy alone is seen at every step for `decoy_alone` steps; then the truth at rate
+    `p_truth` and the decoy at `p_decoy`. With `jump_at`, the robots part for `gap` steps (no
+    correct measurement), the truth jumps by `jump` (a re-initialised odometry frame), and the
+    overlap resumes. Outliers have random object ids.
+    """
+    if not (0 < decoy_alone < steps and 0 <= p_truth <= 1 and 0 <= p_decoy <= 1):
+        raise DataError(f"decoy_stream: need 0 < decoy_alone < steps, rates in [0, 1], got "
+                        f"{decoy_alone}, {steps}, {p_truth}, {p_decoy}")
+    x = np.array(x0, dtype=float)
+    truth = np.empty((steps, 3))
+    for t in range(steps):
+        if t:
+            x = x + rng.normal(0.0, (0.005, 0.005, 0.05 * DEG))
+        if jump_at is not None and t == jump_at:
+            x = x + np.asarray(jump, float)
+        x[2] = wrap_angle(x[2])
+        truth[t] = x
+    decoy_T = se2_from_params(np.asarray(decoy_offset, float))
+    decoy_pairs = np.column_stack([np.arange(objects_per_match),
+                                   10_000 + np.arange(objects_per_match)])
+    gap_steps = range(jump_at - gap, jump_at) if jump_at is not None else range(0)
+    zs, evidence, correct = [], [], []
+    rejoin = -1
+    for t in range(steps):
+        meas, pairs = [], []
+        decoy_seen = t < decoy_alone or rng.random() < p_decoy
+        if decoy_seen:
+            z = se2_to_params(se2_from_params(truth[t]) @ decoy_T) + rng.normal(0.0, noise)
+            meas.append(z)
+            pairs.append(decoy_pairs)
+        index = -1
+        if t >= decoy_alone and t not in gap_steps and rng.random() < p_truth:
+            index = len(meas)
+            meas.append(truth[t] + rng.normal(0.0, noise))
+            first = t // new_object_every  # objects enter and leave the overlap as robots move
+            ids = 20_000 + first + np.arange(objects_per_match)
+            pairs.append(np.column_stack([ids, ids + 100_000]))
+            if jump_at is not None and t >= jump_at and rejoin < 0:
+                rejoin = t
+        for z in wrong_alignments(rng, int(rng.integers(outliers[0], outliers[1] + 1))):
+            meas.append(z)
+            pairs.append(rng.integers(0, 1_000_000, (objects_per_match, 2)))
+        arr = np.array(meas).reshape(-1, 3)
+        arr[:, 2] = wrap_angle(arr[:, 2])
+        zs.append(arr)
+        evidence.append(pairs)
+        correct.append(index)
+    return DecoyStream(truth, zs, evidence, np.array(correct, np.int64), decoy_alone,
+                       -1 if jump_at is None else jump_at, rejoin)
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,13 @@ from tcaff_gtsam.params import (
 
 CLASSES = [ClipperParams, FrameAlignerParams, TCAFFParams, GraphParams]
 #: fields where None is a valid value (it means "off" or "the default")
-OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("TCAFFParams", "gate_box"),
+OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inliers"),
+            ("TCAFFParams", "gate_box"),
             ("TCAFFParams", "switch_after"), ("GraphParams", "Q"),
             ("GraphParams", "odometry_cov")}
+#: fields that are switches
+SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),
+            ("FrameAlignerParams", "check_ambiguity")}
 #: values of the wrong kind for a number, a choice, a matrix or a nested parameter object
 JUNK = ("8", "huge", b"1", [["a"]], {}, object(), float("nan"))
 
@@ -47,7 +51,7 @@ def test_every_field_refuses_junk_with_a_config_error_naming_it(cls, name, value
 @pytest.mark.parametrize(("cls", "name", "value"), cases([None, True]), ids=short)
 def test_none_and_bools_only_where_the_field_takes_them(cls, name, value):
     takes = ((cls.__name__, name) in OPTIONAL if value is None
-             else (cls.__name__, name) == ("TCAFFParams", "root_in_window"))
+             else (cls.__name__, name) in SWITCHES)
     if takes:
         cls(**{name: value})
     else:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
-from tcaff_gtsam.eval.sim.streams import alignment_stream, wrong_alignments
+from tcaff_gtsam.eval.sim.streams import alignment_stream, decoy_stream, wrong_alignments
 
 from tcaff_gtsam import TCAFF, TCAFFParams
 from tcaff_gtsam.errors import ConfigError, DataError, TcaffError
@@ -367,3 +369,88 @@ def test_save_writes_exactly_the_path_given(tmp_path):
     f.save(tmp_path / "filter.state")
     assert not (tmp_path / "filter.state.npz").exists()
     assert TCAFF.load(tmp_path / "filter.state").step == 1
+
+
+# -- distinct evidence ------------------------------------------------------------------------
+
+DISTINCT = TCAFFParams(min_distinct=2, switch_stale=True)
+
+
+def run_with_evidence(filt: TCAFF, stream, R=R_CONSTANT):
+    return [filt.update(zs, np.broadcast_to(R, (len(zs), 3, 3)), ev)
+            for zs, ev in zip(stream.zs, stream.evidence, strict=True)]
+
+
+def test_a_recurring_wrong_match_in_otherwise_empty_steps_is_not_accepted():
+    """The same objects matched again every second are one piece of evidence, not W."""
+    z = np.array([[4.0, -1.0, 0.7]])
+    same_objects = [np.array([[0, 10], [1, 11], [2, 12], [3, 13], [4, 14]])]
+    filt = TCAFF(DISTINCT)
+    for _ in range(60):
+        assert filt.update(z, R_CONSTANT[None], same_objects) is None
+    counting = TCAFF(replace(DISTINCT, min_distinct=1))
+    assert run(counting, [z] * 60)[-1] is not None  # counting every measurement accepts it
+
+
+def test_a_match_that_moves_through_new_objects_is_accepted():
+    z = np.array([[4.0, -1.0, 0.7]])
+    filt = TCAFF(DISTINCT)
+    estimates = [filt.update(z, R_CONSTANT[None], [np.array([[t, 100 + t], [t + 1, 101 + t]])])
+                 for t in range(12)]
+    assert first_estimate(estimates) == DISTINCT.window + 1
+
+
+def test_an_early_decoy_is_replaced_within_W_plus_5_steps():
+    W = DISTINCT.window
+    for seed in range(10):
+        stream = decoy_stream(np.random.default_rng(seed))
+        estimates = run_with_evidence(TCAFF(DISTINCT), stream)
+        start = stream.truth_from
+        ok = [est is not None and errors([est], [x])[0, 0] < 1.0
+              and errors([est], [x])[0, 1] < 5.0
+              for est, x in zip(estimates[start:], stream.truth[start:], strict=True)]
+        assert ok.index(True) + 1 <= W + 5, f"seed {seed}"
+        # and no wrong estimate from the decoy before it
+        assert all(est is None for est in estimates[:start])
+
+
+def test_without_evidence_the_filter_is_unchanged():
+    stream = alignment_stream(np.random.default_rng(4), 120, jumps={60: (3.0, -2.0, 0.7)})
+    a = run(TCAFF(DISTINCT), stream.zs)
+    b = run(TCAFF(replace(DISTINCT, min_distinct=1, switch_stale=False)), stream.zs)
+    assert [None if e is None else e.x.tolist() for e in a] == \
+        [None if e is None else e.x.tolist() for e in b]
+
+
+@pytest.mark.parametrize(("evidence", "message"), [
+    ([np.zeros((2, 2), int)] * 2, "evidence has 2 entries for 1"),
+    ([np.zeros((2, 3), int)], r"evidence\[0\] must be an \(m, 2\) int array"),
+    ([np.zeros((2, 2))], r"evidence\[0\] must be an \(m, 2\) int array"),
+    ("ab", "evidence must be None or a sequence"),
+])
+def test_bad_evidence_is_a_data_error(evidence, message):
+    filt = TCAFF(DISTINCT)
+    with pytest.raises(DataError, match=message):
+        filt.update([[0.0, 0.0, 0.0]], R_CONSTANT[None], evidence)
+    assert filt.step == 0  # nothing was taken
+
+
+def test_evidence_survives_save_and_restore(tmp_path):
+    stream = decoy_stream(np.random.default_rng(1))
+    a = TCAFF(DISTINCT)
+    half = len(stream) // 2
+    for zs, ev in zip(stream.zs[:half], stream.evidence[:half], strict=True):
+        a.update(zs, np.broadcast_to(R_CONSTANT, (len(zs), 3, 3)), ev)
+    a.save(tmp_path / "filter.npz")
+    b = TCAFF.load(tmp_path / "filter.npz")
+    for zs, ev in zip(stream.zs[half:], stream.evidence[half:], strict=True):
+        Rs = np.broadcast_to(R_CONSTANT, (len(zs), 3, 3))
+        ea, eb = a.update(zs, Rs, ev), b.update(zs, Rs, ev)
+        assert (ea is None) == (eb is None)
+        if ea is not None:
+            np.testing.assert_array_equal(ea.x, eb.x)
+            assert ea.hypothesis == eb.hypothesis
+    state = a.state_dict()
+    state["evidence.counts"] = state["evidence.counts"][:-1]
+    with pytest.raises(DataError, match="evidence"):
+        TCAFF(DISTINCT).load_state_dict(state)

@@ -1,0 +1,78 @@
+"""ObjectIdentities: the same object under the same id from one map exchange to the next.
+
+A robot's shared map need not keep an object at the same index (a windowed map, say, rebuilds
+its list at every exchange). TCAFF counts evidence by the objects a measurement associates, so
+it needs identities that persist: each object of a new map takes the id of the object of the
+recent maps it lies nearest to (one-to-one, Hungarian assignment on distance, within a gate);
+objects left over get new ids. Ids are local to one robot's maps.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import DataError
+from .params import _int_at_least, _real, _require
+
+__all__ = ["ObjectIdentities"]
+
+
+class ObjectIdentities:
+    """Persistent ids of one robot's objects across its map exchanges.
+
+    Args:
+        gate: metres; an object keeps an earlier id only within this distance of where that
+            id was last placed.
+        memory: exchanges an id not seen is remembered before it is forgotten.
+    """
+
+    def __init__(self, gate: float = 0.3, memory: int = 20) -> None:
+        _require(_real(gate) and 0 < gate < np.inf, "ObjectIdentities", "gate", gate,
+                 "must be a finite number > 0 metres")
+        _require(_int_at_least(memory, 1), "ObjectIdentities", "memory", memory,
+                 "must be an int >= 1")
+        self.gate, self.memory = float(gate), int(memory)
+        self._xy = np.empty((0, 2))  # last position of each remembered id
+        self._ids = np.empty(0, np.int64)
+        self._last = np.empty(0, np.int64)  # exchange at which each id was last placed
+        self._exchange = 0
+        self._next = 0
+
+    def update(self, xy) -> np.ndarray:
+        """Ids of the objects of one exchange.
+
+        Args:
+            xy: (n, 2) metres, the objects' positions in the robot's odometry frame.
+        Returns:
+            (n,) int64 ids; equal ids across calls are the same object.
+        Raises:
+            DataError: xy is not a finite (n, 2) array.
+        """
+        from scipy.optimize import linear_sum_assignment
+
+        try:
+            xy = np.array(xy, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"ObjectIdentities.update: xy must be numbers ({exc})") from None
+        if xy.size == 0:
+            xy = xy.reshape(0, 2)
+        if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+            raise DataError(f"ObjectIdentities.update: xy must be a finite (n, 2) array, got "
+                            f"shape {xy.shape}")
+        self._exchange += 1
+        n = xy.shape[0]
+        ids = np.full(n, -1, np.int64)
+        if n and self._ids.size:
+            d = np.linalg.norm(xy[:, None, :] - self._xy[None, :, :], axis=2)
+            cost = np.where(d <= self.gate, d, 1e6)
+            rows, cols = linear_sum_assignment(cost)
+            ok = d[rows, cols] <= self.gate
+            ids[rows[ok]] = self._ids[cols[ok]]
+        new = ids < 0
+        ids[new] = self._next + np.arange(np.count_nonzero(new))
+        self._next += int(np.count_nonzero(new))
+        kept = (self._exchange - self._last < self.memory) & ~np.isin(self._ids, ids)
+        self._xy = np.concatenate([self._xy[kept], xy])
+        self._ids = np.concatenate([self._ids[kept], ids])
+        self._last = np.concatenate([self._last[kept], np.full(n, self._exchange)])
+        return ids
