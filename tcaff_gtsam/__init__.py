@@ -93,8 +93,8 @@ _LAZY = {
 # Submodules an eager import used to bind as attributes (`tcaff_gtsam.geometry.wrap_angle`
 # after a bare `import tcaff_gtsam`); they stay reachable that way.
 _SUBMODULES = frozenset({"clipper", "errors", "frame_aligner", "geometry", "graph",
-                         "hypothesis_tree", "identities", "object_map", "pairwise", "params", "registration",
-                         "tcaff", "team"})
+                         "hypothesis_tree", "identities", "object_map", "pairwise", "params",
+                         "registration", "tcaff", "team"})
 
 
 def __getattr__(name: str) -> object:
