@@ -19,9 +19,10 @@ import argparse
 from dataclasses import replace
 
 import numpy as np
+from tcaff_gtsam.eval.metrics import Thresholds, step_errors
 from tcaff_gtsam.eval.sim.streams import decoy_stream
 
-from tcaff_gtsam.geometry import wrap_angle
+from tcaff_gtsam.geometry import se2_from_params
 from tcaff_gtsam.params import TCAFFParams, constant_alignment_covariance
 from tcaff_gtsam.tcaff import TCAFF
 
@@ -32,16 +33,16 @@ PRESETS = {
 }
 
 
-def first_correct(x: np.ndarray, truth: np.ndarray, start: int) -> int | None:
-    """Steps from `start` to the first correct estimate at or after it (1 = at `start`)."""
-    ok = correct(x, truth)
-    hits = np.flatnonzero(ok[start:])
-    return None if hits.size == 0 else int(hits[0]) + 1
+def steps_to_correct(correct: np.ndarray, start: int) -> float:
+    """Steps from `start` to the first correct estimate at or after it (1 = at `start`); inf
+    when there is none."""
+    hits = np.flatnonzero(correct[start:])
+    return float(hits[0] + 1) if hits.size else np.inf
 
 
-def correct(x: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    return ((np.hypot(*(x[:, :2] - truth[:, :2]).T) <= 1.0)
-            & (np.abs(wrap_angle(x[:, 2] - truth[:, 2])) <= np.radians(5.0)))
+def median_range(values: list[float]) -> str:
+    v = np.array(values)
+    return f"{np.median(v):.1f} ({v.min():.0f}-{v.max():.0f})"
 
 
 def main() -> None:
@@ -50,6 +51,7 @@ def main() -> None:
     parser.add_argument("--window", type=int, default=8, help="W")
     args = parser.parse_args()
     R = constant_alignment_covariance()
+    limits = Thresholds()
     print(f"{'preset':28} {'false acc.':>10} {'recovery':>16} {'jump recovery':>16} "
           f"{'flaps':>6}")
     for name, params in PRESETS.items():
@@ -65,21 +67,19 @@ def main() -> None:
                 est = tcaff.update(zs, np.broadcast_to(R, (len(zs), 3, 3)), ev)
                 if est is not None:
                     x[t], hyp[t] = est.x, est.hypothesis
-            has = ~np.isnan(x[:, 0])
+            err = step_errors(se2_from_params(stream.truth), x)  # NaN rows: no estimate
+            has = ~np.isnan(err[:, 0])
+            correct = has & (err[:, 0] <= limits.translation) & (err[:, 1] <= limits.heading)
             n_est += int(has.sum())
-            n_wrong += int((has & ~correct(np.nan_to_num(x), stream.truth)).sum())
-            steps = first_correct(np.nan_to_num(x, nan=1e9), stream.truth, stream.truth_from)
-            recovery.append(np.inf if steps is None else steps)
-            after = first_correct(np.nan_to_num(x, nan=1e9), stream.truth, stream.rejoin)
-            jump_recovery.append(np.inf if after is None else after)
-            if steps is not None:
-                changes = np.flatnonzero(np.diff(hyp[stream.truth_from + steps - 1:]))
+            n_wrong += int((has & ~correct).sum())
+            steps = steps_to_correct(correct, stream.truth_from)
+            recovery.append(steps)
+            jump_recovery.append(steps_to_correct(correct, stream.rejoin))
+            if np.isfinite(steps):
+                changes = np.flatnonzero(np.diff(hyp[stream.truth_from + int(steps) - 1:]))
                 flaps += max(len(changes) - 1, 0)  # the jump needs one switch
-        def spread(values: list[float]) -> str:
-            v = np.array(values)
-            return f"{np.median(v):.1f} ({v.min():.0f}-{v.max():.0f})"
-        print(f"{name:28} {100 * n_wrong / max(n_est, 1):>8.1f} % {spread(recovery):>16} "
-              f"{spread(jump_recovery):>16} {flaps:>6}")
+        print(f"{name:28} {100 * n_wrong / max(n_est, 1):>8.1f} % {median_range(recovery):>16} "
+              f"{median_range(jump_recovery):>16} {flaps:>6}")
 
 
 if __name__ == "__main__":

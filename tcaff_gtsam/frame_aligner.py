@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,7 +21,6 @@ from .params import FrameAlignerParams
 from .registration import (
     arun_weights,
     mutual_inliers,
-    putative_associations,
     registration_rmse,
     size_compatible,
     spread,
@@ -133,34 +132,33 @@ class FrameAligner:
         prm = self.params
         ego_idx = ego.recent_indices(now, prm.kappa)
         other_idx = other.recent_indices(now, prm.kappa)
-        found = self._registered(ego.subset(ego_idx), other.subset(other_idx), now)
-        out: list[AlignmentMeasurement] = []
-        for f in found:
-            if not f.qualifies:
-                continue
-            if prm.min_inliers is not None and f.inliers < prm.min_inliers:
-                continue
-            if prm.min_spread > 0 and spread(f.p[:, :2]) < prm.min_spread:
-                continue
+        ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
+        found = self._registered(ego_r, other_r, now)
+        kept = [f for f in found if f.qualifies
+                and (prm.min_inliers is None or f.inliers >= prm.min_inliers)
+                and (prm.min_spread == 0 or spread(f.p[:, :2]) >= prm.min_spread)]
+        ambiguous = [False] * len(kept)
+        if kept and prm.check_ambiguity:
+            ambiguous = [self._has_rival(f, found) for f in kept]
+            # the earlier maps are searched only for rivals of candidates that could start or
+            # move the caller's estimate: an ambiguous one may still confirm it
+            search = [k for k, f in enumerate(kept)
+                      if not ambiguous[k] and not confirms(f.z, held, prm)]
+            if search and (ego_past or other_past):
+                rivals = [r for t, past in ego_past
+                          for r in self._registered(past.recent(t, prm.kappa), other_r, now)]
+                rivals += [r for t, past in other_past
+                           for r in self._registered(ego_r, past.recent(t, prm.kappa), now)]
+                for k in search:
+                    ambiguous[k] = self._has_rival(kept[k], rivals)
+        out = []
+        for f, flag in zip(kept, ambiguous, strict=True):
             R = (prm.R_constant.copy() if prm.covariance == "constant"
                  else residual_covariance(f.T, f.p[:, :2], f.q[:, :2], f.w, prm.residual_floor))
             a = f.associations
             associations = np.column_stack([ego_idx[a[:, 0]], other_idx[a[:, 1]]])
             out.append(AlignmentMeasurement(f.z, R, associations, f.score, f.rmse, f.inliers,
-                                            False))
-        if out and prm.check_ambiguity:
-            out = [replace(m, ambiguous=self._has_rival(m, found)) for m in out]
-            search = [m for m in out if not m.ambiguous and not confirms(m.z, held, prm)]
-            if search and (ego_past or other_past):
-                rivals = []
-                for t, past in ego_past:
-                    rivals += self._registered(past.recent(t, prm.kappa),
-                                               other.subset(other_idx), now)
-                for t, past in other_past:
-                    rivals += self._registered(ego.subset(ego_idx),
-                                               past.recent(t, prm.kappa), now)
-                out = [replace(m, ambiguous=True) if any(m is c for c in search)
-                       and self._has_rival(m, rivals) else m for m in out]
+                                            flag))
         out.sort(key=lambda meas: -meas.score)
         return out
 
@@ -171,7 +169,9 @@ class FrameAligner:
         prm = self.params
         if min(len(ego_r), len(other_r)) < prm.min_associations:
             return []
-        assoc = putative_associations(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
+        # the size gate of putative_associations, kept whole for counting the inliers
+        compatible = size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
+        assoc = np.argwhere(compatible).astype(np.int64)
         if assoc.shape[0] < prm.min_associations:
             return []
         p_all = ego_r.centroids[:, : prm.dim]
@@ -183,8 +183,6 @@ class FrameAligner:
         best = max(s.score for s in solutions)
         ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
         counting = prm.min_inliers is not None or prm.check_ambiguity
-        compatible = (size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
-                      if counting else None)
         found = []
         for sol in solutions:
             a = sol.associations
@@ -206,17 +204,17 @@ class FrameAligner:
                                    qualifies, inliers))
         return found
 
-    def _has_rival(self, m: AlignmentMeasurement, rivals: list[_Solution]) -> bool:
-        """Whether a solution distinct from m explains at least as many objects."""
-        if not rivals:
-            return False
+    def _has_rival(self, candidate: _Solution, rivals: list[_Solution]) -> bool:
+        """Whether a solution distinct from the candidate explains at least as many objects."""
         prm = self.params
-        zs = np.array([r.z for r in rivals])
-        inliers = np.array([r.inliers for r in rivals])
-        dz = zs - m.z
-        distinct = ((np.hypot(dz[:, 0], dz[:, 1]) > prm.distinct_translation)
-                    | (np.abs(wrap_angle(dz[:, 2])) > prm.distinct_heading))
-        return bool(np.any(distinct & (inliers >= m.inliers)))
+        for r in rivals:
+            if r.inliers < candidate.inliers:
+                continue
+            dz = r.z - candidate.z
+            if (math.hypot(dz[0], dz[1]) > prm.distinct_translation
+                    or abs(float(wrap_angle(dz[2]))) > prm.distinct_heading):
+                return True
+        return False
 
 
 def confirms(z: np.ndarray, held: np.ndarray | None, params: FrameAlignerParams) -> bool:
@@ -256,6 +254,12 @@ class MapMemory:
     def __init__(self, span: float, every: float) -> None:
         self.span, self.every = float(span), float(every)
         self._snapshots: deque[tuple[float, ObjectMap]] = deque()
+
+    @classmethod
+    def of(cls, params: FrameAlignerParams) -> MapMemory:
+        """The memory an aligner with these settings searches: `memory_span` seconds, one map
+        every kappa; nothing kept when it does not check ambiguity."""
+        return cls(params.memory_span if params.check_ambiguity else 0.0, params.kappa)
 
     def snapshots(self) -> list[tuple[float, ObjectMap]]:
         """(t, map) of the snapshots kept, oldest first."""

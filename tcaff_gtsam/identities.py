@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DataError
+from .object_map import ObjectMap
 from .params import _int_at_least, _real, _require
 
-__all__ = ["ObjectIdentities"]
+__all__ = ["ObjectIdentities", "recent_ids"]
 
 
 class ObjectIdentities:
@@ -76,3 +77,13 @@ class ObjectIdentities:
         self._ids = np.concatenate([self._ids[kept], ids])
         self._last = np.concatenate([self._last[kept], np.full(n, self._exchange)])
         return ids
+
+
+def recent_ids(identities: ObjectIdentities, objects: ObjectMap, now: float, kappa: float
+               ) -> np.ndarray:
+    """(n,) persistent ids of a map's objects seen within kappa seconds of `now` (the ones an
+    aligner associates), from `identities.update`; -1 for the older objects."""
+    recent = objects.recent_indices(now, kappa)
+    ids = np.full(len(objects), -1, np.int64)
+    ids[recent] = identities.update(objects.centroids[recent, :2])
+    return ids

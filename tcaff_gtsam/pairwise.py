@@ -9,7 +9,7 @@ import numpy as np
 
 from .errors import ConfigError, DataError
 from .frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory, confirms
-from .identities import ObjectIdentities
+from .identities import ObjectIdentities, recent_ids
 from .object_map import ObjectMap
 from .params import FrameAlignerParams, TCAFFParams
 from .tcaff import TCAFF, AlignmentEstimate
@@ -33,10 +33,14 @@ def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | No
     return [m for m in found if not m.ambiguous or confirms(m.z, held, params)]
 
 
-def evidence_of(found: list[AlignmentMeasurement], ego_ids: np.ndarray, other_ids: np.ndarray
-                ) -> list[np.ndarray]:
+def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.ndarray] | None
+                ) -> list[np.ndarray] | None:
     """Per candidate, the (ego object id, other object id) pairs it associates (k, 2), from
-    each map's persistent ids (`ObjectIdentities`) indexed like the maps."""
+    the two maps' persistent ids (`identities.recent_ids`, indexed like the maps); None without
+    ids (a filter that does not count evidence needs none)."""
+    if ids is None:
+        return None
+    ego_ids, other_ids = ids
     return [np.column_stack([ego_ids[m.associations[:, 0]], other_ids[m.associations[:, 1]]])
             for m in found]
 
@@ -62,9 +66,7 @@ class PairwiseAligner:
         self.filter = TCAFF(tcaff_params)
         self.measurements: list[AlignmentMeasurement] = []
         self._last_time: float | None = None
-        prm = self.aligner.params
-        span = prm.memory_span if prm.check_ambiguity else 0.0
-        self._memory = (MapMemory(span, prm.kappa), MapMemory(span, prm.kappa))
+        self._memory = (MapMemory.of(self.aligner.params), MapMemory.of(self.aligner.params))
         self._identities = (ObjectIdentities(), ObjectIdentities())
 
     @classmethod
@@ -96,16 +98,11 @@ class PairwiseAligner:
             ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held)
         ego_memory.add(t, ego_map)
         other_memory.add(t, other_map)
-        ids = [self._object_ids(k, m, t) for k, m in enumerate((ego_map, other_map))]
+        kappa = self.aligner.params.kappa
+        ids = (tuple(recent_ids(identities, objects, t, kappa) for identities, objects
+                     in zip(self._identities, (ego_map, other_map), strict=True))
+               if self.filter.params.counts_evidence else None)
         kept = admitted(self.measurements, self.filter.estimate, self.aligner.params)
         zs = np.array([m.z for m in kept]).reshape(-1, 3)
         Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-        return self.filter.update(zs, Rs, evidence_of(kept, *ids))
-
-    def _object_ids(self, k: int, objects: ObjectMap, t: float) -> np.ndarray:
-        """(n,) persistent ids of map k's objects (0 ego, 1 other); -1 for objects not seen
-        within kappa, which no candidate associates."""
-        recent = objects.recent_indices(t, self.aligner.params.kappa)
-        ids = np.full(len(objects), -1, np.int64)
-        ids[recent] = self._identities[k].update(objects.centroids[recent, :2])
-        return ids
+        return self.filter.update(zs, Rs, evidence_of(kept, ids))

@@ -431,6 +431,11 @@ class TCAFFParams(_ByValue):
         """d, the dimension of the state and of every measurement."""
         return self.Q.shape[0]
 
+    @property
+    def counts_evidence(self) -> bool:
+        """Whether the filter reads the object evidence given to `update`."""
+        return self.min_distinct > 1 or self.switch_stale
+
     @classmethod
     def paper(cls) -> TCAFFParams:
         """The paper's equations alone: every measurement counts as evidence, and a main

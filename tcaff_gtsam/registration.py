@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DataError
+from .geometry import transform_points
 from .object_map import ObjectMap
 from .params import _real, _require
 
@@ -141,8 +142,10 @@ def mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: 
     """
     if p.shape[0] == 0 or q.shape[0] == 0:
         return np.empty((0, 2), np.int64)
-    moved = q @ T_a_b[:2, :2].T + T_a_b[:2, 2]
-    d2 = np.sum((p[:, None, :] - moved[None, :, :]) ** 2, axis=2)
+    moved = transform_points(T_a_b, q)
+    # |p - m|^2 expanded: one matrix product instead of an (n, m, 2) difference array
+    d2 = np.maximum((p * p).sum(1)[:, None] + (moved * moved).sum(1)[None, :]
+                    - 2.0 * p @ moved.T, 0.0)
     d2[~compatible] = np.inf
     nearest_q = np.argmin(d2, axis=1)
     nearest_p = np.argmin(d2, axis=0)

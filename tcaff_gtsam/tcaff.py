@@ -151,7 +151,7 @@ class TCAFF:
         evidence = self._validated_evidence(evidence, zs.shape[0])
         prm = self.params
         self.step += 1
-        self._evidence.append(evidence)
+        self._evidence.append(evidence if prm.counts_evidence else None)
         if prm.promotion == "reseed":  # only the released code's promotion replays steps
             self._bank.append((zs, Rs))
         if self._main is not None and self._main_is_stale():
@@ -166,7 +166,7 @@ class TCAFF:
         elif prm.switch_after is not None:
             self._consider_switch(complete)
         self._estimate = self._main_estimate()
-        if self._main is not None and self._estimate.measurement >= 0:
+        if prm.switch_stale and self._estimate is not None and self._estimate.measurement >= 0:
             best = int(np.argmin(self._main.cost))
             if self._distinct(self._main.choice[best])[1]:
                 self._fresh = self.step

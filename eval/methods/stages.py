@@ -10,7 +10,7 @@ import numpy as np
 
 from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory
 from tcaff_gtsam.geometry import se2_to_params
-from tcaff_gtsam.identities import ObjectIdentities
+from tcaff_gtsam.identities import ObjectIdentities, recent_ids
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.pairwise import admitted, evidence_of, unchecked
 from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
@@ -83,8 +83,10 @@ class SharedStages:
         self.setup = setup
         self.checked = methods.aligner_params(settings.kappa)
         self.aligner = FrameAligner(unchecked(self.checked))
-        self._verifier = (FrameAligner(self.checked) if self.checked != replace(
-            self.aligner.params, max_rmse=self.checked.max_rmse) else None)
+        # checks beyond the residual need a search of their own; the residual alone filters
+        # the unchecked candidates
+        checks_more = replace(self.checked, max_rmse=None) != self.aligner.params
+        self._verifier = FrameAligner(self.checked) if checks_more else None
         self.tcaff_params = methods.tcaff_params(False, settings.window)
         self.seconds = {"candidates": 0.0, "tcaff": 0.0}
         self._filters: list[TCAFF] | None = None
@@ -94,8 +96,7 @@ class SharedStages:
         self._candidates: dict[int, list[AlignmentMeasurement]] = {}
         self._tcaff: dict[int, tuple[AlignmentEstimate | None, np.ndarray, np.ndarray]] = {}
         n = setup.run.n_robots
-        span = self.checked.memory_span if self.checked.check_ambiguity else 0.0
-        self._memory = [MapMemory(span, self.checked.kappa) for _ in range(n)]
+        self._memory = [MapMemory.of(self.checked) for _ in range(n)]
         self._identities = [ObjectIdentities() for _ in range(n)]
         self._ids: dict[int, np.ndarray] = {}
 
@@ -144,9 +145,9 @@ class SharedStages:
             kept = admitted(found, self._filters[p].estimate, self.checked)
             zs = np.array([m.z for m in kept]).reshape(-1, 3)
             Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-            i, j = self.setup.pairs[p]
-            evidence = evidence_of(kept, self.object_ids(i), self.object_ids(j))
-            self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence), zs, Rs)
+            ids = (tuple(self.object_ids(r) for r in self.setup.pairs[p])
+                   if self.tcaff_params.counts_evidence else None)
+            self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence_of(kept, ids)), zs, Rs)
             self._steps[p] += [self.s] * len(zs)
             self._z[p] += list(zs)
             self.seconds["tcaff"] += time.perf_counter() - start
@@ -156,11 +157,9 @@ class SharedStages:
         """(n,) persistent ids of the robot's map objects at this step (-1 for objects not
         seen within kappa, which no candidate associates)."""
         if robot not in self._ids:
-            objects = self.setup.run.maps[robot][self.s]
-            recent = objects.recent_indices(self.t, self.checked.kappa)
-            ids = np.full(len(objects), -1, np.int64)
-            ids[recent] = self._identities[robot].update(objects.centroids[recent, :2])
-            self._ids[robot] = ids
+            self._ids[robot] = recent_ids(self._identities[robot],
+                                          self.setup.run.maps[robot][self.s], self.t,
+                                          self.checked.kappa)
         return self._ids[robot]
 
     def candidate_history(self) -> list[tuple[np.ndarray, np.ndarray]]:

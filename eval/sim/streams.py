@@ -19,6 +19,7 @@ __all__ = [
     "RobotTeamStreams",
     "alignment_stream",
     "decoy_stream",
+    "drifting_truth",
     "observe_alignments",
     "robot_team_streams",
     "wrong_alignments",
@@ -66,17 +67,24 @@ def alignment_stream(rng: np.random.Generator, steps: int, x0=(3.0, -2.0, 1.0),
     """
     if steps < 0:
         raise DataError(f"alignment_stream: steps = {steps} must be >= 0")
+    return observe_alignments(rng, drifting_truth(rng, steps, x0, drift, jumps), noise,
+                              p_empty, outliers, spread)
+
+
+def drifting_truth(rng: np.random.Generator, steps: int, x0, drift,
+                   jumps: dict[int, tuple[float, float, float]] | None = None) -> np.ndarray:
+    """(steps, 3) alignments (x, y, theta) that start at x0 and random-walk with per-step std
+    `drift`, plus `jumps` {step: (dx, dy, dtheta)} added at their steps; theta wrapped."""
     jumps = jumps or {}
     x = np.array(x0, dtype=float)
-    truth = []
+    truth = np.empty((steps, 3))
     for t in range(steps):
         if t:
             x = x + rng.normal(0.0, drift)
         x = x + np.asarray(jumps.get(t, (0.0, 0.0, 0.0)))
         x[2] = wrap_angle(x[2])
-        truth.append(x.copy())
-    return observe_alignments(rng, np.array(truth).reshape(-1, 3), noise, p_empty, outliers,
-                              spread)
+        truth[t] = x
+    return truth
 
 
 def observe_alignments(rng: np.random.Generator, truth: np.ndarray,
@@ -120,8 +128,6 @@ class DecoyStream:
             measurement associates (`TCAFF.update`'s evidence).
         correct: (n,) index of the correct measurement in zs[t], -1 if none.
         truth_from: first step with a correct measurement.
-        jump: step at which the truth jumps (-1 for none); its first correct measurement after
-            is `rejoin`.
         rejoin: first step with a correct measurement after the jump (-1 for none).
     """
 
@@ -130,7 +136,6 @@ class DecoyStream:
     evidence: list[list[np.ndarray]]
     correct: np.ndarray
     truth_from: int
-    jump: int
     rejoin: int
 
     def __len__(self) -> int:
@@ -156,15 +161,8 @@ def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 
     if not (0 < decoy_alone < steps and 0 <= p_truth <= 1 and 0 <= p_decoy <= 1):
         raise DataError(f"decoy_stream: need 0 < decoy_alone < steps, rates in [0, 1], got "
                         f"{decoy_alone}, {steps}, {p_truth}, {p_decoy}")
-    x = np.array(x0, dtype=float)
-    truth = np.empty((steps, 3))
-    for t in range(steps):
-        if t:
-            x = x + rng.normal(0.0, (0.005, 0.005, 0.05 * DEG))
-        if jump_at is not None and t == jump_at:
-            x = x + np.asarray(jump, float)
-        x[2] = wrap_angle(x[2])
-        truth[t] = x
+    truth = drifting_truth(rng, steps, x0, (0.005, 0.005, 0.05 * DEG),
+                           None if jump_at is None else {jump_at: jump})
     decoy_T = se2_from_params(np.asarray(decoy_offset, float))
     decoy_pairs = np.column_stack([np.arange(objects_per_match),
                                    10_000 + np.arange(objects_per_match)])
@@ -195,8 +193,7 @@ def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 
         zs.append(arr)
         evidence.append(pairs)
         correct.append(index)
-    return DecoyStream(truth, zs, evidence, np.array(correct, np.int64), decoy_alone,
-                       -1 if jump_at is None else jump_at, rejoin)
+    return DecoyStream(truth, zs, evidence, np.array(correct, np.int64), decoy_alone, rejoin)
 
 
 @dataclass(frozen=True)

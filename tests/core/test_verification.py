@@ -15,8 +15,8 @@ from tcaff_gtsam.eval.sim.maps import grid_maps, overlapping_maps
 from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.frame_aligner import MapMemory
-from tcaff_gtsam.geometry import se2_error, se2_from_params, se2_to_params
-from tcaff_gtsam.identities import ObjectIdentities
+from tcaff_gtsam.geometry import se2_error, se2_from_params
+from tcaff_gtsam.identities import ObjectIdentities, recent_ids
 from tcaff_gtsam.pairwise import admitted, unchecked
 from tcaff_gtsam.registration import mutual_inliers, spread
 from tcaff_gtsam.tcaff import AlignmentEstimate
@@ -183,11 +183,28 @@ def test_bad_identity_settings_are_config_errors(kwargs, field):
         ObjectIdentities(**kwargs)
 
 
-def test_checks_off_give_the_unchecked_candidates():
+def test_checks_off_give_the_unchecked_candidates_less_the_residual_check():
+    """With the checks off, the aligner reports exactly the released code's candidates that
+    pass `max_rmse`, counting no objects and flagging nothing, also where the checks would
+    refuse or flag candidates (a symmetric grid, a line of objects)."""
+    off = replace(CHECKED, min_inliers=None, min_spread=0.0, check_ambiguity=False)
+    line = np.column_stack([np.arange(8.0) * 1.3 + 0.2 * np.arange(8) ** 2, np.zeros(8)])
     pair = overlapping_maps(np.random.default_rng(1), 40, 0.6, 0.1, clutter=10)
-    base = FrameAligner(FrameAlignerParams()).measurements(pair.ego, pair.other, pair.now)
-    same = FrameAligner(replace(CHECKED, min_inliers=None, min_spread=0.0,
-                                check_ambiguity=False)).measurements(pair.ego, pair.other,
-                                                                     pair.now)
-    assert [se2_to_params(m.T).tolist() for m in base] == [se2_to_params(m.T).tolist()
-                                                            for m in same]
+    cases = [(pair.ego, pair.other, pair.now), (grid_maps().ego, grid_maps().other, 100.0),
+             (object_map(line), object_map(line - [1.0, 0.0]), 10.0)]
+    for ego, other, now in cases:
+        released = FrameAligner(FrameAlignerParams.reference()).measurements(ego, other, now)
+        assert released
+        expected = [m.z.tolist() for m in released if m.rmse <= off.max_rmse]
+        found = FrameAligner(off).measurements(ego, other, now)
+        assert [m.z.tolist() for m in found] == expected
+        assert all(m.inliers == 0 and not m.ambiguous for m in found)
+
+
+def test_only_objects_seen_within_kappa_get_ids():
+    objects = ObjectMap(np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [6.0, 0.0, 0.0]]),
+                        np.ones(3), np.ones(3), np.array([9.0, -30.0, 10.0]))
+    identities = ObjectIdentities()
+    first = recent_ids(identities, objects, 10.0, 20.0)
+    assert first[1] == -1 and first[0] >= 0 and first[2] >= 0
+    np.testing.assert_array_equal(recent_ids(identities, objects, 11.0, 20.0), first)
