@@ -220,6 +220,9 @@ class FrameAlignerParams(_ByValue):
         distinct_translation, distinct_heading: metres and radians.
         memory_span: seconds of each robot's earlier maps searched for look-alikes, one map
             every kappa seconds; 0 searches only the current maps.
+        memory_searches: the most earlier maps searched in one step, both robots together
+            (each search costs one to three times the step's own alignment); those sharing
+            the most objects with the robot's current map go first.
         confirm_translation, confirm_heading: metres and radians.
     """
 
@@ -244,6 +247,7 @@ class FrameAlignerParams(_ByValue):
     distinct_translation: float = 1.0
     distinct_heading: float = math.radians(5.0)
     memory_span: float = 200.0
+    memory_searches: int = 8
     confirm_translation: float = 0.5
     confirm_heading: float = math.radians(2.5)
 
@@ -288,6 +292,8 @@ class FrameAlignerParams(_ByValue):
                  self.min_spread, "must be a finite number >= 0 metres")
         _require(_real(self.memory_span) and 0 <= self.memory_span < math.inf, o,
                  "memory_span", self.memory_span, "must be a finite number >= 0 seconds")
+        _require(_int_at_least(self.memory_searches, 0), o, "memory_searches",
+                 self.memory_searches, "must be an int >= 0")
 
     @classmethod
     def reference(cls) -> FrameAlignerParams:
@@ -354,6 +360,11 @@ class TCAFFParams(_ByValue):
             (in a repetitive world a wrong rival can hold a full window while the truth has
             gaps), unless (True) its best path has brought no distinct evidence for W steps:
             then it only re-matches objects it already used.
+        withhold_contested: report no estimate while the main tree's best path took no
+            measurement this step and a hypothesis it gates out holds more distinct pieces of
+            evidence in the window than that path does (and at least `min_distinct`): the
+            robots' frames have likely jumped and the old estimate would be wrong until the
+            switch, W + `switch_after` steps later.
     """
 
     window: int = 8
@@ -378,6 +389,7 @@ class TCAFFParams(_ByValue):
     switch_margin: float = 5.0
     min_distinct: int = 1
     switch_stale: bool = False
+    withhold_contested: bool = False
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
@@ -425,6 +437,8 @@ class TCAFFParams(_ByValue):
                  "must be an int >= 1")
         _require(isinstance(self.switch_stale, bool), o, "switch_stale", self.switch_stale,
                  "must be True or False")
+        _require(isinstance(self.withhold_contested, bool), o, "withhold_contested",
+                 self.withhold_contested, "must be True or False")
 
     @property
     def dim(self) -> int:
@@ -434,7 +448,7 @@ class TCAFFParams(_ByValue):
     @property
     def counts_evidence(self) -> bool:
         """Whether the filter reads the object evidence given to `update`."""
-        return self.min_distinct > 1 or self.switch_stale
+        return self.min_distinct > 1 or self.switch_stale or self.withhold_contested
 
     @classmethod
     def paper(cls) -> TCAFFParams:

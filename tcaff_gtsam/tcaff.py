@@ -173,6 +173,7 @@ class TCAFF:
         if self._estimate is not None:
             has_measurement = self._estimate.n_measurements > 0
             self._empty_windows = 0 if has_measurement else self._empty_windows + 1
+        self._estimate = self._reported(self._estimate)
         return self._estimate
 
     # -- exploring trees -----------------------------------------------------------------------
@@ -238,6 +239,28 @@ class TCAFF:
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
             self._accept(complete, best)
+
+    def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
+        """The main tree's estimate, or None while `withhold_contested` holds it back."""
+        if estimate is not None and self.params.withhold_contested and self._contested():
+            return None
+        return estimate
+
+    def _contested(self) -> bool:
+        """Whether the main tree's best path took no measurement this step while an exploring
+        hypothesis inconsistent with it holds more distinct evidence in the window (and at
+        least `min_distinct` pieces)."""
+        main, explore = self._main, self._explore
+        m = int(np.argmin(main.cost))
+        if main.since[m] == 0 or len(explore) == 0:
+            return False
+        need = max(self._distinct(main.choice[m])[0] + 1, self.params.min_distinct)
+        taken = np.count_nonzero(explore.choice[:, -self.params.window:] >= 0, axis=1)
+        rivals = np.flatnonzero(taken >= need)
+        if rivals.size == 0:
+            return False
+        rivals = rivals[~self._consistent(explore.take(rivals), main.take([m]))]
+        return any(self._distinct(explore.choice[r])[0] >= need for r in rivals)
 
     def _distinct_enough(self, leaves: Leaves, index: int) -> bool:
         """Whether leaf `index`'s path holds `min_distinct` distinct pieces of evidence."""
@@ -480,7 +503,7 @@ class TCAFF:
         self._bank = deque(((bank_zs[a:b], bank_Rs[a:b]) for a, b in pairwise(bounds)),
                            maxlen=self.params.window + 1)
         self._evidence = deque(evidence, maxlen=self._columns)
-        self._estimate = self._main_estimate()
+        self._estimate = self._reported(self._main_estimate())
 
     def _evidence_from(self, state: dict[str, np.ndarray]
                        ) -> list[list[list[tuple[int, int]] | None] | None]:

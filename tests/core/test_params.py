@@ -29,6 +29,7 @@ OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inli
             ("GraphParams", "odometry_cov")}
 #: fields that are switches
 SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),
+            ("TCAFFParams", "withhold_contested"),
             ("FrameAlignerParams", "check_ambiguity")}
 #: values of the wrong kind for a number, a choice, a matrix or a nested parameter object
 JUNK = ("8", "huge", b"1", [["a"]], {}, object(), float("nan"))

@@ -414,6 +414,47 @@ def test_an_early_decoy_is_replaced_within_W_plus_5_steps():
         assert all(est is None for est in estimates[:start])
 
 
+def wrong_and_recovery(estimates, truth) -> tuple[int, int | None]:
+    """Wrong estimates (beyond 1 m or 5 deg), and the 1-based step of the first correct one."""
+    wrong, first = 0, None
+    for k, (est, x) in enumerate(zip(estimates, truth, strict=True)):
+        if est is None:
+            continue
+        dt, ddeg = errors([est], [x])[0]
+        if dt < 1.0 and ddeg < 5.0:
+            first = k + 1 if first is None else first
+        elif first is None:
+            wrong += 1
+    return wrong, first
+
+
+def test_after_a_jump_the_old_estimate_is_withheld_once_the_new_frame_has_more_evidence():
+    W = DISTINCT.window
+    withheld = replace(DISTINCT, withhold_contested=True)
+    for seed in range(10):
+        stream = decoy_stream(np.random.default_rng(seed))
+        start = stream.rejoin
+        wrong, first = wrong_and_recovery(run_with_evidence(TCAFF(withheld), stream)[start:],
+                                          stream.truth[start:])
+        assert wrong <= 3 and first is not None and first <= W + 5, f"seed {seed}"
+        held_on, _ = wrong_and_recovery(run_with_evidence(TCAFF(DISTINCT), stream)[start:],
+                                        stream.truth[start:])
+        assert held_on >= W, f"seed {seed}"  # without it: the old frame until the switch
+
+
+def test_a_withheld_estimate_stays_withheld_after_save_and_restore(tmp_path):
+    stream = decoy_stream(np.random.default_rng(0))
+    filt = TCAFF(replace(DISTINCT, withhold_contested=True))
+    for step, (zs, ev) in enumerate(zip(stream.zs, stream.evidence, strict=True)):
+        filt.update(zs, np.broadcast_to(R_CONSTANT, (len(zs), 3, 3)), ev)
+        if step > stream.rejoin and filt.estimate is None:
+            break
+    assert filt.estimate is None and step < stream.rejoin + 5
+    assert filt.hypothesis == 1  # the main tree is there, held back
+    filt.save(tmp_path / "filter.npz")
+    assert TCAFF.load(tmp_path / "filter.npz").estimate is None
+
+
 def test_without_evidence_the_filter_is_unchanged():
     stream = alignment_stream(np.random.default_rng(4), 120, jumps={60: (3.0, -2.0, 0.7)})
     a = run(TCAFF(DISTINCT), stream.zs)

@@ -102,6 +102,24 @@ def test_a_look_alike_in_an_earlier_map_makes_a_candidate_ambiguous():
     assert same and not same[0].ambiguous
 
 
+def test_the_search_of_earlier_maps_is_capped_and_takes_the_most_familiar_first():
+    """Earlier maps that repeat the current one are searched before a map of elsewhere; at most
+    `memory_searches` of them, so the look-alike elsewhere is found only when the cap leaves
+    room for it."""
+    rng = np.random.default_rng(3)
+    cluster = rng.uniform(0, 4, (7, 2))
+    T = se2_from_params([2.0, 1.0, 0.4])
+    other = object_map((cluster - T[:2, 2]) @ T[:2, :2])
+    ego = object_map(cluster)
+    elsewhere = (-40.0, object_map(cluster + np.array([30.0, -12.0]), now=-40.0))
+    familiar = [(t, object_map(cluster, now=t)) for t in (-20.0, 0.0)]
+    past = [elsewhere, *familiar]
+    for cap, flagged in ((0, False), (2, False), (3, True)):
+        aligner = FrameAligner(replace(CHECKED, memory_span=100.0, memory_searches=cap))
+        found = aligner.measurements(ego, other, 10.0, ego_past=past)
+        assert found and found[0].ambiguous is flagged, cap
+
+
 def test_a_candidate_on_a_line_of_objects_is_refused_by_its_spread():
     xy = np.column_stack([np.arange(8.0) * 1.3 + 0.2 * np.arange(8) ** 2, np.zeros(8)])
     pair_ego, pair_other = object_map(xy), object_map(xy - [1.0, 0.0])
