@@ -17,7 +17,7 @@ import open3d as o3d
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se3_from_rt
-from tcaff_gtsam.params import _int_at_least, _real, _require
+from tcaff_gtsam.params import ParameterError, _finite, _int_at_least, _real, _require
 
 __all__ = [
     "R_BODY_OPTICAL",
@@ -36,6 +36,14 @@ R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 _DEPTH_DTYPES = (np.uint16, np.float32, np.float64)
 
+#: degrees; a pinhole image holds no ray at 90 deg from the optical axis, and rays near it put
+#: points of ordinary depth hundreds of metres to the side
+MAX_RAY_DEG = 89.0
+#: degrees; the narrowest field of view accepted along either image axis
+MIN_FOV_DEG = 0.01
+#: pixels; the widest (or tallest) image, the largest int32 (OpenCV's pixel coordinates)
+_MAX_PIXELS = 2**31 - 1
+
 
 @dataclass(frozen=True)
 class PinholeCamera:
@@ -45,6 +53,13 @@ class PinholeCamera:
         width, height: image size in pixels.
         fx, fy: focal lengths in pixels; cx, cy: principal point in pixels (0 = the centre of
             the first pixel).
+
+    Raises:
+        ConfigError: naming the field: sizes not ints >= 1; intrinsics not finite numbers;
+            focal lengths not > 0; intrinsics whose rays through the image's edges lie more
+            than `MAX_RAY_DEG` from the optical axis (a focal length tiny for the image, e.g.
+            fx = 1e-300, or a principal point far outside it), or that give a field of view
+            under `MIN_FOV_DEG` along an axis (a focal length huge for the image).
     """
 
     width: int
@@ -58,13 +73,31 @@ class PinholeCamera:
         o = "PinholeCamera"
         for name in ("width", "height"):
             v = getattr(self, name)
-            _require(_int_at_least(v, 1), o, name, v, "must be an int >= 1 pixels")
+            _require(_int_at_least(v, 1) and v <= _MAX_PIXELS, o, name, v,
+                     f"must be an int in [1, {_MAX_PIXELS}] pixels")
         for name in ("fx", "fy", "cx", "cy"):
             v = getattr(self, name)
-            _require(_real(v) and math.isfinite(v), o, name, v,
-                     "must be a finite number of pixels")
+            _require(_finite(v), o, name, v, "must be a finite number of pixels")
         _require(self.fx > 0, o, "fx", self.fx, "must be > 0 pixels")
         _require(self.fy > 0, o, "fy", self.fy, "must be > 0 pixels")
+        steepest = math.tan(math.radians(MAX_RAY_DEG)) * (1.0 + 1e-9)  # from_fov's rounding
+        for f_name, c_name, size_name in (("fx", "cx", "width"), ("fy", "cy", "height")):
+            f, c, size = getattr(self, f_name), getattr(self, c_name), getattr(self, size_name)
+            lo, hi = (-0.5 - c) / f, (size - 0.5 - c) / f  # x / z (y / z) of the image's edges
+            if max(abs(lo), abs(hi)) > steepest:
+                # blame the principal point when it lies outside the image and a centred one
+                # would do
+                outside = not -0.5 <= c <= size - 0.5 and 0.5 * size / f <= steepest
+                name, value = (c_name, c) if outside else (f_name, f)
+                reach = math.degrees(math.atan(max(abs(lo), abs(hi))))
+                raise ParameterError(o, name, value, (
+                    f"with {f_name} = {f}, {c_name} = {c} and {size_name} = {size} the rays "
+                    f"through the image reach {reach:.6g} deg from the optical axis; every "
+                    f"pixel's ray must lie within {MAX_RAY_DEG} deg of it"))
+            fov = math.degrees(math.atan(hi) - math.atan(lo))
+            _require(fov >= MIN_FOV_DEG, o, f_name, f,
+                     f"gives a field of view of {fov:.3g} deg across {size_name} = {size} "
+                     f"pixels; must be at least {MIN_FOV_DEG} deg")
 
     @classmethod
     def from_K(cls, K, width: int, height: int) -> PinholeCamera:
@@ -82,12 +115,19 @@ class PinholeCamera:
     @classmethod
     def from_fov(cls, width: int, height: int, hfov_deg: float) -> PinholeCamera:
         """Square pixels, the principal point at the image centre, horizontal field of view in
-        degrees (0 to 180, exclusive)."""
-        _require(_real(hfov_deg) and 0 < hfov_deg < 180,
-                 "PinholeCamera.from_fov", "hfov_deg", hfov_deg, "must be in (0, 180) degrees")
+        degrees (`MIN_FOV_DEG` to 2 `MAX_RAY_DEG`).
+
+        Raises:
+            ConfigError: hfov_deg out of range, a size not an int in [1, 2**31 - 1], or a
+                vertical field of view that `PinholeCamera` refuses (a very tall image at a
+                wide hfov).
+        """
+        _require(_real(hfov_deg) and MIN_FOV_DEG <= hfov_deg <= 2 * MAX_RAY_DEG,
+                 "PinholeCamera.from_fov", "hfov_deg", hfov_deg,
+                 f"must be in [{MIN_FOV_DEG}, {2 * MAX_RAY_DEG}] degrees")
         for name, value in (("width", width), ("height", height)):
-            _require(_int_at_least(value, 1), "PinholeCamera.from_fov", name, value,
-                     "must be an int >= 1 pixels")
+            _require(_int_at_least(value, 1) and value <= _MAX_PIXELS, "PinholeCamera.from_fov",
+                     name, value, f"must be an int in [1, {_MAX_PIXELS}] pixels")
         f = (width / 2) / math.tan(math.radians(hfov_deg) / 2)
         return cls(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
 

@@ -158,6 +158,11 @@ class MaskLifter:
         camera: intrinsics of the image the masks and the (registered) depth belong to.
         depth_scale: raw depth units per metre (1000 for millimetres, 1 for metres).
         params: `LiftParams`.
+
+    Raises:
+        ConfigError: a camera, depth scale or params of the wrong kind, or a `depth_max` at
+            which the camera's widest rays reach 500 m or more to the side (the clouds of the
+            masks are cleaned 1000 m apart).
     """
 
     def __init__(self, camera: PinholeCamera, depth_scale: float = 1000.0,
@@ -168,6 +173,12 @@ class MaskLifter:
         _require(isinstance(self.params, LiftParams), "MaskLifter", "params", params,
                  "must be a LiftParams")
         x_over_z, y_over_z = camera.rays()
+        # the clouds are cleaned side by side, _SEPARATION metres apart along x
+        reach = float(np.max(np.abs(x_over_z))) * self.params.depth_max
+        _require(reach < _SEPARATION / 2, "LiftParams", "depth_max", self.params.depth_max,
+                 f"with this camera's widest ray (x / z = {np.max(np.abs(x_over_z)):.4g}) a "
+                 f"point at depth_max lies {reach:.4g} m to the side; must stay under "
+                 f"{_SEPARATION / 2:g} m")
         self._rays = np.stack([x_over_z.ravel(), y_over_z.ravel()], axis=1)
 
     def lift(self, masks: np.ndarray, depth: np.ndarray, T_odom_camera) -> Observations:

@@ -15,7 +15,8 @@ import numpy as np
 from scipy import sparse
 
 from .errors import DataError
-from .params import ClipperParams, _int_at_least, _real, _require
+from .inputs import index_pairs, real_array, shown
+from .params import ClipperParams, _finite, _int_at_least, _real, _require
 
 __all__ = ["ClipperSolution", "ConsistencyGraph", "clipper_solve", "consistency_graph",
            "mno_clipper"]
@@ -30,6 +31,16 @@ class ConsistencyGraph:
         indptr, indices, weights: symmetric CSR adjacency without self loops; an edge (p, q)
             exists when associations p and q are consistent, with weight exp(-c^2 / 2 sigma^2).
         diag: (m,) prior weight of each association (the affinity's diagonal), 1 by default.
+
+    Construction checks what the compiled solver relies on and would otherwise read past the
+    ends of arrays for: shapes, index ranges, finite non-negative weights. The arrays are
+    stored as int64 and float64 read-only views (the caller's arrays stay writeable).
+
+    Raises:
+        DataError: naming the field: associations not an (m, 2) array of indices >= 0;
+            indptr not (m + 1,) non-decreasing from 0 to len(indices); indices not node
+            numbers in [0, m); weights not one finite number >= 0 per entry of indices;
+            diag not (m,) finite numbers >= 0.
     """
 
     associations: np.ndarray
@@ -37,6 +48,47 @@ class ConsistencyGraph:
     indices: np.ndarray
     weights: np.ndarray
     diag: np.ndarray
+
+    def __post_init__(self) -> None:
+        o = "ConsistencyGraph"
+        associations = index_pairs(o, "associations", self.associations)
+        m = associations.shape[0]
+        indptr = _int_vector(o, "indptr", self.indptr)
+        indices = _int_vector(o, "indices", self.indices)
+        weights = real_array(o, "weights", self.weights)
+        diag = real_array(o, "diag", self.diag)
+        n_entries = indices.shape[0]
+        if indptr.shape != (m + 1,):
+            raise DataError(f"{o}: indptr must have shape ({m + 1},) for {m} nodes, got "
+                            f"{indptr.shape}")
+        if indptr[0] != 0 or indptr[-1] != n_entries or np.any(np.diff(indptr) < 0):
+            raise DataError(f"{o}: indptr must rise from 0 to len(indices) = {n_entries}, "
+                            f"got {shown(indptr)}")
+        if n_entries and (indices.min() < 0 or indices.max() >= m):
+            bad = indices[(indices < 0) | (indices >= m)][0]
+            raise DataError(f"{o}: indices must be node numbers in [0, {m}), got {bad}")
+        for name, values, shape in (("weights", weights, (n_entries,)), ("diag", diag, (m,))):
+            if values.shape != shape:
+                raise DataError(f"{o}: {name} must have shape {shape}, got {values.shape}")
+            bad = ~(values >= 0) | (values == np.inf)  # NaN fails >= 0
+            if bad.any():
+                raise DataError(f"{o}: {name} must be finite numbers >= 0, got "
+                                f"{values[bad][0]} at index {int(np.flatnonzero(bad)[0])}")
+        self._store(associations, indptr, indices, weights, diag)
+
+    def _store(self, *arrays: np.ndarray) -> None:
+        for name, value in zip(_GRAPH_FIELDS, arrays, strict=True):
+            view = np.ascontiguousarray(value).view()
+            view.flags.writeable = False
+            object.__setattr__(self, name, view)
+
+    @classmethod
+    def _built(cls, *arrays: np.ndarray) -> ConsistencyGraph:
+        """A graph from `consistency_graph`, whose arrays are right by construction: the
+        checks of `__post_init__` are skipped (they cost as much as a tenth of the build)."""
+        graph = object.__new__(cls)
+        graph._store(*arrays)
+        return graph
 
     @property
     def m(self) -> int:
@@ -53,6 +105,9 @@ class ConsistencyGraph:
         adjacency = sparse.csr_matrix((self.weights, self.indices, self.indptr),
                                       shape=(self.m, self.m))
         return (adjacency + sparse.diags(self.diag)).tocsr()
+
+
+_GRAPH_FIELDS = ("associations", "indptr", "indices", "weights", "diag")
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,6 +204,32 @@ def _symmetric_csr(m, rows, cols, wts):
     return indptr, indices, weights
 
 
+def _int_vector(owner: str, name: str, value) -> np.ndarray:
+    """`value` as a 1-D int64 array; DataError naming `name` if it is not 1-D integers."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.ndim != 1 or arr.dtype.kind not in "iu":
+        raise DataError(f"{owner}: {name} must be a 1-D integer array, got {shown(value)}")
+    if arr.dtype == np.uint64 and arr.size and arr.max() > np.iinfo(np.int64).max:
+        raise DataError(f"{owner}: {name} holds a value beyond int64, {arr.max()}")
+    return arr.astype(np.int64, copy=False)
+
+
+def _checked_graph(owner: str, graph, params) -> ClipperParams:
+    """The parameters to solve `graph` with; DataError when graph is not a ConsistencyGraph
+    (its construction checked the rest), ConfigError when params is not ClipperParams."""
+    if not isinstance(graph, ConsistencyGraph):
+        raise DataError(f"{owner}: graph must be a ConsistencyGraph, got "
+                        f"{type(graph).__name__} {shown(graph)}")
+    if params is None:
+        return ClipperParams()
+    _require(isinstance(params, ClipperParams), owner, "params", params,
+             "must be a ClipperParams or None")
+    return params
+
+
 def _pairwise_distances(points: np.ndarray) -> np.ndarray:
     diff = points[:, None, :] - points[None, :, :]
     return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
@@ -171,14 +252,17 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
 
     Raises:
         ConfigError: epsilon or sigma not a finite number > 0.
-        DataError: points, associations or prior of the wrong shape or out of range.
+        DataError: points, associations or prior of the wrong shape or out of range, not
+            real numbers (complex ones included), or associations that are not whole numbers:
+            an (m, 3) array is refused, not read as pairs, and 1.5 is not truncated to 1.
     """
+    o = "consistency_graph"
     for name, value in (("epsilon", epsilon), ("sigma", sigma)):
-        _require(_real(value) and 0 < value < np.inf, "consistency_graph", name, value,
+        _require(_finite(value) and value > 0, o, name, value,
                  "must be a finite number > 0 metres")
-    ego_points = np.asarray(ego_points, dtype=float)
-    other_points = np.asarray(other_points, dtype=float)
-    associations = np.asarray(associations, dtype=np.int64).reshape(-1, 2)
+    ego_points = real_array(o, "ego_points", ego_points)
+    other_points = real_array(o, "other_points", other_points)
+    associations = index_pairs(o, "associations", associations)
     if (ego_points.ndim != 2 or other_points.ndim != 2 or ego_points.shape[1] not in (2, 3)
             or other_points.shape[1] != ego_points.shape[1]):
         raise DataError(f"consistency_graph: points must be (n, 2) or (n, 3) in both maps, "
@@ -193,7 +277,7 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
     if prior is None:
         diag = np.ones(m)
     else:
-        diag = np.asarray(prior, dtype=float)
+        diag = real_array(o, "prior", prior)
         if diag.shape != (m,) or not np.all(np.isfinite(diag)) or np.any(diag < 0):
             raise DataError(f"consistency_graph: prior must be ({m},) finite and >= 0, "
                             f"got shape {diag.shape}")
@@ -207,7 +291,7 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         np.r_[starts, m].astype(np.int64), 1.0 / (2.0 * sigma * sigma), epsilon)
     rows, cols = order[rows], order[cols]
     indptr, indices, weights = _symmetric_csr(m, rows, cols, wts)
-    return ConsistencyGraph(associations, indptr, indices, weights, diag)
+    return ConsistencyGraph._built(associations, indptr, indices, weights, diag)
 
 
 @numba.njit(cache=True)
@@ -465,8 +549,12 @@ def clipper_solve(graph: ConsistencyGraph, params: ClipperParams | None = None) 
     Maximises u'Mu / u'u over u >= 0 with u_p u_q = 0 for inconsistent pairs, relaxed by a
     penalty homotopy, then rounds u to a discrete set (see `ClipperParams.rounding`).
     Deterministic for a given `params.seed`. An empty graph gives an empty solution.
+
+    Raises:
+        ConfigError: params is neither a ClipperParams nor None.
+        DataError: graph is not a ConsistencyGraph.
     """
-    params = params or ClipperParams()
+    params = _checked_graph("clipper_solve", graph, params)
     return _run(graph, graph.weights, graph.diag, np.ones(graph.m, dtype=np.bool_), params,
                 np.random.default_rng(params.seed))
 
@@ -482,9 +570,11 @@ def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
     affinity. Returns up to `n_solutions` non-empty solutions, in the order found.
 
     Raises:
-        ConfigError: n_solutions not an int >= 1, or downweight not in [0, 1).
+        ConfigError: n_solutions not an int >= 1, downweight not in [0, 1), or params neither
+            a ClipperParams nor None.
+        DataError: graph is not a ConsistencyGraph.
     """
-    params = params or ClipperParams()
+    params = _checked_graph("mno_clipper", graph, params)
     _require(_int_at_least(n_solutions, 1), "mno_clipper", "n_solutions", n_solutions,
              "must be an int >= 1")
     _require(_real(downweight) and 0 <= downweight < 1, "mno_clipper", "downweight", downweight,

@@ -15,11 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clipper import consistency_graph, mno_clipper
+from .errors import DataError
 from .geometry import se2_from_params, se2_to_params, se3_to_se2, wrap_angle
-from .object_map import ObjectMap
-from .params import FrameAlignerParams
+from .inputs import finite_time, real_array, shown
+from .object_map import ObjectMap, as_object_map
+from .params import FrameAlignerParams, _real, _require
 from .registration import (
-    arun_weights,
+    _weights,
     mutual_inliers,
     registration_rmse,
     size_compatible,
@@ -107,7 +109,15 @@ class FrameAligner:
     """
 
     def __init__(self, params: FrameAlignerParams | None = None) -> None:
-        self.params = params or FrameAlignerParams()
+        """An aligner with `params` (None: the defaults).
+
+        Raises:
+            ConfigError: params is neither a FrameAlignerParams nor None.
+        """
+        params = FrameAlignerParams() if params is None else params
+        _require(isinstance(params, FrameAlignerParams), "FrameAligner", "params", params,
+                 "must be a FrameAlignerParams or None")
+        self.params = params
 
     def measurements(self, ego: ObjectMap, other: ObjectMap, now: float,
                      ego_past: Sequence[tuple[float, ObjectMap]] = (),
@@ -127,8 +137,21 @@ class FrameAligner:
                 ambiguous, so only the step's own solutions are searched for their rivals,
                 not the earlier maps: a filter that holds a steady estimate costs no search.
         Raises:
-            DataError: `now` is not finite.
+            DataError: ego or other not an ObjectMap; now not a finite number (a string, None,
+                an array, NaN); ego_past or other_past not a sequence of (finite time,
+                ObjectMap); held neither None nor a finite (3,) array; or a registration the
+                maps make impossible (coordinates beyond `registration.MAX_COORDINATE`).
         """
+        o = "FrameAligner.measurements"
+        ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
+        now = finite_time(o, "now", now)
+        ego_past, other_past = _snapshots(o, "ego_past", ego_past), _snapshots(o, "other_past",
+                                                                              other_past)
+        if held is not None:
+            held = real_array(o, "held", held)
+            if held.shape != (3,) or not np.all(np.isfinite(held)):
+                raise DataError(f"{o}: held must be None or a finite (3,) (x, y, theta), got "
+                                f"{shown(held)}")
         prm = self.params
         ego_idx = ego.recent_indices(now, prm.kappa)
         other_idx = other.recent_indices(now, prm.kappa)
@@ -190,7 +213,7 @@ class FrameAligner:
         for sol in solutions:
             a = sol.associations
             p, q = p_all[a[:, 0]], q_all[a[:, 1]]
-            w = arun_weights(ages_ego[a[:, 0]], ages_other[a[:, 1]], prm.weight_offset)
+            w = _weights(ages_ego[a[:, 0]] * ages_other[a[:, 1]], prm.weight_offset)
             T = weighted_arun(p, q, w)
             if T is None:
                 continue
@@ -248,6 +271,21 @@ class FrameAligner:
         return False
 
 
+def _snapshots(owner: str, name: str, value) -> list[tuple[float, ObjectMap]]:
+    """`value` as a list of (finite time, ObjectMap); DataError naming `name` otherwise."""
+    if isinstance(value, (str, bytes, ObjectMap)) or not isinstance(value, Sequence):
+        raise DataError(f"{owner}: {name} must be a sequence of (t, ObjectMap), got "
+                        f"{type(value).__name__} {shown(value)}")
+    out = []
+    for i, entry in enumerate(value):
+        if not (isinstance(entry, (tuple, list)) and len(entry) == 2):
+            raise DataError(f"{owner}: {name}[{i}] must be a (t, ObjectMap) pair, got "
+                            f"{shown(entry)}")
+        out.append((finite_time(owner, f"{name}[{i}] time", entry[0]),
+                    as_object_map(owner, f"{name}[{i}] map", entry[1])))
+    return out
+
+
 def _count_novel(earlier: ObjectMap, current: ObjectMap, radius: float) -> int:
     """How many objects of `earlier` lie farther than `radius` (m, in the plane) from every
     object of `current` (two maps of one robot, in its odometry frame)."""
@@ -292,6 +330,16 @@ class MapMemory:
     """
 
     def __init__(self, span: float, every: float) -> None:
+        """An empty memory.
+
+        Raises:
+            ConfigError: span not a number >= 0 seconds, or every not a number > 0 (inf
+                keeps only the first map).
+        """
+        _require(_real(span) and span >= 0, "MapMemory", "span", span,
+                 "must be a number >= 0 seconds")
+        _require(_real(every) and every > 0, "MapMemory", "every", every,
+                 "must be a number > 0 seconds")
         self.span, self.every = float(span), float(every)
         self._snapshots: deque[tuple[float, ObjectMap]] = deque()
 
@@ -307,7 +355,13 @@ class MapMemory:
 
     def add(self, t: float, objects: ObjectMap) -> None:
         """Offer the map of time t (s, increasing): kept when `every` has passed since the last
-        snapshot; snapshots older than `span` are dropped."""
+        snapshot; snapshots older than `span` are dropped.
+
+        Raises:
+            DataError: t not a finite number, or objects not an ObjectMap.
+        """
+        t = finite_time("MapMemory.add", "t", t)
+        objects = as_object_map("MapMemory.add", "objects", objects)
         if self.span <= 0:
             return
         if not self._snapshots or t - self._snapshots[-1][0] >= self.every:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DataError
-from .object_map import ObjectMap
+from .object_map import ObjectMap, as_object_map
 from .params import _int_at_least, _real, _require
 
 __all__ = ["ObjectIdentities", "recent_ids"]
@@ -82,7 +82,16 @@ class ObjectIdentities:
 def recent_ids(identities: ObjectIdentities, objects: ObjectMap, now: float, kappa: float
                ) -> np.ndarray:
     """(n,) persistent ids of a map's objects seen within kappa seconds of `now` (the ones an
-    aligner associates), from `identities.update`; -1 for the older objects."""
+    aligner associates), from `identities.update`; -1 for the older objects.
+
+    Raises:
+        DataError: identities not an ObjectIdentities, objects not an ObjectMap, now not a
+            finite number or kappa not a number > 0.
+    """
+    if not isinstance(identities, ObjectIdentities):
+        raise DataError(f"recent_ids: identities must be an ObjectIdentities, got "
+                        f"{type(identities).__name__}")
+    objects = as_object_map("recent_ids", "objects", objects)
     recent = objects.recent_indices(now, kappa)
     ids = np.full(len(objects), -1, np.int64)
     ids[recent] = identities.update(objects.centroids[recent, :2])

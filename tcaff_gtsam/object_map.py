@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-import zipfile
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .errors import DataError
+from .inputs import finite_time, read_npz, real_array, shown
+from .params import _real
 
-__all__ = ["ObjectMap", "object_arrays"]
+__all__ = ["ObjectMap", "as_object_map", "object_arrays"]
 
 _FIELDS = ("centroids", "widths", "heights", "last_seen")
 
@@ -21,14 +23,16 @@ def object_arrays(prefix: str, centroids, widths, heights, **per_object
     in metres, sizes >= 0, plus any other (k,) fields; everything finite. k = 0 is legal.
 
     Raises:
-        DataError: named after the field, `<prefix><field> must have shape (k, 3), got (4, 2)`.
+        DataError: named after the field, `<prefix><field> must have shape (k, 3), got (4, 2)`;
+            also for values that are not real numbers (complex, strings, objects).
     """
     def as_float(name: str, value) -> np.ndarray:
         try:
-            return np.array(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"{prefix}{name} must be numbers, got {type(value).__name__}"
-                            ) from exc
+            arr = real_array(prefix, name, value)
+        except DataError:
+            raise DataError(f"{prefix}{name} must be real numbers, got "
+                            f"{type(value).__name__} {shown(value)}") from None
+        return arr.copy() if arr is value else arr
 
     C = as_float("centroids", centroids)
     if C.size == 0:
@@ -97,16 +101,50 @@ class ObjectMap:
         return f"ObjectMap(n={len(self)})"
 
     def subset(self, index) -> ObjectMap:
-        """The objects selected by a boolean mask (n,) or an integer index array."""
-        return ObjectMap(self.centroids[index], self.widths[index], self.heights[index],
-                         self.last_seen[index])
+        """The objects selected by a boolean mask (n,) or a 1-D integer index array (entries in
+        [-n, n), negative ones counting from the end as in numpy).
+
+        Raises:
+            DataError: a mask of another length, indices out of range, or anything else (a
+                float, a scalar, a string) as `index`.
+        """
+        n = len(self)
+        try:
+            idx = np.asarray(index)
+        except (TypeError, ValueError):
+            idx = None
+        if idx is not None and idx.size == 0 and idx.dtype.kind in "biuf":
+            idx = idx.astype(np.int64).reshape(0)
+        if idx is None or idx.ndim != 1 or idx.dtype.kind not in "biu":
+            raise DataError(f"ObjectMap.subset: index must be a boolean mask ({n},) or a 1-D "
+                            f"integer array, got {shown(index)}")
+        if idx.dtype.kind == "b":
+            if idx.shape != (n,):
+                raise DataError(f"ObjectMap.subset: index is a boolean mask of length "
+                                f"{idx.size}, the map has {n} objects")
+        elif idx.size and (idx.min() < -n or idx.max() >= n):
+            bad = idx[(idx < -n) | (idx >= n)][0]
+            raise DataError(f"ObjectMap.subset: index {bad} is out of range for a map of {n} "
+                            f"objects")
+        return ObjectMap(self.centroids[idx], self.widths[idx], self.heights[idx],
+                         self.last_seen[idx])
 
     def recent_indices(self, now: float, kappa: float) -> np.ndarray:
         """(k,) int indices of objects seen less than `kappa` seconds before `now` (l < kappa);
-        kappa = inf keeps every object."""
-        if not np.isfinite(now) or np.isnan(kappa) or kappa <= 0:
-            raise DataError(f"ObjectMap.recent_indices: need finite now and kappa > 0, "
-                            f"got now={now}, kappa={kappa}")
+        kappa = inf keeps every object.
+
+        Raises:
+            DataError: now not a finite number, or kappa not a number > 0 (inf allowed).
+        """
+        owner = "ObjectMap.recent_indices"
+        now = finite_time(owner, "now", now)
+        if not (_real(kappa) and kappa > 0):  # NaN fails the comparison
+            raise DataError(f"{owner}: kappa must be a number > 0 seconds (inf: no limit), "
+                            f"got {shown(kappa)}")
+        try:
+            kappa = float(kappa)
+        except OverflowError:  # an int beyond the floats: no limit either
+            kappa = math.inf
         return np.flatnonzero(now - self.last_seen < kappa)
 
     def recent(self, now: float, kappa: float) -> ObjectMap:
@@ -118,7 +156,11 @@ class ObjectMap:
 
         Robots' clocks are never perfectly in sync, so a slightly future stamp is clipped rather
         than treated as an error.
+
+        Raises:
+            DataError: now is not a finite number (a string, None, an array, NaN, inf).
         """
+        now = finite_time("ObjectMap.ages", "now", now)
         return np.maximum(now - self.last_seen, 0.0)
 
     def save(self, path: str | Path) -> None:
@@ -128,23 +170,24 @@ class ObjectMap:
 
     @classmethod
     def load(cls, path: str | Path) -> ObjectMap:
-        """Read a map written by `save`; raises `DataError` on missing or malformed files."""
-        path = Path(path)
-        if not path.is_file():
-            raise DataError(f"{path}: no such map file")
-        try:
-            data = np.load(path, allow_pickle=False)
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise DataError(f"{path}: cannot read an ObjectMap ({exc})") from exc
-        if not isinstance(data, np.lib.npyio.NpzFile):
-            raise DataError(f"{path}: not an ObjectMap file (a single array, not an npz archive)")
-        with data:
-            missing = [name for name in _FIELDS if name not in data.files]
-            if missing:
-                raise DataError(f"{path}: not an ObjectMap file, missing arrays {missing} "
-                                f"(has {sorted(data.files)})")
-            try:
-                arrays = {name: data[name] for name in _FIELDS}
-            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-                raise DataError(f"{path}: corrupt ObjectMap archive ({exc})") from exc
-        return cls(**arrays)
+        """Read a map written by `save`.
+
+        Raises:
+            DataError: the file is missing, not a regular file (a FIFO, a folder), empty,
+                truncated, corrupt (an array header declaring more data than the file holds
+                included), not an npz archive, or holds invalid maps (complex, non-finite, ...).
+        """
+        data = read_npz(path, "map")
+        missing = [name for name in _FIELDS if name not in data]
+        if missing:
+            raise DataError(f"{path}: not an ObjectMap file, missing arrays {missing} "
+                            f"(has {sorted(data)})")
+        return cls(**{name: data[name] for name in _FIELDS})
+
+
+def as_object_map(owner: str, name: str, value) -> ObjectMap:
+    """`value` if it is an ObjectMap; else `DataError` naming `owner`, `name` and the type."""
+    if not isinstance(value, ObjectMap):
+        raise DataError(f"{owner}: {name} must be an ObjectMap, got {type(value).__name__} "
+                        f"{shown(value)}")
+    return value

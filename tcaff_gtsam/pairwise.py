@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import math
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -10,8 +10,9 @@ import numpy as np
 from .errors import ConfigError, DataError
 from .frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory, confirms
 from .identities import ObjectIdentities, recent_ids
-from .object_map import ObjectMap
-from .params import FrameAlignerParams, TCAFFParams
+from .inputs import finite_time
+from .object_map import ObjectMap, as_object_map
+from .params import FrameAlignerParams, TCAFFParams, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
 __all__ = ["PairwiseAligner", "admitted", "evidence_of", "unchecked"]
@@ -57,7 +58,15 @@ class PairwiseAligner:
 
     def __init__(self, aligner_params: FrameAlignerParams | None = None,
                  tcaff_params: TCAFFParams | None = None) -> None:
-        tcaff_params = tcaff_params or TCAFFParams()
+        """Both stages with their parameters (None: the defaults).
+
+        Raises:
+            ConfigError: aligner_params or tcaff_params of the wrong type, or TCAFF parameters
+                not for (x, y, theta) states.
+        """
+        tcaff_params = TCAFFParams() if tcaff_params is None else tcaff_params
+        _require(isinstance(tcaff_params, TCAFFParams), "PairwiseAligner", "tcaff_params",
+                 tcaff_params, "must be a TCAFFParams or None")
         if tcaff_params.dim != 3 or tcaff_params.angle_indices != (2,):
             raise ConfigError(f"PairwiseAligner needs TCAFFParams for (x, y, theta) states "
                               f"(d = 3, angle_indices = (2,)), got d = {tcaff_params.dim}, "
@@ -84,25 +93,36 @@ class PairwiseAligner:
         Returns:
             The TCAFF estimate of T_oi_oj, or None while no hypothesis has been accepted.
         Raises:
-            DataError: t is not finite or not later than the previous step's.
+            DataError: t not a finite number (a string, None, an array, NaN) or not later than
+                the previous step's; a map that is not an ObjectMap; or maps the aligner
+                cannot register (see `FrameAligner.measurements`). A call that raises leaves
+                the aligner as it was: the same t may be given again.
         """
-        if not math.isfinite(t):
-            raise DataError(f"PairwiseAligner.update: t = {t} is not finite")
+        o = "PairwiseAligner.update"
+        t = finite_time(o, "t", t)
+        ego_map = as_object_map(o, "ego_map", ego_map)
+        other_map = as_object_map(o, "other_map", other_map)
         if self._last_time is not None and t <= self._last_time:
-            raise DataError(f"PairwiseAligner.update: t = {t} is not after the previous step's "
+            raise DataError(f"{o}: t = {t} is not after the previous step's "
                             f"t = {self._last_time}")
-        self._last_time = t
         ego_memory, other_memory = self._memory
         held = None if self.filter.estimate is None else self.filter.estimate.x
-        self.measurements = self.aligner.measurements(
+        measurements = self.aligner.measurements(
             ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held)
-        ego_memory.add(t, ego_map)
-        other_memory.add(t, other_map)
         kappa = self.aligner.params.kappa
-        ids = (tuple(recent_ids(identities, objects, t, kappa) for identities, objects
-                     in zip(self._identities, (ego_map, other_map), strict=True))
+        # the identities advance on copies, kept only once the filter has taken the step
+        identities = tuple(copy.copy(ids) for ids in self._identities)
+        ids = (tuple(recent_ids(each, objects, t, kappa) for each, objects
+                     in zip(identities, (ego_map, other_map), strict=True))
                if self.filter.params.counts_evidence else None)
-        kept = admitted(self.measurements, self.filter.estimate, self.aligner.params)
+        kept = admitted(measurements, self.filter.estimate, self.aligner.params)
         zs = np.array([m.z for m in kept]).reshape(-1, 3)
         Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-        return self.filter.update(zs, Rs, evidence_of(kept, ids))
+        estimate = self.filter.update(zs, Rs, evidence_of(kept, ids))
+        # the step succeeded: only now does it count as taken
+        self.measurements = measurements
+        ego_memory.add(t, ego_map)
+        other_memory.add(t, other_map)
+        self._identities = identities
+        self._last_time = t
+        return estimate

@@ -51,9 +51,22 @@ def _int_at_least(value, low: int) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low
 
 
+#: the largest count the compiled kernels take
+_INT64_MAX = 2**63 - 1
+
+
 def _real(value) -> bool:
     """A real number (Python or numpy, not a bool); may be NaN or infinite."""
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
+def _finite(value) -> bool:
+    """A finite real number (Python or numpy, not a bool); False for ints beyond the floats,
+    which numpy cannot take."""
+    try:
+        return _real(value) and math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def _one_of(value, choices: tuple) -> bool:
@@ -142,7 +155,12 @@ class ClipperParams:
         max_outer, max_inner, max_line_search: iteration caps of homotopy, ascent and line search.
         power_iterations: power-method steps that shape the seeded random start vector (each
             costs a full pass over the graph; more than 5 changed no solution we measured).
-        seed: seed (an int >= 0) of the start vector; same seed, same graph -> same solution.
+            These four counts are ints below 2**63 (the compiled solver's int64).
+        seed: seed (an int >= 0, any size: numpy's generator takes them all) of the start
+            vector; same seed, same graph -> same solution.
+
+    Raises:
+        ConfigError (a `ParameterError` naming the field) for values out of range.
     """
 
     sigma: float = 0.15
@@ -162,7 +180,7 @@ class ClipperParams:
         o = "ClipperParams"
         for name in ("sigma", "epsilon"):
             value = getattr(self, name)
-            _require(_real(value) and 0 < value < math.inf, o, name, value,
+            _require(_finite(value) and value > 0, o, name, value,
                      "must be a finite number > 0 metres")
         _require(_one_of(self.rounding, ("size", "threshold")), o, "rounding", self.rounding,
                  "must be 'size' or 'threshold'")
@@ -172,10 +190,14 @@ class ClipperParams:
         for name in ("tol_u", "eps"):
             value = getattr(self, name)
             _require(_real(value) and value > 0, o, name, value, "must be a number > 0")
+        # the compiled solver counts in int64; the seed goes to numpy's generator, which takes
+        # any int >= 0 (a negative one fails there, at solve time)
         for name, low in (("max_outer", 1), ("max_inner", 1), ("max_line_search", 1),
-                          ("power_iterations", 0), ("seed", 0)):
+                          ("power_iterations", 0)):
             value = getattr(self, name)
-            _require(_int_at_least(value, low), o, name, value, f"must be an int >= {low}")
+            _require(_int_at_least(value, low) and value <= _INT64_MAX, o, name, value,
+                     f"must be an int in [{low}, 2**63 - 1]")
+        _require(_int_at_least(self.seed, 0), o, "seed", self.seed, "must be an int >= 0")
 
 
 @dataclass(frozen=True, eq=False)

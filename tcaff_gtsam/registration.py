@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .errors import DataError
 from .geometry import transform_points
-from .object_map import ObjectMap
-from .params import _real, _require
+from .inputs import real_array
+from .object_map import ObjectMap, as_object_map
+from .params import _finite, _require
 
 __all__ = [
     "arun_weights",
@@ -17,6 +20,12 @@ __all__ = [
     "spread",
     "weighted_arun",
 ]
+
+#: metres; coordinates beyond this are no robot's odometry (and squared sums of them overflow
+#: long before they would stop being rounding noise)
+MAX_COORDINATE = 1e9
+#: the largest Arun weight; with coordinates within MAX_COORDINATE no weighted sum overflows
+MAX_WEIGHT = 1e100
 
 
 def _sizes_similar(a: np.ndarray, b: np.ndarray, ratio: float, abs_diff: float) -> np.ndarray:
@@ -38,12 +47,15 @@ def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
         (m, 2) int64 array of (ego index, other index), sorted by ego then other index;
         (0, 2) when either map is empty or nothing passes.
     Raises:
-        ConfigError: ratio not a number >= 1, or abs_diff not a number >= 0.
+        ConfigError: ratio not a finite number >= 1, or abs_diff not a finite number >= 0
+            (NaN included).
+        DataError: ego or other is not an ObjectMap.
     """
-    _require(_real(ratio) and ratio >= 1, "putative_associations", "ratio", ratio,
-             "must be a number >= 1")
-    _require(_real(abs_diff) and abs_diff >= 0, "putative_associations", "abs_diff", abs_diff,
-             "must be a number >= 0 metres")
+    o = "putative_associations"
+    _require(_finite(ratio) and ratio >= 1, o, "ratio", ratio, "must be a finite number >= 1")
+    _require(_finite(abs_diff) and abs_diff >= 0, o, "abs_diff", abs_diff,
+             "must be a finite number >= 0 metres")
+    ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
     similar = size_compatible(ego, other, ratio, abs_diff)
     return np.argwhere(similar).astype(np.int64).reshape(-1, 2)
 
@@ -59,8 +71,34 @@ def arun_weights(ages_ego: np.ndarray, ages_other: np.ndarray, offset: float = 0
     """Per-association weights 1 / (offset + age_i * age_j): recently seen objects count more.
 
     The paper weights by (l_i l_j)^-1; the offset keeps objects seen just now finite.
+
+    Args:
+        ages_ego, ages_other: (k,) seconds, finite and >= 0 (any shape, the same for both).
+        offset: seconds^2, a finite number > 0.
+    Raises:
+        ConfigError: offset not a finite number > 0.
+        DataError: ages not real, of different shapes, negative or not finite.
     """
-    return 1.0 / (offset + np.asarray(ages_ego, float) * np.asarray(ages_other, float))
+    o = "arun_weights"
+    _require(_finite(offset) and offset > 0, o, "offset", offset,
+             "must be a finite number > 0 seconds^2")
+    a = real_array(o, "ages_ego", ages_ego)
+    b = real_array(o, "ages_other", ages_other)
+    if a.shape != b.shape:
+        raise DataError(f"{o}: ages_ego and ages_other must have the same shape, got "
+                        f"{a.shape} and {b.shape}")
+    for name, ages in (("ages_ego", a), ("ages_other", b)):
+        bad = ~((ages >= 0) & (ages < math.inf))  # NaN fails both
+        if bad.any():
+            raise DataError(f"{o}: {name} must be finite numbers >= 0 seconds, got "
+                            f"{ages[bad].flat[0]}")
+    return _weights(a * b, offset)
+
+
+def _weights(age_products: np.ndarray, offset: float) -> np.ndarray:
+    """`arun_weights` from age_i * age_j, for callers whose ages are a map's (valid by
+    construction of the ObjectMap) and offset a validated parameter."""
+    return 1.0 / (offset + age_products)
 
 
 def weighted_arun(p: np.ndarray, q: np.ndarray, weights: np.ndarray | None = None
@@ -79,21 +117,34 @@ def weighted_arun(p: np.ndarray, q: np.ndarray, weights: np.ndarray | None = Non
         (d+1, d+1) homogeneous T_a_b, or None when the set is degenerate: fewer than d points
         with positive weight, all points coincident, or (3D) all points on one line.
     Raises:
-        DataError: mismatched shapes, d not 2 or 3, non-finite values or negative weights.
+        DataError: mismatched shapes, d not 2 or 3, values that are not real numbers,
+            non-finite values, negative weights, coordinates beyond `MAX_COORDINATE` metres
+            or weights beyond `MAX_WEIGHT` (where the weighted sums could overflow).
     """
-    p = np.asarray(p, dtype=float)
-    q = np.asarray(q, dtype=float)
+    o = "weighted_arun"
+    p = real_array(o, "p", p)
+    q = real_array(o, "q", q)
     if p.ndim != 2 or p.shape != q.shape or p.shape[1] not in (2, 3):
         raise DataError(f"weighted_arun: p and q must both be (k, 2) or (k, 3), "
                         f"got {p.shape} and {q.shape}")
     k, d = p.shape
-    w = np.ones(k) if weights is None else np.asarray(weights, dtype=float)
+    w = np.ones(k) if weights is None else real_array(o, "weights", weights)
     if w.shape != (k,):
         raise DataError(f"weighted_arun: weights must have shape ({k},), got {w.shape}")
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q)) and np.all(np.isfinite(w))):
-        raise DataError("weighted_arun: points and weights must be finite")
-    if np.any(w < 0):
-        raise DataError(f"weighted_arun: weights must be >= 0, got min {w.min()}")
+    # one pass per array on the usual path (NaN fails every comparison); the slow path names
+    # the problem
+    if not ((np.abs(p) <= MAX_COORDINATE).all() and (np.abs(q) <= MAX_COORDINATE).all()
+            and (w >= 0).all() and (w <= MAX_WEIGHT).all()):
+        if not (np.isfinite(p).all() and np.isfinite(q).all() and np.isfinite(w).all()):
+            raise DataError("weighted_arun: points and weights must be finite")
+        if (w < 0).any():
+            raise DataError(f"weighted_arun: weights must be >= 0, got min {w.min()}")
+        if (w > MAX_WEIGHT).any():
+            raise DataError(f"weighted_arun: weights must be <= {MAX_WEIGHT:g}, got "
+                            f"{w.max():.3g}")
+        largest = max(float(np.abs(p).max()), float(np.abs(q).max()))
+        raise DataError(f"weighted_arun: coordinates must lie within {MAX_COORDINATE:g} "
+                        f"metres of the origin, got one of magnitude {largest:.3g}")
     if np.count_nonzero(w > 0) < 2:
         return None
     w_sum = w.sum()

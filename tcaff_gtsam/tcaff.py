@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import logging
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from itertools import pairwise
 from pathlib import Path
@@ -35,6 +36,7 @@ from .geometry import se2_from_params, wrap_angle
 from .hypothesis_tree import (
     BEFORE_ROOT,
     LEAF_DTYPES,
+    NO_MEASUREMENT,
     CostModel,
     Leaves,
     best_per_tree,
@@ -45,7 +47,8 @@ from .hypothesis_tree import (
     measurement_costs,
     seed,
 )
-from .params import TCAFFParams
+from .inputs import read_npz
+from .params import TCAFFParams, _require
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
 
@@ -92,7 +95,15 @@ class TCAFF:
     """
 
     def __init__(self, params: TCAFFParams | None = None) -> None:
-        self.params = params or TCAFFParams()
+        """A filter with `params` (None: the defaults), at step 0.
+
+        Raises:
+            ConfigError: params is neither a TCAFFParams nor None.
+        """
+        params = TCAFFParams() if params is None else params
+        _require(isinstance(params, TCAFFParams), "TCAFF", "params", params,
+                 "must be a TCAFFParams or None")
+        self.params = params
         prm = self.params
         d = prm.dim
         angular = np.zeros(d, dtype=bool)
@@ -123,6 +134,8 @@ class TCAFF:
         self._bank: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.params.window + 1)
         # per step of the main tree's columns: each measurement's object-id pairs, or None
         self._evidence: deque[list[list[tuple[int, int]] | None]] = deque(maxlen=self._columns)
+        # per step of the columns: its number of measurements (bounds the paths' choices)
+        self._sizes: deque[int] = deque(maxlen=self._columns)
         self._fresh = 0  # last step at which the main's best path brought distinct evidence
         self._estimate: AlignmentEstimate | None = None
 
@@ -152,6 +165,7 @@ class TCAFF:
         prm = self.params
         self.step += 1
         self._evidence.append(evidence if prm.counts_evidence else None)
+        self._sizes.append(zs.shape[0])
         if prm.promotion == "reseed":  # only the released code's promotion replays steps
             self._bank.append((zs, Rs))
         if self._main is not None and self._main_is_stale():
@@ -447,6 +461,7 @@ class TCAFF:
         # evidence per step: -1 for a step without, else its measurements; per measurement the
         # number of pairs, -1 for none given
         steps = list(self._evidence)
+        state["steps.sizes"] = np.array(self._sizes, dtype=np.int64)
         state["evidence.sizes"] = np.array([-1 if e is None else len(e) for e in steps],
                                            dtype=np.int64)
         per = [p for e in steps if e is not None for p in e]
@@ -459,22 +474,36 @@ class TCAFF:
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
         """Restore a state from `state_dict` of a filter with the same parameters.
 
+        The state is checked whole before anything is restored, so that a refused state
+        leaves the filter as it was.
+
         Raises:
-            DataError: missing entries, or arrays of the wrong kind or shape.
+            DataError: missing entries, arrays of the wrong kind or shape, or values no filter
+                reaches: non-finite states, costs or measurements; covariances that are not
+                symmetric positive definite; negative counters or steps since a measurement;
+                tree ids out of range (main tree ids other than the hypothesis counter,
+                exploring ids not below the next id or not grouped); measurement choices
+                before the first step or beyond the step's measurements.
         """
+        if not isinstance(state, Mapping):
+            raise DataError(f"TCAFF state: must be a mapping of names to arrays, got "
+                            f"{type(state).__name__}")
         d, columns = self.params.dim, self._columns
         try:
-            counters = {c: int(np.asarray(state[c]).item()) for c in self._COUNTERS}
+            counters = {c: _counter(state[c], c) for c in self._COUNTERS}
             evidence = self._evidence_from(state)
-            trees = {name: Leaves(*(np.array(state[f"{name}.{f}"], dtype=dtype)
+            trees = {name: Leaves(*(_state_array(state[f"{name}.{f}"], f"{name}.{f}", dtype)
                                     for f, dtype in LEAF_DTYPES.items()))
                      for name in self._TREES if f"{name}.x" in state}
-            sizes = np.array(state["bank.sizes"], dtype=np.int64)
-            bank_zs = np.array(state["bank.zs"], dtype=float)
-            bank_Rs = np.array(state["bank.Rs"], dtype=float)
+            sizes = _state_array(state["bank.sizes"], "bank.sizes", np.int64)
+            # absent from states saved before it was recorded
+            steps = (_state_array(state["steps.sizes"], "steps.sizes", np.int64)
+                     if "steps.sizes" in state else None)
+            bank_zs = _state_array(state["bank.zs"], "bank.zs", np.float64)
+            bank_Rs = _state_array(state["bank.Rs"], "bank.Rs", np.float64)
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise DataError(f"TCAFF state: an entry has the wrong kind ({exc})") from None
         if "explore" not in trees:
             raise DataError("TCAFF state: missing entry 'explore.x'")
@@ -493,9 +522,10 @@ class TCAFF:
                     raise DataError(f"TCAFF state: {name}.{f} has shape "
                                     f"{getattr(leaves, f).shape}, expected {shape} (window "
                                     f"{self.params.window}, d = {d})")
-        if (sizes.ndim != 1 or sizes.size > self.params.window + 1
+        if (sizes.ndim != 1 or sizes.size > self.params.window + 1 or np.any(sizes < 0)
                 or bank_zs.shape != (sizes.sum(), d) or bank_Rs.shape != (sizes.sum(), d, d)):
             raise DataError("TCAFF state: the stored measurements do not match bank.sizes")
+        self._check_values(counters, trees, sizes, bank_zs, bank_Rs, evidence, steps)
         for c, value in counters.items():
             setattr(self, c, value)
         self._main, self._explore, self._rival = (trees.get(n) for n in self._TREES)
@@ -503,14 +533,87 @@ class TCAFF:
         self._bank = deque(((bank_zs[a:b], bank_Rs[a:b]) for a, b in pairwise(bounds)),
                            maxlen=self.params.window + 1)
         self._evidence = deque(evidence, maxlen=self._columns)
+        self._sizes = deque([-1] * len(evidence) if steps is None else steps.tolist(),
+                            maxlen=self._columns)
         self._estimate = self._reported(self._main_estimate())
+
+    def _check_values(self, counters: dict[str, int], trees: dict[str, Leaves],
+                      sizes: np.ndarray, bank_zs: np.ndarray, bank_Rs: np.ndarray,
+                      evidence: list, steps: np.ndarray | None) -> None:
+        """DataError unless a state of the right shapes holds values a filter can reach."""
+        prm, columns = self.params, self._columns
+        for c, value in counters.items():
+            if value < 0:
+                raise DataError(f"TCAFF state: {c} = {value} must be >= 0")
+        step = counters["step"]
+        if counters["_fresh"] > step:
+            raise DataError(f"TCAFF state: _fresh = {counters['_fresh']} is after step = "
+                            f"{step}")
+        seen = min(step, columns)  # columns of steps that happened
+        if len(evidence) != seen:
+            raise DataError(f"TCAFF state: evidence of {len(evidence)} steps, expected {seen} "
+                            f"at step {step}")
+        banked = min(step, prm.window + 1) if prm.promotion == "reseed" else 0
+        if sizes.size != banked:
+            raise DataError(f"TCAFF state: {sizes.size} banked steps, expected {banked} at "
+                            f"step {step}")
+        _check_covariances("bank.zs", bank_zs, "bank.Rs", bank_Rs)
+        # per column, the number of measurements its step had, where the state knows it
+        # (-1: not known, for states saved before steps.sizes was recorded)
+        known = np.full(columns, -1, np.int64)
+        known[: columns - seen] = 0  # steps before the first one
+        if steps is not None:
+            if steps.shape != (seen,) or np.any(steps < -1):
+                raise DataError(f"TCAFF state: steps.sizes must hold {seen} counts at step "
+                                f"{step}, got {steps.tolist()}")
+            known[columns - seen:] = steps
+        sources = [(c, len(e)) for c, e in enumerate(evidence, start=columns - seen)
+                   if e is not None]
+        sources += list(zip(range(columns - sizes.size, columns), sizes.tolist(), strict=True))
+        for c, count in sources:
+            if known[c] not in (-1, count):
+                raise DataError(f"TCAFF state: step column {c} had {known[c]} measurements "
+                                f"by steps.sizes, {count} by the stored evidence or bank")
+            known[c] = count
+        limit = np.where(known < 0, np.iinfo(np.int32).max, known)
+        if "main" not in trees and "rival" in trees:
+            raise DataError("TCAFF state: a rival without a main tree")
+        for name, leaves in trees.items():
+            _check_covariances(f"{name}.x", leaves.x, f"{name}.P", leaves.P)
+            if not np.all(np.isfinite(leaves.edge)):
+                raise DataError(f"TCAFF state: {name}.edge holds non-finite costs")
+            if np.any(leaves.since < 0):
+                raise DataError(f"TCAFF state: {name}.since holds negative step counts")
+            choice = leaves.choice
+            # before its root a path holds BEFORE_ROOT, from the root on a choice (>= -1)
+            rooted = choice >= NO_MEASUREMENT
+            if (np.any(choice < BEFORE_ROOT) or np.any(rooted[:, :-1] & ~rooted[:, 1:])
+                    or not np.all(rooted[:, -1])):
+                raise DataError(f"TCAFF state: {name}.choice is not a path (values must be "
+                                f"{BEFORE_ROOT} before the root, then >= {NO_MEASUREMENT})")
+            over = choice >= limit
+            if name != "rival" and over.any():  # a rival may be from an earlier step
+                leaf, c = np.argwhere(over)[0]
+                raise DataError(f"TCAFF state: {name}.choice[{leaf}, {c}] = {choice[leaf, c]}"
+                                f" is not a measurement of its step (it had {limit[c]})")
+            tree = leaves.tree
+            if name == "main":
+                if not np.all(tree == counters["hypothesis"]) or counters["hypothesis"] < 1:
+                    raise DataError(f"TCAFF state: main.tree ids must all be the hypothesis "
+                                    f"counter {counters['hypothesis']} (>= 1)")
+            elif tree.size and (tree.min() < 0 or tree.max() >= counters["_next_tree"]):
+                raise DataError(f"TCAFF state: {name}.tree ids must lie in [0, _next_tree = "
+                                f"{counters['_next_tree']})")
+        runs = trees["explore"].tree
+        runs = runs[np.r_[True, runs[1:] != runs[:-1]]] if runs.size else runs
+        if np.unique(runs).size != runs.size:
+            raise DataError("TCAFF state: the leaves of each exploring tree must be adjacent")
 
     def _evidence_from(self, state: dict[str, np.ndarray]
                        ) -> list[list[list[tuple[int, int]] | None] | None]:
         """The evidence bank of a `state_dict`; DataError when its arrays disagree."""
-        sizes = np.array(state["evidence.sizes"], dtype=np.int64)
-        counts = np.array(state["evidence.counts"], dtype=np.int64)
-        pairs = np.array(state["evidence.pairs"], dtype=np.int64)
+        sizes, counts, pairs = (_state_array(state[f"evidence.{name}"], f"evidence.{name}",
+                                             np.int64) for name in ("sizes", "counts", "pairs"))
         if (sizes.ndim != 1 or sizes.size > self._columns or counts.ndim != 1
                 or np.any(sizes < -1) or np.any(counts < -1)
                 or counts.size != sizes[sizes > 0].sum() or pairs.ndim != 2
@@ -542,14 +645,57 @@ class TCAFF:
         """Read a filter written by `save`.
 
         Raises:
-            DataError: the file is missing, corrupt or not a saved filter.
+            DataError: the file is missing, not a regular file (a FIFO is refused before it
+                is opened for reading), empty, truncated, corrupt, not a saved filter, or
+                holds a state `load_state_dict` refuses.
         """
+        state = read_npz(path, "TCAFF filter")
         try:
-            with np.load(path, allow_pickle=False) as data:
-                state = {k: data[k] for k in data.files}
             params = TCAFFParams(**json.loads(str(state.pop("params"))))
-        except (OSError, ValueError, KeyError, TypeError) as exc:
+        except (ValueError, KeyError, TypeError, RecursionError) as exc:
             raise DataError(f"{path}: not a saved TCAFF filter ({exc})") from None
         filt = cls(params)
         filt.load_state_dict(state)
         return filt
+
+
+def _counter(value, name: str) -> int:
+    """A counter of a state dict: one integer."""
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iu":
+        raise TypeError(f"{name} must be an integer, got dtype {arr.dtype}")
+    return int(arr.item())
+
+
+def _state_array(value, name: str, dtype) -> np.ndarray:
+    """An array of a state dict as `dtype`: integers only from integers within its range,
+    floats only from real numbers (no truncation, no wrap-around, no complex parts dropped)."""
+    arr = np.asarray(value)
+    target = np.dtype(dtype)
+    if target.kind in "iu":
+        # an empty float array (np.array([])) holds no fractions
+        if arr.dtype.kind not in "iu" and not (arr.size == 0 and arr.dtype.kind == "f"):
+            raise TypeError(f"{name} must hold integers, got dtype {arr.dtype}")
+        info = np.iinfo(target)
+        if arr.size and (arr.min() < info.min or arr.max() > info.max):
+            raise ValueError(f"{name} holds values beyond {target}")
+    elif arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must hold real numbers, got dtype {arr.dtype}")
+    return np.array(arr, dtype=target)
+
+
+def _check_covariances(states: str, x: np.ndarray, name: str, P: np.ndarray) -> None:
+    """DataError unless the states (or measurements) x (n, d) named `states` are finite and
+    their covariances P (n, d, d) named `name` finite, symmetric and positive definite."""
+    for what, values in ((states, x), (name, P)):
+        if not np.all(np.isfinite(values)):
+            raise DataError(f"TCAFF state: {what} holds non-finite values")
+    if P.shape[0] == 0:
+        return
+    if np.any(np.abs(P - P.transpose(0, 2, 1)) > 1e-9 * (1.0 + np.abs(P))):
+        raise DataError(f"TCAFF state: {name} holds a covariance that is not symmetric")
+    smallest = np.linalg.eigvalsh(P)[:, 0]
+    if np.any(smallest <= 0):
+        i = int(np.flatnonzero(smallest <= 0)[0])
+        raise DataError(f"TCAFF state: {name}[{i}] is not positive definite (smallest "
+                        f"eigenvalue {smallest[i]:.3g})")

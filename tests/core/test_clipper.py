@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -214,3 +217,117 @@ def test_edges_within_a_node_set(seed):
     rows = np.repeat(np.arange(graph.m), np.diff(graph.indptr))
     expected = np.flatnonzero(member[rows] & member[graph.indices])
     np.testing.assert_array_equal(np.sort(_edges_within(graph, nodes)), expected)
+
+
+# ---------------------------------------------------------------------------------------------
+# bad graphs and arguments: clear errors, never a crash inside the compiled solver
+
+
+def small_graph():
+    p = rectangle()
+    return consistency_graph(p, p, np.argwhere(np.ones((4, 4), bool)))
+
+
+@pytest.mark.parametrize(("field", "bad", "message"), [
+    ("indices", lambda g: np.where(np.arange(g.indices.size) == 0, 10**9, g.indices),
+     r"indices must be node numbers in \[0, 16\), got 1000000000"),
+    ("indices", lambda g: np.where(np.arange(g.indices.size) == 3, -1, g.indices),
+     r"indices must be node numbers in \[0, 16\), got -1"),
+    ("indices", lambda g: g.indices.astype(float), "indices must be a 1-D integer array"),
+    ("indptr", lambda g: g.indptr[:-1], r"indptr must have shape \(17,\)"),
+    ("indptr", lambda g: g.indptr + 1, "indptr must rise from 0"),
+    ("indptr", lambda g: g.indptr[::-1].copy(), "indptr must rise from 0"),
+    ("weights", lambda g: np.where(np.arange(g.weights.size) == 2, np.nan, g.weights),
+     "weights must be finite numbers >= 0, got nan at index 2"),
+    ("weights", lambda g: -g.weights, "weights must be finite numbers >= 0"),
+    ("weights", lambda g: g.weights[:-1], "weights must have shape"),
+    ("weights", lambda g: g.weights + 1j, "weights must be real numbers"),
+    ("diag", lambda g: np.full(g.m, np.inf), "diag must be finite numbers >= 0, got inf"),
+    ("diag", lambda g: np.ones(3), r"diag must have shape \(16,\)"),
+    ("associations", lambda g: np.column_stack([g.associations, g.associations[:, :1]]),
+     r"associations must be an \(m, 2\) array of index pairs, got shape \(16, 3\)"),
+    ("associations", lambda g: g.associations - 1, "associations must be indices >= 0"),
+])
+def test_a_graph_with_bad_arrays_is_refused_before_the_solver_runs(field, bad, message):
+    """Indices past the nodes used to make the compiled solver read (and write) out of bounds:
+    a segmentation fault."""
+    graph = small_graph()
+    with pytest.raises(DataError, match=rf"^ConsistencyGraph: {message}"):
+        replace(graph, **{field: bad(graph)})
+
+
+def test_a_graph_cannot_be_changed_after_its_checks():
+    graph = small_graph()
+    with pytest.raises(ValueError, match="read-only"):
+        graph.indices[0] = 10**9
+    # the caller's own arrays stay writeable
+    indices = graph.indices.copy()
+    replace(graph, indices=indices)
+    indices[0] = indices[0]
+    assert len(clipper_solve(graph)) == 4
+
+
+@pytest.mark.parametrize("solve", [clipper_solve, mno_clipper])
+@pytest.mark.parametrize("graph", [None, "graph", np.zeros((4, 4)), {"indices": [0]}])
+def test_solvers_refuse_what_is_not_a_graph(solve, graph):
+    with pytest.raises(DataError, match=rf"^{solve.__name__}: graph must be a "
+                                        rf"ConsistencyGraph, got {type(graph).__name__}"):
+        solve(graph)
+
+
+@pytest.mark.parametrize("solve", [clipper_solve, mno_clipper])
+@pytest.mark.parametrize("params", ["default", 0, {"seed": 1}])
+def test_solvers_refuse_params_that_are_not_clipper_params(solve, params):
+    with pytest.raises(ConfigError, match=rf"^{solve.__name__}\.params = "):
+        solve(small_graph(), params=params)
+
+
+@pytest.mark.parametrize("n", [-1, 0, 2.5, "2", None, True])
+def test_mno_solution_count_must_be_a_positive_int(n):
+    with pytest.raises(ConfigError, match=rf"^mno_clipper\.n_solutions = {re.escape(repr(n))}"):
+        mno_clipper(small_graph(), n)
+
+
+@pytest.mark.parametrize(("associations", "message"), [
+    (np.array([[0, 1, 2], [1, 2, 3]]), r"must be an \(m, 2\) array of index pairs, got shape "
+                                        r"\(2, 3\)"),
+    (np.array([0, 1, 2, 3]), r"got shape \(4,\)"),
+    (np.array([[0.5, 1.0], [1.0, 2.0]]), r"must hold whole numbers, got 0.5 at \[0, 0\]"),
+    (np.array([[0.0, np.nan]]), "must hold whole numbers, got nan"),
+    (np.array([[0, -1]]), "must be indices >= 0, got -1"),
+    (np.array([[True, False]]), "integer indices"),
+    ([["0", "1"]], "integer indices"),
+    (np.array([[2**63 + 5, 0]], dtype=np.uint64), "beyond int64"),
+])
+def test_graph_associations_are_never_reshaped_or_rounded(associations, message):
+    """An (m, 3) array used to be reshaped into scrambled pairs and 0.5 truncated to 0."""
+    p = np.random.default_rng(0).uniform(0, 5, (4, 2))
+    with pytest.raises(DataError, match=rf"^consistency_graph: associations .*{message}"):
+        consistency_graph(p, p, associations)
+
+
+def test_whole_float_associations_are_still_accepted():
+    p = rectangle()
+    ints = np.argwhere(np.ones((4, 4), bool))
+    a, b = consistency_graph(p, p, ints), consistency_graph(p, p, ints.astype(float))
+    np.testing.assert_array_equal(a.associations, b.associations)
+    np.testing.assert_array_equal(a.weights, b.weights)
+
+
+@pytest.mark.parametrize("points", [np.ones((3, 2)) * (1 + 1j), [["a", "b"]] * 3, None])
+def test_graph_points_must_be_real_numbers(points):
+    with pytest.raises(DataError, match=r"^consistency_graph: ego_points must be real numbers"):
+        consistency_graph(points, np.zeros((3, 2)), np.array([[0, 0]]))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2**32, 2**64 + 1, 2**200, np.uint64(2**64 - 1)])
+def test_every_seed_clipper_params_accepts_solves(seed):
+    """ClipperParams takes the seeds the solver's generator takes: any int >= 0."""
+    solution = clipper_solve(small_graph(), ClipperParams(seed=seed))
+    assert len(solution) == 4
+
+
+@pytest.mark.parametrize("seed", [-1, np.int64(-5), 1.0, "0", None, True])
+def test_seeds_the_solver_cannot_take_are_config_errors(seed):
+    with pytest.raises(ConfigError, match=r"^ClipperParams\.seed = .*must be an int >= 0"):
+        ClipperParams(seed=seed)

@@ -8,7 +8,7 @@ from tcaff_gtsam.eval.sim.maps import grid_maps, overlapping_maps
 
 from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.frame_aligner import residual_covariance
+from tcaff_gtsam.frame_aligner import MapMemory, residual_covariance
 from tcaff_gtsam.geometry import se2_error, se2_from_params, se2_to_params
 from tcaff_gtsam.registration import arun_weights, weighted_arun
 
@@ -158,3 +158,85 @@ def test_bad_parameters_are_rejected(changes):
     name = next(iter(changes))
     with pytest.raises(ConfigError, match=name):
         FrameAlignerParams(**changes)
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input: DataError naming the argument
+
+
+def a_pair():
+    return overlapping_maps(np.random.default_rng(0), 30, 0.6, 0.1, clutter=5)
+
+
+@pytest.mark.parametrize("which", ["ego", "other"])
+@pytest.mark.parametrize("value", [None, "ego.npz", np.zeros((4, 3)), [], 3.0])
+def test_measurements_need_object_maps(which, value):
+    """A non-map used to fail with AttributeError deep inside."""
+    pair = a_pair()
+    maps = {"ego": pair.ego, "other": pair.other, which: value}
+    with pytest.raises(DataError, match=rf"^FrameAligner\.measurements: {which} must be an "
+                                        rf"ObjectMap, got {type(value).__name__}"):
+        FrameAligner().measurements(maps["ego"], maps["other"], pair.now)
+
+
+@pytest.mark.parametrize("now", ["100", None, np.array([100.0]), float("nan"), -np.inf, 1j])
+def test_measurements_need_a_finite_now(now):
+    pair = a_pair()
+    with pytest.raises(DataError, match=r"^FrameAligner\.measurements: now must be a finite "
+                                        r"number of seconds"):
+        FrameAligner().measurements(pair.ego, pair.other, now)
+
+
+@pytest.mark.parametrize(("past", "message"), [
+    ("maps", "ego_past must be a sequence of"),
+    (None, "ego_past must be a sequence of"),
+    ([3.0], r"ego_past\[0\] must be a \(t, ObjectMap\) pair"),
+    ([(1.0, "map")], r"ego_past\[0\] map must be an ObjectMap, got str"),
+    ([(float("nan"), ObjectMap.empty())], r"ego_past\[0\] time must be a finite number"),
+])
+def test_measurements_need_earlier_maps_as_time_map_pairs(past, message):
+    pair = a_pair()
+    with pytest.raises(DataError, match=rf"^FrameAligner\.measurements: {message}"):
+        FrameAligner().measurements(pair.ego, pair.other, pair.now, ego_past=past)
+
+
+@pytest.mark.parametrize("held", [np.zeros(2), [np.nan, 0.0, 0.0], "xyz", np.ones(3) * 1j])
+def test_measurements_need_held_to_be_a_finite_alignment(held):
+    pair = a_pair()
+    with pytest.raises(DataError, match=r"^FrameAligner\.measurements: held must be"):
+        FrameAligner().measurements(pair.ego, pair.other, pair.now, held=held)
+
+
+def test_maps_beyond_any_odometry_are_a_data_error():
+    """Coordinates of 2e9 m (the maps themselves consistent) are refused by the registration
+    rather than returned as an alignment computed from rounding noise."""
+    pair = a_pair()
+    far = ObjectMap(pair.other.centroids + np.array([2e9, 0.0, 0.0]), pair.other.widths,
+                    pair.other.heights, pair.other.last_seen)
+    with pytest.raises(DataError, match=r"^weighted_arun: coordinates must lie within"):
+        FrameAligner().measurements(pair.ego, far, pair.now)
+
+
+@pytest.mark.parametrize("params", ["default", {"kappa": 20.0}, 4])
+def test_aligner_params_of_the_wrong_type_are_a_config_error(params):
+    with pytest.raises(ConfigError, match=r"^FrameAligner\.params = "):
+        FrameAligner(params)
+
+
+@pytest.mark.parametrize(("t", "objects", "message"), [
+    ("now", ObjectMap.empty(), "t must be a finite number"),
+    (float("inf"), ObjectMap.empty(), "t must be a finite number"),
+    (1.0, None, "objects must be an ObjectMap, got NoneType"),
+])
+def test_map_memory_refuses_bad_snapshots(t, objects, message):
+    memory = MapMemory(100.0, 10.0)
+    with pytest.raises(DataError, match=rf"^MapMemory\.add: {message}"):
+        memory.add(t, objects)
+    assert memory.snapshots() == []
+
+
+@pytest.mark.parametrize(("span", "every"), [(-1.0, 10.0), (float("nan"), 10.0),
+                                              (100.0, 0.0), (100.0, "10")])
+def test_map_memory_settings_are_config_errors(span, every):
+    with pytest.raises(ConfigError, match=r"^MapMemory\.(span|every) = "):
+        MapMemory(span, every)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import os
 import re
 
 import numpy as np
@@ -390,3 +392,139 @@ def test_load_garbage_file(tmp_path, writer):
 def test_load_directory(tmp_path):
     with pytest.raises(DataError):
         ObjectMap.load(tmp_path)
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input: DataError naming the argument, never another exception
+
+#: values that are not a finite time: strings, None, arrays, NaN and infinities, complex
+#: numbers, booleans, containers, ints beyond the floats
+junk_times = st.one_of(
+    st.text(max_size=5), st.none(), st.booleans(), st.binary(max_size=4),
+    st.sampled_from([math.nan, math.inf, -math.inf, np.float64("nan"), np.float32("inf"),
+                     10**400, -(10**400), 1 + 2j, np.complex128(1.0), np.array(1.0),
+                     np.ones(3), np.ones((2, 2)), [1.0], (1.0,), {"t": 1.0}, object()]),
+    st.lists(st.floats(), max_size=3),
+    st.complex_numbers(max_magnitude=1e3),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(junk_times)
+def test_any_junk_now_is_a_data_error_naming_now(now):
+    m = make_map()
+    for call in (lambda: m.ages(now), lambda: m.recent(now, 5.0),
+                 lambda: m.recent_indices(now, 5.0)):
+        with pytest.raises(DataError, match=r"^ObjectMap\.(ages|recent_indices): now must be "
+                                            r"a finite number of seconds, got "):
+            call()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.one_of(st.integers(-10**6, 10**6), st.floats(-1e9, 1e9),
+                 st.sampled_from([np.float32(3.5), np.int64(7), np.uint8(3)])))
+def test_any_finite_number_is_a_time(now):
+    m = make_map()
+    np.testing.assert_array_equal(m.ages(now), np.maximum(float(now) - m.last_seen, 0.0))
+
+
+def test_ages_at_nan_is_an_error_not_nans():
+    with pytest.raises(DataError, match=r"^ObjectMap\.ages: now must be a finite number of "
+                                        r"seconds, got nan \(not finite\)"):
+        make_map().ages(float("nan"))
+
+
+@pytest.mark.parametrize("kappa", ["5", None, 1j, np.ones(2), True])
+def test_recent_rejects_kappa_that_is_no_number(kappa):
+    with pytest.raises(DataError, match=r"^ObjectMap\.recent_indices: kappa must be a number"):
+        make_map().recent(1.0, kappa)
+
+
+@pytest.mark.parametrize(("index", "message"), [
+    ([999], "index 999 is out of range for a map of 4 objects"),
+    (np.array([0, -5]), "index -5 is out of range"),
+    (np.array([True, False]), "a boolean mask of length 2, the map has 4 objects"),
+    (np.array([0.0, 1.0]), "must be a boolean mask"),
+    (1, "must be a boolean mask"),
+    ("0", "must be a boolean mask"),
+    (None, "must be a boolean mask"),
+    (np.zeros((2, 2), int), "must be a boolean mask"),
+    (slice(0, 2), "must be a boolean mask"),
+])
+def test_subset_refuses_bad_indices(index, message):
+    with pytest.raises(DataError, match=rf"^ObjectMap\.subset: .*{re.escape(message)}"):
+        make_map(4).subset(index)
+
+
+def test_subset_still_takes_negative_and_empty_indices():
+    m = make_map(4)
+    np.testing.assert_array_equal(m.subset([-1]).centroids, m.centroids[[3]])
+    assert len(m.subset([])) == 0
+
+
+@pytest.mark.parametrize("field", FIELDS)
+@pytest.mark.parametrize("value", [1 + 1j, np.complex64(2.0)])
+def test_complex_values_are_refused_not_cast(field, value):
+    """numpy would drop the imaginary part with a warning and keep going."""
+    kwargs = valid_kwargs(2)
+    kwargs[field] = np.asarray(kwargs[field]) * value
+    with pytest.raises(DataError, match=field_error(field) + " must be real numbers"):
+        ObjectMap(**kwargs)
+
+
+def test_a_map_file_with_complex_centroids_is_a_data_error(tmp_path):
+    path = tmp_path / "complex.npz"
+    kwargs = valid_kwargs(2)
+    np.savez(path, **{**kwargs, "centroids": kwargs["centroids"] * (1 + 1j)})
+    with pytest.raises(DataError, match=field_error("centroids") + " must be real numbers"):
+        ObjectMap.load(path)
+
+
+def _npy_bytes(shape, payload: bytes) -> bytes:
+    """An .npy member whose header declares `shape` of float64, followed by `payload`."""
+    import io
+
+    buffer = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        buffer, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    return buffer.getvalue() + payload
+
+
+@pytest.mark.parametrize("shape", [(10**11, 3), (2**40,), (3, 10**12)])
+def test_a_header_declaring_a_huge_array_is_refused_before_reading(tmp_path, shape):
+    """numpy allocates the declared shape before reading: MemoryError for (1e11, 3)."""
+    import zipfile
+
+    path = tmp_path / "huge.npz"
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("centroids.npy", _npy_bytes(shape, bytes(48)))
+        for name in ("widths", "heights", "last_seen"):
+            archive.writestr(f"{name}.npy", _npy_bytes((2,), bytes(16)))
+    with pytest.raises(DataError, match=r"corrupt map archive, array 'centroids' declares "
+                                        r"shape .* but holds 48 bytes"):
+        ObjectMap.load(path)
+
+
+def test_a_fifo_is_refused_without_blocking(tmp_path):
+    fifo = tmp_path / "map.npz"
+    os.mkfifo(fifo)
+    with pytest.raises(DataError, match="not a regular file"):
+        ObjectMap.load(fifo)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_any_damaged_map_file_loads_or_is_a_data_error(tmp_path_factory, data):
+    path = tmp_path_factory.mktemp("flip") / "map.npz"
+    make_map(5).save(path)
+    raw = bytearray(path.read_bytes())
+    for _ in range(data.draw(st.integers(1, 4))):
+        i = data.draw(st.integers(0, len(raw) - 1))
+        raw[i] ^= 1 << data.draw(st.integers(0, 7))
+    raw = raw[: data.draw(st.integers(0, len(raw)))]
+    path.write_bytes(bytes(raw))
+    try:
+        loaded = ObjectMap.load(path)
+    except DataError:
+        return
+    assert isinstance(loaded, ObjectMap)

@@ -47,3 +47,79 @@ def test_reference_uses_both_released_presets():
     ref = PairwiseAligner.reference()
     assert ref.filter.params.cost_model == "reference"
     assert ref.aligner.params.max_rmse is None
+
+
+# ---------------------------------------------------------------------------------------------
+# a failed step changes nothing
+
+
+def far_away(objects):
+    """The same map 2e9 m off: consistent, but beyond any odometry (the registration refuses)."""
+    from tcaff_gtsam import ObjectMap
+
+    return ObjectMap(objects.centroids + np.array([2e9, 0.0, 0.0]), objects.widths, objects.heights,
+                     objects.last_seen)
+
+
+@pytest.mark.parametrize("bad", [None, "other.npz", np.zeros((5, 3))])
+def test_a_step_refused_for_a_bad_map_can_be_retried_at_the_same_t(bad):
+    pair = overlapping_maps(np.random.default_rng(1), 20, 0.5)
+    aligner = PairwiseAligner()
+    with pytest.raises(DataError, match=rf"^PairwiseAligner\.update: other_map must be an "
+                                        rf"ObjectMap, got {type(bad).__name__}"):
+        aligner.update(10.0, pair.ego, bad)
+    aligner.update(10.0, pair.ego, pair.other)  # used to be refused as "not after" t = 10
+    assert aligner.filter.step == 1
+
+
+@pytest.mark.parametrize("tcaff_params", [TCAFFParams(),
+                                          TCAFFParams(min_distinct=2, switch_stale=True)],
+                         ids=["default", "evidence"])
+def test_a_step_that_failed_inside_the_aligner_leaves_no_trace(tcaff_params):
+    """Every step is first tried with maps the registration refuses; the aligner then runs
+    exactly like one that never saw them: same estimates, memory, identities and filter."""
+    T_true = se2_from_params([4.0, -7.0, 2.5])
+    rng = np.random.default_rng(0)
+    clean, tried = PairwiseAligner(tcaff_params=tcaff_params), PairwiseAligner(
+        tcaff_params=tcaff_params)
+    failures = 0
+    for t in range(14):
+        pair = overlapping_maps(rng, 30, 0.5, 0.1, clutter=5, T_oi_oj=T_true, now=100.0 + t)
+        try:
+            tried.update(pair.now, pair.ego, far_away(pair.other))
+        except DataError:
+            failures += 1
+        a = clean.update(pair.now, pair.ego, pair.other)
+        b = tried.update(pair.now, pair.ego, pair.other)
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_array_equal(a.x, b.x)
+            np.testing.assert_array_equal(a.P, b.P)
+        assert len(clean.measurements) == len(tried.measurements)
+        for m, n in zip(clean.measurements, tried.measurements, strict=True):
+            np.testing.assert_array_equal(m.z, n.z)
+    assert failures >= 10  # the maps overlap: the registration is reached and refuses
+    assert a is not None
+    for key, value in clean.filter.state_dict().items():
+        np.testing.assert_array_equal(value, tried.filter.state_dict()[key])
+    assert [t for t, _ in clean._memory[0].snapshots()] == [
+        t for t, _ in tried._memory[0].snapshots()]
+
+
+@pytest.mark.parametrize("t", ["10", None, np.array([10.0]), 1j, float("inf")])
+def test_t_must_be_a_finite_number(t):
+    pair = overlapping_maps(np.random.default_rng(1), 20, 0.5)
+    aligner = PairwiseAligner()
+    with pytest.raises(DataError, match=r"^PairwiseAligner\.update: t must be a finite number "
+                                        r"of seconds, got "):
+        aligner.update(t, pair.ego, pair.other)
+    aligner.update(10.0, pair.ego, pair.other)
+
+
+@pytest.mark.parametrize(("kwargs", "field"), [
+    ({"aligner_params": "reference"}, "FrameAligner.params"),
+    ({"tcaff_params": {"window": 8}}, "PairwiseAligner.tcaff_params"),
+])
+def test_parameters_of_the_wrong_type_are_config_errors(kwargs, field):
+    with pytest.raises(ConfigError, match=rf"^{field} = "):
+        PairwiseAligner(**kwargs)

@@ -466,3 +466,86 @@ def test_registration_rmse_known_value():
     assert registration_rmse(np.eye(3), p, q) == pytest.approx(np.sqrt(25.0 / 2))
     T = rigid(rot2(np.pi / 2), [0.0, 0.0])
     assert registration_rmse(T, np.array([[0.0, 1.0]]), np.array([[1.0, 0.0]])) < 1e-15
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input: clear errors, not garbage
+
+
+@pytest.mark.parametrize(("name", "value"), [
+    ("ratio", float("nan")), ("ratio", np.float64("nan")), ("ratio", float("inf")),
+    ("ratio", 1 + 0j), ("abs_diff", float("nan")), ("abs_diff", float("inf")),
+    ("abs_diff", np.float32("nan")),
+])
+def test_putative_gate_must_be_finite(name, value):
+    m = random_map(np.random.default_rng(0), 3)
+    with pytest.raises(ConfigError, match=rf"^putative_associations\.{name} = .*: must be a "
+                                          r"finite number >= "):
+        putative_associations(m, m, **{name: value})
+
+
+@pytest.mark.parametrize("which", ["ego", "other"])
+@pytest.mark.parametrize("value", [None, "map", np.zeros((3, 3)), {"centroids": []}])
+def test_putative_associations_need_object_maps(which, value):
+    m = random_map(np.random.default_rng(0), 3)
+    maps = {"ego": m, "other": m, which: value}
+    with pytest.raises(DataError, match=rf"^putative_associations: {which} must be an "
+                                        rf"ObjectMap, got {type(value).__name__}"):
+        putative_associations(maps["ego"], maps["other"])
+
+
+@pytest.mark.parametrize("scale", [1e10, 1e200, 1e300])
+def test_weighted_arun_refuses_absurd_coordinates(scale):
+    """1e200 m coordinates used to overflow into NaN (or an SVD that does not converge)."""
+    rng = np.random.default_rng(0)
+    q = make_points(rng, 6, 2) * scale
+    with pytest.raises(DataError, match=r"^weighted_arun: coordinates must lie within 1e\+09 "
+                                        r"metres of the origin, got one of magnitude"):
+        weighted_arun(q + 1.0, q)
+
+
+def test_weighted_arun_refuses_weights_that_overflow():
+    q = make_points(np.random.default_rng(0), 6, 2)
+    with pytest.raises(DataError, match=r"^weighted_arun: weights must be <= 1e\+100, got 1e\+3"):
+        weighted_arun(q, q, np.full(6, 1e300))
+
+
+@PROPS
+@given(seeds, st.sampled_from([2, 3]),
+       st.floats(-1e9, 1e9, allow_nan=False), st.floats(1e-3, 1e100, allow_nan=False))
+def test_weighted_arun_is_finite_up_to_the_limits(seed, dim, offset, weight):
+    """Within MAX_COORDINATE and MAX_WEIGHT every result is finite (or None)."""
+    rng = np.random.default_rng(seed)
+    q = np.clip(make_points(rng, 8, dim) + offset, -1e9, 1e9)
+    p = np.clip(q[::-1] * 0.5 + offset, -1e9, 1e9)
+    T = weighted_arun(p, q, rng.uniform(0.0, 1.0, 8) * weight)
+    assert T is None or np.all(np.isfinite(T))
+
+
+@pytest.mark.parametrize(("p", "message"), [
+    (np.ones((4, 2)) * (1 + 1j), "p must be real numbers"),
+    ([["a", "b"]] * 4, "p must be real numbers"),
+    (None, "p must be real numbers"),
+])
+def test_weighted_arun_refuses_what_is_not_real_numbers(p, message):
+    with pytest.raises(DataError, match=f"^weighted_arun: {message}"):
+        weighted_arun(p, np.zeros((4, 2)))
+
+
+@pytest.mark.parametrize(("a", "b", "message"), [
+    ([1.0, np.nan], [1.0, 1.0], "ages_ego must be finite numbers >= 0 seconds, got nan"),
+    ([1.0, 1.0], [1.0, -2.0], "ages_other must be finite numbers >= 0 seconds, got -2.0"),
+    ([np.inf, 1.0], [0.0, 1.0], "ages_ego must be finite numbers >= 0 seconds, got inf"),
+    ([1.0, 2.0], [1.0], "ages_ego and ages_other must have the same shape"),
+    ([1 + 1j], [1.0], "ages_ego must be real numbers"),
+    ("soon", [1.0], "ages_ego must be real numbers"),
+])
+def test_arun_weights_refuse_bad_ages(a, b, message):
+    with pytest.raises(DataError, match=f"^arun_weights: {message}"):
+        arun_weights(a, b)
+
+
+@pytest.mark.parametrize("offset", [0.0, -1.0, float("nan"), float("inf"), "0.01", None])
+def test_arun_weight_offset_is_a_config_error(offset):
+    with pytest.raises(ConfigError, match=r"^arun_weights\.offset = "):
+        arun_weights([1.0], [1.0], offset)

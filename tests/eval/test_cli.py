@@ -144,6 +144,21 @@ def test_missing_map_is_a_clear_error(tmp_path):
     assert "Traceback" not in done.stderr
 
 
+def test_a_map_with_complex_centroids_is_a_clear_error(tmp_path):
+    """numpy used to drop the imaginary parts with a warning and align the rest."""
+    import numpy as np
+
+    runner.invoke(app, ["make-maps", str(tmp_path)])
+    with np.load(tmp_path / "ego.npz") as data:
+        arrays = {name: data[name] for name in data.files}
+    np.savez(tmp_path / "complex.npz", **{**arrays, "centroids": arrays["centroids"] + 1j})
+    done = subprocess.run([TCAFF, "align-maps", str(tmp_path / "complex.npz"),
+                           str(tmp_path / "other.npz")], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert "ObjectMap.centroids must be real numbers" in done.stderr
+    assert "Traceback" not in done.stderr and "Warning" not in done.stderr
+
+
 def test_bad_option_is_a_clear_error(tmp_path):
     runner.invoke(app, ["make-maps", str(tmp_path)])
     done = subprocess.run([TCAFF, "align-maps", str(tmp_path / "ego.npz"),

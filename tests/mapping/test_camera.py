@@ -4,6 +4,7 @@ convention, depth images in metres and depth registration between cameras."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -101,6 +102,12 @@ def test_from_K_rejects_bad_matrices(K):
 @PROPS
 @given(st.integers(2, 2000), st.integers(2, 2000), st.floats(10.0, 170.0))
 def test_from_fov(width, height, hfov):
+    # square pixels: a tall image at a wide hfov has rays near 90 deg at its top and bottom
+    vertical = math.degrees(math.atan(height / width * math.tan(math.radians(hfov / 2))))
+    if vertical > 89.0 + 1e-6:
+        with pytest.raises(ConfigError, match=r"PinholeCamera\.fy = .*89\.0 deg"):
+            PinholeCamera.from_fov(width, height, hfov)
+        return
     cam = PinholeCamera.from_fov(width, height, hfov)
     assert cam.fx == cam.fy
     assert cam.cx == (width - 1) / 2 and cam.cy == (height - 1) / 2
@@ -133,6 +140,47 @@ def test_bad_camera_values_raise_config_error(field, value):
 def test_numpy_numbers_are_accepted():
     cam = PinholeCamera(np.int64(64), np.int32(48), np.float32(50.0), np.float64(50.0), 0, 0)
     assert cam.shape == (48, 64)
+
+
+GOOD = {"width": 640, "height": 480, "fx": 500.0, "fy": 500.0, "cx": 319.5, "cy": 239.5}
+
+
+@pytest.mark.parametrize(("field", "value", "rule"), [
+    ("fx", 1e-300, "the rays through the image reach 90 deg from the optical axis"),
+    ("fy", 1e-3, "reach 89.9"),
+    ("fx", 2.0, "reach 89.6"),
+    ("fx", 1e300, "gives a field of view of"),
+    ("fy", 1e8, "gives a field of view of"),
+    ("cx", 1e300, "reach 90 deg"),
+    ("cy", -1e6, "reach 89.9"),
+    ("cx", 10**400, "must be a finite number of pixels"),
+])
+def test_intrinsics_out_of_proportion_with_the_image_are_config_errors(field, value, rule):
+    """fx = 1e-300 used to be accepted; the front end then failed with an IndexError."""
+    with pytest.raises(ConfigError, match=rf"^PinholeCamera\.{field} = .*{rule}"):
+        PinholeCamera(**{**GOOD, field: value})
+
+
+@PROPS
+@given(st.integers(1, 4000), st.integers(1, 4000), st.floats(1e-6, 1e8), st.floats(1e-6, 1e8),
+       st.floats(-1e5, 1e5), st.floats(-1e5, 1e5))
+def test_every_accepted_camera_has_rays_within_89_degrees(width, height, fx, fy, cx, cy):
+    try:
+        cam = PinholeCamera(width, height, fx, fy, cx, cy)
+    except ConfigError as exc:
+        assert re.match(r"^PinholeCamera\.(fx|fy|cx|cy) = ", str(exc))
+        return
+    x_over_z, y_over_z = cam.rays()
+    limit = math.tan(math.radians(89.0)) * (1 + 1e-9)
+    assert np.abs(x_over_z).max() <= limit and np.abs(y_over_z).max() <= limit
+    fov_x = math.degrees(math.atan((width - 0.5 - cx) / fx) - math.atan((-0.5 - cx) / fx))
+    assert fov_x >= 0.01
+
+
+@pytest.mark.parametrize("hfov", [0.0, 0.001, 178.5, 179.9, math.nan])
+def test_from_fov_range(hfov):
+    with pytest.raises(ConfigError, match=r"^PinholeCamera\.from_fov\.hfov_deg = "):
+        PinholeCamera.from_fov(640, 480, hfov)
 
 
 # ---------------------------------------------------------------------------------------------

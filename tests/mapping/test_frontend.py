@@ -287,6 +287,19 @@ def frame():
     return render(ring_room(), loop_poses(1)[0] @ T_BC, CAM)
 
 
+def test_the_widest_camera_accepted_maps_a_frame():
+    """Intrinsics like fx = 0.5 for 320 pixels (179.8 deg) used to be accepted and to fail in
+    the lift with an IndexError; they are refused now, and the widest camera accepted runs."""
+    with pytest.raises(ConfigError, match=r"^PinholeCamera\.fx = 0\.5: "):
+        PinholeCamera(320, 240, 0.5, 0.5, 159.5, 119.5)
+    wide = PinholeCamera.from_fov(320, 240, 178.0)
+    scene = ring_room()
+    pose = loop_poses(1)[0]
+    shot = render(scene, pose @ T_BC, wide)
+    result = RgbdFrontEnd(wide, T_BC, depth_scale=1.0).process(0.0, shot.rgb, shot.depth, pose)
+    assert set(result.seconds) == STAGES
+
+
 def test_seconds_has_the_five_stages(frame):
     front = RgbdFrontEnd(CAM, T_BC, depth_scale=1.0)
     result = front.process(0.0, frame.rgb, frame.depth, np.eye(4))

@@ -20,7 +20,7 @@ from rgbd_scenes import (
 )
 from tcaff_gtsam.eval.sim.render import RgbdScene, render
 from tcaff_gtsam.eval.sim.world import room_walls
-from tcaff_gtsam.mapping.camera import T_body_camera
+from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 from tcaff_gtsam.mapping.lift import (
     LiftParams,
     MaskLifter,
@@ -439,3 +439,13 @@ def test_masks_lifted_together_match_each_lifted_alone():
         assert together.widths[i] == pytest.approx(alone.widths[0], abs=0.02)
         assert together.heights[i] == pytest.approx(alone.heights[0], abs=0.02)
         assert together.point_counts[i] == pytest.approx(alone.point_counts[0], rel=0.1)
+
+
+def test_depth_max_beyond_what_a_wide_camera_can_clean_is_a_config_error():
+    """The clouds are cleaned 1000 m apart; a 178 deg camera sees points 20 m deep more than
+    500 m to the side, which would mix the clouds up."""
+    wide = PinholeCamera.from_fov(320, 240, 178.0)
+    MaskLifter(wide, 1.0)  # the default depth_max of 8 m is fine
+    with pytest.raises(ConfigError, match=r"^LiftParams\.depth_max = 20\.0: .* must stay "
+                                          r"under 500 m"):
+        MaskLifter(wide, 1.0, LiftParams(depth_max=20.0))

@@ -1,0 +1,199 @@
+"""Checks of input data shared by the modules: each raises `DataError` naming the function, the
+argument and the value given, e.g. `ObjectMap.ages: now must be a finite number of seconds,
+got 'soon'`. Scalars and small arrays only, or one vectorised pass over an array: these run
+on every step of every robot pair.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import stat
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DataError
+from .params import _real
+
+__all__ = ["finite_time", "index_pairs", "read_npz", "real_array", "shown"]
+
+
+def shown(value, limit: int = 60) -> str:
+    """A short repr of a rejected value for an error message (arrays by shape and dtype)."""
+    if isinstance(value, np.ndarray) and value.size > 6:
+        return f"array of shape {value.shape} and dtype {value.dtype}"
+    try:
+        text = " ".join(repr(value).split())
+    except Exception:  # a broken __repr__ must not hide the error being reported
+        text = f"<{type(value).__name__}>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def finite_time(owner: str, name: str, value) -> float:
+    """`value` as a float if it is a finite real number (Python or numpy, not a bool, not an
+    array); else `DataError` naming `owner` and `name`."""
+    if _real(value):
+        try:
+            t = float(value)
+        except OverflowError:  # an int beyond the float range
+            t = math.inf
+        if math.isfinite(t):
+            return t
+    why = "not finite" if _real(value) else f"a {type(value).__name__}"
+    raise DataError(f"{owner}: {name} must be a finite number of seconds, got {shown(value)} "
+                    f"({why})")
+
+
+def real_array(owner: str, name: str, value) -> np.ndarray:
+    """`value` as a float64 array (not copied when it already is one). Numbers only: complex
+    values, strings, bytes and other objects are refused rather than cast (numpy would drop an
+    imaginary part or parse a string). Shape and finiteness are the caller's to check.
+
+    Raises:
+        DataError: naming `owner` and `name`.
+    """
+    if isinstance(value, np.ndarray) and value.dtype == np.float64:
+        return value
+    try:
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "biuf":
+            raise TypeError(f"values of dtype {arr.dtype}")
+        return arr.astype(np.float64, copy=False)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise DataError(f"{owner}: {name} must be real numbers, got {shown(value)} ({exc})"
+                        ) from None
+
+
+def index_pairs(owner: str, name: str, value) -> np.ndarray:
+    """`value` as an (m, 2) int64 array of non-negative indices, e.g. associations (ego index,
+    other index). Integers, or floats with whole values; never reshaped, never rounded.
+
+    Raises:
+        DataError: naming `owner` and `name`: not an (m, 2) array (an (m, 3) array is not
+            read as pairs), fractional or non-finite values, negative indices.
+    """
+    if isinstance(value, np.ndarray) and value.dtype == np.int64:
+        arr = value
+    else:
+        try:
+            arr = np.asarray(value)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"{owner}: {name} must be an (m, 2) array of indices, got "
+                            f"{shown(value)} ({exc})") from None
+        if arr.size == 0 and arr.dtype.kind in "biuf":
+            arr = arr.reshape(0, 2)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise DataError(f"{owner}: {name} must be an (m, 2) array of index pairs, got shape "
+                        f"{arr.shape}")
+    if arr.dtype.kind == "f":
+        whole = np.isfinite(arr) & (arr == np.floor(arr))
+        if not whole.all():
+            i, j = np.argwhere(~whole)[0]
+            raise DataError(f"{owner}: {name} must hold whole numbers, got {arr[i, j]} at "
+                            f"[{i}, {j}]")
+    elif arr.dtype.kind not in "iu":
+        raise DataError(f"{owner}: {name} must be an (m, 2) array of integer indices, got "
+                        f"dtype {arr.dtype}")
+    if arr.size and arr.min() < 0:
+        i, j = np.argwhere(arr < 0)[0]
+        raise DataError(f"{owner}: {name} must be indices >= 0, got {arr[i, j]} at [{i}, {j}]")
+    if arr.size and arr.max() > np.iinfo(np.int64).max:
+        raise DataError(f"{owner}: {name} holds an index beyond int64, {arr.max()}")
+    return arr.astype(np.int64, copy=False)
+
+
+# -- npz archives --------------------------------------------------------------------------------
+
+#: deflate expands at most about 1032:1; a member claiming more is corrupt
+_MAX_EXPANSION = 1100
+_READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error,
+                NotImplementedError, RuntimeError, KeyError, IndexError, OverflowError,
+                SyntaxError, MemoryError)
+
+
+def read_npz(path: str | Path, what: str) -> dict[str, np.ndarray]:
+    """Every array of an npz archive (`np.savez`, compressed or not), without pickles.
+
+    Refuses, before reading anything, a path that is not a regular file (a FIFO would block
+    forever), and, before reading an array, one whose header declares more data than the
+    archive holds (a tampered shape would make numpy allocate it).
+
+    Args:
+        path: the archive.
+        what: what the file should hold, for the messages ("map", "TCAFF filter").
+    Raises:
+        DataError: a path that is no path, a file missing, not a regular file, not an npz
+            archive, corrupt or truncated.
+    """
+    try:
+        path = Path(path)
+    except TypeError:
+        raise DataError(f"the {what} file must be a path, got {shown(path)}") from None
+
+    def regular(info: os.stat_result) -> None:
+        if not stat.S_ISREG(info.st_mode):
+            raise DataError(f"{path}: not a regular file (a folder, FIFO or device), not a "
+                            f"saved {what}")
+
+    try:
+        regular(os.stat(path))  # a FIFO is refused before it is opened
+        # and should it be swapped in now, O_NONBLOCK keeps the open from waiting for a writer
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such {what} file") from None
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{path}: cannot open the {what} file ({exc})") from None
+    try:
+        info = os.fstat(fd)
+        regular(info)
+        if info.st_size == 0:
+            raise DataError(f"{path}: empty file, not a saved {what}")
+        file = os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+    with file:
+        try:
+            return _read_members(file, info.st_size, path, what)
+        except DataError:
+            raise
+        except _READ_ERRORS as exc:
+            raise DataError(f"{path}: not a saved {what} ({type(exc).__name__}: {exc})"
+                            ) from None
+
+
+def _read_members(file, size: int, path: Path, what: str) -> dict[str, np.ndarray]:
+    fmt = np.lib.format
+    arrays = {}
+    with zipfile.ZipFile(file) as archive:
+        for member in archive.infolist():
+            if not member.filename.endswith(".npy"):
+                continue
+            name = member.filename[:-4]
+            if member.compress_size > size or (member.file_size > _MAX_EXPANSION
+                                               * member.compress_size + 4096):
+                raise DataError(f"{path}: corrupt {what} archive, member {name!r} claims "
+                                f"{member.file_size} bytes")
+            with archive.open(member) as stream:
+                version = fmt.read_magic(stream)
+                if version not in ((1, 0), (2, 0)):
+                    raise DataError(f"{path}: array {name!r} has npy format version "
+                                    f"{version}, expected 1.0 or 2.0")
+                read_header = (fmt.read_array_header_1_0 if version == (1, 0)
+                               else fmt.read_array_header_2_0)
+                shape, _, dtype = read_header(stream)
+                header = stream.tell()
+            if dtype.hasobject:
+                raise DataError(f"{path}: array {name!r} holds Python objects; a {what} "
+                                f"file holds numbers only")
+            declared = math.prod(shape) * dtype.itemsize
+            if declared != member.file_size - header:
+                raise DataError(f"{path}: corrupt {what} archive, array {name!r} declares "
+                                f"shape {shape} of {dtype} ({declared} bytes) but holds "
+                                f"{member.file_size - header} bytes")
+            with archive.open(member) as stream:
+                arrays[name] = fmt.read_array(stream, allow_pickle=False)
+    return arrays
