@@ -13,6 +13,10 @@ Two kinds of variables, each robot r having its own chain of both:
   robot's chain, inter-robot factors between keyframes from accepted alignments, and any other
   between-factor a user has (loop closures).
 
+With `GraphParams.horizon`, only the alignment variables of the latest `horizon` steps stay in
+the graph: older ones are marginalised (gtsam's incremental fixed-lag smoother), and each step
+that leaves keeps, for reading, the estimate and covariance it had when it left.
+
 Covariances of poses follow gtsam: right perturbations T Exp(xi) with xi = (vx, vy, omega) for
 Pose2 and (wx, wy, wz, vx, vy, vz), rotation first, for Pose3. Alignment covariances given to or
 returned by this module are over the parameters (x, y, theta) or (x, y, z, yaw) instead, and
@@ -31,7 +35,7 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from .errors import DataError
+from .errors import ConfigError, DataError
 from .geometry import se2_from_params, se2_to_params, se3_from_xyz_yaw, se3_to_se2
 from .params import GraphParams, _int_at_least
 from .tcaff import AlignmentEstimate
@@ -41,6 +45,10 @@ __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 log = logging.getLogger(__name__)
 
 _AGREE_CHI2 = float(chi2.ppf(0.999, 3))
+# what the solver can take: beyond these, gtsam's elimination fails ("indeterminate linear
+# system") and, without the roll-back, the graph stayed broken
+_MAX_CONDITION = 1e10  # of a factor's covariance
+_MAX_TRANSLATION = 1e4  # metres, of an alignment: far beyond any map two robots share
 
 # One symbol character; kind, robot and index share the symbol's index, which is all that g2o
 # files keep, so exported vertex ids stay unique.
@@ -82,6 +90,12 @@ def keyframe_key(robot: int, index: int) -> int:
     robot = _check_index("robot", robot, _KIND_SHIFT - _ROBOT_SHIFT)
     index = _check_index("keyframe index", index, _ROBOT_SHIFT)
     return gtsam.symbol("r", (1 << _KIND_SHIFT) | (robot << _ROBOT_SHIFT) | index)
+
+
+def _step_of(key: int) -> int | None:
+    """The alignment step of an A key; None for a keyframe key."""
+    index = gtsam.Symbol(key).index()
+    return None if index >> _KIND_SHIFT else index & ((1 << _ROBOT_SHIFT) - 1)
 
 
 def _chain(key: int) -> tuple[str, int]:
@@ -130,21 +144,24 @@ def _check_finite(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def _check_translation(name: str, t: np.ndarray) -> None:
+    if np.abs(t).max() > _MAX_TRANSLATION:
+        raise DataError(f"{name}: translation {t.tolist()} m is beyond {_MAX_TRANSLATION:.0e} m")
+
+
 def _check_cov(name: str, cov, n: int) -> np.ndarray:
     C = _check_finite(name, cov, (n, n))
-    ok = np.abs(C - C.T).max() <= 1e-9 * (1.0 + np.abs(C).max())
-    if ok and n == 3:  # leading minors (Sylvester): this runs for every factor
-        (a, b, c), (_, d, e), (_, _, f) = C.tolist()
-        ok = a > 0 and a * d - b * b > 0 and a * (d * f - e * e) - b * (b * f - c * e) + c * (
-            b * e - c * d) > 0
-    elif ok:
-        try:
-            np.linalg.cholesky(C)
-        except np.linalg.LinAlgError:
-            ok = False
-    if not ok:
+    if np.abs(C - C.T).max() > 1e-9 * (1.0 + np.abs(C).max()):
         raise DataError(f"{name} must be symmetric positive definite, got {C.tolist()}")
-    return 0.5 * (C + C.T)
+    C = 0.5 * (C + C.T)
+    eig = np.linalg.eigvalsh(C)
+    if eig[0] <= 0:
+        raise DataError(f"{name} must be symmetric positive definite, got {C.tolist()}")
+    if eig[-1] > _MAX_CONDITION * eig[0]:
+        raise DataError(f"{name} is too ill-conditioned for the solver (eigenvalues "
+                        f"{eig[0]:.3g} to {eig[-1]:.3g}, condition number above "
+                        f"{_MAX_CONDITION:.0e}): {C.tolist()}")
+    return C
 
 
 class InterRobotGraph:
@@ -167,7 +184,23 @@ class InterRobotGraph:
         isam_params.relinearizeSkip = prm.relinearize_skip
         # check relinearisation from the root down only as far as needed, not every variable
         isam_params.enablePartialRelinearizationCheck = True
-        self._isam = gtsam.ISAM2(isam_params)
+        if prm.horizon is None:
+            self._smoother = None
+            self._isam = gtsam.ISAM2(isam_params)
+        else:
+            self._smoother = gtsam.IncrementalFixedLagSmoother(float(prm.horizon), isam_params)
+            self._isam = self._smoother.getISAM2()  # the smoother's own, by reference
+        # with a horizon: steps that left the graph, their A_r (n_robots, side, side) and the
+        # joint covariance of (A_0 .. A_n-1) in gtsam's tangent order as it was while the step
+        # was the latest (cheap to compute then, near the root of the Bayes tree; smoothing
+        # only shrinks it later), and the committed factors by the oldest step they touch (they
+        # leave with it)
+        self._left: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._joints: dict[int, np.ndarray] = {}  # that covariance while the step was latest
+        self._n_left = 0  # self._steps[:self._n_left] have left
+        self._marginal: set[int] = set()  # indices of the smoother's marginal factors
+        self._settled_from: gtsam.Values | None = None
+        self._by_step: dict[int, list[int]] = defaultdict(list)
         self._steps: list[int] = []
         self._step_set: set[int] = set()
         self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)  # T_o_b per index
@@ -214,8 +247,10 @@ class InterRobotGraph:
         p = np.asarray(T_params, dtype=float)
         if p.shape == (self._n_param,):
             p = _check_finite("T (parameters)", p, p.shape)
+            _check_translation("T (parameters)", p[:-1])
             return se2_from_params(p) if self._planar else se3_from_xyz_yaw(*p)
         T = self._rigid("T", p)
+        _check_translation("T", T[:-1, -1])
         return T if self._planar else se3_from_xyz_yaw(*self._params(T))  # gravity-aligned
 
     def _params(self, T: np.ndarray) -> np.ndarray:
@@ -266,6 +301,9 @@ class InterRobotGraph:
 
     def _value(self, key: int) -> np.ndarray:
         """Current estimate of one variable (its initial value while it is still queued)."""
+        step = _step_of(key)
+        if step in self._left:
+            return self._left[step][0][_chain(key)[1]].copy()
         if self._pending_values.exists(key):
             values = self._pending_values
             pose = values.atPose2(key) if self._planar else values.atPose3(key)
@@ -294,6 +332,11 @@ class InterRobotGraph:
                 or np.abs(T[-1] - np.eye(size)[-1]).max() > 1e-9):
             raise DataError(f"{name} is not a rigid transform: {T.tolist()}")
         return T
+
+    def _unbounded(self, name: str) -> None:
+        if self.params.horizon is not None:
+            raise ConfigError(f"{name}: keyframes need the unbounded graph (GraphParams("
+                              f"horizon=None)); this one keeps {self.params.horizon} steps")
 
     def _check_robot(self, name: str, robot) -> None:
         if not (_int_at_least(robot, 0) and robot < self.n_robots):
@@ -331,6 +374,9 @@ class InterRobotGraph:
         if self._steps and step <= self._steps[-1] and step not in self._step_set:
             raise DataError(f"add_alignment: step {step} was never committed (steps so far "
                             f"end at {self._steps[-1]})")
+        if step in self._left:
+            raise DataError(f"add_alignment: step {step} has left the graph (horizon "
+                            f"{self.params.horizon} steps, latest {self._steps[-1]})")
         T = self._matrix(T_oi_oj)
         C = _check_cov("add_alignment: cov", cov, self._n_param)
         noise = self._noise(self._tangent_cov(T, C), robust)
@@ -363,6 +409,7 @@ class InterRobotGraph:
         # alignments for later steps wait in the queue until their step is committed
         later = [q for q in self._queued if q.step is not None and q.step > newest]
         self._queued = [q for q in self._queued if q.step is None or q.step <= newest]
+        leaving = self._leaving(step)
         self._fix_gauge()
         if not self._queued and not self._to_remove:
             self._queued = later
@@ -372,16 +419,140 @@ class InterRobotGraph:
         for q in self._queued:
             graph.add(q.factor)
             touched.update(q.factor.keys())
-        for index in self._to_remove:
-            gone = self._active.pop(index)
-            touched.update(gone.factor.keys())
-            self._count(gone, index, -1)
-        result = self._isam.update(graph, self._pending_values, self._to_remove)
-        for q, index in zip(self._queued, result.getNewFactorsIndices(), strict=True):
+        gone = [(index, self._active.pop(index)) for index in self._to_remove]
+        for index, f in gone:
+            touched.update(f.factor.keys())
+            self._count(f, index, -1)
+        factors = self._isam.getFactorsUnsafe()
+        self._settled_from = None
+        # the marginal factors before the smoother replaces them (a roll-back needs them)
+        marginals = {i: factors.at(i) for i in self._marginal}
+        try:
+            indices = self._commit(graph)
+            self._settle(touched)
+        except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
+            self._roll_back(gone, marginals, step, leaving)
+            dropped, self._queued = self._queued, later
+            self._pending_values, self._to_remove = gtsam.Values(), []
+            tags = [q.tag for q in dropped if q.tag and q.tag[0] != "free"]
+            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise DataError(f"update: gtsam could not solve the graph with the {len(dropped)} "
+                            f"factors queued for this update ({reason}); they were dropped and "
+                            f"the graph is as it was before (tagged among them: {tags[:5]})"
+                            ) from None
+        for q, index in zip(self._queued, indices, strict=True):
             self._active[index] = q
             self._count(q, index, +1)
+            if self._smoother is not None:
+                self._by_step[self._oldest_step(q)].append(index)
+        if leaving:  # marginalised with this update, into factors after the new ones
+            for old in leaving:
+                for index in self._by_step.pop(old, []):
+                    self._active.pop(index, None)
+            first_new = max(indices, default=factors.size() - 1) + 1
+            self._marginal = {i for i in self._marginal if factors.at(i) is not None}
+            self._marginal.update(range(first_new, factors.size()))
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
-        self._settle(touched)
+        if self._smoother is not None and self._steps:
+            self._joints[self._steps[-1]] = self._joint(self._steps[-1])
+
+    def _joint(self, step: int) -> np.ndarray:
+        """Joint marginal covariance of every robot's A at `step`, gtsam's tangent order."""
+        keys = gtsam.KeyVector([alignment_key(r, step) for r in range(self.n_robots)])
+        return self._isam.jointMarginalCovariance(keys).fullMatrix()
+
+    def _commit(self, graph: gtsam.NonlinearFactorGraph) -> list[int]:
+        """One iSAM2 (or fixed-lag smoother) update with the queued factors, the pending values
+        and the removals; the new factors' indices."""
+        if self._smoother is None:
+            result = self._isam.update(graph, self._pending_values, self._to_remove)
+            return list(result.getNewFactorsIndices())
+        stamps = {key: self._stamp(_step_of(key)) for key in self._pending_values.keys()}
+        self._smoother.update(graph, self._pending_values, stamps, self._to_remove)
+        return list(self._smoother.getISAM2Result().getNewFactorsIndices())
+
+    def _stamp(self, step: int) -> float:
+        """The fixed-lag smoother's time of a step: steps leave in batches of half the horizon,
+        since marginalising many steps at once costs about as much as marginalising one."""
+        batch = max(self.params.horizon // 2, 1)
+        return float(step // batch * batch)
+
+    def _oldest_step(self, f: _Factor) -> int:
+        """The oldest alignment step a factor touches: it leaves the graph with that step."""
+        return min(_step_of(key) for key in f.factor.keys())
+
+    def _leaving(self, step: int | None) -> list[int]:
+        """With a horizon: the steps the update to `step` marginalises. Their estimates and
+        covariance are kept for reading, and gauge priors on them are moved to the latest step
+        (a prior marginalised into the graph could never be removed when the robots connect)."""
+        horizon = self.params.horizon
+        if horizon is None or step is None:
+            return []
+        kept = self._n_left
+        leaving = []
+        while (kept < len(self._steps)
+               and self._stamp(self._steps[kept]) < self._stamp(step) - horizon):
+            leaving.append(self._steps[kept])
+            kept += 1
+        if not leaving:
+            return []
+        self._n_left = kept
+        for k in leaving:
+            A = np.array([self._value(alignment_key(r, k)) for r in range(self.n_robots)])
+            joint = self._joints.pop(k, None)
+            self._left[k] = (A, self._joint(k) if joint is None else joint)
+        first = leaving[-1]
+        self._to_remove.extend(index for index in self._free.values()
+                               if index not in self._to_remove
+                               and self._oldest_step(self._active[index]) <= first)
+        return leaving
+
+    def _roll_back(self, gone: list[tuple[int, _Factor]], marginals: dict, step: int | None,
+                   leaving: list[int]) -> None:
+        """After a failed update: a new solver holding the factors and values of the graph
+        before it (gtsam's own is unusable after an exception)."""
+        new_keys = set(self._pending_values.keys())
+        theta = gtsam.Values()
+        point = (self._isam.getLinearizationPoint() if self._settled_from is None
+                 else self._settled_from)
+        for key in point.keys():
+            if key not in new_keys:
+                theta.insert(key, point.atPose2(key) if self._planar else point.atPose3(key))
+        for k in leaving:  # marginalised by a smoother update that then failed to settle
+            for r, A in enumerate(self._left[k][0]):
+                if not theta.exists(alignment_key(r, k)):
+                    theta.insert(alignment_key(r, k), self._pose(A))
+        kept = [*self._active.items(), *gone]
+        graph = gtsam.NonlinearFactorGraph()
+        for _, f in kept:
+            graph.add(f.factor)
+        for factor in marginals.values():
+            graph.add(factor)
+        isam_params = self._isam.params()
+        if self._smoother is None:
+            self._isam = gtsam.ISAM2(isam_params)
+            indices = list(self._isam.update(graph, theta).getNewFactorsIndices())
+        else:
+            stamps = {key: self._stamp(_step_of(key)) for key in theta.keys()}
+            self._smoother = gtsam.IncrementalFixedLagSmoother(float(self.params.horizon),
+                                                               isam_params)
+            self._isam = self._smoother.getISAM2()
+            self._smoother.update(graph, theta, stamps)
+            indices = list(self._smoother.getISAM2Result().getNewFactorsIndices())
+        remap = dict(zip([i for i, _ in kept] + list(marginals), indices, strict=True))
+        self._active = {remap[i]: f for i, f in kept}
+        self._marginal = {remap[i] for i in marginals}
+        self._free = {chain: remap[i] for chain, i in self._free.items()}
+        for index, f in gone:
+            self._count(f, remap[index], +1)
+        self._by_step = defaultdict(list, {k: [remap[i] for i in indices_k if i in remap]
+                                           for k, indices_k in self._by_step.items()})
+        for k in leaving:
+            self._joints[k] = self._left.pop(k)[1]
+        self._n_left -= len(leaving)
+        if step is not None:
+            self._steps.pop()
+            self._step_set.discard(step)
 
     def _count(self, f: _Factor, index: int, sign: int) -> None:
         if f.link:
@@ -451,8 +622,12 @@ class InterRobotGraph:
         leave the usual relinearisation to the next update."""
         for _ in range(self.params.max_iterations):
             delta = self._isam.getDelta()
-            if max(np.abs(delta.at(key)).max() for key in keys) < self.params.settle_threshold:
+            if max((np.abs(delta.at(key)).max() for key in keys if delta.exists(key)),
+                   default=0.0) < self.params.settle_threshold:
                 return
+            if self._settled_from is None:  # a roll-back restarts from here, not from the
+                # point a failed iteration moved (rare: big corrections only)
+                self._settled_from = gtsam.Values(self._isam.getLinearizationPoint())
             self._isam.update()
 
     def alignment(self, i: int, j: int, step: int | None = None, covariance: bool = True
@@ -479,7 +654,15 @@ class InterRobotGraph:
             return T, None
         if i == j:
             return T, np.zeros((self._n_param, self._n_param))
-        joint = self._isam.jointMarginalCovariance(gtsam.KeyVector([ki, kj])).fullMatrix()
+        # kept for steps that left, and with a horizon for the latest step after each update
+        every = (self._left[step][1] if step in self._left
+                 else self._joints.get(step) if step == self._steps[-1] else None)
+        if every is not None:
+            n = 3 if self._planar else 6
+            rows = np.r_[i * n:(i + 1) * n, j * n:(j + 1) * n]
+            joint = every[np.ix_(rows, rows)]
+        else:
+            joint = self._isam.jointMarginalCovariance(gtsam.KeyVector([ki, kj])).fullMatrix()
         Ad_inv = self._pose(np.linalg.inv(T)).AdjointMap()
         J = np.hstack([-Ad_inv, np.eye(Ad_inv.shape[0])])
         return T, self._params_cov(T, J @ joint @ J.T)
@@ -503,8 +686,12 @@ class InterRobotGraph:
         self._check_robot("j", j)
         estimate = self._isam.calculateEstimate()
         get = estimate.atPose2 if self._planar else estimate.atPose3
-        T = np.array([np.linalg.inv(get(alignment_key(i, k)).matrix())
-                      @ get(alignment_key(j, k)).matrix() for k in self._steps])
+
+        def A(robot: int, k: int) -> np.ndarray:
+            return self._left[k][0][robot] if k in self._left else get(
+                alignment_key(robot, k)).matrix()
+
+        T = np.array([np.linalg.inv(A(i, k)) @ A(j, k) for k in self._steps])
         size = self._side
         return np.array(self._steps, np.int64), T.reshape(-1, size, size)
 
@@ -515,7 +702,14 @@ class InterRobotGraph:
     # -- hypotheses ----------------------------------------------------------------------------
 
     def remove_hypothesis(self, i: int, j: int, hypothesis: int) -> int:
-        """Queue the removal of every factor tagged with (i, j, hypothesis); returns how many."""
+        """Queue the removal of every factor tagged with (i, j, hypothesis); returns how many.
+
+        Raises:
+            DataError: unknown robot.
+        """
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+
         def tagged(f: _Factor) -> bool:
             return f.tag is not None and f.tag[0] != "free" and f.tag[1:] == (i, j, hypothesis)
 
@@ -624,6 +818,7 @@ class InterRobotGraph:
             DataError: unknown robot, index not increasing, non-finite pose.
         """
         self._check_robot("robot", robot)
+        self._unbounded("add_keyframe")
         T = self._rigid("add_keyframe: T_o_b", T_o_b)
         key = keyframe_key(robot, index)
         frames = self._keyframes[robot]
@@ -653,6 +848,7 @@ class InterRobotGraph:
                                hypothesis: int | None = None) -> None:
         """Queue an inter-robot factor between keyframes X_i(m_i) and X_j(m_j) from an alignment
         T_oi_oj: X_i^-1 X_j = T_oi_bi^-1 T_oi_oj T_oj_bj."""
+        self._unbounded("add_keyframe_alignment")
         for robot, index in ((i, m_i), (j, m_j)):
             self._check_robot("robot", robot)
             if index not in self._keyframes[robot]:
@@ -676,6 +872,10 @@ class InterRobotGraph:
         """
         T = self._rigid("add_between: T_a_b", T_a_b)
         C = _check_cov("add_between: cov_tangent", cov_tangent, 3 if self._planar else 6)
+        for name, key in (("key_a", key_a), ("key_b", key_b)):
+            if not _int_at_least(key, 0) or key >= 1 << 64:
+                raise DataError(f"add_between: {name} = {key!r} is not a gtsam key (an int "
+                                f"from keyframe_key or alignment_key)")
         if key_a == key_b:
             raise DataError("add_between: key_a and key_b are the same variable")
         for key in (key_a, key_b):
@@ -698,7 +898,18 @@ class InterRobotGraph:
         return indices, poses.reshape(-1, size, size)
 
     def write_g2o(self, path: str | Path) -> None:
-        """Write the active factors and the current solution in g2o format."""
+        """Write the active factors and the current solution in g2o format (with a horizon:
+        the factors and variables still in the graph).
+
+        Raises:
+            DataError: the folder is missing, the path is a folder, or the file could not be
+                written.
+        """
+        path = Path(path)
+        if path.is_dir():
+            raise DataError(f"write_g2o: {path} is a folder, not a file")
+        if not path.parent.is_dir():
+            raise DataError(f"write_g2o: the folder {path.parent} does not exist")
         graph = gtsam.NonlinearFactorGraph()
         for index in sorted(self._active):
             factor = self._active[index].factor
@@ -708,4 +919,10 @@ class InterRobotGraph:
                     # g2o edges carry an information matrix; the M-estimator is not exported
                     factor = type(factor)(*factor.keys(), factor.measured(), noise.noise())
             graph.add(factor)
+        try:
+            path.unlink(missing_ok=True)  # so a failed write cannot leave an old file behind
+        except OSError as exc:
+            raise DataError(f"write_g2o: cannot replace {path} ({exc})") from None
         gtsam.writeG2o(graph, self._isam.calculateEstimate(), str(path))
+        if not path.is_file():  # gtsam reports nothing when it cannot open the file
+            raise DataError(f"write_g2o: {path} could not be written")

@@ -527,6 +527,14 @@ class GraphParams(_ByValue):
             the earlier hypothesis's factors are removed only once the new one has been
             reported at this many steps (the default window W): a late or passing switch then
             leaves the smoothed history in place. 1 removes them at the switch.
+        horizon: steps of alignment variables the graph keeps for long runs: older ones are
+            marginalised into a prior on the oldest kept step (gtsam's incremental fixed-lag
+            smoother), so memory and update time stay bounded. Steps leave in batches of
+            horizon // 2, so between horizon and 1.5 horizon steps are kept. Steps that left
+            keep the estimate they had then, and the covariance they had as the latest step;
+            factors that left can no longer be removed (a hypothesis switch removes only those
+            within the horizon), and keyframes need the unbounded graph. None keeps every step
+            (offline studies).
     """
 
     dim: Literal[2, 3] = 2
@@ -542,6 +550,7 @@ class GraphParams(_ByValue):
     max_iterations: int = 10
     settle_threshold: float = 0.5
     switch_hold: int = TCAFFParams.window
+    horizon: int | None = None
 
     def __post_init__(self) -> None:
         o = "GraphParams"
@@ -573,3 +582,5 @@ class GraphParams(_ByValue):
                  self.max_iterations, "must be an int >= 0")
         _require(_int_at_least(self.switch_hold, 1), o, "switch_hold", self.switch_hold,
                  "must be an int >= 1")
+        _require(self.horizon is None or _int_at_least(self.horizon, 2), o, "horizon",
+                 self.horizon, "must be an int >= 2 (steps) or None")

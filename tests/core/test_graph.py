@@ -11,7 +11,7 @@ import pytest
 from tcaff_gtsam.eval.sim.streams import robot_team_streams
 
 from tcaff_gtsam import TCAFF, InterRobotGraph
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import (
     se2_error,
     se2_from_params,
@@ -453,3 +453,130 @@ def test_connected_follows_committed_alignments_through_other_robots():
     assert graph.connected(0, 1) and not graph.connected(0, 2)
     with pytest.raises(DataError, match="not a robot"):
         graph.connected(0, 3)
+
+
+# -- long runs and a graph that cannot be broken --------------------------------------------------
+
+
+def noisy_team_run(graph: InterRobotGraph, steps: int, seed: int = 0) -> dict:
+    """Alignments of a drifting 3-robot team with 0.1 m / 1 deg noise at every step; the
+    causal estimate of each step, {(pair, step): T}."""
+    rng = np.random.default_rng(seed)
+    streams = robot_team_streams(rng, 3, steps)
+    causal = {}
+    for k in range(steps):
+        for (i, j) in ((0, 1), (1, 2)):
+            T = np.linalg.inv(streams.A[i, k]) @ streams.A[j, k]
+            z = se2_to_params(T) + rng.normal(0, [0.1, 0.1, np.radians(1.0)])
+            graph.add_alignment(k, i, j, z, R)
+        graph.update(k)
+        causal[k] = graph.alignment(0, 2)[0]
+    return {"A": streams.A, "causal": causal}
+
+
+def test_a_bounded_graph_keeps_its_horizon_and_what_left_it():
+    horizon, steps = 10, 60
+    bounded = InterRobotGraph(3, GraphParams(horizon=horizon))
+    whole = InterRobotGraph(3)
+    run = noisy_team_run(bounded, steps)
+    noisy_team_run(whole, steps)
+    # at most 1.5 horizon steps of variables stay; every step can still be read
+    assert bounded._isam.getLinearizationPoint().size() <= 3 * (horizon + horizon // 2 + 1)
+    assert whole._isam.getLinearizationPoint().size() == 3 * steps
+    assert bounded.steps == whole.steps == list(range(steps))
+    # the causal read-out is the whole graph's, and a step that left keeps its estimate
+    for k in (5, 30, 59):
+        t_err, th_err = pose_error(run["causal"][k], bounded.alignment(0, 2, k)[0])
+        assert k < steps - 2 * horizon or (t_err < 1e-9 and th_err < 1e-9)
+        T_whole, C_whole = whole.alignment(0, 2, k)
+        T_bounded, C_bounded = bounded.alignment(0, 2, k)
+        t_err, th_err = pose_error(T_whole, T_bounded)
+        assert t_err < 0.1 and th_err < 1.0
+        # a step that left keeps the covariance it had as the latest step: no smaller than the
+        # whole graph's smoothed one
+        assert np.all(np.linalg.eigvalsh(C_bounded - C_whole) > -1e-6)
+    steps_b, T_b = bounded.alignment_history(0, 2)
+    steps_w, T_w = whole.alignment_history(0, 2)
+    np.testing.assert_array_equal(steps_b, steps_w)
+    truth = np.linalg.inv(run["A"][0]) @ run["A"][2]
+    err_b = np.mean([pose_error(t, e)[0] for t, e in zip(truth, T_b, strict=True)])
+    err_w = np.mean([pose_error(t, e)[0] for t, e in zip(truth, T_w, strict=True)])
+    assert err_b < 1.5 * err_w + 0.01
+    with pytest.raises(DataError, match="left the graph"):
+        bounded.add_alignment(3, 0, 1, np.eye(3), R)
+    with pytest.raises(ConfigError, match="unbounded"):
+        bounded.add_keyframe(0, 0, np.eye(3))
+
+
+@pytest.mark.parametrize("horizon", [None, 10])
+def test_an_update_gtsam_cannot_solve_is_rolled_back(horizon):
+    """An alignment of 1e3 m whose first factor leaves robot 1 on a 1e-12 rad heading prior
+    makes gtsam's elimination fail: the update is undone, every earlier result stays readable
+    and the next update works."""
+    graph = InterRobotGraph(2, GraphParams(horizon=horizon))
+    for k in range(15):
+        graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
+        graph.update(k)
+    before = graph.alignment(0, 1)
+    history = graph.alignment_history(0, 1)
+    graph.add_between(alignment_key(0, 14), alignment_key(1, 14), se2_from_params([1e3, 0, 0]),
+                      np.diag([1e-9, 1e-9, 1e-9]), robust=False)
+    graph.add_between(alignment_key(0, 14), alignment_key(1, 14), se2_from_params([0, 1e3, 2]),
+                      np.diag([1e-9, 1e-9, 1e-9]), robust=False)
+    with pytest.raises(DataError, match=r"as it was before"):
+        graph.update(15)
+    assert graph.steps == list(range(15))
+    after = graph.alignment(0, 1)
+    np.testing.assert_allclose(after[0], before[0], atol=1e-6)
+    np.testing.assert_allclose(after[1], before[1], atol=1e-6)
+    np.testing.assert_allclose(graph.alignment_history(0, 1)[1], history[1], atol=1e-6)
+    graph.add_alignment(15, 0, 1, [1.0, 2.0, 0.3], R)
+    graph.update(15)
+    assert pose_error(se2_from_params([1.0, 2.0, 0.3]), graph.alignment(0, 1)[0])[0] < 1e-3
+
+
+@pytest.mark.parametrize("cov, t, match", [
+    (np.diag([1.0, 1.0, 1e-12]), [1.0, 0.0, 0.3], "ill-conditioned"),
+    (R, [1e5, 0.0, 0.3], "beyond"),
+])
+def test_what_the_solver_cannot_take_is_refused_before_it_enters(cov, t, match):
+    graph = InterRobotGraph(2)
+    with pytest.raises(DataError, match=match):
+        graph.add_alignment(0, 0, 1, t, cov)
+    with pytest.raises(DataError, match=match):
+        graph.add_alignment(0, 0, 1, se2_from_params(t), cov)
+    graph.update(0)  # nothing was queued: the graph goes on
+    assert graph.steps == [0]
+
+
+def test_g2o_export_refuses_what_it_cannot_write(tmp_path):
+    graph = InterRobotGraph(2)
+    graph.update(0)
+    with pytest.raises(DataError, match="does not exist"):
+        graph.write_g2o(tmp_path / "missing" / "graph.g2o")
+    with pytest.raises(DataError, match="is a folder"):
+        graph.write_g2o(tmp_path)
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        if not os.access(locked, os.W_OK):  # root may write anyway
+            with pytest.raises(DataError, match=r"could not be written|cannot replace"):
+                graph.write_g2o(locked / "graph.g2o")
+    finally:
+        locked.chmod(0o700)
+    graph.write_g2o(tmp_path / "graph.g2o")
+    assert (tmp_path / "graph.g2o").stat().st_size > 0
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda g: g.remove_hypothesis(7, 9, 0), "not a robot"),
+    (lambda g: g.add_between("r1", alignment_key(1, 0), np.eye(3), R), "not a gtsam key"),
+    (lambda g: g.add_between(-1, alignment_key(1, 0), np.eye(3), R), "not a gtsam key"),
+    (lambda g: g.add_between(1.5, alignment_key(1, 0), np.eye(3), R), "not a gtsam key"),
+])
+def test_bad_robots_and_keys_are_data_errors(call, match):
+    graph = InterRobotGraph(3)
+    graph.update(0)
+    with pytest.raises(DataError, match=match):
+        call(graph)

@@ -26,7 +26,7 @@ CLASSES = [ClipperParams, FrameAlignerParams, TCAFFParams, GraphParams]
 OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inliers"),
             ("TCAFFParams", "gate_box"),
             ("TCAFFParams", "switch_after"), ("GraphParams", "Q"),
-            ("GraphParams", "odometry_cov")}
+            ("GraphParams", "odometry_cov"), ("GraphParams", "horizon")}
 #: fields that are switches
 SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),
             ("TCAFFParams", "withhold_contested"),
