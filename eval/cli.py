@@ -6,6 +6,7 @@ imports what it uses (gtsam, Open3D, numba, matplotlib, the study), so `tcaff --
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -109,13 +110,56 @@ def _candidates_table(title: str, candidates: list[AlignmentMeasurement]) -> Tab
     return _keep_numbers_whole(table, labelled=False)
 
 
+def _refuse(option: str, value: object, rule: str, error: type | None = None) -> None:
+    """Raise a one-line `ConfigError` (or `error`) naming a command-line option and its value."""
+    from tcaff_gtsam.errors import ConfigError
+
+    raise (error or ConfigError)(f"{option} {value!r}: {rule}")
+
+
+def _check_duration(duration: float | None) -> None:
+    """`--duration`: None, or a finite number of seconds >= 1 (inf, NaN and <= 0 refused)."""
+    if duration is not None and not (math.isfinite(duration) and duration >= 1):
+        _refuse("--duration", duration, "must be a finite number of seconds >= 1")
+
+
+def _writable_folder(path: Path, option: str) -> None:
+    """Check, before any work starts, that `path` is a folder results can be written to,
+    making it when missing; a `DataError` naming `option` otherwise."""
+    import tempfile
+
+    from tcaff_gtsam.errors import DataError
+
+    if path.exists() and not path.is_dir():
+        _refuse(option, str(path), "exists and is not a folder", DataError)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        _refuse(option, str(path), f"not a writable folder ({exc.strerror or exc})", DataError)
+
+
+#: FrameAlignerParams fields (ClipperParams' seed) -> the align-maps option that sets them
+_ALIGNER_OPTIONS = {"kappa": "--kappa", "dim": "--dim", "n_solutions": "--solutions",
+                    "min_associations": "--min-associations", "covariance": "--covariance",
+                    "seed": "--seed"}
+
+
 def _aligner_params(kappa: float, dim: int, solutions: int, min_associations: int,
                     covariance: str, seed: int) -> FrameAlignerParams:
     from dataclasses import replace
 
-    return replace(_ALIGNER, kappa=kappa, dim=dim, n_solutions=solutions,
-                   min_associations=min_associations, covariance=covariance,
-                   clipper=replace(_ALIGNER.clipper, seed=seed))
+    from tcaff_gtsam.params import ParameterError
+
+    try:
+        return replace(_ALIGNER, kappa=kappa, dim=dim, n_solutions=solutions,
+                       min_associations=min_associations, covariance=covariance,
+                       clipper=replace(_ALIGNER.clipper, seed=seed))
+    except ParameterError as exc:
+        if exc.name not in _ALIGNER_OPTIONS:
+            raise
+        _refuse(_ALIGNER_OPTIONS[exc.name], exc.value, exc.rule)
 
 
 @app.command("align-maps")
@@ -147,12 +191,14 @@ def align_maps(
     from tcaff_gtsam.frame_aligner import FrameAligner
     from tcaff_gtsam.object_map import ObjectMap
 
+    if now is not None and not math.isfinite(now):
+        _refuse("--now", now, "must be a finite number of seconds")
+    params = _aligner_params(kappa, dim, solutions, min_associations, covariance, seed)
     ego_map, other_map = ObjectMap.load(ego), ObjectMap.load(other)
     if now is None:
         stamps = np.r_[ego_map.last_seen, other_map.last_seen]
         now = float(stamps.max()) if stamps.size else 0.0
-    aligner = FrameAligner(_aligner_params(kappa, dim, solutions, min_associations, covariance,
-                                           seed))
+    aligner = FrameAligner(params)
     candidates = aligner.measurements(ego_map, other_map, now)
     if as_json:
         print(json.dumps([{"x": m.z[0], "y": m.z[1], "theta": m.z[2], "R": m.R.tolist(),
@@ -179,7 +225,6 @@ def make_maps(
 ) -> None:
     """Write two simulated overlapping maps with a known alignment, for trying align-maps."""
     import json
-    import math
 
     import numpy as np
 
@@ -187,9 +232,16 @@ def make_maps(
 
     from .sim.maps import overlapping_maps
 
+    for option, count in (("--objects", objects), ("--clutter", clutter), ("--seed", seed)):
+        if count < 0:
+            _refuse(option, count, "must be an int >= 0")
+    if not (math.isfinite(overlap) and 0 <= overlap <= 1):
+        _refuse("--overlap", overlap, "must be a share in [0, 1]")
+    if not (math.isfinite(noise) and noise >= 0):
+        _refuse("--noise", noise, "must be a finite number >= 0 metres")
+    _writable_folder(out_dir, "OUT_DIR")
     pair = overlapping_maps(np.random.default_rng(seed), objects, overlap, noise,
                             clutter=clutter)
-    out_dir.mkdir(parents=True, exist_ok=True)
     pair.ego.save(out_dir / "ego.npz")
     pair.other.save(out_dir / "other.npz")
     x, y, theta = se2_to_params(pair.T_oi_oj)
@@ -308,7 +360,31 @@ def _mot_table(mot_summary: dict) -> Table:
     return _keep_numbers_whole(table)
 
 
+def _by_interrupt(exc: BaseException) -> bool:
+    """Whether `exc` is a Ctrl-C, or was raised while handling one (an import cut short by
+    Ctrl-C may end in an ImportError, as Open3D's does)."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def _run(study_config: StudyConfig, figures: bool) -> None:
+    """Run a study and print its tables; Ctrl-C ends it with one line and exit status 130,
+    the runs already finished written (see `run_study`)."""
+    try:
+        _run_study(study_config, figures)
+    except BaseException as exc:
+        if not _by_interrupt(exc):
+            raise
+        _console(stderr=True).print("interrupted", soft_wrap=True)
+        raise SystemExit(130) from None
+
+
+def _run_study(study_config: StudyConfig, figures: bool) -> None:
     import time
 
     from rich.markup import escape
@@ -334,8 +410,8 @@ def _run(study_config: StudyConfig, figures: bool) -> None:
                       "against CLIPPER's k: figures/mot_sweep.png.")
     console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
     if outcome.interrupted:
-        err_console.print(f"interrupted: {len(outcome.jobs)} of {n_jobs} runs finished and "
-                          f"were written")
+        err_console.print(f"interrupted: {len(outcome.jobs)} of {n_jobs} runs finished, kept "
+                          f"in {escape(str(outcome.folder))}", soft_wrap=True)
         raise SystemExit(130)
     if outcome.failed:
         for fail in outcome.failed:
@@ -371,15 +447,18 @@ def study(
     output: Annotated[Path | None, typer.Option(
         help="Folder for results/<timestamp>/ and the results/latest link.")] = None,
     duration: Annotated[float | None, typer.Option(
-        help="Cap every scenario's duration (seconds), for a quick look.", min=1.0)] = None,
+        help="Cap every scenario's duration (seconds), for a quick look.")] = None,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
 ) -> None:
     from .config import load_study
 
+    _check_duration(duration)
     overrides = {"scenarios": scenario or None, "methods": methods,
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
     study_config = load_study(config, {k: v for k, v in overrides.items() if v is not None})
+    _writable_folder(Path(study_config.output),
+                     "--output" if output is not None else f"{config}: output")
     _run(_capped(study_config, duration), figures)
 
 
@@ -397,13 +476,15 @@ def demo(
     output: Annotated[Path, typer.Option(help="Folder for the results.")] = Path("results"),
     workers: Annotated[int, typer.Option(help="Parallel processes.", min=1)] = 2,
     duration: Annotated[float | None, typer.Option(
-        help="Cap every scenario's duration (seconds), for a quick look.", min=1.0)] = None,
+        help="Cap every scenario's duration (seconds), for a quick look.")] = None,
 ) -> None:
     """The study on every scenario with one seed (about a minute): table, metrics, figures."""
     from .config import load_study
 
-    _run(_capped(load_study("demo", {"output": str(output), "workers": workers}), duration),
-         True)
+    _check_duration(duration)
+    study_config = load_study("demo", {"output": str(output), "workers": workers})
+    _writable_folder(output, "--output")
+    _run(_capped(study_config, duration), True)
 
 
 def _kimera_bars(bars: RichProgress):
@@ -447,7 +528,7 @@ def kimera_multi(
         help="Reuse robots' maps saved by an earlier run with the same settings and bags.")
     ] = True,
     duration: Annotated[float | None, typer.Option(
-        help="Use only this many seconds of data, for a quick look.", min=1.0)] = None,
+        help="Use only this many seconds of data, for a quick look.")] = None,
     methods: Annotated[str | None, typer.Option(
         help=f"Method set: a YAML path or a shipped name ({_shipped('methods')}).")] = None,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
@@ -472,11 +553,13 @@ def kimera_multi(
     from .recorded import run_kimera_multi
 
     console, err_console = _console(), _console(stderr=True)
+    _check_duration(duration)
     test = load_kimera_multi(config)
     if duration is not None:
         test = test.model_copy(update={"duration": duration})
     if methods is not None:
         test = test.model_copy(update={"methods": load_methods(methods)})
+    _writable_folder(output, "--output")
     console.print(f"Kimera-Multi test [bold]{escape(test.name)}[/]: robots "
                   f"{', '.join(test.robots)}; data {data}")
     start = time.perf_counter()
@@ -565,7 +648,7 @@ def mrclam(
     kappa: Annotated[float | None, typer.Option(
         help="Seconds of sightings a map holds (default: the config's).")] = None,
     duration: Annotated[float | None, typer.Option(
-        help="Use only this many seconds of data, for a quick look.", min=1.0)] = None,
+        help="Use only this many seconds of data, for a quick look.")] = None,
     output: Annotated[Path, typer.Option(
         help="Results go to OUTPUT/<set>-<odometry>[-seed<s>]/.")] = Path("results/mrclam"),
     resume: Annotated[bool, typer.Option(
@@ -588,6 +671,7 @@ def mrclam(
     from .recorded import run_mrclam
 
     console = _console()
+    _check_duration(duration)
     settings = override(load_mrclam(config), "command line", duration=duration, kappa=kappa,
                         methods=None if methods is None else load_methods(methods))
     odometries = odometry or [settings.odometry]
@@ -597,6 +681,7 @@ def mrclam(
 
         raise ConfigError(f"--odometry {bad[0]!r}: expected raw or vio")
     seeds = seed or [0]
+    _writable_folder(output, "--output")
     console.print(f"MRCLAM [bold]{escape(data.name)}[/]: odometry {', '.join(odometries)}, "
                   f"seeds {seeds}; data {data}")
     start = time.perf_counter()

@@ -55,6 +55,7 @@ __all__ = [
     "MrclamConfig",
     "ScenarioConfig",
     "StudyConfig",
+    "UniqueKeyLoader",
     "load_kimera_multi",
     "load_methods",
     "load_mrclam",
@@ -663,13 +664,53 @@ def _format(source: str, error: ValidationError) -> str:
     return f"{source}: " + "; ".join(dict.fromkeys(parts))
 
 
+class _DuplicateKeyError(yaml.constructor.ConstructorError):
+    """A key given twice in one YAML mapping."""
+
+    def __init__(self, key: Any, mark: yaml.Mark | None) -> None:
+        super().__init__(problem=f"duplicate key {key!r}", problem_mark=mark)
+        self.key, self.line = key, None if mark is None else mark.line + 1
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping (the plain loader keeps
+    the last value silently). Keys brought in by a merge (`<<: *base`) may be overridden."""
+
+    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict:
+        if isinstance(node, yaml.MappingNode):
+            seen: set = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    if key in seen:
+                        raise _DuplicateKeyError(key, key_node.start_mark)
+                    seen.add(key)
+                except TypeError:  # unhashable: the safe loader refuses it below
+                    continue
+        return super().construct_mapping(node, deep)
+
+
 def _read_yaml(path: Path) -> Any:
     if not path.is_file():
         raise ConfigError(f"{path}: no such config file")
     try:
-        return yaml.safe_load(path.read_text())
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a UTF-8 text file (byte 0x{exc.object[exc.start]:02x} "
+                          f"at offset {exc.start})") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot be read ({exc.strerror})") from None
+    try:
+        return yaml.load(text, Loader=UniqueKeyLoader)
+    except _DuplicateKeyError as exc:
+        where = "" if exc.line is None else f" (line {exc.line})"
+        raise ConfigError(f"{path}: duplicate key {exc.key!r}{where}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from exc
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid YAML (nested too deeply)") from None
 
 
 def _validate(model: type[_Model], data: Any, source: str) -> Any:

@@ -10,16 +10,20 @@ metrics.json, metrics.csv and the figures, and points `<output>/latest` at the f
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import os
 import queue
 import signal
+import threading
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime
+from multiprocessing.context import SpawnContext, SpawnProcess
 from pathlib import Path
+
+from tcaff_gtsam.errors import DataError
 
 from .config import MethodsConfig, ScenarioConfig, StudyConfig, dump_study
 from .jobs import simulated_job
@@ -48,8 +52,60 @@ def _job_in_worker(scenario: ScenarioConfig, methods: MethodsConfig, seed: int, 
 
 
 def _announce(updates) -> None:
-    """Each worker process says who it is, so a stopped study can end its workers."""
+    """Each worker process ignores Ctrl-C (the study's process handles it and ends the workers)
+    and says who it is, so a stopped study can end its workers."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # already so when started by the study
     updates.put(("pid", os.getpid()))
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore Ctrl-C in this process for the moment it starts a process (a few ms): an ignored
+    SIGINT stays ignored in the new process, which then never raises KeyboardInterrupt, not even
+    while it starts (imports the stack, before `_announce`). Only the main thread can do it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold a Ctrl-C back until the block is done, then raise it: starting the manager must not
+    be cut short, or its process, left without a reader, prints a traceback."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = signal.getsignal(signal.SIGINT)
+    try:
+        signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
+
+
+class _QuietSpawnProcess(SpawnProcess):
+    """A spawned process that ignores Ctrl-C from its very start (see `_sigint_ignored`)."""
+
+    @staticmethod
+    def _Popen(process_obj):
+        with _sigint_ignored():
+            return SpawnProcess._Popen(process_obj)
+
+
+class _QuietSpawnContext(SpawnContext):
+    """The spawn context, its processes (the pool's workers, the manager) ignoring Ctrl-C: the
+    study's process handles it and ends them."""
+
+    Process = _QuietSpawnProcess
 
 
 def _new_folder(root: Path) -> Path:
@@ -99,7 +155,11 @@ def run_study(study: StudyConfig, progress: Progress | None = None,
 
     progress = progress or Progress()
     root = Path(study.output)
-    folder = _new_folder(root)
+    try:
+        folder = _new_folder(root)
+    except OSError as exc:
+        raise DataError(f"output {str(root)!r}: cannot make a results folder in it "
+                        f"({exc.strerror or exc})") from None
     (folder / "config.yaml").write_text(dump_study(study))
     methods: MethodsConfig = study.methods  # type: ignore[assignment]
     todo = [(s, seed) for s in study.scenarios for seed in study.seeds]
@@ -135,8 +195,8 @@ def run_study(study: StudyConfig, progress: Progress | None = None,
         else:
             _run_parallel(todo, methods, min(study.workers, len(todo)), progress, done, fail)
     except KeyboardInterrupt:
-        interrupted = True
-        log.warning("interrupted: writing the %d finished jobs", len(jobs))
+        interrupted = True  # the caller reports it; the finished jobs are written below
+        log.info("interrupted: writing the %d finished jobs", len(jobs))
     order = {(s.name, seed): k for k, (s, seed) in enumerate(todo)}
     jobs.sort(key=lambda j: order[(j.name, j.seed)])
     names = estimate_names(methods)
@@ -153,15 +213,15 @@ def run_study(study: StudyConfig, progress: Progress | None = None,
 
 def _run_parallel(todo, methods: MethodsConfig, workers: int, progress: Progress,
                   done, fail) -> None:
-    context = multiprocessing.get_context("spawn")  # fork would copy numba and gtsam state
-    with context.Manager() as manager:
+    context = _QuietSpawnContext()  # spawn: fork would copy numba and gtsam state
+    with _sigint_deferred():
+        manager = context.Manager()  # started
+    with manager:
         updates = manager.Queue()
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
                                    initializer=_announce, initargs=(updates,))
         workers_seen: set[int] = set()
-        futures: dict[Future, int] = {
-            pool.submit(_job_in_worker, scenario, methods, seed, key, updates): key
-            for key, (scenario, seed) in enumerate(todo)}
+        futures: dict[Future, int] = {}
         handled: set[Future] = set()
 
         def collect(future: Future) -> None:
@@ -176,6 +236,8 @@ def _run_parallel(todo, methods: MethodsConfig, workers: int, progress: Progress
             done(key, job)
 
         try:
+            for key, (scenario, seed) in enumerate(todo):  # starts the workers
+                futures[pool.submit(_job_in_worker, scenario, methods, seed, key, updates)] = key
             pending = set(futures)
             while pending:
                 finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
@@ -184,6 +246,8 @@ def _run_parallel(todo, methods: MethodsConfig, workers: int, progress: Progress
                     collect(future)
         except BaseException:
             _drain(updates, None, workers_seen)
+            # workers still starting have not announced themselves yet; they ignore Ctrl-C
+            workers_seen.update(getattr(pool, "_processes", None) or {})
             pool.shutdown(wait=False, cancel_futures=True)
             for pid in workers_seen:  # a running job would otherwise finish first
                 try:

@@ -229,3 +229,218 @@ def test_demo_prints_the_table_and_writes_the_figures(tmp_path):
     assert figures == {"leave_and_return.png", "clipper_sweep.png", "scenarios.png",
                        "mot_mot.png", "mot_sweep.png",
                        *(f"errors_{name}.png" for name in SCENARIOS)}
+
+
+# -- bad input ends in one line on stderr and exit status 2 -------------------------------------
+
+
+def tcaff(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([TCAFF, *args], capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture
+def tcaff_here(monkeypatch, capsys):
+    """`tcaff ARGS` through its entry point `cli.main` in this process (quicker than a
+    subprocess): the exit status and stderr, as a `CompletedProcess`."""
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        monkeypatch.setattr(sys, "argv", ["tcaff", *args])
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exited:
+            cli.main()
+        code = exited.value.code
+        return subprocess.CompletedProcess(args, 0 if code is None else code, "",
+                                           capsys.readouterr().err)
+
+    return run
+
+
+def one_line_error(done: subprocess.CompletedProcess, *named: str) -> str:
+    """The single stderr line of a refused command, which names each of `named`."""
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+    for name in named:
+        assert name in lines[0], (name, lines[0])
+    return lines[0]
+
+
+BINARY = b"workers: 1\n\xff\xfe\x00\x81 not text"
+DUPLICATE = "scenarios: [indoor_return]\nworkers: 1\nseeds: [0]\nworkers: 2\n"
+
+
+@pytest.mark.parametrize("where", ["study", "scenario", "methods", "kimera-config"])
+def test_a_binary_yaml_is_named_in_one_line(tmp_path, tcaff_here, where):
+    bad = tmp_path / "bad.yaml"
+    bad.write_bytes(BINARY)
+    args = {"study": ["study", str(bad)],
+            "scenario": ["study", "demo", "-s", str(bad), "--output", str(tmp_path)],
+            "methods": ["study", "demo", "--methods", str(bad), "--output", str(tmp_path)],
+            "kimera-config": ["kimera-multi", "--data", str(tmp_path), "--config", str(bad),
+                              "--output", str(tmp_path)]}[where]
+    run = tcaff if where in ("study", "kimera-config") else tcaff_here
+    line = one_line_error(run(*args), str(bad), "not a UTF-8 text file")
+    assert line == f"error: {bad}: not a UTF-8 text file (byte 0xff at offset 11)"
+
+
+@pytest.mark.parametrize("where", ["study", "scenario", "methods"])
+def test_a_duplicate_yaml_key_is_named_in_one_line(tmp_path, tcaff_here, where):
+    bad = tmp_path / "dup.yaml"
+    if where == "study":
+        bad.write_text(DUPLICATE)
+        args = ["study", str(bad)]
+    elif where == "scenario":
+        text = (CONFIG_DIR / "scenarios" / "indoor_return.yaml").read_text()
+        bad.write_text(text + "\nduration: 30\nduration: 40\n")
+        args = ["study", "demo", "-s", str(bad), "--output", str(tmp_path)]
+    else:
+        bad.write_text("methods: [tcaff]\nmethods: [ground_truth]\n")
+        args = ["study", "demo", "--methods", str(bad), "--output", str(tmp_path)]
+    line = one_line_error((tcaff if where == "study" else tcaff_here)(*args), str(bad),
+                          "duplicate key")
+    key = {"study": "workers", "scenario": "duration", "methods": "methods"}[where]
+    assert f"duplicate key {key!r}" in line
+
+
+def test_the_loader_refuses_duplicates_but_keeps_merges():
+    import yaml
+    from tcaff_gtsam.eval.config import UniqueKeyLoader
+
+    assert yaml.load("a: &b {x: 1}\nc:\n  <<: *b\n  x: 2\n", Loader=UniqueKeyLoader) == {
+        "a": {"x": 1}, "c": {"x": 2}}
+    with pytest.raises(yaml.YAMLError, match="duplicate key 'x'"):
+        yaml.load("c: {x: 1, y: 2, x: 3}\n", Loader=UniqueKeyLoader)
+
+
+def test_arbitrary_bytes_as_a_config_load_or_fail_in_one_line(tmp_path):
+    """Whatever a study file holds, loading it gives a config or a one-line ConfigError."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+    from tcaff_gtsam.eval.config import load_study
+
+    from tcaff_gtsam.errors import ConfigError
+
+    path = tmp_path / "any.yaml"
+    texts = st.one_of(st.binary(max_size=200),
+                      st.text(alphabet=st.sampled_from(list("ab:-[]{},&*<\n #!0.'\"")),
+                              max_size=80).map(str.encode))
+
+    @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(texts)
+    def check(data: bytes) -> None:
+        path.write_bytes(data)
+        try:
+            load_study(path)
+        except ConfigError as exc:
+            assert "\n" not in str(exc) and str(path.name) in str(exc)
+
+    check()
+
+
+@pytest.mark.parametrize("command", ["study", "demo", "kimera-multi", "mrclam", "make-maps"])
+@pytest.mark.parametrize("kind", ["file", "under-a-file"])
+def test_an_output_that_cannot_be_a_folder_is_refused_first(tmp_path, tcaff_here, command,
+                                                             kind):
+    taken = tmp_path / "taken"
+    taken.write_text("keep me")
+    out = taken if kind == "file" else taken / "sub"
+    args = {"study": ["study", "demo", "--output", str(out)],
+            "demo": ["demo", "--output", str(out)],
+            "kimera-multi": ["kimera-multi", "--data", str(tmp_path), "--output", str(out)],
+            "mrclam": ["mrclam", "--data", str(tmp_path), "--output", str(out)],
+            "make-maps": ["make-maps", str(out)]}[command]
+    option = "OUT_DIR" if command == "make-maps" else "--output"
+    run = tcaff if command == "study" else tcaff_here
+    line = one_line_error(run(*args), option, str(out))
+    assert line.endswith("exists and is not a folder" if kind == "file"
+                         else "not a writable folder (Not a directory)")
+    assert taken.read_text() == "keep me"
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["--noise", "-1"], "--noise"), (["--noise", "nan"], "--noise"),
+    (["--overlap", "1.5"], "--overlap"), (["--objects", "-1"], "--objects"),
+    (["--clutter", "-2"], "--clutter"), (["--seed", "-1"], "--seed")])
+def test_make_maps_options_are_checked(tmp_path, tcaff_here, args, option):
+    run = tcaff if option == "--noise" else tcaff_here
+    line = one_line_error(run("make-maps", str(tmp_path / "maps"), *args), option)
+    assert line.startswith(f"error: {option} ")
+    assert not (tmp_path / "maps").exists()
+
+
+@pytest.fixture(scope="module")
+def maps(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("maps")
+    assert runner.invoke(app, ["make-maps", str(folder)]).exit_code == 0
+    return str(folder / "ego.npz"), str(folder / "other.npz")
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["--seed", "-1"], "--seed"), (["--kappa", "nan"], "--kappa"),
+    (["--solutions", "0"], "--solutions"), (["--min-associations", "0"], "--min-associations"),
+    (["--covariance", "bogus"], "--covariance"), (["--now", "inf"], "--now")])
+def test_align_maps_options_are_named(maps, tcaff_here, args, option):
+    run = tcaff if option == "--seed" else tcaff_here
+    line = one_line_error(run("align-maps", *maps, *args), option)
+    assert line.startswith(f"error: {option} ")
+
+
+def test_align_maps_seed_message():
+    from tcaff_gtsam.errors import ConfigError
+
+    with pytest.raises(ConfigError) as caught:
+        cli._aligner_params(20.0, 2, 5, 3, "constant", -1)
+    assert str(caught.value) == "--seed -1: must be an int >= 0"
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "0", "-3"])
+@pytest.mark.parametrize("command", ["study", "demo", "kimera-multi", "mrclam"])
+def test_duration_must_be_finite_and_positive(tmp_path, tcaff_here, command, value):
+    args = {"study": ["study", "demo"], "demo": ["demo"],
+            "kimera-multi": ["kimera-multi", "--data", str(tmp_path)],
+            "mrclam": ["mrclam", "--data", str(tmp_path)]}[command]
+    run = tcaff if value == "inf" else tcaff_here
+    line = one_line_error(run(*args, "--duration", value, "--output", str(tmp_path / "out")),
+                          "--duration")
+    assert line.endswith("must be a finite number of seconds >= 1")
+    assert not (tmp_path / "out").exists()
+
+
+# -- Ctrl-C ---------------------------------------------------------------------------------
+
+
+def test_ctrl_c_while_the_workers_start_is_one_line_and_exit_130(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while the workers
+    are still importing the stack: one line, exit status 130, the results folder written."""
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen([TCAFF, "study", "demo", "-s", "indoor_return", "--seeds", "3",
+                             "--workers", "2", "--duration", "5", "--output", str(out),
+                             "--no-figures"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    deadline = time.monotonic() + 60
+    while not (out.is_dir() and any(out.iterdir())) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.5)  # the manager and the workers are starting
+    os.killpg(proc.pid, signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and re.fullmatch(r"interrupted: \d of 3 runs finished, kept in .+",
+                                            lines[0]), stderr
+    folder = Path(lines[0].split(" kept in ")[1])
+    assert json.loads((folder / "metrics.json").read_text())["interrupted"] is True
+
+
+def test_the_study_workers_ignore_ctrl_c_from_their_start():
+    import signal
+
+    from tcaff_gtsam.eval import study
+
+    context = study._QuietSpawnContext()
+    with context.Pool(1) as pool:
+        assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
