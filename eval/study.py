@@ -14,6 +14,7 @@ import os
 import queue
 import signal
 import threading
+import time
 import traceback
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -49,6 +50,9 @@ class StudyOutcome:
 def _job_in_worker(scenario: ScenarioConfig, methods: MethodsConfig, seed: int, key: int,
                    updates) -> JobResult:
     return simulated_job(scenario, methods, seed, lambda share: updates.put((key, share)))
+
+
+_ANNOUNCE_WAIT = 3.0  # seconds a stopped study waits for workers still starting
 
 
 def _announce(updates) -> None:
@@ -246,8 +250,12 @@ def _run_parallel(todo, methods: MethodsConfig, workers: int, progress: Progress
                     collect(future)
         except BaseException:
             _drain(updates, None, workers_seen)
-            # workers still starting have not announced themselves yet; they ignore Ctrl-C
-            workers_seen.update(getattr(pool, "_processes", None) or {})
+            # workers still starting ignore Ctrl-C and announce themselves once started: wait a
+            # moment for them, or one could take a queued job and run it to the end
+            deadline = time.monotonic() + _ANNOUNCE_WAIT
+            while len(workers_seen) < workers and time.monotonic() < deadline:
+                time.sleep(0.05)
+                _drain(updates, None, workers_seen)
             pool.shutdown(wait=False, cancel_futures=True)
             for pid in workers_seen:  # a running job would otherwise finish first
                 try:
