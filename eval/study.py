@@ -63,32 +63,22 @@ def _announce(updates) -> None:
 
 
 @contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ignore Ctrl-C in this process for the moment it starts a process (a few ms): an ignored
-    SIGINT stays ignored in the new process, which then never raises KeyboardInterrupt, not even
-    while it starts (imports the stack, before `_announce`). Only the main thread can do it."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.getsignal(signal.SIGINT)
-    try:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+def _sigint(deferred: bool) -> Iterator[None]:
+    """Ctrl-C in this process during the block: ignored (`deferred` False), or held back and
+    raised once the block is done (True). Only the main thread can do either.
 
-
-@contextmanager
-def _sigint_deferred() -> Iterator[None]:
-    """Hold a Ctrl-C back until the block is done, then raise it: starting the manager must not
-    be cut short, or its process, left without a reader, prints a traceback."""
+    Ignored, for the moment this process starts a process (a few ms): an ignored SIGINT stays
+    ignored in the new process, which then never raises KeyboardInterrupt, not even while it
+    starts (imports the stack, before `_announce`). Deferred, while the manager starts: cut
+    short, its process, left without a reader, prints a traceback."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     caught: list[int] = []
     previous = signal.getsignal(signal.SIGINT)
     try:
-        signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+        signal.signal(signal.SIGINT, (lambda signum, frame: caught.append(signum)) if deferred
+                      else signal.SIG_IGN)
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
@@ -97,11 +87,11 @@ def _sigint_deferred() -> Iterator[None]:
 
 
 class _QuietSpawnProcess(SpawnProcess):
-    """A spawned process that ignores Ctrl-C from its very start (see `_sigint_ignored`)."""
+    """A spawned process that ignores Ctrl-C from its very start (see `_sigint`)."""
 
     @staticmethod
     def _Popen(process_obj):
-        with _sigint_ignored():
+        with _sigint(deferred=False):
             return SpawnProcess._Popen(process_obj)
 
 
@@ -218,7 +208,7 @@ def run_study(study: StudyConfig, progress: Progress | None = None,
 def _run_parallel(todo, methods: MethodsConfig, workers: int, progress: Progress,
                   done, fail) -> None:
     context = _QuietSpawnContext()  # spawn: fork would copy numba and gtsam state
-    with _sigint_deferred():
+    with _sigint(deferred=True):
         manager = context.Manager()  # started
     with manager:
         updates = manager.Queue()

@@ -16,7 +16,7 @@ from scipy import sparse
 
 from .errors import DataError
 from .inputs import index_pairs, real_array, shown
-from .params import ClipperParams, _finite, _int_at_least, _real, _require
+from .params import ClipperParams, _finite, _given_or_default, _int_at_least, _real, _require
 
 __all__ = ["ClipperSolution", "ConsistencyGraph", "clipper_solve", "consistency_graph",
            "mno_clipper"]
@@ -223,11 +223,7 @@ def _checked_graph(owner: str, graph, params) -> ClipperParams:
     if not isinstance(graph, ConsistencyGraph):
         raise DataError(f"{owner}: graph must be a ConsistencyGraph, got "
                         f"{type(graph).__name__} {shown(graph)}")
-    if params is None:
-        return ClipperParams()
-    _require(isinstance(params, ClipperParams), owner, "params", params,
-             "must be a ClipperParams or None")
-    return params
+    return _given_or_default(ClipperParams, params, owner)
 
 
 def _pairwise_distances(points: np.ndarray) -> np.ndarray:

@@ -184,12 +184,7 @@ class InterRobotGraph:
         isam_params.relinearizeSkip = prm.relinearize_skip
         # check relinearisation from the root down only as far as needed, not every variable
         isam_params.enablePartialRelinearizationCheck = True
-        if prm.horizon is None:
-            self._smoother = None
-            self._isam = gtsam.ISAM2(isam_params)
-        else:
-            self._smoother = gtsam.IncrementalFixedLagSmoother(float(prm.horizon), isam_params)
-            self._isam = self._smoother.getISAM2()  # the smoother's own, by reference
+        self._new_solver(isam_params)
         # with a horizon: steps that left the graph, their A_r (n_robots, side, side) and the
         # joint covariance of (A_0 .. A_n-1) in gtsam's tangent order as it was while the step
         # was the latest (cheap to compute then, near the root of the Bayes tree; smoothing
@@ -428,7 +423,7 @@ class InterRobotGraph:
         # the marginal factors before the smoother replaces them (a roll-back needs them)
         marginals = {i: factors.at(i) for i in self._marginal}
         try:
-            indices = self._commit(graph)
+            indices = self._commit(graph, self._pending_values, self._to_remove)
             self._settle(touched)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             self._roll_back(gone, marginals, step, leaving)
@@ -461,14 +456,24 @@ class InterRobotGraph:
         keys = gtsam.KeyVector([alignment_key(r, step) for r in range(self.n_robots)])
         return self._isam.jointMarginalCovariance(keys).fullMatrix()
 
-    def _commit(self, graph: gtsam.NonlinearFactorGraph) -> list[int]:
-        """One iSAM2 (or fixed-lag smoother) update with the queued factors, the pending values
-        and the removals; the new factors' indices."""
+    def _new_solver(self, isam_params: gtsam.ISAM2Params) -> None:
+        """An empty iSAM2, or with a horizon a fixed-lag smoother and its iSAM2."""
+        if self.params.horizon is None:
+            self._smoother = None
+            self._isam = gtsam.ISAM2(isam_params)
+        else:
+            self._smoother = gtsam.IncrementalFixedLagSmoother(float(self.params.horizon),
+                                                               isam_params)
+            self._isam = self._smoother.getISAM2()  # the smoother's own, by reference
+
+    def _commit(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                remove: list[int]) -> list[int]:
+        """One iSAM2 (or fixed-lag smoother) update: new factors, new values, removals; the
+        new factors' indices."""
         if self._smoother is None:
-            result = self._isam.update(graph, self._pending_values, self._to_remove)
-            return list(result.getNewFactorsIndices())
-        stamps = {key: self._stamp(_step_of(key)) for key in self._pending_values.keys()}
-        self._smoother.update(graph, self._pending_values, stamps, self._to_remove)
+            return list(self._isam.update(graph, values, remove).getNewFactorsIndices())
+        stamps = {key: self._stamp(_step_of(key)) for key in values.keys()}
+        self._smoother.update(graph, values, stamps, remove)
         return list(self._smoother.getISAM2Result().getNewFactorsIndices())
 
     def _stamp(self, step: int) -> float:
@@ -528,17 +533,8 @@ class InterRobotGraph:
             graph.add(f.factor)
         for factor in marginals.values():
             graph.add(factor)
-        isam_params = self._isam.params()
-        if self._smoother is None:
-            self._isam = gtsam.ISAM2(isam_params)
-            indices = list(self._isam.update(graph, theta).getNewFactorsIndices())
-        else:
-            stamps = {key: self._stamp(_step_of(key)) for key in theta.keys()}
-            self._smoother = gtsam.IncrementalFixedLagSmoother(float(self.params.horizon),
-                                                               isam_params)
-            self._isam = self._smoother.getISAM2()
-            self._smoother.update(graph, theta, stamps)
-            indices = list(self._smoother.getISAM2Result().getNewFactorsIndices())
+        self._new_solver(self._isam.params())
+        indices = self._commit(graph, theta, [])
         remap = dict(zip([i for i, _ in kept] + list(marginals), indices, strict=True))
         self._active = {remap[i]: f for i, f in kept}
         self._marginal = {remap[i] for i in marginals}

@@ -12,7 +12,7 @@ from .frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory, confir
 from .identities import ObjectIdentities, recent_ids
 from .inputs import finite_time
 from .object_map import ObjectMap, as_object_map
-from .params import FrameAlignerParams, TCAFFParams, _require
+from .params import FrameAlignerParams, TCAFFParams, _given_or_default
 from .tcaff import TCAFF, AlignmentEstimate
 
 __all__ = ["PairwiseAligner", "admitted", "evidence_of", "unchecked"]
@@ -64,9 +64,8 @@ class PairwiseAligner:
             ConfigError: aligner_params or tcaff_params of the wrong type, or TCAFF parameters
                 not for (x, y, theta) states.
         """
-        tcaff_params = TCAFFParams() if tcaff_params is None else tcaff_params
-        _require(isinstance(tcaff_params, TCAFFParams), "PairwiseAligner", "tcaff_params",
-                 tcaff_params, "must be a TCAFFParams or None")
+        tcaff_params = _given_or_default(TCAFFParams, tcaff_params, "PairwiseAligner",
+                                         "tcaff_params")
         if tcaff_params.dim != 3 or tcaff_params.angle_indices != (2,):
             raise ConfigError(f"PairwiseAligner needs TCAFFParams for (x, y, theta) states "
                               f"(d = 3, angle_indices = (2,)), got d = {tcaff_params.dim}, "

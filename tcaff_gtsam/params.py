@@ -46,6 +46,15 @@ def _require(condition: bool, owner: str, name: str, value, rule: str) -> None:
         raise ParameterError(owner, name, value, rule)
 
 
+def _given_or_default(cls: type, value, owner: str, name: str = "params"):
+    """`value` when it is a `cls`, `cls()` when it is None; a ConfigError naming `owner` and
+    `name` otherwise."""
+    if value is None:
+        return cls()
+    _require(isinstance(value, cls), owner, name, value, f"must be a {cls.__name__} or None")
+    return value
+
+
 def _int_at_least(value, low: int) -> bool:
     """An int (Python or numpy, not a bool) >= low."""
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low

@@ -48,7 +48,7 @@ from .hypothesis_tree import (
     seed,
 )
 from .inputs import read_npz
-from .params import TCAFFParams, _require
+from .params import TCAFFParams, _given_or_default
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
 
@@ -100,10 +100,7 @@ class TCAFF:
         Raises:
             ConfigError: params is neither a TCAFFParams nor None.
         """
-        params = TCAFFParams() if params is None else params
-        _require(isinstance(params, TCAFFParams), "TCAFF", "params", params,
-                 "must be a TCAFFParams or None")
-        self.params = params
+        self.params = _given_or_default(TCAFFParams, params, "TCAFF")
         prm = self.params
         d = prm.dim
         angular = np.zeros(d, dtype=bool)
@@ -403,15 +400,11 @@ class TCAFF:
         if bad.size:
             i, a, b = bad[0]
             raise DataError(f"TCAFF.update: Rs[{i}, {a}, {b}] = {Rs[i, a, b]} is not finite")
-        asym = np.abs(Rs - Rs.transpose(0, 2, 1)) > 1e-9 * (1.0 + np.abs(Rs))
-        if asym.any():
-            i = int(np.argwhere(asym)[0, 0])
-            raise DataError(f"TCAFF.update: Rs[{i}] is not symmetric: {Rs[i].tolist()}")
-        eig_min = np.linalg.eigvalsh(Rs)[:, 0]
-        if (eig_min <= 0).any():
-            i = int(np.flatnonzero(eig_min <= 0)[0])
-            raise DataError(f"TCAFF.update: Rs[{i}] is not positive definite (smallest "
-                            f"eigenvalue {eig_min[i]:.3g})")
+        bad = _not_spd(Rs)
+        if bad is not None:
+            i, why = bad
+            shown_R = f": {Rs[i].tolist()}" if why == "symmetric" else ""
+            raise DataError(f"TCAFF.update: Rs[{i}] is not {why}{shown_R}")
         zs = zs.copy()
         angles = list(self.params.angle_indices)
         zs[:, angles] = wrap_angle(zs[:, angles])
@@ -690,12 +683,24 @@ def _check_covariances(states: str, x: np.ndarray, name: str, P: np.ndarray) -> 
     for what, values in ((states, x), (name, P)):
         if not np.all(np.isfinite(values)):
             raise DataError(f"TCAFF state: {what} holds non-finite values")
-    if P.shape[0] == 0:
-        return
-    if np.any(np.abs(P - P.transpose(0, 2, 1)) > 1e-9 * (1.0 + np.abs(P))):
+    bad = _not_spd(P)
+    if bad is not None and bad[1] == "symmetric":
         raise DataError(f"TCAFF state: {name} holds a covariance that is not symmetric")
+    if bad is not None:
+        raise DataError(f"TCAFF state: {name}[{bad[0]}] is not {bad[1]}")
+
+
+def _not_spd(P: np.ndarray) -> tuple[int, str] | None:
+    """The first of the finite matrices P (n, d, d) that is not symmetric positive definite,
+    with what it is not ("symmetric", or "positive definite (smallest eigenvalue ...)");
+    None when all are."""
+    if P.shape[0] == 0:
+        return None
+    asym = np.abs(P - P.transpose(0, 2, 1)) > 1e-9 * (1.0 + np.abs(P))
+    if asym.any():
+        return int(np.argwhere(asym)[0, 0]), "symmetric"
     smallest = np.linalg.eigvalsh(P)[:, 0]
-    if np.any(smallest <= 0):
+    if (smallest <= 0).any():
         i = int(np.flatnonzero(smallest <= 0)[0])
-        raise DataError(f"TCAFF state: {name}[{i}] is not positive definite (smallest "
-                        f"eigenvalue {smallest[i]:.3g})")
+        return i, f"positive definite (smallest eigenvalue {smallest[i]:.3g})"
+    return None
