@@ -134,18 +134,22 @@ class ClipperSolution:
 
 
 @numba.njit(cache=True)
-def _consistent_pairs(d_ego, d_other, other_idx, group_ego, group_start, inv_two_sigma_sq,
-                      epsilon):
+def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_start,
+                      inv_two_sigma_sq, epsilon):
     """Upper-triangle edges (p < q) of the consistency graph: rows, cols, weights.
 
     Nodes are sorted by ego index and grouped: group g holds the nodes
-    group_start[g]:group_start[g+1], all with ego object group_ego[g]. For node p = (i, j) the
-    ego distance |p_i - p_k| is then read once per later group instead of once per pair, and
-    the i != k rule means skipping p's own group. Each row is gathered in a fixed scratch
-    buffer so the inner loop never reallocates; the output grows only between rows.
+    group_start[g]:group_start[g+1], all with ego object group_ego[g]. The ego distances
+    |p_i - p_k| from group g to every later group are computed once per group, and the i != k
+    rule means skipping g's own group. Distances are computed from the points, not read from
+    n x n matrices, so memory stays linear in the map sizes. Each row is gathered in a fixed
+    scratch buffer so the inner loop never reallocates; the output grows only between rows.
     """
     m = other_idx.shape[0]
     n_groups = group_ego.shape[0]
+    dim = ego_points.shape[1]
+    d_g = np.empty(n_groups)
+    d_j = np.empty(other_points.shape[0])
     row_cols = np.empty(m, np.int64)
     row_c = np.empty(m)
     capacity = max(16, 4 * m)
@@ -154,13 +158,25 @@ def _consistent_pairs(d_ego, d_other, other_idx, group_ego, group_start, inv_two
     wts = np.empty(capacity)
     n = 0
     for g in range(n_groups):
-        d_i = d_ego[group_ego[g]]
+        i = group_ego[g]
+        for h in range(g + 1, n_groups):
+            k = group_ego[h]
+            s = 0.0
+            for a in range(dim):
+                diff = ego_points[i, a] - ego_points[k, a]
+                s += diff * diff
+            d_g[h] = np.sqrt(s)
         for p in range(group_start[g], group_start[g + 1]):
             j = other_idx[p]
-            d_j = d_other[j]
+            for ell in range(other_points.shape[0]):
+                s = 0.0
+                for a in range(dim):
+                    diff = other_points[j, a] - other_points[ell, a]
+                    s += diff * diff
+                d_j[ell] = np.sqrt(s)
             count = 0
             for h in range(g + 1, n_groups):
-                d_ik = d_i[group_ego[h]]
+                d_ik = d_g[h]
                 for q in range(group_start[h], group_start[h + 1]):
                     ell = other_idx[q]
                     c = abs(d_ik - d_j[ell])
@@ -226,11 +242,6 @@ def _checked_graph(owner: str, graph, params) -> ClipperParams:
     return _given_or_default(ClipperParams, params, owner)
 
 
-def _pairwise_distances(points: np.ndarray) -> np.ndarray:
-    diff = points[:, None, :] - points[None, :, :]
-    return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
-
-
 def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
                       associations: np.ndarray, epsilon: float = 0.25, sigma: float = 0.15,
                       prior: np.ndarray | None = None) -> ConsistencyGraph:
@@ -277,13 +288,13 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         if diag.shape != (m,) or not np.all(np.isfinite(diag)) or np.any(diag < 0):
             raise DataError(f"consistency_graph: prior must be ({m},) finite and >= 0, "
                             f"got shape {diag.shape}")
-    d_ego = _pairwise_distances(ego_points)
-    d_other = _pairwise_distances(other_points)
     order = np.argsort(associations[:, 0], kind="stable")  # identity for sorted input
     ego_sorted = associations[order, 0]
     starts = np.flatnonzero(np.diff(ego_sorted, prepend=-1))  # first node of each ego object
     rows, cols, wts = _consistent_pairs(
-        d_ego, d_other, np.ascontiguousarray(associations[order, 1]), ego_sorted[starts],
+        np.ascontiguousarray(ego_points, np.float64),
+        np.ascontiguousarray(other_points, np.float64),
+        np.ascontiguousarray(associations[order, 1]), ego_sorted[starts],
         np.r_[starts, m].astype(np.int64), 1.0 / (2.0 * sigma * sigma), epsilon)
     rows, cols = order[rows], order[cols]
     indptr, indices, weights = _symmetric_csr(m, rows, cols, wts)

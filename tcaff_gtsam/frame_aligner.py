@@ -7,12 +7,14 @@ solutions, register each by weighted Arun, keep the good ones.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .clipper import consistency_graph, mno_clipper
 from .errors import DataError
@@ -22,6 +24,7 @@ from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, _given_or_default, _real, _require
 from .registration import (
     _weights,
+    most_recent_pairs,
     mutual_inliers,
     registration_rmse,
     size_compatible,
@@ -36,6 +39,8 @@ __all__ = [
     "confirms",
     "residual_covariance",
 ]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,6 +120,8 @@ class FrameAligner:
             ConfigError: params is neither a FrameAlignerParams nor None.
         """
         self.params = _given_or_default(FrameAlignerParams, params, "FrameAligner")
+        #: steps on which the size gate passed more than `max_associations` pairs
+        self.thinned = 0
 
     def measurements(self, ego: ObjectMap, other: ObjectMap, now: float,
                      ego_past: Sequence[tuple[float, ObjectMap]] = (),
@@ -194,9 +201,15 @@ class FrameAligner:
             return []
         # the size gate of putative_associations, kept whole for counting the inliers
         compatible = size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
-        assoc = np.argwhere(compatible).astype(np.int64)
-        if assoc.shape[0] < prm.min_associations:
+        n_pairs = int(np.count_nonzero(compatible))
+        if n_pairs < prm.min_associations:
             return []
+        ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
+        if n_pairs > prm.max_associations:
+            assoc = most_recent_pairs(compatible, ages_ego, ages_other, prm.max_associations)
+            self._thin(n_pairs, len(ego_r), len(other_r))
+        else:
+            assoc = np.argwhere(compatible).astype(np.int64)
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
         graph = consistency_graph(p_all, q_all, assoc, prm.clipper.epsilon, prm.clipper.sigma)
@@ -204,7 +217,6 @@ class FrameAligner:
         if not solutions:
             return []
         best = max(s.score for s in solutions)
-        ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
         counting = prm.min_inliers is not None or prm.check_ambiguity
         found = []
         for sol in solutions:
@@ -226,6 +238,17 @@ class FrameAligner:
             found.append(_Solution(a, sol.score, T2, se2_to_params(T2), p, q, w, rmse,
                                    qualifies, inliers))
         return found
+
+    def _thin(self, n_pairs: int, n_ego: int, n_other: int) -> None:
+        """Count a step whose associations were cut to `max_associations`, and say so: a
+        warning the first time, then at debug level."""
+        self.thinned += 1
+        level = logging.WARNING if self.thinned == 1 else logging.DEBUG
+        log.log(level, "FrameAligner: the size gate passed %d pairs of %d x %d recent objects; "
+                "kept the max_associations=%d whose objects were seen most recently%s",
+                n_pairs, n_ego, n_other, self.params.max_associations,
+                " (repeats are logged at debug level; FrameAligner.thinned counts them)"
+                if self.thinned == 1 else "")
 
     def _earlier(self, ego_r: ObjectMap, other_r: ObjectMap,
                  ego_past: Sequence[tuple[float, ObjectMap]],
@@ -286,8 +309,9 @@ def _count_novel(earlier: ObjectMap, current: ObjectMap, radius: float) -> int:
     object of `current` (two maps of one robot, in its odometry frame)."""
     if len(earlier) == 0 or len(current) == 0:
         return len(earlier)
-    d = earlier.centroids[:, None, :2] - current.centroids[None, :, :2]
-    return int(np.count_nonzero(np.min(np.einsum("ijk,ijk->ij", d, d), axis=1) > radius**2))
+    nearest, _ = cKDTree(current.centroids[:, :2]).query(earlier.centroids[:, :2],
+                                                         distance_upper_bound=radius)
+    return int(np.count_nonzero(nearest > radius))  # inf: none within the radius
 
 
 def confirms(z: np.ndarray, held: np.ndarray | None, params: FrameAlignerParams) -> bool:

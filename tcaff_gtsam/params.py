@@ -225,6 +225,10 @@ class FrameAlignerParams(_ByValue):
         mno_downweight: factor applied to affinities among an earlier solution's associations;
             0 removes those associations, as in the paper.
         min_associations: solutions with fewer associations are discarded.
+        max_associations: the most putative associations (nodes of the consistency graph)
+            per map pair; when the size gate passes more, the pairs whose two objects were
+            seen most recently are kept (and it is logged). It bounds the step's time and
+            memory in large maps: the graph costs about m^2 / 2 distance checks.
         min_score_ratio: solutions scoring below this fraction of the best are discarded.
         weight_offset: Arun weights are 1 / (weight_offset + age_i * age_j), ages in seconds.
         max_rmse: metres; solutions whose registration residual RMS exceeds it are discarded
@@ -265,6 +269,7 @@ class FrameAlignerParams(_ByValue):
     n_solutions: int = 4
     mno_downweight: float = 0.0
     min_associations: int = 5
+    max_associations: int = 10000
     min_score_ratio: float = 0.75
     weight_offset: float = 0.01
     max_rmse: float | None = 0.5
@@ -299,6 +304,9 @@ class FrameAlignerParams(_ByValue):
                  "mno_downweight", self.mno_downweight, "must be in [0, 1)")
         _require(_int_at_least(self.min_associations, 2), o,
                  "min_associations", self.min_associations, "must be an int >= 2")
+        _require(_int_at_least(self.max_associations, self.min_associations), o,
+                 "max_associations", self.max_associations,
+                 f"must be an int >= min_associations ({self.min_associations})")
         _require(_real(self.min_score_ratio) and 0 <= self.min_score_ratio <= 1, o,
                  "min_score_ratio", self.min_score_ratio, "must be in [0, 1]")
         _require(_real(self.weight_offset) and self.weight_offset > 0, o, "weight_offset",
@@ -352,6 +360,9 @@ class TCAFFParams(_ByValue):
         max_children: measurement children per main-tree leaf (the best gated ones), besides the
             one no-measurement child every leaf gets.
         explore_max_leaves, explore_max_children: the same for each exploring tree.
+        max_measurements: the most measurements taken in one step; beyond it the first ones
+            given are kept (`FrameAligner` lists the best score first) and it is logged. Each
+            measurement seeds an exploring tree, so the step's cost grows with their number.
         p_no_measurement: p_NM; a no-measurement child costs -log p_NM - d/2 log 2 pi.
         tau: an exploring tree whose best path cost over W steps is below tau becomes the main
             tree when there is none.
@@ -403,6 +414,7 @@ class TCAFFParams(_ByValue):
     max_children: int = 4
     explore_max_leaves: int = 50
     explore_max_children: int = 2
+    max_measurements: int = 32
     p_no_measurement: float = 0.001
     tau: float = 8.0
     Q: np.ndarray = field(default_factory=_alignment_process_noise)
@@ -430,6 +442,7 @@ class TCAFFParams(_ByValue):
         object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0"))
         for name, low in (("window", 1), ("max_leaves", 1), ("max_children", 1),
                           ("explore_max_leaves", 1), ("explore_max_children", 1),
+                          ("max_measurements", 1),
                           ("drop_after", 1)):
             value = getattr(self, name)
             _require(_int_at_least(value, low), o, name, value, f"must be an int >= {low}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .errors import DataError
 from .geometry import transform_points
@@ -26,6 +27,12 @@ __all__ = [
 MAX_COORDINATE = 1e9
 #: the largest Arun weight; with coordinates within MAX_COORDINATE no weighted sum overflows
 MAX_WEIGHT = 1e100
+#: object pairs (rows x columns) in one block of the size gate: its float temporaries then take
+#: tens of MB whatever the map sizes, where the whole gate at 5000 objects per map took 1 GB
+_GATE_BLOCK = 1 << 20
+#: object pairs above which mutual inliers are found with k-d trees: the dense distance matrix
+#: costs 8 bytes per pair, several times over in temporaries
+_DENSE_INLIERS = 1 << 20
 
 
 def _sizes_similar(a: np.ndarray, b: np.ndarray, ratio: float, abs_diff: float) -> np.ndarray:
@@ -56,15 +63,65 @@ def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
     _require(_finite(abs_diff) and abs_diff >= 0, o, "abs_diff", abs_diff,
              "must be a finite number >= 0 metres")
     ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
-    similar = size_compatible(ego, other, ratio, abs_diff)
-    return np.argwhere(similar).astype(np.int64).reshape(-1, 2)
+    pairs = [np.argwhere(block) + np.array([start, 0])
+             for start, block in _gate_blocks(ego, other, ratio, abs_diff)]
+    return np.concatenate([np.empty((0, 2), np.int64), *pairs]).astype(np.int64)
 
 
 def size_compatible(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float
                     ) -> np.ndarray:
     """(n_ego, n_other) bool: the size gate of `putative_associations` for every pair."""
-    return (_sizes_similar(ego.widths, other.widths, ratio, abs_diff)
-            & _sizes_similar(ego.heights, other.heights, ratio, abs_diff))
+    out = np.empty((len(ego), len(other)), bool)
+    for start, block in _gate_blocks(ego, other, ratio, abs_diff):
+        out[start: start + block.shape[0]] = block
+    return out
+
+
+def _gate_blocks(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float):
+    """The size gate by blocks of ego rows: yields (first row, (rows, n_other) bool)."""
+    rows = max(1, _GATE_BLOCK // max(len(other), 1))
+    for start in range(0, len(ego), rows):
+        part = slice(start, start + rows)
+        yield start, (_sizes_similar(ego.widths[part], other.widths, ratio, abs_diff)
+                      & _sizes_similar(ego.heights[part], other.heights, ratio, abs_diff))
+
+
+def most_recent_pairs(compatible: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
+                      cap: int) -> np.ndarray:
+    """The `cap` compatible pairs whose objects were seen most recently.
+
+    Pairs are ranked by the sum of their two objects' ages, then by ego and other index, and
+    found block by block, so the memory taken is that of `cap` pairs and one block however
+    many pairs are compatible.
+
+    Args:
+        compatible: (n, m) bool, the size gate (`size_compatible`).
+        ages_ego, ages_other: (n,) and (m,) seconds since each object was last seen.
+        cap: the most pairs returned.
+    Returns:
+        (min(cap, compatible pairs), 2) int64 (ego index, other index), sorted by ego then
+        other index, as `putative_associations` sorts.
+    """
+    n, m = compatible.shape
+    rows = max(1, _GATE_BLOCK // max(m, 1))
+    kept = np.empty((0, 2), np.int64)
+    for start in range(0, n, rows):
+        found = np.argwhere(compatible[start: start + rows]) + np.array([start, 0])
+        kept = _first_by_age(np.concatenate([kept, found]), ages_ego, ages_other, cap)
+    return kept[np.lexsort((kept[:, 1], kept[:, 0]))]
+
+
+def _first_by_age(pairs: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
+                  cap: int) -> np.ndarray:
+    """The first `cap` of (k, 2) pairs ordered by age sum, ego index, other index."""
+    if pairs.shape[0] <= cap:
+        return pairs
+    key = ages_ego[pairs[:, 0]] + ages_other[pairs[:, 1]]
+    bound = np.partition(key, cap - 1)[cap - 1]
+    below, at = np.flatnonzero(key < bound), np.flatnonzero(key == bound)
+    # ties at the bound are taken in index order, so the result never depends on the blocks
+    at = at[np.lexsort((pairs[at, 1], pairs[at, 0]))][: cap - below.size]
+    return pairs[np.sort(np.r_[below, at])]
 
 
 def arun_weights(ages_ego: np.ndarray, ages_other: np.ndarray, offset: float = 0.01) -> np.ndarray:
@@ -194,6 +251,8 @@ def mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: 
     if p.shape[0] == 0 or q.shape[0] == 0:
         return np.empty((0, 2), np.int64)
     moved = transform_points(T_a_b, q)
+    if p.shape[0] * q.shape[0] > _DENSE_INLIERS:
+        return _mutual_inliers_by_tree(p, moved, compatible, radius)
     # |p - m|^2 expanded: one matrix product instead of an (n, m, 2) difference array
     d2 = np.maximum((p * p).sum(1)[:, None] + (moved * moved).sum(1)[None, :]
                     - 2.0 * p @ moved.T, 0.0)
@@ -203,6 +262,32 @@ def mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: 
     rows = np.arange(p.shape[0])
     keep = (nearest_p[nearest_q] == rows) & (d2[rows, nearest_q] <= radius * radius)
     return np.column_stack([rows[keep], nearest_q[keep]]).astype(np.int64)
+
+
+def _mutual_inliers_by_tree(p: np.ndarray, moved: np.ndarray, compatible: np.ndarray,
+                            radius: float) -> np.ndarray:
+    """`mutual_inliers` for large maps, in memory linear in the pairs within `radius`.
+
+    A nearest compatible neighbour that lies within the radius is among the pairs within it,
+    so mutual nearest neighbours among those pairs are the dense search's inliers.
+    """
+    close = cKDTree(p).sparse_distance_matrix(cKDTree(moved), radius, output_type="ndarray")
+    i, j, d = close["i"], close["j"], close["v"]
+    ok = compatible[i, j]
+    i, j, d = i[ok], j[ok], d[ok]
+    # the first pair of each row (column) in (row, distance, column) order is its nearest,
+    # ties to the lowest index as argmin takes them
+    mutual = np.intersect1d(_nearest(i, d, j), _nearest(j, d, i))
+    mutual = mutual[np.argsort(i[mutual])]  # one pair per row at most: sorted by p index
+    return np.column_stack([i[mutual], j[mutual]]).astype(np.int64)
+
+
+def _nearest(owner: np.ndarray, d: np.ndarray, partner: np.ndarray) -> np.ndarray:
+    """Of pairs (owner, partner) at distance d, the position of each owner's nearest pair."""
+    order = np.lexsort((partner, d, owner))
+    first = np.ones(order.size, bool)
+    first[1:] = owner[order][1:] != owner[order][:-1]
+    return order[first]
 
 
 def spread(points: np.ndarray) -> float:

@@ -101,6 +101,8 @@ class TCAFF:
             ConfigError: params is neither a TCAFFParams nor None.
         """
         self.params = _given_or_default(TCAFFParams, params, "TCAFF")
+        #: steps that gave more than `max_measurements` measurements, since construction
+        self.capped_steps = 0
         prm = self.params
         d = prm.dim
         angular = np.zeros(d, dtype=bool)
@@ -160,6 +162,8 @@ class TCAFF:
         zs, Rs = self._validated(zs, Rs)
         evidence = self._validated_evidence(evidence, zs.shape[0])
         prm = self.params
+        if zs.shape[0] > prm.max_measurements:
+            zs, Rs, evidence = self._capped(zs, Rs, evidence)
         self.step += 1
         self._evidence.append(evidence if prm.counts_evidence else None)
         self._sizes.append(zs.shape[0])
@@ -186,6 +190,18 @@ class TCAFF:
             self._empty_windows = 0 if has_measurement else self._empty_windows + 1
         self._estimate = self._reported(self._estimate)
         return self._estimate
+
+    def _capped(self, zs: np.ndarray, Rs: np.ndarray, evidence: list | None) -> tuple:
+        """The first `max_measurements` of a step's measurements, logged: a warning the first
+        time, then at debug level."""
+        keep = self.params.max_measurements
+        self.capped_steps += 1
+        log.log(logging.WARNING if self.capped_steps == 1 else logging.DEBUG,
+                "TCAFF step %d: %d measurements given; took the first max_measurements=%d%s",
+                self.step + 1, zs.shape[0], keep,
+                " (repeats are logged at debug level; TCAFF.capped_steps counts them)"
+                if self.capped_steps == 1 else "")
+        return zs[:keep], Rs[:keep], None if evidence is None else evidence[:keep]
 
     # -- exploring trees -----------------------------------------------------------------------
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import replace
 
@@ -642,3 +643,44 @@ def test_a_state_that_is_not_a_mapping_is_a_data_error(state):
 def test_filter_params_of_the_wrong_type_are_a_config_error(params):
     with pytest.raises(ConfigError, match=r"^TCAFF\.params = "):
         TCAFF(params)
+
+
+# -- the cap on measurements per step --------------------------------------------------------
+
+
+def test_a_step_takes_only_the_first_max_measurements(caplog):
+    """Measurements beyond the cap are not seen: the truth given third is never accepted with
+    a cap of 2, and is with the truth given first; the cap is logged once, then at debug."""
+    rng = np.random.default_rng(5)
+    truth = np.array([3.0, -1.0, 0.4])
+    decoys = [rng.uniform(-40, 40, (2, 3)) for _ in range(20)]  # fresh ones each step
+
+    def stream(first: bool):
+        for d in decoys:
+            z = truth + rng.normal(0, [0.05, 0.05, 0.005])
+            yield np.vstack([z, d]) if first else np.vstack([d, z])
+
+    capped = TCAFF(TCAFFParams(max_measurements=2))
+    with caplog.at_level(logging.DEBUG, logger="tcaff_gtsam.tcaff"):
+        late = run(capped, stream(first=False))
+    assert all(e is None for e in late)
+    records = [r for r in caplog.records if "max_measurements=2" in r.getMessage()]
+    assert [r.levelno for r in records] == [logging.WARNING] + [logging.DEBUG] * 19
+    assert "3 measurements given" in records[0].getMessage()
+    assert capped.capped_steps == 20
+    early = run(TCAFF(TCAFFParams(max_measurements=2)), stream(first=True))
+    assert early[-1] is not None and np.allclose(early[-1].x, truth, atol=0.2)
+
+
+def test_the_cap_cuts_the_evidence_with_the_measurements():
+    filt = TCAFF(TCAFFParams(max_measurements=1, min_distinct=2))
+    z = np.array([[1.0, 2.0, 0.1], [5.0, 5.0, 1.0]])
+    evidence = [np.array([[0, 0]]), np.array([[1, 1]])]
+    filt.update(z, np.broadcast_to(R_CONSTANT, (2, 3, 3)), evidence)
+    assert filt.capped_steps == 1 and filt._sizes[-1] == 1
+
+
+@pytest.mark.parametrize("value", [0, -1, 2.5, None])
+def test_max_measurements_is_an_int_of_at_least_one(value):
+    with pytest.raises(ConfigError, match="max_measurements"):
+        TCAFFParams(max_measurements=value)

@@ -1,0 +1,158 @@
+"""Large maps: the size gate by blocks, the cap on associations (the pairs seen most recently),
+mutual inliers by k-d tree, and a FrameAligner step on maps whose gate passes far more pairs
+than the cap."""
+
+from __future__ import annotations
+
+import logging
+import math
+from contextlib import contextmanager
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from tcaff_gtsam.eval.sim.maps import overlapping_maps
+
+from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
+from tcaff_gtsam import frame_aligner as fa
+from tcaff_gtsam import registration as reg
+from tcaff_gtsam.errors import ConfigError
+from tcaff_gtsam.geometry import se2_error, se2_from_params
+from tcaff_gtsam.registration import (
+    most_recent_pairs,
+    mutual_inliers,
+    putative_associations,
+    size_compatible,
+)
+
+seeds = st.integers(0, 2**32 - 1)
+
+
+@contextmanager
+def gate_block(pairs: int):
+    """The size gate evaluated by blocks of `pairs` object pairs for the duration."""
+    saved = reg._GATE_BLOCK
+    reg._GATE_BLOCK = pairs
+    try:
+        yield
+    finally:
+        reg._GATE_BLOCK = saved
+
+
+def random_map(rng: np.random.Generator, n: int, sizes: int = 4) -> ObjectMap:
+    """n objects in a 30 m square; sizes from a few classes, so gates pass many pairs."""
+    return ObjectMap(np.column_stack([rng.uniform(0, 30, (n, 2)), np.zeros(n)]),
+                     rng.integers(1, sizes + 1, n) * 0.5, rng.integers(1, sizes + 1, n) * 0.5,
+                     rng.integers(0, 5, n).astype(float))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seeds, st.integers(0, 40), st.integers(0, 40), st.integers(1, 60))
+def test_the_gate_by_blocks_is_the_whole_gate(seed, n_ego, n_other, block):
+    rng = np.random.default_rng(seed)
+    ego, other = random_map(rng, n_ego), random_map(rng, n_other)
+    whole = putative_associations(ego, other)
+    compatible = size_compatible(ego, other, 1.35, 0.1)
+    with gate_block(block):
+        np.testing.assert_array_equal(putative_associations(ego, other), whole)
+        np.testing.assert_array_equal(size_compatible(ego, other, 1.35, 0.1), compatible)
+    np.testing.assert_array_equal(np.argwhere(compatible), whole)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seeds, st.integers(0, 30), st.integers(0, 30), st.integers(1, 80), st.integers(1, 50))
+def test_the_cap_keeps_the_pairs_seen_most_recently(seed, n, m, cap, block):
+    rng = np.random.default_rng(seed)
+    compatible = rng.random((n, m)) < 0.6
+    # whole seconds: many ties in the age sum, which the index order must break
+    ages_ego, ages_other = rng.integers(0, 4, n).astype(float), rng.integers(0, 4, m)
+    pairs = np.argwhere(compatible)
+    key = ages_ego[pairs[:, 0]] + ages_other[pairs[:, 1]]
+    expected = pairs[np.lexsort((pairs[:, 1], pairs[:, 0], key))][:cap]
+    expected = expected[np.lexsort((expected[:, 1], expected[:, 0]))]
+    with gate_block(block):
+        kept = most_recent_pairs(compatible, ages_ego, ages_other.astype(float), cap)
+    np.testing.assert_array_equal(kept, expected)
+    assert kept.dtype == np.int64 and kept.shape == (min(cap, len(pairs)), 2)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seeds, st.integers(0, 40), st.integers(0, 40),
+       st.tuples(st.floats(-5, 5), st.floats(-5, 5), st.floats(-math.pi, math.pi)),
+       st.floats(0.05, 3.0))
+def test_inliers_by_tree_are_the_dense_inliers(seed, n, m, pose, radius):
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(0, 10, (n, 2))
+    q = np.vstack([p[: m // 2] + rng.normal(0, 0.2, (min(m // 2, n), 2)),
+                   rng.uniform(0, 10, (m - min(m // 2, n), 2))])
+    compatible = rng.random((n, m)) < 0.8
+    T = se2_from_params(pose)
+    dense = mutual_inliers(T, p, q, compatible, radius)
+    moved = q @ T[:2, :2].T + T[:2, 2]
+    by_tree = reg._mutual_inliers_by_tree(p, moved, compatible, radius)
+    np.testing.assert_array_equal(by_tree, dense)
+
+
+def test_large_maps_take_the_tree_path_and_agree(monkeypatch):
+    rng = np.random.default_rng(3)
+    p = rng.uniform(0, 50, (300, 2))
+    q = p + rng.normal(0, 0.05, p.shape)
+    compatible = rng.random((300, 300)) < 0.9
+    dense = mutual_inliers(np.eye(3), p, q, compatible, 0.3)
+    monkeypatch.setattr(reg, "_DENSE_INLIERS", 0)
+    calls = []
+    tree = reg._mutual_inliers_by_tree
+    monkeypatch.setattr(reg, "_mutual_inliers_by_tree", lambda *a: calls.append(1) or tree(*a))
+    np.testing.assert_array_equal(mutual_inliers(np.eye(3), p, q, compatible, 0.3), dense)
+    assert calls and len(dense) > 200
+
+
+def big_pair(n: int, seed: int = 0):
+    """Maps of n objects each, half shared, the shared ones seen within the last second and
+    the others up to 15 s ago."""
+    pair = overlapping_maps(np.random.default_rng(seed), n, overlap=0.5, max_age=15.0)
+    now = pair.now
+    ages = []
+    for objects in (pair.ego, pair.other):
+        shared = np.isin(np.arange(len(objects)), pair.true_pairs[:, 0 if objects is pair.ego
+                                                                    else 1])
+        last_seen = np.where(shared, now - 0.5, objects.last_seen)
+        ages.append(replace(objects, last_seen=last_seen))
+    return pair, ages[0], ages[1]
+
+
+def test_a_step_whose_gate_passes_more_than_the_cap_keeps_the_recent_pairs(caplog):
+    pair, ego, other = big_pair(300)
+    n_pairs = len(putative_associations(ego, other))
+    cap = n_pairs // 4
+    aligner = FrameAligner(FrameAlignerParams(max_associations=cap))
+    with caplog.at_level(logging.DEBUG, logger="tcaff_gtsam.frame_aligner"):
+        first = aligner.measurements(ego, other, pair.now)
+        aligner.measurements(ego, other, pair.now)
+    records = [r for r in caplog.records if "max_associations" in r.getMessage()]
+    assert [r.levelno for r in records] == [logging.WARNING, logging.DEBUG]
+    assert f"passed {n_pairs} pairs" in records[0].getMessage()
+    assert aligner.thinned == 2
+    assert first and len(first[0].associations) >= 5
+    assert se2_error(first[0].T, pair.T_oi_oj)[0] < 0.5  # the recent pairs hold the truth
+    untouched = FrameAligner(FrameAlignerParams(max_associations=n_pairs))
+    untouched.measurements(ego, other, pair.now)
+    assert untouched.thinned == 0
+
+
+def test_the_cap_bounds_the_graph(monkeypatch):
+    pair, ego, other = big_pair(200)
+    seen = []
+    real = fa.consistency_graph
+    monkeypatch.setattr(fa, "consistency_graph",
+                        lambda p, q, assoc, *a: seen.append(len(assoc)) or real(p, q, assoc, *a))
+    FrameAligner(FrameAlignerParams(max_associations=500)).measurements(ego, other, pair.now)
+    assert seen == [500]
+
+
+@pytest.mark.parametrize("value", [4, 1, 2.5, None, True])
+def test_the_cap_is_an_int_at_least_min_associations(value):
+    with pytest.raises(ConfigError, match="max_associations"):
+        FrameAlignerParams(max_associations=value)
