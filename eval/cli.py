@@ -715,8 +715,16 @@ def mrclam(
     console.print(f"({time.perf_counter() - start:.0f} s)")
 
 
+def _click_errors() -> tuple[type, type]:
+    """(UsageError, ClickException) of the click that typer runs on: its own copy in recent
+    typer releases, the click package in older ones."""
+    bases = {c.__name__: c for c in typer.BadParameter.__mro__}
+    return bases["UsageError"], bases["ClickException"]
+
+
 def main() -> None:
-    """Console entry point: library errors become a one-line message and exit status 2."""
+    """Console entry point: library errors and bad options or arguments become a one-line
+    message and exit status 2."""
     import logging
 
     from rich.markup import escape
@@ -724,8 +732,25 @@ def main() -> None:
     from tcaff_gtsam.errors import TcaffError
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    usage_error, click_exception = _click_errors()
+
+    def refuse(message: str, code: int = 2) -> None:
+        _console(stderr=True).print(f"[red]error:[/] {escape(message)}", soft_wrap=True)
+        raise SystemExit(code) from None
+
     try:
-        app()
+        code = app(standalone_mode=False)
     except TcaffError as exc:
-        _console(stderr=True).print(f"[red]error:[/] {escape(str(exc))}", soft_wrap=True)
-        raise SystemExit(2) from None
+        refuse(str(exc))
+    except usage_error as exc:  # an unknown option, a value out of range, ...
+        if type(exc).__name__ == "NoArgsIsHelpError":  # `tcaff` alone: the help
+            exc.show()
+            raise SystemExit(exc.exit_code) from None
+        where = exc.ctx.command_path if exc.ctx is not None else "tcaff"
+        refuse(f"{exc.format_message()} (see: {where} --help)", exc.exit_code)
+    except click_exception as exc:
+        refuse(exc.format_message(), exc.exit_code)
+    except typer.Abort:  # Ctrl-C outside the commands that handle it themselves
+        _console(stderr=True).print("interrupted", soft_wrap=True)
+        raise SystemExit(130) from None
+    raise SystemExit(code if isinstance(code, int) else 0)

@@ -444,3 +444,20 @@ def test_the_study_workers_ignore_ctrl_c_from_their_start():
     with context.Pool(1) as pool:
         assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+@pytest.mark.parametrize(("args", "named"), [
+    (["study", "--seeds", "0"], ["--seeds", "tcaff study --help"]),
+    (["study", "--workers", "x"], ["--workers"]),
+    (["study", "--bogus"], ["--bogus"]),
+    (["make-maps"], ["out_dir", "tcaff make-maps --help"]),
+    (["nocmd"], ["nocmd", "tcaff --help"]),
+])
+def test_a_bad_option_or_argument_is_one_line(tcaff_here, args, named):
+    one_line_error(tcaff_here(*args), *named)
+
+
+def test_help_still_works_and_tcaff_alone_shows_it(tcaff_here, capsys):
+    assert tcaff_here("--help").returncode == 0
+    alone = tcaff_here()
+    assert alone.returncode == 2 and "error" not in alone.stderr
