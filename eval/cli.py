@@ -320,7 +320,7 @@ def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
 
     table = _table("Frame alignment, pooled over directed pairs and seeds (mean ± std)")
     _add_columns(table, ("method", "translation [m]", "heading [deg]", "available",
-                         "false acc.", "1st correct [s]", "RPE [m]", "ms"))
+                         "false acc.", "1st correct [s]", "APE, RPE [m]", "ms"))
     for scenario, by_method in summary.items():
         table.add_row(f"[bold]{escape(scenario)}[/]")
         for row, (method, label) in enumerate(labels.items()):
@@ -331,7 +331,8 @@ def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
                 f"{_cell(r, 'heading_error_deg_mean')} ± {_cell(r, 'heading_error_deg_std')}",
                 _cell(r, "availability", 100, 0) + " %", _cell(r, "false_accept", 100, 1) + " %",
                 _cell(r, "time_to_first_correct_s", digits=0),
-                _cell(r, "rpe_translation_m"), _cell(r, "ms_per_pair_step", digits=2),
+                f"{_cell(r, 'evo_ape_m')}, {_cell(r, 'evo_rpe_m')}",
+                _cell(r, "ms_per_pair_step", digits=2),
                 end_section=row == len(labels) - 1)
     return _keep_numbers_whole(table)
 
@@ -402,8 +403,10 @@ def _run_study(study_config: StudyConfig, figures: bool) -> None:
     if outcome.summary:
         console.print(_summary_table(outcome.summary, study_config.methods))
         console.print("CLIPPER's whole sweep, every pair and seed: metrics.csv and "
-                      "figures/clipper_sweep.png. ms is each method's own time per pair "
-                      "and step; the TCAFF methods share the MNO-CLIPPER candidates on top.")
+                      "figures/clipper_sweep.png. APE and RPE: evo's (RMSE, m) of the other "
+                      "robot's path in the ego's frame; the paths are in trajectories/. ms is "
+                      "each method's own time per pair and step; the TCAFF methods share the "
+                      "MNO-CLIPPER candidates on top.")
     if outcome.mot_summary:
         console.print(_mot_table(outcome.mot_summary))
         console.print("Per robot and seed: mot.csv; over time: figures/mot_<scenario>.png; "
@@ -713,6 +716,31 @@ def mrclam(
                 console.print(_pairs_table(recorded, shown))
         console.print(f"results: {recorded.folder}")
     console.print(f"({time.perf_counter() - start:.0f} s)")
+
+
+@app.command()
+def export(
+    results: Annotated[Path, typer.Argument(
+        help="A results folder: a study's (results/latest) or a data set's "
+             "(results/mrclam/<name>).")],
+    fmt: Annotated[str, typer.Option(
+        "--format", help="tum (one file per robot and method) or g2o (one pose graph per "
+                         "method).")] = "tum",
+    reference: Annotated[int, typer.Option(
+        help="The robot (index) whose odometry frame the paths are expressed in.")] = 0,
+) -> None:
+    """Write every saved run's trajectories for evo and other tools, under RESULTS/trajectories/.
+
+    Each robot's path is placed in the reference robot's odometry frame through each method's
+    alignments, and through the true alignment for the ground truth (truth/). Compare them
+    with evo, e.g. `evo_ape tum truth/1.tum tcaff/1.tum` in a frame_<reference>/ folder: the
+    APE column of the table is that figure for the pair reference -> 1.
+    """
+    from .trajectories import export as export_trajectories
+
+    folders = export_trajectories(results, fmt, reference)
+    for folder in folders:
+        _console().print(f"wrote {folder}", soft_wrap=True)
 
 
 def main() -> None:

@@ -2,7 +2,8 @@
 
 Each job (`jobs.simulated_job`: one scenario, one seed) simulates the run, runs every
 method over every directed pair and scores them. A finished job is written to
-`<output>/<timestamp>/runs/` at once, so an interrupted or partly failed study keeps
+`<output>/<timestamp>/runs/` at once, with its trajectories in TUM files under
+`trajectories/` (see `trajectories`), so an interrupted or partly failed study keeps
 everything it finished. At the end the study writes
 metrics.json, metrics.csv and the figures, and points `<output>/latest` at the folder.
 """
@@ -30,6 +31,7 @@ from .config import MethodsConfig, ScenarioConfig, StudyConfig, dump_study
 from .jobs import simulated_job
 from .registry import estimate_names
 from .results import JobResult, summarize, summarize_mot, thresholds_of, write_tables
+from .trajectories import write_tum
 
 __all__ = ["Progress", "StudyOutcome", "run_study"]
 
@@ -163,6 +165,7 @@ def run_study(study: StudyConfig, progress: Progress | None = None,
 
     def done(key: int, job: JobResult) -> None:
         job.save(folder / "runs")
+        write_tum(folder, job)
         jobs.append(job)
         progress.finish(key, True)
         if on_job_done is not None:
