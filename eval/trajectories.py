@@ -24,9 +24,9 @@ from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params
 
 from .metrics import planar_trajectory
-from .results import JobResult
+from .results import JobResult, load_saved
 
-__all__ = ["FORMATS", "TRUTH", "export", "robot_paths", "saved_jobs", "write_g2o", "write_tum"]
+__all__ = ["FORMATS", "TRUTH", "export", "robot_paths", "write_g2o", "write_tum"]
 
 FORMATS = ("tum", "g2o")
 TRUTH = "truth"  # the folder of the ground truth, beside the methods'
@@ -158,19 +158,10 @@ def write_g2o(root: Path, job: JobResult, reference: int = 0) -> Path:
     return folder
 
 
-def saved_jobs(results: Path) -> list[str]:
-    """Stems of the saved jobs of a results folder: a study's (`runs/<stem>.npz`) or a recorded
-    data set's (`<stem>.npz`), each beside its `<stem>.json`; paths relative to `results`."""
-    found = []
-    for folder in (results, results / "runs"):
-        found += [str(p.relative_to(results).with_suffix("")) for p in sorted(folder.glob("*.npz"))
-                  if p.with_suffix(".json").is_file()]
-    return found
-
-
 def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
-    """Write the trajectories of every saved job in a results folder (see `saved_jobs`) as TUM
-    or g2o files under `results/trajectories/`; returns the folders written.
+    """Write the trajectories of every job saved in a results folder (see
+    `results.load_saved`) as TUM or g2o files under `results/trajectories/`; returns the folders
+    written.
 
     Raises:
         ConfigError: an unknown format or reference robot.
@@ -178,15 +169,5 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
     """
     if fmt not in FORMATS:
         raise ConfigError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
-    results = Path(results)
-    if not results.is_dir():
-        raise DataError(f"{results}: not a results folder")
-    stems = saved_jobs(results)
-    if not stems:
-        raise DataError(f"{results}: no saved runs (<name>.npz and .json, or runs/ of a study)")
     write = write_tum if fmt == "tum" else write_g2o
-    written = []
-    for stem in stems:
-        job = JobResult.load(results / Path(stem).parent, Path(stem).name)
-        written.append(write(results, job, reference))
-    return written
+    return [write(Path(results), job, reference) for job in load_saved(results)]
