@@ -17,8 +17,8 @@ module derives
   T_bi_bj = T_oi_bi^-1 T_oi_oj T_oj_bj, which is what a robot acting on the alignment experiences.
   Its translation is evo's APE (translation part) of robot j's path in robot i's odometry frame,
   T_oi_oj T_oj_bj, against the true path (the rotation T_bi_oi keeps norms);
-* evo's own APE and RPE of that path (`evo_errors`): the RMSE that `evo_ape tum` and
-  `evo_rpe tum` print on the exported trajectories (see `trajectories`).
+* evo's own APE and RPE of that path (`PairTrace.evo_errors`): the RMSE that `evo_ape tum`
+  and `evo_rpe tum` print on the exported trajectories (see `trajectories`).
 
 `pooled_metrics` pools several pairs (or seeds) into one summary by concatenating their per-step
 errors. SI units throughout (metres, radians, seconds); only `Metrics.as_report` gives degrees.
@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from numbers import Real
 
 import numpy as np
@@ -36,13 +37,12 @@ from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PoseTrajectory3D
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.geometry import compose, invert, se2_error, se2_from_params
+from tcaff_gtsam.geometry import compose, invert, se2_error, se2_from_params, se2_to_se3
 
 __all__ = [
     "Metrics",
     "PairTrace",
     "Thresholds",
-    "evo_errors",
     "pair_metrics",
     "planar_trajectory",
     "pooled_metrics",
@@ -194,6 +194,32 @@ class PairTrace:
         """(S,) bool, steps at which there is an estimate."""
         return ~np.all(np.isnan(self.estimate), axis=1)
 
+    @cached_property
+    def evo_errors(self) -> tuple[np.ndarray, np.ndarray]:
+        """evo's APE and RPE (translation parts, metres) of robot j's path in robot i's
+        odometry frame, T_oi_oj_est T_oj_bj against T_oi_oj_true T_oj_bj, over the steps with
+        an estimate.
+
+        Returns:
+            ape: (k,) at each of the k steps with an estimate.
+            rpe: (max(k - 1, 0),) between consecutive steps with an estimate (evo's default
+                delta of one frame): how much the path jumps when the alignment changes.
+        """
+        has = self.has_estimate
+        k = int(np.count_nonzero(has))
+        if k == 0:
+            return np.zeros(0), np.zeros(0)
+        times, T_oj_bj = self.times[has], self.T_oj_bj[has]
+        truth = planar_trajectory(times, self.T_true[has] @ T_oj_bj)
+        estimate = planar_trajectory(times, se2_from_params(self.estimate[has]) @ T_oj_bj)
+        ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+        ape.process_data((truth, estimate))
+        if k == 1:
+            return ape.error, np.zeros(0)
+        rpe = evo_metrics.RPE(evo_metrics.PoseRelation.translation_part)
+        rpe.process_data((truth, estimate))
+        return ape.error, rpe.error
+
 
 def planar_trajectory(times, T) -> PoseTrajectory3D:
     """An evo trajectory of planar poses: times (k,) s, T (k, 3, 3) SE(2), placed at z = 0."""
@@ -201,32 +227,9 @@ def planar_trajectory(times, T) -> PoseTrajectory3D:
     half_yaw = 0.5 * np.arctan2(T[:, 1, 0], T[:, 0, 0])
     xyz = np.column_stack([T[:, 0, 2], T[:, 1, 2], np.zeros(len(T))])
     quat_wxyz = np.column_stack([np.cos(half_yaw), np.zeros((len(T), 2)), np.sin(half_yaw)])
-    return PoseTrajectory3D(xyz, quat_wxyz, np.asarray(times, dtype=float))
-
-
-def evo_errors(trace: PairTrace) -> tuple[np.ndarray, np.ndarray]:
-    """evo's APE and RPE (translation parts, metres) of robot j's path in robot i's odometry
-    frame, T_oi_oj_est T_oj_bj against T_oi_oj_true T_oj_bj, over the steps with an estimate.
-
-    Returns:
-        ape: (k,) at each of the k steps with an estimate.
-        rpe: (max(k - 1, 0),) between consecutive steps with an estimate (evo's default delta
-            of one frame): how much the path jumps when the alignment changes.
-    """
-    has = trace.has_estimate
-    k = int(np.count_nonzero(has))
-    if k == 0:
-        return np.zeros(0), np.zeros(0)
-    times, T_oj_bj = trace.times[has], trace.T_oj_bj[has]
-    truth = planar_trajectory(times, trace.T_true[has] @ T_oj_bj)
-    estimate = planar_trajectory(times, se2_from_params(trace.estimate[has]) @ T_oj_bj)
-    ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
-    ape.process_data((truth, estimate))
-    if k == 1:
-        return ape.error, np.zeros(0)
-    rpe = evo_metrics.RPE(evo_metrics.PoseRelation.translation_part)
-    rpe.process_data((truth, estimate))
-    return ape.error, rpe.error
+    # every representation given: evo would otherwise build them pose by pose
+    return PoseTrajectory3D(xyz, quat_wxyz, np.asarray(times, dtype=float),
+                            poses_se3=list(se2_to_se3(T)))
 
 
 def relative_pose_errors(trace: PairTrace) -> np.ndarray:
@@ -261,7 +264,8 @@ class Metrics:
     rpe_translation_mean [m], rpe_heading_mean [rad]: relative pose error of robot j seen from
     robot i, over the steps with an estimate.
     evo_ape_rmse, evo_rpe_rmse [m]: evo's APE and RPE of robot j's path in robot i's frame
-    (`evo_errors`), root mean square over the estimate steps (RPE: their consecutive pairs).
+    (`PairTrace.evo_errors`), root mean square over the estimate steps (RPE: over their
+    consecutive pairs).
     """
 
     n_steps: int
@@ -360,7 +364,7 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
         errs.append(err[has])
         rpes.append(relative_pose_errors(trace)[has])
         ttfcs.append(_time_to_first_correct(trace, correct))
-        evo_ape, evo_rpe = evo_errors(trace)
+        evo_ape, evo_rpe = trace.evo_errors
         evo_apes.append(evo_ape)
         evo_rpes.append(evo_rpe)
         n_steps += trace.n_steps

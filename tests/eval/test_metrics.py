@@ -12,7 +12,6 @@ from hypothesis import strategies as st
 from tcaff_gtsam.eval.metrics import (
     PairTrace,
     Thresholds,
-    evo_errors,
     pair_metrics,
     pooled_metrics,
     relative_pose_errors,
@@ -266,7 +265,7 @@ def test_evo_ape_is_the_relative_pose_translation_error(seed):
     # T_bi_bj (the rotation T_bi_oi keeps norms)
     trace = random_trace(seed)
     has = trace.has_estimate
-    ape, rpe = evo_errors(trace)
+    ape, rpe = trace.evo_errors
     np.testing.assert_allclose(ape, relative_pose_errors(trace)[has, 0], atol=1e-9)
     assert rpe.shape == (max(int(has.sum()) - 1, 0),)
     m = pair_metrics(trace)
@@ -285,7 +284,7 @@ def test_evo_rpe_sees_a_jump_of_the_alignment_only():
     estimate = [se2_to_params(T_true[0]), off, off, se2_to_params(T_true[0])]
     T_oj_bj = se2_from_params(np.tile([2.0, 0.0, 0.3], (4, 1)))
     trace = make_trace(np.arange(4.0), T_true, estimate, [True] * 4, None, T_oj_bj)
-    ape, rpe = evo_errors(trace)
+    ape, rpe = trace.evo_errors
     np.testing.assert_allclose(ape, [0, 1, 1, 0], atol=1e-9)
     np.testing.assert_allclose(rpe, [1, 0, 1], atol=1e-9)
     m = pair_metrics(trace)
