@@ -10,21 +10,41 @@ import pytest
 import rerun as rr
 from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.config import load_methods, load_scenario
-from tcaff_gtsam.eval.jobs import simulated_job
+from tcaff_gtsam.eval.jobs import evaluate_simulated
 from tcaff_gtsam.eval.recording import check_rerun, record
 from tcaff_gtsam.eval.results import JobResult
+from tcaff_gtsam.eval.sim.simulate import SimRun, simulate
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_error, se2_from_params
 
 
 @pytest.fixture(scope="module")
-def job() -> JobResult:
-    """indoor_return, shortened, with TCAFF and CLIPPER: a real simulated job."""
-    scenario = load_scenario("indoor_return").model_copy(update={"duration": 30.0})
+def run() -> SimRun:
+    """indoor_return, shortened."""
+    return simulate(load_scenario("indoor_return").model_copy(update={"duration": 30.0}), 0)
+
+
+@pytest.fixture(scope="module")
+def job(run) -> JobResult:
+    """The run through TCAFF, CLIPPER and the truth: a real simulated job."""
     methods = load_methods("default").model_copy(update={
         "methods": ["tcaff", "clipper", "ground_truth"]})
-    return simulated_job(scenario, methods, seed=0)
+    return evaluate_simulated(run, methods)
+
+
+def test_jobs_keep_what_each_robot_shared(run, job):
+    kappa = run.settings.kappa
+    for r in range(run.n_robots):
+        recent = [m.recent(float(t), kappa) for m, t in zip(run.maps[r], run.times, strict=True)]
+        counts = job.arrays[f"map_counts_{r}"]
+        np.testing.assert_array_equal(counts, [len(m) for m in recent])
+        assert 0 < counts.max() and counts.sum() < sum(len(m) for m in run.maps[r])
+        np.testing.assert_allclose(job.arrays[f"map_xy_{r}"],
+                                   np.concatenate([m.centroids[:, :2] for m in recent]),
+                                   atol=1e-5)
+        np.testing.assert_allclose(job.arrays[f"map_widths_{r}"],
+                                   np.concatenate([m.widths for m in recent]), rtol=1e-6)
 
 
 def read_back(path) -> dict[str, list]:
