@@ -771,10 +771,9 @@ def view(
     Needs the optional extra viz (pip install 'tcaff-gtsam[viz]'); open the file with
     `rerun FILE.rrd`. Runs saved before the maps were kept show no maps.
     """
-    from .recording import check_rerun, record
+    from .recording import record
     from .results import load_saved
 
-    check_rerun()
     path = output or results / "recording.rrd"
     jobs = load_saved(results)
     record(path, jobs, reference, method)

@@ -33,6 +33,7 @@ from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se2_error, se2_from_params
 
 from .results import JobResult
+from .trajectories import frame_alignment, robot_names
 
 __all__ = ["RERUN_VERSION", "check_rerun", "record"]
 
@@ -58,11 +59,6 @@ def check_rerun():
     return rerun
 
 
-def _names(job: JobResult) -> list[str]:
-    n = job.arrays["poses_odom"].shape[0]
-    return [str(name).replace("/", "_") for name in job.info.get("robots") or range(n)]
-
-
 def _place(T: np.ndarray, xy: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Points (N, 2) given per step (counts (S,), summing to N) moved by that step's
     T (S, 3, 3)."""
@@ -85,7 +81,7 @@ class _Writer:
     def __init__(self, rr, stream, job: JobResult, reference: int, method: str) -> None:
         self.rr, self.stream, self.job = rr, stream, job
         self.root = job.stem
-        self.names = _names(job)
+        self.names = robot_names(job)
         self.times = np.asarray(job.arrays["times"], dtype=float)
         a = job.arrays
         self.T_o_b = se2_from_params(a["poses_odom"])
@@ -139,20 +135,6 @@ class _Writer:
                             _place(self.T_w_o[r], a[f"map_xy_{r}"], counts), counts,
                             0.5 * a[f"map_widths_{r}"], color)
 
-    def _T_oref_oj(self, stream_key: str, j: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """(steps, T_oref_oj (k, 3, 3)) of robot j through an (S, 3) array of the job's pairs,
-        or None when neither (reference, j) nor (j, reference) was aligned."""
-        pairs, ref = self.job.pairs, self.reference
-        if (ref, j) in pairs:
-            estimate, inverse = self.job.arrays[stream_key][pairs.index((ref, j))], False
-        elif (j, ref) in pairs:
-            estimate, inverse = self.job.arrays[stream_key][pairs.index((j, ref))], True
-        else:
-            return None
-        steps = np.flatnonzero(np.all(np.isfinite(estimate), axis=1))
-        T = se2_from_params(estimate[steps])
-        return steps, invert(T) if inverse else T
-
     def aligned(self) -> None:
         """The other robots placed through the shown method's alignment, and the candidates."""
         a, ref = self.job.arrays, self.reference
@@ -163,7 +145,7 @@ class _Writer:
             # every step is logged, empty where there is nothing: the viewer shows the latest
             # batch at each time, which must not outlive its step
             every = np.arange(len(self.times))
-            found = self._T_oref_oj(f"est_{self.method}", j)
+            found = frame_alignment(self.job, f"est_{self.method}", ref, j)
             if found is not None:
                 steps, T_oref_oj = found
                 T_w_oj = self.T_w_o[ref, steps] @ T_oref_oj

@@ -26,13 +26,15 @@ from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params
 from .metrics import planar_trajectory
 from .results import JobResult, load_saved
 
-__all__ = ["FORMATS", "TRUTH", "export", "robot_paths", "write_g2o", "write_tum"]
+__all__ = ["FORMATS", "TRUTH", "export", "frame_alignment", "robot_names", "robot_paths",
+           "write_g2o", "write_tum"]
 
 FORMATS = ("tum", "g2o")
 TRUTH = "truth"  # the folder of the ground truth, beside the methods'
 
 
-def _robot_names(job: JobResult) -> list[str]:
+def robot_names(job: JobResult) -> list[str]:
+    """The job's robot names (indices when it has none), safe as file and entity names."""
     n = job.arrays["poses_odom"].shape[0]
     names = job.info.get("robots") or [str(r) for r in range(n)]
     # names become file names
@@ -73,17 +75,32 @@ def robot_paths(job: JobResult, stream: str, reference: int = 0
     if stream == TRUTH:
         paths[reference] = (np.arange(T_o_b.shape[1]), T_o_b[reference])
     for j in range(len(T_o_b)):
-        if (reference, j) in job.pairs:
-            estimate, inverse = a[key][job.pairs.index((reference, j))], False
-        elif (j, reference) in job.pairs:
-            estimate, inverse = a[key][job.pairs.index((j, reference))], True
-        else:
-            continue
-        steps = np.flatnonzero(np.all(np.isfinite(estimate), axis=1))
-        if steps.size:
-            T_oref_oj = se2_from_params(estimate[steps])
-            paths[j] = (steps, (invert(T_oref_oj) if inverse else T_oref_oj) @ T_o_b[j][steps])
+        found = frame_alignment(job, key, reference, j)
+        if found is not None and found[0].size:
+            steps, T_oref_oj = found
+            paths[j] = (steps, T_oref_oj @ T_o_b[j][steps])
     return paths
+
+
+def frame_alignment(job: JobResult, key: str, reference: int, j: int
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Robot j's odometry frame in the reference robot's, T_oref_oj, from the job's (P, S, 3)
+    array `key` (an estimate or the truth): the pair (reference, j), or the inverse of
+    (j, reference) when only that pair was aligned.
+
+    Returns:
+        (steps (k,), T_oref_oj (k, 3, 3)) at the k steps the array has a value; None when
+        neither pair was aligned.
+    """
+    if (reference, j) in job.pairs:
+        values, inverse = job.arrays[key][job.pairs.index((reference, j))], False
+    elif (j, reference) in job.pairs:
+        values, inverse = job.arrays[key][job.pairs.index((j, reference))], True
+    else:
+        return None
+    steps = np.flatnonzero(np.all(np.isfinite(values), axis=1))
+    T_oref_oj = se2_from_params(values[steps])
+    return steps, invert(T_oref_oj) if inverse else T_oref_oj
 
 
 def _times(job: JobResult) -> np.ndarray:
@@ -98,7 +115,7 @@ def _streams(job: JobResult) -> list[str]:
 
 
 def _folder(root: Path, job: JobResult, reference: int) -> Path:
-    return root / "trajectories" / job.stem / f"frame_{_robot_names(job)[reference]}"
+    return root / "trajectories" / job.stem / f"frame_{robot_names(job)[reference]}"
 
 
 def write_tum(root: Path, job: JobResult, reference: int = 0) -> Path:
@@ -107,7 +124,7 @@ def write_tum(root: Path, job: JobResult, reference: int = 0) -> Path:
     from evo.tools.file_interface import write_tum_trajectory_file
 
     folder = _folder(root, job, reference)
-    names, times = _robot_names(job), _times(job)
+    names, times = robot_names(job), _times(job)
     for stream in _streams(job):
         (folder / stream).mkdir(parents=True, exist_ok=True)
         for robot, (steps, T) in robot_paths(job, stream, reference).items():
