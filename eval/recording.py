@@ -96,10 +96,8 @@ class _Writer:
             self.T_w_o[reference] = np.eye(3)
 
     def send(self, entity: str, steps: np.ndarray, columns) -> None:
-        self.stream.send_columns(f"{self.root}/{entity}",
-                             indexes=[self.rr.TimeColumn(TIMELINE,
-                                                         duration=self.times[steps])],
-                             columns=columns)
+        index = self.rr.TimeColumn(TIMELINE, duration=self.times[steps])
+        self.stream.send_columns(f"{self.root}/{entity}", indexes=[index], columns=columns)
 
     def points(self, entity: str, steps: np.ndarray, xy: np.ndarray, counts: np.ndarray,
                radii, color) -> None:
