@@ -118,14 +118,21 @@ def _folder(root: Path, job: JobResult, reference: int) -> Path:
     return root / "trajectories" / job.stem / f"frame_{robot_names(job)[reference]}"
 
 
-def write_tum(root: Path, job: JobResult, reference: int = 0) -> Path:
-    """The truth's and every method's paths of a job as TUM files under `root` (see the module);
-    returns the folder of the reference robot's frame."""
+def write_tum(root: Path, job: JobResult, reference: int = 0,
+              streams: list[str] | None = None) -> Path:
+    """The truth's and the methods' paths of a job as TUM files under `root` (see the module);
+    returns the folder of the reference robot's frame.
+
+    Args:
+        streams: the estimate streams to write (None: every one the job has).
+    """
     from evo.tools.file_interface import write_tum_trajectory_file
 
     folder = _folder(root, job, reference)
     names, times = robot_names(job), _times(job)
     for stream in _streams(job):
+        if streams is not None and stream != TRUTH and stream not in streams:
+            continue
         (folder / stream).mkdir(parents=True, exist_ok=True)
         for robot, (steps, T) in robot_paths(job, stream, reference).items():
             write_tum_trajectory_file(str(folder / stream / f"{names[robot]}.tum"),

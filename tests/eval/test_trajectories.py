@@ -89,6 +89,8 @@ def test_tum_files_read_back_by_evo_give_the_table_ape(tmp_path):
     assert folder == tmp_path / "trajectories" / "walk-seed2" / "frame_0"
     assert {p.name for p in folder.iterdir()} == {TRUTH, "noisy", "ground_truth"}
     assert sorted(p.name for p in (folder / TRUTH).iterdir()) == ["0.tum", "1.tum", "2.tum"]
+    only = write_tum(tmp_path / "only", job, 0, streams=["noisy"])
+    assert {p.name for p in only.iterdir()} == {TRUTH, "noisy"}
     for robot, pair in ((1, "0->1"), (2, None)):
         ref = read_tum_trajectory_file(str(folder / TRUTH / f"{robot}.tum"))
         est = read_tum_trajectory_file(str(folder / "noisy" / f"{robot}.tum"))
