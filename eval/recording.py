@@ -3,7 +3,8 @@ alignment and the truth on one timeline, and every method's errors as time serie
 
 `record` writes jobs (`JobResult`, fresh or loaded from a results folder) to one `.rrd` file for
 the Rerun viewer (`rerun FILE.rrd`). Each job has its own root entity, its stem; its timeline
-`time` is seconds since the job's first exchange. Under `<stem>/world/` (metres, the world
+`time` is the job's exchange times (s since a simulated run's start, since a recorded run's
+first exchange). Under `<stem>/world/` (metres, the world
 frame of the truth; without truth, the reference robot's odometry frame):
 
     objects, walls                    static: the world's objects (radius half their width)
