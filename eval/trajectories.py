@@ -37,7 +37,6 @@ def robot_names(job: JobResult) -> list[str]:
     """The job's robot names (indices when it has none), safe as file and entity names."""
     n = job.arrays["poses_odom"].shape[0]
     names = job.info.get("robots") or [str(r) for r in range(n)]
-    # names become file names
     return [re.sub(r"[^\w.-]", "_", str(name)) for name in names]
 
 
