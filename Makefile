@@ -45,6 +45,7 @@ bench: install
 	$(PY) scripts/bench_study.py
 	$(PY) scripts/bench_mapping.py
 	$(PY) scripts/bench_mot.py
+	$(PY) scripts/bench_results_io.py
 
 lint: install
 	$(VENV)/bin/ruff check .

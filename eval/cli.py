@@ -140,6 +140,32 @@ def _writable_folder(path: Path, option: str) -> None:
         _refuse(option, str(path), f"not a writable folder ({exc.strerror or exc})", DataError)
 
 
+_RERUN_HELP = ("Also write a Rerun recording of the runs to this .rrd file (needs the extra viz); "
+               "open it with `rerun FILE.rrd`.")
+
+
+def _check_recording(path: Path | None) -> None:
+    """Before any work: rerun-sdk is there and `path` can become a recording file."""
+    if path is None:
+        return
+    from .recording import check_rerun
+
+    check_rerun()
+    if path.is_dir():
+        _refuse("--rerun", str(path), "is a folder, not a file")
+    _writable_folder(path.parent, "--rerun")
+
+
+def _record(path: Path | None, jobs: list) -> None:
+    """The runs into a Rerun recording, when asked for and there are runs."""
+    if path is None or not jobs:
+        return
+    from .recording import record
+
+    record(path, jobs)
+    _console().print(f"recording: {path} (open it with: rerun {path})", soft_wrap=True)
+
+
 #: FrameAlignerParams fields (ClipperParams' seed) -> the align-maps option that sets them
 _ALIGNER_OPTIONS = {"kappa": "--kappa", "dim": "--dim", "n_solutions": "--solutions",
                     "min_associations": "--min-associations", "covariance": "--covariance",
@@ -320,7 +346,7 @@ def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
 
     table = _table("Frame alignment, pooled over directed pairs and seeds (mean ± std)")
     _add_columns(table, ("method", "translation [m]", "heading [deg]", "available",
-                         "false acc.", "1st correct [s]", "RPE [m]", "ms"))
+                         "false acc.", "1st correct [s]", "APE, RPE [m]", "ms"))
     for scenario, by_method in summary.items():
         table.add_row(f"[bold]{escape(scenario)}[/]")
         for row, (method, label) in enumerate(labels.items()):
@@ -331,7 +357,8 @@ def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
                 f"{_cell(r, 'heading_error_deg_mean')} ± {_cell(r, 'heading_error_deg_std')}",
                 _cell(r, "availability", 100, 0) + " %", _cell(r, "false_accept", 100, 1) + " %",
                 _cell(r, "time_to_first_correct_s", digits=0),
-                _cell(r, "rpe_translation_m"), _cell(r, "ms_per_pair_step", digits=2),
+                f"{_cell(r, 'evo_ape_m')}, {_cell(r, 'evo_rpe_m')}",
+                _cell(r, "ms_per_pair_step", digits=2),
                 end_section=row == len(labels) - 1)
     return _keep_numbers_whole(table)
 
@@ -372,11 +399,11 @@ def _by_interrupt(exc: BaseException) -> bool:
     return False
 
 
-def _run(study_config: StudyConfig, figures: bool) -> None:
+def _run(study_config: StudyConfig, figures: bool, rerun: Path | None = None) -> None:
     """Run a study and print its tables; Ctrl-C ends it with one line and exit status 130,
     the runs already finished written (see `run_study`)."""
     try:
-        _run_study(study_config, figures)
+        _run_study(study_config, figures, rerun)
     except BaseException as exc:
         if not _by_interrupt(exc):
             raise
@@ -384,7 +411,7 @@ def _run(study_config: StudyConfig, figures: bool) -> None:
         raise SystemExit(130) from None
 
 
-def _run_study(study_config: StudyConfig, figures: bool) -> None:
+def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None) -> None:
     import time
 
     from rich.markup import escape
@@ -402,13 +429,16 @@ def _run_study(study_config: StudyConfig, figures: bool) -> None:
     if outcome.summary:
         console.print(_summary_table(outcome.summary, study_config.methods))
         console.print("CLIPPER's whole sweep, every pair and seed: metrics.csv and "
-                      "figures/clipper_sweep.png. ms is each method's own time per pair "
-                      "and step; the TCAFF methods share the MNO-CLIPPER candidates on top.")
+                      "figures/clipper_sweep.png. APE and RPE: evo's (RMSE, m) of the other "
+                      "robot's path in the ego's frame; the paths are in trajectories/. ms is "
+                      "each method's own time per pair and step; the TCAFF methods share the "
+                      "MNO-CLIPPER candidates on top.")
     if outcome.mot_summary:
         console.print(_mot_table(outcome.mot_summary))
         console.print("Per robot and seed: mot.csv; over time: figures/mot_<scenario>.png; "
                       "against CLIPPER's k: figures/mot_sweep.png.")
     console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
+    _record(rerun, outcome.jobs)
     if outcome.interrupted:
         err_console.print(f"interrupted: {len(outcome.jobs)} of {n_jobs} runs finished, kept "
                           f"in {escape(str(outcome.folder))}", soft_wrap=True)
@@ -449,17 +479,19 @@ def study(
     duration: Annotated[float | None, typer.Option(
         help="Cap every scenario's duration (seconds), for a quick look.")] = None,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
+    rerun: Annotated[Path | None, typer.Option(help=_RERUN_HELP)] = None,
 ) -> None:
     from .config import load_study
 
     _check_duration(duration)
+    _check_recording(rerun)
     overrides = {"scenarios": scenario or None, "methods": methods,
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
     study_config = load_study(config, {k: v for k, v in overrides.items() if v is not None})
     _writable_folder(Path(study_config.output),
                      "--output" if output is not None else f"{config}: output")
-    _run(_capped(study_config, duration), figures)
+    _run(_capped(study_config, duration), figures, rerun)
 
 
 def _capped(study_config: StudyConfig, duration: float | None) -> StudyConfig:
@@ -532,6 +564,7 @@ def kimera_multi(
     methods: Annotated[str | None, typer.Option(
         help=f"Method set: a YAML path or a shipped name ({_shipped('methods')}).")] = None,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
+    rerun: Annotated[Path | None, typer.Option(help=_RERUN_HELP)] = None,
 ) -> None:
     """Offline evaluation on Kimera-Multi rosbags: map, align every pair, score.
 
@@ -554,6 +587,7 @@ def kimera_multi(
 
     console, err_console = _console(), _console(stderr=True)
     _check_duration(duration)
+    _check_recording(rerun)
     test = load_kimera_multi(config)
     if duration is not None:
         test = test.model_copy(update={"duration": duration})
@@ -590,6 +624,7 @@ def kimera_multi(
     else:
         console.print("no ground truth for every robot: alignments written, not scored")
     console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
+    _record(rerun, [recorded.job])
 
 
 def _parse_pairs(text: str | None) -> list[tuple[int, int]] | None:
@@ -654,6 +689,7 @@ def mrclam(
     resume: Annotated[bool, typer.Option(
         help="Reuse the results of an earlier run with the same settings and files.")] = True,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
+    rerun: Annotated[Path | None, typer.Option(help=_RERUN_HELP)] = None,
 ) -> None:
     """Real robots: align every directed pair of a UTIAS MRCLAM data set and score it.
 
@@ -672,6 +708,7 @@ def mrclam(
 
     console = _console()
     _check_duration(duration)
+    _check_recording(rerun)
     settings = override(load_mrclam(config), "command line", duration=duration, kappa=kappa,
                         methods=None if methods is None else load_methods(methods))
     odometries = odometry or [settings.odometry]
@@ -713,6 +750,60 @@ def mrclam(
                 console.print(_pairs_table(recorded, shown))
         console.print(f"results: {recorded.folder}")
     console.print(f"({time.perf_counter() - start:.0f} s)")
+    _record(rerun, [outcome.recorded.job for outcome in outcomes])
+
+
+@app.command()
+def view(
+    results: Annotated[Path, typer.Argument(
+        help="A results folder: a study's (results/latest) or a data set's "
+             "(results/mrclam/<name>).")],
+    output: Annotated[Path | None, typer.Option(
+        help="The recording to write (default: RESULTS/recording.rrd).")] = None,
+    reference: Annotated[int, typer.Option(
+        help="The robot (index) the other robots' maps are aligned to.")] = 0,
+    method: Annotated[str | None, typer.Option(
+        help="The method whose alignments are shown as accepted (default: tcaff).")] = None,
+) -> None:
+    """Make a Rerun recording of saved runs: the world, each robot's map over time, the paths,
+    the candidates, the accepted alignment and the truth on one timeline, errors over time.
+
+    Needs the optional extra viz (pip install 'tcaff-gtsam[viz]'); open the file with
+    `rerun FILE.rrd`. Runs saved before the maps were kept show no maps.
+    """
+    from .recording import record
+    from .results import load_saved
+
+    path = output or results / "recording.rrd"
+    jobs = load_saved(results)
+    record(path, jobs, reference, method)
+    _console().print(f"wrote {path} ({len(jobs)} run{'s' if len(jobs) > 1 else ''}); open it "
+                     f"with: rerun {path}", soft_wrap=True)
+
+
+@app.command()
+def export(
+    results: Annotated[Path, typer.Argument(
+        help="A results folder: a study's (results/latest) or a data set's "
+             "(results/mrclam/<name>).")],
+    fmt: Annotated[str, typer.Option(
+        "--format", help="tum (one file per robot and method) or g2o (one pose graph per "
+                         "method).")] = "tum",
+    reference: Annotated[int, typer.Option(
+        help="The robot (index) whose odometry frame the paths are expressed in.")] = 0,
+) -> None:
+    """Write every saved run's trajectories for evo and other tools, under RESULTS/trajectories/.
+
+    Each robot's path is placed in the reference robot's odometry frame through each method's
+    alignments, and through the true alignment for the ground truth (truth/). Compare them
+    with evo, e.g. `evo_ape tum truth/1.tum tcaff/1.tum` in a frame_<reference>/ folder: the
+    APE column of the table is that figure for the pair reference -> 1.
+    """
+    from .trajectories import export as export_trajectories
+
+    folders = export_trajectories(results, fmt, reference)
+    for folder in folders:
+        _console().print(f"wrote {folder}", soft_wrap=True)
 
 
 def _click_errors() -> tuple[type, type]:

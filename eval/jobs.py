@@ -14,7 +14,7 @@ from .results import JobResult, score, thresholds_of
 from .runs import AlignmentRun
 from .sim.simulate import SimRun, simulate
 
-__all__ = ["evaluate", "evaluate_simulated", "simulated_job"]
+__all__ = ["evaluate", "evaluate_simulated", "shared_maps", "simulated_job"]
 
 SIMULATION_SHARE = 0.2  # of a simulated job's progress
 TRACKING_SHARE = 0.7    # of the rest, when the run has people to track
@@ -26,6 +26,22 @@ def _span(progress: Callable[[float], None] | None, start: float, span: float
     if progress is None:
         return None
     return lambda share: progress(start + span * share)
+
+
+def shared_maps(run: AlignmentRun) -> dict[str, np.ndarray]:
+    """What each robot shares at each exchange, the objects of its map seen within kappa, as
+    ragged arrays for the recordings: map_xy_<r> (N, 2) m in robot r's odometry frame,
+    map_widths_<r> (N,) m (float32: for drawing), map_counts_<r> (S,) objects per exchange."""
+    arrays = {}
+    for r, maps in enumerate(run.maps):
+        recent = [m.recent(float(t), run.settings.kappa) for m, t in zip(maps, run.times,
+                                                                          strict=True)]
+        arrays[f"map_xy_{r}"] = np.concatenate(
+            [m.centroids[:, :2] for m in recent]).astype(np.float32).reshape(-1, 2)
+        arrays[f"map_widths_{r}"] = np.concatenate(
+            [m.widths for m in recent]).astype(np.float32).reshape(-1)
+        arrays[f"map_counts_{r}"] = np.array([len(m) for m in recent], dtype=np.int32)
+    return arrays
 
 
 def evaluate(run: AlignmentRun, methods: MethodsConfig, name: str, seed: int | None,
@@ -43,7 +59,7 @@ def evaluate(run: AlignmentRun, methods: MethodsConfig, name: str, seed: int | N
     people = getattr(run, "people", None)
     aligning = 1.0 if people is None else 1.0 - TRACKING_SHARE
     runs = run_methods(run, methods, _span(progress, 0.0, aligning))
-    arrays = {**arrays, "truth": runs.truth}
+    arrays = {**arrays, **shared_maps(run), "truth": runs.truth}
     overlap = [run.overlap(i, j) for i, j in runs.pairs]
     if all(o is not None for o in overlap):
         arrays["overlap"] = np.array(overlap, dtype=bool).reshape(len(runs.pairs), -1)

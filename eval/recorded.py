@@ -5,6 +5,8 @@ Results of a data set `name` go to `<output>/<name>/`:
 - `<name>.npz` / `.json`: every method's estimate of every pair at every exchange (`JobResult`);
 - `metrics.json`, `metrics.csv`, `table.md` (the paper's table: mean +- std translation and
   heading error, availability), when there is truth;
+- `trajectories/`: every robot's path in the first robot's frame, through the estimates of
+  the table's methods and the truth, as TUM files (see `trajectories`);
 - `figures/`, when there is truth and figures are asked for: `errors_<i>_<j>.png` (error over
   time), `candidates_<i>_<j>.png` (MNO-CLIPPER candidates, the truth and TCAFF) of every pair,
   and `arena.png` (the landmarks and every robot's path) when the data set knows the landmarks.
@@ -30,6 +32,7 @@ from .jobs import evaluate
 from .registry import METHODS, describe, estimate_names, shown_streams
 from .results import JobResult, summarize, thresholds_of, write_tables
 from .runs import RecordedRun, planar_poses
+from .trajectories import write_tum
 
 __all__ = ["KimeraOutcome", "MrclamOutcome", "RecordedOutcome", "evaluate_recorded", "evaluate_run",
            "mrclam_name", "run_kimera_multi", "run_mrclam"]
@@ -101,6 +104,7 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
         _write_markdown(folder / "table.md", run.name, summary)
         if figures:
             _draw(folder, job, methods)
+    write_tum(folder, job, streams=shown_streams(methods))  # `tcaff export` writes them all
     job.save(folder)  # last: a saved job means the tables and figures were written
     return RecordedOutcome(folder, job, summary, methods)
 

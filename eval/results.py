@@ -25,6 +25,7 @@ from .mot import COUNTS
 
 __all__ = [
     "JobResult",
+    "load_saved",
     "score",
     "summarize",
     "summarize_mot",
@@ -45,7 +46,9 @@ class JobResult:
             (x, y, theta of each body in the world and in its odometry frame; NaN rows where
             there is no truth); truth (P, S, 3) the true T_oi_oj; est_<method> (P, S, 3), NaN
             rows where the method had no estimate; cand_steps_<p> (M,) and cand_z_<p> (M, 3)
-            the candidates the TCAFF filter saw; overlap (P, S) bool when the run knows it.
+            the candidates the TCAFF filter saw; overlap (P, S) bool when the run knows it;
+            map_xy_<r>, map_widths_<r> and map_counts_<r>: what robot r shared at each
+            exchange (see `jobs.shared_maps`).
             A simulated run adds world_xy (m, 2), world_widths (m,) and walls (w, 2, 2); with
             people to track, mot_times (F,), mot_window (s) and mot_counts_<method> (n, F, 4):
             per robot and frame the `mot.COUNTS`.
@@ -116,6 +119,23 @@ class JobResult:
         except (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
             raise DataError(f"{folder / stem}.*: not a saved job ({type(exc).__name__}: "
                             f"{exc})") from exc
+
+
+def load_saved(results: Path) -> list[JobResult]:
+    """Every job saved in a results folder: a study's (`runs/<stem>.npz`) or a recorded data
+    set's (`<stem>.npz`), each beside its `<stem>.json`.
+
+    Raises:
+        DataError: not a folder, no saved job in it, or a job's files are unreadable.
+    """
+    results = Path(results)
+    if not results.is_dir():
+        raise DataError(f"{results}: not a results folder")
+    jobs = [JobResult.load(folder, npz.stem) for folder in (results, results / "runs")
+            for npz in sorted(folder.glob("*.npz")) if npz.with_suffix(".json").is_file()]
+    if not jobs:
+        raise DataError(f"{results}: no saved runs (<name>.npz and .json, or runs/ of a study)")
+    return jobs
 
 
 def thresholds_of(methods: MethodsConfig) -> Thresholds:

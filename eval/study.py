@@ -2,7 +2,8 @@
 
 Each job (`jobs.simulated_job`: one scenario, one seed) simulates the run, runs every
 method over every directed pair and scores them. A finished job is written to
-`<output>/<timestamp>/runs/` at once, so an interrupted or partly failed study keeps
+`<output>/<timestamp>/runs/` at once, with the trajectories of the table's methods in TUM files
+under `trajectories/` (see `trajectories`), so an interrupted or partly failed study keeps
 everything it finished. At the end the study writes
 metrics.json, metrics.csv and the figures, and points `<output>/latest` at the folder.
 """
@@ -28,8 +29,9 @@ from tcaff_gtsam.errors import DataError
 
 from .config import MethodsConfig, ScenarioConfig, StudyConfig, dump_study
 from .jobs import simulated_job
-from .registry import estimate_names
+from .registry import estimate_names, shown_streams
 from .results import JobResult, summarize, summarize_mot, thresholds_of, write_tables
+from .trajectories import write_tum
 
 __all__ = ["Progress", "StudyOutcome", "run_study"]
 
@@ -159,10 +161,12 @@ def run_study(study: StudyConfig, progress: Progress | None = None,
     todo = [(s, seed) for s in study.scenarios for seed in study.seeds]
     jobs: list[JobResult] = []
     failed: list[dict] = []
+    shown = shown_streams(methods)  # the table's; `tcaff export` writes the whole sweep
     interrupted = False
 
     def done(key: int, job: JobResult) -> None:
         job.save(folder / "runs")
+        write_tum(folder, job, streams=shown)
         jobs.append(job)
         progress.finish(key, True)
         if on_job_done is not None:

@@ -241,3 +241,43 @@ class TestWheelInstall:
         assert proc.returncode == 0, proc.stderr
         assert "Usage" in proc.stdout
         assert "align" in proc.stdout.lower()
+
+
+# ---------------------------------------------------------------------------------------------
+# (c) outside the Makefile: `pip install .` into a fresh virtual environment
+
+
+@pytest.mark.slow
+def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
+    """A new user's first steps: a fresh virtual environment, `pip install .` (not editable; the
+    dependencies from the package indexes pip is configured with), then the demo and
+    `python -m tcaff_gtsam --help`, run from a folder outside the repository."""
+    src = tmp_path / "src"
+    shutil.copytree(REPO, src, ignore=_IGNORE)
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    python = venv / "bin" / "python"
+    install = subprocess.run([str(python), "-m", "pip", "install", "-q", str(src)],
+                             capture_output=True, text=True, timeout=1800, env=clean_env())
+    assert install.returncode == 0, install.stdout + install.stderr
+    work = tmp_path / "work"
+    work.mkdir()
+    shutil.rmtree(src)  # nothing may come from the source tree
+    demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "60",
+                           "--output", "results"], cwd=work, capture_output=True, text=True,
+                          timeout=1800, env=clean_env())
+    assert demo.returncode == 0, demo.stdout + demo.stderr
+    assert "indoor_return" in demo.stdout and "TCAFF+iSAM2 smoothed" in demo.stdout
+    latest = work / "results" / "latest"
+    assert (latest / "metrics.csv").is_file()
+    assert (latest / "trajectories" / "indoor_return-seed0" / "frame_0" / "truth"
+            / "1.tum").is_file()
+    helped = subprocess.run([str(python), "-m", "tcaff_gtsam", "--help"], cwd=work,
+                            capture_output=True, text=True, timeout=300, env=clean_env())
+    assert helped.returncode == 0, helped.stderr
+    for command in ("study", "demo", "export", "mrclam", "kimera-multi"):
+        assert command in helped.stdout
+    where = subprocess.run([str(python), "-c", "import tcaff_gtsam; print(tcaff_gtsam.__file__)"],
+                           cwd=work, capture_output=True, text=True, timeout=300,
+                           env=clean_env())
+    assert Path(where.stdout.strip()).is_relative_to(venv), where.stdout

@@ -102,7 +102,8 @@ def test_align_maps_defaults_come_from_the_aligner_params():
 
 REPORT = {"translation_error_m_mean": 0.12, "translation_error_m_std": 0.03,
           "heading_error_deg_mean": 1.25, "heading_error_deg_std": 10.5, "availability": 1.0,
-          "false_accept": 0.125, "time_to_first_correct_s": 14.0, "rpe_translation_m": 0.05,
+          "false_accept": 0.125, "time_to_first_correct_s": 14.0, "evo_ape_m": 0.05,
+          "evo_rpe_m": 0.04,
           "ms_per_pair_step": 12345.67}
 
 
@@ -114,7 +115,8 @@ def test_study_table_never_cuts_a_number(width):
     console.print(cli._pooled_table(summary, labels))
     text = console.export_text()
     assert max(map(len, text.splitlines())) <= width
-    for number in ("12345.67", "0.12", "0.03", "1.25", "10.50", "100", "12.5", "14", "0.05"):
+    for number in ("12345.67", "0.12", "0.03", "1.25", "10.50", "100", "12.5", "14", "0.05",
+                   "0.04"):
         assert re.search(rf"(?<![\d.]){re.escape(number)}(?![\d.])", text), (number, text)
 
 

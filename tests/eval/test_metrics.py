@@ -202,7 +202,8 @@ def test_as_report_keys_units_and_json():
         "translation_error_m_mean", "translation_error_m_std", "translation_error_m_median",
         "heading_error_deg_mean",
         "heading_error_deg_std", "availability", "false_accept", "time_to_first_correct_s",
-        "rpe_translation_m", "rpe_heading_deg", "n_steps", "n_estimates", "n_overlap"}
+        "rpe_translation_m", "rpe_heading_deg", "evo_ape_m", "evo_rpe_m", "n_steps",
+        "n_estimates", "n_overlap"}
     assert report["heading_error_deg_mean"] == pytest.approx(math.degrees(np.mean(HEAD)))
     assert report["heading_error_deg_std"] == pytest.approx(math.degrees(np.std(HEAD)))
     assert report["rpe_heading_deg"] == pytest.approx(math.degrees(np.mean(HEAD)))
@@ -254,6 +255,42 @@ def test_rpe_translation_hand_case():
     np.testing.assert_allclose(relative_pose_errors(trace), [[1.0, 0.0]], atol=1e-12)
 
 
+# --- evo's APE and RPE ------------------------------------------------------------------------
+
+
+@PROPS
+@given(seeds)
+def test_evo_ape_is_the_relative_pose_translation_error(seed):
+    # the same quantity computed twice: evo's APE of robot j's path in oi, and the error of
+    # T_bi_bj (the rotation T_bi_oi keeps norms)
+    trace = random_trace(seed)
+    has = trace.has_estimate
+    ape, rpe = trace.evo_errors
+    np.testing.assert_allclose(ape, relative_pose_errors(trace)[has, 0], atol=1e-9)
+    assert rpe.shape == (max(int(has.sum()) - 1, 0),)
+    m = pair_metrics(trace)
+    if has.any():
+        assert m.evo_ape_rmse == pytest.approx(np.sqrt(np.mean(ape**2)), rel=1e-12)
+        assert np.mean(ape) == pytest.approx(m.rpe_translation_mean, rel=1e-9, abs=1e-12)
+    else:
+        assert math.isnan(m.evo_ape_rmse) and math.isnan(m.evo_rpe_rmse)
+
+
+def test_evo_rpe_sees_a_jump_of_the_alignment_only():
+    # robot j stands still at (2, 0) in oj; the alignment is right, then off by 1 m along x for
+    # two steps, then right again: APE 0, 1, 1, 0; RPE (consecutive steps) 1, 0, 1
+    T_true = se2_from_params(np.tile([3.0, -1.0, 0.5], (4, 1)))
+    off = se2_to_params(se2_from_params([1.0, 0.0, 0.0]) @ T_true[0])
+    estimate = [se2_to_params(T_true[0]), off, off, se2_to_params(T_true[0])]
+    T_oj_bj = se2_from_params(np.tile([2.0, 0.0, 0.3], (4, 1)))
+    trace = make_trace(np.arange(4.0), T_true, estimate, [True] * 4, None, T_oj_bj)
+    ape, rpe = trace.evo_errors
+    np.testing.assert_allclose(ape, [0, 1, 1, 0], atol=1e-9)
+    np.testing.assert_allclose(rpe, [1, 0, 1], atol=1e-9)
+    m = pair_metrics(trace)
+    assert m.evo_rpe_rmse == pytest.approx(np.sqrt(2 / 3))
+
+
 # --- pooling -------------------------------------------------------------------------------------
 
 @PROPS
@@ -266,7 +303,8 @@ def test_pooled_equals_concatenation(seed_a, seed_b):
     for name in ("n_steps", "n_estimates", "n_overlap"):
         assert getattr(pooled, name) == getattr(joined, name)
     for name in ("translation_mean", "translation_std", "heading_mean", "heading_std",
-                 "availability", "false_accept", "rpe_translation_mean", "rpe_heading_mean"):
+                 "availability", "false_accept", "rpe_translation_mean", "rpe_heading_mean",
+                 "evo_ape_rmse"):
         p, j = getattr(pooled, name), getattr(joined, name)
         assert (math.isnan(p) and math.isnan(j)) or p == pytest.approx(j, rel=1e-9, abs=1e-12)
 

@@ -1,0 +1,196 @@
+"""Trajectories for the field's tools: every robot's path in one robot's frame, as TUM or g2o.
+
+A method's estimate of T_oi_oj places robot j's odometry path in robot i's odometry frame:
+T_oi_bj(s) = T_oi_oj(s) T_oj_bj(s), at the steps the method has an estimate. With the true
+T_oi_oj the same product is the ground truth; robot i's own path in its frame is its odometry.
+`write_tum` writes, for one reference robot,
+
+    trajectories/<job stem>/frame_<reference>/truth/<robot>.tum      every robot, all steps
+    trajectories/<job stem>/frame_<reference>/<method>/<robot>.tum   every other robot
+
+as `t x y z qx qy qz qw` (evo's TUM writer; planar poses at z = 0, times on the run's clock), so
+`evo_ape tum truth/<robot>.tum <method>/<robot>.tum` gives the `evo_ape_m` of the pair
+(reference -> robot) in metrics.csv. `write_g2o` writes each method's paths as one pose graph.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params
+
+from .metrics import planar_trajectory
+from .results import JobResult, load_saved
+
+__all__ = ["FORMATS", "TRUTH", "export", "frame_alignment", "robot_names", "robot_paths",
+           "write_g2o", "write_tum"]
+
+FORMATS = ("tum", "g2o")
+TRUTH = "truth"  # the folder of the ground truth, beside the methods'
+
+
+def robot_names(job: JobResult) -> list[str]:
+    """The job's robot names (indices when it has none), safe as file and entity names."""
+    n = job.arrays["poses_odom"].shape[0]
+    names = job.info.get("robots") or [str(r) for r in range(n)]
+    return [re.sub(r"[^\w.-]", "_", str(name)) for name in names]
+
+
+def _check_reference(job: JobResult, reference: int) -> None:
+    n = job.arrays["poses_odom"].shape[0]
+    if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) or not (
+            0 <= reference < n):
+        raise ConfigError(f"reference {reference!r}: expected a robot index in 0..{n - 1} "
+                          f"({job.stem} has {n} robots)")
+
+
+def robot_paths(job: JobResult, stream: str, reference: int = 0
+                ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Every robot's path in the reference robot's odometry frame, through a method's estimates
+    (or the truth: `stream` = TRUTH).
+
+    A robot j is placed through the estimate of the pair (reference, j), or the inverse of the
+    estimate of (j, reference) when only that pair was aligned; robots in neither are left out.
+    The reference robot's own path (its odometry) is given for the truth only.
+
+    Returns:
+        robot -> (steps (k,), T_oref_b (k, 3, 3)): the k steps with an estimate (truth: with a
+        known truth) and the poses there; robots with no such step are left out.
+    Raises:
+        ConfigError: `reference` is no robot of the job, or `stream` no estimate of it.
+    """
+    _check_reference(job, reference)
+    a = job.arrays
+    key = "truth" if stream == TRUTH else f"est_{stream}"
+    if key not in a:
+        raise ConfigError(f"method {stream!r}: not in {job.stem} (has "
+                          f"{', '.join(_streams(job))})")
+    T_o_b = se2_from_params(a["poses_odom"])
+    paths = {}
+    if stream == TRUTH:
+        paths[reference] = (np.arange(T_o_b.shape[1]), T_o_b[reference])
+    for j in range(len(T_o_b)):
+        found = frame_alignment(job, key, reference, j)
+        if found is not None and found[0].size:
+            steps, T_oref_oj = found
+            paths[j] = (steps, T_oref_oj @ T_o_b[j][steps])
+    return paths
+
+
+def frame_alignment(job: JobResult, key: str, reference: int, j: int
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Robot j's odometry frame in the reference robot's, T_oref_oj, from the job's (P, S, 3)
+    array `key` (an estimate or the truth): the pair (reference, j), or the inverse of
+    (j, reference) when only that pair was aligned.
+
+    Returns:
+        (steps (k,), T_oref_oj (k, 3, 3)) at the k steps the array has a value; None when
+        neither pair was aligned.
+    """
+    if (reference, j) in job.pairs:
+        values, inverse = job.arrays[key][job.pairs.index((reference, j))], False
+    elif (j, reference) in job.pairs:
+        values, inverse = job.arrays[key][job.pairs.index((j, reference))], True
+    else:
+        return None
+    steps = np.flatnonzero(np.all(np.isfinite(values), axis=1))
+    T_oref_oj = se2_from_params(values[steps])
+    return steps, invert(T_oref_oj) if inverse else T_oref_oj
+
+
+def _times(job: JobResult) -> np.ndarray:
+    """(S,) s, the job's exchanges on the run's clock (a recorded job keeps its start, t0)."""
+    return job.arrays["times"] + float(job.arrays.get("t0", 0.0))
+
+
+def _streams(job: JobResult) -> list[str]:
+    """The truth (where the job knows it) and every method's estimate stream."""
+    truth = [TRUTH] if np.isfinite(job.arrays["truth"]).any() else []
+    return truth + [k.removeprefix("est_") for k in job.arrays if k.startswith("est_")]
+
+
+def _folder(root: Path, job: JobResult, reference: int) -> Path:
+    return root / "trajectories" / job.stem / f"frame_{robot_names(job)[reference]}"
+
+
+def write_tum(root: Path, job: JobResult, reference: int = 0,
+              streams: list[str] | None = None) -> Path:
+    """The truth's and the methods' paths of a job as TUM files under `root` (see the module);
+    returns the folder of the reference robot's frame.
+
+    Args:
+        streams: the estimate streams to write (None: every one the job has).
+    """
+    from evo.tools.file_interface import write_tum_trajectory_file
+
+    folder = _folder(root, job, reference)
+    names, times = robot_names(job), _times(job)
+    for stream in _streams(job):
+        if streams is not None and stream != TRUTH and stream not in streams:
+            continue
+        (folder / stream).mkdir(parents=True, exist_ok=True)
+        for robot, (steps, T) in robot_paths(job, stream, reference).items():
+            write_tum_trajectory_file(str(folder / stream / f"{names[robot]}.tum"),
+                                      planar_trajectory(times[steps], T))
+    return folder
+
+
+def write_g2o(root: Path, job: JobResult, reference: int = 0) -> Path:
+    """The truth's and every method's paths of a job as g2o pose graphs under `root`, one file
+    per stream (`<stream>.g2o`); returns their folder.
+
+    Vertices (VERTEX_SE2) are every robot's poses in the reference robot's frame; edges
+    (EDGE_SE2) join each robot's consecutive poses (its odometry between them) and, at each step
+    with an estimate, the reference robot's pose to the other robot's (the alignment). Saved runs
+    keep no covariances, so every edge carries the identity information matrix. Robot r's pose
+    at step s is vertex r * S + s (S steps).
+    """
+    import gtsam
+
+    folder = _folder(root, job, reference)
+    folder.mkdir(parents=True, exist_ok=True)
+    S = job.n_steps
+    unit = gtsam.noiseModel.Unit.Create(3)
+    odometry = job.arrays["poses_odom"][reference]  # (S, 3) x, y, theta
+    for stream in _streams(job):
+        paths = robot_paths(job, stream, reference)
+        paths[reference] = (np.arange(len(odometry)), se2_from_params(odometry))
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for robot, (steps, T) in paths.items():
+            keys = [robot * S + int(s) for s in steps]
+            poses = [gtsam.Pose2(*xyt) for xyt in se2_to_params(T)]
+            for key, pose in zip(keys, poses, strict=True):
+                values.insert(key, pose)
+            for k in range(len(keys) - 1):
+                graph.add(gtsam.BetweenFactorPose2(keys[k], keys[k + 1],
+                                                   poses[k].between(poses[k + 1]), unit))
+            if robot != reference:
+                for key, pose, s in zip(keys, poses, steps, strict=True):
+                    ref_key = reference * S + int(s)
+                    T_bref_b = gtsam.Pose2(*odometry[s]).between(pose)
+                    graph.add(gtsam.BetweenFactorPose2(ref_key, key, T_bref_b, unit))
+        path = folder / f"{stream}.g2o"
+        path.unlink(missing_ok=True)
+        gtsam.writeG2o(graph, values, str(path))
+        if not path.is_file():
+            raise DataError(f"{path}: could not be written")
+    return folder
+
+
+def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
+    """Write the trajectories of every job saved in a results folder (see
+    `results.load_saved`) as TUM or g2o files under `results/trajectories/`; returns the folders
+    written.
+
+    Raises:
+        ConfigError: an unknown format or reference robot.
+        DataError: the folder holds no saved job, or a job's files are unreadable.
+    """
+    if fmt not in FORMATS:
+        raise ConfigError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    write = write_tum if fmt == "tum" else write_g2o
+    return [write(Path(results), job, reference) for job in load_saved(results)]

@@ -1,0 +1,170 @@
+"""Trajectories for evo and g2o: every robot's path in one robot's frame, the export command,
+and evo's own command line reproducing the table's APE."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+from evo.core import metrics as evo_metrics
+from evo.core import sync
+from evo.tools.file_interface import read_tum_trajectory_file
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from tcaff_gtsam.eval import cli
+from tcaff_gtsam.eval.metrics import Thresholds
+from tcaff_gtsam.eval.results import JobResult, score, write_tables
+from tcaff_gtsam.eval.trajectories import TRUTH, export, robot_paths, write_g2o, write_tum
+
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params
+
+BIN = Path(sys.executable).parent
+PAIRS = [(0, 1), (1, 0), (2, 0), (1, 2)]  # robot 2 reaches robot 0's frame only inversely
+
+
+def make_job(seed: int = 0, S: int = 25, t0: float = 1000.0) -> JobResult:
+    """Three robots whose odometry drifts from their true paths, the true alignments of the
+    pairs, and an estimate `noisy` off by a few cm and degrees with gaps."""
+    rng = np.random.default_rng(seed)
+    steps = np.arange(S, dtype=float)
+    true = np.stack([np.column_stack([rng.uniform(-5, 5) + 0.5 * steps,
+                                      rng.uniform(-5, 5) + np.sin(0.2 * steps),
+                                      rng.uniform(-3, 3) + 0.05 * steps]) for _ in range(3)])
+    drift = np.cumsum(rng.normal(0, [0.02, 0.02, 0.003], (3, S, 3)), axis=1)
+    odom = se2_to_params(se2_from_params(true) @ se2_from_params(drift))
+    T_w_o = se2_from_params(true) @ invert(se2_from_params(odom))
+    truth = np.stack([se2_to_params(invert(T_w_o[i]) @ T_w_o[j]) for i, j in PAIRS])
+    noisy = se2_to_params(se2_from_params(truth)
+                          @ se2_from_params(rng.normal(0, [0.05, 0.05, 0.02], (len(PAIRS), S, 3))))
+    noisy[:, rng.random(S) < 0.3] = np.nan
+    arrays = {"times": steps, "t0": np.array(t0), "poses_true": true, "poses_odom": odom,
+              "truth": truth, "est_noisy": noisy, "est_ground_truth": truth.copy()}
+    job = JobResult("walk", seed, PAIRS, arrays)
+    score(job, ["noisy", "ground_truth"], Thresholds())
+    return job
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 2))
+def test_paths_through_the_true_alignment_are_the_true_paths(seed, reference):
+    job = make_job(seed)
+    T_w_b = se2_from_params(job.arrays["poses_true"])
+    T_w_oref = T_w_b[reference] @ invert(se2_from_params(job.arrays["poses_odom"][reference]))
+    truth = robot_paths(job, TRUTH, reference)
+    through_truth = robot_paths(job, "ground_truth", reference)
+    assert set(truth) == {0, 1, 2} and set(through_truth) == {0, 1, 2} - {reference}
+    for robot, (steps, T) in truth.items():
+        np.testing.assert_array_equal(steps, np.arange(job.n_steps))
+        # each robot's true pose in the reference robot's odometry frame of that step
+        np.testing.assert_allclose(T, invert(T_w_oref) @ T_w_b[robot], atol=1e-9)
+        if robot != reference:
+            np.testing.assert_allclose(through_truth[robot][1], T, atol=1e-9)
+
+
+def test_estimate_paths_skip_the_steps_without_an_estimate():
+    job = make_job(1)
+    paths = robot_paths(job, "noisy", 0)
+    has = ~np.isnan(job.arrays["est_noisy"][0, :, 0])
+    np.testing.assert_array_equal(paths[1][0], np.flatnonzero(has))
+    assert set(paths) == {1, 2}  # robot 2 through the inverse of the pair (2, 0)
+
+
+def test_bad_reference_or_method_is_named():
+    job = make_job()
+    with pytest.raises(ConfigError, match=r"reference 3: .*0\.\.2"):
+        robot_paths(job, TRUTH, 3)
+    with pytest.raises(ConfigError, match=r"method 'clipper'.*noisy"):
+        robot_paths(job, "clipper", 0)
+
+
+def test_tum_files_read_back_by_evo_give_the_table_ape(tmp_path):
+    job = make_job(2)
+    folder = write_tum(tmp_path, job, 0)
+    assert folder == tmp_path / "trajectories" / "walk-seed2" / "frame_0"
+    assert {p.name for p in folder.iterdir()} == {TRUTH, "noisy", "ground_truth"}
+    assert sorted(p.name for p in (folder / TRUTH).iterdir()) == ["0.tum", "1.tum", "2.tum"]
+    only = write_tum(tmp_path / "only", job, 0, streams=["noisy"])
+    assert {p.name for p in only.iterdir()} == {TRUTH, "noisy"}
+    for robot, pair in ((1, "0->1"), (2, None)):
+        ref = read_tum_trajectory_file(str(folder / TRUTH / f"{robot}.tum"))
+        est = read_tum_trajectory_file(str(folder / "noisy" / f"{robot}.tum"))
+        assert ref.timestamps[0] == pytest.approx(1000.0)  # the run's clock
+        ref, est = sync.associate_trajectories(ref, est)
+        ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+        ape.process_data((ref, est))
+        if pair is not None:
+            assert ape.get_statistic(evo_metrics.StatisticsType.rmse) == pytest.approx(
+                job.metrics["noisy"][pair]["evo_ape_m"], rel=1e-6)
+        assert ape.get_statistic(evo_metrics.StatisticsType.rmse) > 0.01
+
+
+def test_evo_ape_command_reproduces_the_table(tmp_path):
+    job = make_job(3)
+    job.save(tmp_path / "runs")
+    write_tables(tmp_path, {}, [job], {})
+    export(tmp_path, "tum", 0)
+    frame = tmp_path / "trajectories" / "walk-seed3" / "frame_0"
+    done = subprocess.run([str(BIN / "evo_ape"), "tum", str(frame / TRUTH / "1.tum"),
+                           str(frame / "noisy" / "1.tum")], capture_output=True, text=True,
+                          timeout=120, env={"HOME": str(tmp_path), "PATH": str(BIN)})
+    assert done.returncode == 0, done.stderr
+    rmse = float(next(line.split()[1] for line in done.stdout.splitlines()
+                      if line.split()[:1] == ["rmse"]))
+    with open(tmp_path / "metrics.csv") as file:
+        row = next(r for r in csv.DictReader(file) if r["method"] == "noisy"
+                   and r["pair"] == "0->1")
+    assert rmse == pytest.approx(float(row["evo_ape_m"]), abs=5e-7)  # evo prints 6 decimals
+
+
+def test_g2o_pose_graph_reads_back_in_gtsam(tmp_path):
+    job = make_job(4)
+    folder = write_g2o(tmp_path, job, 1)
+    assert folder.name == "frame_1"
+    graph, values = gtsam.readG2o(str(folder / "noisy.g2o"))
+    paths = robot_paths(job, "noisy", 1)
+    n_poses = job.n_steps + sum(len(steps) for steps, _ in paths.values())
+    assert values.size() == n_poses
+    # each robot's chain of odometry, and one alignment edge per estimate
+    n_chain = (job.n_steps - 1) + sum(len(steps) - 1 for steps, _ in paths.values())
+    n_align = sum(len(steps) for steps, _ in paths.values())
+    assert graph.size() == n_chain + n_align
+    steps, T = paths[0]
+    key = 0 * job.n_steps + int(steps[-1])  # robot 0's last estimated pose
+    # g2o files keep 6 significant digits
+    np.testing.assert_allclose(values.atPose2(key).matrix(), T[-1], rtol=1e-5, atol=1e-5)
+    # the file's solution is its own: every edge agrees with the vertices it joins
+    assert graph.error(values) < 1e-6 * graph.size()
+
+
+def test_export_of_a_recorded_folder_and_bad_input(tmp_path):
+    job = make_job(5)
+    job.seed = None  # a recorded run is saved as <name>.npz beside its tables
+    job.save(tmp_path)
+    (written,) = export(tmp_path, "g2o", 2)
+    assert {p.name for p in written.iterdir()} == {"truth.g2o", "noisy.g2o",
+                                                   "ground_truth.g2o"}
+    with pytest.raises(ConfigError, match="format 'kml'"):
+        export(tmp_path, "kml")
+    with pytest.raises(DataError, match="no saved runs"):
+        export(tmp_path / "trajectories")
+    (tmp_path / "broken.npz").write_bytes(b"not a zip")
+    (tmp_path / "broken.json").write_text("{}")
+    with pytest.raises(DataError, match="not a saved job"):
+        export(tmp_path)
+
+
+def test_export_command_one_line_errors(tmp_path, monkeypatch, capsys):
+    for args, named in ((["export", str(tmp_path)], "no saved runs"),
+                        (["export", str(tmp_path / "missing")], "not a results folder")):
+        monkeypatch.setattr(sys, "argv", ["tcaff", *args])
+        with pytest.raises(SystemExit) as exited:
+            cli.main()
+        assert exited.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and named in err, err
