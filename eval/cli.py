@@ -357,7 +357,7 @@ def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
                 f"{_cell(r, 'heading_error_deg_mean')} ± {_cell(r, 'heading_error_deg_std')}",
                 _cell(r, "availability", 100, 0) + " %", _cell(r, "false_accept", 100, 1) + " %",
                 _cell(r, "time_to_first_correct_s", digits=0),
-                f"{_cell(r, 'evo_ape_m')}, {_cell(r, 'evo_rpe_m')}",
+                f"{_cell(r, 'ape_m')}, {_cell(r, 'rpe_m')}",
                 _cell(r, "ms_per_pair_step", digits=2),
                 end_section=row == len(labels) - 1)
     return _keep_numbers_whole(table)

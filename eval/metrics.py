@@ -17,8 +17,8 @@ module derives
   T_bi_bj = T_oi_bi^-1 T_oi_oj T_oj_bj, which is what a robot acting on the alignment experiences.
   Its translation is evo's APE (translation part) of robot j's path in robot i's odometry frame,
   T_oi_oj T_oj_bj, against the true path (the rotation T_bi_oi keeps norms);
-* evo's own APE and RPE of that path (`PairTrace.evo_errors`): the RMSE that `evo_ape tum`
-  and `evo_rpe tum` print on the exported trajectories (see `trajectories`).
+* the APE and RPE of that path as evo defines them (`PairTrace.path_errors`): the RMSE that
+  `evo_ape tum` and `evo_rpe tum` print on the exported trajectories (see `trajectories`).
 
 `pooled_metrics` pools several pairs (or seeds) into one summary by concatenating their per-step
 errors. SI units throughout (metres, radians, seconds); only `Metrics.as_report` gives degrees.
@@ -33,18 +33,15 @@ from functools import cached_property
 from numbers import Real
 
 import numpy as np
-from evo.core import metrics as evo_metrics
-from evo.core.trajectory import PoseTrajectory3D
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.geometry import compose, invert, se2_error, se2_from_params, se2_to_se3
+from tcaff_gtsam.geometry import compose, invert, se2_error, se2_from_params
 
 __all__ = [
     "Metrics",
     "PairTrace",
     "Thresholds",
     "pair_metrics",
-    "planar_trajectory",
     "pooled_metrics",
     "relative_pose_errors",
     "step_errors",
@@ -195,41 +192,27 @@ class PairTrace:
         return ~np.all(np.isnan(self.estimate), axis=1)
 
     @cached_property
-    def evo_errors(self) -> tuple[np.ndarray, np.ndarray]:
-        """evo's APE and RPE (translation parts, metres) of robot j's path in robot i's
-        odometry frame, T_oi_oj_est T_oj_bj against T_oi_oj_true T_oj_bj, over the steps with
-        an estimate.
+    def path_errors(self) -> tuple[np.ndarray, np.ndarray]:
+        """APE and RPE (translation parts, metres) of robot j's path in robot i's odometry
+        frame, P = T_oi_oj_est T_oj_bj against Q = T_oi_oj_true T_oj_bj, over the steps with an
+        estimate, as evo defines them (`evo_ape tum` and `evo_rpe tum` with their defaults;
+        the tests compare the two).
 
         Returns:
-            ape: (k,) at each of the k steps with an estimate.
-            rpe: (max(k - 1, 0),) between consecutive steps with an estimate (evo's default
-                delta of one frame): how much the path jumps when the alignment changes.
+            ape: (k,) |t(P) - t(Q)| at each of the k steps with an estimate.
+            rpe: (max(k - 1, 0),) |t((Q_a^-1 Q_b)^-1 P_a^-1 P_b)| over consecutive steps a, b
+                with an estimate: how much the path jumps when the alignment changes.
         """
         has = self.has_estimate
-        k = int(np.count_nonzero(has))
-        if k == 0:
-            return np.zeros(0), np.zeros(0)
-        times, T_oj_bj = self.times[has], self.T_oj_bj[has]
-        truth = planar_trajectory(times, self.T_true[has] @ T_oj_bj)
-        estimate = planar_trajectory(times, se2_from_params(self.estimate[has]) @ T_oj_bj)
-        ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
-        ape.process_data((truth, estimate))
-        if k == 1:
-            return ape.error, np.zeros(0)
-        rpe = evo_metrics.RPE(evo_metrics.PoseRelation.translation_part)
-        rpe.process_data((truth, estimate))
-        return ape.error, rpe.error
-
-
-def planar_trajectory(times, T) -> PoseTrajectory3D:
-    """An evo trajectory of planar poses: times (k,) s, T (k, 3, 3) SE(2), placed at z = 0."""
-    T = np.asarray(T, dtype=float)
-    half_yaw = 0.5 * np.arctan2(T[:, 1, 0], T[:, 0, 0])
-    xyz = np.column_stack([T[:, 0, 2], T[:, 1, 2], np.zeros(len(T))])
-    quat_wxyz = np.column_stack([np.cos(half_yaw), np.zeros((len(T), 2)), np.sin(half_yaw)])
-    # every representation given: evo would otherwise build them pose by pose
-    return PoseTrajectory3D(xyz, quat_wxyz, np.asarray(times, dtype=float),
-                            poses_se3=list(se2_to_se3(T)))
+        truth = compose(self.T_true[has], self.T_oj_bj[has])
+        path = compose(se2_from_params(self.estimate[has]), self.T_oj_bj[has])
+        ape = np.linalg.norm(path[:, :2, 2] - truth[:, :2, 2], axis=1)
+        if ape.shape[0] < 2:
+            return ape, np.zeros(0)
+        moved_truth = compose(invert(truth[:-1]), truth[1:])
+        moved_path = compose(invert(path[:-1]), path[1:])
+        rpe = np.linalg.norm(compose(invert(moved_truth), moved_path)[:, :2, 2], axis=1)
+        return ape, rpe
 
 
 def relative_pose_errors(trace: PairTrace) -> np.ndarray:
@@ -263,8 +246,8 @@ class Metrics:
     pairs that have one.
     rpe_translation_mean [m], rpe_heading_mean [rad]: relative pose error of robot j seen from
     robot i, over the steps with an estimate.
-    evo_ape_rmse, evo_rpe_rmse [m]: evo's APE and RPE of robot j's path in robot i's frame
-    (`PairTrace.evo_errors`), root mean square over the estimate steps (RPE: over their
+    ape_rmse, rpe_rmse [m]: the APE and RPE of robot j's path in robot i's frame
+    (`PairTrace.path_errors`), root mean square over the estimate steps (RPE: over their
     consecutive pairs).
     """
 
@@ -281,8 +264,8 @@ class Metrics:
     time_to_first_correct: float
     rpe_translation_mean: float
     rpe_heading_mean: float
-    evo_ape_rmse: float
-    evo_rpe_rmse: float
+    ape_rmse: float
+    rpe_rmse: float
 
     def as_report(self) -> dict[str, float | int | None]:
         """JSON-ready dictionary, keys carrying units, headings in degrees, NaN as None."""
@@ -302,8 +285,8 @@ class Metrics:
             "time_to_first_correct_s": num(self.time_to_first_correct),
             "rpe_translation_m": num(self.rpe_translation_mean),
             "rpe_heading_deg": num(self.rpe_heading_mean, deg),
-            "evo_ape_m": num(self.evo_ape_rmse),
-            "evo_rpe_m": num(self.evo_rpe_rmse),
+            "ape_m": num(self.ape_rmse),
+            "rpe_m": num(self.rpe_rmse),
             "n_steps": int(self.n_steps),
             "n_estimates": int(self.n_estimates),
             "n_overlap": int(self.n_overlap),
@@ -354,7 +337,7 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
                             "not a PairTrace")
     thresholds = Thresholds() if thresholds is None else thresholds
 
-    errs, rpes, ttfcs, evo_apes, evo_rpes = [], [], [], [], []
+    errs, rpes, ttfcs, apes, rpe_paths = [], [], [], [], []
     n_steps = n_overlap = n_available = 0
     for trace in traces:
         has = trace.has_estimate
@@ -364,9 +347,9 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
         errs.append(err[has])
         rpes.append(relative_pose_errors(trace)[has])
         ttfcs.append(_time_to_first_correct(trace, correct))
-        evo_ape, evo_rpe = trace.evo_errors
-        evo_apes.append(evo_ape)
-        evo_rpes.append(evo_rpe)
+        ape, rpe_path = trace.path_errors
+        apes.append(ape)
+        rpe_paths.append(rpe_path)
         n_steps += trace.n_steps
         n_overlap += int(np.count_nonzero(trace.overlap))
         n_available += int(np.count_nonzero(trace.overlap & has))
@@ -392,8 +375,8 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
         time_to_first_correct=float(np.mean(found)) if found else math.nan,
         rpe_translation_mean=_mean_std(rpe[:, 0])[0],
         rpe_heading_mean=_mean_std(rpe[:, 1])[0],
-        evo_ape_rmse=_rmse(np.concatenate(evo_apes)),
-        evo_rpe_rmse=_rmse(np.concatenate(evo_rpes)),
+        ape_rmse=_rmse(np.concatenate(apes)),
+        rpe_rmse=_rmse(np.concatenate(rpe_paths)),
     )
 
 

@@ -9,7 +9,7 @@ T_oi_oj the same product is the ground truth; robot i's own path in its frame is
     trajectories/<job stem>/frame_<reference>/<method>/<robot>.tum   every other robot
 
 as `t x y z qx qy qz qw` (evo's TUM writer; planar poses at z = 0, times on the run's clock), so
-`evo_ape tum truth/<robot>.tum <method>/<robot>.tum` gives the `evo_ape_m` of the pair
+`evo_ape tum truth/<robot>.tum <method>/<robot>.tum` gives the `ape_m` of the pair
 (reference -> robot) in metrics.csv. `write_g2o` writes each method's paths as one pose graph.
 """
 
@@ -21,9 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params
+from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params, se2_to_se3
 
-from .metrics import planar_trajectory
 from .results import JobResult, load_saved
 
 __all__ = ["FORMATS", "TRUTH", "export", "frame_alignment", "robot_names", "robot_paths",
@@ -115,6 +114,20 @@ def _streams(job: JobResult) -> list[str]:
 
 def _folder(root: Path, job: JobResult, reference: int) -> Path:
     return root / "trajectories" / job.stem / f"frame_{robot_names(job)[reference]}"
+
+
+def planar_trajectory(times, T):
+    """An evo trajectory (`PoseTrajectory3D`) of planar poses: times (k,) s, T (k, 3, 3) SE(2),
+    placed at z = 0."""
+    from evo.core.trajectory import PoseTrajectory3D
+
+    T = np.asarray(T, dtype=float)
+    half_yaw = 0.5 * np.arctan2(T[:, 1, 0], T[:, 0, 0])
+    xyz = np.column_stack([T[:, 0, 2], T[:, 1, 2], np.zeros(len(T))])
+    quat_wxyz = np.column_stack([np.cos(half_yaw), np.zeros((len(T), 2)), np.sin(half_yaw)])
+    # every representation given: evo would otherwise build them pose by pose
+    return PoseTrajectory3D(xyz, quat_wxyz, np.asarray(times, dtype=float),
+                            poses_se3=list(se2_to_se3(T)))
 
 
 def write_tum(root: Path, job: JobResult, reference: int = 0,

@@ -1,5 +1,5 @@
-"""Time what a finished job costs after its methods ran: scoring (and evo's share of it), the
-TUM and g2o trajectories and the Rerun recording.
+"""Time what a finished job costs after its methods ran: scoring (and the APE and RPE share of
+it), the TUM and g2o trajectories and the Rerun recording.
 
 Simulates the scenario once (default: four robots for ten minutes), runs every method, then
 times each step `--repeat` times and prints the medians.
@@ -34,7 +34,7 @@ def median_seconds(work, repeat: int) -> float:
 
 
 def fresh(traces: list[PairTrace]) -> list[PairTrace]:
-    """Copies without the cached evo errors."""
+    """Copies without the cached path errors."""
     return [PairTrace(t.times, t.T_true, t.estimate, t.overlap, t.T_oi_bi, t.T_oj_bj)
             for t in traces]
 
@@ -57,7 +57,7 @@ def main() -> None:
         root = Path(folder)
         rows = [
             ("score (every metric)", lambda: score(job, names, thresholds_of(methods))),
-            ("  evo APE + RPE alone", lambda: [t.evo_errors for t in fresh(traces)]),
+            ("  APE + RPE alone", lambda: [t.path_errors for t in fresh(traces)]),
             ("TUM trajectories", lambda: write_tum(root, job)),
             ("g2o pose graphs", lambda: write_g2o(root, job)),
             ("Rerun recording", lambda: record(root / "run.rrd", [job])),

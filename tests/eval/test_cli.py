@@ -102,8 +102,8 @@ def test_align_maps_defaults_come_from_the_aligner_params():
 
 REPORT = {"translation_error_m_mean": 0.12, "translation_error_m_std": 0.03,
           "heading_error_deg_mean": 1.25, "heading_error_deg_std": 10.5, "availability": 1.0,
-          "false_accept": 0.125, "time_to_first_correct_s": 14.0, "evo_ape_m": 0.05,
-          "evo_rpe_m": 0.04,
+          "false_accept": 0.125, "time_to_first_correct_s": 14.0, "ape_m": 0.05,
+          "rpe_m": 0.04,
           "ms_per_pair_step": 12345.67}
 
 

@@ -17,6 +17,7 @@ from tcaff_gtsam.eval.metrics import (
     relative_pose_errors,
     step_errors,
 )
+from tcaff_gtsam.eval.trajectories import planar_trajectory
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params, se2_to_params, wrap_angle
@@ -202,7 +203,7 @@ def test_as_report_keys_units_and_json():
         "translation_error_m_mean", "translation_error_m_std", "translation_error_m_median",
         "heading_error_deg_mean",
         "heading_error_deg_std", "availability", "false_accept", "time_to_first_correct_s",
-        "rpe_translation_m", "rpe_heading_deg", "evo_ape_m", "evo_rpe_m", "n_steps",
+        "rpe_translation_m", "rpe_heading_deg", "ape_m", "rpe_m", "n_steps",
         "n_estimates", "n_overlap"}
     assert report["heading_error_deg_mean"] == pytest.approx(math.degrees(np.mean(HEAD)))
     assert report["heading_error_deg_std"] == pytest.approx(math.degrees(np.std(HEAD)))
@@ -260,23 +261,44 @@ def test_rpe_translation_hand_case():
 
 @PROPS
 @given(seeds)
-def test_evo_ape_is_the_relative_pose_translation_error(seed):
+def test_ape_is_the_relative_pose_translation_error(seed):
     # the same quantity computed twice: evo's APE of robot j's path in oi, and the error of
     # T_bi_bj (the rotation T_bi_oi keeps norms)
     trace = random_trace(seed)
     has = trace.has_estimate
-    ape, rpe = trace.evo_errors
+    ape, rpe = trace.path_errors
     np.testing.assert_allclose(ape, relative_pose_errors(trace)[has, 0], atol=1e-9)
     assert rpe.shape == (max(int(has.sum()) - 1, 0),)
     m = pair_metrics(trace)
     if has.any():
-        assert m.evo_ape_rmse == pytest.approx(np.sqrt(np.mean(ape**2)), rel=1e-12)
+        assert m.ape_rmse == pytest.approx(np.sqrt(np.mean(ape**2)), rel=1e-12)
         assert np.mean(ape) == pytest.approx(m.rpe_translation_mean, rel=1e-9, abs=1e-12)
     else:
-        assert math.isnan(m.evo_ape_rmse) and math.isnan(m.evo_rpe_rmse)
+        assert math.isnan(m.ape_rmse) and math.isnan(m.rpe_rmse)
 
 
-def test_evo_rpe_sees_a_jump_of_the_alignment_only():
+@PROPS
+@given(seeds)
+def test_ape_and_rpe_are_evos(seed):
+    """The path errors agree with evo's APE and RPE (translation part, default settings) on
+    the same paths, which is what `evo_ape tum` and `evo_rpe tum` compute on exported files."""
+    from evo.core import metrics as evo_metrics
+
+    trace = random_trace(seed)
+    has = trace.has_estimate
+    ape, rpe = trace.path_errors
+    if has.sum() < 2:
+        return
+    times = trace.times[has]
+    truth = planar_trajectory(times, trace.T_true[has] @ trace.T_oj_bj[has])
+    path = planar_trajectory(times, se2_from_params(trace.estimate[has]) @ trace.T_oj_bj[has])
+    for metric, ours in ((evo_metrics.APE, ape), (evo_metrics.RPE, rpe)):
+        theirs = metric(evo_metrics.PoseRelation.translation_part)
+        theirs.process_data((truth, path))
+        np.testing.assert_allclose(ours, theirs.error, atol=1e-9)
+
+
+def test_rpe_sees_a_jump_of_the_alignment_only():
     # robot j stands still at (2, 0) in oj; the alignment is right, then off by 1 m along x for
     # two steps, then right again: APE 0, 1, 1, 0; RPE (consecutive steps) 1, 0, 1
     T_true = se2_from_params(np.tile([3.0, -1.0, 0.5], (4, 1)))
@@ -284,11 +306,11 @@ def test_evo_rpe_sees_a_jump_of_the_alignment_only():
     estimate = [se2_to_params(T_true[0]), off, off, se2_to_params(T_true[0])]
     T_oj_bj = se2_from_params(np.tile([2.0, 0.0, 0.3], (4, 1)))
     trace = make_trace(np.arange(4.0), T_true, estimate, [True] * 4, None, T_oj_bj)
-    ape, rpe = trace.evo_errors
+    ape, rpe = trace.path_errors
     np.testing.assert_allclose(ape, [0, 1, 1, 0], atol=1e-9)
     np.testing.assert_allclose(rpe, [1, 0, 1], atol=1e-9)
     m = pair_metrics(trace)
-    assert m.evo_rpe_rmse == pytest.approx(np.sqrt(2 / 3))
+    assert m.rpe_rmse == pytest.approx(np.sqrt(2 / 3))
 
 
 # --- pooling -------------------------------------------------------------------------------------
@@ -304,7 +326,7 @@ def test_pooled_equals_concatenation(seed_a, seed_b):
         assert getattr(pooled, name) == getattr(joined, name)
     for name in ("translation_mean", "translation_std", "heading_mean", "heading_std",
                  "availability", "false_accept", "rpe_translation_mean", "rpe_heading_mean",
-                 "evo_ape_rmse"):
+                 "ape_rmse"):
         p, j = getattr(pooled, name), getattr(joined, name)
         assert (math.isnan(p) and math.isnan(j)) or p == pytest.approx(j, rel=1e-9, abs=1e-12)
 

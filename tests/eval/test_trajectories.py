@@ -100,7 +100,7 @@ def test_tum_files_read_back_by_evo_give_the_table_ape(tmp_path):
         ape.process_data((ref, est))
         if pair is not None:
             assert ape.get_statistic(evo_metrics.StatisticsType.rmse) == pytest.approx(
-                job.metrics["noisy"][pair]["evo_ape_m"], rel=1e-6)
+                job.metrics["noisy"][pair]["ape_m"], rel=1e-6)
         assert ape.get_statistic(evo_metrics.StatisticsType.rmse) > 0.01
 
 
@@ -119,7 +119,7 @@ def test_evo_ape_command_reproduces_the_table(tmp_path):
     with open(tmp_path / "metrics.csv") as file:
         row = next(r for r in csv.DictReader(file) if r["method"] == "noisy"
                    and r["pair"] == "0->1")
-    assert rmse == pytest.approx(float(row["evo_ape_m"]), abs=5e-7)  # evo prints 6 decimals
+    assert rmse == pytest.approx(float(row["ape_m"]), abs=5e-7)  # evo prints 6 decimals
 
 
 def test_g2o_pose_graph_reads_back_in_gtsam(tmp_path):
