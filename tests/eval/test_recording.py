@@ -1,4 +1,5 @@
-"""Rerun recordings, read back with Rerun's own reader: entities, times and counts."""
+"""Rerun recordings, read back with Rerun's chunk reader and its dataframe API: entities, times and
+counts."""
 
 from __future__ import annotations
 
@@ -171,3 +172,27 @@ def test_view_command_writes_the_recording_of_saved_runs(job, tmp_path, monkeypa
                            "a study)")
     code, out = tcaff("study", "--rerun", str(tmp_path), "--duration", "5")
     assert code == 2 and "--rerun" in out and "is a folder" in out
+
+
+def test_the_dataframe_api_reads_every_error_series_at_its_times(job, tmp_path):
+    """Rerun's dataframe reader (a DataFusion table indexed by the timeline) sees each
+    method's error of each pair at the exchanges where the method has an estimate."""
+    path = record(tmp_path / "run.rrd", [job])
+    store = rr.chunk.ChunkStore.from_chunks(rr.chunk.RrdReader(path).stream().to_chunks())
+    table = store.reader(index="time").to_arrow_table()
+    seconds_at = np.array([t.total_seconds() for t in table.column("time").to_pylist()])
+    np.testing.assert_allclose(np.sort(seconds_at), job.arrays["times"])
+    root, times = f"/{job.stem}", job.arrays["times"]
+    for stream in ("tcaff", "ground_truth"):
+        for q, (i, j) in enumerate(job.pairs):
+            est = job.arrays[f"est_{stream}"][q]
+            steps = np.flatnonzero(np.all(np.isfinite(est), axis=1))
+            name = f"{root}/errors/{i}_to_{j}/translation/{stream}:Scalars:scalars"
+            cells = table.column(name).to_pylist()
+            logged = [k for k, cell in enumerate(cells) if cell is not None]
+            np.testing.assert_allclose(np.sort(seconds_at[logged]), times[steps])
+            expected = se2_error(se2_from_params(job.arrays["truth"][q, steps]),
+                                 se2_from_params(est[steps]))[:, 0]
+            order = np.argsort(seconds_at[logged])
+            got = np.concatenate([cells[k] for k in np.array(logged)[order]])
+            np.testing.assert_allclose(got, expected, atol=1e-9)
