@@ -163,8 +163,7 @@ def depth_border(valid: np.ndarray, margin: int) -> np.ndarray:
         return edge
     near = np.ones((H, W), dtype=bool)
     near[margin:H - margin, margin:W - margin] = False
-    candidates = (~valid & near).view(np.uint8)
-    count, labels = cv2.connectedComponents(candidates, connectivity=8)
+    count, labels = cv2.connectedComponents((~valid & near).view(np.uint8), connectivity=8)
     reaches = np.zeros(count, dtype=bool)
     reaches[labels[edge]] = True
     reaches[0] = False
@@ -298,23 +297,31 @@ class DepthSegmenterParams:
 
 
 def _structure_parts(band: np.ndarray, z: np.ndarray, fx: float, fy: float,
-                     min_extent: float, border: np.ndarray, fronts: np.ndarray) -> np.ndarray:
+                     min_extent: float, border: np.ndarray, jumps: tuple[np.ndarray, np.ndarray],
+                     ) -> np.ndarray:
     """(H, W) bool: the 8-connected parts of a plane's band of pixels that are structure (a
     wall), not an object face: those that reach `border` ((H, W) bool, the image edge and the
     band without depth along it, grown by one pixel), span at least `min_extent` metres (2D
-    box in pixels times mean depth over focal length), or hold no pixel of `fronts` ((H, W)
-    bool, the near side of depth jumps): nothing is seen behind a piece of wall, while an
-    object stands out against what is behind it."""
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(band.view(np.uint8),
-                                                                connectivity=8)
+    box in pixels times mean depth over focal length), or are seen only past nearer things:
+    they hold pixels on the far side of depth jumps but none on the near side (`jumps`, both
+    (H, W) bool), like a piece of wall seen under a chair. An object face on the plane stands
+    out in front of what is behind it."""
+    behind, fronts = jumps
+    # cut at the far side of jumps, so that an object's face does not join the band's
+    # background through its silhouette
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        (band & ~behind).view(np.uint8), connectivity=8)
     in_front = np.zeros(count, dtype=bool)
     in_front[labels[fronts]] = True
+    occluded = np.zeros(count, dtype=bool)
+    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8))
+    occluded[grown[behind & band].astype(np.int64)] = True
     edge = np.unique(labels[border])
     mean_z = (np.bincount(labels.ravel(), weights=z.ravel(), minlength=count)
               / np.maximum(stats[:, cv2.CC_STAT_AREA], 1))
     extent = mean_z * np.maximum(stats[:, cv2.CC_STAT_WIDTH] / fx,
                                  stats[:, cv2.CC_STAT_HEIGHT] / fy)
-    structure = (extent >= min_extent) | ~in_front
+    structure = (extent >= min_extent) | (occluded & ~in_front)
     structure[edge] = True
     structure[0] = False
     return structure[labels]
@@ -331,8 +338,8 @@ class DepthSegmenter:
     - a level plane (normal within `level_tolerance_deg` of gravity: floor, ceiling, table
       top) holding `level_plane_share` of the valid pixels is removed whole;
     - any other plane holding `plane_share` of them is a wall: its parts that reach the border
-      of the valid depth, span `plane_min_extent` metres or have nothing behind them (a piece
-      of wall seen under a chair) are removed;
+      of the valid depth, span `plane_min_extent` metres or are seen only past nearer things
+      (a piece of wall under a chair) are removed;
     - what is left is cut at depth jumps (`jump`, `jump_per_m`, over up to `jump_reach`
       pixels), and components larger than `max_area_share` of the image are dropped.
 
@@ -377,12 +384,14 @@ class DepthSegmenter:
         z = depth_in_metres(depth, self.depth_scale, self.camera.shape)
         if p.median > 1:
             z = cv2.medianBlur(z, p.median)
+        # the border band is where the sensor gave nothing, not where returns are out of range
+        returned = z > 0
         z[(z < p.depth_min) | (z > p.depth_max)] = 0.0
         valid = z > 0
-        border = cv2.dilate(depth_border(valid, p.invalid_margin).view(np.uint8),
+        border = cv2.dilate(depth_border(returned, p.invalid_margin).view(np.uint8),
                             np.ones((3, 3), np.uint8)).view(bool)
-        behind, fronts = self._jumps(z, valid)
-        foreground = valid & ~self._planes(z, valid, border, fronts) & ~behind
+        jumps = self._jumps(z, valid)
+        foreground = valid & ~self._planes(z, valid, border, jumps) & ~jumps[0]
         count, labels, stats, _ = cv2.connectedComponentsWithStats(
             foreground.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         area = stats[1:, cv2.CC_STAT_AREA]
@@ -411,13 +420,13 @@ class DepthSegmenter:
         return valid & (z - nearest > threshold), valid & (farthest - z > threshold)
 
     def _planes(self, z: np.ndarray, valid: np.ndarray, border: np.ndarray,
-                fronts: np.ndarray) -> np.ndarray:
+                jumps: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         """(H, W) bool: pixels of room structure (see the class's rules).
 
         RANSAC finds one plane after another on a sample of the pixels. A level plane's band
         of pixels is removed whole; a wall's band is split into connected parts, and only the
-        parts that reach `border`, span `plane_min_extent` metres or stand in front of nothing
-        (`fronts`, the near side of depth jumps) are removed, if together they hold
+        parts that reach `border`, span `plane_min_extent` metres or are seen only past nearer
+        things (`jumps`: the far and near side of depth jumps) are removed, if together they hold
         `plane_share` of the valid pixels. An object face that lies on a wall's plane, or that
         RANSAC fitted a plane to, is kept unless it reaches the border (the mask filter drops
         those anyway).
@@ -462,7 +471,7 @@ class DepthSegmenter:
                     enough = np.count_nonzero(band) >= p.level_plane_share * n_valid
                 else:
                     on_plane = _structure_parts(band, z, self.camera.fx, self.camera.fy,
-                                                p.plane_min_extent, border, fronts)
+                                                p.plane_min_extent, border, jumps)
                     enough = np.count_nonzero(on_plane) >= p.plane_share * n_valid
                 if enough:
                     out |= on_plane

@@ -206,8 +206,13 @@ def test_empty_and_tiny_masks_give_no_observation():
     depth[no_depth] = 0.0  # a region without returns
     floor = (frame.instance == 0) & (frame.depth > 0)
     masks = np.stack([np.zeros_like(gt), gt, tiny, no_depth, floor & ~no_depth])
+    # the floor is a flat level slab: room structure, dropped unless slabs are kept
     obs = MaskLifter(CAMERA, 1.0).lift(masks, depth, setup.T_world_camera)
+    np.testing.assert_array_equal(obs.mask_indices, [1])
+    keep_slabs = MaskLifter(CAMERA, 1.0, LiftParams(slab_extent=math.inf))
+    obs = keep_slabs.lift(masks, depth, setup.T_world_camera)
     np.testing.assert_array_equal(obs.mask_indices, [1, 4])
+    assert obs.widths[1] >= 0.5 and obs.heights[1] <= 0.05
     assert obs.mask_indices.dtype == np.int64 and obs.point_counts.dtype == np.int64
     assert obs.centroids.shape == (2, 3) and obs.widths.shape == obs.heights.shape == (2,)
     assert np.linalg.norm(obs.centroids[0] - setup.truth) <= 0.05
