@@ -33,6 +33,7 @@ from .camera import (
 )
 
 __all__ = [
+    "INVALID_MARGIN",
     "DepthSegmenter",
     "DepthSegmenterParams",
     "MaskFilter",
@@ -92,9 +93,9 @@ class MaskFilter:
         max_elongation: largest ratio of the mask's principal standard deviations (long over
             short axis); thin masks are edges, poles cut by the frame or segmentation slivers.
         min_depth_share: smallest share of mask pixels with a depth return.
-        invalid_margin: pixels; pixels without depth that are connected to the image edge
-            through pixels without depth, all within this distance of the edge, count as the
-            edge (0: only the image edge counts).
+        invalid_margin: pixels; a region without depth that reaches the image edge and lies
+            mostly within this distance of it counts as the edge there (see `depth_border`;
+            0: only the image edge counts).
     """
 
     min_area: int = 400
@@ -149,8 +150,13 @@ def check_masks(masks, shape: tuple[int, int], owner: str = "masks") -> np.ndarr
 
 
 def depth_border(valid: np.ndarray, margin: int) -> np.ndarray:
-    """(H, W) bool: the image's outermost pixels plus the pixels without depth that reach them
-    through pixels without depth lying within `margin` pixels of the image edge.
+    """(H, W) bool: the image's outermost pixels plus the band without depth along them.
+
+    A connected region without depth that reaches the image edge is a band of the sensor's
+    border (registration, vignetting) when most of its pixels lie within `margin` pixels of
+    the edge; its pixels within the margin count as border. A region mostly farther in (open
+    space beyond the range, a window, the sky) is something seen, not an edge of the view:
+    an object next to it is not cut off.
 
     Args:
         valid: (H, W) bool, pixels with a depth return.
@@ -163,11 +169,14 @@ def depth_border(valid: np.ndarray, margin: int) -> np.ndarray:
         return edge
     near = np.ones((H, W), dtype=bool)
     near[margin:H - margin, margin:W - margin] = False
-    count, labels = cv2.connectedComponents((~valid & near).view(np.uint8), connectivity=8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        (~valid).view(np.uint8), connectivity=8)
     reaches = np.zeros(count, dtype=bool)
     reaches[labels[edge]] = True
-    reaches[0] = False
-    return edge | reaches[labels]
+    inside = np.bincount(labels[near], minlength=count)
+    band = reaches & (2 * inside > stats[:, cv2.CC_STAT_AREA])
+    band[0] = False
+    return edge | (band[labels] & near)
 
 
 def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter) -> np.ndarray:
