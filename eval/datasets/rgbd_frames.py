@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import open3d as o3d
-from tcaff_gtsam.mapping.camera import PinholeCamera
+from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import se3_from_rt
@@ -26,6 +26,9 @@ __all__ = ["PRIMESENSE", "RealFrame", "load_folder", "load_nyu", "load_redwood",
 
 #: Kinect v1 / PrimeSense default intrinsics (525, 525, 319.5, 239.5) at 640 x 480.
 PRIMESENSE = PinholeCamera(640, 480, 525.0, 525.0, 319.5, 239.5)
+#: metres; nominal camera height of the Redwood frames (sizes and the level planes do not
+#: depend on it, only the reported heights of centroids)
+REDWOOD_HEIGHT = 1.0
 
 
 @dataclass(frozen=True)
@@ -37,16 +40,20 @@ class RealFrame:
         rgb: (H, W, 3) uint8, RGB order.
         depth: (H, W) float32 metres registered to `rgb`, 0 = no return.
         camera: intrinsics of both images.
-        T_level_camera: (4, 4) the optical frame in a gravity-aligned frame at the camera
-            (x forward, y left, z up, no translation), from the data set's poses; None when
-            the data set records no orientation for the frame.
+        T_body_camera: (4, 4) the optical frame in a gravity-aligned body frame on the floor
+            below the camera (x forward, y left, z up): what `RgbdFrontEnd` and
+            `DepthSegmenter` need to tell level planes. Redwood: the rotation from the
+            sequence's poses and a nominal height of 1 m (its log does not say where the floor
+            is). TUM and NYU single frames carry no pose: pitch and height were read off the
+            floor plane seen in the frame, rounded to 5 degrees and 0.1 m (see `load_tum`,
+            `load_nyu`).
     """
 
     name: str
     rgb: np.ndarray
     depth: np.ndarray
     camera: PinholeCamera
-    T_level_camera: np.ndarray | None = None
+    T_body_camera: np.ndarray
 
 
 def _read(path: Path, flags: int) -> np.ndarray:
@@ -62,18 +69,21 @@ def _rgb(path: Path) -> np.ndarray:
 
 def load_tum(folder: Path | str) -> RealFrame:
     """`TUM_color.png` + `TUM_depth.png` (16-bit, 5000 units per metre), PrimeSense
-    intrinsics; the frame carries no pose."""
+    intrinsics. The frame carries no pose; the camera, handheld over a desk, looks 25 degrees
+    down from 1.7 m (from the floor plane seen in the frame)."""
     folder = Path(folder)
     depth = _read(folder / "TUM_depth.png", cv2.IMREAD_UNCHANGED)
     if depth.dtype != np.uint16:
         raise DataError(f"{folder / 'TUM_depth.png'}: expected 16-bit depth, got {depth.dtype}")
     return RealFrame("TUM", _rgb(folder / "TUM_color.png"),
-                     depth.astype(np.float32) / 5000.0, PRIMESENSE)
+                     depth.astype(np.float32) / 5000.0, PRIMESENSE, T_body_camera(1.7, 25.0))
 
 
 def load_nyu(folder: Path | str) -> RealFrame:
     """`NYU_color.ppm` + `NYU_depth.pgm` (raw Kinect disparity, big-endian), converted to
-    metres by Open3D's `create_from_nyu_format`; PrimeSense intrinsics; no pose."""
+    metres by Open3D's `create_from_nyu_format`; PrimeSense intrinsics. The frame carries no
+    pose; the camera looks 15 degrees down from 1.6 m (from the floor plane seen in the
+    frame)."""
     folder = Path(folder)
     raw = _read(folder / "NYU_depth.pgm", cv2.IMREAD_UNCHANGED)
     if raw.dtype != np.uint16:
@@ -86,7 +96,7 @@ def load_nyu(folder: Path | str) -> RealFrame:
         o3d.geometry.Image(rgb), o3d.geometry.Image(stored), convert_rgb_to_intensity=False)
     depth = np.asarray(rgbd.depth, dtype=np.float32).copy()
     depth[~np.isfinite(depth)] = 0.0
-    return RealFrame("NYU", rgb, depth, PRIMESENSE)
+    return RealFrame("NYU", rgb, depth, PRIMESENSE, T_body_camera(1.6, 15.0))
 
 
 def load_redwood(folder: Path | str) -> list[RealFrame]:
@@ -116,7 +126,7 @@ def load_redwood(folder: Path | str) -> list[RealFrame]:
         depth = _read(d_path, cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0
         R_level_camera = _level(R_zup_yup @ T_world_gl[:3, :3] @ R_gl_optical)
         frames.append(RealFrame(f"redwood_{d_path.stem}", _rgb(c_path), depth, camera,
-                                se3_from_rt(R_level_camera, (0.0, 0.0, 0.0))))
+                                se3_from_rt(R_level_camera, (0.0, 0.0, REDWOOD_HEIGHT))))
     return frames
 
 
