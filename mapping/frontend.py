@@ -72,7 +72,8 @@ class RgbdFrontEnd:
         depth_scale: raw depth units per metre of the incoming depth images (1000 for 16-bit
             millimetres, 1 for float metres).
         segmenter: any `Segmenter`; it is given depth as float32 metres registered to the
-            colour image. Default: `DepthSegmenter`.
+            colour image. Default: `DepthSegmenter` told the camera's attitude (which planes
+            are level) by `T_body_camera`.
         registration: set when depth comes from a different camera than colour.
         mask_filter, lift_params, mapper_params: settings of the stages.
     """
@@ -95,7 +96,8 @@ class RgbdFrontEnd:
         self.registration = registration
         self.depth_scale = check_depth_scale("RgbdFrontEnd.depth_scale", depth_scale)
         # Every stage after the first is given float32 metres (depth_scale 1).
-        self.segmenter = DepthSegmenter(camera, 1.0) if segmenter is None else segmenter
+        self.segmenter = (DepthSegmenter(camera, 1.0, T_body_camera=self.T_body_camera)
+                          if segmenter is None else segmenter)
         if not callable(getattr(self.segmenter, "segment", None)):
             raise ConfigError(f"RgbdFrontEnd.segmenter = {segmenter!r}: needs a "
                               "segment(rgb, depth) method")

@@ -7,6 +7,14 @@ that spills onto the background gives a second, far cluster). The observation is
 centroid, its width (the longer side of the smallest-perimeter rectangle holding its footprint
 on the ground plane, which does not depend on the viewing direction for boxes and cylinders) and its
 height (its extent along the odometry frame's z axis, which is up).
+
+Level room structure that reaches the lifter (a strip of floor or ceiling, a table top) is a
+horizontal slab: a cloud is dropped when 90 % of its points lie within `slab_thickness` along z
+while its width is `slab_extent` or more; objects stand up from the floor. A piece of wall the
+segmenter could not tell from an object (too small a share of the image to be found as a
+plane, cut off by nearer objects) is a vertical slab: dropped when 90 % of its footprint lies
+within `wall_thickness` across its long axis while its width is `wall_extent` or more. A box seen
+face on is a vertical slab too, but narrower than a wall.
 """
 
 from __future__ import annotations
@@ -54,6 +62,13 @@ class LiftParams:
             `MaskLifter._clean`).
         min_points: objects with fewer cleaned points are dropped.
         depth_min, depth_max: metres; depths outside are ignored.
+        slab_thickness: metres; a cloud this thin (5th to 95th percentile) along z ...
+        slab_extent: metres; ... and at least this wide is level room structure and
+            dropped. math.inf keeps every cloud.
+        wall_thickness: metres; a cloud this thin (5th to 95th percentile) across the long
+            axis of its footprint ...
+        wall_extent: metres; ... and at least this wide is a piece of wall and dropped.
+            math.inf keeps every cloud.
     """
 
     voxel_size: float = 0.01
@@ -66,6 +81,10 @@ class LiftParams:
     min_points: int = 12
     depth_min: float = 0.2
     depth_max: float = 8.0
+    slab_thickness: float = 0.04
+    slab_extent: float = 0.5
+    wall_thickness: float = 0.1
+    wall_extent: float = 1.5
 
     def __post_init__(self) -> None:
         o = "LiftParams"
@@ -77,6 +96,16 @@ class LiftParams:
         for name in ("max_points", "outlier_neighbors", "cluster_min_points", "min_points"):
             v = getattr(self, name)
             _require(_int_at_least(v, 1), o, name, v, "must be an int >= 1")
+        _require(_real(self.slab_thickness) and math.isfinite(self.slab_thickness)
+                 and self.slab_thickness >= 0, o, "slab_thickness", self.slab_thickness,
+                 "must be a finite number >= 0 metres")
+        _require(_real(self.wall_thickness) and math.isfinite(self.wall_thickness)
+                 and self.wall_thickness >= 0, o, "wall_thickness", self.wall_thickness,
+                 "must be a finite number >= 0 metres")
+        for name in ("slab_extent", "wall_extent"):
+            v = getattr(self, name)
+            _require(_real(v) and v > 0, o, name, v,
+                     "must be a number > 0 metres (inf keeps every cloud)")
         _require(_real(self.depth_min) and 0 <= self.depth_min < self.depth_max,
                  o, "depth_min", self.depth_min, f"must be in [0, depth_max = {self.depth_max})")
 
@@ -251,8 +280,31 @@ class MaskLifter:
         widths = _footprint_widths(points[:, :2], starts, ends) + p.voxel_size
         heights = (np.maximum.reduceat(points[:, 2], starts)
                    - np.minimum.reduceat(points[:, 2], starts) + p.voxel_size)
-        return Observations(centroids, widths, heights, counts[lifted],
-                            np.array(sources, dtype=np.int64)[lifted])
+        solid = ~self._slabs(points, starts, ends, widths)
+        if not solid.any():
+            return _no_observations()
+        return Observations(centroids[solid], widths[solid], heights[solid],
+                            counts[lifted][solid],
+                            np.array(sources, dtype=np.int64)[lifted][solid])
+
+    def _slabs(self, points: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+               widths: np.ndarray) -> np.ndarray:
+        """(c,) bool: which clouds (points[starts[g]:ends[g]], (n, 3) metres in the odometry
+        frame, widths (c,)) are level or vertical slabs of room structure (see the module's
+        docstring)."""
+        p = self.params
+        slab = np.zeros(starts.size, dtype=bool)
+        for g in np.flatnonzero(widths >= min(p.slab_extent, p.wall_extent)):
+            cloud = points[starts[g]:ends[g]]
+            if widths[g] >= p.slab_extent:
+                lo, hi = np.percentile(cloud[:, 2], (5, 95))
+                slab[g] = hi - lo <= p.slab_thickness
+            if not slab[g] and widths[g] >= p.wall_extent:
+                xy = cloud[:, :2] - cloud[:, :2].mean(axis=0)
+                across = xy @ np.linalg.eigh(xy.T @ xy)[1][:, 0]  # the footprint's short axis
+                lo, hi = np.percentile(across, (5, 95))
+                slab[g] = hi - lo <= p.wall_thickness
+        return slab
 
     def _sample(self, mask: np.ndarray, usable: np.ndarray, rows_hit: np.ndarray,
                 cols_hit: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:

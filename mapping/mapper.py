@@ -129,7 +129,8 @@ class ObjectMapper:
             heights: (k,) metres, vertical extents, >= 0.
 
         Returns:
-            (k,) int64, the id of the track each observation was assigned to (after merging).
+            (k,) int64, the id of the track each observation was assigned to (after merging);
+            distinct, since two observations of one frame are never merged.
 
         Raises:
             DataError: on a bad time stamp or bad observation arrays (nothing is changed).
@@ -166,7 +167,7 @@ class ObjectMapper:
             touched = np.concatenate([touched, np.ones(n_new, dtype=bool)])
 
         out = self._ids[rows]  # int64, and fancy indexing copies
-        self._merge(touched, out)
+        self._merge(touched, touched.copy(), out)
         return out
 
     def object_map(self) -> ObjectMap:
@@ -253,12 +254,14 @@ class ObjectMapper:
         rows[r_idx[r[ok]]] = cand[c_idx[c[ok]]]
         return rows
 
-    def _merge(self, touched: np.ndarray, out: np.ndarray) -> None:
+    def _merge(self, touched: np.ndarray, in_frame: np.ndarray, out: np.ndarray) -> None:
         """Merge near-duplicate tracks in place; rewrites merged-away ids in `out` (k,).
 
         After every update no two tracks qualify for merging, and tracks this update did not
         touch have not moved, so only pairs involving a touched track (or a merge survivor)
-        need checking.
+        need checking. Two tracks that both hold an observation of this frame (`in_frame`,
+        per row) are never merged: one frame's segments are distinct objects, so the ids in
+        `out` stay unique.
         """
         p = self.params
         if p.merge_distance <= 0:
@@ -273,7 +276,8 @@ class ObjectMapper:
             lw, lh = _log_size(self._widths), _log_size(self._heights)
             ok = ((dist < p.merge_distance)
                   & (np.abs(lw[idx][:, None] - lw[None]) <= self._log_size_gate)
-                  & (np.abs(lh[idx][:, None] - lh[None]) <= self._log_size_gate))
+                  & (np.abs(lh[idx][:, None] - lh[None]) <= self._log_size_gate)
+                  & ~(in_frame[idx][:, None] & in_frame[None]))
             if not ok.any():
                 return
             r, c = np.unravel_index(np.argmin(np.where(ok, dist, np.inf)), dist.shape)
@@ -291,4 +295,5 @@ class ObjectMapper:
             keep[j] = False
             self._keep_rows(keep)
             touched[i] = True
-            touched = touched[keep]
+            in_frame[i] |= in_frame[j]
+            touched, in_frame = touched[keep], in_frame[keep]

@@ -4,6 +4,11 @@ A segmenter turns one RGB-D frame into instance masks, (k, H, W) bool, one per c
 `filter_masks` then drops the masks the original systems also dropped: touching the image
 border (a cut-off object has a wrong centroid and size), too small, too large, too elongated,
 or with too little valid depth to lift. FastSAM through onnxruntime is in `fastsam.py`.
+
+Real depth cameras return no depth in bands along the image edges (registration, lens
+vignetting) and beyond their range. Every border rule therefore treats the band of missing
+depth that reaches the image edge (`depth_border`) as part of the edge: an object cut by the
+edge of the valid depth is as cut off as one cut by the edge of the image.
 """
 
 from __future__ import annotations
@@ -15,20 +20,34 @@ from typing import Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.params import _int_at_least, _real, _require
 
-from .camera import PinholeCamera, check_camera, check_depth_scale, depth_in_metres
+from .camera import (
+    R_BODY_OPTICAL,
+    PinholeCamera,
+    check_camera,
+    check_depth_scale,
+    depth_in_metres,
+    rigid_transform,
+)
 
 __all__ = [
+    "INVALID_MARGIN",
     "DepthSegmenter",
     "DepthSegmenterParams",
     "MaskFilter",
     "Segmenter",
     "check_masks",
     "check_rgb",
+    "depth_border",
     "filter_masks",
 ]
+
+#: sample points on which each RANSAC hypothesis is scored
+_RANSAC_SCORED = 1000
+#: pixels; no-depth regions this close to the image edge, and reaching it, count as the edge
+INVALID_MARGIN = 40
 
 
 @runtime_checkable
@@ -69,11 +88,14 @@ class MaskFilter:
     Attributes:
         min_area: pixels; smaller masks are dropped.
         max_area_share: share of the image; larger masks (floor, walls, sky) are dropped.
-        border: pixels; masks reaching within this distance of the image edge are dropped
-            (0 keeps them).
+        border: pixels; masks reaching within this distance of the image edge, or of the
+            band without depth along it (see `invalid_margin`), are dropped (0 keeps them).
         max_elongation: largest ratio of the mask's principal standard deviations (long over
             short axis); thin masks are edges, poles cut by the frame or segmentation slivers.
         min_depth_share: smallest share of mask pixels with a depth return.
+        invalid_margin: pixels; a region without depth that reaches the image edge and lies
+            mostly within this distance of it counts as the edge there (see `depth_border`;
+            0: only the image edge counts).
     """
 
     min_area: int = 400
@@ -81,6 +103,7 @@ class MaskFilter:
     border: int = 2
     max_elongation: float = 6.0
     min_depth_share: float = 0.5
+    invalid_margin: int = INVALID_MARGIN
 
     def __post_init__(self) -> None:
         o = "MaskFilter"
@@ -88,6 +111,8 @@ class MaskFilter:
                  "must be an int >= 0 pixels")
         _require(_int_at_least(self.border, 0), o, "border", self.border,
                  "must be an int >= 0 pixels")
+        _require(_int_at_least(self.invalid_margin, 0), o, "invalid_margin",
+                 self.invalid_margin, "must be an int >= 0 pixels")
         _require(_real(self.max_area_share)
                  and 0 < self.max_area_share <= 1, o, "max_area_share", self.max_area_share,
                  "must be in (0, 1]")
@@ -124,6 +149,36 @@ def check_masks(masks, shape: tuple[int, int], owner: str = "masks") -> np.ndarr
     return masks
 
 
+def depth_border(valid: np.ndarray, margin: int) -> np.ndarray:
+    """(H, W) bool: the image's outermost pixels plus the band without depth along them.
+
+    A connected region without depth that reaches the image edge is a band of the sensor's
+    border (registration, vignetting) when most of its pixels lie within `margin` pixels of
+    the edge; its pixels within the margin count as border. A region mostly farther in (open
+    space beyond the range, a window, the sky) is something seen, not an edge of the view:
+    an object next to it is not cut off.
+
+    Args:
+        valid: (H, W) bool, pixels with a depth return.
+        margin: pixels (>= 0).
+    """
+    H, W = valid.shape
+    edge = np.zeros((H, W), dtype=bool)
+    edge[0], edge[-1], edge[:, 0], edge[:, -1] = True, True, True, True
+    if margin == 0:
+        return edge
+    near = np.ones((H, W), dtype=bool)
+    near[margin:H - margin, margin:W - margin] = False
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        (~valid).view(np.uint8), connectivity=8)
+    reaches = np.zeros(count, dtype=bool)
+    reaches[labels[edge]] = True
+    inside = np.bincount(labels[near], minlength=count)
+    band = reaches & (2 * inside > stats[:, cv2.CC_STAT_AREA])
+    band[0] = False
+    return edge | (band[labels] & near)
+
+
 def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter) -> np.ndarray:
     """Indices of the masks that pass `mask_filter`.
 
@@ -139,20 +194,26 @@ def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter
     f = mask_filter
     rows_hit = masks.any(axis=2)  # (k, H)
     cols_hit = masks.any(axis=1)  # (k, W)
+    valid = depth_m > 0
+    near_border = None
+    if f.border:
+        border = depth_border(valid, f.invalid_margin)
+        # within `border` pixels of the border: inside the image, a border pixel is 1 away
+        kernel = np.ones((2 * f.border - 1, 2 * f.border - 1), np.uint8)
+        near_border = cv2.dilate(border.view(np.uint8), kernel).view(bool)
     keep = []
     for i in range(k):
         rows, cols = np.flatnonzero(rows_hit[i]), np.flatnonzero(cols_hit[i])
         if rows.size == 0:
             continue
         r0, r1, c0, c1 = rows[0], rows[-1], cols[0], cols[-1]
-        if f.border and (r0 < f.border or c0 < f.border or r1 >= H - f.border
-                         or c1 >= W - f.border):
-            continue
         crop = masks[i, r0:r1 + 1, c0:c1 + 1]
+        if near_border is not None and near_border[r0:r1 + 1, c0:c1 + 1][crop].any():
+            continue
         ys, xs = np.nonzero(crop)
         if not f.area_ok(np.array([ys.size]), H * W)[0]:
             continue
-        if np.count_nonzero(depth_m[r0:r1 + 1, c0:c1 + 1][crop] > 0) < f.min_depth_share * ys.size:
+        if np.count_nonzero(valid[r0:r1 + 1, c0:c1 + 1][crop]) < f.min_depth_share * ys.size:
             continue
         if _elongation(ys, xs) > f.max_elongation:
             continue
@@ -169,26 +230,40 @@ class DepthSegmenterParams:
         jump: metres; a pixel is an occlusion edge when a 4-neighbour is nearer by more than
             jump + jump_per_m * its depth.
         jump_per_m: metres of extra jump allowed per metre of depth.
+        jump_reach: pixels; depth is compared with the neighbours up to this far along rows
+            and columns, so that a jump smeared over a few pixels (as real sensors and the
+            median filter give) still cuts: a chair in front of a wall is split from it.
         max_planes: largest number of dominant planes (floor, walls) removed.
         plane_share: a plane must hold this share of the valid pixels to count as dominant.
+        level_tolerance_deg: degrees; a plane whose normal lies this close to the gravity axis
+            is level (a floor, ceiling or table top).
+        level_plane_share: a level plane needs only this share of the valid pixels; it is
+            removed whole, however it is cut up (floor between chair legs, ceiling in a
+            corridor), since no object is a large level surface.
         plane_distance: metres; a pixel belongs to a plane within this distance plus
             plane_distance_per_m2 * depth^2 (noise grows with the square of range).
         plane_distance_per_m2: metres per square metre of depth.
-        plane_min_extent: metres; a part of a plane's pixels that does not reach the image
-            border is still floor or wall when it spans this far (objects are smaller).
+        plane_min_extent: metres; a part of a (not level) plane's pixels that does not reach
+            the border of the valid depth is still a wall when it spans this far (objects are
+            smaller).
         ransac_iterations: plane hypotheses tried per plane.
         ransac_stride: pixels; RANSAC scores hypotheses on every stride-th pixel per axis.
         seed: RANSAC's random seed; the same frame always gives the same masks.
         min_area: pixels; smaller components are dropped.
         max_area_share: share of the image; larger components are dropped.
         depth_min, depth_max: metres; depths outside are treated as no return.
+        invalid_margin: pixels; how far from the image edge a band without depth still
+            counts as the edge (see `depth_border`).
     """
 
     median: int = 5
     jump: float = 0.05
     jump_per_m: float = 0.04
+    jump_reach: int = 3
     max_planes: int = 4
     plane_share: float = 0.08
+    level_tolerance_deg: float = 15.0
+    level_plane_share: float = 0.03
     plane_distance: float = 0.015
     plane_distance_per_m2: float = 0.002
     plane_min_extent: float = 1.5
@@ -199,6 +274,7 @@ class DepthSegmenterParams:
     max_area_share: float = 0.5
     depth_min: float = 0.2
     depth_max: float = 8.0
+    invalid_margin: int = INVALID_MARGIN
 
     def __post_init__(self) -> None:
         o = "DepthSegmenterParams"
@@ -209,12 +285,18 @@ class DepthSegmenterParams:
             v = getattr(self, name)
             _require(_real(v) and math.isfinite(v) and v >= 0, o, name, v,
                      "must be a finite number >= 0")
-        for name in ("max_planes", "ransac_iterations", "ransac_stride", "min_area", "seed"):
+        for name in ("max_planes", "ransac_iterations", "ransac_stride", "min_area", "seed",
+                     "invalid_margin"):
             v = getattr(self, name)
             _require(_int_at_least(v, 0), o, name, v, "must be an int >= 0")
         _require(self.ransac_stride >= 1, o, "ransac_stride", self.ransac_stride, "must be >= 1")
-        _require(_real(self.plane_share) and 0 < self.plane_share <= 1, o,
-                 "plane_share", self.plane_share, "must be in (0, 1]")
+        _require(_int_at_least(self.jump_reach, 1), o, "jump_reach", self.jump_reach,
+                 "must be an int >= 1 pixels")
+        for name in ("plane_share", "level_plane_share"):
+            v = getattr(self, name)
+            _require(_real(v) and 0 < v <= 1, o, name, v, "must be in (0, 1]")
+        _require(_real(self.level_tolerance_deg) and 0 <= self.level_tolerance_deg <= 90, o,
+                 "level_tolerance_deg", self.level_tolerance_deg, "must be in [0, 90] degrees")
         _require(_real(self.max_area_share) and 0 < self.max_area_share <= 1,
                  o, "max_area_share", self.max_area_share, "must be in (0, 1]")
         _require(_real(self.depth_min) and self.depth_min >= 0, o,
@@ -224,18 +306,31 @@ class DepthSegmenterParams:
 
 
 def _structure_parts(band: np.ndarray, z: np.ndarray, fx: float, fy: float,
-                     min_extent: float) -> np.ndarray:
+                     min_extent: float, border: np.ndarray, jumps: tuple[np.ndarray, np.ndarray],
+                     ) -> np.ndarray:
     """(H, W) bool: the 8-connected parts of a plane's band of pixels that are structure (a
-    floor or wall), not an object face: those that reach the image border or span at least
-    `min_extent` metres (2D box in pixels times mean depth over focal length)."""
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(band.view(np.uint8),
-                                                                connectivity=8)
-    edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    wall), not an object face: those that reach `border` ((H, W) bool, the image edge and the
+    band without depth along it, grown by one pixel), span at least `min_extent` metres (2D
+    box in pixels times mean depth over focal length), or are seen only past nearer things:
+    they hold pixels on the far side of depth jumps but none on the near side (`jumps`, both
+    (H, W) bool), like a piece of wall seen under a chair. An object face on the plane stands
+    out in front of what is behind it."""
+    behind, fronts = jumps
+    # cut at the far side of jumps, so that an object's face does not join the band's
+    # background through its silhouette
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        (band & ~behind).view(np.uint8), connectivity=8)
+    in_front = np.zeros(count, dtype=bool)
+    in_front[labels[fronts]] = True
+    occluded = np.zeros(count, dtype=bool)
+    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8))
+    occluded[grown[behind & band].astype(np.int64)] = True
+    edge = np.unique(labels[border])
     mean_z = (np.bincount(labels.ravel(), weights=z.ravel(), minlength=count)
               / np.maximum(stats[:, cv2.CC_STAT_AREA], 1))
     extent = mean_z * np.maximum(stats[:, cv2.CC_STAT_WIDTH] / fx,
                                  stats[:, cv2.CC_STAT_HEIGHT] / fy)
-    structure = extent >= min_extent
+    structure = (extent >= min_extent) | (occluded & ~in_front)
     structure[edge] = True
     structure[0] = False
     return structure[labels]
@@ -244,24 +339,44 @@ def _structure_parts(band: np.ndarray, z: np.ndarray, fx: float, fy: float,
 class DepthSegmenter:
     """Weight-free segmentation of objects from depth alone.
 
-    Dominant planes (floor, walls) found by a seeded RANSAC are removed, occlusion edges cut
-    surfaces at depth jumps, and the connected components of what is left are the masks. The
-    colour image is not used. The same frame always gives the same masks.
+    Dominant planes found by a seeded RANSAC are removed, occlusion edges cut surfaces at
+    depth jumps, and the connected components of what is left are the masks. The colour image
+    is not used. The same frame always gives the same masks.
+
+    Room structure is removed by these rules:
+    - a level plane (normal within `level_tolerance_deg` of gravity: floor, ceiling, table
+      top) holding `level_plane_share` of the valid pixels is removed whole;
+    - any other plane holding `plane_share` of them is a wall: its parts that reach the border
+      of the valid depth, span `plane_min_extent` metres or are seen only past nearer things
+      (a piece of wall under a chair) are removed;
+    - what is left is cut at depth jumps (`jump`, `jump_per_m`, over up to `jump_reach`
+      pixels), and components larger than `max_area_share` of the image are dropped.
 
     Args:
         camera: intrinsics of the (registered) depth image.
         depth_scale: raw depth units per metre (1000 for millimetres, 1 for metres).
         params: `DepthSegmenterParams`.
+        T_body_camera: (4, 4) the camera's optical frame in a gravity-aligned frame (z up), of
+            which only the rotation is used: it says which planes are level. Default: a level
+            camera (optical y points down), as `T_body_camera(height)` gives.
+
+    Raises:
+        ConfigError: a camera, depth scale, params or T_body_camera of the wrong kind.
     """
 
     def __init__(self, camera: PinholeCamera, depth_scale: float = 1000.0,
-                 params: DepthSegmenterParams | None = None) -> None:
+                 params: DepthSegmenterParams | None = None,
+                 T_body_camera: np.ndarray | None = None) -> None:
         self.camera = check_camera("DepthSegmenter.camera", camera)
         self.depth_scale = check_depth_scale("DepthSegmenter.depth_scale", depth_scale)
         self.params = DepthSegmenterParams() if params is None else params
         _require(isinstance(self.params, DepthSegmenterParams), "DepthSegmenter", "params",
                  params, "must be a DepthSegmenterParams")
-        self._x_over_z, self._y_over_z = camera.rays()
+        R = (R_BODY_OPTICAL if T_body_camera is None else
+             rigid_transform("DepthSegmenter.T_body_camera", T_body_camera, ConfigError)[:3, :3])
+        #: (3,) the gravity-aligned frame's up axis in the optical frame
+        self.up = R[2].copy()
+        self._x_over_z, self._y_over_z = (r.astype(np.float32) for r in camera.rays())
 
     def segment(self, rgb: np.ndarray | None, depth: np.ndarray) -> np.ndarray:
         """(k, H, W) bool masks, largest first; `rgb` is only checked (it may be None)."""
@@ -278,9 +393,14 @@ class DepthSegmenter:
         z = depth_in_metres(depth, self.depth_scale, self.camera.shape)
         if p.median > 1:
             z = cv2.medianBlur(z, p.median)
+        # the border band is where the sensor gave nothing, not where returns are out of range
+        returned = z > 0
         z[(z < p.depth_min) | (z > p.depth_max)] = 0.0
         valid = z > 0
-        foreground = valid & ~self._planes(z, valid) & ~self._occlusion_edges(z, valid)
+        border = cv2.dilate(depth_border(returned, p.invalid_margin).view(np.uint8),
+                            np.ones((3, 3), np.uint8)).view(bool)
+        jumps = self._jumps(z, valid)
+        foreground = valid & ~self._planes(z, valid, border, jumps) & ~jumps[0]
         count, labels, stats, _ = cv2.connectedComponentsWithStats(
             foreground.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         area = stats[1:, cv2.CC_STAT_AREA]
@@ -290,26 +410,35 @@ class DepthSegmenter:
         relabel[order + 1] = np.arange(1, order.size + 1, dtype=np.int32)
         return relabel[labels], int(order.size)
 
-    def _occlusion_edges(self, z: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        """(H, W) bool: pixels with a nearer 4-neighbour beyond the jump threshold. Only the
-        far side of a jump is marked, so the nearer object keeps its whole silhouette."""
+    def _jumps(self, z: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) bool each: the far and the near side of depth jumps. A pixel is on the far
+        side when a pixel up to `jump_reach` away along its row or column is nearer by more
+        than jump + jump_per_m * depth, and on the near side when one is farther by that much.
+        Only the far side is cut, so the nearer object keeps its whole silhouette."""
         p = self.params
-        near = np.where(valid, z, np.inf)
-        nearest = near.copy()
-        np.minimum(nearest[1:], near[:-1], out=nearest[1:])
-        np.minimum(nearest[:-1], near[1:], out=nearest[:-1])
-        np.minimum(nearest[:, 1:], near[:, :-1], out=nearest[:, 1:])
-        np.minimum(nearest[:, :-1], near[:, 1:], out=nearest[:, :-1])
-        return valid & (z - nearest > p.jump + p.jump_per_m * z)
+        near = np.where(valid, z, np.inf).astype(np.float32)
+        far = np.where(valid, z, -np.inf).astype(np.float32)
+        nearest, farthest = near.copy(), far.copy()
+        for d in range(1, p.jump_reach + 1):
+            for out, src, op in ((nearest, near, np.minimum), (farthest, far, np.maximum)):
+                op(out[d:], src[:-d], out=out[d:])
+                op(out[:-d], src[d:], out=out[:-d])
+                op(out[:, d:], src[:, :-d], out=out[:, d:])
+                op(out[:, :-d], src[:, d:], out=out[:, :-d])
+        threshold = p.jump + p.jump_per_m * z
+        return valid & (z - nearest > threshold), valid & (farthest - z > threshold)
 
-    def _planes(self, z: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        """(H, W) bool: pixels on dominant planes (floor, walls).
+    def _planes(self, z: np.ndarray, valid: np.ndarray, border: np.ndarray,
+                jumps: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """(H, W) bool: pixels of room structure (see the class's rules).
 
-        Each RANSAC plane's band of pixels is split into connected parts, and only the parts
-        that reach the image border or span `plane_min_extent` metres are removed, if together
-        they hold `plane_share` of the valid pixels. An object face that happens to lie on the
-        plane, or that RANSAC fitted a plane to, is kept unless it reaches the border (the
-        mask filter drops those anyway).
+        RANSAC finds one plane after another on a sample of the pixels. A level plane's band
+        of pixels is removed whole; a wall's band is split into connected parts, and only the
+        parts that reach `border`, span `plane_min_extent` metres or are seen only past nearer
+        things (`jumps`: the far and near side of depth jumps) are removed, if together they hold
+        `plane_share` of the valid pixels. An object face that lies on a wall's plane, or that
+        RANSAC fitted a plane to, is kept unless it reaches the border (the mask filter drops
+        those anyway).
         """
         p = self.params
         out = np.zeros(z.shape, dtype=bool)
@@ -321,10 +450,12 @@ class DepthSegmenter:
         pts = np.stack([self._x_over_z[::s, ::s] * zs, self._y_over_z[::s, ::s] * zs, zs],
                        axis=-1)[keep].astype(float)
         tol = p.plane_distance + p.plane_distance_per_m2 * pts[:, 2] ** 2
-        need = p.plane_share * pts.shape[0]
-        need_full = p.plane_share * np.count_nonzero(valid)
+        n_sampled = pts.shape[0]
+        need = min(p.plane_share, p.level_plane_share) * n_sampled
+        n_valid = np.count_nonzero(valid)
+        cos_level = math.cos(math.radians(p.level_tolerance_deg))
         rng = np.random.default_rng(p.seed)
-        full = full_tol = None
+        full_tol = None
         accepted = 0
         for _ in range(p.max_planes + 3):
             if pts.shape[0] < max(need, 3):
@@ -333,19 +464,29 @@ class DepthSegmenter:
             if normal is None:
                 break
             inliers = np.abs(pts @ normal + offset) <= tol
-            if inliers.sum() < need:
+            n_in = np.count_nonzero(inliers)
+            if n_in < need:
                 break
-            if full is None:
-                full = np.stack([self._x_over_z * z, self._y_over_z * z, z], axis=-1)
-                full_tol = p.plane_distance + p.plane_distance_per_m2 * z**2
-            band = valid & ~out & (np.abs(full @ normal + offset) <= full_tol)
-            on_plane = _structure_parts(band, z, self.camera.fx, self.camera.fy,
-                                        p.plane_min_extent)
-            if np.count_nonzero(on_plane) >= need_full:
-                out |= on_plane
-                accepted += 1
-                if accepted == p.max_planes:
-                    break
+            level = abs(float(normal @ self.up)) >= cos_level
+            if n_in >= (p.level_plane_share if level else p.plane_share) * n_sampled:
+                if full_tol is None:
+                    full_tol = p.plane_distance + p.plane_distance_per_m2 * z * z
+                # a pixel's distance from the plane is z (n . ray) + offset
+                along = self._x_over_z * np.float32(normal[0]) + self._y_over_z * np.float32(
+                    normal[1]) + np.float32(normal[2])
+                band = valid & ~out & (np.abs(z * along + np.float32(offset)) <= full_tol)
+                if level:
+                    on_plane = band
+                    enough = np.count_nonzero(band) >= p.level_plane_share * n_valid
+                else:
+                    on_plane = _structure_parts(band, z, self.camera.fx, self.camera.fy,
+                                                p.plane_min_extent, border, jumps)
+                    enough = np.count_nonzero(on_plane) >= p.plane_share * n_valid
+                if enough:
+                    out |= on_plane
+                    accepted += 1
+                    if accepted == p.max_planes:
+                        break
             pts, tol = pts[~inliers], tol[~inliers]
         return out
 
@@ -354,6 +495,8 @@ class DepthSegmenter:
         refined by least squares on its inliers; (None, 0) if every sample was degenerate."""
         n = pts.shape[0]
         tri = pts[rng.integers(n, size=(self.params.ransac_iterations, 3))]
+        # hypotheses are scored on a random subset: ranking them needs far fewer points
+        scored = rng.choice(n, _RANSAC_SCORED, replace=False) if n > _RANSAC_SCORED else slice(None)
         normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         norm = np.linalg.norm(normals, axis=1)
         ok = norm > 1e-9
@@ -361,7 +504,7 @@ class DepthSegmenter:
             return None, 0.0
         normals = normals[ok] / norm[ok, None]
         offsets = -np.einsum("ij,ij->i", normals, tri[ok, 0])
-        counts = (np.abs(pts @ normals.T + offsets) <= tol[:, None]).sum(axis=0)
+        counts = (np.abs(pts[scored] @ normals.T + offsets) <= tol[scored, None]).sum(axis=0)
         best = int(np.argmax(counts))
         inl = pts[np.abs(pts @ normals[best] + offsets[best]) <= tol]
         centre = inl.mean(axis=0)

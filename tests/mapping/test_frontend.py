@@ -16,7 +16,7 @@ from tcaff_gtsam.eval.sim.render import RgbdScene, render
 from tcaff_gtsam.eval.sim.world import room_walls
 from tcaff_gtsam.mapping.camera import PinholeCamera, register_depth
 from tcaff_gtsam.mapping.frontend import DepthRegistration, FrameResult, RgbdFrontEnd
-from tcaff_gtsam.mapping.segment import MaskFilter
+from tcaff_gtsam.mapping.segment import MaskFilter, depth_border
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se3_from_xyz_yaw, transform_points
@@ -81,8 +81,8 @@ class Run:
 
 def clearly_visible(frame, k: int, mask_filter: MaskFilter, max_range: float = 6.0) -> bool:
     """Object k is wholly in view within `max_range` metres and unoccluded: its pixels pass
-    the filter's area and border rules and no other object's pixels touch them (an occluder
-    would border its silhouette)."""
+    the filter's area and border rules (the band without depth along the edge included) and
+    no other object's pixels touch them (an occluder would border its silhouette)."""
     instance = frame.instance
     gt = instance == k + 1
     area = np.count_nonzero(gt)
@@ -92,6 +92,9 @@ def clearly_visible(frame, k: int, mask_filter: MaskFilter, max_range: float = 6
         return False
     b = mask_filter.border + 1
     if gt[:b].any() or gt[-b:].any() or gt[:, :b].any() or gt[:, -b:].any():
+        return False
+    band = depth_border(frame.depth > 0, mask_filter.invalid_margin)
+    if np.any(cv2.dilate(band.view(np.uint8), np.ones((2 * b - 1,) * 2, np.uint8)).view(bool)[gt]):
         return False
     ring = cv2.dilate(gt.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool) & ~gt
     return not np.any(instance[ring] > 0)

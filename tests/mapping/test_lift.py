@@ -206,8 +206,13 @@ def test_empty_and_tiny_masks_give_no_observation():
     depth[no_depth] = 0.0  # a region without returns
     floor = (frame.instance == 0) & (frame.depth > 0)
     masks = np.stack([np.zeros_like(gt), gt, tiny, no_depth, floor & ~no_depth])
+    # the floor is a flat level slab: room structure, dropped unless slabs are kept
     obs = MaskLifter(CAMERA, 1.0).lift(masks, depth, setup.T_world_camera)
+    np.testing.assert_array_equal(obs.mask_indices, [1])
+    keep_slabs = MaskLifter(CAMERA, 1.0, LiftParams(slab_extent=math.inf))
+    obs = keep_slabs.lift(masks, depth, setup.T_world_camera)
     np.testing.assert_array_equal(obs.mask_indices, [1, 4])
+    assert obs.widths[1] >= 0.5 and obs.heights[1] <= 0.05
     assert obs.mask_indices.dtype == np.int64 and obs.point_counts.dtype == np.int64
     assert obs.centroids.shape == (2, 3) and obs.widths.shape == obs.heights.shape == (2,)
     assert np.linalg.norm(obs.centroids[0] - setup.truth) <= 0.05
@@ -449,3 +454,22 @@ def test_depth_max_beyond_what_a_wide_camera_can_clean_is_a_config_error():
     with pytest.raises(ConfigError, match=r"^LiftParams\.depth_max = 20\.0: .* must stay "
                                           r"under 500 m"):
         MaskLifter(wide, 1.0, LiftParams(depth_max=20.0))
+
+
+def test_a_piece_of_wall_is_dropped_as_a_vertical_slab():
+    """A wide, flat, upright patch of wall (3.6 x 0.9 m, 3 m ahead) is room structure; an
+    object's face of the same depth but narrower than `wall_extent` is not."""
+    scene = RgbdScene([[0.5, 0.5]], [0.2], [0.2], [False], [0.0], walls=room_walls(0, 0, 10, 8))
+    T = camera_pose(7.0, 4.0, 0.0, T_body_camera(1.0))
+    frame = render(scene, T, CAMERA)
+    wall = np.zeros(CAMERA.shape, dtype=bool)
+    wall[190:290, 120:520] = True  # straight ahead, all on the wall x = 10
+    narrow = np.zeros_like(wall)
+    narrow[190:290, 260:380] = True  # 1.1 m of the same wall
+    assert np.all(frame.depth[wall] > 2.9)
+    masks = np.stack([wall, narrow])
+    obs = MaskLifter(CAMERA, 1.0).lift(masks, frame.depth, T)
+    np.testing.assert_array_equal(obs.mask_indices, [1])
+    keep = MaskLifter(CAMERA, 1.0, LiftParams(wall_extent=math.inf)).lift(masks, frame.depth, T)
+    np.testing.assert_array_equal(keep.mask_indices, [0, 1])
+    assert keep.widths[0] >= 1.5

@@ -216,18 +216,25 @@ def test_slowly_drifting_object_stays_one_track_and_is_followed():
 # merging
 
 
-def test_converging_tracks_merge_into_the_lower_id():
+def test_converging_tracks_seen_together_stay_apart_then_merge_into_the_lower_id():
     mapper = ObjectMapper()
     a0, b0, meet = np.array([0.0, 0, 1]), np.array([2.0, 0, 1]), np.array([1.0, 0, 1])
     ids_a = observe(mapper, 0.0, [a0], [0.5], [0.5])
     ids_b = observe(mapper, DT, [b0], [0.5], [0.5])
     a, b = int(ids_a[0]), int(ids_b[0])
     assert a < b
+    # Both are seen in every frame, so they are two objects however close they come.
     for frame in range(2, 42):
         s = min(frame / 30.0, 1.0)
         obs = np.array([a0 + s * (meet - a0), b0 + s * (meet - b0)])
         ids = observe(mapper, frame * DT, obs, [0.5, 0.5], [0.5, 0.5])
-    assert ids.tolist() == [a, a]
+        assert sorted(ids.tolist()) == [a, b]
+    assert len(mapper) == 2
+    # From now on one segment is seen where the two were: the tracks drift together and, once
+    # within merge_distance in a frame that saw only one of them, merge into the lower id.
+    for frame in range(42, 80):
+        ids = observe(mapper, frame * DT, [meet], [0.5], [0.5])
+    assert ids.tolist() == [a]
     assert len(mapper) == 1
     assert mapper.confirmed_ids().tolist() == [a]
     np.testing.assert_allclose(mapper.object_map().centroids[0], meet, atol=0.05)
@@ -240,17 +247,22 @@ def test_merge_is_hits_weighted_and_reports_the_surviving_id():
     one(mapper, DT, [0.5, 0, 0], 1.0, 1.0)
     one(mapper, 2 * DT, [0.5, 0, 0], 1.0, 1.0)
     assert mapper.confirmed_ids().tolist() == [high]
-    # low (2 hits) moves to 0.2, high (4 hits) to 0.3: 0.1 m apart, they merge into low.
+    # low (2 hits) moves to 0.2, high (4 hits) to 0.3: 0.1 m apart, but both are seen in
+    # this frame, so they stay two tracks with distinct ids.
     ids = observe(mapper, 3 * DT, [[0.3, 0, 0], [0.2, 0, 0]], [1.2, 0.9], [1, 1])
-    assert ids.tolist() == [low, low]
+    assert ids.tolist() == [high, low]
+    assert len(mapper) == 2
+    # high alone (5 hits) moves to 0.27, 0.07 m from low (2 hits): they merge into low.
+    ids = observe(mapper, 4 * DT, [[0.27, 0, 0]], [1.0], [1])
+    assert ids.tolist() == [low]
     assert len(mapper) == 1
     assert mapper.confirmed_ids().tolist() == [low]
     m = mapper.object_map()
-    np.testing.assert_allclose(m.centroids[0], [(2 * 0.2 + 4 * 0.3) / 6, 0, 0])
-    assert m.widths[0] == pytest.approx((2 * 0.9 + 4 * 1.2) / 6)
-    assert m.last_seen[0] == pytest.approx(3 * DT)
-    # 6 hits: after the merge the running mean uses weight 1 / min(7, 1) = 1.
-    one(mapper, 4 * DT, [0.25, 0, 0], 1.0, 1.0)
+    np.testing.assert_allclose(m.centroids[0], [(2 * 0.2 + 5 * 0.27) / 7, 0, 0])
+    assert m.widths[0] == pytest.approx((2 * 0.9 + 5 * 1.0) / 7)
+    assert m.last_seen[0] == pytest.approx(4 * DT)
+    # 7 hits: after the merge the running mean uses weight 1 / min(8, 1) = 1.
+    one(mapper, 5 * DT, [0.25, 0, 0], 1.0, 1.0)
     np.testing.assert_allclose(mapper.object_map().centroids[0], [0.25, 0, 0])
 
 
@@ -327,6 +339,7 @@ def test_invariants_hold_for_random_observation_streams(seed, n_frames, max_k, n
         w, h = rng.uniform(0, 2, k), rng.uniform(0, 2, k)
         before = set(mapper._ids.tolist())
         ids = observe(mapper, t, c, w, h)
+        assert len(set(ids.tolist())) == ids.size  # one frame's observations stay apart
         live = mapper._ids
         assert np.all(np.diff(live) > 0)
         assert set(ids.tolist()) <= set(live.tolist())
@@ -340,6 +353,8 @@ def test_invariants_hold_for_random_observation_streams(seed, n_frames, max_k, n
         rw = np.maximum(ratio_w[:, None] / ratio_w[None], ratio_w[None] / ratio_w[:, None])
         rh = np.maximum(ratio_h[:, None] / ratio_h[None], ratio_h[None] / ratio_h[:, None])
         bad = (d < params.merge_distance) & (rw <= params.size_gate) & (rh <= params.size_gate)
+        # only tracks last seen in one frame together may stay closer than merge_distance
+        bad &= mapper._last_seen[:, None] != mapper._last_seen[None]
         np.fill_diagonal(bad, False)
         assert not bad.any()
         assert np.all(t - mapper._last_seen <= params.kappa)
