@@ -37,15 +37,33 @@ test: install
 test-fast: install
 	$(VENV)/bin/pytest -q -m "not slow"
 
+BENCH_SCRIPTS := bench_startup bench_association bench_tcaff bench_graph bench_scale \
+	bench_study bench_mapping bench_mot bench_results_io
+BENCH_OUT := docs/benchmarks.md
+
+# Every script's output goes into $(BENCH_OUT) under its own heading with the command, the date
+# and the machine, and to the terminal as it comes. The file is assembled in $(BENCH_OUT).part
+# and replaces the old one at the end, so an interrupted run keeps both; a failing script is
+# recorded with its exit status, the others still run, and make then fails.
 bench: install
-	$(PY) scripts/bench_startup.py
-	$(PY) scripts/bench_association.py
-	$(PY) scripts/bench_tcaff.py
-	$(PY) scripts/bench_graph.py
-	$(PY) scripts/bench_study.py
-	$(PY) scripts/bench_mapping.py
-	$(PY) scripts/bench_mot.py
-	$(PY) scripts/bench_results_io.py
+	@machine="$$(nproc) cores, $$(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo | head -n 1)"; \
+	failed=""; \
+	{ echo "# Benchmarks"; echo; \
+	  echo "Written by \`make bench\`. What each benchmark measures and how to read it: [speed.md](speed.md)."; \
+	} > $(BENCH_OUT).part; \
+	for s in $(BENCH_SCRIPTS); do \
+	  echo "== python scripts/$$s.py" >&2; \
+	  { echo; echo "## $$s.py"; echo; \
+	    echo "\`python scripts/$$s.py\` on $$machine, $$(date -u '+%Y-%m-%d %H:%M UTC')"; \
+	    echo; echo '```text'; } >> $(BENCH_OUT).part; \
+	  $(PY) scripts/$$s.py 2>&1 | tee -a $(BENCH_OUT).part; \
+	  status=$${PIPESTATUS[0]}; \
+	  if [ $$status -ne 0 ]; then echo "(exit status $$status)" >> $(BENCH_OUT).part; failed="$$failed $$s"; fi; \
+	  echo '```' >> $(BENCH_OUT).part; \
+	done; \
+	mv $(BENCH_OUT).part $(BENCH_OUT); \
+	echo "wrote $(BENCH_OUT)"; \
+	if [ -n "$$failed" ]; then echo "failed:$$failed" >&2; exit 1; fi
 
 lint: install
 	$(VENV)/bin/ruff check .
