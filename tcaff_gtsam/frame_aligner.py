@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from .clipper import consistency_graph, mno_clipper
 from .errors import DataError
-from .geometry import se2_from_params, se2_to_params, se3_to_se2, wrap_angle
+from .geometry import _se2_from_params, _se2_to_params, _se3_to_se2, _wrap_angle
 from .inputs import finite_time, real_array, shown
 from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, _given_or_default, _real, _require
@@ -71,7 +71,7 @@ class AlignmentMeasurement:
     @property
     def T(self) -> np.ndarray:
         """(3, 3) SE(2) matrix T_oi_oj."""
-        return se2_from_params(self.z)
+        return _se2_from_params(self.z)
 
 
 def residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
@@ -226,7 +226,7 @@ class FrameAligner:
             T = weighted_arun(p, q, w)
             if T is None:
                 continue
-            T2 = se3_to_se2(T) if prm.dim == 3 else T
+            T2 = _se3_to_se2(T) if prm.dim == 3 else T
             rmse = registration_rmse(T2, p[:, :2], q[:, :2])
             qualifies = (len(sol) >= prm.min_associations
                          and sol.score >= prm.min_score_ratio * best
@@ -235,7 +235,7 @@ class FrameAligner:
                 continue
             inliers = (mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,
                                       prm.inlier_radius).shape[0] if counting else 0)
-            found.append(_Solution(a, sol.score, T2, se2_to_params(T2), p, q, w, rmse,
+            found.append(_Solution(a, sol.score, T2, _se2_to_params(T2), p, q, w, rmse,
                                    qualifies, inliers))
         return found
 
@@ -284,7 +284,7 @@ class FrameAligner:
                 continue
             dz = r.z - candidate.z
             if (math.hypot(dz[0], dz[1]) > prm.distinct_translation
-                    or abs(float(wrap_angle(dz[2]))) > prm.distinct_heading):
+                    or abs(float(_wrap_angle(dz[2]))) > prm.distinct_heading):
                 return True
         return False
 
@@ -321,7 +321,7 @@ def confirms(z: np.ndarray, held: np.ndarray | None, params: FrameAlignerParams)
         return False
     dz = z - held
     return bool(math.hypot(dz[0], dz[1]) <= params.confirm_translation
-                and abs(float(wrap_angle(dz[2]))) <= params.confirm_heading)
+                and abs(float(_wrap_angle(dz[2]))) <= params.confirm_heading)
 
 
 @dataclass(frozen=True, eq=False)

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import DataError
-from .geometry import transform_points
+from .geometry import _transform_points
 from .inputs import real_array
 from .object_map import ObjectMap, as_object_map
 from .params import _finite, _require
@@ -250,7 +250,7 @@ def mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: 
     """
     if p.shape[0] == 0 or q.shape[0] == 0:
         return np.empty((0, 2), np.int64)
-    moved = transform_points(T_a_b, q)
+    moved = _transform_points(T_a_b, q)
     if p.shape[0] * q.shape[0] > _DENSE_INLIERS:
         return _mutual_inliers_by_tree(p, moved, compatible, radius)
     # |p - m|^2 expanded: one matrix product instead of an (n, m, 2) difference array

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from .errors import DataError, TcaffError
-from .geometry import se2_from_params, wrap_angle
+from .geometry import _se2_from_params, _wrap_angle
 from .hypothesis_tree import (
     BEFORE_ROOT,
     LEAF_DTYPES,
@@ -84,7 +84,7 @@ class AlignmentEstimate:
         if self.x.shape != (3,):
             raise TcaffError(f"AlignmentEstimate.T needs an (x, y, theta) state, got shape "
                              f"{self.x.shape}")
-        return se2_from_params(self.x)
+        return _se2_from_params(self.x)
 
 
 class TCAFF:
@@ -322,7 +322,7 @@ class TCAFF:
         distance under P_a + P_b within the gate of `gate_probability`)."""
         r = leaves.x - other.x[0]
         angular = self._model.angular
-        r[:, angular] = wrap_angle(r[:, angular])
+        r[:, angular] = _wrap_angle(r[:, angular])
         S = leaves.P + other.P[0]
         maha = np.einsum("li,li->l", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
         return maha <= self._model.gate_chi2
@@ -423,7 +423,7 @@ class TCAFF:
             raise DataError(f"TCAFF.update: Rs[{i}] is not {why}{shown_R}")
         zs = zs.copy()
         angles = list(self.params.angle_indices)
-        zs[:, angles] = wrap_angle(zs[:, angles])
+        zs[:, angles] = _wrap_angle(zs[:, angles])
         return zs, np.ascontiguousarray(Rs)
 
     @staticmethod

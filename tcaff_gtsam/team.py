@@ -22,7 +22,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from .errors import DataError
-from .geometry import se2_from_params, wrap_angle
+from .geometry import _se2_from_params, _wrap_angle
 from .params import _int_at_least, _require
 
 __all__ = ["TeamConsistency", "TeamEstimate", "TeamParams"]
@@ -74,7 +74,7 @@ class TeamEstimate:
     @property
     def T(self) -> np.ndarray:
         """(3, 3) the SE(2) matrix."""
-        return se2_from_params(self.x)
+        return _se2_from_params(self.x)
 
     @property
     def chained(self) -> bool:
@@ -88,7 +88,7 @@ def _compose(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]
     c, s = math.cos(xa[2]), math.sin(xa[2])
     R = np.array([[c, -s], [s, c]])
     t = R @ xb[:2]
-    x = np.array([xa[0] + t[0], xa[1] + t[1], wrap_angle(xa[2] + xb[2])])
+    x = np.array([xa[0] + t[0], xa[1] + t[1], _wrap_angle(xa[2] + xb[2])])
     Ja = np.array([[1.0, 0.0, -t[1]], [0.0, 1.0, t[0]], [0.0, 0.0, 1.0]])
     Jb = np.eye(3)
     Jb[:2, :2] = R
@@ -104,7 +104,7 @@ def _invert(a: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     J = -np.eye(3)
     J[:2, :2] = -Rt
     J[:2, 2] = [t[1], -t[0]]
-    return np.array([t[0], t[1], wrap_angle(-x[2])]), J @ P @ J.T
+    return np.array([t[0], t[1], _wrap_angle(-x[2])]), J @ P @ J.T
 
 
 class TeamConsistency:
@@ -161,7 +161,7 @@ class TeamConsistency:
     def _distance(self, a: tuple[np.ndarray, np.ndarray],
                   b: tuple[np.ndarray, np.ndarray]) -> float:
         r = a[0] - b[0]
-        r[2] = wrap_angle(r[2])
+        r[2] = _wrap_angle(r[2])
         return float(r @ np.linalg.solve(a[1] + b[1], r))
 
     def _cycle_fails(self, edges, i: int, j: int, k: int) -> bool:
