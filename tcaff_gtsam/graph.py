@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,7 +37,7 @@ from scipy.stats import chi2
 
 from .errors import ConfigError, DataError
 from .geometry import _se2_from_params, _se2_to_params, _se3_from_xyz_yaw, _se3_to_se2
-from .inputs import real_array, shown
+from .inputs import output_path, real_array, shown
 from .params import GraphParams, _given_or_default, _int_at_least
 from .tcaff import AlignmentEstimate
 
@@ -912,13 +911,7 @@ class InterRobotGraph:
             DataError: the folder is missing, the path is a folder, or the file could not be
                 written.
         """
-        if not isinstance(path, (str, os.PathLike)):
-            raise DataError(f"write_g2o: path must be a str or a path, got {shown(path)}")
-        path = Path(path)
-        if path.is_dir():
-            raise DataError(f"write_g2o: {path} is a folder, not a file")
-        if not path.parent.is_dir():
-            raise DataError(f"write_g2o: the folder {path.parent} does not exist")
+        path = output_path("write_g2o", path)
         graph = gtsam.NonlinearFactorGraph()
         for index in sorted(self._active):
             factor = self._active[index].factor

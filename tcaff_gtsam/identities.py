@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DataError
+from .inputs import real_array
 from .object_map import ObjectMap, as_object_map
 from .params import _int_at_least, _real, _require
 
@@ -51,10 +52,7 @@ class ObjectIdentities:
         """
         from scipy.optimize import linear_sum_assignment
 
-        try:
-            xy = np.array(xy, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"ObjectIdentities.update: xy must be numbers ({exc})") from None
+        xy = np.array(real_array("ObjectIdentities.update", "xy", xy))  # a copy: it is kept
         if xy.size == 0:
             xy = xy.reshape(0, 2)
         if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):

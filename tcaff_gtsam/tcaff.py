@@ -47,7 +47,7 @@ from .hypothesis_tree import (
     measurement_costs,
     seed,
 )
-from .inputs import read_npz
+from .inputs import output_path, read_npz
 from .params import TCAFFParams, _given_or_default
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
@@ -643,10 +643,19 @@ class TCAFF:
         return steps
 
     def save(self, path: str | Path) -> None:
-        """Write parameters and state to an .npz file."""
+        """Write parameters and state to an npz archive at exactly `path`.
+
+        Raises:
+            DataError: path not a str or path, a folder, in a missing folder, or not writable.
+        """
+        path = output_path("TCAFF.save", path)
         params = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                   for k, v in asdict(self.params).items()}
-        with open(Path(path), "wb") as file:  # a file object stops numpy appending ".npz"
+        try:
+            file = open(path, "wb")  # a file object stops numpy appending ".npz"
+        except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the name
+            raise DataError(f"TCAFF.save: cannot write {path} ({exc})") from None
+        with file:
             np.savez_compressed(file, params=np.array(json.dumps(params)), **self.state_dict())
 
     @classmethod

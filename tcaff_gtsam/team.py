@@ -23,6 +23,7 @@ from scipy.stats import chi2
 
 from .errors import DataError
 from .geometry import _se2_from_params, _wrap_angle
+from .inputs import real_array, shown
 from .params import _int_at_least, _require
 
 __all__ = ["TeamConsistency", "TeamEstimate", "TeamParams"]
@@ -127,6 +128,10 @@ class TeamConsistency:
     def _edges(self, estimates: Mapping) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
         """One (x, P) of T_oi_oj per unordered pair i < j. When both directions are given and
         disagree, the pair is left out: its two filters contradict each other."""
+        o = "TeamConsistency.update"
+        if not isinstance(estimates, Mapping):
+            raise DataError(f"{o}: estimates must be a mapping (i, j) -> estimate, got "
+                            f"{shown(estimates)}")
         given: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         for key, est in estimates.items():
             if est is None:
@@ -134,14 +139,17 @@ class TeamConsistency:
             if not (isinstance(key, tuple) and len(key) == 2
                     and all(isinstance(r, (int, np.integer)) and not isinstance(r, bool)
                             and 0 <= r < self.n_robots for r in key) and key[0] != key[1]):
-                raise DataError(f"TeamConsistency.update: pair {key!r} is not two different "
-                                f"robots of 0 to {self.n_robots - 1}")
-            x = np.asarray(est.x, dtype=float)
-            P = np.asarray(est.P, dtype=float)
+                raise DataError(f"{o}: pair {shown(key)} is not two different robots of 0 to "
+                                f"{self.n_robots - 1}")
+            if not (hasattr(est, "x") and hasattr(est, "P")):
+                raise DataError(f"{o}: pair {key}: the estimate must have x and P (an "
+                                f"AlignmentEstimate), got {shown(est)}")
+            x = real_array(o, f"estimates[{key}].x", est.x)
+            P = real_array(o, f"estimates[{key}].P", est.P)
             if x.shape != (3,) or P.shape != (3, 3) or not (np.all(np.isfinite(x))
                                                          and np.all(np.isfinite(P))):
-                raise DataError(f"TeamConsistency.update: pair {key}: need a finite x (3,) and "
-                                f"P (3, 3), got shapes {x.shape} and {P.shape}")
+                raise DataError(f"{o}: pair {key}: need a finite x (3,) and P (3, 3), got "
+                                f"shapes {x.shape} and {P.shape}")
             i, j = int(key[0]), int(key[1])
             given[(i, j)] = (x, P)
         edges = {}
