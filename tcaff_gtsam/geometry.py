@@ -271,12 +271,17 @@ def _transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
 def transform_points_batch(T_a_b, points_b) -> np.ndarray:
     """Points (..., d) mapped from frame b into frame a by transforms (..., d+1, d+1), the two
     broadcast against each other: one transform per point ((k, 3, 3) with (k, 2)), or one per
-    set of points ((F, 1, 3, 3) with (F, n, 2))."""
+    set of points ((F, 1, 3, 3) with (F, n, 2)). A transform or point holding NaN (none
+    known then) gives NaN points.
+
+    Raises:
+        DataError: arguments not real numbers, infinite, or of shapes that do not fit.
+    """
     o = "transform_points_batch"
-    T_a_b = _check_square(T_a_b, (3, 4), f"{o}: T_a_b")
+    T_a_b = _numbers(o, "T_a_b", T_a_b)
     points_b = _numbers(o, "points_b", points_b)
-    d = T_a_b.shape[-1] - 1
-    if points_b.shape[-1:] != (d,):
+    d = T_a_b.shape[-1] - 1 if T_a_b.ndim else 0
+    if T_a_b.shape[-2:] not in ((3, 3), (4, 4)) or points_b.shape[-1:] != (d,):
         raise DataError(f"{o}: need T (..., d+1, d+1) with d = 2 or 3 and points (..., d), "
                         f"got {T_a_b.shape} and {points_b.shape}")
     try:

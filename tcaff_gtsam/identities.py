@@ -14,7 +14,7 @@ import numpy as np
 from .errors import DataError
 from .inputs import real_array
 from .object_map import ObjectMap, as_object_map
-from .params import _int_at_least, _real, _require
+from .params import _finite, _int_at_least, _require
 
 __all__ = ["ObjectIdentities", "recent_ids"]
 
@@ -29,7 +29,7 @@ class ObjectIdentities:
     """
 
     def __init__(self, gate: float = 0.3, memory: int = 20) -> None:
-        _require(_real(gate) and 0 < gate < np.inf, "ObjectIdentities", "gate", gate,
+        _require(_finite(gate) and gate > 0, "ObjectIdentities", "gate", gate,
                  "must be a finite number > 0 metres")
         _require(_int_at_least(memory, 1), "ObjectIdentities", "memory", memory,
                  "must be an int >= 1")

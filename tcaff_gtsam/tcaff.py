@@ -47,7 +47,7 @@ from .hypothesis_tree import (
     measurement_costs,
     seed,
 )
-from .inputs import output_path, read_npz
+from .inputs import output_path, read_npz, real_array
 from .params import TCAFFParams, _given_or_default
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
@@ -395,11 +395,8 @@ class TCAFF:
 
     def _validated(self, zs, Rs) -> tuple[np.ndarray, np.ndarray]:
         d = self.params.dim
-        try:
-            zs = np.asarray(zs, dtype=float)
-            Rs = np.asarray(Rs, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"TCAFF.update: zs and Rs must be numeric arrays ({exc})") from None
+        zs = real_array("TCAFF.update", "zs", zs)
+        Rs = real_array("TCAFF.update", "Rs", Rs)
         if zs.size == 0 and Rs.size == 0:
             return np.empty((0, d)), np.empty((0, d, d))
         if zs.ndim != 2 or zs.shape[1] != d:

@@ -38,7 +38,8 @@ from tcaff_gtsam.frame_aligner import AlignmentMeasurement
 MODULES = ("clipper", "frame_aligner", "geometry", "graph", "identities", "inputs",
            "object_map", "pairwise", "params", "registration", "tcaff", "team")
 
-FUZZ = settings(max_examples=60, deadline=None,
+#: examples per entry point; raise it for a longer search (TCAFF_FUZZ_EXAMPLES=1000)
+FUZZ = settings(max_examples=int(os.environ.get("TCAFF_FUZZ_EXAMPLES", "60")), deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 
 
