@@ -32,7 +32,10 @@ class ParameterError(ConfigError):
     """
 
     def __init__(self, owner: str, name: str, value: Any, rule: str) -> None:
-        super().__init__(f"{owner}.{name} = {value!r}: {rule}")
+        text = repr(value)
+        if len(text) > 80:  # a huge int or a long list: its start names it well enough
+            text = text[:77] + "..."
+        super().__init__(f"{owner}.{name} = {text}: {rule}")
         self.owner, self.name, self.value, self.rule = owner, name, value, rule
 
     def __reduce__(self):
@@ -319,8 +322,8 @@ class FrameAlignerParams(_ByValue):
         _require(_one_of(self.covariance, ("constant", "residual")), o, "covariance",
                  self.covariance, "must be 'constant' or 'residual'")
         object.__setattr__(self, "R_constant", _spd(self.R_constant, 3, o, "R_constant"))
-        _require(_real(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
-                 self.residual_floor, "must be a number > 0 metres")
+        _require(_finite(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
+                 self.residual_floor, "must be a finite number > 0 metres")
         _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,
                  "min_inliers", self.min_inliers, "must be an int >= 2 or None")
         _require(isinstance(self.check_ambiguity, bool), o, "check_ambiguity",
