@@ -745,8 +745,12 @@ class InterRobotGraph:
         self._check_robot("j", j)
         if estimate is None:
             return
+        if not isinstance(estimate, AlignmentEstimate):
+            raise DataError(f"add_tcaff_estimate: estimate must be an AlignmentEstimate or "
+                            f"None, got {shown(estimate)}")
         if estimate.measurement >= 0:
-            zs, Rs = np.asarray(zs, dtype=float), np.asarray(Rs, dtype=float)
+            zs = real_array("add_tcaff_estimate", "zs", zs)
+            Rs = real_array("add_tcaff_estimate", "Rs", Rs)
             if not (zs.ndim == 2 and zs.shape[1:] == (3,) and Rs.shape == (len(zs), 3, 3)
                     and estimate.measurement < len(zs)):
                 raise DataError(f"add_tcaff_estimate: estimate.measurement = "

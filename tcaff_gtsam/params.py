@@ -32,10 +32,7 @@ class ParameterError(ConfigError):
     """
 
     def __init__(self, owner: str, name: str, value: Any, rule: str) -> None:
-        text = repr(value)
-        if len(text) > 80:  # a huge int or a long list: its start names it well enough
-            text = text[:77] + "..."
-        super().__init__(f"{owner}.{name} = {text}: {rule}")
+        super().__init__(f"{owner}.{name} = {value!r}: {rule}")
         self.owner, self.name, self.value, self.rule = owner, name, value, rule
 
     def __reduce__(self):
