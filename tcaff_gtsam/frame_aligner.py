@@ -18,17 +18,17 @@ from scipy.spatial import cKDTree
 
 from .clipper import consistency_graph, mno_clipper
 from .errors import DataError
-from .geometry import se2_from_params, se2_to_params, se3_to_se2, wrap_angle
+from .geometry import _se2_from_params, _se2_to_params, _se3_to_se2, _wrap_angle
 from .inputs import finite_time, real_array, shown
 from .object_map import ObjectMap, as_object_map
-from .params import FrameAlignerParams, _given_or_default, _real, _require
+from .params import FrameAlignerParams, _finite, _given_or_default, _real, _require
 from .registration import (
+    _mutual_inliers,
+    _registration_rmse,
+    _spread,
     _weights,
     most_recent_pairs,
-    mutual_inliers,
-    registration_rmse,
     size_compatible,
-    spread,
     weighted_arun,
 )
 
@@ -71,7 +71,7 @@ class AlignmentMeasurement:
     @property
     def T(self) -> np.ndarray:
         """(3, 3) SE(2) matrix T_oi_oj."""
-        return se2_from_params(self.z)
+        return _se2_from_params(self.z)
 
 
 def residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
@@ -89,8 +89,32 @@ def residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights
 
     Args:
         T_i_j: (3, 3) estimated SE(2) transform; p: (k, 2) ego points; q: (k, 2) other points;
-        weights: (k,) Arun weights; floor: metres.
+        weights: (k,) Arun weights >= 0; floor: metres, >= 0.
+    Raises:
+        DataError: an argument not real, not finite, or of the wrong shape; negative weights
+            or floor.
     """
+    o = "residual_covariance"
+    T_i_j = real_array(o, "T_i_j", T_i_j)
+    p, q = real_array(o, "p", p), real_array(o, "q", q)
+    weights = real_array(o, "weights", weights)
+    if T_i_j.shape != (3, 3):
+        raise DataError(f"{o}: T_i_j must be a (3, 3) SE(2) matrix, got shape {T_i_j.shape}")
+    if p.ndim != 2 or p.shape[1] != 2 or q.shape != p.shape or weights.shape != p.shape[:1]:
+        raise DataError(f"{o}: need p and q of shape (k, 2) and weights (k,), got "
+                        f"{p.shape}, {q.shape} and {weights.shape}")
+    for name, arr in (("T_i_j", T_i_j), ("p", p), ("q", q), ("weights", weights)):
+        if not np.isfinite(arr).all():
+            raise DataError(f"{o}: {name} holds non-finite values")
+    if (weights < 0).any():
+        raise DataError(f"{o}: weights must be >= 0, got {shown(weights)}")
+    if not (_finite(floor) and floor >= 0):
+        raise DataError(f"{o}: floor must be a finite number >= 0 metres, got {shown(floor)}")
+    return _residual_covariance(T_i_j, p, q, weights, float(floor))
+
+
+def _residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
+                         floor: float) -> np.ndarray:
     k = p.shape[0]
     Rq = q @ T_i_j[:2, :2].T
     residual = p - (Rq + T_i_j[:2, 2])
@@ -163,14 +187,14 @@ class FrameAligner:
         found = self._registered(ego_r, other_r, now)
         kept = [f for f in found if f.qualifies
                 and (prm.min_inliers is None or f.inliers >= prm.min_inliers)
-                and (prm.min_spread == 0 or spread(f.p[:, :2]) >= prm.min_spread)]
+                and (prm.min_spread == 0 or _spread(f.p[:, :2]) >= prm.min_spread)]
         ambiguous = [False] * len(kept)
         if kept and prm.check_ambiguity:
             ambiguous = [self._has_rival(f, found) for f in kept]
             # the earlier maps are searched only for rivals of candidates that could start or
             # move the caller's estimate: an ambiguous one may still confirm it
             search = [k for k, f in enumerate(kept)
-                      if not ambiguous[k] and not confirms(f.z, held, prm)]
+                      if not ambiguous[k] and not _confirms(f.z, held, prm)]
             if search and (ego_past or other_past):
                 fewest = min(kept[k].inliers for k in search)
                 for ego_m, other_m in self._earlier(ego_r, other_r, ego_past, other_past,
@@ -184,7 +208,8 @@ class FrameAligner:
         out = []
         for f, flag in zip(kept, ambiguous, strict=True):
             R = (prm.R_constant.copy() if prm.covariance == "constant"
-                 else residual_covariance(f.T, f.p[:, :2], f.q[:, :2], f.w, prm.residual_floor))
+                 else _residual_covariance(f.T, f.p[:, :2], f.q[:, :2], f.w,
+                                           prm.residual_floor))
             a = f.associations
             associations = np.column_stack([ego_idx[a[:, 0]], other_idx[a[:, 1]]])
             out.append(AlignmentMeasurement(f.z, R, associations, f.score, f.rmse, f.inliers,
@@ -226,16 +251,16 @@ class FrameAligner:
             T = weighted_arun(p, q, w)
             if T is None:
                 continue
-            T2 = se3_to_se2(T) if prm.dim == 3 else T
-            rmse = registration_rmse(T2, p[:, :2], q[:, :2])
+            T2 = _se3_to_se2(T) if prm.dim == 3 else T
+            rmse = _registration_rmse(T2, p[:, :2], q[:, :2])
             qualifies = (len(sol) >= prm.min_associations
                          and sol.score >= prm.min_score_ratio * best
                          and (prm.max_rmse is None or rmse <= prm.max_rmse))
             if not (qualifies or prm.check_ambiguity):
                 continue
-            inliers = (mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,
-                                      prm.inlier_radius).shape[0] if counting else 0)
-            found.append(_Solution(a, sol.score, T2, se2_to_params(T2), p, q, w, rmse,
+            inliers = (_mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,
+                                       prm.inlier_radius).shape[0] if counting else 0)
+            found.append(_Solution(a, sol.score, T2, _se2_to_params(T2), p, q, w, rmse,
                                    qualifies, inliers))
         return found
 
@@ -284,7 +309,7 @@ class FrameAligner:
                 continue
             dz = r.z - candidate.z
             if (math.hypot(dz[0], dz[1]) > prm.distinct_translation
-                    or abs(float(wrap_angle(dz[2]))) > prm.distinct_heading):
+                    or abs(float(_wrap_angle(dz[2]))) > prm.distinct_heading):
                 return True
         return False
 
@@ -304,6 +329,14 @@ def _snapshots(owner: str, name: str, value) -> list[tuple[float, ObjectMap]]:
     return out
 
 
+def _seconds(value) -> float:
+    """A real number of seconds as a float; an int beyond the floats is infinitely long."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
+
+
 def _count_novel(earlier: ObjectMap, current: ObjectMap, radius: float) -> int:
     """How many objects of `earlier` lie farther than `radius` (m, in the plane) from every
     object of `current` (two maps of one robot, in its odometry frame)."""
@@ -316,12 +349,33 @@ def _count_novel(earlier: ObjectMap, current: ObjectMap, radius: float) -> int:
 
 def confirms(z: np.ndarray, held: np.ndarray | None, params: FrameAlignerParams) -> bool:
     """Whether alignment z (3,) lies within `confirm_translation` and `confirm_heading` of the
-    held alignment (3,) (False when nothing is held)."""
+    held alignment (3,) (False when nothing is held).
+
+    Raises:
+        DataError: z or held not three finite numbers; ConfigError: params not a
+            FrameAlignerParams.
+    """
+    _require(isinstance(params, FrameAlignerParams), "confirms", "params", params,
+             "must be a FrameAlignerParams")
+    z = _alignment("confirms", "z", z)
+    return _confirms(z, None if held is None else _alignment("confirms", "held", held), params)
+
+
+def _alignment(owner: str, name: str, value) -> np.ndarray:
+    """`value` as three finite numbers (x [m], y [m], theta [rad]), else DataError."""
+    arr = real_array(owner, name, value)
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise DataError(f"{owner}: {name} must be three finite numbers (x, y, theta), got "
+                        f"{shown(value)}")
+    return arr
+
+
+def _confirms(z: np.ndarray, held: np.ndarray | None, params: FrameAlignerParams) -> bool:
     if held is None:
         return False
     dz = z - held
     return bool(math.hypot(dz[0], dz[1]) <= params.confirm_translation
-                and abs(float(wrap_angle(dz[2]))) <= params.confirm_heading)
+                and abs(float(_wrap_angle(dz[2]))) <= params.confirm_heading)
 
 
 @dataclass(frozen=True, eq=False)
@@ -359,13 +413,19 @@ class MapMemory:
                  "must be a number >= 0 seconds")
         _require(_real(every) and every > 0, "MapMemory", "every", every,
                  "must be a number > 0 seconds")
-        self.span, self.every = float(span), float(every)
+        self.span, self.every = _seconds(span), _seconds(every)
         self._snapshots: deque[tuple[float, ObjectMap]] = deque()
 
     @classmethod
     def of(cls, params: FrameAlignerParams) -> MapMemory:
         """The memory an aligner with these settings searches: `memory_span` seconds, one map
-        every kappa; nothing kept when it does not check ambiguity."""
+        every kappa; nothing kept when it does not check ambiguity.
+
+        Raises:
+            ConfigError: params not a FrameAlignerParams.
+        """
+        _require(isinstance(params, FrameAlignerParams), "MapMemory.of", "params", params,
+                 "must be a FrameAlignerParams")
         return cls(params.memory_span if params.check_ambiguity else 0.0, params.kappa)
 
     def snapshots(self) -> list[tuple[float, ObjectMap]]:

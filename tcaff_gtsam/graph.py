@@ -36,8 +36,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from .errors import ConfigError, DataError
-from .geometry import se2_from_params, se2_to_params, se3_from_xyz_yaw, se3_to_se2
-from .params import GraphParams, _int_at_least
+from .geometry import _se2_from_params, _se2_to_params, _se3_from_xyz_yaw, _se3_to_se2
+from .inputs import output_path, real_array, shown
+from .params import GraphParams, _given_or_default, _int_at_least
 from .tcaff import AlignmentEstimate
 
 __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
@@ -58,7 +59,7 @@ _ROBOT_SHIFT, _KIND_SHIFT = 36, 52
 def _check_index(name: str, value, bits: int) -> int:
     if (not isinstance(value, (int, np.integer)) or isinstance(value, bool)
             or not 0 <= value < 1 << bits):
-        raise DataError(f"{name} = {value!r} must be an int in [0, 2^{bits})")
+        raise DataError(f"{name} = {shown(value)} must be an int in [0, 2^{bits})")
     return int(value)
 
 
@@ -136,7 +137,7 @@ class _Abandoned:
 
 
 def _check_finite(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
+    arr = real_array("InterRobotGraph", name, value)
     if arr.shape != shape:
         raise DataError(f"{name} must have shape {shape}, got {arr.shape}")
     if not math.isfinite(arr.sum()):  # one reduction: this runs for every factor
@@ -176,7 +177,7 @@ class InterRobotGraph:
         if not _int_at_least(n_robots, 1):
             raise DataError(f"InterRobotGraph: n_robots must be an int >= 1, got {n_robots!r}")
         self.n_robots = n_robots
-        self.params = params or GraphParams()
+        self.params = _given_or_default(GraphParams, params, "InterRobotGraph")
         prm = self.params
         self._planar = prm.dim == 2
         isam_params = gtsam.ISAM2Params()
@@ -239,20 +240,20 @@ class InterRobotGraph:
 
     def _matrix(self, T_params) -> np.ndarray:
         """Homogeneous matrix of an alignment given as a matrix or as parameters."""
-        p = np.asarray(T_params, dtype=float)
+        p = real_array("InterRobotGraph", "T", T_params)
         if p.shape == (self._n_param,):
             p = _check_finite("T (parameters)", p, p.shape)
             _check_translation("T (parameters)", p[:-1])
-            return se2_from_params(p) if self._planar else se3_from_xyz_yaw(*p)
+            return _se2_from_params(p) if self._planar else _se3_from_xyz_yaw(*p)
         T = self._rigid("T", p)
         _check_translation("T", T[:-1, -1])
-        return T if self._planar else se3_from_xyz_yaw(*self._params(T))  # gravity-aligned
+        return T if self._planar else _se3_from_xyz_yaw(*self._params(T))  # gravity-aligned
 
     def _params(self, T: np.ndarray) -> np.ndarray:
         """(x, y, theta) of an SE(2) matrix or (x, y, z, yaw) of an SE(3) one."""
         if self._planar:
-            return se2_to_params(T)
-        return np.array([*T[:3, 3], se2_to_params(se3_to_se2(T))[2]])
+            return _se2_to_params(T)
+        return np.array([*T[:3, 3], _se2_to_params(_se3_to_se2(T))[2]])
 
     def _params_to_tangent(self, T: np.ndarray) -> np.ndarray:
         """G with xi = G d(params) at pose T; (3, 3) or (6, 4)."""
@@ -744,8 +745,12 @@ class InterRobotGraph:
         self._check_robot("j", j)
         if estimate is None:
             return
+        if not isinstance(estimate, AlignmentEstimate):
+            raise DataError(f"add_tcaff_estimate: estimate must be an AlignmentEstimate or "
+                            f"None, got {shown(estimate)}")
         if estimate.measurement >= 0:
-            zs, Rs = np.asarray(zs, dtype=float), np.asarray(Rs, dtype=float)
+            zs = real_array("add_tcaff_estimate", "zs", zs)
+            Rs = real_array("add_tcaff_estimate", "Rs", Rs)
             if not (zs.ndim == 2 and zs.shape[1:] == (3,) and Rs.shape == (len(zs), 3, 3)
                     and estimate.measurement < len(zs)):
                 raise DataError(f"add_tcaff_estimate: estimate.measurement = "
@@ -785,7 +790,13 @@ class InterRobotGraph:
 
     def settled(self, i: int, j: int) -> bool:
         """False while the pair (i, j) or (j, i) has an abandoned hypothesis whose factors wait
-        for the new one to hold (`GraphParams.switch_hold`): the graph then still weighs both."""
+        for the new one to hold (`GraphParams.switch_hold`): the graph then still weighs both.
+
+        Raises:
+            DataError: i or j not a robot of this graph.
+        """
+        self._check_robot("i", i)
+        self._check_robot("j", j)
         return (i, j) not in self._abandoned and (j, i) not in self._abandoned
 
     def _latest(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -847,6 +858,7 @@ class InterRobotGraph:
         self._unbounded("add_keyframe_alignment")
         for robot, index in ((i, m_i), (j, m_j)):
             self._check_robot("robot", robot)
+            index = _check_index("add_keyframe_alignment: keyframe index", index, _ROBOT_SHIFT)
             if index not in self._keyframes[robot]:
                 raise DataError(f"add_keyframe_alignment: robot {robot} has no keyframe {index}")
         T = self._matrix(T_oi_oj)
@@ -866,6 +878,8 @@ class InterRobotGraph:
             key_a, key_b: keys from `keyframe_key` / `alignment_key`.
             T_a_b: relative pose matrix; cov_tangent: its covariance in gtsam's tangent order.
         """
+        if not isinstance(robust, (bool, np.bool_)):
+            raise DataError(f"add_between: robust must be True or False, got {shown(robust)}")
         T = self._rigid("add_between: T_a_b", T_a_b)
         C = _check_cov("add_between: cov_tangent", cov_tangent, 3 if self._planar else 6)
         for name, key in (("key_a", key_a), ("key_b", key_b)):
@@ -901,11 +915,7 @@ class InterRobotGraph:
             DataError: the folder is missing, the path is a folder, or the file could not be
                 written.
         """
-        path = Path(path)
-        if path.is_dir():
-            raise DataError(f"write_g2o: {path} is a folder, not a file")
-        if not path.parent.is_dir():
-            raise DataError(f"write_g2o: the folder {path.parent} does not exist")
+        path = output_path("write_g2o", path)
         graph = gtsam.NonlinearFactorGraph()
         for index in sorted(self._active):
             factor = self._active[index].factor
@@ -917,7 +927,7 @@ class InterRobotGraph:
             graph.add(factor)
         try:
             path.unlink(missing_ok=True)  # so a failed write cannot leave an old file behind
-        except OSError as exc:
+        except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the name
             raise DataError(f"write_g2o: cannot replace {path} ({exc})") from None
         gtsam.writeG2o(graph, self._isam.calculateEstimate(), str(path))
         if not path.is_file():  # gtsam reports nothing when it cannot open the file

@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DataError
+from .inputs import real_array
 from .object_map import ObjectMap, as_object_map
-from .params import _int_at_least, _real, _require
+from .params import _finite, _int_at_least, _require
 
 __all__ = ["ObjectIdentities", "recent_ids"]
 
@@ -28,7 +29,7 @@ class ObjectIdentities:
     """
 
     def __init__(self, gate: float = 0.3, memory: int = 20) -> None:
-        _require(_real(gate) and 0 < gate < np.inf, "ObjectIdentities", "gate", gate,
+        _require(_finite(gate) and gate > 0, "ObjectIdentities", "gate", gate,
                  "must be a finite number > 0 metres")
         _require(_int_at_least(memory, 1), "ObjectIdentities", "memory", memory,
                  "must be an int >= 1")
@@ -51,10 +52,7 @@ class ObjectIdentities:
         """
         from scipy.optimize import linear_sum_assignment
 
-        try:
-            xy = np.array(xy, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"ObjectIdentities.update: xy must be numbers ({exc})") from None
+        xy = np.array(real_array("ObjectIdentities.update", "xy", xy))  # a copy: it is kept
         if xy.size == 0:
             xy = xy.reshape(0, 2)
         if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):

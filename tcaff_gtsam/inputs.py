@@ -18,11 +18,14 @@ import numpy as np
 from .errors import DataError
 from .params import _real
 
-__all__ = ["finite_time", "index_pairs", "read_npz", "real_array", "shown"]
+__all__ = ["finite_time", "index_pairs", "output_path", "read_npz", "real_array", "shown"]
 
 
 def shown(value, limit: int = 60) -> str:
-    """A short repr of a rejected value for an error message (arrays by shape and dtype)."""
+    """A short repr of a rejected value for an error message (arrays by shape and dtype), at
+    most `limit` characters (an int >= 4)."""
+    if not (isinstance(limit, int) and not isinstance(limit, bool) and limit >= 4):
+        raise DataError(f"shown: limit must be an int >= 4 characters, got {limit!r:.40}")
     if isinstance(value, np.ndarray) and value.size > 6:
         return f"array of shape {value.shape} and dtype {value.dtype}"
     try:
@@ -103,6 +106,23 @@ def index_pairs(owner: str, name: str, value) -> np.ndarray:
     if arr.size and arr.max() > np.iinfo(np.int64).max:
         raise DataError(f"{owner}: {name} holds an index beyond int64, {arr.max()}")
     return arr.astype(np.int64, copy=False)
+
+
+def output_path(owner: str, path) -> Path:
+    """`path` as a Path to write a file to: a str or path-like naming no folder, in a folder
+    that exists.
+
+    Raises:
+        DataError: naming `owner`: not a str or path, a folder, or a missing parent folder.
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        raise DataError(f"{owner}: path must be a str or a path, got {shown(path)}")
+    out = Path(path)
+    if out.is_dir():
+        raise DataError(f"{owner}: {out} is a folder, not a file")
+    if not out.parent.is_dir():
+        raise DataError(f"{owner}: the folder {out.parent} does not exist")
+    return out
 
 
 # -- npz archives --------------------------------------------------------------------------------

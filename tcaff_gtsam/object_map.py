@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError
-from .inputs import finite_time, read_npz, real_array, shown
+from .inputs import finite_time, output_path, read_npz, real_array, shown
 from .params import _real
 
 __all__ = ["ObjectMap", "as_object_map", "object_arrays"]
@@ -164,8 +164,17 @@ class ObjectMap:
         return np.maximum(now - self.last_seen, 0.0)
 
     def save(self, path: str | Path) -> None:
-        """Write the map to an npz archive at exactly `path` (arrays named after the fields)."""
-        with open(Path(path), "wb") as file:  # a file object stops numpy appending ".npz"
+        """Write the map to an npz archive at exactly `path` (arrays named after the fields).
+
+        Raises:
+            DataError: path not a str or path, a folder, in a missing folder, or not writable.
+        """
+        path = output_path("ObjectMap.save", path)
+        try:
+            file = open(path, "wb")  # a file object stops numpy appending ".npz"
+        except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the name
+            raise DataError(f"ObjectMap.save: cannot write {path} ({exc})") from None
+        with file:
             np.savez(file, **{name: getattr(self, name) for name in _FIELDS})
 
     @classmethod

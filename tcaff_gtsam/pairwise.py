@@ -8,11 +8,11 @@ from dataclasses import replace
 import numpy as np
 
 from .errors import ConfigError, DataError
-from .frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory, confirms
+from .frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory, _confirms
 from .identities import ObjectIdentities, recent_ids
-from .inputs import finite_time
+from .inputs import finite_time, shown
 from .object_map import ObjectMap, as_object_map
-from .params import FrameAlignerParams, TCAFFParams, _given_or_default
+from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
 __all__ = ["PairwiseAligner", "admitted", "evidence_of", "unchecked"]
@@ -20,7 +20,13 @@ __all__ = ["PairwiseAligner", "admitted", "evidence_of", "unchecked"]
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
     """`params` without the checks beyond MNO-CLIPPER's (residual, objects explained, spread,
-    ambiguity): the candidates the released code sees."""
+    ambiguity): the candidates the released code sees.
+
+    Raises:
+        ConfigError: params not a FrameAlignerParams.
+    """
+    _require(isinstance(params, FrameAlignerParams), "unchecked", "params", params,
+             "must be a FrameAlignerParams")
     return replace(params, max_rmse=None, min_inliers=None, min_spread=0.0,
                    check_ambiguity=False)
 
@@ -29,21 +35,59 @@ def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | No
              params: FrameAlignerParams) -> list[AlignmentMeasurement]:
     """The candidates a TCAFF filter may take: every unambiguous one, and an ambiguous one only
     when it lies within `confirm_translation` and `confirm_heading` of the filter's estimate
-    (it may confirm what the filter holds, never start or move a hypothesis)."""
+    (it may confirm what the filter holds, never start or move a hypothesis).
+
+    Raises:
+        DataError: found not a list of AlignmentMeasurement, estimate neither an
+            AlignmentEstimate nor None; ConfigError: params not a FrameAlignerParams.
+    """
+    found = _measurements("admitted", found)
+    if estimate is not None and not isinstance(estimate, AlignmentEstimate):
+        raise DataError(f"admitted: estimate must be an AlignmentEstimate or None, got "
+                        f"{shown(estimate)}")
+    _require(isinstance(params, FrameAlignerParams), "admitted", "params", params,
+             "must be a FrameAlignerParams")
     held = None if estimate is None else estimate.x
-    return [m for m in found if not m.ambiguous or confirms(m.z, held, params)]
+    return [m for m in found if not m.ambiguous or _confirms(m.z, held, params)]
 
 
 def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.ndarray] | None
                 ) -> list[np.ndarray] | None:
     """Per candidate, the (ego object id, other object id) pairs it associates (k, 2), from
     the two maps' persistent ids (`identities.recent_ids`, indexed like the maps); None without
-    ids (a filter that does not count evidence needs none)."""
+    ids (a filter that does not count evidence needs none).
+
+    Raises:
+        DataError: found not a list of AlignmentMeasurement; ids neither None nor two 1-D
+            integer arrays long enough for the associations' indices.
+    """
+    found = _measurements("evidence_of", found)
     if ids is None:
         return None
-    ego_ids, other_ids = ids
+    if not isinstance(ids, (tuple, list)) or len(ids) != 2:
+        raise DataError(f"evidence_of: ids must be None or (ego ids, other ids), got "
+                        f"{shown(ids)}")
+    ego_ids, other_ids = (np.asarray(each) for each in ids)
+    for side, each in enumerate((ego_ids, other_ids)):
+        if each.ndim != 1 or each.dtype.kind not in "iu":
+            raise DataError(f"evidence_of: ids[{side}] must be a 1-D array of integer ids, "
+                            f"got {shown(ids[side])}")
+        reach = max((int(m.associations[:, side].max()) for m in found
+                     if len(m.associations)), default=-1)
+        if reach >= len(each):
+            raise DataError(f"evidence_of: ids[{side}] has {len(each)} ids, an association "
+                            f"refers to index {reach}")
     return [np.column_stack([ego_ids[m.associations[:, 0]], other_ids[m.associations[:, 1]]])
             for m in found]
+
+
+def _measurements(owner: str, found) -> list[AlignmentMeasurement]:
+    """`found` as a list of AlignmentMeasurement, else DataError naming `owner`."""
+    if not isinstance(found, (list, tuple)) or not all(
+            isinstance(m, AlignmentMeasurement) for m in found):
+        raise DataError(f"{owner}: found must be a list of AlignmentMeasurement, got "
+                        f"{shown(found)}")
+    return list(found)
 
 
 class PairwiseAligner:

@@ -90,7 +90,10 @@ def _reals(value) -> tuple[float, ...] | None:
         value = value.tolist()
     if not isinstance(value, (tuple, list)) or not all(_real(v) for v in value):
         return None
-    return tuple(float(v) for v in value)
+    try:
+        return tuple(float(v) for v in value)
+    except OverflowError:  # an int beyond the floats
+        return None
 
 
 def _spd(matrix, d: int | None, owner: str, name: str) -> np.ndarray:
@@ -316,8 +319,8 @@ class FrameAlignerParams(_ByValue):
         _require(_one_of(self.covariance, ("constant", "residual")), o, "covariance",
                  self.covariance, "must be 'constant' or 'residual'")
         object.__setattr__(self, "R_constant", _spd(self.R_constant, 3, o, "R_constant"))
-        _require(_real(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
-                 self.residual_floor, "must be a number > 0 metres")
+        _require(_finite(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
+                 self.residual_floor, "must be a finite number > 0 metres")
         _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,
                  "min_inliers", self.min_inliers, "must be an int >= 2 or None")
         _require(isinstance(self.check_ambiguity, bool), o, "check_ambiguity",
@@ -325,11 +328,11 @@ class FrameAlignerParams(_ByValue):
         for name in ("inlier_radius", "distinct_translation", "distinct_heading",
                      "confirm_translation", "confirm_heading"):
             value = getattr(self, name)
-            _require(_real(value) and 0 < value < math.inf, o, name, value,
+            _require(_finite(value) and value > 0, o, name, value,
                      "must be a finite number > 0")
-        _require(_real(self.min_spread) and 0 <= self.min_spread < math.inf, o, "min_spread",
+        _require(_finite(self.min_spread) and self.min_spread >= 0, o, "min_spread",
                  self.min_spread, "must be a finite number >= 0 metres")
-        _require(_real(self.memory_span) and 0 <= self.memory_span < math.inf, o,
+        _require(_finite(self.memory_span) and self.memory_span >= 0, o,
                  "memory_span", self.memory_span, "must be a finite number >= 0 seconds")
         _require(_int_at_least(self.memory_searches, 0), o, "memory_searches",
                  self.memory_searches, "must be an int >= 0")
@@ -475,7 +478,7 @@ class TCAFFParams(_ByValue):
                  self.drop_rule, "must be 'best_path' or 'window'")
         _require(self.switch_after is None or _int_at_least(self.switch_after, 1), o,
                  "switch_after", self.switch_after, "must be an int >= 1 or None")
-        _require(_real(self.switch_margin) and 0 <= self.switch_margin < math.inf, o,
+        _require(_finite(self.switch_margin) and self.switch_margin >= 0, o,
                  "switch_margin", self.switch_margin, "must be a finite number >= 0 (nats)")
         _require(_int_at_least(self.min_distinct, 1), o, "min_distinct", self.min_distinct,
                  "must be an int >= 1")

@@ -8,8 +8,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import DataError
-from .geometry import transform_points
-from .inputs import real_array
+from .geometry import _transform_points
+from .inputs import real_array, shown
 from .object_map import ObjectMap, as_object_map
 from .params import _finite, _require
 
@@ -229,8 +229,44 @@ def weighted_arun(p: np.ndarray, q: np.ndarray, weights: np.ndarray | None = Non
     return T
 
 
+def _points(owner: str, name: str, value, d: int | None = None) -> np.ndarray:
+    """`value` as finite (k, d) points, d = 2 or 3 (or the given d), else DataError."""
+    arr = real_array(owner, name, value)
+    if arr.ndim != 2 or (arr.shape[1] not in (2, 3) if d is None else arr.shape[1] != d):
+        raise DataError(f"{owner}: {name} must be (k, {'2 or 3' if d is None else d}) points, "
+                        f"got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise DataError(f"{owner}: {name} holds non-finite values")
+    return arr
+
+
+def _transform(owner: str, T_a_b, d: int) -> np.ndarray:
+    """`T_a_b` as a finite (d+1, d+1) matrix, else DataError."""
+    T = real_array(owner, "T_a_b", T_a_b)
+    if T.shape != (d + 1, d + 1) or not np.isfinite(T).all():
+        raise DataError(f"{owner}: T_a_b must be a finite ({d + 1}, {d + 1}) transform for "
+                        f"{d}D points, got {shown(T_a_b)}")
+    return T
+
+
 def registration_rmse(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
-    """Root mean square of |p_k - T_a_b q_k| over the k pairs, metres (k >= 1)."""
+    """Root mean square of |p_k - T_a_b q_k| over the k pairs, metres (k >= 1).
+
+    Args:
+        T_a_b: (d+1, d+1) transform; p: (k, d) points in frame a, q: (k, d) in frame b.
+    Raises:
+        DataError: arguments not real, not finite, of mismatched shapes, or k = 0.
+    """
+    o = "registration_rmse"
+    p = _points(o, "p", p)
+    q = _points(o, "q", q, p.shape[1])
+    if q.shape != p.shape or p.shape[0] == 0:
+        raise DataError(f"{o}: p and q must be the same k >= 1 pairs, got {p.shape} and "
+                        f"{q.shape}")
+    return _registration_rmse(_transform(o, T_a_b, p.shape[1]), p, q)
+
+
+def _registration_rmse(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
     d = p.shape[1]
     residual = p - (q @ T_a_b[:d, :d].T + T_a_b[:d, d])
     return float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
@@ -247,10 +283,29 @@ def mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: 
         radius: metres.
     Returns:
         (k, 2) int64 (index into p, index into q), one row per inlier, sorted by p index.
+    Raises:
+        DataError: arguments not real or not finite, shapes that do not match, radius not a
+            finite number >= 0.
     """
+    o = "mutual_inliers"
+    p = _points(o, "p", p, 2)
+    q = _points(o, "q", q, 2)
+    T_a_b = _transform(o, T_a_b, 2)
+    compatible = np.asarray(compatible)
+    if compatible.dtype != np.bool_ or compatible.shape != (len(p), len(q)):
+        raise DataError(f"{o}: compatible must be a ({len(p)}, {len(q)}) bool array, got "
+                        f"{shown(compatible)}")
+    if not (_finite(radius) and radius >= 0):
+        raise DataError(f"{o}: radius must be a finite number >= 0 metres, got "
+                        f"{shown(radius)}")
+    return _mutual_inliers(T_a_b, p, q, compatible, float(radius))
+
+
+def _mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: np.ndarray,
+                    radius: float) -> np.ndarray:
     if p.shape[0] == 0 or q.shape[0] == 0:
         return np.empty((0, 2), np.int64)
-    moved = transform_points(T_a_b, q)
+    moved = _transform_points(T_a_b, q)
     if p.shape[0] * q.shape[0] > _DENSE_INLIERS:
         return _mutual_inliers_by_tree(p, moved, compatible, radius)
     # |p - m|^2 expanded: one matrix product instead of an (n, m, 2) difference array
@@ -293,7 +348,15 @@ def _nearest(owner: np.ndarray, d: np.ndarray, partner: np.ndarray) -> np.ndarra
 def spread(points: np.ndarray) -> float:
     """Metres: the standard deviation of (k, 2) points along their least spread direction (the
     square root of the smallest eigenvalue of their covariance); 0 for fewer than two points.
-    Points on one line have spread 0."""
+    Points on one line have spread 0.
+
+    Raises:
+        DataError: points not finite (k, 2) real numbers.
+    """
+    return _spread(_points("spread", "points", points, 2))
+
+
+def _spread(points: np.ndarray) -> float:
     if points.shape[0] < 2:
         return 0.0
     return float(np.sqrt(max(np.linalg.eigvalsh(np.cov(points.T, bias=True))[0], 0.0)))

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from .errors import DataError, TcaffError
-from .geometry import se2_from_params, wrap_angle
+from .geometry import _se2_from_params, _wrap_angle
 from .hypothesis_tree import (
     BEFORE_ROOT,
     LEAF_DTYPES,
@@ -47,7 +47,7 @@ from .hypothesis_tree import (
     measurement_costs,
     seed,
 )
-from .inputs import read_npz
+from .inputs import output_path, read_npz, real_array
 from .params import TCAFFParams, _given_or_default
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
@@ -84,7 +84,7 @@ class AlignmentEstimate:
         if self.x.shape != (3,):
             raise TcaffError(f"AlignmentEstimate.T needs an (x, y, theta) state, got shape "
                              f"{self.x.shape}")
-        return se2_from_params(self.x)
+        return _se2_from_params(self.x)
 
 
 class TCAFF:
@@ -322,7 +322,7 @@ class TCAFF:
         distance under P_a + P_b within the gate of `gate_probability`)."""
         r = leaves.x - other.x[0]
         angular = self._model.angular
-        r[:, angular] = wrap_angle(r[:, angular])
+        r[:, angular] = _wrap_angle(r[:, angular])
         S = leaves.P + other.P[0]
         maha = np.einsum("li,li->l", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
         return maha <= self._model.gate_chi2
@@ -395,11 +395,8 @@ class TCAFF:
 
     def _validated(self, zs, Rs) -> tuple[np.ndarray, np.ndarray]:
         d = self.params.dim
-        try:
-            zs = np.asarray(zs, dtype=float)
-            Rs = np.asarray(Rs, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"TCAFF.update: zs and Rs must be numeric arrays ({exc})") from None
+        zs = real_array("TCAFF.update", "zs", zs)
+        Rs = real_array("TCAFF.update", "Rs", Rs)
         if zs.size == 0 and Rs.size == 0:
             return np.empty((0, d)), np.empty((0, d, d))
         if zs.ndim != 2 or zs.shape[1] != d:
@@ -423,7 +420,7 @@ class TCAFF:
             raise DataError(f"TCAFF.update: Rs[{i}] is not {why}{shown_R}")
         zs = zs.copy()
         angles = list(self.params.angle_indices)
-        zs[:, angles] = wrap_angle(zs[:, angles])
+        zs[:, angles] = _wrap_angle(zs[:, angles])
         return zs, np.ascontiguousarray(Rs)
 
     @staticmethod
@@ -643,10 +640,19 @@ class TCAFF:
         return steps
 
     def save(self, path: str | Path) -> None:
-        """Write parameters and state to an .npz file."""
+        """Write parameters and state to an npz archive at exactly `path`.
+
+        Raises:
+            DataError: path not a str or path, a folder, in a missing folder, or not writable.
+        """
+        path = output_path("TCAFF.save", path)
         params = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                   for k, v in asdict(self.params).items()}
-        with open(Path(path), "wb") as file:  # a file object stops numpy appending ".npz"
+        try:
+            file = open(path, "wb")  # a file object stops numpy appending ".npz"
+        except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the name
+            raise DataError(f"TCAFF.save: cannot write {path} ({exc})") from None
+        with file:
             np.savez_compressed(file, params=np.array(json.dumps(params)), **self.state_dict())
 
     @classmethod

@@ -22,7 +22,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from .errors import DataError
-from .geometry import se2_from_params, wrap_angle
+from .geometry import _se2_from_params, _wrap_angle
+from .inputs import real_array, shown
 from .params import _int_at_least, _require
 
 __all__ = ["TeamConsistency", "TeamEstimate", "TeamParams"]
@@ -74,7 +75,7 @@ class TeamEstimate:
     @property
     def T(self) -> np.ndarray:
         """(3, 3) the SE(2) matrix."""
-        return se2_from_params(self.x)
+        return _se2_from_params(self.x)
 
     @property
     def chained(self) -> bool:
@@ -88,7 +89,7 @@ def _compose(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]
     c, s = math.cos(xa[2]), math.sin(xa[2])
     R = np.array([[c, -s], [s, c]])
     t = R @ xb[:2]
-    x = np.array([xa[0] + t[0], xa[1] + t[1], wrap_angle(xa[2] + xb[2])])
+    x = np.array([xa[0] + t[0], xa[1] + t[1], _wrap_angle(xa[2] + xb[2])])
     Ja = np.array([[1.0, 0.0, -t[1]], [0.0, 1.0, t[0]], [0.0, 0.0, 1.0]])
     Jb = np.eye(3)
     Jb[:2, :2] = R
@@ -104,7 +105,7 @@ def _invert(a: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     J = -np.eye(3)
     J[:2, :2] = -Rt
     J[:2, 2] = [t[1], -t[0]]
-    return np.array([t[0], t[1], wrap_angle(-x[2])]), J @ P @ J.T
+    return np.array([t[0], t[1], _wrap_angle(-x[2])]), J @ P @ J.T
 
 
 class TeamConsistency:
@@ -127,6 +128,10 @@ class TeamConsistency:
     def _edges(self, estimates: Mapping) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
         """One (x, P) of T_oi_oj per unordered pair i < j. When both directions are given and
         disagree, the pair is left out: its two filters contradict each other."""
+        o = "TeamConsistency.update"
+        if not isinstance(estimates, Mapping):
+            raise DataError(f"{o}: estimates must be a mapping (i, j) -> estimate, got "
+                            f"{shown(estimates)}")
         given: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         for key, est in estimates.items():
             if est is None:
@@ -134,14 +139,17 @@ class TeamConsistency:
             if not (isinstance(key, tuple) and len(key) == 2
                     and all(isinstance(r, (int, np.integer)) and not isinstance(r, bool)
                             and 0 <= r < self.n_robots for r in key) and key[0] != key[1]):
-                raise DataError(f"TeamConsistency.update: pair {key!r} is not two different "
-                                f"robots of 0 to {self.n_robots - 1}")
-            x = np.asarray(est.x, dtype=float)
-            P = np.asarray(est.P, dtype=float)
+                raise DataError(f"{o}: pair {shown(key)} is not two different robots of 0 to "
+                                f"{self.n_robots - 1}")
+            if not (hasattr(est, "x") and hasattr(est, "P")):
+                raise DataError(f"{o}: pair {key}: the estimate must have x and P (an "
+                                f"AlignmentEstimate), got {shown(est)}")
+            x = real_array(o, f"estimates[{key}].x", est.x)
+            P = real_array(o, f"estimates[{key}].P", est.P)
             if x.shape != (3,) or P.shape != (3, 3) or not (np.all(np.isfinite(x))
                                                          and np.all(np.isfinite(P))):
-                raise DataError(f"TeamConsistency.update: pair {key}: need a finite x (3,) and "
-                                f"P (3, 3), got shapes {x.shape} and {P.shape}")
+                raise DataError(f"{o}: pair {key}: need a finite x (3,) and P (3, 3), got "
+                                f"shapes {x.shape} and {P.shape}")
             i, j = int(key[0]), int(key[1])
             given[(i, j)] = (x, P)
         edges = {}
@@ -161,7 +169,7 @@ class TeamConsistency:
     def _distance(self, a: tuple[np.ndarray, np.ndarray],
                   b: tuple[np.ndarray, np.ndarray]) -> float:
         r = a[0] - b[0]
-        r[2] = wrap_angle(r[2])
+        r[2] = _wrap_angle(r[2])
         return float(r @ np.linalg.solve(a[1] + b[1], r))
 
     def _cycle_fails(self, edges, i: int, j: int, k: int) -> bool:

@@ -258,7 +258,7 @@ def test_zero_measurements_is_a_normal_step():
     (np.zeros((1, 3)), np.diag([1.0, np.inf, 1.0])[None], r"Rs\[0, 1, 1\] = inf"),
     (np.zeros((1, 3)), np.diag([1.0, -1.0, 1.0])[None], "not positive definite"),
     (np.zeros((1, 3)), np.array([[[1.0, 0.5, 0], [0, 1, 0], [0, 0, 1]]]), "not symmetric"),
-    ("abc", np.eye(3)[None], "numeric"),
+    ("abc", np.eye(3)[None], "real numbers"),
 ])
 def test_bad_input_is_a_data_error(zs, Rs, match):
     with pytest.raises(DataError, match=match):
