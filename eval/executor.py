@@ -282,7 +282,7 @@ def _drain(updates, progress: Progress | None, workers_seen: set[int]) -> None:
 # -- Dask --------------------------------------------------------------------------------------
 
 _PROGRESS_STEP = 0.05  # share of a job between two progress events a Dask worker sends
-_CONNECT_TIMEOUT = 10.0  # s to reach a scheduler
+_CONNECT_TIMEOUT = 5.0  # s to reach a scheduler
 
 
 def _job_on_dask(spec: JobSpec, key: int, topic: str) -> JobResult:

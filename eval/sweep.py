@@ -255,8 +255,10 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
             _write_atomic(where / "failed.json", json.dumps(record, indent=1))
             progress.finish(key, False)
 
-        for key, spec in enumerate(specs):
-            progress.start(key, spec.label)
+        point_of = {h: point for point, hashes in reversed(list(zip(
+            plan.points, plan.point_jobs, strict=True))) for h in hashes}  # the first point
+        for key, (digest, spec) in enumerate(zip(todo, specs, strict=True)):
+            progress.start(key, f"{spec.label} ({point_of[digest].label})")
         try:
             run(specs, progress, done, fail)
         except KeyboardInterrupt:
