@@ -543,6 +543,9 @@ figures/response_<parameter>.png.
 def sweep(
     config: Annotated[str, typer.Argument(
         metavar="SWEEP.yaml", help="A sweep YAML file, or the name of a shipped one.")],
+    scenario: Annotated[list[str] | None, typer.Option(
+        "--scenario", "-s", help="Run only this scenario (name or YAML path); repeatable.")
+    ] = None,
     seeds: Annotated[int | None, typer.Option(
         help="Run seeds 0 .. N-1 instead of the sweep's (or its study's).", min=1)] = None,
     workers: Annotated[int | None, typer.Option(
@@ -556,10 +559,12 @@ def sweep(
     scheduler: _SchedulerOption = None,
     local_cluster: _LocalClusterOption = None,
 ) -> None:
-    from .config import load_sweep
+    from .config import load_sweep, resolve_study
 
     _check_duration(duration)
     sweep_config, study_config = load_sweep(config)
+    if scenario:
+        study_config = resolve_study(study_config.model_copy(update={"scenarios": scenario}))
     updates = {"seeds": None if seeds is None else list(range(seeds)), "workers": workers}
     study_config = _capped(study_config.model_copy(
         update={k: v for k, v in updates.items() if v is not None}), duration)

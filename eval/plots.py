@@ -378,6 +378,7 @@ def _tradeoff(path: Path, done: list, method_label: str) -> None:
     if len(front) > 1:
         ax.plot(avail[front], false[front], "-", color="0.6", lw=1, zorder=1,
                 label="not beaten on both")
+    labels: dict[tuple[float, float], list[str]] = {}  # points that land on one spot share it
     for k, (point, _) in enumerate(done):
         if not ok[k]:
             continue
@@ -385,8 +386,12 @@ def _tradeoff(path: Path, done: list, method_label: str) -> None:
             ax.plot(avail[k], false[k], "*", color="tab:red", ms=16, zorder=3, label="default")
         else:
             ax.plot(avail[k], false[k], "o", color="tab:blue", ms=6, zorder=2)
-        ax.annotate(point.label, (avail[k], false[k]), textcoords="offset points",
-                    xytext=(4, 4), fontsize=7, color="0.3")
+        labels.setdefault((round(avail[k], 6), round(false[k], 6)), []).append(point.label)
+    for (a, f), names in labels.items():
+        text = "\n".join(names[:3] + ([f"and {len(names) - 3} more"] if len(names) > 3 else []))
+        ax.annotate(text, (a, f), textcoords="offset points", xytext=(4, 4), fontsize=7,
+                    color="0.3")
+    ax.set_ylim(bottom=0, top=max(1.0, 1.15 * np.nanmax(false, initial=0.0)))
     ax.set_xlabel("availability [%] (overlap steps with an estimate)")
     ax.set_ylabel("false accepts [%] (estimates beyond the thresholds)")
     ax.set_title(f"{method_label}: one dot per parameter point, pooled over scenarios, seeds "
@@ -423,6 +428,7 @@ def _response(path: Path, grid: list, default: dict | None, parameter: str,
             ax.axhline(default[key] * scale, color="tab:red", ls=":", lw=1.2, label="default")
         ax.set_ylabel(name, fontsize=8)
         ax.grid(alpha=0.3)
+    axes[0].set_ylim(bottom=0)
     if ticks is not None:
         axes[-1].set_xticks(x, ticks)
     axes[-1].set_xlabel(parameter)

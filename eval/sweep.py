@@ -86,9 +86,11 @@ class SweepOutcome:
 
     Attributes:
         folder: `<output>/<sweep name>/`.
+        plan: the points and jobs.
         reused: jobs done by an earlier run and skipped.
         ran: jobs finished by this run.
         failed: jobs that raised in this run: hash, scenario, seed, error, traceback.
+        interrupted: Ctrl-C stopped the run (the report covers the jobs done by then).
         rows: the report, one row per point and method (as in sweep.csv).
     """
 
