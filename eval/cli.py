@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
     from tcaff_gtsam.frame_aligner import AlignmentMeasurement
 
-    from .config import MethodsConfig, StudyConfig
+    from .config import MethodsConfig, StudyConfig, SweepConfig
     from .executor import Executor
 
 _ALIGNER = FrameAlignerParams()
@@ -582,13 +582,13 @@ def sweep(
         raise SystemExit(130) from None
 
 
-def _run_sweep(sweep_config, study_config: StudyConfig, executor: Executor, figures: bool,
-               source: str) -> None:
+def _run_sweep(sweep_config: SweepConfig, study_config: StudyConfig, executor: Executor,
+               figures: bool, source: str) -> None:
     import time
 
     from rich.markup import escape
 
-    from .sweep import plan_sweep, run_sweep
+    from .sweep import jobs_to_run, plan_sweep, run_sweep
 
     console, err_console = _console(), _console(stderr=True)
     plan = plan_sweep(sweep_config, study_config, source)
@@ -599,9 +599,9 @@ def _run_sweep(sweep_config, study_config: StudyConfig, executor: Executor, figu
                   f"{executor.describe()}; results in {escape(str(folder))}", soft_wrap=True)
     start = time.perf_counter()
     with _bars() as bars:
-        total = len([h for h in plan.jobs if not (folder / "jobs" / h / "job.json").is_file()])
         outcome = run_sweep(sweep_config, study_config, executor,
-                            _study_bars(bars, total, "sweep"), figures, source)
+                            _study_bars(bars, len(jobs_to_run(plan, folder)), "sweep"),
+                            figures, source)
     if outcome.reused:
         console.print(f"{outcome.reused} of {len(plan.jobs)} jobs done by an earlier run: "
                       f"reused")
@@ -623,7 +623,7 @@ def _run_sweep(sweep_config, study_config: StudyConfig, executor: Executor, figu
         raise SystemExit(1)
 
 
-def _sweep_table(rows: list[dict], sweep_config) -> Table:
+def _sweep_table(rows: list[dict], sweep_config: SweepConfig) -> Table:
     """One row per point: the shown method's metrics pooled over scenarios, seeds, pairs."""
     from rich.markup import escape
 

@@ -374,7 +374,7 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
         topic = f"tcaff-progress-{uuid.uuid4().hex}"
         updates: queue.SimpleQueue = queue.SimpleQueue()
         client.subscribe_topic(topic, lambda event: updates.put(event[1]))
-        futures = {client.submit(_job_on_dask, spec, key, topic, pure=False,
+        futures = {client.submit(_job_on_dask, spec, key, topic,
                                  key=f"{spec.label.replace(' ', '-')}-{uuid.uuid4().hex[:8]}"): key
                    for key, spec in enumerate(specs)}
         remaining = as_completed(futures)

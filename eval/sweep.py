@@ -36,7 +36,8 @@ from .metrics import pooled_metrics
 from .registry import estimate_names
 from .results import JobResult, summarize, thresholds_of, write_csv
 
-__all__ = ["SweepOutcome", "SweepPlan", "SweepPoint", "job_hash", "plan_sweep", "run_sweep"]
+__all__ = ["SweepOutcome", "SweepPlan", "SweepPoint", "job_hash", "jobs_to_run", "plan_sweep",
+           "run_sweep"]
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +197,11 @@ def _job_done(folder: Path) -> bool:
     return (folder / "job.json").is_file()
 
 
+def jobs_to_run(plan: SweepPlan, folder: Path) -> list[str]:
+    """The hashes of the plan's jobs not done yet in the sweep's `folder`."""
+    return [h for h in plan.jobs if not _job_done(folder / "jobs" / h)]
+
+
 def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None = None,
               progress: Progress | None = None, figures: bool = True, source: str = "sweep",
               on_job_done: Callable[[JobResult], None] | None = None) -> SweepOutcome:
@@ -217,7 +223,7 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
     executor = executor or Executor(workers=study.workers)
     folder = Path(sweep.output) / sweep.name
     jobs_folder = folder / "jobs"
-    todo = [h for h in plan.jobs if not _job_done(jobs_folder / h)]
+    todo = jobs_to_run(plan, folder)
     reused = len(plan.jobs) - len(todo)
     specs = [plan.jobs[h] for h in todo]
     failed: list[dict] = []
