@@ -370,35 +370,36 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
               fail: Fail) -> None:
     from distributed import as_completed
 
-    if specs:
-        topic = f"tcaff-progress-{uuid.uuid4().hex}"
-        updates: queue.SimpleQueue = queue.SimpleQueue()
-        client.subscribe_topic(topic, lambda event: updates.put(event[1]))
-        futures = {client.submit(_job_on_dask, spec, key, topic,
-                                 key=f"{spec.label.replace(' ', '-')}-{uuid.uuid4().hex[:8]}"): key
-                   for key, spec in enumerate(specs)}
-        remaining = as_completed(futures)
-        try:
-            while not remaining.is_empty():
-                finished = remaining.next_batch(block=False)
-                _drain_events(updates, progress)
-                if not finished:
-                    time.sleep(0.05)
-                for future in finished:
-                    key = futures.pop(future)
-                    try:
-                        job = future.result()
-                    except Exception as exc:
-                        fail(key, exc)
-                        continue
-                    finally:
-                        future.release()  # its result leaves the cluster's memory
-                    done(key, job)
-        except BaseException:
-            client.cancel(list(futures))
-            raise
-        finally:
-            client.unsubscribe_topic(topic)
+    if not specs:
+        return
+    topic = f"tcaff-progress-{uuid.uuid4().hex}"
+    updates: queue.SimpleQueue = queue.SimpleQueue()
+    client.subscribe_topic(topic, lambda event: updates.put(event[1]))
+    futures = {client.submit(_job_on_dask, spec, key, topic,
+                             key=f"{spec.label.replace(' ', '-')}-{uuid.uuid4().hex[:8]}"): key
+               for key, spec in enumerate(specs)}
+    remaining = as_completed(futures)
+    try:
+        while not remaining.is_empty():
+            finished = remaining.next_batch(block=False)
+            _drain_events(updates, progress)
+            if not finished:
+                time.sleep(0.05)
+            for future in finished:
+                key = futures.pop(future)
+                try:
+                    job = future.result()
+                except Exception as exc:
+                    fail(key, exc)
+                    continue
+                finally:
+                    future.release()  # its result leaves the cluster's memory
+                done(key, job)
+    except BaseException:
+        client.cancel(list(futures))
+        raise
+    finally:
+        client.unsubscribe_topic(topic)
 
 
 def _drain_events(updates: queue.SimpleQueue, progress: Progress) -> None:
