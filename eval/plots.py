@@ -339,9 +339,9 @@ def _axis(values: list) -> tuple[np.ndarray, list[str] | None]:
 
 def draw_sweep(folder: Path, points: list, reports: list[dict], parameters: list[str],
                method_label: str) -> list[Path]:
-    """A sweep's figures: tradeoff.png (false accepts against availability, one dot per point,
-    the default as a star, the points no other beats on both as a line) and
-    response_<parameter>.png (each metric against the parameter's values, a line per
+    """A sweep's figures: tradeoff.png (false accepts against availability, one dot per point
+    labelled with its number, the default as a star, the points no other beats on both as a
+    line) and response_<parameter>.png (each metric against the parameter's values, a line per
     combination of the other parameters, or their mean when there are many; the default as a
     dotted level).
 
@@ -352,13 +352,13 @@ def draw_sweep(folder: Path, points: list, reports: list[dict], parameters: list
         The files written.
     """
     folder.mkdir(parents=True, exist_ok=True)
-    done = [(p, r) for p, r in zip(points, reports, strict=True) if r]
+    done = [(n, p, r) for n, (p, r) in enumerate(zip(points, reports, strict=True)) if r]
     if not done:
         return []
     written = [folder / "tradeoff.png"]
     _tradeoff(written[0], done, method_label)
-    default = next((r for p, r in done if p.default), None)
-    grid = [(p, r) for p, r in done if p.settings]
+    default = next((r for _, p, r in done if p.default), None)
+    grid = [(p, r) for _, p, r in done if p.settings]
     for path in parameters:
         if grid:
             written.append(folder / f"response_{_short(path)}.png")
@@ -367,8 +367,8 @@ def draw_sweep(folder: Path, points: list, reports: list[dict], parameters: list
 
 
 def _tradeoff(path: Path, done: list, method_label: str) -> None:
-    avail = np.array([_none_nan(r.get("availability")) for _, r in done]) * 100
-    false = np.array([_none_nan(r.get("false_accept")) for _, r in done]) * 100
+    avail = np.array([_none_nan(r.get("availability")) for _, _, r in done]) * 100
+    false = np.array([_none_nan(r.get("false_accept")) for _, _, r in done]) * 100
     fig, ax = plt.subplots(figsize=(7.5, 5.5))
     ok = np.isfinite(avail) & np.isfinite(false)
     # the front: no other point has more availability and fewer false accepts
@@ -379,23 +379,22 @@ def _tradeoff(path: Path, done: list, method_label: str) -> None:
         ax.plot(avail[front], false[front], "-", color="0.6", lw=1, zorder=1,
                 label="not beaten on both")
     labels: dict[tuple[float, float], list[str]] = {}  # points that land on one spot share it
-    for k, (point, _) in enumerate(done):
+    for k, (number, point, _) in enumerate(done):
         if not ok[k]:
             continue
         if point.default:
             ax.plot(avail[k], false[k], "*", color="tab:red", ms=16, zorder=3, label="default")
         else:
             ax.plot(avail[k], false[k], "o", color="tab:blue", ms=6, zorder=2)
-        labels.setdefault((round(avail[k], 6), round(false[k], 6)), []).append(point.label)
-    for (a, f), names in labels.items():
-        text = "\n".join(names[:3] + ([f"and {len(names) - 3} more"] if len(names) > 3 else []))
-        ax.annotate(text, (a, f), textcoords="offset points", xytext=(4, 4), fontsize=7,
-                    color="0.3")
+        labels.setdefault((round(avail[k], 6), round(false[k], 6)), []).append(str(number))
+    for (a, f), numbers in labels.items():
+        ax.annotate(",".join(numbers), (a, f), textcoords="offset points", xytext=(4, 4),
+                    fontsize=8, color="0.3")
     ax.set_ylim(bottom=0, top=max(1.0, 1.15 * np.nanmax(false, initial=0.0)))
     ax.set_xlabel("availability [%] (overlap steps with an estimate)")
     ax.set_ylabel("false accepts [%] (estimates beyond the thresholds)")
-    ax.set_title(f"{method_label}: one dot per parameter point, pooled over scenarios, seeds "
-                 f"and pairs", fontsize=9)
+    ax.set_title(f"{method_label}: one dot per parameter point (numbered as in sweep.csv), "
+                 f"pooled over scenarios, seeds and pairs", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
