@@ -32,19 +32,13 @@ from tcaff_gtsam.errors import ConfigError, DataError
 
 from .config import MethodsConfig, StudyConfig, SweepConfig, apply_settings
 from .executor import Executor, JobSpec, Progress, job_runner
-from .metrics import pooled_metrics
 from .registry import estimate_names
-from .results import JobResult, summarize, thresholds_of, write_csv
+from .results import JobResult, pool, summarize, thresholds_of, write_csv
 
 __all__ = ["SweepOutcome", "SweepPlan", "SweepPoint", "job_hash", "jobs_to_run", "plan_sweep",
            "run_sweep"]
 
 log = logging.getLogger(__name__)
-
-#: the metrics of the printed table and the response figures, with their units
-REPORTED = ("false_accept", "availability", "translation_error_m_mean", "heading_error_deg_mean",
-            "time_to_first_correct_s")
-
 
 @dataclass(frozen=True)
 class SweepPoint:
@@ -154,7 +148,8 @@ def plan_sweep(sweep: SweepConfig, study: StudyConfig, source: str = "sweep") ->
                 _resolve_point(study, {path: value}, source)
     else:
         settings = [dict(point) for point in sweep.points or []]
-    base = [job_hash(spec) for spec in _resolve_point(study, {}, source)]
+    base_specs = _resolve_point(study, {}, source)
+    base = [job_hash(spec) for spec in base_specs]
     points: list[SweepPoint] = []
     point_jobs: list[list[str]] = []
     jobs: dict[str, JobSpec] = {}
@@ -165,8 +160,7 @@ def plan_sweep(sweep: SweepConfig, study: StudyConfig, source: str = "sweep") ->
         points.append(SweepPoint(point, point, hashes == base))
         point_jobs.append(hashes)
     if not any(p.default for p in points):
-        specs = _resolve_point(study, {}, source)
-        jobs = {**dict(zip(base, specs, strict=True)), **jobs}
+        jobs = {**dict(zip(base, base_specs, strict=True)), **jobs}
         points.insert(0, SweepPoint({}, {p: _base_value(study, p) for p in parameters}, True))
         point_jobs.insert(0, base)
     return SweepPlan(points, jobs, point_jobs)
@@ -309,17 +303,8 @@ def _report(folder: Path, sweep: SweepConfig, study: StudyConfig, plan: SweepPla
         jobs = [job for h in hashes if (job := _load_job(folder / "jobs" / h)) is not None]
         head = {"point": index, **{p: _text(v) for p, v in point.values.items()},
                 "default": point.default, "jobs": len(hashes), "jobs_done": len(jobs)}
-        pooled: dict[str, dict] = {}
-        for method in names:
-            report: dict[str, Any] = {}
-            if jobs:
-                report = pooled_metrics([t for j in jobs for t in j.traces(method)],
-                                        thresholds).as_report()
-                pair_steps = sum(len(j.pairs) * j.n_steps for j in jobs)
-                report["ms_per_pair_step"] = 1e3 * sum(
-                    j.seconds.get(method, 0.0) for j in jobs) / pair_steps
-            pooled[method] = report
-            rows.append({**head, "method": method, **report})
+        pooled = pool(jobs, names, thresholds) if jobs else {m: {} for m in names}
+        rows += [{**head, "method": method, **report} for method, report in pooled.items()]
         points_json.append({"point": index, "settings": point.settings, "values": point.values,
                             "default": point.default, "jobs": hashes,
                             "jobs_done": len(jobs), "pooled": pooled,
