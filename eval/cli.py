@@ -22,7 +22,8 @@ if TYPE_CHECKING:
 
     from tcaff_gtsam.frame_aligner import AlignmentMeasurement
 
-    from .config import MethodsConfig, StudyConfig
+    from .config import MethodsConfig, StudyConfig, SweepConfig
+    from .executor import Executor
 
 _ALIGNER = FrameAlignerParams()
 # The same folder as config.CONFIG_DIR, found without importing config (pydantic).
@@ -293,8 +294,8 @@ def _bars() -> RichProgress:
                         transient=True)
 
 
-def _study_bars(bars: RichProgress, n_jobs: int):
-    """The study's progress as rich bars: one for the whole study, one per running job."""
+def _study_bars(bars: RichProgress, n_jobs: int, title: str = "study"):
+    """The progress of jobs as rich bars: one for them all, one per running job."""
     from rich.markup import escape
 
     from .study import Progress
@@ -302,7 +303,7 @@ def _study_bars(bars: RichProgress, n_jobs: int):
     # Defined here: the base class lives in the study module, which loads the whole stack.
     class _Bars(Progress):
         def __init__(self) -> None:
-            self.total = bars.add_task("study", total=n_jobs)
+            self.total = bars.add_task(title, total=n_jobs)
             self.tasks: dict[int, int] = {}
             self.labels: dict[int, str] = {}
             self.shares: dict[int, float] = {}
@@ -399,11 +400,12 @@ def _by_interrupt(exc: BaseException) -> bool:
     return False
 
 
-def _run(study_config: StudyConfig, figures: bool, rerun: Path | None = None) -> None:
+def _run(study_config: StudyConfig, figures: bool, rerun: Path | None = None,
+         executor: Executor | None = None) -> None:
     """Run a study and print its tables; Ctrl-C ends it with one line and exit status 130,
     the runs already finished written (see `run_study`)."""
     try:
-        _run_study(study_config, figures, rerun)
+        _run_study(study_config, figures, rerun, executor)
     except BaseException as exc:
         if not _by_interrupt(exc):
             raise
@@ -411,26 +413,29 @@ def _run(study_config: StudyConfig, figures: bool, rerun: Path | None = None) ->
         raise SystemExit(130) from None
 
 
-def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None) -> None:
+def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None,
+               executor: Executor | None) -> None:
     import time
 
     from rich.markup import escape
 
+    from .executor import Executor
     from .study import run_study
 
     console, err_console = _console(), _console(stderr=True)
+    executor = executor or Executor(workers=study_config.workers)
     n_jobs = len(study_config.scenarios) * len(study_config.seeds)
     console.print(f"study [bold]{study_config.name}[/]: {len(study_config.scenarios)} "
-                  f"scenarios x {len(study_config.seeds)} seeds, {study_config.workers} "
-                  f"worker(s)")
+                  f"scenarios x {len(study_config.seeds)} seeds on {executor.describe()}")
     start = time.perf_counter()
     with _bars() as bars:
-        outcome = run_study(study_config, _study_bars(bars, n_jobs), figures=figures)
+        outcome = run_study(study_config, _study_bars(bars, n_jobs), figures=figures,
+                            executor=executor)
     if outcome.summary:
         console.print(_summary_table(outcome.summary, study_config.methods))
         console.print("CLIPPER's whole sweep, every pair and seed: metrics.csv and "
-                      "figures/clipper_sweep.png. APE and RPE: evo's (RMSE, m) of the other "
-                      "robot's path in the ego's frame; the paths are in trajectories/. ms is "
+                      "figures/clipper_sweep.png. APE and RPE (as evo computes them; RMSE, m) "
+                      "of the other robot's path in the ego's frame; the paths are in trajectories/. ms is "
                       "each method's own time per pair and step; the TCAFF methods share the "
                       "MNO-CLIPPER candidates on top.")
     if outcome.mot_summary:
@@ -461,6 +466,36 @@ alignment, and the tracking is scored with MOTA. Ctrl-C keeps the runs already f
 """
 
 
+_SchedulerOption = Annotated[str | None, typer.Option(
+    help="Run the jobs on the Dask cluster of this scheduler (tcp://host:8786); its workers "
+         "need tcaff-gtsam installed (see the README).", rich_help_panel="Where jobs run")]
+_LocalClusterOption = Annotated[int | None, typer.Option(
+    help="Start a Dask cluster of N worker processes on this machine for the jobs.", min=1,
+    rich_help_panel="Where jobs run")]
+
+
+def _executor(workers: int, scheduler: str | None, local_cluster: int | None):
+    """Where the jobs run: local processes, or Dask by --scheduler or --local-cluster."""
+    from tcaff_gtsam.errors import ConfigError
+
+    from .executor import Executor
+
+    if scheduler is not None and local_cluster is not None:
+        raise ConfigError(f"--scheduler {scheduler!r} and --local-cluster {local_cluster}: "
+                          f"give one or the other")
+    executor = Executor(workers=workers, scheduler=scheduler, local_cluster=local_cluster)
+    if executor.on_dask:
+        import logging
+
+        try:
+            import distributed  # noqa: F401  (its import sets its loggers' levels: first)
+        except ImportError:
+            pass  # the executor says how to install it
+        # the scheduler's and nanny's INFO lines would bury the progress bars
+        logging.getLogger("distributed").setLevel(logging.WARNING)
+    return executor
+
+
 @app.command(help=_STUDY_HELP)
 def study(
     config: Annotated[str, typer.Argument(
@@ -480,6 +515,8 @@ def study(
         help="Cap every scenario's duration (seconds), for a quick look.")] = None,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
     rerun: Annotated[Path | None, typer.Option(help=_RERUN_HELP)] = None,
+    scheduler: _SchedulerOption = None,
+    local_cluster: _LocalClusterOption = None,
 ) -> None:
     from .config import load_study
 
@@ -489,9 +526,10 @@ def study(
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
     study_config = load_study(config, {k: v for k, v in overrides.items() if v is not None})
+    executor = _executor(study_config.workers, scheduler, local_cluster)
     _writable_folder(Path(study_config.output),
                      "--output" if output is not None else f"{config}: output")
-    _run(_capped(study_config, duration), figures, rerun)
+    _run(_capped(study_config, duration), figures, rerun, executor)
 
 
 def _capped(study_config: StudyConfig, duration: float | None) -> StudyConfig:
@@ -517,6 +555,129 @@ def demo(
     study_config = load_study("demo", {"output": str(output), "workers": workers})
     _writable_folder(output, "--output")
     _run(_capped(study_config, duration), True)
+
+
+_SWEEP_HELP = f"""\
+Run a base study at several parameter points and report the trade-off.
+
+SWEEP.yaml names a base study (name, path or inline) and a grid of values by dotted path into
+the method set (methods.tcaff.tau) or every scenario (scenario.window), every combination run
+x scenarios x seeds; or a list of points. Shipped sweeps: {_shipped("sweeps")}.
+
+Each job is saved under OUTPUT/<sweep>/jobs/<hash of its configuration>/ as it finishes; a
+rerun skips the jobs already done (resume after Ctrl-C or a crash, or after adding values) and
+retries the failed ones. Writes sweep.csv (a row per point and method, pooled over scenarios,
+seeds and pairs), sweep.json (also per scenario, and every failure with its traceback) and
+figures/tradeoff.png (false accepts against availability, the default marked) and
+figures/response_<parameter>.png.
+"""
+
+
+@app.command(help=_SWEEP_HELP)
+def sweep(
+    config: Annotated[str, typer.Argument(
+        metavar="SWEEP.yaml", help="A sweep YAML file, or the name of a shipped one.")],
+    scenario: Annotated[list[str] | None, typer.Option(
+        "--scenario", "-s", help="Run only this scenario (name or YAML path); repeatable.")
+    ] = None,
+    seeds: Annotated[int | None, typer.Option(
+        help="Run seeds 0 .. N-1 instead of the sweep's (or its study's).", min=1)] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Local parallel processes (default: the study's).", min=1)] = None,
+    output: Annotated[Path | None, typer.Option(
+        help="Folder for <sweep name>/ (default: the sweep's output).")] = None,
+    duration: Annotated[float | None, typer.Option(
+        help="Cap every scenario's duration (seconds), for a quick look; the jobs are other "
+             "jobs than the full-length ones.")] = None,
+    figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
+    scheduler: _SchedulerOption = None,
+    local_cluster: _LocalClusterOption = None,
+) -> None:
+    from .config import load_sweep, resolve_study
+
+    _check_duration(duration)
+    sweep_config, study_config = load_sweep(config)
+    if scenario:
+        study_config = resolve_study(study_config.model_copy(update={"scenarios": scenario}))
+    updates = {"seeds": None if seeds is None else list(range(seeds)), "workers": workers}
+    study_config = _capped(study_config.model_copy(
+        update={k: v for k, v in updates.items() if v is not None}), duration)
+    if output is not None:
+        sweep_config = sweep_config.model_copy(update={"output": str(output)})
+    executor = _executor(study_config.workers, scheduler, local_cluster)
+    _writable_folder(Path(sweep_config.output),
+                     "--output" if output is not None else f"{config}: output")
+    try:
+        _run_sweep(sweep_config, study_config, executor, figures, Path(config).name)
+    except BaseException as exc:
+        if not _by_interrupt(exc):
+            raise
+        _console(stderr=True).print("interrupted", soft_wrap=True)
+        raise SystemExit(130) from None
+
+
+def _run_sweep(sweep_config: SweepConfig, study_config: StudyConfig, executor: Executor,
+               figures: bool, source: str) -> None:
+    import time
+
+    from rich.markup import escape
+
+    from .sweep import jobs_to_run, plan_sweep, run_sweep
+
+    console, err_console = _console(), _console(stderr=True)
+    plan = plan_sweep(sweep_config, study_config, source)
+    folder = Path(sweep_config.output) / sweep_config.name
+    console.print(f"sweep [bold]{escape(sweep_config.name)}[/]: {len(plan.points)} points "
+                  f"({', '.join(sweep_config.parameters)}) x {len(study_config.scenarios)} "
+                  f"scenarios x {len(study_config.seeds)} seeds = {len(plan.jobs)} jobs on "
+                  f"{executor.describe()}; results in {escape(str(folder))}", soft_wrap=True)
+    start = time.perf_counter()
+    with _bars() as bars:
+        outcome = run_sweep(sweep_config, study_config, executor,
+                            _study_bars(bars, len(jobs_to_run(plan, folder)), "sweep"),
+                            figures, source)
+    if outcome.reused:
+        console.print(f"{outcome.reused} of {len(plan.jobs)} jobs done by an earlier run: "
+                      f"reused")
+    console.print(_sweep_table(outcome.rows, sweep_config))
+    console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s); "
+                  f"sweep.csv has every method, figures/ the trade-off and responses")
+    if outcome.interrupted:
+        done = outcome.reused + outcome.ran
+        err_console.print(f"interrupted: {done} of {len(plan.jobs)} jobs done, kept in "
+                          f"{escape(str(outcome.folder))}; run the sweep again to finish it",
+                          soft_wrap=True)
+        raise SystemExit(130)
+    if outcome.failed:
+        for fail in outcome.failed:
+            err_console.print(f"[red]failed:[/] {fail['scenario']} seed {fail['seed']} "
+                              f"(job {fail['hash']}): {escape(fail['error'])}", soft_wrap=True)
+        err_console.print("tracebacks: sweep.json and jobs/<job>/failed.json; a rerun tries "
+                          "the failed jobs again", soft_wrap=True)
+        raise SystemExit(1)
+
+
+def _sweep_table(rows: list[dict], sweep_config: SweepConfig) -> Table:
+    """One row per point: the shown method's metrics pooled over scenarios, seeds, pairs."""
+    from rich.markup import escape
+
+    from . import plots
+
+    table = _table(f"{plots.label(sweep_config.method)} at each point, pooled over scenarios, "
+                   f"seeds and directed pairs (* the default)")
+    names = [p.rsplit(".", 1)[-1] for p in sweep_config.parameters]
+    _add_columns(table, ("#", *names, "jobs", "false acc.", "available", "translation [m]",
+                         "heading [deg]", "1st correct [s]"), labelled=False)
+    for r in rows:
+        if r["method"] != sweep_config.method:
+            continue
+        table.add_row(f"{r['point']}{'*' if r['default'] else ''}",
+                      *(escape(str(r[p])) for p in sweep_config.parameters),
+                      f"{r['jobs_done']}/{r['jobs']}", _cell(r, "false_accept", 100, 1) + " %",
+                      _cell(r, "availability", 100, 0) + " %",
+                      _cell(r, "translation_error_m_mean"), _cell(r, "heading_error_deg_mean"),
+                      _cell(r, "time_to_first_correct_s", digits=0))
+    return _keep_numbers_whole(table, labelled=False)
 
 
 def _kimera_bars(bars: RichProgress):

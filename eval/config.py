@@ -55,12 +55,15 @@ __all__ = [
     "MrclamConfig",
     "ScenarioConfig",
     "StudyConfig",
+    "SweepConfig",
     "UniqueKeyLoader",
+    "apply_settings",
     "load_kimera_multi",
     "load_methods",
     "load_mrclam",
     "load_scenario",
     "load_study",
+    "load_sweep",
     "override",
 ]
 
@@ -524,6 +527,86 @@ class StudyConfig(_Model):
         return value
 
 
+#: where a swept parameter's dotted path points: into the method set, or into every scenario
+SWEEP_ROOTS = ("methods", "scenario")
+
+
+class SweepConfig(_Model):
+    """A base study run at several parameter points.
+
+    A parameter is a dotted path into the method set (`methods.tcaff.tau`) or into every
+    scenario of the study (`scenario.window`, `scenario.mapping.kappa`). `grid` runs every
+    combination of its values; `points` lists the points one by one (each setting the same
+    parameters). The study as given (no parameter changed) is the default point.
+    """
+
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = ""
+    study: str | StudyConfig = Field(description="the base study: shipped name, path or inline")
+    grid: dict[str, list[Any]] | None = Field(None, description="path -> values, every combination")
+    points: list[dict[str, Any]] | None = Field(None, description="path -> value, one per point")
+    seeds: list[int] | None = Field(None, min_length=1, description="default: the study's")
+    method: str = Field("tcaff", description="the estimate the report's table and figures show")
+    output: str = Field("results/sweeps", description="results go to OUTPUT/<name>/")
+
+    @field_validator("grid")
+    @classmethod
+    def _grid(cls, value: dict[str, list[Any]] | None) -> dict[str, list[Any]] | None:
+        if value is None:
+            return value
+        if not value:
+            raise ValueError("needs at least one parameter path")
+        for path, values in value.items():
+            _check_sweep_path(path)
+            if not values:
+                raise ValueError(f"{path}: needs at least one value")
+            if len({repr(v) for v in values}) != len(values):
+                raise ValueError(f"{path}: values must not repeat, got {values}")
+        return value
+
+    @field_validator("points")
+    @classmethod
+    def _points(cls, value: list[dict[str, Any]] | None) -> list[dict[str, Any]] | None:
+        if value is None:
+            return value
+        if not value:
+            raise ValueError("needs at least one point")
+        for k, point in enumerate(value):
+            if not point:
+                raise ValueError(f"point {k} sets no parameter")
+            for path in point:
+                _check_sweep_path(path)
+            if set(point) != set(value[0]):
+                raise ValueError(f"point {k} sets {sorted(point)}; every point must set the "
+                                 f"first one's {sorted(value[0])}")
+        return value
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds(cls, value: list[int] | None) -> list[int] | None:
+        if value is not None and (any(s < 0 for s in value) or len(set(value)) != len(value)):
+            raise ValueError(f"seeds must be distinct ints >= 0, got {value}")
+        return value
+
+    @model_validator(mode="after")
+    def _one_way(self) -> SweepConfig:
+        if (self.grid is None) == (self.points is None):
+            raise ValueError("give either grid (every combination) or points (a list)")
+        return self
+
+    @property
+    def parameters(self) -> list[str]:
+        """The swept paths, in the file's order."""
+        return list(self.grid if self.grid is not None else self.points[0])  # type: ignore[index]
+
+
+def _check_sweep_path(path: str) -> None:
+    root, _, rest = path.partition(".")
+    if root not in SWEEP_ROOTS or not rest or not all(path.split(".")):
+        raise ValueError(f"{path}: a parameter path is methods.<key>[.<key>...] or "
+                         f"scenario.<key>[.<key>...]")
+
+
 class ExtrinsicsConfig(_Model):
     """A sensor frame in a parent frame: `xyz` metres, then `rpy_deg` (roll, pitch, yaw about
     the parent's fixed x, y, z axes, ROS order). `matrix` (16 numbers, row-major 4 x 4) replaces
@@ -731,7 +814,8 @@ def _resolve(ref: str, folder: str) -> Path:
     if not shipped.is_file():
         names = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
         kind = {"scenarios": "scenario", "methods": "method set", "studies": "study",
-                "kimera_multi": "Kimera-Multi test", "mrclam": "MRCLAM evaluation"}[folder]
+                "kimera_multi": "Kimera-Multi test", "mrclam": "MRCLAM evaluation",
+                "sweeps": "sweep"}[folder]
         raise ConfigError(f"no {kind} config named {ref!r}; shipped: {', '.join(names)}")
     return shipped
 
@@ -769,6 +853,50 @@ def load_study(ref: str | Path, overrides: dict[str, Any] | None = None) -> Stud
     if overrides and isinstance(data, dict):
         data = {**data, **overrides}
     return resolve_study(_validate(StudyConfig, data, path.name), path.parent)
+
+
+def load_sweep(ref: str | Path) -> tuple[SweepConfig, StudyConfig]:
+    """A sweep by shipped name or path, and its base study resolved (scenarios and method set
+    inline, the sweep's seeds when it gives them)."""
+    path = _resolve(str(ref), "sweeps")
+    sweep = _validate(SweepConfig, _read_yaml(path), path.name)
+    if isinstance(sweep.study, StudyConfig):
+        study = resolve_study(sweep.study, path.parent)
+    else:
+        study = load_study(_near(sweep.study, path.parent))
+    if sweep.seeds is not None:
+        study = study.model_copy(update={"seeds": sweep.seeds})
+    return sweep, study
+
+
+def apply_settings(config: ScenarioConfig | MethodsConfig, settings: dict[str, Any],
+                   source: str) -> Any:
+    """`config` with some settings changed, validated like a file.
+
+    Args:
+        settings: dotted path -> value; the first part of each path (`methods`, `scenario`)
+            names the config and is skipped.
+        source: names the settings in errors (e.g. "tau_window.yaml").
+    Raises:
+        ConfigError: a path that `config` does not have, or a value it refuses, naming the
+            path and the value.
+    """
+    data = config.model_dump(mode="json")
+    label = ", ".join(f"{path} = {value!r}" for path, value in settings.items())
+    for path, value in settings.items():
+        keys = path.split(".")[1:]
+        node = data
+        for depth, key in enumerate(keys[:-1]):
+            child = node.get(key) if isinstance(node, dict) else None
+            if not isinstance(child, dict):
+                what = "has no key" if not isinstance(node, dict) or key not in node else (
+                    f"has {key} = {child!r}, nothing to set inside")
+                where = getattr(config, "name", type(config).__name__)
+                raise ConfigError(f"{source}: {path}: {where} {what} "
+                                  f"{'.'.join(keys[:depth + 1])!r}")
+            node = child
+        node[keys[-1]] = value
+    return _validate(type(config), data, f"{source}: {label}")
 
 
 def resolve_study(study: StudyConfig, folder: Path | None = None) -> StudyConfig:

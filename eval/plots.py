@@ -12,6 +12,8 @@
   with the single-shot CLIPPER threshold that tracked best.
 - mot_sweep.png: MOTA against single-shot CLIPPER's threshold k, the other methods as
   horizontal lines.
+
+A sweep (see `sweep`) draws tradeoff.png and response_<parameter>.png (`draw_sweep`).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from .metrics import step_errors
 from .mot import NO_SHARING, rolling_mota
 from .registry import Estimate, describe, shown_streams
 
-__all__ = ["draw_all", "label"]
+__all__ = ["draw_all", "draw_sweep", "label"]
 
 #: the tracking baseline, which is not an alignment method
 _NO_SHARING = Estimate("no sharing", "0.5", ":")
@@ -311,3 +313,127 @@ def draw_recorded(folder: Path, job, shown: list[str]) -> list[Path]:
         written.append(folder / "arena.png")
         scenarios_overview(written[-1], [job])
     return written
+
+
+# -- sweeps --------------------------------------------------------------------------------------
+
+#: the metrics a sweep's response figure shows: report key, axis label, scale
+_RESPONSES = (("false_accept", "false accepts [%]", 100.0),
+              ("availability", "availability [%]", 100.0),
+              ("translation_error_m_mean", "translation error [m]", 1.0),
+              ("time_to_first_correct_s", "first correct [s]", 1.0))
+_MAX_LINES = 8  # other parameters' combinations drawn as lines; more are averaged
+
+
+def _short(path: str) -> str:
+    return path.rsplit(".", 1)[-1]
+
+
+def _axis(values: list) -> tuple[np.ndarray, list[str] | None]:
+    """Positions of a parameter's values on an axis: the numbers themselves, or (anything
+    else: None, strings, booleans) evenly spaced, with tick labels."""
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        return np.asarray(values, dtype=float), None
+    return np.arange(len(values), dtype=float), [str(v) for v in values]
+
+
+def draw_sweep(folder: Path, points: list, reports: list[dict], parameters: list[str],
+               method_label: str) -> list[Path]:
+    """A sweep's figures: tradeoff.png (false accepts against availability, one dot per point
+    labelled with its number, the default as a star, the points no other beats on both as a
+    line) and response_<parameter>.png (each metric against the parameter's values, a line per
+    combination of the other parameters, or their mean when there are many; the default as a
+    dotted level).
+
+    Args:
+        points: the sweep's `SweepPoint`s.
+        reports: per point, the pooled report of the shown method ({} when none finished).
+    Returns:
+        The files written.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    done = [(n, p, r) for n, (p, r) in enumerate(zip(points, reports, strict=True)) if r]
+    if not done:
+        return []
+    written = [folder / "tradeoff.png"]
+    _tradeoff(written[0], done, method_label)
+    default = next((r for _, p, r in done if p.default), None)
+    grid = [(p, r) for _, p, r in done if p.settings]
+    for path in parameters:
+        if grid:
+            written.append(folder / f"response_{_short(path)}.png")
+            _response(written[-1], grid, default, path, parameters, method_label)
+    return written
+
+
+def _tradeoff(path: Path, done: list, method_label: str) -> None:
+    avail = np.array([_none_nan(r.get("availability")) for _, _, r in done]) * 100
+    false = np.array([_none_nan(r.get("false_accept")) for _, _, r in done]) * 100
+    fig, ax = plt.subplots(figsize=(7.5, 5.5))
+    ok = np.isfinite(avail) & np.isfinite(false)
+    # the front: no other point has more availability and fewer false accepts
+    front = [k for k in np.flatnonzero(ok) if not np.any(
+        ok & (avail >= avail[k]) & (false <= false[k]) & ((avail > avail[k]) | (false < false[k])))]
+    front.sort(key=lambda k: avail[k])
+    if len(front) > 1:
+        ax.plot(avail[front], false[front], "-", color="0.6", lw=1, zorder=1,
+                label="not beaten on both")
+    labels: dict[tuple[float, float], list[str]] = {}  # points that land on one spot share it
+    for k, (number, point, _) in enumerate(done):
+        if not ok[k]:
+            continue
+        if point.default:
+            ax.plot(avail[k], false[k], "*", color="tab:red", ms=16, zorder=3, label="default")
+        else:
+            ax.plot(avail[k], false[k], "o", color="tab:blue", ms=6, zorder=2)
+        labels.setdefault((round(avail[k], 6), round(false[k], 6)), []).append(str(number))
+    for (a, f), numbers in labels.items():
+        ax.annotate(",".join(numbers), (a, f), textcoords="offset points", xytext=(4, 4),
+                    fontsize=8, color="0.3")
+    ax.set_ylim(bottom=0, top=max(1.0, 1.15 * np.nanmax(false, initial=0.0)))
+    ax.set_xlabel("availability [%] (overlap steps with an estimate)")
+    ax.set_ylabel("false accepts [%] (estimates beyond the thresholds)")
+    ax.set_title(f"{method_label}: one dot per parameter point (numbered as in sweep.csv), "
+                 f"pooled over scenarios, seeds and pairs", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _response(path: Path, grid: list, default: dict | None, parameter: str,
+              parameters: list[str], method_label: str) -> None:
+    values = list({repr(p.values[parameter]): p.values[parameter] for p, _ in grid}.values())
+    x, ticks = _axis(values)
+    position = {repr(v): x[k] for k, v in enumerate(values)}
+    others = [p for p in parameters if p != parameter]
+    lines: dict[str, list] = {}
+    for point, report in grid:
+        key = ", ".join(f"{_short(o)}={point.values[o]}" for o in others)
+        lines.setdefault(key, []).append((position[repr(point.values[parameter])], report))
+    if len(lines) > _MAX_LINES:
+        lines = {f"mean over {len(lines)} combinations of the others":
+                 [item for items in lines.values() for item in items]}
+    fig, axes = plt.subplots(len(_RESPONSES), 1, figsize=(7.5, 2.2 * len(_RESPONSES)),
+                             sharex=True)
+    for ax, (key, name, scale) in zip(axes, _RESPONSES, strict=True):
+        for label_, items in lines.items():
+            xs = np.array(sorted({x_ for x_, _ in items}))
+            ys = [np.nanmean([_none_nan(r.get(key)) * scale for x_, r in items if x_ == v])
+                  for v in xs]
+            ax.plot(xs, ys, "o-", ms=4, lw=1.2, label=label_ or method_label)
+        if default is not None and default.get(key) is not None:
+            ax.axhline(default[key] * scale, color="tab:red", ls=":", lw=1.2, label="default")
+        ax.set_ylabel(name, fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylim(bottom=0)
+    if ticks is not None:
+        axes[-1].set_xticks(x, ticks)
+    axes[-1].set_xlabel(parameter)
+    axes[0].legend(fontsize=7, loc="best")
+    axes[0].set_title(f"{method_label} against {parameter}, pooled over scenarios, seeds and "
+                      f"pairs", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -26,6 +26,7 @@ from .mot import COUNTS
 __all__ = [
     "JobResult",
     "load_saved",
+    "pool",
     "score",
     "summarize",
     "summarize_mot",
@@ -154,19 +155,22 @@ def score(job: JobResult, names: list[str], thresholds: Thresholds) -> None:
             job.metrics[method][f"{i}->{j}"] = pair_metrics(trace, thresholds).as_report()
 
 
+def pool(jobs: list[JobResult], names: list[str], thresholds: Thresholds) -> dict[str, dict]:
+    """method -> report pooled over every pair of `jobs` (at least one), with
+    ms_per_pair_step."""
+    reports = {m: pooled_metrics([t for j in jobs for t in j.traces(m)], thresholds).as_report()
+               for m in names}
+    pair_steps = sum(len(j.pairs) * j.n_steps for j in jobs)
+    for m, report in reports.items():
+        report["ms_per_pair_step"] = 1e3 * sum(j.seconds.get(m, 0.0) for j in jobs) / pair_steps
+    return reports
+
+
 def summarize(jobs: list[JobResult], names: list[str], thresholds: Thresholds
               ) -> dict[str, dict[str, dict]]:
     """run name -> method -> report pooled over every pair and seed, with ms_per_pair_step."""
-    summary: dict[str, dict[str, dict]] = {}
-    for name in dict.fromkeys(j.name for j in jobs):
-        mine = [j for j in jobs if j.name == name]
-        summary[name] = {m: pooled_metrics([t for j in mine for t in j.traces(m)],
-                                           thresholds).as_report()
-                         for m in names}
-        pair_steps = sum(len(j.pairs) * j.n_steps for j in mine)
-        for m, report in summary[name].items():
-            report["ms_per_pair_step"] = 1e3 * sum(j.seconds.get(m, 0.0) for j in mine) / pair_steps
-    return summary
+    return {name: pool([j for j in jobs if j.name == name], names, thresholds)
+            for name in dict.fromkeys(j.name for j in jobs)}
 
 
 def summarize_mot(jobs: list[JobResult]) -> dict[str, dict[str, dict]]:

@@ -440,9 +440,9 @@ def test_ctrl_c_while_the_workers_start_is_one_line_and_exit_130(tmp_path):
 def test_the_study_workers_ignore_ctrl_c_from_their_start():
     import signal
 
-    from tcaff_gtsam.eval import study
+    from tcaff_gtsam.eval import executor
 
-    context = study._QuietSpawnContext()
+    context = executor._QuietSpawnContext()
     with context.Pool(1) as pool:
         assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -1,0 +1,261 @@
+"""Sweeps and the Dask executor: the same results as local processes, a killed worker's job run
+again, resume without redoing finished jobs, failures recorded, bad sweep files refused."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from tcaff_gtsam.eval import jobs as jobs_module
+from tcaff_gtsam.eval.config import (
+    MethodsConfig,
+    StudyConfig,
+    SweepConfig,
+    load_methods,
+    load_scenario,
+    load_sweep,
+)
+from tcaff_gtsam.eval.executor import Executor, JobSpec, Progress, job_runner
+from tcaff_gtsam.eval.methods import estimate_names
+from tcaff_gtsam.eval.sweep import job_hash, plan_sweep, run_sweep
+
+from tcaff_gtsam.errors import ConfigError
+
+distributed = pytest.importorskip("distributed")
+
+METHODS = MethodsConfig(methods=["tcaff", "ground_truth"])
+TCAFF = str(Path(sys.executable).with_name("tcaff"))
+
+
+def short(name: str, duration: float = 15.0):
+    return load_scenario(name).model_copy(update={"duration": duration})
+
+
+def base_study(seeds=(0, 1), workers=1) -> StudyConfig:
+    return StudyConfig(name="base", scenarios=[short("indoor_return"), short("ambiguous_grid")],
+                       methods=METHODS, seeds=list(seeds), workers=workers)
+
+
+def tau_sweep(tmp_path: Path, taus=(4.0, 12.0)) -> SweepConfig:
+    return SweepConfig(name="taus", study="unused", grid={"methods.tcaff.tau": list(taus)},
+                       output=str(tmp_path / "sweeps"))
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """Two worker processes on 127.0.0.1, one thread each."""
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", scheduler_port=0, dashboard_address=None
+                                  ) as local:
+        yield local
+
+
+def run_all(executor: Executor, specs: list[JobSpec], progress: Progress | None = None):
+    done, failed = {}, {}
+    with job_runner(executor) as run:
+        run(specs, progress or Progress(), done.__setitem__, failed.__setitem__)
+    return done, failed
+
+
+def test_dask_gives_the_local_arrays_bit_for_bit(cluster):
+    specs = [JobSpec(short("indoor_return"), METHODS, 3),
+             JobSpec(short("opposite_directions"), METHODS, 1)]
+    local, _ = run_all(Executor(workers=1), specs)
+    remote, failed = run_all(Executor(scheduler=cluster.scheduler_address), specs)
+    assert not failed and sorted(remote) == [0, 1]
+    for key in local:
+        assert local[key].arrays.keys() == remote[key].arrays.keys()
+        for name, array in local[key].arrays.items():
+            assert array.dtype == remote[key].arrays[name].dtype, name
+            assert np.array_equal(array, remote[key].arrays[name], equal_nan=True), name
+        assert local[key].metrics == remote[key].metrics
+
+
+def test_a_killed_worker_has_its_job_run_again(cluster):
+    specs = [JobSpec(short("indoor_return", 20.0), METHODS, seed) for seed in range(4)]
+    killed: list[int] = []
+
+    class KillOnce(Progress):
+        def advance(self, key: int, share: float) -> None:
+            if killed:
+                return
+            with distributed.Client(cluster.scheduler_address, timeout=10) as client:
+                busy = [w for w, keys in client.processing().items() if keys]
+                if not busy:
+                    return
+                pid = client.run(os.getpid, workers=busy[:1])[busy[0]]
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+
+    done, failed = run_all(Executor(scheduler=cluster.scheduler_address), specs, KillOnce())
+    assert killed, "no worker was busy when the jobs reported progress"
+    assert not failed
+    assert sorted(done) == [0, 1, 2, 3]
+    assert [done[k].seed for k in range(4)] == [0, 1, 2, 3]
+
+
+def test_an_interrupted_sweep_resumes_without_redoing_finished_jobs(tmp_path):
+    sweep, study = tau_sweep(tmp_path), base_study(seeds=(0,))
+    plan = plan_sweep(sweep, study)
+    assert len(plan.points) == 3 and plan.points[0].default  # tau 8 is the default
+    assert len(plan.jobs) == 6
+    finished = []
+
+    def stop_after_two(job):
+        finished.append(job.stem)
+        if len(finished) == 2:
+            raise KeyboardInterrupt
+
+    first = run_sweep(sweep, study, figures=False, on_job_done=stop_after_two)
+    assert first.interrupted and first.ran == 2 and first.reused == 0
+    report = json.loads((first.folder / "sweep.json").read_text())
+    assert report["interrupted"] is True
+    assert [p["jobs_done"] for p in report["points"]] == [2, 0, 0]
+    again = []
+    second = run_sweep(sweep, study, figures=False, on_job_done=lambda j: again.append(j.stem))
+    assert not second.interrupted and second.reused == 2 and second.ran == 4
+    assert len(again) == 4
+    # one more value: only its jobs run; the report covers every point
+    third = run_sweep(tau_sweep(tmp_path, (4.0, 12.0, 16.0)), study, figures=False)
+    assert third.reused == 6 and third.ran == 2
+    rows = [r for r in third.rows if r["method"] == "tcaff"]
+    assert [r["methods.tcaff.tau"] for r in rows] == ["8.0", "4.0", "12.0", "16.0"]
+    assert all(r["jobs_done"] == r["jobs"] == 2 for r in rows)
+    assert all(r["availability"] is not None for r in rows)
+
+
+def test_a_failing_job_is_recorded_the_others_finish_and_a_rerun_retries_it(tmp_path,
+                                                                            monkeypatch):
+    real = jobs_module.simulate
+
+    def simulate(scenario, seed, progress=None):
+        if scenario.name == "ambiguous_grid" and seed == 1:
+            raise RuntimeError("sensor exploded")
+        return real(scenario, seed, progress)
+
+    monkeypatch.setattr(jobs_module, "simulate", simulate)
+    sweep, study = tau_sweep(tmp_path, (8.0,)), base_study()
+    outcome = run_sweep(sweep, study)
+    assert [(f["scenario"], f["seed"]) for f in outcome.failed] == [("ambiguous_grid", 1)]
+    assert outcome.ran == 3
+    failed = outcome.folder / "jobs" / outcome.failed[0]["hash"] / "failed.json"
+    assert "sensor exploded" in json.loads(failed.read_text())["traceback"]
+    report = json.loads((outcome.folder / "sweep.json").read_text())
+    assert report["failed"][0]["error"] == "RuntimeError: sensor exploded"
+    assert report["points"][0]["jobs_done"] == 3
+    assert report["points"][0]["default"]  # tau 8 is the default: no extra point
+    assert sorted(p.name for p in (outcome.folder / "figures").iterdir()) == [
+        "response_tau.png", "tradeoff.png"]
+    monkeypatch.setattr(jobs_module, "simulate", real)
+    rerun = run_sweep(sweep, study, figures=False)
+    assert rerun.reused == 3 and rerun.ran == 1 and not rerun.failed
+    assert not failed.exists()
+    assert json.loads((outcome.folder / "sweep.json").read_text())["failed"] == []
+
+
+def test_job_hash_is_the_configuration():
+    a = JobSpec(short("indoor_return"), METHODS, 0)
+    assert job_hash(a) == job_hash(JobSpec(short("indoor_return"), MethodsConfig(
+        methods=["tcaff", "ground_truth"]), 0))
+    assert job_hash(a) != job_hash(JobSpec(short("indoor_return"), METHODS, 1))
+    assert job_hash(a) != job_hash(JobSpec(short("indoor_return", 16.0), METHODS, 0))
+    # same values in another order of the grid: the same jobs, shared by both points
+    plan = plan_sweep(SweepConfig(name="s", study="x", points=[
+        {"methods.tcaff.tau": 8.0}, {"methods.tcaff.tau": 4.0}]), base_study())
+    assert plan.points[0].default and len(plan.points) == 2 and len(plan.jobs) == 8
+
+
+def write_sweep(tmp_path: Path, body: dict) -> Path:
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump({"name": "s", "study": {
+        "scenarios": ["indoor_return"], "methods": "tcaff_only"}, **body}))
+    return path
+
+
+@pytest.mark.parametrize(("body", "named"), [
+    ({"grid": {"methods.tcaff.taux": [1.0]}}, "tcaff.taux"),
+    ({"grid": {"scenario.layout.nope": [1.0]}}, "layout.nope"),
+    ({"grid": {"scenario.pedestrians.count": [3]}}, "scenario.pedestrians.count"),
+    ({"grid": {"tcaff.tau": [1.0]}}, "grid: tcaff.tau"),
+    ({"grid": {}}, "grid"),
+    ({"grid": {"methods.tcaff.tau": []}}, "methods.tcaff.tau: needs at least one value"),
+    ({"grid": {"methods.tcaff.tau": ["high"]}}, "methods.tcaff.tau = 'high'"),
+    ({"grid": {"scenario.window": [0]}}, "scenario.window = 0"),
+    ({"grid": {"methods.tcaff.tau": 8.0}}, "grid.methods.tcaff.tau"),
+    ({"points": []}, "points"),
+    ({"points": [{"methods.tcaff.tau": 1.0}, {"scenario.window": 4}]}, "point 1"),
+    ({}, "give either grid"),
+    ({"grid": {"methods.tcaff.tau": [1.0]}, "method": "clipper_k3"}, "method 'clipper_k3'"),
+    ({"grid": {"methods.tcaff.tau": [1.0]}, "seeds": [1, 1]}, "seeds"),
+])
+def test_a_bad_sweep_file_is_a_config_error_naming_the_key(tmp_path, body, named):
+    with pytest.raises(ConfigError, match=r"sweep\.yaml") as error:
+        sweep, study = load_sweep(write_sweep(tmp_path, body))
+        plan_sweep(sweep, study, "sweep.yaml")
+    assert named in str(error.value)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.text(st.sampled_from("abcxyz_"), min_size=1, max_size=8), min_size=1,
+                max_size=3), st.sampled_from(["methods", "scenario"]))
+def test_any_unknown_path_is_named(keys, root):
+    path = ".".join([root, "zz_" + keys[0], *keys[1:]])  # no config has a key starting zz_
+    sweep = SweepConfig(name="s", study="x", grid={path: [1]})
+    study = base_study(seeds=(0,))
+    with pytest.raises(ConfigError) as error:
+        plan_sweep(sweep, study, "f.yaml")
+    message = str(error.value)
+    assert message.startswith("f.yaml: ") and "zz_" + keys[0] in message
+
+
+def test_executor_refuses_two_places_and_bad_counts():
+    with pytest.raises(ConfigError, match="one or the other"):
+        Executor(scheduler="tcp://127.0.0.1:1", local_cluster=2)
+    with pytest.raises(ConfigError, match="local_cluster 0"):
+        Executor(local_cluster=0)
+    with pytest.raises(ConfigError, match="workers 0"):
+        Executor(workers=0)
+
+
+def test_an_unreachable_scheduler_is_a_config_error(tmp_path):
+    expected = re.escape("scheduler 'tcp://127.0.0.1:9': no Dask scheduler")
+    with pytest.raises(ConfigError, match=expected), \
+            job_runner(Executor(scheduler="tcp://127.0.0.1:9")):
+        pass
+
+
+@pytest.mark.slow
+def test_cli_sweep_on_a_local_cluster_writes_the_report(tmp_path):
+    path = write_sweep(tmp_path, {"grid": {"scenario.window": [4, 12]},
+                                  "output": str(tmp_path / "out")})
+    command = [TCAFF, "sweep", str(path), "--local-cluster", "2", "--duration", "12",
+               "--seeds", "1"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "3 points (scenario.window) x 1 scenarios x 1 seeds = 3 jobs" in done.stdout
+    folder = tmp_path / "out" / "s"
+    lines = (folder / "sweep.csv").read_text().splitlines()
+    assert lines[0].startswith("point,scenario.window,default,jobs,jobs_done,method,")
+    assert len(lines) == 1 + 3 * len(estimate_names(load_methods("tcaff_only")))
+    assert sorted(p.name for p in (folder / "figures").iterdir()) == [
+        "response_window.png", "tradeoff.png"]
+    again = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0 and "3 of 3 jobs done by an earlier run" in again.stdout
+
+
+def test_cli_bad_sweep_is_one_line_and_status_2(tmp_path):
+    path = write_sweep(tmp_path, {"grid": {"methods.tcaff.tau": []}})
+    done = subprocess.run([TCAFF, "sweep", str(path)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip().count("\n") == 0 and "methods.tcaff.tau" in done.stderr
