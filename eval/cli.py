@@ -435,9 +435,9 @@ def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None,
         console.print(_summary_table(outcome.summary, study_config.methods))
         console.print("CLIPPER's whole sweep, every pair and seed: metrics.csv and "
                       "figures/clipper_sweep.png. APE and RPE (as evo computes them; RMSE, m) "
-                      "of the other robot's path in the ego's frame; the paths are in trajectories/. ms is "
-                      "each method's own time per pair and step; the TCAFF methods share the "
-                      "MNO-CLIPPER candidates on top.")
+                      "of the other robot's path in the ego's frame; the paths are in "
+                      "trajectories/. ms is each method's own time per pair and step; the TCAFF "
+                      "methods share the MNO-CLIPPER candidates on top.")
     if outcome.mot_summary:
         console.print(_mot_table(outcome.mot_summary))
         console.print("Per robot and seed: mot.csv; over time: figures/mot_<scenario>.png; "
