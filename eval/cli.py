@@ -754,8 +754,12 @@ def _check_speed(speed: float) -> None:
 @app.command()
 def node(
     robot: Annotated[str, typer.Option(help="This robot's name: r0, r1, ... of the run.")],
-    scenario: Annotated[str, typer.Option(
-        help=f"Replay this robot of a simulated scenario: {_shipped('scenarios')} (or a YAML).")],
+    scenario: Annotated[str | None, typer.Option(
+        help=f"Replay this robot of a simulated scenario: {_shipped('scenarios')} (or a "
+             f"YAML).")] = None,
+    replay: Annotated[Path | None, typer.Option(
+        help="Replay this robot from a replay file (what `tcaff team` writes to "
+             "<output>/replay/).")] = None,
     team: Annotated[str, typer.Option(help="Team name: keys are tcaff/<team>/<robot>/...")
     ] = "team",
     listen: Annotated[list[str] | None, typer.Option(
@@ -763,7 +767,7 @@ def node(
     connect: Annotated[list[str] | None, typer.Option(
         help="host:port of a peer to dial (repeat; retried until it is up).")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the simulated run.")] = 0,
-    duration: Annotated[float | None, typer.Option(help="Cap the run (s).")] = None,
+    duration: Annotated[float | None, typer.Option(help="Cap the simulated run (s).")] = None,
     speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
     start_at: Annotated[float | None, typer.Option(
         help="Wall time (epoch s) of the run's first exchange, shared by the team; "
@@ -791,29 +795,32 @@ def node(
 ) -> None:
     """One robot of a live team: publishes its maps over Zenoh, aligns to every neighbour.
 
-    The robot's maps are replayed from a simulated run on a wall-clock schedule (robots of one
-    run share it through --start-at). From Python, `tcaff_gtsam.node.RobotNode` takes maps
-    from a live mapping pipeline instead.
+    The robot's maps are replayed (--scenario or --replay) on a wall-clock schedule that the
+    robots of one run share through --start-at. From Python, `tcaff_gtsam.node.RobotNode`
+    takes maps from a live mapping pipeline instead.
     """
-
     from tcaff_gtsam.node.link import Link
     from tcaff_gtsam.node.node import NodeParams
-    from tcaff_gtsam.node.replay import robot_names, run_replay
+    from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
     from tcaff_gtsam.node.run import replay_node
 
-    from .methods.stages import warm_up
-
+    if (scenario is None) == (replay is None):
+        _refuse("--scenario/--replay", [scenario, replay and str(replay)], "give exactly one")
     _check_speed(speed)
     link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
     params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
                         seed=drop_seed)
     _writable_folder(output, "--output")
-    run = _simulated(scenario, seed, duration)
-    names = robot_names(run.n_robots)
-    if robot not in names:
-        _refuse("--robot", robot, f"the run's robots are {', '.join(names)}")
-    warm_up()
-    source = run_replay(run, names.index(robot), names)
+    if replay is not None:
+        source = RobotReplay.load(replay)
+        if robot != source.robots[source.robot]:
+            _refuse("--robot", robot, f"{replay} replays {source.robots[source.robot]}")
+    else:
+        run = _simulated(scenario, seed, duration)
+        names = robot_names(run.n_robots)
+        if robot not in names:
+            _refuse("--robot", robot, f"the run's robots are {', '.join(names)}")
+        source = run_replay(run, names.index(robot), names)
     node_ = replay_node(source, team, link, params, start_at, output, clock_offset, state)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items()))
     print(f"{robot}: {counts}")
@@ -877,7 +884,7 @@ def team(
     wait for the run to end, and print every pair's alignments against the truth."""
 
     from tcaff_gtsam.node.replay import robot_names
-    from tcaff_gtsam.node.run import free_ports, node_argv, start_team, wait_team
+    from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
 
     _check_speed(speed)
     tls = _tls(tls_ca, tls_cert, tls_key)
@@ -887,8 +894,9 @@ def team(
     ports = free_ports(n) if base_port == 0 else list(range(base_port, base_port + n))
     if not all(0 < p < 65536 for p in ports):
         _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
-    argvs = [node_argv(scenario, k, n, team_name, ports, None, output, seed, speed, duration,
-                       drop_share, tls=tls) for k in range(n)]
+    replays = save_replays(run, output / "replay")
+    argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
+                       tls=tls) for k in range(n)]
     console = _console()
     console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "
                   f"{len(run.times)} exchanges at {speed:g}x, about "

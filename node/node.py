@@ -25,7 +25,7 @@ from tcaff_gtsam.tcaff import TCAFF
 from .link import Link, alignment_key, alive_key, check_name, map_key, team_keys
 from .messages import AlignmentMessage, MapMessage, MessageError, decode, encode
 
-__all__ = ["NodeParams", "RobotNode"]
+__all__ = ["NodeParams", "RobotNode", "warm_up"]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +68,21 @@ class NodeParams:
             raise ConfigError(f"NodeParams.drop_share = {self.drop_share!r}: must be in [0, 1)")
         if not (isinstance(self.queue, int) and self.queue >= 1):
             raise ConfigError(f"NodeParams.queue = {self.queue!r}: must be an int >= 1")
+
+
+def warm_up(object_map: ObjectMap, aligner_params: FrameAlignerParams | None = None,
+            tcaff_params: TCAFFParams | None = None) -> None:
+    """Compile the aligner's and the filter's kernels (numba) before a run, so that the first
+    exchanges are not late: a throwaway aligner steps a few times on `object_map` (a typical
+    map of the run) against a turned and shifted copy of it."""
+    c, s = np.cos(0.3), np.sin(0.3)
+    turned = object_map.centroids @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    other = ObjectMap(turned + np.array([1.0, -0.5, 0.0]), object_map.widths, object_map.heights,
+                      object_map.last_seen)
+    aligner = PairwiseAligner(aligner_params, tcaff_params)
+    now = float(object_map.last_seen.max(initial=0.0))
+    for step in range(3):
+        aligner.update(now + step, object_map, other)
 
 
 class _Neighbour:

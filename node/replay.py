@@ -11,10 +11,12 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from tcaff_gtsam.errors import ConfigError
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.inputs import read_npz
 from tcaff_gtsam.object_map import ObjectMap
 
 __all__ = ["RobotReplay", "replay", "robot_names", "run_replay"]
@@ -22,7 +24,7 @@ __all__ = ["RobotReplay", "replay", "robot_names", "run_replay"]
 
 @dataclass(frozen=True, eq=False)
 class RobotReplay:
-    """One robot's maps of a run.
+    """One robot's maps of a run (a simulated one, or a recorded data set's).
 
     Attributes:
         robots: the names of every robot of the run (the team); robot: this one's index.
@@ -38,6 +40,40 @@ class RobotReplay:
     maps: list[ObjectMap]
     kappa: float
     window: int | None = None
+
+    def save(self, path: str | Path) -> None:
+        """Write the replay to an npz archive at exactly `path`."""
+        sizes = np.array([len(m) for m in self.maps], dtype=np.int64)
+        fields = {name: np.concatenate([getattr(m, name) for m in self.maps]) if self.maps
+                  else np.zeros(0) for name in ("centroids", "widths", "heights", "last_seen")}
+        with open(Path(path), "wb") as file:
+            np.savez(file, robots=np.array(self.robots), robot=self.robot, times=self.times,
+                     sizes=sizes, kappa=self.kappa, window=-1 if self.window is None
+                     else self.window, **fields)
+
+    @classmethod
+    def load(cls, path: str | Path) -> RobotReplay:
+        """Read a replay written by `save`.
+
+        Raises:
+            DataError: the file is missing, corrupt or not a replay.
+        """
+        data = read_npz(path, "robot replay")
+        try:
+            sizes = data["sizes"].astype(np.int64)
+            cuts = np.cumsum(sizes)[:-1]
+            parts = {name: np.split(data[name].reshape(-1, 3) if name == "centroids"
+                                    else data[name], cuts)
+                     for name in ("centroids", "widths", "heights", "last_seen")}
+            maps = [ObjectMap(*(parts[name][k] for name in
+                                ("centroids", "widths", "heights", "last_seen")))
+                    for k in range(len(sizes))]
+            window = int(data["window"])
+            return cls(tuple(str(r) for r in data["robots"]), int(data["robot"]),
+                       data["times"].astype(float), maps, float(data["kappa"]),
+                       None if window < 0 else window)
+        except (KeyError, ValueError, TypeError) as exc:
+            raise DataError(f"{path}: not a robot replay ({exc})") from None
 
 
 def run_replay(run, robot: int, names: tuple[str, ...] | None = None) -> RobotReplay:
@@ -74,12 +110,13 @@ def replay(source: RobotReplay, publish: Callable[[float, ObjectMap, int], None]
         The number of exchanges published.
     """
     stop = stop or threading.Event()
-    offsets = (source.times - source.times[0]) / speed
+    due = start + (source.times - source.times[0]) / speed
+    # joined or restarted mid-run: begin at the exchange due now; later ones are never skipped
+    first = int(np.searchsorted(due, time.time() - 0.5 / speed))
     done = 0
-    for k, (t, object_map) in enumerate(zip(source.times, source.maps, strict=True)):
-        wait = start + offsets[k] - time.time()
-        if wait < -0.5 / speed:
-            continue  # this exchange is past: joined or restarted mid-run
+    for k in range(first, len(due)):
+        t, object_map = source.times[k], source.maps[k]
+        wait = due[k] - time.time()
         if wait > 0 and stop.wait(wait):
             break
         if clock_offset:

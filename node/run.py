@@ -16,11 +16,12 @@ from pathlib import Path
 from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
 
 from .link import Link, TlsFiles
-from .node import NodeParams, RobotNode
-from .replay import RobotReplay, replay
+from .node import NodeParams, RobotNode, warm_up
+from .replay import RobotReplay, replay, robot_names, run_replay
 from .results import AlignmentCsv, write_counters
 
-__all__ = ["free_ports", "node_argv", "replay_node", "start_team", "wait_team"]
+__all__ = ["free_ports", "node_argv", "replay_node", "save_replays", "start_team",
+           "wait_team"]
 
 log = logging.getLogger(__name__)
 
@@ -46,8 +47,11 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
             signal.signal(sig, lambda *_: stop.set())
     params = replace(params, kappa=source.kappa)
     tcaff = None if source.window is None else TCAFFParams(window=source.window)
+    aligner = FrameAlignerParams(kappa=source.kappa)
+    if source.maps:
+        warm_up(max(source.maps, key=len), aligner, tcaff)
     node = RobotNode(robot, team, list(source.robots), link, params,
-                     FrameAlignerParams(kappa=source.kappa), tcaff, rows.write, state_dir)
+                     aligner, tcaff, rows.write, state_dir)
     try:
         if start is None:
             start = _team_start(node, stop)
@@ -91,23 +95,21 @@ def free_ports(n: int) -> list[int]:
             s.close()
 
 
-def node_argv(scenario: str, robot: int, n: int, team: str, ports: list[int],
-              start: float | None, output: Path, seed: int = 0, speed: float = 1.0,
-              duration: float | None = None, drop_share: float = 0.0,
+def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int],
+              start: float | None, output: Path, speed: float = 1.0, drop_share: float = 0.0,
               clock_offset: float = 0.0, state: Path | None = None,
               tls: TlsFiles | None = None) -> list[str]:
-    """The command line of robot `robot` of a team of n on loopback: it listens on
-    ports[robot] and dials every robot before it, so every pair is linked once."""
+    """The command line of robot `robot` of a team of n on loopback, replaying its
+    `RobotReplay` file: it listens on ports[robot] and dials every robot before it, so every
+    pair is linked once."""
     argv = [sys.executable, "-m", "tcaff_gtsam.eval.cli", "node", "--robot", f"r{robot}",
-            "--team", team, "--scenario", scenario, "--seed", str(seed), "--speed", str(speed),
+            "--team", team, "--replay", str(replay_file), "--speed", str(speed),
             "--output", str(output),
             "--listen", f"127.0.0.1:{ports[robot]}"]
     for other in range(robot):
         argv += ["--connect", f"127.0.0.1:{ports[other]}"]
     if start is not None:
         argv += ["--start-at", repr(start)]
-    if duration is not None:
-        argv += ["--duration", str(duration)]
     if drop_share:
         argv += ["--drop-share", str(drop_share), "--drop-seed", str(robot)]
     if clock_offset:
@@ -118,6 +120,18 @@ def node_argv(scenario: str, robot: int, n: int, team: str, ports: list[int],
         argv += ["--tls-ca", str(tls.ca), "--tls-cert", str(tls.certificate),
                  "--tls-key", str(tls.key)]
     return argv
+
+
+def save_replays(run, folder: Path) -> list[Path]:
+    """Each robot's `RobotReplay` of an `AlignmentRun` in `<folder>/r<k>.npz`: a run made once
+    (simulated or loaded) that every node process reads instead of making it again."""
+    folder.mkdir(parents=True, exist_ok=True)
+    names = robot_names(run.n_robots)
+    paths = []
+    for k in range(run.n_robots):
+        paths.append(folder / f"{names[k]}.npz")
+        run_replay(run, k, names).save(paths[-1])
+    return paths
 
 
 def start_team(argvs: list[list[str]], log_dir: Path) -> list[subprocess.Popen]:

@@ -9,9 +9,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-
-from tcaff_gtsam import ObjectMap
-from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.node.messages import (
     BYTES_PER_OBJECT,
     MAX_OBJECTS,
@@ -21,6 +18,9 @@ from tcaff_gtsam.node.messages import (
     decode,
     encode,
 )
+
+from tcaff_gtsam import ObjectMap
+from tcaff_gtsam.errors import DataError
 
 names = st.text(alphabet=st.characters(codec="utf-8", exclude_categories=("Cs",)),
                 min_size=1, max_size=16).filter(lambda s: 1 <= len(s.encode()) <= 64)
