@@ -93,7 +93,9 @@ class _Neighbour:
         self.boot: int | None = None
         self.seq = -1          # the latest map taken
         self.stamp = 0.0       # its stamp, neighbour's clock
-        self.last_seen = -np.inf   # ego-clock time of the latest map aligned
+        # ego-clock time of the latest map aligned (None: none yet, silence counts from the
+        # first ego map)
+        self.last_seen: float | None = None
         self.pending: dict[int, MapMessage] = {}
 
 
@@ -181,9 +183,9 @@ class RobotNode:
         if not np.isfinite(t):
             raise DataError(f"RobotNode.publish: t must be a finite number, got {t}")
         seq = self._seq if seq is None else int(seq)
-        if self._ego_latest is not None and seq <= self._ego_latest[0]:
+        if seq < self._seq:
             raise DataError(f"RobotNode.publish: seq {seq} is not after the previous "
-                            f"{self._ego_latest[0]}")
+                            f"{self._seq - 1}")
         recent = object_map.recent(t, self.params.kappa)
         self._map_pub.put(encode(MapMessage.of(self.robot, self.boot, seq, t, recent)))
         self.counters["maps_sent"] += 1
@@ -297,6 +299,8 @@ class RobotNode:
                 del nb.pending[old]
             if waiting is not None:
                 self._align(name, nb, waiting, seq, t, ego_map)
+            elif nb.last_seen is None:
+                nb.last_seen = t
             elif t - nb.last_seen > self.params.silence:
                 self._align(name, nb, None, seq, t, ego_map)
 
