@@ -9,7 +9,7 @@ import queue
 import random
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -96,7 +96,7 @@ class _Neighbour:
         # ego-clock time of the latest map aligned (None: none yet, silence counts from the
         # first ego map)
         self.last_seen: float | None = None
-        self.pending: dict[int, MapMessage] = {}
+        self.pending: dict[int, tuple[MapMessage, float]] = {}  # seq -> (map, arrival)
 
 
 class RobotNode:
@@ -115,6 +115,8 @@ class RobotNode:
         counters: Counter of "maps_sent", "maps_received", "aligned", "silent_steps",
             "dropped_<reason>" and "lost" (discarded on purpose, `NodeParams.drop_share`).
         latest: neighbour -> the latest AlignmentMessage of that pair.
+        latencies: s from each of the latest 10 000 neighbours' maps arriving to its
+            alignment being published (queueing included).
     """
 
     def __init__(self, robot: str, team: str, members: list[str], link: Link,
@@ -147,6 +149,7 @@ class RobotNode:
         self._state_dir = None if state_dir is None else Path(state_dir)
         self.counters: Counter[str] = Counter()
         self.latest: dict[str, AlignmentMessage] = {}
+        self.latencies: deque[float] = deque(maxlen=10_000)
         self._neighbours: dict[str, _Neighbour] = {}
         self._restore()
         self.boot = random.SystemRandom().randrange(2**32)
@@ -221,7 +224,8 @@ class RobotNode:
     def _arrived(self, sample) -> None:
         """Zenoh's callback: queue the payload (never block the network thread)."""
         try:
-            self._inbox.put_nowait(("map", str(sample.key_expr), sample.payload.to_bytes()))
+            self._inbox.put_nowait(("map", str(sample.key_expr), sample.payload.to_bytes(),
+                                    time.perf_counter()))
         except queue.Full:
             self._drop("overflow", "queue full")
 
@@ -242,7 +246,7 @@ class RobotNode:
                 log.exception("%s: failed to handle %s", self.robot, item[0])
                 self.counters["errors"] += 1
 
-    def _take(self, key: str, payload: bytes) -> None:
+    def _take(self, key: str, payload: bytes, arrived: float) -> None:
         """Check a neighbour's map message and align it, now or when its ego map comes."""
         key_robot = key.split("/")[2]
         if key_robot == self.robot:
@@ -275,12 +279,12 @@ class RobotNode:
             if self._ego_latest is not None:
                 seq, stamp, wall = self._ego_latest
                 now = stamp + self.params.speed * (time.monotonic() - wall)
-                self._align(message.sender, nb, message, seq, now, self._ego[seq][1])
+                self._align(message.sender, nb, message, seq, now, self._ego[seq][1], arrived)
         elif message.seq in self._ego:
             stamp, ego_map = self._ego[message.seq]
-            self._align(message.sender, nb, message, message.seq, stamp, ego_map)
+            self._align(message.sender, nb, message, message.seq, stamp, ego_map, arrived)
         elif self._ego_latest is None or message.seq > self._ego_latest[0]:
-            nb.pending[message.seq] = message
+            nb.pending[message.seq] = (message, arrived)
             while len(nb.pending) > _EGO_HISTORY:
                 nb.pending.pop(min(nb.pending))
         else:
@@ -298,7 +302,8 @@ class RobotNode:
             for old in [k for k in nb.pending if k < seq]:
                 del nb.pending[old]
             if waiting is not None:
-                self._align(name, nb, waiting, seq, t, ego_map)
+                message, arrived = waiting
+                self._align(name, nb, message, seq, t, ego_map, arrived)
             elif nb.last_seen is None:
                 nb.last_seen = t
             elif t - nb.last_seen > self.params.silence:
@@ -311,8 +316,9 @@ class RobotNode:
         return self._neighbours[name]
 
     def _align(self, name: str, nb: _Neighbour, message: MapMessage | None, seq: int, t: float,
-               ego_map: ObjectMap) -> None:
-        """One filter step of pair (robot, name) at ego time t; `message` None: a silent step."""
+               ego_map: ObjectMap, arrived: float | None = None) -> None:
+        """One filter step of pair (robot, name) at ego time t; `message` None: a silent step.
+        `arrived`: perf_counter time the neighbour's map arrived."""
         other = ObjectMap.empty() if message is None else message.object_map(t)
         try:
             estimate = nb.aligner.update(t, ego_map, other)
@@ -334,6 +340,8 @@ class RobotNode:
             self._align_pubs[name] = self._session.declare_publisher(
                 alignment_key(self.team, self.robot, name))
         self._align_pubs[name].put(encode(out))
+        if arrived is not None:
+            self.latencies.append(time.perf_counter() - arrived)
         self.latest[name] = out
         self._save(name, nb.aligner.filter)
         if self._on_alignment is not None:

@@ -63,6 +63,6 @@ def read_alignments(path: str | Path) -> dict[str, np.ndarray]:
     return out
 
 
-def write_counters(path: str | Path, counters: dict[str, int]) -> None:
-    """The node's counters as JSON."""
+def write_counters(path: str | Path, counters: dict[str, float]) -> None:
+    """The node's counters (and timings) as JSON."""
     Path(path).write_text(json.dumps(dict(sorted(counters.items())), indent=1) + "\n")

@@ -13,6 +13,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
 
 from .link import Link, TlsFiles
@@ -36,11 +38,14 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
         start: wall time (epoch s) of the run's first exchange; None: 1 s after every robot
             of the run is up and linked (or `TEAM_WAIT` s have passed).
     Writes `<output>/<robot>.csv` (every alignment, as made) and `<output>/<robot>.json` (the
-    start, then also the node's counters at the end). Returns the closed node.
+    start, then also the node's counters at the end, its share of one core over the replay
+    and the latency from a neighbour's map arriving to its alignment going out). Returns the
+    closed node.
     """
     robot = source.robots[source.robot]
     output.mkdir(parents=True, exist_ok=True)
     rows = AlignmentCsv(output / f"{robot}.csv")
+    timing: dict[str, float] = {}
     stop = threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
@@ -56,15 +61,21 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
         if start is None:
             start = _team_start(node, stop)
         write_counters(output / f"{robot}.json", {"start": start})
+        cpu, began = time.process_time(), time.time()
         replay(source, node.publish, start, params.speed, clock_offset, stop, progress)
         if not stop.is_set():
             # the neighbours' last maps are still on their way
             stop.wait(min(2.0, 2.0 / params.speed) + 0.2)
         node.wait_idle(60.0)
+        timing = {"cpu_share": (time.process_time() - cpu) / max(time.time() - began, 1e-9)}
     finally:
         node.close()
         rows.close()
-        write_counters(output / f"{robot}.json", {"start": start, **node.counters})
+        latency = np.array(node.latencies)
+        if latency.size:
+            timing |= {"latency_median_ms": 1e3 * float(np.median(latency)),
+                       "latency_max_ms": 1e3 * float(latency.max())}
+        write_counters(output / f"{robot}.json", {"start": start, **node.counters, **timing})
     return node
 
 
