@@ -828,6 +828,8 @@ def node(
 
 def _team_table(run, output: Path, names: tuple[str, ...]) -> Table:
     """Per directed pair: alignments made, accepted share, final and median error."""
+    import json
+
     import numpy as np
     from tcaff_gtsam.node.results import read_alignments
 
@@ -857,14 +859,43 @@ def _team_table(run, output: Path, names: tuple[str, ...]) -> Table:
             last = f"{dt[-1]:.2f}, {dh[-1]:.1f}" if accepted[-1] else "-"
             table.add_row(f"{robot}->{other}", str(mine.sum()),
                           f"{100 * accepted.mean():.0f} %", med, last)
+    late = {"dropped_stale": 0, "silent_steps": 0}
+    for robot in names:
+        path = output / f"{robot}.json"
+        counters = json.loads(path.read_text()) if path.exists() else {}
+        for key in late:
+            late[key] += counters.get(key, 0)
+    if any(late.values()):
+        table.caption = (f"{late['dropped_stale']} maps came too late and "
+                         f"{late['silent_steps']} steps had no neighbour's map: the team fell "
+                         f"behind its schedule (try a lower --speed) or lost maps")
     return _keep_numbers_whole(table)
+
+
+def _mrclam_run(data: Path, seed: int, duration: float | None):
+    """The UTIAS MRCLAM data set in `data` as a recorded run (default settings, VIO-like
+    odometry drawn with `seed`)."""
+    from .config import load_mrclam
+    from .datasets import mrclam
+
+    _check_duration(duration)
+    config = load_mrclam("default")
+    run, _ = mrclam.load_run(
+        mrclam.read_dataset(data), config.odometry, seed, config.kappa, config.nu,
+        config.min_shared, config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std,
+        config.window, config.graph_drift, duration or config.duration)
+    return run
 
 
 @app.command()
 def team(
-    scenario: Annotated[str, typer.Option(
-        help=f"Simulated scenario to replay: {_shipped('scenarios')} (or a YAML).")],
-    seed: Annotated[int, typer.Option(help="Seed of the simulated run.")] = 0,
+    scenario: Annotated[str | None, typer.Option(
+        help=f"Simulated scenario to replay: {_shipped('scenarios')} (or a YAML).")] = None,
+    mrclam: Annotated[Path | None, typer.Option(
+        help="Or a UTIAS MRCLAM data set folder to replay (one node per robot; the "
+             "'default' MRCLAM settings).")] = None,
+    seed: Annotated[int, typer.Option(
+        help="Seed of the simulated run (MRCLAM: of its VIO-like odometry).")] = 0,
     speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
     duration: Annotated[float | None, typer.Option(help="Cap the run (s).")] = None,
     team_name: Annotated[str, typer.Option("--team", help="Team name.")] = "team",
@@ -880,16 +911,20 @@ def team(
     tls_key: Annotated[Path | None, typer.Option(help="PEM file: the nodes' private key.")
     ] = None,
 ) -> None:
-    """Start one node process per robot of a scenario on this machine (Zenoh over loopback),
-    wait for the run to end, and print every pair's alignments against the truth."""
+    """Start one node process per robot of a simulated or recorded run on this machine
+    (Zenoh over loopback), wait for the run to end, and print every pair's alignments against
+    the truth. Robots are named r0, r1, ... in the run's order."""
 
     from tcaff_gtsam.node.replay import robot_names
     from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
 
+    if (scenario is None) == (mrclam is None):
+        _refuse("--scenario/--mrclam", [scenario, mrclam and str(mrclam)], "give exactly one")
     _check_speed(speed)
     tls = _tls(tls_ca, tls_cert, tls_key)
     _writable_folder(output, "--output")
-    run = _simulated(scenario, seed, duration)
+    run = (_simulated(scenario, seed, duration) if mrclam is None
+           else _mrclam_run(mrclam, seed, duration))
     n = run.n_robots
     ports = free_ports(n) if base_port == 0 else list(range(base_port, base_port + n))
     if not all(0 < p < 65536 for p in ports):

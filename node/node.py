@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.inputs import finite_time
 from tcaff_gtsam.object_map import ObjectMap, as_object_map
 from tcaff_gtsam.pairwise import PairwiseAligner
 from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
@@ -113,7 +114,8 @@ class RobotNode:
 
     Attributes:
         counters: Counter of "maps_sent", "maps_received", "aligned", "silent_steps",
-            "dropped_<reason>" and "lost" (discarded on purpose, `NodeParams.drop_share`).
+            "dropped_<reason>", "lost" (discarded on purpose, `NodeParams.drop_share`) and
+            "errors" (a step that failed, logged with its traceback; the node goes on).
         latest: neighbour -> the latest AlignmentMessage of that pair.
         latencies: s from each of the latest 10 000 neighbours' maps arriving to its
             alignment being published (queueing included).
@@ -182,9 +184,7 @@ class RobotNode:
             DataError: t not finite, not an ObjectMap, seq not after the previous one.
         """
         object_map = as_object_map("RobotNode.publish", "object_map", object_map)
-        t = float(t)
-        if not np.isfinite(t):
-            raise DataError(f"RobotNode.publish: t must be a finite number, got {t}")
+        t = finite_time("RobotNode.publish", "t", t)
         seq = self._seq if seq is None else int(seq)
         if seq < self._seq:
             raise DataError(f"RobotNode.publish: seq {seq} is not after the previous "
