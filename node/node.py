@@ -114,8 +114,9 @@ class RobotNode:
 
     Attributes:
         counters: Counter of "maps_sent", "maps_received", "aligned", "silent_steps",
-            "dropped_<reason>", "lost" (discarded on purpose, `NodeParams.drop_share`) and
-            "errors" (a step that failed, logged with its traceback; the node goes on).
+            "dropped_<reason>", "lost" (discarded on purpose, `NodeParams.drop_share`),
+            "early" (a neighbour's map before this robot's first) and "errors" (a step that
+            failed, logged with its traceback; the node goes on).
         latest: neighbour -> the latest AlignmentMessage of that pair.
         latencies: s from each of the latest 10 000 neighbours' maps arriving to its
             alignment being published (queueing included).
@@ -276,10 +277,12 @@ class RobotNode:
             log.info("%s: %s restarted", self.robot, message.sender)
         nb.boot, nb.seq, nb.stamp = message.boot, message.seq, message.stamp
         if not self.params.lockstep:
-            if self._ego_latest is not None:
-                seq, stamp, wall = self._ego_latest
-                now = stamp + self.params.speed * (time.monotonic() - wall)
-                self._align(message.sender, nb, message, seq, now, self._ego[seq][1], arrived)
+            if self._ego_latest is None:
+                self.counters["early"] += 1  # nothing of ours to align it with yet
+                return
+            seq, stamp, wall = self._ego_latest
+            now = stamp + self.params.speed * (time.monotonic() - wall)
+            self._align(message.sender, nb, message, seq, now, self._ego[seq][1], arrived)
         elif message.seq in self._ego:
             stamp, ego_map = self._ego[message.seq]
             self._align(message.sender, nb, message, message.seq, stamp, ego_map, arrived)
