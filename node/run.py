@@ -109,7 +109,7 @@ def free_ports(n: int) -> list[int]:
 def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int],
               start: float | None, output: Path, speed: float = 1.0, drop_share: float = 0.0,
               clock_offset: float = 0.0, state: Path | None = None,
-              tls: TlsFiles | None = None) -> list[str]:
+              tls: TlsFiles | None = None, silence: float | None = None) -> list[str]:
     """The command line of robot `robot` of a team of n on loopback, replaying its
     `RobotReplay` file: it listens on ports[robot] and dials every robot before it, so every
     pair is linked once."""
@@ -127,6 +127,8 @@ def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int]
         argv += ["--clock-offset", str(clock_offset)]
     if state is not None:
         argv += ["--state", str(state)]
+    if silence is not None:
+        argv += ["--silence", str(silence)]
     if tls is not None:
         argv += ["--tls-ca", str(tls.ca), "--tls-cert", str(tls.certificate),
                  "--tls-key", str(tls.key)]

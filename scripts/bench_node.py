@@ -3,8 +3,9 @@
   latency    one node process (r0) and this process as its neighbour r1, both with maps of
              --objects objects: r1's map goes out, r0 aligns it to its own and publishes the
              alignment, which comes back here. Prints the node's own time from the map
-             arriving to the alignment going out, and the round trip seen from here (two
-             Zenoh hops over loopback included); the first --warm exchanges are left out.
+             arriving to the alignment going out, the round trip seen from here (two
+             Zenoh hops over loopback included), the aligner alone on the same maps and the
+             message's encode + decode; the first --warm exchanges are left out.
   team       --robots node processes replaying a room of that many robots (four_robots'
              world and sensors) at 1 Hz for --seconds, every node aligning to all others.
              Prints per node: alignments made and expected, latency (median, max) and its
@@ -126,7 +127,21 @@ def latency(objects: int, rate: float, exchanges: int, warm: int) -> dict[str, n
     trip = np.array([back[k] - sent[k] for k in sorted(back) if k >= warm])
     return {"node: map in -> alignment out": node_side,
             "round trip from the neighbour": trip,
-            "PairwiseAligner.update alone": aligner_alone(objects, exchanges, warm)}
+            "PairwiseAligner.update alone": aligner_alone(objects, exchanges, warm),
+            "encode + decode of the map": codec(objects)}
+
+
+def codec(objects: int, repeats: int = 200) -> np.ndarray:
+    """s to encode and decode a map message of `objects` objects (the node's own work on a
+    message besides aligning it)."""
+    _, theirs, widths, heights = scene(objects)
+    message = MapMessage("r1", 1, 0, 0.0, theirs, widths, heights, np.zeros(objects))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        decode(encode(message)).object_map(0.0)
+        times.append(time.perf_counter() - start)
+    return np.array(times)
 
 
 def team(robots: int, seconds: float):
