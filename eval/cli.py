@@ -974,6 +974,282 @@ def _click_errors() -> tuple[type, type]:
     return bases["UsageError"], bases["ClickException"]
 
 
+# -- a live team -------------------------------------------------------------------------------
+
+_TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
+             "mutual TLS).")
+
+
+def _tls(ca: Path | None, cert: Path | None, key: Path | None):
+    """The team's TLS files, all three or none."""
+    from tcaff_gtsam.node.link import TlsFiles
+
+    given = [x is not None for x in (ca, cert, key)]
+    if not any(given):
+        return None
+    if not all(given):
+        _refuse("--tls-ca/--tls-cert/--tls-key", [str(x) for x in (ca, cert, key)],
+                "give all three or none")
+    return TlsFiles(ca, cert, key)
+
+
+def _simulated(scenario: str, seed: int, duration: float | None):
+    """The simulated run of a scenario (capped to `duration` s), the same in every process."""
+    from .config import load_scenario, override
+    from .sim.simulate import simulate
+
+    _check_duration(duration)
+    config = load_scenario(scenario)
+    if duration is not None:
+        config = override(config, "--duration", duration=min(duration, config.duration))
+    return simulate(config, seed)
+
+
+def _check_speed(speed: float) -> None:
+    if not (math.isfinite(speed) and speed > 0):
+        _refuse("--speed", speed, "must be a finite number > 0 (run seconds per wall second)")
+
+
+@app.command()
+def node(
+    robot: Annotated[str, typer.Option(help="This robot's name: r0, r1, ... of the run.")],
+    scenario: Annotated[str | None, typer.Option(
+        help=f"Replay this robot of a simulated scenario: {_shipped('scenarios')} (or a "
+             f"YAML).")] = None,
+    replay: Annotated[Path | None, typer.Option(
+        help="Replay this robot from a replay file (what `tcaff team` writes to "
+             "<output>/replay/).")] = None,
+    team: Annotated[str, typer.Option(help="Team name: keys are tcaff/<team>/<robot>/...")
+    ] = "team",
+    listen: Annotated[list[str] | None, typer.Option(
+        help="host:port to accept peers on (repeat for more).")] = None,
+    connect: Annotated[list[str] | None, typer.Option(
+        help="host:port of a peer to dial (repeat; retried until it is up).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the simulated run.")] = 0,
+    duration: Annotated[float | None, typer.Option(help="Cap the simulated run (s).")] = None,
+    speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
+    start_at: Annotated[float | None, typer.Option(
+        help="Wall time (epoch s) of the run's first exchange, shared by the team; "
+             "default: 1 s after every robot of the run is up. A node started after it "
+             "joins where the run is.")] = None,
+    output: Annotated[Path, typer.Option(
+        help="Folder for <robot>.csv (every alignment) and <robot>.json (counters).")
+    ] = Path("results/team"),
+    state: Annotated[Path | None, typer.Option(
+        help="Folder to save each filter after each step and restore them from on start.")
+    ] = None,
+    silence: Annotated[float, typer.Option(
+        help="s without a neighbour's map before its filter steps without measurements.")
+    ] = 3.0,
+    clock_offset: Annotated[float, typer.Option(
+        help="s added to this robot's clock (to try robots whose clocks differ).")] = 0.0,
+    drop_share: Annotated[float, typer.Option(
+        help="Share of neighbours' maps to discard on arrival (to try a lossy link).")] = 0.0,
+    drop_seed: Annotated[int, typer.Option(help="Seed of the discards.")] = 0,
+    tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
+    tls_cert: Annotated[Path | None, typer.Option(
+        help="PEM file: this node's certificate, signed by the team's authority.")] = None,
+    tls_key: Annotated[Path | None, typer.Option(help="PEM file: this node's private key.")
+    ] = None,
+) -> None:
+    """One robot of a live team: publishes its maps over Zenoh, aligns to every neighbour.
+
+    The robot's maps are replayed (--scenario or --replay) on a wall-clock schedule that the
+    robots of one run share through --start-at. From Python, `tcaff_gtsam.node.RobotNode`
+    takes maps from a live mapping pipeline instead.
+    """
+    from tcaff_gtsam.node.link import Link
+    from tcaff_gtsam.node.node import NodeParams
+    from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
+    from tcaff_gtsam.node.run import replay_node
+
+    if (scenario is None) == (replay is None):
+        _refuse("--scenario/--replay", [scenario, replay and str(replay)], "give exactly one")
+    _check_speed(speed)
+    link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
+    params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
+                        seed=drop_seed)
+    _writable_folder(output, "--output")
+    if replay is not None:
+        source = RobotReplay.load(replay)
+        if robot != source.robots[source.robot]:
+            _refuse("--robot", robot, f"{replay} replays {source.robots[source.robot]}")
+    else:
+        run = _simulated(scenario, seed, duration)
+        names = robot_names(run.n_robots)
+        if robot not in names:
+            _refuse("--robot", robot, f"the run's robots are {', '.join(names)}")
+        source = run_replay(run, names.index(robot), names)
+    node_ = replay_node(source, team, link, params, start_at, output, clock_offset, state)
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items()))
+    print(f"{robot}: {counts}")
+
+
+def _team_table(run, output: Path, names: tuple[str, ...]) -> Table:
+    """Per directed pair: alignments made, accepted share, final and median error."""
+    import json
+
+    import numpy as np
+    from tcaff_gtsam.node.results import read_alignments
+
+    from tcaff_gtsam.errors import DataError
+    from tcaff_gtsam.geometry import se2_to_params, wrap_angle
+
+    table = _table("Per directed pair: the node's alignments against the truth")
+    _add_columns(table, ("pair", "steps", "accepted", "median error [m, deg]",
+                         "last error [m, deg]"))
+    for i, robot in enumerate(names):
+        try:
+            rows = read_alignments(output / f"{robot}.csv")
+        except DataError:
+            continue
+        for j, other in enumerate(names):
+            mine = rows["neighbour"] == other
+            if i == j or not mine.any():
+                continue
+            seq = rows["seq"][mine].astype(int)
+            accepted = rows["accepted"][mine] == 1
+            truth = se2_to_params(run.T_true(i, j)[seq])
+            x = np.column_stack([rows[c][mine] for c in ("x", "y", "theta")])
+            dt = np.linalg.norm(x[:, :2] - truth[:, :2], axis=1)
+            dh = np.degrees(np.abs(wrap_angle(x[:, 2] - truth[:, 2])))
+            med = (f"{np.median(dt[accepted]):.2f}, {np.median(dh[accepted]):.1f}"
+                   if accepted.any() else "-")
+            last = f"{dt[-1]:.2f}, {dh[-1]:.1f}" if accepted[-1] else "-"
+            table.add_row(f"{robot}->{other}", str(mine.sum()),
+                          f"{100 * accepted.mean():.0f} %", med, last)
+    late = {"dropped_stale": 0, "silent_steps": 0}
+    for robot in names:
+        path = output / f"{robot}.json"
+        counters = json.loads(path.read_text()) if path.exists() else {}
+        for key in late:
+            late[key] += counters.get(key, 0)
+    if any(late.values()):
+        table.caption = (f"{late['dropped_stale']} maps came too late and "
+                         f"{late['silent_steps']} steps had no neighbour's map: the team fell "
+                         f"behind its schedule (try a lower --speed) or lost maps")
+    return _keep_numbers_whole(table)
+
+
+def _mrclam_run(data: Path, seed: int, duration: float | None):
+    """The UTIAS MRCLAM data set in `data` as a recorded run (default settings, VIO-like
+    odometry drawn with `seed`)."""
+    from .config import load_mrclam
+    from .datasets import mrclam
+
+    _check_duration(duration)
+    config = load_mrclam("default")
+    run, _ = mrclam.load_run(
+        mrclam.read_dataset(data), config.odometry, seed, config.kappa, config.nu,
+        config.min_shared, config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std,
+        config.window, config.graph_drift, duration or config.duration)
+    return run
+
+
+@app.command()
+def team(
+    scenario: Annotated[str | None, typer.Option(
+        help=f"Simulated scenario to replay: {_shipped('scenarios')} (or a YAML).")] = None,
+    mrclam: Annotated[Path | None, typer.Option(
+        help="Or a UTIAS MRCLAM data set folder to replay (one node per robot; the "
+             "'default' MRCLAM settings).")] = None,
+    seed: Annotated[int, typer.Option(
+        help="Seed of the simulated run (MRCLAM: of its VIO-like odometry).")] = 0,
+    speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
+    duration: Annotated[float | None, typer.Option(help="Cap the run (s).")] = None,
+    team_name: Annotated[str, typer.Option("--team", help="Team name.")] = "team",
+    base_port: Annotated[int, typer.Option(
+        help="Robot k listens on 127.0.0.1:<base-port + k>; 0: free ports.")] = 0,
+    output: Annotated[Path, typer.Option(help="Folder for every node's CSV, counters, log.")
+    ] = Path("results/team"),
+    drop_share: Annotated[float, typer.Option(
+        help="Share of maps each node discards on arrival (a lossy link).")] = 0.0,
+    tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
+    tls_cert: Annotated[Path | None, typer.Option(help="PEM file: the nodes' certificate.")
+    ] = None,
+    tls_key: Annotated[Path | None, typer.Option(help="PEM file: the nodes' private key.")
+    ] = None,
+) -> None:
+    """Start one node process per robot of a simulated or recorded run on this machine
+    (Zenoh over loopback), wait for the run to end, and print every pair's alignments against
+    the truth. Robots are named r0, r1, ... in the run's order."""
+
+    from tcaff_gtsam.node.replay import robot_names
+    from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
+
+    if (scenario is None) == (mrclam is None):
+        _refuse("--scenario/--mrclam", [scenario, mrclam and str(mrclam)], "give exactly one")
+    _check_speed(speed)
+    tls = _tls(tls_ca, tls_cert, tls_key)
+    _writable_folder(output, "--output")
+    run = (_simulated(scenario, seed, duration) if mrclam is None
+           else _mrclam_run(mrclam, seed, duration))
+    n = run.n_robots
+    ports = free_ports(n) if base_port == 0 else list(range(base_port, base_port + n))
+    if not all(0 < p < 65536 for p in ports):
+        _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
+    replays = save_replays(run, output / "replay")
+    argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
+                       tls=tls) for k in range(n)]
+    console = _console()
+    console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "
+                  f"{len(run.times)} exchanges at {speed:g}x, about "
+                  f"{len(run.times) / speed:.0f} s once every node is up. Watch with: tcaff "
+                  f"listen --team "
+                  f"{team_name} --connect 127.0.0.1:{ports[0]}")
+    procs = start_team(argvs, output / "logs")
+    codes = wait_team(procs, 180 + len(run.times) / speed)
+    failed = [f"r{k}" for k, c in enumerate(codes) if c != 0]
+    console.print(_team_table(run, output, robot_names(n)))
+    if failed:
+        from tcaff_gtsam.errors import TcaffError
+
+        raise TcaffError(f"nodes {', '.join(failed)} failed; see {output / 'logs'}")
+    console.print(f"results: {output}")
+
+
+@app.command()
+def listen(
+    team_name: Annotated[str, typer.Option("--team", help="Team name.")] = "team",
+    connect: Annotated[list[str] | None, typer.Option(
+        help="host:port of a team node to dial (repeat).")] = None,
+    listen_on: Annotated[list[str] | None, typer.Option(
+        "--listen", help="host:port to accept nodes on.")] = None,
+    scenario: Annotated[str | None, typer.Option(
+        help="The simulated scenario the team replays: shows each alignment's error.")] = None,
+    seed: Annotated[int, typer.Option(help="Its seed.")] = 0,
+    seconds: Annotated[float | None, typer.Option(help="Stop after this long (s).")] = None,
+    tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
+    tls_cert: Annotated[Path | None, typer.Option(help="PEM file: this listener's certificate.")
+    ] = None,
+    tls_key: Annotated[Path | None, typer.Option(help="PEM file: its private key.")] = None,
+) -> None:
+    """A live table of every pair's latest alignment in a team (Ctrl-C to stop)."""
+    import threading
+
+    from rich.live import Live
+    from tcaff_gtsam.node.link import Link
+    from tcaff_gtsam.node.listener import TeamListener
+
+    link = Link(tuple(listen_on or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        _refuse("--seconds", seconds, "must be a finite number > 0")
+    truth = None
+    if scenario is not None:
+        run = _simulated(scenario, seed, None)
+        truth = run.T_true
+    stop = threading.Event()
+    with TeamListener(team_name, link, truth) as listener, \
+            Live(listener.table(), console=_console(), refresh_per_second=4) as live:
+        try:
+            while not stop.wait(0.25):
+                live.update(listener.table())
+                if seconds is not None and listener.elapsed() >= seconds:
+                    break
+        except KeyboardInterrupt:
+            pass
+
+
 def main() -> None:
     """Console entry point: library errors and bad options or arguments become a one-line
     message and exit status 2."""
@@ -1006,3 +1282,7 @@ def main() -> None:
         _console(stderr=True).print("interrupted", soft_wrap=True)
         raise SystemExit(130) from None
     raise SystemExit(code if isinstance(code, int) else 0)
+
+
+if __name__ == "__main__":
+    main()

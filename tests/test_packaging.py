@@ -107,7 +107,7 @@ def test_pyproject_lists_every_package_folder():
     setuptools_cfg = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
     on_disk = set()
     for folder, package in (("tcaff_gtsam", "tcaff_gtsam"), ("mapping", "tcaff_gtsam.mapping"),
-                            ("eval", "tcaff_gtsam.eval")):
+                            ("eval", "tcaff_gtsam.eval"), ("node", "tcaff_gtsam.node")):
         for init in (REPO / folder).rglob("__init__.py"):
             parts = init.parent.relative_to(REPO / folder).parts
             on_disk.add(".".join((package, *parts)))

@@ -1,0 +1,120 @@
+"""How a node reaches its team: Zenoh peer sessions with explicit endpoints, TCP or mutual TLS.
+
+Keys of a team (names are letters, digits, `_` and `-`):
+    tcaff/<team>/<robot>/map                    a robot's object map
+    tcaff/<team>/<robot>/alignment/<neighbour>  its alignment T_oi_oj to a neighbour
+    tcaff/<team>/<robot>/alive                  liveliness token of its node
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from tcaff_gtsam.errors import ConfigError
+
+__all__ = ["Link", "TlsFiles", "alignment_key", "alive_key", "check_name", "map_key", "team_keys"]
+
+_NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_ENDPOINT = re.compile(r"^[A-Za-z0-9_.-]+:\d{1,5}$")
+
+
+def check_name(option: str, name: str) -> str:
+    """`name` if it can be a team or robot name (a Zenoh key chunk); else ConfigError."""
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ConfigError(f"{option} {name!r}: must be 1 to 64 letters, digits, '_' or '-'")
+    return name
+
+
+def map_key(team: str, robot: str) -> str:
+    return f"tcaff/{team}/{robot}/map"
+
+
+def alive_key(team: str, robot: str) -> str:
+    """The liveliness token of a robot's node (held while its session is open)."""
+    return f"tcaff/{team}/{robot}/alive"
+
+
+def alignment_key(team: str, robot: str, neighbour: str) -> str:
+    return f"tcaff/{team}/{robot}/alignment/{neighbour}"
+
+
+def team_keys(team: str) -> tuple[str, str]:
+    """The key expressions of every map and every alignment of a team."""
+    return f"tcaff/{team}/*/map", f"tcaff/{team}/*/alignment/*"
+
+
+@dataclass(frozen=True)
+class TlsFiles:
+    """PEM files of a team's mutual TLS: the team's certificate authority, and this node's
+    certificate (signed by it, naming the host it listens on) and private key."""
+
+    ca: Path
+    certificate: Path
+    key: Path
+
+    def __post_init__(self) -> None:
+        for name in ("ca", "certificate", "key"):
+            path = Path(getattr(self, name))
+            if not path.is_file():
+                raise ConfigError(f"--tls-{name.replace('certificate', 'cert')} {str(path)!r}: "
+                                  f"no such file")
+            object.__setattr__(self, name, path)
+
+
+@dataclass(frozen=True)
+class Link:
+    """A node's Zenoh endpoints: where it listens and which peers it dials.
+
+    Attributes:
+        listen: "host:port" endpoints this node accepts peers on (may be empty).
+        connect: "host:port" endpoints of peers it dials (it retries until they are up).
+        tls: the team's certificates; None: plain TCP. With TLS every link is mutual TLS and
+            a peer without a certificate of the team's authority is refused.
+    """
+
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    tls: TlsFiles | None = None
+
+    def __post_init__(self) -> None:
+        for option, endpoints in (("--listen", self.listen), ("--connect", self.connect)):
+            for endpoint in endpoints:
+                if not _ENDPOINT.match(endpoint) or not 0 < int(endpoint.rsplit(":")[1]) < 65536:
+                    raise ConfigError(f"{option} {endpoint!r}: must be host:port, port in "
+                                      f"1..65535")
+        if not self.listen and not self.connect:
+            raise ConfigError("a node needs --listen or --connect endpoints (or both)")
+
+    def config(self):
+        """The zenoh.Config of a peer with exactly these endpoints, multicast scouting off."""
+        import zenoh
+
+        protocol = "tcp" if self.tls is None else "tls"
+        config = zenoh.Config()
+        config.insert_json5("mode", '"peer"')
+        config.insert_json5("scouting/multicast/enabled", "false")
+        config.insert_json5("listen/endpoints",
+                            json.dumps([f"{protocol}/{e}" for e in self.listen]))
+        config.insert_json5("connect/endpoints",
+                            json.dumps([f"{protocol}/{e}" for e in self.connect]))
+        # a peer that is not up yet is dialled again soon (Zenoh's default backs off to 4 s)
+        config.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 1000, "
+                                             "period_increase_factor: 1.5}")
+        if self.tls is not None:
+            tls = self.tls
+            files = {"root_ca_certificate": tls.ca, "listen_certificate": tls.certificate,
+                     "listen_private_key": tls.key, "connect_certificate": tls.certificate,
+                     "connect_private_key": tls.key}
+            for name, path in files.items():
+                config.insert_json5(f"transport/link/tls/{name}", json.dumps(str(path)))
+            config.insert_json5("transport/link/tls/enable_mtls", "true")
+        return config
+
+    def open(self):
+        """An open zenoh.Session."""
+        import zenoh
+
+        return zenoh.open(self.config())

@@ -1,0 +1,374 @@
+"""RobotNode: one robot of a live team. Its maps go out, its neighbours' maps come in, and one
+PairwiseAligner per neighbour turns them into alignments it publishes and hands to a callback."""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import random
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.inputs import finite_time
+from tcaff_gtsam.object_map import ObjectMap, as_object_map
+from tcaff_gtsam.pairwise import PairwiseAligner
+from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
+from tcaff_gtsam.tcaff import TCAFF
+
+from .link import Link, alignment_key, alive_key, check_name, map_key, team_keys
+from .messages import AlignmentMessage, MapMessage, MessageError, decode, encode
+
+__all__ = ["NodeParams", "RobotNode", "warm_up"]
+
+log = logging.getLogger(__name__)
+
+#: ego maps kept for neighbours' maps of the same exchange arriving late (lockstep)
+_EGO_HISTORY = 8
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    """How a node treats its team.
+
+    Attributes:
+        kappa: s, only objects seen within kappa are published.
+        silence: s on the ego clock: a neighbour whose latest map is older steps its filter
+            without measurements at each ego map, so that its estimate holds and then drops as
+            TCAFF drops an unsupported hypothesis.
+        lockstep: a neighbour's map of exchange k is aligned with the ego map of exchange k
+            (robots replaying one run, whose exchange counters agree); off: with the latest
+            ego map, on the ego clock at arrival (robots with their own counters).
+        speed: the ego clock's rate against the wall clock (a replay's speed-up; 1 live).
+        queue: incoming messages waiting to be aligned; beyond it the newest are dropped.
+        drop_share: share of neighbours' maps discarded on arrival, to try a lossy link.
+        seed: draws of `drop_share`.
+    """
+
+    kappa: float = 20.0
+    silence: float = 3.0
+    lockstep: bool = False
+    speed: float = 1.0
+    queue: int = 256
+    drop_share: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("kappa", "silence", "speed"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and 0 < value < float("inf")):
+                raise ConfigError(f"NodeParams.{name} = {value!r}: must be a number > 0")
+        if not 0.0 <= self.drop_share < 1.0:
+            raise ConfigError(f"NodeParams.drop_share = {self.drop_share!r}: must be in [0, 1)")
+        if not (isinstance(self.queue, int) and self.queue >= 1):
+            raise ConfigError(f"NodeParams.queue = {self.queue!r}: must be an int >= 1")
+
+
+def warm_up(object_map: ObjectMap, aligner_params: FrameAlignerParams | None = None,
+            tcaff_params: TCAFFParams | None = None) -> None:
+    """Compile the aligner's and the filter's kernels (numba) before a run, so that the first
+    exchanges are not late: a throwaway aligner steps a few times on `object_map` (a typical
+    map of the run) against a turned and shifted copy of it."""
+    c, s = np.cos(0.3), np.sin(0.3)
+    turned = object_map.centroids @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    other = ObjectMap(turned + np.array([1.0, -0.5, 0.0]), object_map.widths, object_map.heights,
+                      object_map.last_seen)
+    aligner = PairwiseAligner(aligner_params, tcaff_params)
+    now = float(object_map.last_seen.max(initial=0.0))
+    for step in range(3):
+        aligner.update(now + step, object_map, other)
+
+
+class _Neighbour:
+    """What a node keeps of one neighbour."""
+
+    def __init__(self, aligner: PairwiseAligner) -> None:
+        self.aligner = aligner
+        self.boot: int | None = None
+        self.seq = -1          # the latest map taken
+        self.stamp = 0.0       # its stamp, neighbour's clock
+        # ego-clock time of the latest map aligned (None: none yet, silence counts from the
+        # first ego map)
+        self.last_seen: float | None = None
+        self.pending: dict[int, tuple[MapMessage, float]] = {}  # seq -> (map, arrival)
+
+
+class RobotNode:
+    """One robot's process in a team: publishes its maps, aligns to every neighbour's.
+
+    `publish(t, object_map)` is the one verb: a mapping pipeline calls it with each new map.
+    Neighbours' maps arrive on Zenoh threads and are aligned on the node's own worker thread;
+    each step of a pair's filter is published on `tcaff/<team>/<robot>/alignment/<neighbour>`
+    and passed to `on_alignment` (called on the worker thread; keep it short).
+
+    Bad messages (see `messages.decode`), maps of robots outside `members`, duplicates and
+    maps older than the latest taken from that robot are dropped with one log line each and
+    counted in `counters`; the node keeps running.
+
+    Attributes:
+        counters: Counter of "maps_sent", "maps_received", "aligned", "silent_steps",
+            "dropped_<reason>", "lost" (discarded on purpose, `NodeParams.drop_share`),
+            "early" (a neighbour's map before this robot's first) and "errors" (a step that
+            failed, logged with its traceback; the node goes on).
+        latest: neighbour -> the latest AlignmentMessage of that pair.
+        latencies: s from each of the latest 10 000 neighbours' maps arriving to its
+            alignment being published (queueing included).
+    """
+
+    def __init__(self, robot: str, team: str, members: list[str], link: Link,
+                 params: NodeParams | None = None,
+                 aligner_params: FrameAlignerParams | None = None,
+                 tcaff_params: TCAFFParams | None = None,
+                 on_alignment: Callable[[AlignmentMessage], None] | None = None,
+                 state_dir: str | Path | None = None) -> None:
+        """Open the session, restore saved filters, and start listening.
+
+        Args:
+            members: every robot of the team (this one included or not); maps of others are
+                dropped.
+            state_dir: each pair's filter is saved there after each step (`TCAFF.save`) and
+                restored from there on start; None: nothing saved.
+        Raises:
+            ConfigError: bad names, a team of fewer than two robots, bad parameters.
+            DataError: a saved filter that cannot be read.
+        """
+        self.robot = check_name("--robot", robot)
+        self.team = check_name("--team", team)
+        self.members = frozenset(check_name("--members", m) for m in members) - {robot}
+        if not self.members:
+            raise ConfigError(f"--members {members!r}: the team needs another robot besides "
+                              f"{robot!r}")
+        self.params = params or NodeParams()
+        self._aligner_params = aligner_params or FrameAlignerParams(kappa=self.params.kappa)
+        self._tcaff_params = tcaff_params
+        self._on_alignment = on_alignment
+        self._state_dir = None if state_dir is None else Path(state_dir)
+        self.counters: Counter[str] = Counter()
+        self.latest: dict[str, AlignmentMessage] = {}
+        self.latencies: deque[float] = deque(maxlen=10_000)
+        self._neighbours: dict[str, _Neighbour] = {}
+        self._restore()
+        self.boot = random.SystemRandom().randrange(2**32)
+        self._seq = 0
+        self._ego: dict[int, tuple[float, ObjectMap]] = {}
+        self._ego_latest: tuple[int, float, float] | None = None  # seq, stamp, wall time
+        self._lose = np.random.default_rng(self.params.seed)
+        self._inbox: queue.Queue = queue.Queue(self.params.queue)
+        self._idle = threading.Event()
+        self._session = link.open()
+        self._map_pub = self._session.declare_publisher(map_key(team, robot))
+        self._align_pubs: dict[str, object] = {}
+        self._subscriber = self._session.declare_subscriber(team_keys(team)[0], self._arrived)
+        self._alive = self._session.liveliness().declare_token(alive_key(team, robot))
+        self._worker = threading.Thread(target=self._work, name=f"tcaff-node-{robot}",
+                                        daemon=True)
+        self._worker.start()
+
+    # -- the pipeline's side ------------------------------------------------------------------
+
+    def publish(self, t: float, object_map: ObjectMap, seq: int | None = None) -> None:
+        """Send the robot's map at time `t` (s, the clock of its `last_seen`) and align the
+        neighbours' maps that wait for it.
+
+        Args:
+            object_map: the map in the robot's odometry frame; objects seen kappa or more
+                seconds before t are left out.
+            seq: the exchange counter (a replay's exchange index); None: one more than the last.
+        Raises:
+            DataError: t not finite, not an ObjectMap, seq not after the previous one.
+        """
+        object_map = as_object_map("RobotNode.publish", "object_map", object_map)
+        t = finite_time("RobotNode.publish", "t", t)
+        seq = self._seq if seq is None else int(seq)
+        if seq < self._seq:
+            raise DataError(f"RobotNode.publish: seq {seq} is not after the previous "
+                            f"{self._seq - 1}")
+        recent = object_map.recent(t, self.params.kappa)
+        self._map_pub.put(encode(MapMessage.of(self.robot, self.boot, seq, t, recent)))
+        self.counters["maps_sent"] += 1
+        self._seq = seq + 1
+        self._inbox.put(("ego", seq, t, recent, time.monotonic()))
+
+    def present(self, timeout: float = 1.0) -> set[str]:
+        """The team members whose nodes are up and linked to this one (Zenoh liveliness)."""
+        replies = self._session.liveliness().get(alive_key(self.team, "*"), timeout=timeout)
+        up = {str(r.ok.key_expr).split("/")[2] for r in replies if r.ok is not None}
+        return up & self.members
+
+    def wait_idle(self, timeout: float = 10.0) -> bool:
+        """Block until every message received so far is handled; False on timeout."""
+        self._idle.clear()
+        self._inbox.put(("idle",))
+        return self._idle.wait(timeout)
+
+    def close(self) -> None:
+        """Stop the worker (after what is queued) and close the session."""
+        self._inbox.put(None)
+        self._worker.join(timeout=30)
+        self._session.close()
+
+    def __enter__(self) -> RobotNode:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- the team's side ----------------------------------------------------------------------
+
+    def _arrived(self, sample) -> None:
+        """Zenoh's callback: queue the payload (never block the network thread)."""
+        try:
+            self._inbox.put_nowait(("map", str(sample.key_expr), sample.payload.to_bytes(),
+                                    time.perf_counter()))
+        except queue.Full:
+            self._drop("overflow", "queue full")
+
+    def _drop(self, reason: str, detail: str) -> None:
+        self.counters[f"dropped_{reason}"] += 1
+        log.warning("%s: dropped a message (%s): %s", self.robot, reason, detail)
+
+    def _work(self) -> None:
+        while (item := self._inbox.get()) is not None:
+            try:
+                if item[0] == "ego":
+                    self._ego_step(*item[1:])
+                elif item[0] == "map":
+                    self._take(*item[1:])
+                else:
+                    self._idle.set()
+            except Exception:  # a failure of one step must not stop the node
+                log.exception("%s: failed to handle %s", self.robot, item[0])
+                self.counters["errors"] += 1
+
+    def _take(self, key: str, payload: bytes, arrived: float) -> None:
+        """Check a neighbour's map message and align it, now or when its ego map comes."""
+        key_robot = key.split("/")[2]
+        if key_robot == self.robot:
+            return  # our own map, delivered back by the local session
+        try:
+            message = decode(payload)
+            if not isinstance(message, MapMessage):
+                raise MessageError("malformed", "an alignment on a map key")
+            if message.sender != key_robot:
+                raise MessageError("mismatch", f"sender {message.sender!r} on the key of "
+                                               f"{key_robot!r}")
+            if message.sender not in self.members:
+                raise MessageError("outsider", f"robot {message.sender!r} is not in the team")
+        except MessageError as exc:
+            self._drop(exc.reason, f"on {key}: {exc}")
+            return
+        self.counters["maps_received"] += 1
+        if self.params.drop_share and self._lose.random() < self.params.drop_share:
+            self.counters["lost"] += 1
+            return
+        nb = self._neighbour(message.sender)
+        if message.boot == nb.boot and message.seq <= nb.seq:
+            self._drop("duplicate" if message.seq == nb.seq else "stale",
+                       f"{message.sender} seq {message.seq}, latest {nb.seq}")
+            return
+        if message.boot != nb.boot and nb.boot is not None:
+            log.info("%s: %s restarted", self.robot, message.sender)
+        nb.boot, nb.seq, nb.stamp = message.boot, message.seq, message.stamp
+        if not self.params.lockstep:
+            if self._ego_latest is None:
+                self.counters["early"] += 1  # nothing of ours to align it with yet
+                return
+            seq, stamp, wall = self._ego_latest
+            now = stamp + self.params.speed * (time.monotonic() - wall)
+            self._align(message.sender, nb, message, seq, now, self._ego[seq][1], arrived)
+        elif message.seq in self._ego:
+            stamp, ego_map = self._ego[message.seq]
+            self._align(message.sender, nb, message, message.seq, stamp, ego_map, arrived)
+        elif self._ego_latest is None or message.seq > self._ego_latest[0]:
+            nb.pending[message.seq] = (message, arrived)
+            while len(nb.pending) > _EGO_HISTORY:
+                nb.pending.pop(min(nb.pending))
+        else:
+            self._drop("stale", f"{message.sender} seq {message.seq} is older than the ego "
+                                f"maps kept")
+
+    def _ego_step(self, seq: int, t: float, ego_map: ObjectMap, wall: float) -> None:
+        """A new ego map: align what waited for it, step silent neighbours."""
+        self._ego[seq] = (t, ego_map)
+        while len(self._ego) > _EGO_HISTORY:
+            self._ego.pop(min(self._ego))
+        self._ego_latest = (seq, t, wall)
+        for name, nb in self._neighbours.items():
+            waiting = nb.pending.pop(seq, None)
+            for old in [k for k in nb.pending if k < seq]:
+                del nb.pending[old]
+            if waiting is not None:
+                message, arrived = waiting
+                self._align(name, nb, message, seq, t, ego_map, arrived)
+            elif nb.last_seen is None:
+                nb.last_seen = t
+            elif t - nb.last_seen > self.params.silence:
+                self._align(name, nb, None, seq, t, ego_map)
+
+    def _neighbour(self, name: str) -> _Neighbour:
+        if name not in self._neighbours:
+            self._neighbours[name] = _Neighbour(PairwiseAligner(self._aligner_params,
+                                                                self._tcaff_params))
+        return self._neighbours[name]
+
+    def _align(self, name: str, nb: _Neighbour, message: MapMessage | None, seq: int, t: float,
+               ego_map: ObjectMap, arrived: float | None = None) -> None:
+        """One filter step of pair (robot, name) at ego time t; `message` None: a silent step.
+        `arrived`: perf_counter time the neighbour's map arrived."""
+        other = ObjectMap.empty() if message is None else message.object_map(t)
+        try:
+            estimate = nb.aligner.update(t, ego_map, other)
+        except DataError as exc:  # t not after the pair's last step: nothing was changed
+            self._drop("stale", f"{name}: {exc}")
+            return
+        if message is None:
+            self.counters["silent_steps"] += 1
+        else:
+            nb.last_seen = t
+            self.counters["aligned"] += 1
+        accepted = estimate is not None
+        out = AlignmentMessage(
+            self.robot, self.boot, seq, t, name, max(nb.seq, 0), nb.stamp,
+            nb.aligner.filter.step, estimate.hypothesis if accepted else -1, accepted,
+            estimate.x if accepted else np.full(3, np.nan),
+            estimate.P if accepted else np.full((3, 3), np.nan))
+        if name not in self._align_pubs:
+            self._align_pubs[name] = self._session.declare_publisher(
+                alignment_key(self.team, self.robot, name))
+        self._align_pubs[name].put(encode(out))
+        if arrived is not None:
+            self.latencies.append(time.perf_counter() - arrived)
+        self.latest[name] = out
+        self._save(name, nb.aligner.filter)
+        if self._on_alignment is not None:
+            self._on_alignment(out)
+
+    # -- restarts -----------------------------------------------------------------------------
+
+    def _state_path(self, name: str) -> Path:
+        return self._state_dir / f"{self.robot}-{name}.npz"
+
+    def _save(self, name: str, tcaff: TCAFF) -> None:
+        if self._state_dir is None:
+            return
+        path = self._state_path(name)
+        partial = path.with_suffix(".partial")
+        tcaff.save(partial)
+        os.replace(partial, path)  # a node killed mid-write keeps the previous state
+
+    def _restore(self) -> None:
+        if self._state_dir is None:
+            return
+        self._state_dir.mkdir(parents=True, exist_ok=True)
+        for name in sorted(self.members):
+            path = self._state_path(name)
+            if path.exists():
+                self._neighbour(name).aligner.filter = TCAFF.load(path)
+                log.info("%s: restored the filter of %s from %s", self.robot, name, path)

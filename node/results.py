@@ -1,0 +1,68 @@
+"""A node's alignments as CSV, one row per step of a pair, written as they are made."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from tcaff_gtsam.errors import DataError
+
+from .messages import AlignmentMessage
+
+__all__ = ["COLUMNS", "AlignmentCsv", "read_alignments", "write_counters"]
+
+COLUMNS = ("robot", "neighbour", "seq", "stamp", "neighbour_seq", "neighbour_stamp", "step",
+           "hypothesis", "accepted", "x", "y", "theta", "P_xx", "P_xy", "P_xt", "P_yy", "P_yt",
+           "P_tt")
+_UPPER = np.triu_indices(3)
+
+
+class AlignmentCsv:
+    """Appends each AlignmentMessage to a CSV file (x, y in metres, theta in radians, P the
+    upper triangle of the covariance), flushed per row so that a killed node keeps its rows."""
+
+    def __init__(self, path: str | Path) -> None:
+        path = Path(path)
+        fresh = not path.exists() or path.stat().st_size == 0
+        self._file = open(path, "a", newline="")
+        self._rows = csv.writer(self._file)
+        if fresh:
+            self._rows.writerow(COLUMNS)
+
+    def write(self, m: AlignmentMessage) -> None:
+        self._rows.writerow([m.sender, m.neighbour, m.seq, repr(m.stamp), m.neighbour_seq,
+                             repr(m.neighbour_stamp), m.step, m.hypothesis, int(m.accepted),
+                             *map(repr, m.x.tolist()), *map(repr, m.P[_UPPER].tolist())])
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def read_alignments(path: str | Path) -> dict[str, np.ndarray]:
+    """The columns of an alignments CSV as arrays (names as text, the rest numbers).
+
+    Raises:
+        DataError: the file is missing or its header is not `COLUMNS`.
+    """
+    try:
+        with open(path, newline="") as file:
+            rows = list(csv.reader(file))
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read alignments ({exc.strerror})") from None
+    if not rows or tuple(rows[0]) != COLUMNS:
+        raise DataError(f"{path}: not an alignments CSV (header {rows[:1]})")
+    table = np.array(rows[1:], dtype=object).reshape(-1, len(COLUMNS))
+    out: dict[str, np.ndarray] = {}
+    for c, name in enumerate(COLUMNS):
+        column = table[:, c]
+        out[name] = column.astype(str) if name in ("robot", "neighbour") else column.astype(float)
+    return out
+
+
+def write_counters(path: str | Path, counters: dict[str, float]) -> None:
+    """The node's counters (and timings) as JSON."""
+    Path(path).write_text(json.dumps(dict(sorted(counters.items())), indent=1) + "\n")

@@ -1,0 +1,171 @@
+"""One node process replaying a robot, and a team of them on this machine over loopback."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
+
+from .link import Link, TlsFiles
+from .node import NodeParams, RobotNode, warm_up
+from .replay import RobotReplay, replay, robot_names, run_replay
+from .results import AlignmentCsv, write_counters
+
+__all__ = ["free_ports", "node_argv", "replay_node", "save_replays", "start_team",
+           "wait_team"]
+
+log = logging.getLogger(__name__)
+
+
+def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
+                start: float | None, output: Path, clock_offset: float = 0.0,
+                state_dir: Path | None = None,
+                progress: Callable[[int, int], None] | None = None) -> RobotNode:
+    """Run the node of `source`'s robot until its last exchange (or SIGTERM / SIGINT).
+
+    Args:
+        start: wall time (epoch s) of the run's first exchange; None: 1 s after every robot
+            of the run is up and linked (or `TEAM_WAIT` s have passed).
+    Writes `<output>/<robot>.csv` (every alignment, as made) and `<output>/<robot>.json` (the
+    start, then also the node's counters at the end, its share of one core over the replay
+    and the latency from a neighbour's map arriving to its alignment going out). Returns the
+    closed node.
+    """
+    robot = source.robots[source.robot]
+    output.mkdir(parents=True, exist_ok=True)
+    rows = AlignmentCsv(output / f"{robot}.csv")
+    timing: dict[str, float] = {}
+    stop = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: stop.set())
+    params = replace(params, kappa=source.kappa)
+    tcaff = None if source.window is None else TCAFFParams(window=source.window)
+    aligner = FrameAlignerParams(kappa=source.kappa)
+    if source.maps:
+        warm_up(max(source.maps, key=len), aligner, tcaff)
+    node = RobotNode(robot, team, list(source.robots), link, params,
+                     aligner, tcaff, rows.write, state_dir)
+    try:
+        if start is None:
+            start = _team_start(node, stop)
+        write_counters(output / f"{robot}.json", {"start": start})
+        cpu, began = time.process_time(), time.time()
+        replay(source, node.publish, start, params.speed, clock_offset, stop, progress)
+        if not stop.is_set():
+            # the neighbours' last maps are still on their way
+            stop.wait(min(2.0, 2.0 / params.speed) + 0.2)
+        node.wait_idle(60.0)
+        timing = {"cpu_share": (time.process_time() - cpu) / max(time.time() - began, 1e-9)}
+    finally:
+        node.close()
+        rows.close()
+        latency = np.array(node.latencies)
+        if latency.size:
+            timing |= {"latency_median_ms": 1e3 * float(np.median(latency)),
+                       "latency_max_ms": 1e3 * float(latency.max())}
+        write_counters(output / f"{robot}.json", {"start": start, **node.counters, **timing})
+    return node
+
+
+#: s a node waits for its team before it starts its run anyway
+TEAM_WAIT = 120.0
+
+
+def _team_start(node: RobotNode, stop: threading.Event) -> float:
+    """1 s after every member is present; `TEAM_WAIT` s at most."""
+    deadline = time.monotonic() + TEAM_WAIT
+    while (missing := node.members - node.present()) and time.monotonic() < deadline:
+        if stop.wait(0.1):
+            break
+    if missing:
+        log.warning("%s: starting without %s", node.robot, ", ".join(sorted(missing)))
+    return time.time() + 1.0
+
+
+def free_ports(n: int) -> list[int]:
+    """n TCP ports on 127.0.0.1 free at this moment."""
+    sockets = [socket.socket() for _ in range(n)]
+    try:
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
+    finally:
+        for s in sockets:
+            s.close()
+
+
+def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int],
+              start: float | None, output: Path, speed: float = 1.0, drop_share: float = 0.0,
+              clock_offset: float = 0.0, state: Path | None = None,
+              tls: TlsFiles | None = None, silence: float | None = None) -> list[str]:
+    """The command line of robot `robot` of a team of n on loopback, replaying its
+    `RobotReplay` file: it listens on ports[robot] and dials every robot before it, so every
+    pair is linked once."""
+    argv = [sys.executable, "-m", "tcaff_gtsam.eval.cli", "node", "--robot", f"r{robot}",
+            "--team", team, "--replay", str(replay_file), "--speed", str(speed),
+            "--output", str(output),
+            "--listen", f"127.0.0.1:{ports[robot]}"]
+    for other in range(robot):
+        argv += ["--connect", f"127.0.0.1:{ports[other]}"]
+    if start is not None:
+        argv += ["--start-at", repr(start)]
+    if drop_share:
+        argv += ["--drop-share", str(drop_share), "--drop-seed", str(robot)]
+    if clock_offset:
+        argv += ["--clock-offset", str(clock_offset)]
+    if state is not None:
+        argv += ["--state", str(state)]
+    if silence is not None:
+        argv += ["--silence", str(silence)]
+    if tls is not None:
+        argv += ["--tls-ca", str(tls.ca), "--tls-cert", str(tls.certificate),
+                 "--tls-key", str(tls.key)]
+    return argv
+
+
+def save_replays(run, folder: Path) -> list[Path]:
+    """Each robot's `RobotReplay` of an `AlignmentRun` in `<folder>/r<k>.npz`: a run made once
+    (simulated or loaded) that every node process reads instead of making it again."""
+    folder.mkdir(parents=True, exist_ok=True)
+    names = robot_names(run.n_robots)
+    paths = []
+    for k in range(run.n_robots):
+        paths.append(folder / f"{names[k]}.npz")
+        run_replay(run, k, names).save(paths[-1])
+    return paths
+
+
+def start_team(argvs: list[list[str]], log_dir: Path) -> list[subprocess.Popen]:
+    """Start each node command, its output in `<log_dir>/<k>.log`."""
+    log_dir.mkdir(parents=True, exist_ok=True)
+    procs = []
+    for k, argv in enumerate(argvs):
+        with open(log_dir / f"node{k}.log", "wb") as out:
+            procs.append(subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT))
+    return procs
+
+
+def wait_team(procs: list[subprocess.Popen], timeout: float) -> list[int | None]:
+    """Exit codes of every node (None: still running at `timeout` s, then terminated)."""
+    deadline = time.monotonic() + timeout
+    codes: list[int | None] = []
+    for proc in procs:
+        try:
+            codes.append(proc.wait(max(deadline - time.monotonic(), 0.1)))
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            proc.wait(10)
+            codes.append(None)
+    return codes

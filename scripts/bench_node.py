@@ -1,0 +1,233 @@
+"""A live team's costs: latency across processes, a team of 8 at 1 Hz, bytes on the wire.
+
+  latency    one node process (r0) and this process as its neighbour r1, both with maps of
+             --objects objects: r1's map goes out, r0 aligns it to its own and publishes the
+             alignment, which comes back here. Prints the node's own time from the map
+             arriving to the alignment going out, the round trip seen from here (two
+             Zenoh hops over loopback included), the aligner alone on the same maps and the
+             message's encode + decode; the first --warm exchanges are left out.
+  team       --robots node processes replaying a room of that many robots (four_robots'
+             world and sensors) at 1 Hz for --seconds, every node aligning to all others.
+             Prints per node: alignments made and expected, latency (median, max) and its
+             share of one core over the run. It keeps up when every alignment is made and the
+             maximum latency stays under the 1 s exchange period.
+  bytes      the size of a map message at --objects objects and of an alignment message, and
+             the team's bandwidth at --robots robots from the maps of the team run.
+
+    python scripts/bench_node.py [--parts latency team bytes] [--objects 100] [--robots 8]
+                                 [--seconds 60] [--rate 5] [--exchanges 80]
+
+Timings are wall-clock on a shared machine: run it twice and compare.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+from tcaff_gtsam.eval.config import load_scenario, override
+from tcaff_gtsam.eval.sim.simulate import simulate
+from tcaff_gtsam.node import AlignmentMessage, Link, MapMessage, decode, encode
+from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
+
+from tcaff_gtsam import ObjectMap
+from tcaff_gtsam.geometry import se2_from_params
+
+TRUE = np.array([3.0, -2.0, 0.7])  # T_r0_r1
+
+
+def scene(objects: int, seed: int = 0) -> tuple[np.ndarray, ...]:
+    """`objects` objects in r0's frame and in r1's (30 m square), their widths and heights."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-15, 15, (objects, 2))
+    in_r1 = (np.linalg.inv(se2_from_params(TRUE)) @ np.c_[xy, np.ones(objects)].T).T[:, :2]
+    in_r1 += rng.normal(0, 0.05, in_r1.shape)
+    return (np.c_[xy, np.zeros(objects)], np.c_[in_r1, np.zeros(objects)],
+            rng.uniform(0.3, 1.5, objects), rng.uniform(0.3, 1.5, objects))
+
+
+def aligner_alone(objects: int, steps: int, warm: int) -> np.ndarray:
+    """s per PairwiseAligner.update on the latency maps, in this process (no transport)."""
+    from tcaff_gtsam import PairwiseAligner
+
+    mine, theirs, widths, heights = scene(objects)
+    aligner = PairwiseAligner()
+    times = []
+    for k in range(steps):
+        seen = np.full(objects, float(k))
+        start = time.perf_counter()
+        aligner.update(float(k), ObjectMap(mine, widths, heights, seen),
+                       ObjectMap(theirs, widths, heights, seen))
+        times.append(time.perf_counter() - start)
+    return np.array(times[warm:])
+
+
+def serve(port: int, objects: int, rate: float) -> None:
+    """The node process of `latency`: r0 publishing its map at `rate` Hz until stdin closes,
+    then printing its latencies (s) as JSON."""
+    from tcaff_gtsam.node import NodeParams, RobotNode
+    from tcaff_gtsam.node.node import warm_up
+
+    mine, _, widths, heights = scene(objects)
+    warm_up(ObjectMap(mine, widths, heights, np.zeros(objects)))
+    node = RobotNode("r0", "bench", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",)),
+                     NodeParams(kappa=1e9))
+    stop = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    t0 = time.time()
+    while not stop.wait(1.0 / rate):
+        t = time.time() - t0
+        node.publish(t, ObjectMap(mine, widths, heights, np.full(objects, t)))
+    node.close()
+    print(json.dumps(list(node.latencies)))
+
+
+def latency(objects: int, rate: float, exchanges: int, warm: int) -> dict[str, np.ndarray]:
+    port = free_ports(1)[0]
+    server = subprocess.Popen([sys.executable, __file__, "--serve", str(port), "--objects",
+                               str(objects), "--rate", str(rate)],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    _, theirs, widths, heights = scene(objects)
+    sent: dict[int, float] = {}
+    back: dict[int, float] = {}
+
+    def arrived(sample) -> None:
+        message = decode(sample.payload.to_bytes())
+        if isinstance(message, AlignmentMessage):
+            back.setdefault(message.neighbour_seq, time.perf_counter())
+
+    with Link(connect=(f"127.0.0.1:{port}",)).open() as session:
+        session.declare_subscriber("tcaff/bench/r0/alignment/r1", arrived)
+        publisher = session.declare_publisher("tcaff/bench/r1/map")
+        session.liveliness().declare_token("tcaff/bench/r1/alive")
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not [  # until the node is up
+                r for r in session.liveliness().get("tcaff/bench/r0/alive", timeout=1.0)
+                if r.ok is not None]:
+            time.sleep(0.1)
+        time.sleep(1.0)  # and has published its first map
+        for seq in range(exchanges):
+            payload = encode(MapMessage("r1", 1, seq, float(seq), theirs, widths, heights,
+                                        np.zeros(objects)))
+            sent[seq] = time.perf_counter()
+            publisher.put(payload)
+            time.sleep(1.0 / rate)
+        time.sleep(2.0)
+    out, _ = server.communicate("", timeout=60)
+    node_side = np.array(json.loads(out.strip().splitlines()[-1]))[warm:]
+    trip = np.array([back[k] - sent[k] for k in sorted(back) if k >= warm])
+    return {"node: map in -> alignment out": node_side,
+            "round trip from the neighbour": trip,
+            "PairwiseAligner.update alone": aligner_alone(objects, exchanges, warm),
+            "encode + decode of the map": codec(objects)}
+
+
+def codec(objects: int, repeats: int = 200) -> np.ndarray:
+    """s to encode and decode a map message of `objects` objects (the node's own work on a
+    message besides aligning it)."""
+    _, theirs, widths, heights = scene(objects)
+    message = MapMessage("r1", 1, 0, 0.0, theirs, widths, heights, np.zeros(objects))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        decode(encode(message)).object_map(0.0)
+        times.append(time.perf_counter() - start)
+    return np.array(times)
+
+
+def team(robots: int, seconds: float):
+    """(each node's JSON, the simulated run)."""
+    config = load_scenario("four_robots")
+    config = override(config, "bench", duration=seconds,
+                      layout=config.layout.model_copy(update={"robots": robots}))
+    run = simulate(config, 0)
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder)
+        replays = save_replays(run, out / "replay")
+        ports = free_ports(robots)
+        procs = start_team([node_argv(replays[k], k, robots, "bench8", ports, None, out)
+                            for k in range(robots)], out / "logs")
+        codes = wait_team(procs, seconds + 300)
+        if any(codes):
+            raise SystemExit(f"nodes failed: {codes}; logs in {out / 'logs'}")
+        stats = [json.loads((out / f"r{k}.json").read_text()) for k in range(robots)]
+    return stats, run
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--parts", nargs="+", default=["latency", "team", "bytes"],
+                        choices=["latency", "team", "bytes"])
+    parser.add_argument("--objects", type=int, default=100)
+    parser.add_argument("--robots", type=int, default=8)
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--rate", type=float, default=5.0, help="latency: exchanges per s")
+    parser.add_argument("--exchanges", type=int, default=80, help="latency: maps sent")
+    parser.add_argument("--warm", type=int, default=10, help="latency: exchanges left out")
+    parser.add_argument("--serve", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.serve is not None:
+        serve(args.serve, args.objects, args.rate)
+        return
+    console = Console()
+    if "latency" in args.parts:
+        table = Table(title=f"Latency, {args.objects} objects per map, {args.rate:g} Hz "
+                            f"[ms]")
+        for column in ("measured", "n", "median", "p95", "max"):
+            table.add_column(column, justify="right")
+        for name, values in latency(args.objects, args.rate, args.exchanges,
+                                    args.warm).items():
+            ms = 1e3 * values
+            table.add_row(name, str(len(ms)), f"{np.median(ms):.2f}",
+                          f"{np.percentile(ms, 95):.2f}", f"{ms.max():.2f}")
+        console.print(table)
+    if "team" in args.parts or "bytes" in args.parts:
+        stats, run = team(args.robots, args.seconds)
+        S = len(run.times)
+        table = Table(title=f"{args.robots} robots at 1 Hz for {S} exchanges, each aligning "
+                            f"to {args.robots - 1} neighbours")
+        for column in ("node", "aligned", "expected", "latency median [ms]",
+                       "latency max [ms]", "CPU [% of a core]"):
+            table.add_column(column, justify="right")
+        for k, s in enumerate(stats):
+            table.add_row(f"r{k}", str(s.get("aligned", 0)), str((args.robots - 1) * S),
+                          f"{s.get('latency_median_ms', float('nan')):.1f}",
+                          f"{s.get('latency_max_ms', float('nan')):.1f}",
+                          f"{100 * s['cpu_share']:.1f}")
+        console.print(table)
+    if "bytes" in args.parts:
+        mine, _, widths, heights = scene(args.objects)
+        map_bytes = len(encode(MapMessage("r0", 1, 0, 0.0, mine, widths, heights,
+                                          np.zeros(args.objects))))
+        align_bytes = len(encode(AlignmentMessage("r0", 1, 0, 0.0, "r1", 0, 0.0, 1, 0, True,
+                                                  TRUE, np.eye(3))))
+        n = args.robots
+        kappa = run.settings.kappa
+        sent = [len(encode(MapMessage.of("r0", 1, s, float(t), m.recent(float(t), kappa))))
+                for robot_maps in run.maps
+                for s, (t, m) in enumerate(zip(run.times, robot_maps, strict=True))]
+        mean_map = float(np.mean(sent))
+        table = Table(title="Bytes (payloads; Zenoh adds a few bytes per message)")
+        table.add_column("what")
+        table.add_column("bytes", justify="right")
+        table.add_row(f"map message, {args.objects} objects", str(map_bytes))
+        table.add_row("alignment message", str(align_bytes))
+        table.add_row(f"mean map message of the {n}-robot run", f"{mean_map:.0f}")
+        published = n * (mean_map + (n - 1) * align_bytes)
+        table.add_row(f"team of {n}, published per s (maps + alignments)", f"{published:.0f}")
+        table.add_row(f"team of {n}, delivered per s (each map to {n - 1} peers)",
+                      f"{n * (n - 1) * mean_map:.0f}")
+        console.print(table)
+
+
+if __name__ == "__main__":
+    main()

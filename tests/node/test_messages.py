@@ -1,0 +1,167 @@
+"""The wire format: round trips, its size, and every malformed payload refused by name."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from tcaff_gtsam.node.messages import (
+    BYTES_PER_OBJECT,
+    MAX_OBJECTS,
+    AlignmentMessage,
+    MapMessage,
+    MessageError,
+    decode,
+    encode,
+)
+
+from tcaff_gtsam import ObjectMap
+from tcaff_gtsam.errors import DataError
+
+names = st.text(alphabet=st.characters(codec="utf-8", exclude_categories=("Cs",)),
+                min_size=1, max_size=16).filter(lambda s: 1 <= len(s.encode()) <= 64)
+coords = st.floats(-1e4, 1e4, width=32)
+sizes = st.floats(0, 50, width=32)
+
+
+@st.composite
+def map_messages(draw) -> MapMessage:
+    n = draw(st.integers(0, 40))
+    return MapMessage(draw(names), draw(st.integers(0, 2**32 - 1)),
+                      draw(st.integers(0, 2**32 - 1)), draw(st.floats(-1e9, 1e9)),
+                      draw(arrays(np.float64, (n, 3), elements=coords)),
+                      draw(arrays(np.float64, n, elements=sizes)),
+                      draw(arrays(np.float64, n, elements=sizes)),
+                      draw(arrays(np.float64, n, elements=st.floats(0, 1e3, width=32))))
+
+
+def alignment(accepted: bool = True, P=None) -> AlignmentMessage:
+    return AlignmentMessage("r0", 7, 12, 101.5, "r1", 11, 99.0, 12, 3, accepted,
+                            np.array([1.0, -2.0, 0.3]),
+                            np.diag([0.1, 0.2, 0.01]) if P is None else P)
+
+
+@settings(max_examples=60, deadline=None)
+@given(map_messages())
+def test_a_map_survives_the_wire_in_24_bytes_per_object(m: MapMessage) -> None:
+    payload = encode(m)
+    header = 4 + 1 + 1 + 1 + len(m.sender.encode()) + 4 + 4 + 8 + 4
+    assert len(payload) == header + BYTES_PER_OBJECT * len(m.centroids)
+    back = decode(payload)
+    assert isinstance(back, MapMessage)
+    assert (back.sender, back.boot, back.seq, back.stamp) == (m.sender, m.boot, m.seq, m.stamp)
+    # the values were drawn as float32: they come back exactly
+    for field in ("centroids", "widths", "heights", "ages"):
+        np.testing.assert_array_equal(getattr(back, field), getattr(m, field))
+
+
+def test_a_map_is_put_on_the_receivers_clock_through_its_ages() -> None:
+    sent = ObjectMap(np.array([[1.0, 2.0, 0.5], [3.0, -1.0, 0.2]]), np.array([0.4, 1.0]),
+                     np.array([0.3, 0.8]), np.array([995.0, 1000.5]))
+    # stamped at 1000 on the sender's clock, received at 20 on the receiver's
+    message = decode(encode(MapMessage.of("r2", 1, 5, 1000.0, sent)))
+    received = message.object_map(20.0)
+    np.testing.assert_allclose(received.last_seen, [15.0, 20.0])  # a future stamp is age 0
+    np.testing.assert_allclose(received.centroids, sent.centroids, rtol=1e-6)
+
+
+def test_an_alignment_survives_the_wire() -> None:
+    m = alignment()
+    back = decode(encode(m))
+    assert isinstance(back, AlignmentMessage)
+    assert (back.sender, back.neighbour, back.seq, back.neighbour_seq, back.step,
+            back.hypothesis, back.accepted) == ("r0", "r1", 12, 11, 12, 3, True)
+    np.testing.assert_array_equal(back.x, m.x)
+    np.testing.assert_array_equal(back.P, m.P)
+    empty = decode(encode(alignment(False, np.full((3, 3), np.nan))))
+    assert not empty.accepted and np.isnan(empty.P).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(map_messages(), st.data())
+def test_every_truncation_is_malformed(m: MapMessage, data) -> None:
+    payload = encode(m)
+    cut = data.draw(st.integers(0, len(payload) - 1))
+    with pytest.raises(MessageError) as caught:
+        decode(payload[:cut])
+    assert caught.value.reason == "malformed"
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=300))
+def test_random_bytes_never_crash_the_decoder(payload: bytes) -> None:
+    try:
+        decode(payload)
+    except MessageError as exc:
+        assert exc.reason in {"malformed", "version", "oversized"}
+
+
+@settings(max_examples=100, deadline=None)
+@given(map_messages(), st.data())
+def test_a_flipped_byte_is_refused_or_read_as_a_valid_message(m: MapMessage, data) -> None:
+    payload = bytearray(encode(m))
+    at = data.draw(st.integers(0, len(payload) - 1))
+    payload[at] ^= data.draw(st.integers(1, 255))
+    try:
+        back = decode(bytes(payload))
+    except MessageError:
+        return
+    # what passes is a well-formed map: finite, sizes and ages >= 0
+    assert isinstance(back, MapMessage | AlignmentMessage)
+    if isinstance(back, MapMessage):
+        values = np.column_stack([back.centroids, back.widths, back.heights, back.ages])
+        assert np.isfinite(values).all() and (values[:, 3:] >= 0).all()
+
+
+def _map_bytes(n: int = 2) -> bytes:
+    return encode(MapMessage("r1", 1, 2, 3.0, np.zeros((n, 3)), np.ones(n), np.ones(n),
+                             np.zeros(n)))
+
+
+@pytest.mark.parametrize(("edit", "reason", "words"), [
+    (lambda b: b"XXXX" + b[4:], "malformed", "magic"),
+    (lambda b: b[:4] + bytes([2]) + b[5:], "version", "format version 2"),
+    (lambda b: b[:5] + bytes([9]) + b[6:], "malformed", "kind 9"),
+    (lambda b: b + b"\0", "malformed", "after the end"),
+    (lambda b: b[:6] + bytes([2]) + b"\xff\xfe" + b[9:], "malformed", "not UTF-8"),
+    (lambda b: b[:6] + bytes([0]) + b[7:], "malformed", "sender of 0 bytes"),
+    (lambda b: b[:-4] + struct.pack("<f", float("nan")), "malformed", "non-finite"),
+    (lambda b: b[:-4] + struct.pack("<f", -1.0), "malformed", "negative"),
+    (lambda b: b[:25] + struct.pack("<I", MAX_OBJECTS + 1) + b[29:], "oversized",
+     "objects"),
+])
+def test_each_bad_map_is_refused_with_its_reason(edit, reason: str, words: str) -> None:
+    with pytest.raises(MessageError, match=words) as caught:
+        decode(edit(_map_bytes()))
+    assert caught.value.reason == reason
+
+
+def test_an_oversized_payload_is_refused_before_it_is_read() -> None:
+    with pytest.raises(MessageError, match="bytes, at most 100") as caught:
+        decode(_map_bytes(10), max_bytes=100)
+    assert caught.value.reason == "oversized"
+
+
+def test_an_accepted_alignment_needs_a_covariance() -> None:
+    bad = alignment(P=np.diag([1.0, -1.0, 1.0]))
+    with pytest.raises(MessageError, match="positive semi-definite"):
+        decode(encode(bad))
+    with pytest.raises(MessageError, match="finite x"):
+        decode(encode(alignment(P=np.full((3, 3), np.nan))))
+
+
+@pytest.mark.parametrize(("message", "words"), [
+    (MapMessage("x" * 65, 0, 0, 0.0, np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0)),
+     "1 to 64 bytes"),
+    (MapMessage("r", 2**32, 0, 0.0, np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0)),
+     "boot = 4294967296"),
+    (MapMessage("r", 0, 0, float("inf"), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
+                np.zeros(0)), "stamp = inf"),
+])
+def test_encode_refuses_what_cannot_be_sent(message, words: str) -> None:
+    with pytest.raises(DataError, match=words):
+        encode(message)

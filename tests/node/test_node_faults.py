@@ -1,0 +1,173 @@
+"""RobotNode's in-process API and the faults a team meets: duplicated, reordered and foreign
+messages, clocks that differ, a neighbour that goes silent, a node restarted from its filters.
+
+The node and the neighbour's sender are two Zenoh sessions linked over TCP on 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode
+from tcaff_gtsam.node.run import free_ports
+
+from tcaff_gtsam import ObjectMap
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.geometry import se2_from_params
+
+TRUE = np.array([2.0, -1.0, 0.4])  # T_r0_r1 as (x, y, theta)
+
+
+def world_maps(rng: np.random.Generator, n: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Object centroids in r0's frame and in r1's, and sizes."""
+    xy = rng.uniform(-10, 10, (n, 2))
+    T = se2_from_params(TRUE)
+    in_r1 = (np.linalg.inv(T) @ np.c_[xy, np.ones(n)].T).T[:, :2]
+    sizes = rng.uniform(0.3, 1.5, n)
+    return np.c_[xy, np.zeros(n)], np.c_[in_r1, np.zeros(n)], sizes
+
+
+class Team:
+    """A RobotNode r0 and a raw sender session speaking for r1 (and for strangers)."""
+
+    def __init__(self, tmp_path: Path, state: Path | None = None) -> None:
+        port = free_ports(1)[0]
+        self.got: list = []
+        self.node = RobotNode("r0", "faults", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",)),
+                              NodeParams(silence=2.0), on_alignment=self.got.append,
+                              state_dir=state)
+        self.sender = Link(connect=(f"127.0.0.1:{port}",)).open()
+        rng = np.random.default_rng(3)
+        self.mine, self.theirs, self.sizes = world_maps(rng)
+        deadline = time.monotonic() + 20
+        while "r1" not in self._peers() and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+    def _peers(self) -> set[str]:
+        # the sender holds r1's token so that the node sees it as present
+        if not hasattr(self, "_token"):
+            self._token = self.sender.liveliness().declare_token("tcaff/faults/r1/alive")
+        return self.node.present(0.5)
+
+    def ego(self, t: float) -> None:
+        n = len(self.sizes)
+        self.node.publish(t, ObjectMap(self.mine, self.sizes, self.sizes, np.full(n, t)))
+        self.node.wait_idle()
+
+    def send(self, seq: int, stamp: float, sender: str = "r1", key_robot: str = "r1",
+             boot: int = 1) -> None:
+        """r1's map of exchange seq, stamped on its clock; waits until the node handled it."""
+        n = len(self.sizes)
+        message = MapMessage(sender, boot, seq, stamp, self.theirs, self.sizes, self.sizes,
+                             np.zeros(n))
+        before = self._handled()
+        self.sender.put(f"tcaff/faults/{key_robot}/map", encode(message))
+        deadline = time.monotonic() + 10
+        while self._handled() == before and time.monotonic() < deadline:
+            time.sleep(0.005)
+        self.node.wait_idle()
+
+    def _handled(self) -> int:
+        c = self.node.counters
+        return c["maps_received"] + sum(v for k, v in c.items() if k.startswith("dropped_"))
+
+    def close(self) -> None:
+        self.sender.close()
+        self.node.close()
+
+
+@pytest.fixture
+def team(tmp_path: Path):
+    t = Team(tmp_path, tmp_path / "state")
+    yield t
+    t.close()
+
+
+def test_a_neighbour_with_another_clock_is_aligned_and_faults_are_counted(team: Team) -> None:
+    for k in range(12):
+        team.ego(10.0 + k)
+        team.send(k, 5000.0 + k)  # r1's clock is 4990 s ahead: its maps carry ages
+    accepted = [m for m in team.got if m.accepted]
+    assert accepted, team.node.counters
+    np.testing.assert_allclose(accepted[-1].x, TRUE, atol=0.05)
+    assert team.node.latest["r1"].accepted
+    team.send(11, 5011.0)                      # duplicated
+    team.send(5, 5005.0)                       # reordered: older than the latest taken
+    team.send(12, 5012.0, sender="r2", key_robot="r2")   # a robot outside the team
+    team.send(12, 5012.0, sender="r1", key_robot="r2")   # a sender that is not its key's
+    c = team.node.counters
+    assert (c["dropped_duplicate"], c["dropped_stale"], c["dropped_outsider"],
+            c["dropped_mismatch"]) == (1, 1, 1, 1)
+    assert c["aligned"] == 12
+
+
+def test_a_silent_neighbour_holds_then_is_stepped_without_measurements(team: Team) -> None:
+    for k in range(12):
+        team.ego(10.0 + k)
+        team.send(k, 10.0 + k)
+    assert team.got[-1].accepted
+    for k in range(12, 17):
+        team.ego(10.0 + k)
+    # silent for more than 2 s: the filter steps without the neighbour's map
+    silent = [m for m in team.got if m.seq >= 12]
+    assert team.node.counters["silent_steps"] == len(silent) >= 2
+    assert silent[0].accepted  # TCAFF holds its estimate a while
+    assert all(m.neighbour_seq == 11 for m in silent)
+
+
+def test_a_restarted_node_resumes_from_its_saved_filters(tmp_path: Path) -> None:
+    state = tmp_path / "state"
+    first = Team(tmp_path, state)
+    try:
+        for k in range(12):
+            first.ego(10.0 + k)
+            first.send(k, 10.0 + k)
+        held = first.got[-1]
+        assert held.accepted
+    finally:
+        first.close()
+    again = Team(tmp_path, state)
+    try:
+        again.ego(30.0)
+        again.send(0, 30.0, boot=2)  # r1 restarted as well: its counter begins again
+        resumed = again.got[-1]
+        # the first step after the restart continues the saved filter
+        assert resumed.accepted and resumed.hypothesis == held.hypothesis
+        assert resumed.step == held.step + 1
+    finally:
+        again.close()
+
+
+@pytest.mark.parametrize(("kwargs", "words"), [
+    ({"robot": "r 0"}, "--robot 'r 0'"),
+    ({"team": ""}, "--team ''"),
+    ({"members": ["r0"]}, "needs another robot"),
+])
+def test_bad_node_settings_are_refused(kwargs: dict, words: str) -> None:
+    args = {"robot": "r0", "team": "t", "members": ["r0", "r1"],
+            "link": Link(listen=("127.0.0.1:1",))} | kwargs
+    with pytest.raises(ConfigError, match=words):
+        RobotNode(**args)
+
+
+@pytest.mark.parametrize(("kwargs", "words"), [
+    ({"listen": ("localhost",)}, "must be host:port"),
+    ({"connect": ("127.0.0.1:70000",)}, "port in 1..65535"),
+    ({}, "needs --listen or --connect"),
+])
+def test_bad_endpoints_are_refused(kwargs: dict, words: str) -> None:
+    with pytest.raises(ConfigError, match=words):
+        Link(**kwargs)
+
+
+def test_publish_refuses_bad_maps(team: Team) -> None:
+    with pytest.raises(DataError, match="object_map must be an ObjectMap"):
+        team.node.publish(1.0, "map")
+    with pytest.raises(DataError, match="t must be a finite number"):
+        team.node.publish(float("nan"), ObjectMap.empty())
+    team.node.publish(1.0, ObjectMap.empty(), seq=4)
+    with pytest.raises(DataError, match="seq 4 is not after the previous 4"):
+        team.node.publish(2.0, ObjectMap.empty(), seq=4)
