@@ -159,10 +159,10 @@ def test_dead_reckoning_follows_the_arc_of_constant_commands(v, w, seconds):
     odometry = np.column_stack([t, np.full_like(t, v), np.full_like(t, w)])
     times, poses = mrclam.dead_reckoning(odometry, 0.0)
     theta = w * times
-    if abs(w) > 1e-6:
-        x, y = v / w * np.sin(theta), v / w * (1 - np.cos(theta))
-    else:
-        x, y = v * times, np.zeros_like(times)
+    # the arc v/w (sin theta, 1 - cos theta) written so that it holds as w -> 0 too:
+    # sin(theta)/w = t sinc(theta/pi) and (1 - cos theta)/w = t theta/2 sinc(theta/(2 pi))^2
+    x = v * times * np.sinc(theta / np.pi)
+    y = v * times * theta / 2 * np.sinc(theta / (2 * np.pi)) ** 2
     np.testing.assert_allclose(poses[:, 0], x, atol=1e-7)
     np.testing.assert_allclose(poses[:, 1], y, atol=1e-7)
 
