@@ -433,10 +433,11 @@ class DepthSegmenter:
         """(H, W) bool: pixels of room structure (see the class's rules).
 
         RANSAC finds one plane after another on a sample of the pixels; the level ones are
-        then removed before the others. A level plane's band of pixels is removed whole; a wall's band is split into connected parts, and only the
-        parts that reach `border`, span `plane_min_extent` metres or are seen only past nearer
-        things (`jumps`: the far and near side of depth jumps) are removed, if together they hold
-        `plane_share` of the valid pixels. An object face that lies on a wall's plane, or that
+        then removed before the others. A level plane's band of pixels is removed whole; a
+        wall's band is split into connected parts, and only the parts that reach `border`, span
+        `plane_min_extent` metres or are seen only past nearer things (`jumps`: the far and
+        near side of depth jumps) are removed, if together they hold `plane_share` of the
+        valid pixels. An object face that lies on a wall's plane, or that
         RANSAC fitted a plane to, is kept unless it reaches the border (the mask filter drops
         those anyway).
         """
