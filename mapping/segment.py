@@ -432,11 +432,12 @@ class DepthSegmenter:
                 jumps: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         """(H, W) bool: pixels of room structure (see the class's rules).
 
-        RANSAC finds one plane after another on a sample of the pixels. A level plane's band
-        of pixels is removed whole; a wall's band is split into connected parts, and only the
-        parts that reach `border`, span `plane_min_extent` metres or are seen only past nearer
-        things (`jumps`: the far and near side of depth jumps) are removed, if together they hold
-        `plane_share` of the valid pixels. An object face that lies on a wall's plane, or that
+        RANSAC finds one plane after another on a sample of the pixels; the level ones are
+        then removed before the others. A level plane's band of pixels is removed whole; a
+        wall's band is split into connected parts, and only the parts that reach `border`, span
+        `plane_min_extent` metres or are seen only past nearer things (`jumps`: the far and
+        near side of depth jumps) are removed, if together they hold `plane_share` of the
+        valid pixels. An object face that lies on a wall's plane, or that
         RANSAC fitted a plane to, is kept unless it reaches the border (the mask filter drops
         those anyway).
         """
@@ -455,8 +456,7 @@ class DepthSegmenter:
         n_valid = np.count_nonzero(valid)
         cos_level = math.cos(math.radians(p.level_tolerance_deg))
         rng = np.random.default_rng(p.seed)
-        full_tol = None
-        accepted = 0
+        planes = []  # (normal, offset, level) of the planes holding their share of the sample
         for _ in range(p.max_planes + 3):
             if pts.shape[0] < max(need, 3):
                 break
@@ -469,25 +469,31 @@ class DepthSegmenter:
                 break
             level = abs(float(normal @ self.up)) >= cos_level
             if n_in >= (p.level_plane_share if level else p.plane_share) * n_sampled:
-                if full_tol is None:
-                    full_tol = p.plane_distance + p.plane_distance_per_m2 * z * z
-                # a pixel's distance from the plane is z (n . ray) + offset
-                along = self._x_over_z * np.float32(normal[0]) + self._y_over_z * np.float32(
-                    normal[1]) + np.float32(normal[2])
-                band = valid & ~out & (np.abs(z * along + np.float32(offset)) <= full_tol)
-                if level:
-                    on_plane = band
-                    enough = np.count_nonzero(band) >= p.level_plane_share * n_valid
-                else:
-                    on_plane = _structure_parts(band, z, self.camera.fx, self.camera.fy,
-                                                p.plane_min_extent, border, jumps)
-                    enough = np.count_nonzero(on_plane) >= p.plane_share * n_valid
-                if enough:
-                    out |= on_plane
-                    accepted += 1
-                    if accepted == p.max_planes:
-                        break
+                planes.append((normal, offset, level))
             pts, tol = pts[~inliers], tol[~inliers]
+        # Level planes go first: a wall's band must not hold the strip where the floor or the
+        # ceiling crosses it, which would join every face on the wall's plane (a cabinet
+        # against a wall) to the image border.
+        planes.sort(key=lambda plane: not plane[2])
+        full_tol = p.plane_distance + p.plane_distance_per_m2 * z * z
+        accepted = 0
+        for normal, offset, level in planes:
+            # a pixel's distance from the plane is z (n . ray) + offset
+            along = self._x_over_z * np.float32(normal[0]) + self._y_over_z * np.float32(
+                normal[1]) + np.float32(normal[2])
+            band = valid & ~out & (np.abs(z * along + np.float32(offset)) <= full_tol)
+            if level:
+                on_plane = band
+                enough = np.count_nonzero(band) >= p.level_plane_share * n_valid
+            else:
+                on_plane = _structure_parts(band, z, self.camera.fx, self.camera.fy,
+                                            p.plane_min_extent, border, jumps)
+                enough = np.count_nonzero(on_plane) >= p.plane_share * n_valid
+            if enough:
+                out |= on_plane
+                accepted += 1
+                if accepted == p.max_planes:
+                    break
         return out
 
     def _ransac_plane(self, rng: np.random.Generator, pts: np.ndarray, tol: np.ndarray):

@@ -62,7 +62,8 @@ def random_room(rng: np.random.Generator, n: int, room=ROOM, gap: float = 1.0,
 def solo(scene: RgbdScene, k: int) -> RgbdScene:
     """The same room holding only object k (for telling whether k is occluded)."""
     return RgbdScene(scene.xy[k:k + 1], scene.widths[k:k + 1], scene.heights[k:k + 1],
-                     scene.cylinders[k:k + 1], scene.yaws[k:k + 1], walls=scene.walls)
+                     scene.cylinders[k:k + 1], scene.yaws[k:k + 1], walls=scene.walls,
+                     wall_height=scene.wall_height, floor=scene.floor, ceiling=scene.ceiling)
 
 
 def free_pose(rng: np.random.Generator, scene: RgbdScene, room=ROOM, clearance: float = 0.7,

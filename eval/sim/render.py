@@ -1,10 +1,12 @@
-"""Rendered RGB-D: boxes and cylinders on a floor between walls, ray-cast with Open3D.
+"""Rendered RGB-D: boxes and cylinders on a floor between walls (and under an optional
+ceiling), ray-cast with Open3D.
 
 `RgbdScene` holds the solids as triangle meshes in an Open3D `RaycastingScene`. `render` casts
 one ray per pixel from a camera pose and returns what an RGB-D camera with perfect registration
 would give: depth along the optical axis, the ground-truth instance of every pixel, and a simply
 shaded colour image. Optional depth noise grows with the square of range, like a stereo or
-structured-light sensor.
+structured-light sensor, and an optional band along the image edges has no depth, like the
+edges of a real sensor's registered depth.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ _CYLINDER_SEGMENTS = 48
 _LIGHT = np.array([0.3, 0.5, 0.81])  # unit vector towards the light, world frame
 _FLOOR_RGB = (150, 150, 150)
 _WALL_RGB = (205, 195, 170)
+_CEILING_RGB = (235, 235, 228)
 
 
 @dataclass(frozen=True)
@@ -38,9 +41,11 @@ class RgbdFrame:
 
     Attributes:
         rgb: (H, W, 3) uint8 colour, RGB order.
-        depth: (H, W) float32 metres along the optical axis, 0 where no surface is hit.
+        depth: (H, W) float32 metres along the optical axis, 0 where no surface is hit and
+            in the blanked band along the edges.
         instance: (H, W) int32, 1 + the index of the object each pixel shows, 0 for floor,
-            walls and empty space.
+            ceiling, walls and empty space (also where the depth is blanked: the colour
+            camera still sees the object there).
     """
 
     rgb: np.ndarray
@@ -76,12 +81,14 @@ class RgbdScene:
         cylinders: (n,) bool, which objects are cylinders (the others are boxes).
         yaws: (n,) radians, box headings (default 0).
         walls: (m, 2, 2) metres, wall segments on the floor.
-        wall_height: metres.
+        wall_height: metres, also the height of the ceiling.
         floor: whether to add the floor.
+        ceiling: whether to add a ceiling at `wall_height` over the floor's extent.
     """
 
     def __init__(self, xy, widths, heights, cylinders=None, yaws=None,
-                 walls=None, wall_height: float = 2.5, floor: bool = True) -> None:
+                 walls=None, wall_height: float = 2.5, floor: bool = True,
+                 ceiling: bool = False) -> None:
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         n = xy.shape[0]
         widths = np.asarray(widths, dtype=float).reshape(-1)
@@ -97,11 +104,15 @@ class RgbdScene:
         finite = all(np.all(np.isfinite(a)) for a in (xy, widths, heights, yaws, walls))
         if not finite or np.any(widths <= 0) or np.any(heights <= 0):
             raise DataError("RgbdScene: positions must be finite and sizes > 0")
+        if ceiling and not (np.isfinite(wall_height) and wall_height > 0):
+            raise DataError(f"RgbdScene.wall_height = {wall_height}: a ceiling needs a finite "
+                            "height > 0 metres")
         self.xy, self.widths, self.heights = xy, widths, heights
         self.cylinders, self.yaws, self.walls = cylinders, yaws, walls
+        self.wall_height, self.floor, self.ceiling = wall_height, floor, ceiling
 
         self._scene = o3d.t.geometry.RaycastingScene()
-        # geometry id -> instance (0: floor or wall), and its base colour
+        # geometry id -> instance (0: floor, ceiling or wall), and its base colour
         instance_of, colour_of = [], []
 
         def add(mesh: o3d.geometry.TriangleMesh, instance: int, rgb) -> None:
@@ -125,11 +136,13 @@ class RgbdScene:
                 centre = ((a[0] + b[0]) / 2, (a[1] + b[1]) / 2, wall_height / 2)
                 add(_box((length, _WALL_THICKNESS, wall_height), centre,
                          float(np.arctan2(d[1], d[0]))), 0, _WALL_RGB)
-        if floor:
-            pts = np.vstack([xy, walls.reshape(-1, 2), np.zeros((1, 2))])
-            lo, hi = pts.min(axis=0) - _FLOOR_MARGIN, pts.max(axis=0) + _FLOOR_MARGIN
-            centre = ((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, -0.005)
-            add(_box((hi[0] - lo[0], hi[1] - lo[1], 0.01), centre), 0, _FLOOR_RGB)
+        pts = np.vstack([xy, walls.reshape(-1, 2), np.zeros((1, 2))])
+        lo, hi = pts.min(axis=0) - _FLOOR_MARGIN, pts.max(axis=0) + _FLOOR_MARGIN
+        for z, rgb, wanted in ((-0.005, _FLOOR_RGB, floor),
+                               (wall_height + 0.005, _CEILING_RGB, ceiling)):
+            if wanted:  # a 1 cm slab whose inner face is at z = 0 or z = wall_height
+                centre = ((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, z)
+                add(_box((hi[0] - lo[0], hi[1] - lo[1], 0.01), centre), 0, rgb)
         # one extra row for rays that hit nothing (Open3D reports an invalid id)
         self._instance_of = np.asarray([*instance_of, 0], dtype=np.int32)
         self._colour_of = np.asarray([*colour_of, (0, 0, 0)], dtype=float)
@@ -139,11 +152,11 @@ class RgbdScene:
 
     @classmethod
     def from_world(cls, world: World, wall_height: float = 2.5,
-                   yaws=None) -> RgbdScene:
+                   yaws=None, ceiling: bool = False) -> RgbdScene:
         """A world's objects, classes in `CYLINDER_KINDS` as cylinders, and its walls."""
         cylinders = np.isin(world.kinds, list(CYLINDER_KINDS))
         return cls(world.xy, world.widths, world.heights, cylinders, yaws, world.walls,
-                   wall_height)
+                   wall_height, ceiling=ceiling)
 
     def cast(self, T_world_camera: np.ndarray, camera: PinholeCamera) -> dict[str, np.ndarray]:
         """Raw ray-cast results for every pixel: `depth` (H, W) metres along the optical axis
@@ -163,7 +176,7 @@ class RgbdScene:
                 "normal": hit["primitive_normals"].numpy()}
 
     def instance_of(self, geometry: np.ndarray) -> np.ndarray:
-        """Instance ids (0: floor, wall or nothing) of geometry indices from `cast`."""
+        """Instance ids (0: floor, ceiling, wall or nothing) of geometry indices from `cast`."""
         return self._instance_of[geometry]
 
     def colour_of(self, geometry: np.ndarray) -> np.ndarray:
@@ -173,7 +186,7 @@ class RgbdScene:
 
 def render(scene: RgbdScene, T_world_camera: np.ndarray, camera: PinholeCamera,
            depth_noise: float = 0.0, rng: np.random.Generator | None = None,
-           depth_max: float = 10.0) -> RgbdFrame:
+           depth_max: float = 10.0, invalid_border=0) -> RgbdFrame:
     """Render one RGB-D frame.
 
     Args:
@@ -183,10 +196,14 @@ def render(scene: RgbdScene, T_world_camera: np.ndarray, camera: PinholeCamera,
             square of the range. 0 for exact depth.
         rng: random generator for the noise (required when depth_noise > 0).
         depth_max: metres; farther surfaces give no return (depth 0).
+        invalid_border: pixels along the image edges without depth (depth 0), as a real
+            sensor's registered depth has: one int for every edge or (top, bottom, left,
+            right). Colour and instance ids are unchanged there.
     """
     if not depth_noise >= 0 or (depth_noise > 0 and rng is None):  # NaN fails too
         raise DataError(f"render: depth_noise = {depth_noise} needs to be >= 0 and, when > 0, "
                         "an rng")
+    top, bottom, left, right = _border_band(invalid_border)
     hit = scene.cast(T_world_camera, camera)
     depth = hit["depth"].astype(np.float32)
     valid = np.isfinite(depth) & (depth <= depth_max)
@@ -194,9 +211,22 @@ def render(scene: RgbdScene, T_world_camera: np.ndarray, camera: PinholeCamera,
     if depth_noise > 0:
         depth += (depth_noise * depth**2 * rng.standard_normal(depth.shape)).astype(np.float32)
         depth[depth < 0] = 0.0
+    H, W = depth.shape
+    depth[:top], depth[H - bottom:], depth[:, :left], depth[:, W - right:] = 0.0, 0.0, 0.0, 0.0
     instance = scene.instance_of(hit["geometry"])
     # Lambertian shading with some ambient light; the floor and walls are shaded the same way.
     lambert = np.abs(hit["normal"] @ _LIGHT)
     base = scene.colour_of(hit["geometry"])
     rgb = np.clip(base * (0.35 + 0.65 * lambert)[..., None], 0, 255).astype(np.uint8)
     return RgbdFrame(rgb, depth, instance)
+
+
+def _border_band(invalid_border) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right) pixels of `render`'s invalid_border, or DataError."""
+    many = isinstance(invalid_border, list | tuple) or np.ndim(invalid_border) == 1
+    widths = tuple(invalid_border) if many else (invalid_border,) * 4
+    if len(widths) != 4 or not all(isinstance(w, int | np.integer) and not isinstance(w, bool)
+                                   and w >= 0 for w in widths):
+        raise DataError(f"render: invalid_border = {invalid_border!r} must be an int >= 0 "
+                        "pixels or four of them (top, bottom, left, right)")
+    return tuple(int(w) for w in widths)

@@ -232,6 +232,8 @@ def test_bad_pose_raises(T):
     ({"xy": [[0.0, np.nan], [1.0, 1.0]]}, "finite"),
     ({"yaws": [0.0, np.inf]}, "finite"),
     ({"walls": [[[0.0, 0.0], [np.nan, 1.0]]]}, "finite"),
+    ({"ceiling": True, "wall_height": np.nan}, "wall_height"),
+    ({"ceiling": True, "wall_height": 0.0}, "wall_height"),
 ])
 def test_bad_scene_raises(kwargs, match):
     args = {"xy": [[0.0, 0.0], [2.0, 0.0]], "widths": [0.5, 0.5], "heights": [1.0, 1.0]}
@@ -242,3 +244,60 @@ def test_bad_scene_raises(kwargs, match):
 def test_scene_len():
     assert len(room_scene()) == 2
     assert len(RgbdScene(np.zeros((0, 2)), [], [])) == 0
+
+
+def test_ceiling_is_level_at_the_wall_height_and_instance_zero():
+    walls = room_walls(0.0, 0.0, 6.0, 4.0)
+    scene = RgbdScene([[4.0, 2.8]], [0.6], [0.9], walls=walls, wall_height=2.4, ceiling=True)
+    T = camera_pose(1.0, 2.0, 0.3, T_body_camera(1.0, -30.0))
+    cam = PinholeCamera.from_fov(320, 240, 87)
+    frame = render(scene, T, cam)
+    pts = world_points(frame, T, cam, (frame.instance == 0) & (frame.depth > 0))
+    up = pts[:, 2] > 1.0
+    on_wall = (np.minimum.reduce([np.abs(pts[:, 0]), np.abs(pts[:, 0] - 6.0),
+                                  np.abs(pts[:, 1]), np.abs(pts[:, 1] - 4.0)]) < 0.05 + 1e-3)
+    on_ceiling = up & ~on_wall
+    assert on_ceiling.sum() > 5000
+    np.testing.assert_allclose(pts[on_ceiling, 2], 2.4, atol=1e-3)
+    # without the ceiling the same rays leave the room over the walls
+    open_top = render(RgbdScene([[4.0, 2.8]], [0.6], [0.9], walls=walls, wall_height=2.4), T, cam)
+    assert np.all(open_top.depth[(frame.instance == 0) & (frame.depth > 0)][on_ceiling] == 0)
+
+
+def test_no_ceiling_and_no_band_by_default():
+    scene = room_scene()
+    T = camera_pose(1.0, 2.0, 0.0, T_body_camera(1.0, -40.0))
+    a = render(scene, T, CAM)
+    b = render(RgbdScene(scene.xy, scene.widths, scene.heights, scene.cylinders,
+                         walls=scene.walls, ceiling=False), T, CAM, invalid_border=0)
+    assert (a.depth == 0).sum() > 100  # open space above the walls
+    for x, y in ((a.depth, b.depth), (a.instance, b.instance), (a.rgb, b.rgb)):
+        np.testing.assert_array_equal(x, y)
+
+
+@FEW
+@given(st.integers(0, 30), st.integers(0, 30), st.integers(0, 40), st.integers(0, 40),
+       st.booleans())
+def test_invalid_border_blanks_exactly_the_band(top, bottom, left, right, one_width):
+    widths = top if one_width else (top, bottom, left, right)
+    if one_width:
+        bottom = left = right = top
+    scene = room_scene()
+    T = camera_pose(1.0, 2.0, 0.2)
+    full = render(scene, T, CAM)
+    cut = render(scene, T, CAM, invalid_border=widths)
+    H, W = CAM.shape
+    band = np.zeros((H, W), bool)
+    band[:top], band[H - bottom:], band[:, :left], band[:, W - right:] = True, True, True, True
+    assert np.all(cut.depth[band] == 0)
+    np.testing.assert_array_equal(cut.depth[~band], full.depth[~band])
+    # the colour camera still sees what is there
+    np.testing.assert_array_equal(cut.rgb, full.rgb)
+    np.testing.assert_array_equal(cut.instance, full.instance)
+
+
+@pytest.mark.parametrize("invalid_border", [-1, 1.5, True, "4", (1, 2, 3), (1, 2, 3, -4),
+                                            [[1, 2], [3, 4]], None, np.nan])
+def test_bad_invalid_border_raises(invalid_border):
+    with pytest.raises(DataError, match=r"render: invalid_border = .* must be an int >= 0"):
+        render(room_scene(), camera_pose(1.0, 2.0, 0.0), CAM, invalid_border=invalid_border)
