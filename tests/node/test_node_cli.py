@@ -25,9 +25,14 @@ def imported(folder: Path) -> set[str]:
     return names
 
 
-def test_node_uses_no_eval_and_the_core_no_node() -> None:
-    assert not [m for m in imported(REPO / "node") if m.startswith("tcaff_gtsam.eval")]
-    assert not [m for m in imported(REPO / "tcaff_gtsam") if m.startswith("tcaff_gtsam.node")]
+@pytest.mark.parametrize(("folder", "above"), [
+    ("tcaff_gtsam", ("mapping", "eval", "node")), ("mapping", ("eval", "node")),
+    ("node", ("eval",))])
+def test_layers_import_one_way(folder, above) -> None:
+    """core <- mapping <- eval, node: no layer imports one above it."""
+    upward = [m for m in imported(REPO / folder)
+              if m.startswith(tuple(f"tcaff_gtsam.{layer}" for layer in above))]
+    assert not upward
 
 
 @pytest.mark.parametrize(("args", "words"), [
