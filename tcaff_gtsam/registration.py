@@ -77,9 +77,14 @@ def size_compatible(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: fl
     return out
 
 
+def _block_rows(n_other: int) -> int:
+    """Ego rows per block of the size gate against `n_other` objects."""
+    return max(1, _GATE_BLOCK // max(n_other, 1))
+
+
 def _gate_blocks(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float):
     """The size gate by blocks of ego rows: yields (first row, (rows, n_other) bool)."""
-    rows = max(1, _GATE_BLOCK // max(len(other), 1))
+    rows = _block_rows(len(other))
     for start in range(0, len(ego), rows):
         part = slice(start, start + rows)
         yield start, (_sizes_similar(ego.widths[part], other.widths, ratio, abs_diff)
@@ -103,24 +108,25 @@ def most_recent_pairs(compatible: np.ndarray, ages_ego: np.ndarray, ages_other: 
         other index, as `putative_associations` sorts.
     """
     n, m = compatible.shape
-    rows = max(1, _GATE_BLOCK // max(m, 1))
+    rows = _block_rows(m)
     kept = np.empty((0, 2), np.int64)
     for start in range(0, n, rows):
         found = np.argwhere(compatible[start: start + rows]) + np.array([start, 0])
         kept = _first_by_age(np.concatenate([kept, found]), ages_ego, ages_other, cap)
-    return kept[np.lexsort((kept[:, 1], kept[:, 0]))]
+    return kept
 
 
 def _first_by_age(pairs: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
                   cap: int) -> np.ndarray:
-    """The first `cap` of (k, 2) pairs ordered by age sum, ego index, other index."""
+    """The first `cap` of (k, 2) pairs, given in index order (ego, then other index), when
+    ordered by age sum, then index; returned in index order."""
     if pairs.shape[0] <= cap:
         return pairs
     key = ages_ego[pairs[:, 0]] + ages_other[pairs[:, 1]]
     bound = np.partition(key, cap - 1)[cap - 1]
-    below, at = np.flatnonzero(key < bound), np.flatnonzero(key == bound)
+    below = np.flatnonzero(key < bound)
     # ties at the bound are taken in index order, so the result never depends on the blocks
-    at = at[np.lexsort((pairs[at, 1], pairs[at, 0]))][: cap - below.size]
+    at = np.flatnonzero(key == bound)[: cap - below.size]
     return pairs[np.sort(np.r_[below, at])]
 
 
