@@ -33,9 +33,9 @@ def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
 
 def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | None,
              params: FrameAlignerParams) -> list[AlignmentMeasurement]:
-    """The candidates a TCAFF filter may take: every unambiguous one, and an ambiguous one only
-    when it lies within `confirm_translation` and `confirm_heading` of the filter's estimate
-    (it may confirm what the filter holds, never start or move a hypothesis).
+    """The candidates a TCAFF filter may take: every unambiguous one, and an ambiguous or
+    tracked one only when it lies within `confirm_translation` and `confirm_heading` of the
+    filter's estimate (it may confirm what the filter holds, never start or move a hypothesis).
 
     Raises:
         DataError: found not a list of AlignmentMeasurement, estimate neither an
@@ -48,7 +48,7 @@ def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | No
     _require(isinstance(params, FrameAlignerParams), "admitted", "params", params,
              "must be a FrameAlignerParams")
     held = None if estimate is None else estimate.x
-    return [m for m in found if not m.ambiguous or _confirms(m.z, held, params)]
+    return [m for m in found if not (m.ambiguous or m.tracked) or _confirms(m.z, held, params)]
 
 
 def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.ndarray] | None
@@ -149,7 +149,7 @@ class PairwiseAligner:
             raise DataError(f"{o}: t = {t} is not after the previous step's "
                             f"t = {self._last_time}")
         ego_memory, other_memory = self._memory
-        held = None if self.filter.estimate is None else self.filter.estimate.x
+        held = None if self.filter.held is None else self.filter.held.x
         measurements = self.aligner.measurements(
             ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held)
         kappa = self.aligner.params.kappa
@@ -158,7 +158,7 @@ class PairwiseAligner:
         ids = (tuple(recent_ids(each, objects, t, kappa) for each, objects
                      in zip(identities, (ego_map, other_map), strict=True))
                if self.filter.params.counts_evidence else None)
-        kept = admitted(measurements, self.filter.estimate, self.aligner.params)
+        kept = admitted(measurements, self.filter.held, self.aligner.params)
         zs = np.array([m.z for m in kept]).reshape(-1, 3)
         Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
         estimate = self.filter.update(zs, Rs, evidence_of(kept, ids))

@@ -262,6 +262,11 @@ class FrameAlignerParams(_ByValue):
             (each search costs one to three times the step's own alignment); those sharing
             the most objects with the robot's current map go first.
         confirm_translation, confirm_heading: metres and radians.
+        track_min: with an alignment held by the caller's filter and no candidate confirming
+            it, the objects it pairs (mutual nearest neighbours within `confirm_translation`
+            that pass the size gate) re-register it when there are at least this many: a
+            tracked measurement, which like an ambiguous one may confirm the held alignment
+            but never start or move one. None: no tracking.
     """
 
     kappa: float = 20.0
@@ -289,6 +294,7 @@ class FrameAlignerParams(_ByValue):
     memory_searches: int = 8
     confirm_translation: float = 0.5
     confirm_heading: float = math.radians(2.5)
+    track_min: int | None = None
 
     def __post_init__(self) -> None:
         o = "FrameAlignerParams"
@@ -323,6 +329,8 @@ class FrameAlignerParams(_ByValue):
                  self.residual_floor, "must be a finite number > 0 metres")
         _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,
                  "min_inliers", self.min_inliers, "must be an int >= 2 or None")
+        _require(self.track_min is None or _int_at_least(self.track_min, 2), o,
+                 "track_min", self.track_min, "must be an int >= 2 or None")
         _require(isinstance(self.check_ambiguity, bool), o, "check_ambiguity",
                  self.check_ambiguity, "must be True or False")
         for name in ("inlier_radius", "distinct_translation", "distinct_heading",
@@ -410,6 +418,11 @@ class TCAFFParams(_ByValue):
             evidence in the window than that path does (and at least `min_distinct`): the
             robots' frames have likely jumped and the old estimate would be wrong until the
             switch, W + `switch_after` steps later.
+        report_after: report no estimate once the main tree's best path has held no
+            measurement for this many steps, while the tree itself is kept until
+            `drop_after`: unreported, it can still be confirmed (`TCAFF.held`), e.g. by the
+            aligner's tracking when the robots see shared objects again. None: reported
+            until dropped.
     """
 
     window: int = 8
@@ -436,6 +449,7 @@ class TCAFFParams(_ByValue):
     min_distinct: int = 1
     switch_stale: bool = False
     withhold_contested: bool = False
+    report_after: int | None = None
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
@@ -486,6 +500,8 @@ class TCAFFParams(_ByValue):
                  "must be True or False")
         _require(isinstance(self.withhold_contested, bool), o, "withhold_contested",
                  self.withhold_contested, "must be True or False")
+        _require(self.report_after is None or _int_at_least(self.report_after, 1), o,
+                 "report_after", self.report_after, "must be an int >= 1 or None")
 
     @property
     def dim(self) -> int:

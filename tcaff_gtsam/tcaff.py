@@ -137,11 +137,19 @@ class TCAFF:
         self._sizes: deque[int] = deque(maxlen=self._columns)
         self._fresh = 0  # last step at which the main's best path brought distinct evidence
         self._estimate: AlignmentEstimate | None = None
+        self._held: AlignmentEstimate | None = None
 
     @property
     def estimate(self) -> AlignmentEstimate | None:
         """The estimate of the latest step, or None."""
         return self._estimate
+
+    @property
+    def held(self) -> AlignmentEstimate | None:
+        """The main tree's estimate of the latest step, also while it is not reported
+        (`withhold_contested`, `report_after`): what a measurement may confirm. None while
+        there is no main tree."""
+        return self._held
 
     def update(self, zs, Rs, evidence=None) -> AlignmentEstimate | None:
         """One step.
@@ -188,6 +196,7 @@ class TCAFF:
         if self._estimate is not None:
             has_measurement = self._estimate.n_measurements > 0
             self._empty_windows = 0 if has_measurement else self._empty_windows + 1
+        self._held = self._estimate
         self._estimate = self._reported(self._estimate)
         return self._estimate
 
@@ -268,8 +277,14 @@ class TCAFF:
             self._accept(complete, best)
 
     def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
-        """The main tree's estimate, or None while `withhold_contested` holds it back."""
-        if estimate is not None and self.params.withhold_contested and self._contested():
+        """The main tree's estimate, or None while `withhold_contested` or `report_after`
+        holds it back."""
+        if estimate is None:
+            return None
+        report_after = self.params.report_after
+        if report_after is not None and self._main.since[np.argmin(self._main.cost)] >= report_after:
+            return None
+        if self.params.withhold_contested and self._contested():
             return None
         return estimate
 
@@ -541,7 +556,8 @@ class TCAFF:
         self._evidence = deque(evidence, maxlen=self._columns)
         self._sizes = deque([-1] * len(evidence) if steps is None else steps.tolist(),
                             maxlen=self._columns)
-        self._estimate = self._reported(self._main_estimate())
+        self._held = self._main_estimate()
+        self._estimate = self._reported(self._held)
 
     def _check_values(self, counters: dict[str, int], trees: dict[str, Leaves],
                       sizes: np.ndarray, bank_zs: np.ndarray, bank_Rs: np.ndarray,

@@ -126,7 +126,7 @@ class SharedStages:
             max_rmse = self.checked.max_rmse
             return [m for m in self.candidates(p) if max_rmse is None or m.rmse <= max_rmse]
         i, j = self.setup.pairs[p]
-        estimate = None if self._filters is None else self._filters[p].estimate
+        estimate = None if self._filters is None else self._filters[p].held
         start = time.perf_counter()
         found = self._verifier.measurements(*self.setup.maps(p, self.s), self.t,
                                             self._memory[i].snapshots(),
@@ -142,7 +142,7 @@ class SharedStages:
             start = time.perf_counter()
             if self._filters is None:
                 self._filters = [TCAFF(self.tcaff_params) for _ in self.setup.pairs]
-            kept = admitted(found, self._filters[p].estimate, self.checked)
+            kept = admitted(found, self._filters[p].held, self.checked)
             zs = np.array([m.z for m in kept]).reshape(-1, 3)
             Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
             ids = (tuple(self.object_ids(r) for r in self.setup.pairs[p])

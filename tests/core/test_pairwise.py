@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from tcaff_gtsam.eval.sim.maps import overlapping_maps
 
-from tcaff_gtsam import PairwiseAligner, TCAFFParams
+from tcaff_gtsam import FrameAlignerParams, ObjectMap, PairwiseAligner, TCAFFParams
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_error, se2_from_params
 
@@ -25,6 +25,47 @@ def test_maps_over_time_give_the_true_alignment_after_the_window():
     dt, dtheta = se2_error(T_true, estimates[-1].T)
     assert dt < 0.3 and np.degrees(dtheta) < 2.0
     assert pair_aligner.measurements  # the latest step's candidates are kept
+
+
+def test_tracking_holds_an_alignment_through_steps_too_sparse_for_candidates():
+    """Accepted on rich maps, then the maps share three objects for a while and nothing
+    after: tracked, the estimate lasts while they are seen; without tracking it is dropped
+    `drop_after` steps after the rich maps; unreported once nothing is seen (`report_after`),
+    it comes back when the three objects are seen again."""
+    T_true = se2_from_params([4.0, -7.0, 2.5])
+    few = np.array([[0.0, 0.0], [3.0, 0.5], [1.0, 2.5]])
+
+    def sparse(t):
+        other = (few - T_true[:2, 2]) @ T_true[:2, :2]
+        return (ObjectMap(np.column_stack([few, np.zeros(3)]), np.full(3, 0.5),
+                          np.full(3, 0.5), np.full(3, t)),
+                ObjectMap(np.column_stack([other, np.zeros(3)]), np.full(3, 0.5),
+                          np.full(3, 0.5), np.full(3, t)))
+
+    tcaff = TCAFFParams(drop_after=10, report_after=5)
+    runs = {}
+    for track_min in (None, 3):
+        pa = PairwiseAligner(FrameAlignerParams(track_min=track_min), tcaff)
+        rng = np.random.default_rng(0)
+        out = []
+        for t in range(60):
+            if t < 15:
+                pair = overlapping_maps(rng, 30, 0.5, 0.05, T_oi_oj=T_true, now=float(t))
+                maps = (pair.ego, pair.other)
+            elif 35 <= t < 42:
+                maps = (ObjectMap.empty(), ObjectMap.empty())
+            else:
+                maps = sparse(float(t))
+            out.append(pa.update(float(t), *maps))
+        runs[track_min] = out
+    assert runs[None][14] is not None and all(e is None for e in runs[None][25:])
+    tracked = runs[3]
+    assert all(e is not None for e in tracked[15:35])
+    assert all(e is None for e in tracked[40:42])  # nothing seen for report_after steps
+    assert all(e is not None for e in tracked[42:])  # the same objects again: reported again
+    assert tracked[-1].hypothesis == tracked[14].hypothesis
+    dt, dtheta = se2_error(T_true, tracked[-1].T)
+    assert dt < 0.1 and np.degrees(dtheta) < 1.0
 
 
 def test_time_must_increase_and_be_finite():

@@ -133,6 +133,41 @@ def test_default_drops_the_main_tree_after_drop_after_steps_without_measurement(
     assert filt.estimate is None
 
 
+def test_report_after_hides_a_quiet_main_tree_that_a_measurement_then_revives():
+    """Unreported after `report_after` empty steps, the main tree is still held until
+    `drop_after`; a measurement within that time brings the same hypothesis back."""
+    stream = alignment_stream(np.random.default_rng(3), 30, p_empty=0.0, outliers=(0, 0))
+    quiet = [np.empty((0, 3))] * 20
+    filt = TCAFF(TCAFFParams(drop_after=50, report_after=10))
+    estimates = run(filt, stream.zs + quiet + [stream.zs[-1]])
+    last = max(i + 1 for i, est in enumerate(estimates[:-1]) if est is not None)
+    assert last == 30 + 9  # reported while the best path's last measurement is < 10 steps old
+    assert filt.held is not None and estimates[-1] is not None
+    assert estimates[-1].hypothesis == estimates[29].hypothesis
+    assert estimates[-1].measurement == 0
+    # without a measurement the tree is dropped at drop_after as before
+    filt = TCAFF(TCAFFParams(drop_after=25, report_after=10))
+    run(filt, stream.zs + [np.empty((0, 3))] * 30)
+    assert filt.held is None and filt.estimate is None
+
+
+def test_held_is_the_estimate_whenever_it_is_reported():
+    stream = alignment_stream(np.random.default_rng(4), 60, p_empty=0.3)
+    filt = TCAFF(TCAFFParams(report_after=3))
+    hidden = 0
+    for zs in stream.zs:
+        est = filt.update(zs, np.broadcast_to(R_CONSTANT, (len(zs), 3, 3)))
+        assert est is None or est is filt.held
+        hidden += est is None and filt.held is not None
+    assert hidden > 0  # some steps held an estimate it did not report
+
+
+@pytest.mark.parametrize("bad", [0, -1, 2.5, "4", True])
+def test_bad_report_after_is_a_config_error(bad):
+    with pytest.raises(ConfigError, match="report_after"):
+        TCAFFParams(report_after=bad)
+
+
 def test_a_gap_shorter_than_drop_after_keeps_the_estimate_and_its_accuracy():
     stream = alignment_stream(np.random.default_rng(11), 200, p_empty=0.1)
     zs = [z if not 80 <= t < 110 else np.empty((0, 3)) for t, z in enumerate(stream.zs)]

@@ -226,3 +226,58 @@ def test_only_objects_seen_within_kappa_get_ids():
     first = recent_ids(identities, objects, 10.0, 20.0)
     assert first[1] == -1 and first[0] >= 0 and first[2] >= 0
     np.testing.assert_array_equal(recent_ids(identities, objects, 11.0, 20.0), first)
+
+
+TRACKING = FrameAlignerParams(track_min=3)
+
+
+def three_shared(T: np.ndarray, noise: float = 0.0, seed: int = 0):
+    """An ego map of 3 objects and the other robot's view of them through T (plus 2 objects
+    of its own): too few for a MNO-CLIPPER candidate (5 associations), enough to track."""
+    rng = np.random.default_rng(seed)
+    shared = np.array([[0.0, 0.0], [3.0, 0.5], [1.0, 2.5]])
+    in_other = (shared - T[:2, 2]) @ T[:2, :2] + rng.normal(0, noise, (3, 2))
+    return object_map(shared), object_map(np.vstack([in_other, [[40.0, 40.0], [-40.0, 5.0]]]))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.tuples(st.floats(-5, 5), st.floats(-5, 5), st.floats(-math.pi, math.pi)),
+       st.floats(-0.2, 0.2), st.floats(-0.2, 0.2), st.floats(-0.015, 0.015))
+def test_a_held_alignment_is_tracked_on_fewer_objects_than_a_candidate_needs(pose, dx, dy,
+                                                                             dtheta):
+    """Held within 0.28 m and 0.9 deg of the truth, objects at most 9 m from the other's
+    origin: each lies within confirm_translation (0.5 m) of its match."""
+    T = se2_from_params(pose)
+    ego, other = three_shared(T)
+    aligner = FrameAligner(TRACKING)
+    assert aligner.measurements(ego, other, 10.0) == []
+    held = np.array(pose) + [dx, dy, dtheta]
+    found = aligner.measurements(ego, other, 10.0, held=held)
+    assert len(found) == 1 and found[0].tracked and found[0].inliers == 3
+    assert sorted(map(tuple, found[0].associations)) == [(0, 0), (1, 1), (2, 2)]
+    dt, dth = se2_error(T, found[0].T)
+    assert dt < 1e-6 and dth < 1e-6  # re-registered on the objects, not the held value
+    assert admitted(found, None, TRACKING) == []  # it never starts a hypothesis
+    assert admitted(found, estimate(held), TRACKING) == found
+
+
+def test_nothing_is_tracked_when_the_held_alignment_pairs_too_few_or_is_off():
+    T = se2_from_params([2.0, -1.0, 0.7])
+    ego, other = three_shared(T)
+    z = np.array([2.0, -1.0, 0.7])
+    assert FrameAligner(FrameAlignerParams()).measurements(ego, other, 10.0, held=z) == []
+    assert FrameAligner(replace(TRACKING, track_min=4)).measurements(ego, other, 10.0,
+                                                                     held=z) == []
+    # one metre off pairs nothing within confirm_translation
+    assert FrameAligner(TRACKING).measurements(ego, other, 10.0, held=z + [1.0, 0, 0]) == []
+    # objects on a line fix no rotation: refused by min_spread like a candidate
+    line = object_map(np.array([[0.0, 0.0], [1.0, 0.0], [2.5, 0.0]]))
+    assert FrameAligner(TRACKING).measurements(line, line, 10.0, held=np.zeros(3)) == []
+    assert FrameAligner(replace(TRACKING, min_spread=0.0)).measurements(line, line, 10.0,
+                                                                       held=np.zeros(3))
+
+
+@pytest.mark.parametrize("bad", [1, 0, -3, 2.5, "3", True])
+def test_bad_track_min_is_a_config_error(bad):
+    with pytest.raises(ConfigError, match="track_min"):
+        FrameAlignerParams(track_min=bad)
