@@ -14,9 +14,10 @@ while its width is `slab_extent` or more; objects stand up from the floor. A pie
 segmenter could not tell from an object (too small a share of the image to be found as a
 plane, cut off by nearer objects) is a vertical slab: dropped when 90 % of its footprint lies
 within `wall_thickness` across its long axis while its width is `wall_extent` or more, unless
-its mask stands in front of what is beside it on both sides (a depth step past its left and its
-right end in most rows, `segment.stands_in_front`), as a wide cabinet's front does before the
-wall it stands against and a wall does not. A box seen face on is a vertical slab too.
+its mask stands in front of what is around it (a depth step past two of its left, right and
+top ends, `segment.stands_in_front`), as a wide cabinet's front does before the wall it stands
+against and a wall does not. A box seen face on is a vertical slab too, but narrower than a
+wall or standing in front of one.
 """
 
 from __future__ import annotations
@@ -70,12 +71,12 @@ class LiftParams:
         wall_thickness: metres; a cloud this thin (5th to 95th percentile) across the long
             axis of its footprint ...
         wall_extent: metres; ... and at least this wide is a piece of wall and dropped
-            (math.inf keeps every cloud), unless its mask stands in front of what is beside
-            it on both sides: an object's face, such as a wide cabinet's seen face on.
+            (math.inf keeps every cloud), unless its mask stands in front of what is around
+            it: an object's face, such as a wide cabinet's seen face on.
         jump, jump_per_m: metres, and metres per metre of the mask's depth: the depth step
-            past a mask's left and right end that makes it stand in front (as
-            `DepthSegmenterParams`; see `segment.stands_in_front`).
-        jump_reach: pixels past the mask's ends in each row where the step is looked for.
+            past a mask's ends that makes it stand in front (as `DepthSegmenterParams`; see
+            `segment.stands_in_front`).
+        jump_reach: pixels past the mask's ends where the step is looked for.
     """
 
     voxel_size: float = 0.01

@@ -246,8 +246,8 @@ class DepthSegmenterParams:
         plane_distance_per_m2: metres per square metre of depth.
         plane_min_extent: metres; a part of a (not level) plane's pixels that does not reach
             the border of the valid depth is still a wall when it spans this far, unless it
-            stands in front of what is beside it on both sides and does not meet the ceiling
-            (a tall or wide cabinet's front).
+            stands in front of what is around it (`stands_in_front`) and does not meet the
+            ceiling (a tall or wide cabinet's front).
         ransac_iterations: plane hypotheses tried per plane.
         ransac_stride: pixels; RANSAC scores hypotheses on every stride-th pixel per axis.
         seed: RANSAC's random seed; the same frame always gives the same masks.
@@ -309,12 +309,15 @@ class DepthSegmenterParams:
 
 def stands_in_front(mask: np.ndarray, z: np.ndarray, jump: float, jump_per_m: float,
                     reach: int) -> bool:
-    """Whether a mask stands in front of what is beside it on both sides, as an object's face
-    does and a wall does not: in at least half of the image rows it spans, the farthest depth
-    within `reach` pixels left of its leftmost pixel and the farthest within `reach` pixels
-    right of its rightmost pixel are both farther than the mask's own depth there by more
-    than jump + jump_per_m * depth. A wall ends at the image border, in a corner (no step), or
-    at most on one side at an opening or a corner jutting into the room.
+    """Whether a mask stands in front of what is around it, as an object's face does and a
+    wall does not: on at least two of its left, right and top sides, the surface seen just
+    past it is farther by a depth jump. A side has the step when, in at least half of the
+    image rows (columns, for the top) the mask spans, the farthest depth within `reach` pixels
+    past its outermost pixel is farther than that pixel's by more than
+    jump + jump_per_m * depth. A cabinet against a wall shows the wall beside it and above it
+    (in a room's corner, on one side and above it); a wall ends at the image border, in a
+    corner or at the ceiling (no step), and has a step on one side at most (a door, a corner
+    jutting into the room).
 
     Args:
         mask: (H, W) bool (an empty one stands in front of nothing).
@@ -330,21 +333,31 @@ def stands_in_front(mask: np.ndarray, z: np.ndarray, jump: float, jump_per_m: fl
     if not (isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == z.shape):
         got = f"{mask.shape} {mask.dtype}" if isinstance(mask, np.ndarray) else type(mask).__name__
         raise DataError(f"stands_in_front: mask must be a {z.shape} bool array, got {got}")
-    W = z.shape[1]
-    rows = np.flatnonzero(mask.any(axis=1))
-    if rows.size == 0:
+    if not mask.any():
         return False
+    left, right = _stepped_ends(mask, z, jump, jump_per_m, reach)
+    top, _ = _stepped_ends(mask.T, z.T, jump, jump_per_m, reach)
+    return left + right + top >= 2
+
+
+def _stepped_ends(mask: np.ndarray, z: np.ndarray, jump: float, jump_per_m: float,
+                  reach: int) -> tuple[bool, bool]:
+    """Whether the first and whether the last pixels of a non-empty mask's rows have a depth
+    step past them (see `stands_in_front`) in at least half of those rows."""
+    W = mask.shape[1]
+    rows = np.flatnonzero(mask.any(axis=1))
     sub = mask[rows]
     first = sub.argmax(axis=1)
     last = W - 1 - sub[:, ::-1].argmax(axis=1)
     beyond = np.arange(1, reach + 1)
-    stepped = np.ones(rows.size, dtype=bool)
+    stepped = []
     for end, cols in ((first, first[:, None] - beyond), (last, last[:, None] + beyond)):
         inside = (cols >= 0) & (cols < W)
         farthest = np.where(inside, z[rows[:, None], np.clip(cols, 0, W - 1)], 0.0).max(axis=1)
         own = z[rows, end]
-        stepped &= (own > 0) & (farthest - own > jump + jump_per_m * own)
-    return 2 * np.count_nonzero(stepped) >= rows.size
+        steps = (own > 0) & (farthest - own > jump + jump_per_m * own)
+        stepped.append(bool(2 * np.count_nonzero(steps) >= rows.size))
+    return stepped[0], stepped[1]
 
 
 class DepthSegmenter:
@@ -360,10 +373,11 @@ class DepthSegmenter:
     - any other plane holding `plane_share` of them is a wall: its parts that reach the border
       of the valid depth or are seen only past nearer things (a piece of wall under a chair)
       are removed, and so are those spanning `plane_min_extent` metres unless they stand in
-      front of the room: a depth step past both their left and right ends in at least half
-      their rows (`stands_in_front`) and no contact with the ceiling (a removed level plane
-      above the camera). That is a cabinet's front before the wall it stands against; a wall
-      ends at the border, in a corner, at the ceiling, or with a step on one side only;
+      front of the room: a depth step past two of their left, right and top ends in at least
+      half their rows or columns (`stands_in_front`) and no contact with the ceiling (a
+      removed level plane above the camera). That is a cabinet's front before the wall it
+      stands against; a wall ends at the border, in a corner or at the ceiling, with a step on
+      one side at most;
     - what is left is cut at depth jumps (`jump`, `jump_per_m`, over up to `jump_reach`
       pixels), and components larger than `max_area_share` of the image are dropped.
 
@@ -520,9 +534,9 @@ class DepthSegmenter:
         things, holding pixels on the far side of depth jumps but none on the near side
         (`jumps`, both (H, W) bool), like a piece of wall seen under a chair; and those that
         span `plane_min_extent` metres (2D box in pixels times mean depth over focal length)
-        unless they stand in front of what is beside them on both sides (`stands_in_front`)
-        and do not meet `ceiling` ((H, W) bool, the removed level planes above the camera),
-        as a tall or wide cabinet's front does before the wall it stands against."""
+        unless they stand in front of what is around them (`stands_in_front`) and do not
+        meet `ceiling` ((H, W) bool, the removed level planes above the camera), as a tall or
+        wide cabinet's front does before the wall it stands against."""
         p = self.params
         behind, fronts = jumps
         # cut at the far side of jumps, so that an object's face does not join the band's
@@ -545,10 +559,12 @@ class DepthSegmenter:
         candidates = np.flatnonzero(large & in_front & ~at_border)
         if candidates.size:
             # the seam between a wall and the ceiling is a pixel or two wide
-            near_ceiling = cv2.dilate(ceiling.view(np.uint8), np.ones((5, 5), np.uint8))
+            near_ceiling = cv2.dilate(ceiling.view(np.uint8),
+                                      np.ones((5, 5), np.uint8)).view(bool)
         for c in candidates:
-            rows = slice(stats[c, cv2.CC_STAT_TOP],
-                         stats[c, cv2.CC_STAT_TOP] + stats[c, cv2.CC_STAT_HEIGHT])
+            # the part's rows and the few above it, where the step over its top is looked for
+            top = stats[c, cv2.CC_STAT_TOP]
+            rows = slice(max(top - p.jump_reach, 0), top + stats[c, cv2.CC_STAT_HEIGHT])
             part = labels[rows] == c
             structure[c] = near_ceiling[rows][part].any() or not stands_in_front(
                 part, z[rows], p.jump, p.jump_per_m, p.jump_reach)

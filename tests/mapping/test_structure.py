@@ -168,13 +168,16 @@ def test_tall_cabinet_against_a_wall_is_found():
 
 
 @pytest.mark.parametrize("mount", list(MOUNTS))
-def test_wide_cabinet_against_a_wall_is_found(mount):
+@pytest.mark.parametrize("where", ["mid-wall", "corner"])
+def test_wide_cabinet_against_a_wall_is_found(mount, where):
     """A 1.8 m wide, 1 m tall sideboard against the x = 10 wall (its front at x = 9.5), face
-    on from 2.5 m: its front is a plane of its own, wider than `plane_min_extent` and as wide
-    as the lifter's `wall_extent`, but it stands in front of the wall on both sides."""
-    scene = RgbdScene([[10.4, 4.0], [5.0, 6.5]], [1.8, 0.5], [1.0, 1.0], [False, True],
+    on from 2.5 m, or pushed into the corner with the y = 8 wall and seen from the side: its
+    front is a plane of its own, wider than `plane_min_extent` and as wide as the lifter's
+    `wall_extent`, but the wall shows beside it (on one side only in the corner) and above."""
+    y, pose = {"mid-wall": (4.0, (7.0, 4.0, 0.0)), "corner": (7.1, (7.0, 6.5, 0.2))}[where]
+    scene = RgbdScene([[10.4, y], [5.0, 1.5]], [1.8, 0.5], [1.0, 1.0], [False, True],
                       walls=room_walls(0, 0, 10, 8), wall_height=WALL_HEIGHT, ceiling=True)
-    frame, T_wc, front, result = processed(scene, 7.0, 4.0, 0.0, mount)
+    frame, T_wc, front, result = processed(scene, *pose, mount)
     assert clearly_visible(scene, frame, T_wc, 0, front.mask_filter)
     n, failures = check_frame(scene, frame, T_wc, result, front.mask_filter)
     assert n == 1 and not failures, "\n".join(failures)
