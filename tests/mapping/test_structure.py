@@ -159,7 +159,7 @@ def processed(scene: RgbdScene, x: float, y: float, yaw: float, mount: str):
 
 def test_tall_cabinet_against_a_wall_is_found():
     """A 1.9 m cabinet flush against a wall, face on from 2.7 m with the robot's camera: its
-    front spans more than `plane_min_extent` but stands in front of the wall on both sides."""
+    front spans more than `plane_min_extent`, but the wall shows beside it and above it."""
     scene = furnished_room([(9.7, 4.5, 0.6, 1.9, False), (5.0, 4.0, 0.5, 1.0, True)])
     frame, T_wc, front, result = processed(scene, 7.0, 4.0, 0.0, "robot")
     assert clearly_visible(scene, frame, T_wc, 0, front.mask_filter)
