@@ -13,8 +13,11 @@ horizontal slab: a cloud is dropped when 90 % of its points lie within `slab_thi
 while its width is `slab_extent` or more; objects stand up from the floor. A piece of wall the
 segmenter could not tell from an object (too small a share of the image to be found as a
 plane, cut off by nearer objects) is a vertical slab: dropped when 90 % of its footprint lies
-within `wall_thickness` across its long axis while its width is `wall_extent` or more. A box seen
-face on is a vertical slab too, but narrower than a wall.
+within `wall_thickness` across its long axis while its width is `wall_extent` or more, unless
+its mask stands in front of what is around it (a depth step past two of its left, right and
+top ends, `segment.stands_in_front`), as a wide cabinet's front does before the wall it stands
+against and a wall does not. A box seen face on is a vertical slab too, but narrower than a
+wall or standing in front of one.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.params import _int_at_least, _real, _require
 
 from .camera import PinholeCamera, check_camera, check_depth_scale, depth_in_metres, rigid_transform
-from .segment import check_masks
+from .segment import check_masks, stands_in_front
 
 __all__ = ["LiftParams", "MaskLifter", "Observations"]
 
@@ -67,8 +70,13 @@ class LiftParams:
             dropped. math.inf keeps every cloud.
         wall_thickness: metres; a cloud this thin (5th to 95th percentile) across the long
             axis of its footprint ...
-        wall_extent: metres; ... and at least this wide is a piece of wall and dropped.
-            math.inf keeps every cloud.
+        wall_extent: metres; ... and at least this wide is a piece of wall and dropped
+            (math.inf keeps every cloud), unless its mask stands in front of what is around
+            it: an object's face, such as a wide cabinet's seen face on.
+        jump, jump_per_m: metres, and metres per metre of the mask's depth: the depth step
+            past a mask's ends that makes it stand in front (as `DepthSegmenterParams`; see
+            `segment.stands_in_front`).
+        jump_reach: pixels past the mask's ends where the step is looked for.
     """
 
     voxel_size: float = 0.01
@@ -85,6 +93,9 @@ class LiftParams:
     slab_extent: float = 0.5
     wall_thickness: float = 0.1
     wall_extent: float = 1.5
+    jump: float = 0.05
+    jump_per_m: float = 0.04
+    jump_reach: int = 3
 
     def __post_init__(self) -> None:
         o = "LiftParams"
@@ -93,15 +104,17 @@ class LiftParams:
             v = getattr(self, name)
             _require(_real(v) and math.isfinite(v) and v > 0, o, name, v,
                      "must be a finite number > 0")
-        for name in ("max_points", "outlier_neighbors", "cluster_min_points", "min_points"):
+        for name in ("max_points", "outlier_neighbors", "cluster_min_points", "min_points",
+                     "jump_reach"):
             v = getattr(self, name)
             _require(_int_at_least(v, 1), o, name, v, "must be an int >= 1")
         _require(_real(self.slab_thickness) and math.isfinite(self.slab_thickness)
                  and self.slab_thickness >= 0, o, "slab_thickness", self.slab_thickness,
                  "must be a finite number >= 0 metres")
-        _require(_real(self.wall_thickness) and math.isfinite(self.wall_thickness)
-                 and self.wall_thickness >= 0, o, "wall_thickness", self.wall_thickness,
-                 "must be a finite number >= 0 metres")
+        for name in ("wall_thickness", "jump", "jump_per_m"):
+            v = getattr(self, name)
+            _require(_real(v) and math.isfinite(v) and v >= 0, o, name, v,
+                     "must be a finite number >= 0")
         for name in ("slab_extent", "wall_extent"):
             v = getattr(self, name)
             _require(_real(v) and v > 0, o, name, v,
@@ -280,31 +293,38 @@ class MaskLifter:
         widths = _footprint_widths(points[:, :2], starts, ends) + p.voxel_size
         heights = (np.maximum.reduceat(points[:, 2], starts)
                    - np.minimum.reduceat(points[:, 2], starts) + p.voxel_size)
-        solid = ~self._slabs(points, starts, ends, widths)
+        source = np.array(sources, dtype=np.int64)[lifted]
+        level, wall = self._slabs(points, starts, ends, widths)
+        if wall.any():
+            z_usable = np.where(usable, z, 0.0)
+            for g in np.flatnonzero(wall):
+                wall[g] = not stands_in_front(masks[source[g]], z_usable, p.jump,
+                                              p.jump_per_m, p.jump_reach)
+        solid = ~(level | wall)
         if not solid.any():
             return _no_observations()
         return Observations(centroids[solid], widths[solid], heights[solid],
-                            counts[lifted][solid],
-                            np.array(sources, dtype=np.int64)[lifted][solid])
+                            counts[lifted][solid], source[solid])
 
     def _slabs(self, points: np.ndarray, starts: np.ndarray, ends: np.ndarray,
-               widths: np.ndarray) -> np.ndarray:
-        """(c,) bool: which clouds (points[starts[g]:ends[g]], (n, 3) metres in the odometry
-        frame, widths (c,)) are level or vertical slabs of room structure (see the module's
-        docstring)."""
+               widths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(c,) bool each: which clouds (points[starts[g]:ends[g]], (n, 3) metres in the
+        odometry frame, widths (c,)) are level slabs and which are vertical slabs as wide as
+        a wall (see the module's docstring)."""
         p = self.params
-        slab = np.zeros(starts.size, dtype=bool)
+        level = np.zeros(starts.size, dtype=bool)
+        wall = np.zeros(starts.size, dtype=bool)
         for g in np.flatnonzero(widths >= min(p.slab_extent, p.wall_extent)):
             cloud = points[starts[g]:ends[g]]
             if widths[g] >= p.slab_extent:
                 lo, hi = np.percentile(cloud[:, 2], (5, 95))
-                slab[g] = hi - lo <= p.slab_thickness
-            if not slab[g] and widths[g] >= p.wall_extent:
+                level[g] = hi - lo <= p.slab_thickness
+            if not level[g] and widths[g] >= p.wall_extent:
                 xy = cloud[:, :2] - cloud[:, :2].mean(axis=0)
                 across = xy @ np.linalg.eigh(xy.T @ xy)[1][:, 0]  # the footprint's short axis
                 lo, hi = np.percentile(across, (5, 95))
-                slab[g] = hi - lo <= p.wall_thickness
-        return slab
+                wall[g] = hi - lo <= p.wall_thickness
+        return level, wall
 
     def _sample(self, mask: np.ndarray, usable: np.ndarray, rows_hit: np.ndarray,
                 cols_hit: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:

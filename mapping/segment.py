@@ -42,6 +42,7 @@ __all__ = [
     "check_rgb",
     "depth_border",
     "filter_masks",
+    "stands_in_front",
 ]
 
 #: sample points on which each RANSAC hypothesis is scored
@@ -244,8 +245,9 @@ class DepthSegmenterParams:
             plane_distance_per_m2 * depth^2 (noise grows with the square of range).
         plane_distance_per_m2: metres per square metre of depth.
         plane_min_extent: metres; a part of a (not level) plane's pixels that does not reach
-            the border of the valid depth is still a wall when it spans this far (objects are
-            smaller).
+            the border of the valid depth is still a wall when it spans this far, unless it
+            stands in front of what is around it (`stands_in_front`) and does not meet the
+            ceiling (a tall or wide cabinet's front).
         ransac_iterations: plane hypotheses tried per plane.
         ransac_stride: pixels; RANSAC scores hypotheses on every stride-th pixel per axis.
         seed: RANSAC's random seed; the same frame always gives the same masks.
@@ -305,35 +307,57 @@ class DepthSegmenterParams:
                  o, "depth_max", self.depth_max, f"must be > depth_min = {self.depth_min}")
 
 
-def _structure_parts(band: np.ndarray, z: np.ndarray, fx: float, fy: float,
-                     min_extent: float, border: np.ndarray, jumps: tuple[np.ndarray, np.ndarray],
-                     ) -> np.ndarray:
-    """(H, W) bool: the 8-connected parts of a plane's band of pixels that are structure (a
-    wall), not an object face: those that reach `border` ((H, W) bool, the image edge and the
-    band without depth along it, grown by one pixel), span at least `min_extent` metres (2D
-    box in pixels times mean depth over focal length), or are seen only past nearer things:
-    they hold pixels on the far side of depth jumps but none on the near side (`jumps`, both
-    (H, W) bool), like a piece of wall seen under a chair. An object face on the plane stands
-    out in front of what is behind it."""
-    behind, fronts = jumps
-    # cut at the far side of jumps, so that an object's face does not join the band's
-    # background through its silhouette
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(
-        (band & ~behind).view(np.uint8), connectivity=8)
-    in_front = np.zeros(count, dtype=bool)
-    in_front[labels[fronts]] = True
-    occluded = np.zeros(count, dtype=bool)
-    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8))
-    occluded[grown[behind & band].astype(np.int64)] = True
-    edge = np.unique(labels[border])
-    mean_z = (np.bincount(labels.ravel(), weights=z.ravel(), minlength=count)
-              / np.maximum(stats[:, cv2.CC_STAT_AREA], 1))
-    extent = mean_z * np.maximum(stats[:, cv2.CC_STAT_WIDTH] / fx,
-                                 stats[:, cv2.CC_STAT_HEIGHT] / fy)
-    structure = (extent >= min_extent) | (occluded & ~in_front)
-    structure[edge] = True
-    structure[0] = False
-    return structure[labels]
+def stands_in_front(mask: np.ndarray, z: np.ndarray, jump: float, jump_per_m: float,
+                    reach: int) -> bool:
+    """Whether a mask stands in front of what is around it, as an object's face does and a
+    wall does not: on at least two of its left, right and top sides, the surface seen just
+    past it is farther by a depth jump. A side has the step when, in at least half of the
+    image rows (columns, for the top) the mask spans, the farthest depth within `reach` pixels
+    past its outermost pixel is farther than that pixel's by more than
+    jump + jump_per_m * depth. A cabinet against a wall shows the wall beside it and above it
+    (in a room's corner, on one side and above it); a wall ends at the image border, in a
+    corner or at the ceiling (no step), and has a step on one side at most (a door, a corner
+    jutting into the room).
+
+    Args:
+        mask: (H, W) bool (an empty one stands in front of nothing).
+        z: (H, W) metres, 0 = no return (never farther).
+        jump: metres; jump_per_m: metres per metre of depth; reach: pixels (>= 1).
+
+    Raises:
+        DataError: z not an (H, W) float array, or mask not an (H, W) bool array.
+    """
+    if not (isinstance(z, np.ndarray) and z.ndim == 2 and z.dtype.kind == "f"):
+        got = f"{z.shape} {z.dtype}" if isinstance(z, np.ndarray) else type(z).__name__
+        raise DataError(f"stands_in_front: z must be an (H, W) float array of metres, got {got}")
+    if not (isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == z.shape):
+        got = f"{mask.shape} {mask.dtype}" if isinstance(mask, np.ndarray) else type(mask).__name__
+        raise DataError(f"stands_in_front: mask must be a {z.shape} bool array, got {got}")
+    if not mask.any():
+        return False
+    left, right = _stepped_ends(mask, z, jump, jump_per_m, reach)
+    top, _ = _stepped_ends(mask.T, z.T, jump, jump_per_m, reach)
+    return left + right + top >= 2
+
+
+def _stepped_ends(mask: np.ndarray, z: np.ndarray, jump: float, jump_per_m: float,
+                  reach: int) -> tuple[bool, bool]:
+    """Whether the first and whether the last pixels of a non-empty mask's rows have a depth
+    step past them (see `stands_in_front`) in at least half of those rows."""
+    W = mask.shape[1]
+    rows = np.flatnonzero(mask.any(axis=1))
+    sub = mask[rows]
+    first = sub.argmax(axis=1)
+    last = W - 1 - sub[:, ::-1].argmax(axis=1)
+    beyond = np.arange(1, reach + 1)
+    stepped = []
+    for end, cols in ((first, first[:, None] - beyond), (last, last[:, None] + beyond)):
+        inside = (cols >= 0) & (cols < W)
+        farthest = np.where(inside, z[rows[:, None], np.clip(cols, 0, W - 1)], 0.0).max(axis=1)
+        own = z[rows, end]
+        steps = (own > 0) & (farthest - own > jump + jump_per_m * own)
+        stepped.append(bool(2 * np.count_nonzero(steps) >= rows.size))
+    return stepped[0], stepped[1]
 
 
 class DepthSegmenter:
@@ -347,8 +371,13 @@ class DepthSegmenter:
     - a level plane (normal within `level_tolerance_deg` of gravity: floor, ceiling, table
       top) holding `level_plane_share` of the valid pixels is removed whole;
     - any other plane holding `plane_share` of them is a wall: its parts that reach the border
-      of the valid depth, span `plane_min_extent` metres or are seen only past nearer things
-      (a piece of wall under a chair) are removed;
+      of the valid depth or are seen only past nearer things (a piece of wall under a chair)
+      are removed, and so are those spanning `plane_min_extent` metres unless they stand in
+      front of the room: a depth step past two of their left, right and top ends in at least
+      half their rows or columns (`stands_in_front`) and no contact with the ceiling (a
+      removed level plane above the camera). That is a cabinet's front before the wall it
+      stands against; a wall ends at the border, in a corner or at the ceiling, with a step on
+      one side at most;
     - what is left is cut at depth jumps (`jump`, `jump_per_m`, over up to `jump_reach`
       pixels), and components larger than `max_area_share` of the image are dropped.
 
@@ -434,13 +463,11 @@ class DepthSegmenter:
 
         RANSAC finds one plane after another on a sample of the pixels; the level ones are
         then removed before the others. A level plane's band of pixels is removed whole; a
-        wall's band is split into connected parts, and only the parts that reach `border`, span
-        `plane_min_extent` metres or are seen only past nearer things (`jumps`: the far and
-        near side of depth jumps) are removed, if together they hold `plane_share` of the
-        valid pixels. An object face that lies on a wall's plane, or that
-        RANSAC fitted a plane to, is kept unless it reaches the border (the mask filter drops
-        those anyway).
-        """
+        wall's band is split into connected parts, and only the wall parts (`_wall_parts`)
+        are removed, if together they hold `plane_share` of the valid pixels. An object face
+        that lies on a wall's plane, or that RANSAC fitted a plane to, is kept unless it
+        reaches the border (the mask filter drops those anyway), is seen only past nearer
+        things, or is as large as a wall without standing in front of the room."""
         p = self.params
         out = np.zeros(z.shape, dtype=bool)
         if p.max_planes == 0 or not valid.any():
@@ -477,6 +504,7 @@ class DepthSegmenter:
         planes.sort(key=lambda plane: not plane[2])
         full_tol = p.plane_distance + p.plane_distance_per_m2 * z * z
         accepted = 0
+        ceiling = np.zeros(z.shape, dtype=bool)  # removed level planes above the camera
         for normal, offset, level in planes:
             # a pixel's distance from the plane is z (n . ray) + offset
             along = self._x_over_z * np.float32(normal[0]) + self._y_over_z * np.float32(
@@ -485,9 +513,11 @@ class DepthSegmenter:
             if level:
                 on_plane = band
                 enough = np.count_nonzero(band) >= p.level_plane_share * n_valid
+                # the plane's height above the camera is -offset / (normal . up)
+                if enough and -offset / float(normal @ self.up) > 0:
+                    ceiling |= band
             else:
-                on_plane = _structure_parts(band, z, self.camera.fx, self.camera.fy,
-                                            p.plane_min_extent, border, jumps)
+                on_plane = self._wall_parts(band, z, border, jumps, ceiling)
                 enough = np.count_nonzero(on_plane) >= p.plane_share * n_valid
             if enough:
                 out |= on_plane
@@ -495,6 +525,52 @@ class DepthSegmenter:
                 if accepted == p.max_planes:
                     break
         return out
+
+    def _wall_parts(self, band: np.ndarray, z: np.ndarray, border: np.ndarray,
+                    jumps: tuple[np.ndarray, np.ndarray], ceiling: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the 8-connected parts of a (not level) plane's band of pixels that are
+        wall, not an object's face: those that reach `border` ((H, W) bool, the image edge and
+        the band without depth along it, grown by one pixel); those seen only past nearer
+        things, holding pixels on the far side of depth jumps but none on the near side
+        (`jumps`, both (H, W) bool), like a piece of wall seen under a chair; and those that
+        span `plane_min_extent` metres (2D box in pixels times mean depth over focal length)
+        unless they stand in front of what is around them (`stands_in_front`) and do not
+        meet `ceiling` ((H, W) bool, the removed level planes above the camera), as a tall or
+        wide cabinet's front does before the wall it stands against."""
+        p = self.params
+        behind, fronts = jumps
+        # cut at the far side of jumps, so that an object's face does not join the band's
+        # background through its silhouette
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(
+            (band & ~behind).view(np.uint8), connectivity=8)
+        in_front = np.zeros(count, dtype=bool)
+        in_front[labels[fronts]] = True
+        occluded = np.zeros(count, dtype=bool)
+        grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8))
+        occluded[grown[behind & band].astype(np.int64)] = True
+        mean_z = (np.bincount(labels.ravel(), weights=z.ravel(), minlength=count)
+                  / np.maximum(stats[:, cv2.CC_STAT_AREA], 1))
+        extent = mean_z * np.maximum(stats[:, cv2.CC_STAT_WIDTH] / self.camera.fx,
+                                     stats[:, cv2.CC_STAT_HEIGHT] / self.camera.fy)
+        large = extent >= p.plane_min_extent
+        structure = (occluded & ~in_front) | large
+        at_border = np.zeros(count, dtype=bool)
+        at_border[labels[border]] = True
+        candidates = np.flatnonzero(large & in_front & ~at_border)
+        if candidates.size:
+            # the seam between a wall and the ceiling is a pixel or two wide
+            near_ceiling = cv2.dilate(ceiling.view(np.uint8),
+                                      np.ones((5, 5), np.uint8)).view(bool)
+        for c in candidates:
+            # the part's rows and the few above it, where the step over its top is looked for
+            top = stats[c, cv2.CC_STAT_TOP]
+            rows = slice(max(top - p.jump_reach, 0), top + stats[c, cv2.CC_STAT_HEIGHT])
+            part = labels[rows] == c
+            structure[c] = near_ceiling[rows][part].any() or not stands_in_front(
+                part, z[rows], p.jump, p.jump_per_m, p.jump_reach)
+        structure |= at_border
+        structure[0] = False
+        return structure[labels]
 
     def _ransac_plane(self, rng: np.random.Generator, pts: np.ndarray, tol: np.ndarray):
         """The plane (unit normal (3,), offset) with most inliers among random hypotheses,

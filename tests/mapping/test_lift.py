@@ -473,3 +473,24 @@ def test_a_piece_of_wall_is_dropped_as_a_vertical_slab():
     keep = MaskLifter(CAMERA, 1.0, LiftParams(wall_extent=math.inf)).lift(masks, frame.depth, T)
     np.testing.assert_array_equal(keep.mask_indices, [0, 1])
     assert keep.widths[0] >= 1.5
+
+
+def test_a_wide_face_in_front_of_the_wall_is_kept_as_an_object():
+    """A sideboard's front (1.8 x 0.9 m, 0.5 m before the wall, 2.5 m ahead of a level
+    camera) is as wide and as flat as a piece of wall, but it stands in front of the wall on
+    both sides: it is kept, with its width; a wider patch of the wall above it is dropped, and
+    so is the front itself when the wall around it is brought level with it (no step)."""
+    scene = RgbdScene([[10.4, 4.0]], [1.8], [0.9], [False], [0.0],
+                      walls=room_walls(0, 0, 10, 8))
+    T = camera_pose(7.0, 4.0, 0.0, T_body_camera(1.0))
+    frame = render(scene, T, CAMERA)
+    face = frame.instance == 1
+    top = np.flatnonzero(face.any(axis=1))[0]
+    wall = np.zeros_like(face)
+    wall[top - 60:top - 10, 60:580] = True
+    assert np.all(frame.instance[wall] == 0)
+    obs = MaskLifter(CAMERA, 1.0).lift(np.stack([face, wall]), frame.depth, T)
+    np.testing.assert_array_equal(obs.mask_indices, [0])
+    assert abs(obs.widths[0] - 1.8) < 0.1
+    flush = np.minimum(frame.depth, 2.5)
+    assert len(MaskLifter(CAMERA, 1.0).lift(face[None], flush, T)) == 0

@@ -35,6 +35,7 @@ from tcaff_gtsam.mapping.segment import (
     check_rgb,
     depth_border,
     filter_masks,
+    stands_in_front,
 )
 
 from tcaff_gtsam.errors import ConfigError, DataError
@@ -371,3 +372,43 @@ def test_pitched_camera_and_different_height_still_work():
     checked, failures = check_frame(scene, T, DepthSegmenter(CAMERA, 1.0), MaskFilter())
     assert checked == 2
     assert not failures, "\n".join(failures)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 30), st.integers(1, 30), st.integers(0, 30), st.integers(1, 30),
+       st.floats(0.3, 6.0), st.lists(st.floats(-1.0, 2.0), min_size=3, max_size=3),
+       st.integers(1, 4), st.integers(0, 4))
+def test_stands_in_front_needs_a_step_on_two_of_three_sides(r0, h, c0, w, depth, gaps, reach,
+                                                            gap_px):
+    """A rectangle at `depth`; the surface left of it, right of it and above it is `gaps`
+    metres farther (or nearer), from `gap_px` pixels past the rectangle on: it stands in front
+    iff at least two of those sides have a gap over the jump at its depth, within `reach`
+    pixels and inside the image."""
+    rows, cols = 40, 40
+    h, w = min(h, rows - r0), min(w, cols - c0)
+    jump, per_m = 0.05, 0.04
+    threshold = jump + per_m * depth
+    assume(all(abs(g - threshold) > 1e-3 for g in gaps))
+    left_gap, right_gap, top_gap = gaps
+    z = np.full((rows, cols), depth, dtype=np.float32)
+    z[:max(r0 - gap_px, 0), c0:c0 + w] = depth + top_gap
+    z[:, :max(c0 - gap_px, 0)] = depth + left_gap
+    z[:, min(c0 + w + gap_px, cols):] = depth + right_gap
+    z[r0:r0 + h, c0:c0 + w] = depth
+    z = np.maximum(z, 0.0)  # a negative gap can reach below zero: no return there
+    mask = np.zeros((rows, cols), dtype=bool)
+    mask[r0:r0 + h, c0:c0 + w] = True
+    within = gap_px < reach
+    steps = [within and c0 - gap_px >= 1 and left_gap > threshold,
+             within and c0 + w + gap_px < cols and right_gap > threshold,
+             within and r0 - gap_px >= 1 and top_gap > threshold]
+    assert stands_in_front(mask, z, jump, per_m, reach) == (sum(steps) >= 2)
+
+
+def test_stands_in_front_refuses_junk_and_an_empty_mask_is_not_in_front():
+    z = np.ones((4, 5), dtype=np.float32)
+    assert not stands_in_front(np.zeros((4, 5), bool), z, 0.05, 0.04, 3)
+    with pytest.raises(DataError, match=r"^stands_in_front: z must be"):
+        stands_in_front(np.zeros((4, 5), bool), z.astype(int), 0.05, 0.04, 3)
+    with pytest.raises(DataError, match=r"^stands_in_front: mask must be a \(4, 5\) bool"):
+        stands_in_front(np.zeros((4, 6), bool), z, 0.05, 0.04, 3)

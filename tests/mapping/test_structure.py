@@ -146,16 +146,76 @@ def test_furnished_room_finds_the_objects_and_no_structure(mount):
     assert not failures, "\n".join(failures)
 
 
-@pytest.mark.xfail(strict=True, reason="a non-level plane's part spanning plane_min_extent "
-                   "(1.5 m) is taken for a wall: a 1.9 m cabinet's front face is removed")
-def test_tall_cabinet_against_a_wall_is_found():
-    """A 1.9 m cabinet flush against a wall, face on from 2.7 m with the robot's camera."""
-    scene = furnished_room([(9.7, 4.5, 0.6, 1.9, False), (5.0, 4.0, 0.5, 1.0, True)])
-    T_bc = MOUNTS["robot"]
-    T_wc = camera_pose(7.0, 4.0, 0.0, T_bc)
+def processed(scene: RgbdScene, x: float, y: float, yaw: float, mount: str):
+    """(frame, T_world_camera, front end, result) of one view of `scene` from a robot at
+    (x, y, yaw) with the camera `mount`."""
+    T_bc = MOUNTS[mount]
+    T_wc = camera_pose(x, y, yaw, T_bc)
     frame = render(scene, T_wc, CAMERA, invalid_border=BAND)
     front = RgbdFrontEnd(CAMERA, T_bc, depth_scale=1.0)
+    return frame, T_wc, front, front.process(0.0, frame.rgb, frame.depth,
+                                             camera_pose(x, y, yaw, np.eye(4)))
+
+
+def test_tall_cabinet_against_a_wall_is_found():
+    """A 1.9 m cabinet flush against a wall, face on from 2.7 m with the robot's camera: its
+    front spans more than `plane_min_extent`, but the wall shows beside it and above it."""
+    scene = furnished_room([(9.7, 4.5, 0.6, 1.9, False), (5.0, 4.0, 0.5, 1.0, True)])
+    frame, T_wc, front, result = processed(scene, 7.0, 4.0, 0.0, "robot")
     assert clearly_visible(scene, frame, T_wc, 0, front.mask_filter)
-    result = front.process(0.0, frame.rgb, frame.depth, camera_pose(7.0, 4.0, 0.0, np.eye(4)))
     n, failures = check_frame(scene, frame, T_wc, result, front.mask_filter)
     assert n >= 1 and not failures, "\n".join(failures)
+
+
+@pytest.mark.parametrize("mount", list(MOUNTS))
+@pytest.mark.parametrize("where", ["mid-wall", "corner"])
+def test_wide_cabinet_against_a_wall_is_found(mount, where):
+    """A 1.8 m wide, 1 m tall sideboard against the x = 10 wall (its front at x = 9.5), face
+    on from 2.5 m, or pushed into the corner with the y = 8 wall and seen from the side: its
+    front is a plane of its own, wider than `plane_min_extent` and as wide as the lifter's
+    `wall_extent`, but the wall shows beside it (on one side only in the corner) and above."""
+    y, pose = {"mid-wall": (4.0, (7.0, 4.0, 0.0)), "corner": (7.1, (7.0, 6.5, 0.2))}[where]
+    scene = RgbdScene([[10.4, y], [5.0, 1.5]], [1.8, 0.5], [1.0, 1.0], [False, True],
+                      walls=room_walls(0, 0, 10, 8), wall_height=WALL_HEIGHT, ceiling=True)
+    frame, T_wc, front, result = processed(scene, *pose, mount)
+    assert clearly_visible(scene, frame, T_wc, 0, front.mask_filter)
+    n, failures = check_frame(scene, frame, T_wc, result, front.mask_filter)
+    assert n == 1 and not failures, "\n".join(failures)
+    assert result.observations.widths[0] >= 1.5
+
+
+@pytest.mark.parametrize("distance", [4.0, 4.5])
+def test_partition_from_floor_to_ceiling_is_wall(distance):
+    """A 2 m wide partition standing free in the room, from the floor to the ceiling, seen
+    face on with the ceiling in view: it stands in front of the wall behind it on both sides as
+    a cabinet does, but it meets the ceiling, so it is wall: no segment is on it."""
+    walls = np.concatenate([room_walls(0, 0, 10, 8), [[(8.0, 3.0), (8.0, 5.0)]]])
+    scene = RgbdScene([[5.0, 7.0]], [0.4], [0.5], [True], walls=walls,
+                      wall_height=WALL_HEIGHT, ceiling=True)
+    frame, T_wc, front, result = processed(scene, 8.0 - distance, 4.0, 0.0, "robot")
+    v, u = np.nonzero(frame.depth > 0)
+    rays = np.linalg.solve(CAMERA.K, np.vstack([u, v, np.ones_like(u)]))
+    xyz = transform_points(T_wc, (rays * frame.depth[v, u]).T)
+    partition = np.zeros(CAMERA.shape, dtype=bool)
+    # the partition is 0.1 m thick: its face is at x = 7.95
+    partition[v, u] = (np.abs(xyz[:, 0] - 7.95) < 0.02) & (np.abs(xyz[:, 1] - 4.0) < 1.0)
+    ceiling = np.zeros(CAMERA.shape, dtype=bool)
+    ceiling[v, u] = xyz[:, 2] > WALL_HEIGHT - 0.01
+    assert np.count_nonzero(partition) > 0.08 * partition.size and ceiling.any()
+    masks = front.segmenter.segment(frame.rgb, frame.depth)
+    on_partition = (masks & partition).sum(axis=(1, 2))
+    assert np.all(on_partition < 0.1 * np.count_nonzero(partition)), on_partition
+    assert len(result.observations) == 0
+
+
+@pytest.mark.parametrize("mount", list(MOUNTS))
+def test_cabinet_wider_than_the_view_is_not_lifted(mount):
+    """A 6 m long, 1 m tall counter against the wall, 1.5 m ahead, fills the view from side
+    to side: like any object cut by the edge of the view, it is not lifted (its centroid and
+    size would be wrong), and neither is the wall above it."""
+    scene = RgbdScene([[12.5, 4.0]], [6.0], [1.0], [False], walls=room_walls(0, 0, 10, 8),
+                      wall_height=WALL_HEIGHT, ceiling=True)
+    frame, _, _, result = processed(scene, 8.0, 4.0, 0.0, mount)
+    counter = frame.instance == 1
+    assert counter[:, BAND[2]].any() and counter[:, -BAND[3] - 1].any()
+    assert len(result.observations) == 0
