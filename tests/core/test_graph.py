@@ -11,7 +11,7 @@ import pytest
 from tcaff_gtsam.eval.sim.streams import robot_team_streams
 
 from tcaff_gtsam import TCAFF, InterRobotGraph
-from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import (
     se2_error,
     se2_from_params,
@@ -480,8 +480,8 @@ def test_a_bounded_graph_keeps_its_horizon_and_what_left_it():
     whole = InterRobotGraph(3)
     run = noisy_team_run(bounded, steps)
     noisy_team_run(whole, steps)
-    # at most 1.5 horizon steps of variables stay; every step can still be read
-    assert bounded._isam.getLinearizationPoint().size() <= 3 * (horizon + horizon // 2 + 1)
+    # the latest `horizon` steps of variables stay; every step can still be read
+    assert bounded._isam.getLinearizationPoint().size() == 3 * horizon
     assert whole._isam.getLinearizationPoint().size() == 3 * steps
     assert bounded.steps == whole.steps == list(range(steps))
     # the causal read-out is the whole graph's, and a step that left keeps its estimate
@@ -504,25 +504,22 @@ def test_a_bounded_graph_keeps_its_horizon_and_what_left_it():
     assert err_b < 1.5 * err_w + 0.01
     with pytest.raises(DataError, match="left the graph"):
         bounded.add_alignment(3, 0, 1, np.eye(3), R)
-    with pytest.raises(ConfigError, match="unbounded"):
-        bounded.add_keyframe(0, 0, np.eye(3))
 
 
 @pytest.mark.parametrize("horizon", [None, 10])
 def test_an_update_gtsam_cannot_solve_is_rolled_back(horizon):
-    """An alignment of 1e3 m whose first factor leaves robot 1 on a 1e-12 rad heading prior
-    makes gtsam's elimination fail: the update is undone, every earlier result stays readable
-    and the next update works."""
+    """Two contradicting alignments of 9 km with covariances of 1e-12 make gtsam's elimination
+    fail: the update is undone, every earlier result stays readable and the next update
+    works."""
     graph = InterRobotGraph(2, GraphParams(horizon=horizon))
     for k in range(15):
         graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
         graph.update(k)
     before = graph.alignment(0, 1)
     history = graph.alignment_history(0, 1)
-    graph.add_between(alignment_key(0, 14), alignment_key(1, 14), se2_from_params([1e3, 0, 0]),
-                      np.diag([1e-9, 1e-9, 1e-9]), robust=False)
-    graph.add_between(alignment_key(0, 14), alignment_key(1, 14), se2_from_params([0, 1e3, 2]),
-                      np.diag([1e-9, 1e-9, 1e-9]), robust=False)
+    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
+        graph.add_between(alignment_key(0, 14), alignment_key(1, 14), se2_from_params(T),
+                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
     with pytest.raises(DataError, match=r"as it was before"):
         graph.update(15)
     assert graph.steps == list(range(15))
