@@ -525,6 +525,11 @@ class InterRobotGraph:
             return []
         first = self._n_left
         while self._n_left < len(self._steps) and self._steps[self._n_left] <= step - horizon:
+            # a keyframe held only by the gauge prior moved below leaves with no factor
+            # (iSAM2 drops it), so its estimate is kept now; `_marginalise` updates it
+            for key in self._keyframes_at.get(self._n_left, []):
+                robot, index = _chain(key)[1], gtsam.Symbol(key).index() & _INDEX_MASK
+                self._left_keyframes[robot][index] = self._value(key)
             self._n_left += 1
         self._to_remove.extend(index for index in self._free.values()
                                if index not in self._to_remove
@@ -544,9 +549,10 @@ class InterRobotGraph:
             keys += step_keys
             for key in self._keyframes_at.pop(rank, []):
                 robot, index = _chain(key)[1], gtsam.Symbol(key).index() & _INDEX_MASK
-                self._left_keyframes[robot][index] = self._value(key)
+                if self._isam.valueExists(key):
+                    self._left_keyframes[robot][index] = self._value(key)
+                    keys.append(key)
                 del self._keyframes[robot][index], self._keyframe_rank[key]
-                keys.append(key)
         if not keys:
             return
         marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
@@ -595,6 +601,10 @@ class InterRobotGraph:
         self._free = {chain: remap[i] for chain, i in self._free.items()}
         for index, f in gone:
             self._count(f, remap[index], +1)
+        for rank in leaving:
+            for key in self._keyframes_at.get(rank, []):
+                robot, index = _chain(key)[1], gtsam.Symbol(key).index() & _INDEX_MASK
+                del self._left_keyframes[robot][index]
         self._n_left -= len(leaving)
         if step is not None:
             self._steps.pop()
@@ -910,7 +920,7 @@ class InterRobotGraph:
             self._queue(self._between(prev_key, key, delta, self._noise(cov, False)))
         frames[index] = T
         self._last_keyframe[robot] = index
-        rank = max(len(self._steps) - 1, 0)
+        rank = len(self._steps)  # the step the next update adds
         self._keyframe_rank[key] = rank
         self._keyframes_at[rank].append(key)
 
