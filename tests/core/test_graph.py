@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 
 import gtsam
@@ -610,6 +611,47 @@ def test_a_keyframe_after_its_predecessor_left_starts_the_chain_again():
     graph.add_keyframe(1, 2, T_o1_b1)
     graph.update(21)
     assert graph.trajectory(1)[0].tolist() == [0, 1, 2]
+
+
+def assert_no_newer_below(graph: InterRobotGraph) -> None:
+    """No clique of the Bayes tree has a variable of a newer step than its parent's: what lets
+    the oldest steps leave as leaves."""
+    dot = graph._isam.dot(lambda key: str(graph._group(key)))
+    frontals = {node: [int(g) for g in label.split(":")[0].split(",")]
+                for node, label in re.findall(r'^(\d+)\[label="([^"]*)"\];', dot, re.M)}
+    edges = re.findall(r"^(\d+)->(\d+)$", dot, re.M)
+    assert edges
+    for parent, child in edges:
+        assert max(frontals[child]) <= min(frontals[parent]), (parent, child)
+
+
+def test_a_bounded_graph_keeps_older_steps_below_newer_ones_through_removals_and_closures():
+    """Removed hypotheses and loop closures across the horizon make iSAM2 eliminate older
+    steps again; they stay below newer ones, and the estimates follow the whole graph's."""
+    horizon, steps = 15, 90
+    graphs = [InterRobotGraph(3, GraphParams(horizon=horizon)), InterRobotGraph(3)]
+    rng = np.random.default_rng(3)
+    streams = robot_team_streams(rng, 3, steps)
+    for k in range(steps):
+        noise = rng.normal(0, [0.1, 0.1, np.radians(1.0)], (2, 3))
+        wrong = k % 20 in (5, 6, 7)  # a few steps of a wrong hypothesis, removed later
+        for graph in graphs:
+            for n, (i, j) in enumerate(((0, 1), (1, 2))):
+                T = np.linalg.inv(streams.A[i, k]) @ streams.A[j, k]
+                graph.add_alignment(k, i, j, se2_to_params(T) + noise[n], R, hypothesis=0)
+            if wrong:
+                graph.add_alignment(k, 0, 2, [30.0, -5.0, 1.0], R, hypothesis=k // 20 + 1)
+            if k % 20 == 12:
+                graph.remove_hypothesis(0, 2, k // 20 + 1)
+            if k % 10 == 9 and k > horizon:  # robot 0's chain closed across the horizon
+                graph.add_between(alignment_key(0, k - horizon + 2), alignment_key(0, k - 1),
+                                  np.eye(3), np.diag([1e-4, 1e-4, 1e-6]))
+            graph.update(k)
+        assert_no_newer_below(graphs[0])
+    for k in range(steps - horizon + 1, steps):
+        T_whole, T_bounded = (graph.alignment(0, 2, k)[0] for graph in graphs[::-1])
+        t_err, th_err = pose_error(T_whole, T_bounded)
+        assert t_err < 0.05 and th_err < 0.5, (k, t_err, th_err)
 
 
 @pytest.mark.parametrize("horizon", [None, 10])
