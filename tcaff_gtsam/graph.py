@@ -13,9 +13,10 @@ Two kinds of variables, each robot r having its own chain of both:
   robot's chain, inter-robot factors between keyframes from accepted alignments, and any other
   between-factor a user has (loop closures).
 
-With `GraphParams.horizon`, only the alignment variables of the latest `horizon` steps stay in
-the graph: older ones are marginalised (gtsam's incremental fixed-lag smoother), and each step
-that leaves keeps, for reading, the estimate and covariance it had when it left.
+With `GraphParams.horizon`, only the variables of the latest `horizon` steps stay in the graph
+(a keyframe belongs to the first step added after it): the oldest step leaves at each
+update, marginalised as a set of leaves of iSAM2's Bayes tree (see `_solve` for why it is one),
+and keeps, for reading, the estimates (and for alignment steps the joint covariance) it had.
 
 Covariances of poses follow gtsam: right perturbations T Exp(xi) with xi = (vx, vy, omega) for
 Pose2 and (wx, wy, wz, vx, vy, vz), rotation first, for Pose3. Alignment covariances given to or
@@ -209,7 +210,7 @@ class InterRobotGraph:
         self._steps: list[int] = []
         self._step_set: set[int] = set()
         # keyframes in the graph (or queued): odometry pose T_o_b per robot and index, and the
-        # rank in self._steps of the latest step when each was added (it leaves with that step)
+        # rank in self._steps of the first step added after each (it leaves with that step)
         self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
         self._keyframe_rank: dict[int, int] = {}
         self._keyframes_at: dict[int, list[int]] = defaultdict(list)  # rank -> keys
@@ -398,8 +399,8 @@ class InterRobotGraph:
         """Commit the queued factors, creating A_r(step) for every robot if `step` is given.
 
         With `GraphParams.horizon` = H, the update to `step` then marginalises every variable
-        of the steps at or before step - H, and the keyframes added while one of those was the
-        latest committed step; their last estimates stay readable.
+        of the steps at or before step - H, the keyframes committed with them included; their
+        last estimates stay readable.
 
         Raises:
             DataError: `step` is not after the last committed step, a queued alignment refers
@@ -505,7 +506,7 @@ class InterRobotGraph:
 
     def _group(self, key: int) -> int:
         """Elimination group of a variable: the rank in self._steps of its step (for a
-        keyframe, of the latest step when it was added)."""
+        keyframe, of the first step added after it)."""
         step = _step_of(key)
         return self._keyframe_rank[key] if step is None else bisect_left(self._steps, step)
 
@@ -881,10 +882,10 @@ class InterRobotGraph:
         the weak prior, placed through the current alignment estimate when there is one. Later
         keyframes are linked to the previous one by the odometry between them.
 
-        With `GraphParams.horizon`, a keyframe leaves the graph with the latest committed step
-        at the time it was added (or the first step, before any). A keyframe whose predecessor
-        has left starts its robot's chain again, as a first keyframe does: nothing in the
-        graph would still hold the odometry between them.
+        With `GraphParams.horizon`, a keyframe leaves the graph with the step of the first
+        `update(step)` after it was added. A keyframe whose predecessor has left starts its
+        robot's chain again, as a first keyframe does: nothing in the graph would still hold
+        the odometry between them.
 
         Args:
             T_o_b: (3, 3) SE(2) or (4, 4) SE(3) matrix.
