@@ -109,6 +109,12 @@ def _step_of(key: int) -> int | None:
     return None if index >> _KIND_SHIFT else index & _INDEX_MASK
 
 
+def _keyframe_of(key: int) -> tuple[int, int]:
+    """(robot, index) of a keyframe key."""
+    index = gtsam.Symbol(key).index()
+    return (index >> _ROBOT_SHIFT) & 0xFFFF, index & _INDEX_MASK
+
+
 def _chain(key: int) -> tuple[str, int]:
     """("A", robot) or ("X", robot): the chain a key belongs to."""
     index = gtsam.Symbol(key).index()
@@ -318,8 +324,8 @@ class InterRobotGraph:
         if step in self._left:
             return self._left[step][0][_chain(key)[1]].copy()
         if step is None and key not in self._keyframe_rank:  # a keyframe that left
-            robot = _chain(key)[1]
-            return self._left_keyframes[robot][gtsam.Symbol(key).index() & _INDEX_MASK].copy()
+            robot, index = _keyframe_of(key)
+            return self._left_keyframes[robot][index].copy()
         if self._pending_values.exists(key):
             values = self._pending_values
             pose = values.atPose2(key) if self._planar else values.atPose3(key)
@@ -529,7 +535,7 @@ class InterRobotGraph:
             # a keyframe held only by the gauge prior moved below leaves with no factor
             # (iSAM2 drops it), so its estimate is kept now; `_marginalise` updates it
             for key in self._keyframes_at.get(self._n_left, []):
-                robot, index = _chain(key)[1], gtsam.Symbol(key).index() & _INDEX_MASK
+                robot, index = _keyframe_of(key)
                 self._left_keyframes[robot][index] = self._value(key)
             self._n_left += 1
         self._to_remove.extend(index for index in self._free.values()
@@ -549,7 +555,7 @@ class InterRobotGraph:
             self._left[k] = (A, self._joint(k) if joint is None else joint)
             keys += step_keys
             for key in self._keyframes_at.pop(rank, []):
-                robot, index = _chain(key)[1], gtsam.Symbol(key).index() & _INDEX_MASK
+                robot, index = _keyframe_of(key)
                 if self._isam.valueExists(key):
                     self._left_keyframes[robot][index] = self._value(key)
                     keys.append(key)
@@ -567,7 +573,7 @@ class InterRobotGraph:
         """Unregister keyframes whose values were dropped with a failed update."""
         for key in keys:
             if _step_of(key) is None:
-                robot, index = _chain(key)[1], gtsam.Symbol(key).index() & _INDEX_MASK
+                robot, index = _keyframe_of(key)
                 frames = self._keyframes[robot]
                 del frames[index]
                 self._keyframes_at[self._keyframe_rank.pop(key)].remove(key)
@@ -604,7 +610,7 @@ class InterRobotGraph:
             self._count(f, remap[index], +1)
         for rank in leaving:
             for key in self._keyframes_at.get(rank, []):
-                robot, index = _chain(key)[1], gtsam.Symbol(key).index() & _INDEX_MASK
+                robot, index = _keyframe_of(key)
                 del self._left_keyframes[robot][index]
         self._n_left -= len(leaving)
         if step is not None:
