@@ -5,9 +5,10 @@ step by step from odometry frames that drift for the whole run (0.2 m / 2 deg no
 candidates, 20 % empty steps), feeds one `InterRobotGraph` (Huber) with what each filter's best
 path took, and reads every pair's alignment with its covariance after each update, as a CSLAM
 front end would. Every `--every` steps it prints the resident memory, the median, p95, p99 and
-maximum of `update` over those steps, the median time to add the filters' outputs
-(`add_tcaff_estimate` for every pair) and to read every pair's alignment; at the end, the growth
-of memory per 1000 steps after `--settle` steps.
+maximum of `update` over those steps (wall clock), the median, p99 and maximum of the CPU time
+`update` took (what other processes on a shared machine do not inflate), the median time to add the
+filters' outputs (`add_tcaff_estimate` for every pair) and to read every pair's alignment; at the
+end, the growth of memory per 1000 steps after `--settle` steps.
 
     python scripts/soak_graph.py [--robots 4] [--steps 20000] [--horizon 300] [--every 500]
 
@@ -58,10 +59,10 @@ def main() -> None:
     # each odometry frame in robot 0's, drifting as in the simulator's team streams
     x = np.c_[rng.uniform(-20, 20, (args.robots, 2)), rng.uniform(-np.pi, np.pi, args.robots)]
     x[0] = 0.0
-    times, adds, reads, marks = [], [], [], []
+    times, cpu, adds, reads, marks = [], [], [], [], []
     print(f"{args.robots} robots, horizon {args.horizon or 'none'}")
     print(f"{'step':>7} {'RSS MB':>8} {'update ms':>10} {'p95':>8} {'p99':>8} {'max':>8} "
-          f"{'add ms':>8} {'read ms':>8}")
+          f"{'cpu med':>8} {'cpu p99':>8} {'cpu max':>8} {'add ms':>8} {'read ms':>8}")
     for k in range(args.steps):
         x[1:] += rng.normal(0.0, DRIFT, (args.robots - 1, 3))
         A = se2_from_params(x)
@@ -74,19 +75,21 @@ def main() -> None:
             t0 = time.perf_counter()
             graph.add_tcaff_estimate(k, i, j, estimate, zs, Rs)
             t_add += time.perf_counter() - t0
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         graph.update(k)
         times.append(1e3 * (time.perf_counter() - t0))
+        cpu.append(1e3 * (time.process_time() - c0))
         adds.append(1e3 * t_add)
         t0 = time.perf_counter()
         for pair in pairs:
             graph.alignment(*pair)
         reads.append(1e3 * (time.perf_counter() - t0))
         if (k + 1) % args.every == 0:
-            t = np.array(times[-args.every:])
+            t, c = np.array(times[-args.every:]), np.array(cpu[-args.every:])
             marks.append((k + 1, rss_mb()))
             print(f"{k + 1:>7} {marks[-1][1]:8.1f} {np.median(t):10.3f} "
                   f"{np.percentile(t, 95):8.3f} {np.percentile(t, 99):8.3f} {t.max():8.3f} "
+                  f"{np.median(c):8.3f} {np.percentile(c, 99):8.3f} {c.max():8.3f} "
                   f"{np.median(adds[-args.every:]):8.3f} {np.median(reads[-args.every:]):8.3f}",
                   flush=True)
     after = [(k, m) for k, m in marks if k >= args.settle]

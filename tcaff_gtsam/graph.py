@@ -13,9 +13,10 @@ Two kinds of variables, each robot r having its own chain of both:
   robot's chain, inter-robot factors between keyframes from accepted alignments, and any other
   between-factor a user has (loop closures).
 
-With `GraphParams.horizon`, only the alignment variables of the latest `horizon` steps stay in
-the graph: older ones are marginalised (gtsam's incremental fixed-lag smoother), and each step
-that leaves keeps, for reading, the estimate and covariance it had when it left.
+With `GraphParams.horizon`, only the variables of the latest `horizon` steps stay in the graph
+(a keyframe belongs to the first step added after it): the oldest step leaves at each
+update, marginalised as a set of leaves of iSAM2's Bayes tree (see `_solve` for why it is one),
+and keeps, for reading, the estimates (and for alignment steps the joint covariance) it had.
 
 Covariances of poses follow gtsam: right perturbations T Exp(xi) with xi = (vx, vy, omega) for
 Pose2 and (wx, wy, wz, vx, vy, vz), rotation first, for Pose3. Alignment covariances given to or
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+from bisect import bisect_left
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +37,7 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from .errors import ConfigError, DataError
+from .errors import DataError
 from .geometry import _se2_from_params, _se2_to_params, _se3_from_xyz_yaw, _se3_to_se2
 from .inputs import output_path, real_array, shown
 from .params import GraphParams, _given_or_default, _int_at_least
@@ -54,6 +56,7 @@ _MAX_TRANSLATION = 1e4  # metres, of an alignment: far beyond any map two robots
 # One symbol character; kind, robot and index share the symbol's index, which is all that g2o
 # files keep, so exported vertex ids stay unique.
 _ROBOT_SHIFT, _KIND_SHIFT = 36, 52
+_INDEX_MASK = (1 << _ROBOT_SHIFT) - 1
 
 
 def _check_index(name: str, value, bits: int) -> int:
@@ -61,6 +64,13 @@ def _check_index(name: str, value, bits: int) -> int:
             or not 0 <= value < 1 << bits):
         raise DataError(f"{name} = {shown(value)} must be an int in [0, 2^{bits})")
     return int(value)
+
+
+def _key_list(keys) -> gtsam.KeyList:
+    out = gtsam.KeyList()
+    for key in keys:
+        out.push_back(key)
+    return out
 
 
 def _components(nodes: set, links: Counter):
@@ -96,7 +106,13 @@ def keyframe_key(robot: int, index: int) -> int:
 def _step_of(key: int) -> int | None:
     """The alignment step of an A key; None for a keyframe key."""
     index = gtsam.Symbol(key).index()
-    return None if index >> _KIND_SHIFT else index & ((1 << _ROBOT_SHIFT) - 1)
+    return None if index >> _KIND_SHIFT else index & _INDEX_MASK
+
+
+def _keyframe_of(key: int) -> tuple[int, int]:
+    """(robot, index) of a keyframe key."""
+    index = gtsam.Symbol(key).index()
+    return (index >> _ROBOT_SHIFT) & 0xFFFF, index & _INDEX_MASK
 
 
 def _chain(key: int) -> tuple[str, int]:
@@ -185,21 +201,28 @@ class InterRobotGraph:
         isam_params.relinearizeSkip = prm.relinearize_skip
         # check relinearisation from the root down only as far as needed, not every variable
         isam_params.enablePartialRelinearizationCheck = True
+        # reuse the slots of removed factors: a long run's factor list stays bounded
+        isam_params.findUnusedFactorSlots = True
         self._new_solver(isam_params)
         # with a horizon: steps that left the graph, their A_r (n_robots, side, side) and the
         # joint covariance of (A_0 .. A_n-1) in gtsam's tangent order as it was while the step
         # was the latest (cheap to compute then, near the root of the Bayes tree; smoothing
-        # only shrinks it later), and the committed factors by the oldest step they touch (they
-        # leave with it)
+        # only shrinks it later)
         self._left: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._joints: dict[int, np.ndarray] = {}  # that covariance while the step was latest
         self._n_left = 0  # self._steps[:self._n_left] have left
-        self._marginal: set[int] = set()  # indices of the smoother's marginal factors
+        self._marginal: set[int] = set()  # indices of the marginal factors of what left
         self._settled_from: gtsam.Values | None = None
-        self._by_step: dict[int, list[int]] = defaultdict(list)
         self._steps: list[int] = []
         self._step_set: set[int] = set()
-        self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)  # T_o_b per index
+        # keyframes in the graph (or queued): odometry pose T_o_b per robot and index, and the
+        # rank in self._steps of the first step added after each (it leaves with that step)
+        self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
+        self._keyframe_rank: dict[int, int] = {}
+        self._keyframes_at: dict[int, list[int]] = defaultdict(list)  # rank -> keys
+        self._last_keyframe: dict[int, int] = {}  # robot -> its latest keyframe index
+        # keyframes that left: their pose in the common frame when they left, per robot
+        self._left_keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
         self._queued: list[_Factor] = []
         self._pending_values = gtsam.Values()
         self._to_remove: list[int] = []
@@ -300,6 +323,9 @@ class InterRobotGraph:
         step = _step_of(key)
         if step in self._left:
             return self._left[step][0][_chain(key)[1]].copy()
+        if step is None and key not in self._keyframe_rank:  # a keyframe that left
+            robot, index = _keyframe_of(key)
+            return self._left_keyframes[robot][index].copy()
         if self._pending_values.exists(key):
             values = self._pending_values
             pose = values.atPose2(key) if self._planar else values.atPose3(key)
@@ -328,11 +354,6 @@ class InterRobotGraph:
                 or np.abs(T[-1] - np.eye(size)[-1]).max() > 1e-9):
             raise DataError(f"{name} is not a rigid transform: {T.tolist()}")
         return T
-
-    def _unbounded(self, name: str) -> None:
-        if self.params.horizon is not None:
-            raise ConfigError(f"{name}: keyframes need the unbounded graph (GraphParams("
-                              f"horizon=None)); this one keeps {self.params.horizon} steps")
 
     def _check_robot(self, name: str, robot) -> None:
         if not (_int_at_least(robot, 0) and robot < self.n_robots):
@@ -383,9 +404,14 @@ class InterRobotGraph:
     def update(self, step: int | None = None) -> None:
         """Commit the queued factors, creating A_r(step) for every robot if `step` is given.
 
+        With `GraphParams.horizon` = H, the update to `step` then marginalises every variable
+        of the steps at or before step - H, the keyframes committed with them included; their
+        last estimates stay readable.
+
         Raises:
-            DataError: `step` is not after the last committed step, or a queued alignment
-                refers to a step that neither exists nor is `step`.
+            DataError: `step` is not after the last committed step, a queued alignment refers
+                to a step that neither exists nor is `step`, or gtsam could not solve the graph
+                with the queued factors (they are dropped and the graph is as it was).
         """
         if step is not None:
             step = _check_index("update: step", step, _ROBOT_SHIFT)
@@ -421,13 +447,14 @@ class InterRobotGraph:
             self._count(f, index, -1)
         factors = self._isam.getFactorsUnsafe()
         self._settled_from = None
-        # the marginal factors before the smoother replaces them (a roll-back needs them)
+        # the marginal factors of what left (a roll-back needs them)
         marginals = {i: factors.at(i) for i in self._marginal}
         try:
             indices = self._commit(graph, self._pending_values, self._to_remove)
             self._settle(touched)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             self._roll_back(gone, marginals, step, leaving)
+            self._forget_keyframes(set(self._pending_values.keys()))
             dropped, self._queued = self._queued, later
             self._pending_values, self._to_remove = gtsam.Values(), []
             tags = [q.tag for q in dropped if q.tag and q.tag[0] != "free"]
@@ -439,17 +466,9 @@ class InterRobotGraph:
         for q, index in zip(self._queued, indices, strict=True):
             self._active[index] = q
             self._count(q, index, +1)
-            if self._smoother is not None:
-                self._by_step[self._oldest_step(q)].append(index)
-        if leaving:  # marginalised with this update, into factors after the new ones
-            for old in leaving:
-                for index in self._by_step.pop(old, []):
-                    self._active.pop(index, None)
-            first_new = max(indices, default=factors.size() - 1) + 1
-            self._marginal = {i for i in self._marginal if factors.at(i) is not None}
-            self._marginal.update(range(first_new, factors.size()))
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
-        if self._smoother is not None and self._steps:
+        self._marginalise(leaving)
+        if self.params.horizon is not None and self._steps:
             self._joints[self._steps[-1]] = self._joint(self._steps[-1])
 
     def _joint(self, step: int) -> np.ndarray:
@@ -458,60 +477,111 @@ class InterRobotGraph:
         return self._isam.jointMarginalCovariance(keys).fullMatrix()
 
     def _new_solver(self, isam_params: gtsam.ISAM2Params) -> None:
-        """An empty iSAM2, or with a horizon a fixed-lag smoother and its iSAM2."""
+        self._isam = gtsam.ISAM2(isam_params)
+
+    def _solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+               remove: list[int]) -> gtsam.ISAM2Result:
+        """One iSAM2 update. With a horizon, the part of the Bayes tree it eliminates again is
+        ordered by the variables' groups (the rank of their step), so that no variable has a
+        newer one below it: what leaves is then always a set of leaves, and marginalising it
+        touches only their cliques (gtsam's fixed-lag smoother instead eliminates the whole
+        path from them to the root, the whole horizon, every time)."""
         if self.params.horizon is None:
-            self._smoother = None
-            self._isam = gtsam.ISAM2(isam_params)
-        else:
-            self._smoother = gtsam.IncrementalFixedLagSmoother(float(self.params.horizon),
-                                                               isam_params)
-            self._isam = self._smoother.getISAM2()  # the smoother's own, by reference
+            return self._isam.update(graph, values, remove)
+        update = gtsam.ISAM2UpdateParams()
+        update.removeFactorIndices = remove
+        if remove:  # the prediction leaves out the variables of removed factors
+            factors = self._isam.getFactorsUnsafe()
+            update.extraReelimKeys = _key_list({key for i in remove
+                                                for key in factors.at(i).keys()})
+        affected, batch = self._isam.predictUpdateInfo(graph, values, update)
+        if batch:
+            affected = [*self._isam.getLinearizationPoint().keys(), *values.keys()]
+        # ccolamd wants the groups numbered from 0 without gaps
+        group = {key: self._group(key) for key in affected}
+        dense = {g: n for n, g in enumerate(sorted(set(group.values())))}
+        update.constrainedKeys = gtsam.KeyGroupMap()
+        for key, g in group.items():
+            update.constrainedKeys.insert2(key, dense[g])
+        return self._isam.update(graph, values, update)
 
     def _commit(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                 remove: list[int]) -> list[int]:
-        """One iSAM2 (or fixed-lag smoother) update: new factors, new values, removals; the
-        new factors' indices."""
-        if self._smoother is None:
-            return list(self._isam.update(graph, values, remove).getNewFactorsIndices())
-        stamps = {key: self._stamp(_step_of(key)) for key in values.keys()}
-        self._smoother.update(graph, values, stamps, remove)
-        return list(self._smoother.getISAM2Result().getNewFactorsIndices())
+        """New factors, new values, removals; the new factors' indices."""
+        return list(self._solve(graph, values, remove).getNewFactorsIndices())
 
-    def _stamp(self, step: int) -> float:
-        """The fixed-lag smoother's time of a step: steps leave in batches of half the horizon,
-        since marginalising many steps at once costs about as much as marginalising one."""
-        batch = max(self.params.horizon // 2, 1)
-        return float(step // batch * batch)
+    def _group(self, key: int) -> int:
+        """Elimination group of a variable: the rank in self._steps of its step (for a
+        keyframe, of the first step added after it)."""
+        step = _step_of(key)
+        return self._keyframe_rank[key] if step is None else bisect_left(self._steps, step)
 
-    def _oldest_step(self, f: _Factor) -> int:
-        """The oldest alignment step a factor touches: it leaves the graph with that step."""
-        return min(_step_of(key) for key in f.factor.keys())
+    def _has_left(self, key: int) -> bool:
+        """Whether a variable of the graph has left it (or leaves with this update)."""
+        step = _step_of(key)
+        if step is None:
+            return self._keyframe_rank.get(key, -1) < self._n_left
+        return self._n_left > 0 and step <= self._steps[self._n_left - 1]
 
     def _leaving(self, step: int | None) -> list[int]:
-        """With a horizon: the steps the update to `step` marginalises. Their estimates and
-        covariance are kept for reading, and gauge priors on them are moved to the latest step
-        (a prior marginalised into the graph could never be removed when the robots connect)."""
+        """With a horizon: the ranks (in self._steps) of the steps the update to `step` lets
+        leave. Gauge priors on what leaves are moved to the latest step first (a prior
+        marginalised into the graph could never be removed when the robots connect)."""
         horizon = self.params.horizon
         if horizon is None or step is None:
             return []
-        kept = self._n_left
-        leaving = []
-        while (kept < len(self._steps)
-               and self._stamp(self._steps[kept]) < self._stamp(step) - horizon):
-            leaving.append(self._steps[kept])
-            kept += 1
-        if not leaving:
-            return []
-        self._n_left = kept
-        for k in leaving:
-            A = np.array([self._value(alignment_key(r, k)) for r in range(self.n_robots)])
-            joint = self._joints.pop(k, None)
-            self._left[k] = (A, self._joint(k) if joint is None else joint)
-        first = leaving[-1]
+        first = self._n_left
+        while self._n_left < len(self._steps) and self._steps[self._n_left] <= step - horizon:
+            # a keyframe held only by the gauge prior moved below leaves with no factor
+            # (iSAM2 drops it), so its estimate is kept now; `_marginalise` updates it
+            for key in self._keyframes_at.get(self._n_left, []):
+                robot, index = _keyframe_of(key)
+                self._left_keyframes[robot][index] = self._value(key)
+            self._n_left += 1
         self._to_remove.extend(index for index in self._free.values()
                                if index not in self._to_remove
-                               and self._oldest_step(self._active[index]) <= first)
-        return leaving
+                               and self._has_left(self._active[index].factor.keys()[0]))
+        return list(range(first, self._n_left))
+
+    def _marginalise(self, ranks: list[int]) -> None:
+        """Marginalise the variables of the steps at `ranks` and the keyframes added with them
+        (leaves of the Bayes tree, see `_solve`), keeping their estimates for reading."""
+        keys = []
+        for rank in ranks:
+            k = self._steps[rank]
+            step_keys = [alignment_key(r, k) for r in range(self.n_robots)]
+            A = np.array([self._value(key) for key in step_keys])
+            joint = self._joints.pop(k, None)
+            self._left[k] = (A, self._joint(k) if joint is None else joint)
+            keys += step_keys
+            for key in self._keyframes_at.pop(rank, []):
+                robot, index = _keyframe_of(key)
+                if self._isam.valueExists(key):
+                    self._left_keyframes[robot][index] = self._value(key)
+                    keys.append(key)
+                del self._keyframes[robot][index], self._keyframe_rank[key]
+        if not keys:
+            return
+        marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
+        for index in deleted:
+            self._active.pop(index, None)
+            self._marginal.discard(index)
+        self._marginal.update(marginal)
+        self._free = {chain: i for chain, i in self._free.items() if i in self._active}
+
+    def _forget_keyframes(self, keys: set[int]) -> None:
+        """Unregister keyframes whose values were dropped with a failed update."""
+        for key in keys:
+            if _step_of(key) is None:
+                robot, index = _keyframe_of(key)
+                frames = self._keyframes[robot]
+                del frames[index]
+                self._keyframes_at[self._keyframe_rank.pop(key)].remove(key)
+                before = max(frames, default=max(self._left_keyframes[robot], default=None))
+                if before is None:
+                    del self._last_keyframe[robot]
+                else:
+                    self._last_keyframe[robot] = before
 
     def _roll_back(self, gone: list[tuple[int, _Factor]], marginals: dict, step: int | None,
                    leaving: list[int]) -> None:
@@ -524,10 +594,6 @@ class InterRobotGraph:
         for key in point.keys():
             if key not in new_keys:
                 theta.insert(key, point.atPose2(key) if self._planar else point.atPose3(key))
-        for k in leaving:  # marginalised by a smoother update that then failed to settle
-            for r, A in enumerate(self._left[k][0]):
-                if not theta.exists(alignment_key(r, k)):
-                    theta.insert(alignment_key(r, k), self._pose(A))
         kept = [*self._active.items(), *gone]
         graph = gtsam.NonlinearFactorGraph()
         for _, f in kept:
@@ -542,10 +608,10 @@ class InterRobotGraph:
         self._free = {chain: remap[i] for chain, i in self._free.items()}
         for index, f in gone:
             self._count(f, remap[index], +1)
-        self._by_step = defaultdict(list, {k: [remap[i] for i in indices_k if i in remap]
-                                           for k, indices_k in self._by_step.items()})
-        for k in leaving:
-            self._joints[k] = self._left.pop(k)[1]
+        for rank in leaving:
+            for key in self._keyframes_at.get(rank, []):
+                robot, index = _keyframe_of(key)
+                del self._left_keyframes[robot][index]
         self._n_left -= len(leaving)
         if step is not None:
             self._steps.pop()
@@ -568,7 +634,8 @@ class InterRobotGraph:
         alignments). Runs before each iSAM2 update, so priors come and go with the factors
         (a first alignment, a removed hypothesis) in the same update."""
         chains = ({("A", r) for r in range(self.n_robots)} if self._steps else set())
-        chains |= {("X", r) for r, frames in self._keyframes.items() if frames}
+        chains |= {("X", r) for r, last in self._last_keyframe.items()
+                   if not self._has_left(keyframe_key(r, last))}
         links = Counter(self._links)
         for index in self._to_remove:
             if self._active[index].link:
@@ -587,7 +654,7 @@ class InterRobotGraph:
             if group_root not in anchored and not keep:
                 kind, robot = members[0]
                 key = (alignment_key(robot, self._steps[-1]) if kind == "A"
-                       else keyframe_key(robot, max(self._keyframes[robot])))
+                       else keyframe_key(robot, self._last_keyframe[robot]))
                 self._queue(self._prior(key, self._value(key), self.params.free_sigmas),
                             ("free", members[0]))
 
@@ -625,7 +692,7 @@ class InterRobotGraph:
             if self._settled_from is None:  # a roll-back restarts from here, not from the
                 # point a failed iteration moved (rare: big corrections only)
                 self._settled_from = gtsam.Values(self._isam.getLinearizationPoint())
-            self._isam.update()
+            self._solve(gtsam.NonlinearFactorGraph(), gtsam.Values(), [])
 
     def alignment(self, i: int, j: int, step: int | None = None, covariance: bool = True
                   ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -821,18 +888,28 @@ class InterRobotGraph:
         the weak prior, placed through the current alignment estimate when there is one. Later
         keyframes are linked to the previous one by the odometry between them.
 
+        With `GraphParams.horizon`, a keyframe leaves the graph with the step of the first
+        `update(step)` after it was added. A keyframe whose predecessor has left starts its
+        robot's chain again, as a first keyframe does: nothing in the graph would still hold
+        the odometry between them.
+
+        Args:
+            T_o_b: (3, 3) SE(2) or (4, 4) SE(3) matrix.
+            odometry_cov: covariance of the odometry from the previous keyframe in gtsam's
+                tangent order, (3, 3) or (6, 6); `GraphParams.odometry_cov` when None.
         Raises:
             DataError: unknown robot, index not increasing, non-finite pose.
         """
         self._check_robot("robot", robot)
-        self._unbounded("add_keyframe")
         T = self._rigid("add_keyframe: T_o_b", T_o_b)
         key = keyframe_key(robot, index)
+        last = self._last_keyframe.get(robot)
+        if last is not None and index <= last:
+            raise DataError(f"add_keyframe: robot {robot} index {index} is not after {last}")
         frames = self._keyframes[robot]
-        if frames and index <= max(frames):
-            raise DataError(f"add_keyframe: robot {robot} index {index} is not after "
-                            f"{max(frames)}")
-        if not frames:
+        if last not in frames:  # the first, or its predecessor left the graph
+            for link in [link for link in self._links if ("X", robot) in link]:
+                del self._links[link]  # what linked the chain that left went with it
             if robot == 0:  # robot 0's odometry frame is the common frame
                 self._insert(key, T)
                 self._queue(self._prior(key, T, (self.params.anchor_sigma,) * 2))
@@ -841,7 +918,6 @@ class InterRobotGraph:
                      else np.eye(T.shape[0]))
                 self._insert(key, A @ T)
         else:
-            last = max(frames)
             delta = np.linalg.inv(frames[last]) @ T
             cov = (self.params.odometry_cov if odometry_cov is None
                    else _check_cov("add_keyframe: odometry_cov", odometry_cov,
@@ -850,17 +926,32 @@ class InterRobotGraph:
             self._insert(key, self._value(prev_key) @ delta)
             self._queue(self._between(prev_key, key, delta, self._noise(cov, False)))
         frames[index] = T
+        self._last_keyframe[robot] = index
+        rank = len(self._steps)  # the step the next update adds
+        self._keyframe_rank[key] = rank
+        self._keyframes_at[rank].append(key)
+
+    def _keyframe(self, name: str, robot, index) -> int:
+        """The index of a keyframe in the graph, else DataError."""
+        self._check_robot("robot", robot)
+        index = _check_index(f"{name}: keyframe index", index, _ROBOT_SHIFT)
+        if index in self._left_keyframes[robot]:
+            raise DataError(f"{name}: keyframe {index} of robot {robot} has left the graph "
+                            f"(horizon {self.params.horizon} steps, latest {self._steps[-1]})")
+        if index not in self._keyframes[robot]:
+            raise DataError(f"{name}: robot {robot} has no keyframe {index}")
+        return index
 
     def add_keyframe_alignment(self, i: int, m_i: int, j: int, m_j: int, T_oi_oj, cov,
                                hypothesis: int | None = None) -> None:
         """Queue an inter-robot factor between keyframes X_i(m_i) and X_j(m_j) from an alignment
-        T_oi_oj: X_i^-1 X_j = T_oi_bi^-1 T_oi_oj T_oj_bj."""
-        self._unbounded("add_keyframe_alignment")
-        for robot, index in ((i, m_i), (j, m_j)):
-            self._check_robot("robot", robot)
-            index = _check_index("add_keyframe_alignment: keyframe index", index, _ROBOT_SHIFT)
-            if index not in self._keyframes[robot]:
-                raise DataError(f"add_keyframe_alignment: robot {robot} has no keyframe {index}")
+        T_oi_oj: X_i^-1 X_j = T_oi_bi^-1 T_oi_oj T_oj_bj.
+
+        Raises:
+            DataError: unknown robot or keyframe, a keyframe that left the graph, bad values.
+        """
+        m_i = self._keyframe("add_keyframe_alignment", i, m_i)
+        m_j = self._keyframe("add_keyframe_alignment", j, m_j)
         T = self._matrix(T_oi_oj)
         C = self._tangent_cov(T, _check_cov("add_keyframe_alignment: cov", cov, self._n_param))
         T_oj_bj = self._keyframes[j][m_j]
@@ -890,22 +981,25 @@ class InterRobotGraph:
             raise DataError("add_between: key_a and key_b are the same variable")
         for key in (key_a, key_b):
             if not self._exists(key):
-                raise DataError(f"add_between: key {gtsam.Symbol(key).string()} does not exist")
+                gone = "has left the graph" if self._has_left(key) else "does not exist"
+                raise DataError(f"add_between: key {gtsam.Symbol(key).string()} {gone}")
         link = (_chain(key_a), _chain(key_b))
         self._queue(self._between(key_a, key_b, T, self._noise(C, robust)),
                     link=link if link[0] != link[1] else None)
 
     def trajectory(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
         """Committed keyframes of `robot`: indices (m,) and poses (m, 3, 3) / (m, 4, 4) in the
-        common frame."""
+        common frame. Keyframes that left the graph (with a horizon) keep the pose they had
+        when they left."""
         self._check_robot("robot", robot)
         estimate = self._isam.calculateEstimate()
-        indices = np.array(sorted(i for i in self._keyframes[robot]
-                                  if estimate.exists(keyframe_key(robot, i))), np.int64)
-        size = self._side
         get = estimate.atPose2 if self._planar else estimate.atPose3
-        poses = np.array([get(keyframe_key(robot, int(i))).matrix() for i in indices])
-        return indices, poses.reshape(-1, size, size)
+        left = self._left_keyframes[robot]
+        inside = [i for i in self._keyframes[robot] if estimate.exists(keyframe_key(robot, i))]
+        poses = [*left.values(), *(get(keyframe_key(robot, i)).matrix() for i in inside)]
+        size = self._side
+        return (np.array([*left, *inside], np.int64),
+                np.array(poses, dtype=float).reshape(-1, size, size))
 
     def write_g2o(self, path: str | Path) -> None:
         """Write the active factors and the current solution in g2o format (with a horizon:

@@ -568,14 +568,14 @@ class GraphParams(_ByValue):
             the earlier hypothesis's factors are removed only once the new one has been
             reported at this many steps (the default window W): a late or passing switch then
             leaves the smoothed history in place. 1 removes them at the switch.
-        horizon: steps of alignment variables the graph keeps for long runs: older ones are
-            marginalised into a prior on the oldest kept step (gtsam's incremental fixed-lag
-            smoother), so memory and update time stay bounded. Steps leave in batches of
-            horizon // 2, so between horizon and 1.5 horizon steps are kept. Steps that left
-            keep the estimate they had then, and the covariance they had as the latest step;
-            factors that left can no longer be removed (a hypothesis switch removes only those
-            within the horizon), and keyframes need the unbounded graph. None keeps every step
-            (offline studies).
+        horizon: steps the graph keeps for long runs: `update(k)` marginalises the variables
+            of the steps at or before k - horizon (alignment variables, and the keyframes
+            committed with those steps) into a linear factor on what they were linked to, one
+            step per update, so memory and update time stay bounded. Steps that left keep the
+            estimate they had then, and the covariance they had as the latest step; keyframes
+            keep their last pose. Factors that left can no longer be removed (a hypothesis
+            switch removes only those within the horizon). None keeps every step (offline
+            studies).
     """
 
     dim: Literal[2, 3] = 2
