@@ -220,6 +220,32 @@ def _symmetric_csr(m, rows, cols, wts):
     return indptr, indices, weights
 
 
+@numba.njit(cache=True)
+def _graph_csr(ego_points, other_points, associations, inv_two_sigma_sq, epsilon):
+    """CSR arrays (indptr, indices, weights) of the consistency graph: the nodes grouped by
+    ego object (a stable sort, the identity for sorted input), their consistent pairs, and the
+    symmetric matrix of those. One compiled call, so a small graph costs no Python steps."""
+    m = associations.shape[0]
+    order = np.argsort(associations[:, 0], kind="mergesort")
+    ego_sorted = associations[order, 0]
+    other_sorted = associations[order, 1].copy()
+    group_start = np.empty(m + 1, np.int64)
+    n_groups = 0
+    for s in range(m):
+        if s == 0 or ego_sorted[s] != ego_sorted[s - 1]:
+            group_start[n_groups] = s
+            n_groups += 1
+    group_start[n_groups] = m
+    group_start = group_start[: n_groups + 1]
+    group_ego = ego_sorted[group_start[:-1]]
+    rows, cols, wts = _consistent_pairs(ego_points, other_points, other_sorted, group_ego,
+                                        group_start, inv_two_sigma_sq, epsilon)
+    for e in range(rows.shape[0]):
+        rows[e] = order[rows[e]]
+        cols[e] = order[cols[e]]
+    return _symmetric_csr(m, rows, cols, wts)
+
+
 def _int_vector(owner: str, name: str, value) -> np.ndarray:
     """`value` as a 1-D int64 array; DataError naming `name` if it is not 1-D integers."""
     try:
@@ -288,16 +314,18 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         if diag.shape != (m,) or not np.all(np.isfinite(diag)) or np.any(diag < 0):
             raise DataError(f"consistency_graph: prior must be ({m},) finite and >= 0, "
                             f"got shape {diag.shape}")
-    order = np.argsort(associations[:, 0], kind="stable")  # identity for sorted input
-    ego_sorted = associations[order, 0]
-    starts = np.flatnonzero(np.diff(ego_sorted, prepend=-1))  # first node of each ego object
-    rows, cols, wts = _consistent_pairs(
+    return _graph(ego_points, other_points, associations, epsilon, sigma, diag)
+
+
+def _graph(ego_points: np.ndarray, other_points: np.ndarray, associations: np.ndarray,
+           epsilon: float, sigma: float, diag: np.ndarray) -> ConsistencyGraph:
+    """`consistency_graph` on arguments already checked: (n1, d) and (n2, d) finite points,
+    (m, 2) int64 associations in range, (m,) diag, epsilon and sigma finite and > 0."""
+    indptr, indices, weights = _graph_csr(
         np.ascontiguousarray(ego_points, np.float64),
         np.ascontiguousarray(other_points, np.float64),
-        np.ascontiguousarray(associations[order, 1]), ego_sorted[starts],
-        np.r_[starts, m].astype(np.int64), 1.0 / (2.0 * sigma * sigma), epsilon)
-    rows, cols = order[rows], order[cols]
-    indptr, indices, weights = _symmetric_csr(m, rows, cols, wts)
+        np.ascontiguousarray(associations, np.int64), 1.0 / (2.0 * sigma * sigma),
+        float(epsilon))
     return ConsistencyGraph._built(associations, indptr, indices, weights, diag)
 
 
@@ -502,52 +530,141 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
     return u, d, F_affinity
 
 
-def _edges_within(graph: ConsistencyGraph, nodes: np.ndarray) -> np.ndarray:
-    """Positions in the CSR arrays of the edges joining two of `nodes` (both directions)."""
-    member = np.zeros(graph.m, dtype=bool)
-    member[nodes] = True
-    starts, stops = graph.indptr[nodes], graph.indptr[nodes + 1]
-    lengths = stops - starts
-    # arange over each selected row, concatenated: row offsets plus a running index
-    edge_ids = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
-    return edge_ids[member[graph.indices[edge_ids]]]
+@numba.njit(cache=True)
+def _edges_within(indptr, indices, nodes, member):
+    """Positions in the CSR arrays of the edges joining two of `nodes` (ascending), both
+    directions, row by row. `member` is (m,) bool scratch, all False on entry and on return."""
+    for p in nodes:
+        member[p] = True
+    count = 0
+    for p in nodes:
+        for e in range(indptr[p], indptr[p + 1]):
+            count += member[indices[e]]
+    edges = np.empty(count, np.int64)
+    count = 0
+    for p in nodes:
+        for e in range(indptr[p], indptr[p + 1]):
+            if member[indices[e]]:
+                edges[count] = e
+                count += 1
+    for p in nodes:
+        member[p] = False
+    return edges
 
 
-def _selection_score(graph: ConsistencyGraph, nodes: np.ndarray) -> float:
-    """x'Mx / x'x for the indicator x of `nodes` on the original affinity."""
-    if nodes.size == 0:
-        return 0.0
-    inside = _edges_within(graph, nodes)
-    return float((graph.diag[nodes].sum() + graph.weights[inside].sum()) / nodes.size)
+@numba.njit(cache=True)
+def _sum(a):
+    """sum(a) in the order numpy's pairwise summation adds (blocks of up to 128 with eight
+    accumulators), so compiled scores equal the ones numpy computes to the last bit."""
+    n = a.shape[0]
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += a[i]
+        return total
+    if n <= 128:
+        r = a[:8].copy()
+        i = 8
+        while i < n - n % 8:
+            for j in range(8):
+                r[j] += a[i + j]
+            i += 8
+        total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            total += a[i]
+            i += 1
+        return total
+    half = n // 2
+    half -= half % 8
+    return _sum(a[:half]) + _sum(a[half:])
 
 
-def _round(u: np.ndarray, Mu_objective: float, params: ClipperParams) -> np.ndarray:
-    support = np.flatnonzero(u > params.eps)
-    if support.size == 0:
-        return support.astype(np.int64)
-    if params.rounding == "threshold":
-        chosen = support[u[support] > params.threshold * u[support].max()]
+@numba.njit(cache=True)
+def _round(u, objective, eps, use_threshold, threshold):
+    """Nodes (ascending) of a relaxed solution u: of those above eps, the ones above
+    `threshold` * max(u), or the round(objective) largest (ties to the lower node)."""
+    support = np.flatnonzero(u > eps)
+    if support.shape[0] == 0:
+        return support
+    values = u[support]
+    if use_threshold:
+        chosen = support[values > threshold * values.max()]
     else:
-        size = int(np.clip(round(Mu_objective), 1, support.size))
-        order = np.argsort(-u[support], kind="stable")
-        chosen = support[order[:size]]
-    return np.sort(chosen).astype(np.int64)
+        size = int(max(1.0, min(np.rint(objective), support.shape[0])))
+        chosen = support[np.argsort(-values, kind="mergesort")[:size]]
+    return np.sort(chosen)
 
 
-def _run(graph: ConsistencyGraph, weights: np.ndarray, diag: np.ndarray, active: np.ndarray,
-         params: ClipperParams, rng: np.random.Generator) -> ClipperSolution:
+@numba.njit(cache=True)
+def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, threshold,
+         power_iterations, tol_u, eps, beta, max_outer, max_inner, max_line_search):
+    """MNO-CLIPPER in one compiled call: up to len(draws) solutions, the start vector of
+    solution s from draws[s] (uniform [0, 1) per node). After each, the affinities among its
+    nodes are multiplied by `downweight` (0: its nodes leave the graph). Stops after the
+    first empty solution (which is returned) or when no node is left.
+
+    Returns (k, ends, nodes, us, penalties, scores): solution s < k selected
+    nodes[ends[s]:ends[s + 1]], relaxed vector us[s] (m,), final penalty penalties[s] and
+    score scores[s] (x'Mx / x'x of its indicator x on the original affinity).
+    """
+    n_solutions, m = draws.shape
+    w = weights.copy()
+    dg = diag.copy()
+    active = np.ones(m, np.bool_)
+    member = np.zeros(m, np.bool_)
+    n_active = m
+    us = np.zeros((n_solutions, m))
+    penalties = np.zeros(n_solutions)
+    scores = np.zeros(n_solutions)
+    ends = np.zeros(n_solutions + 1, np.int64)
+    nodes_all = np.empty(n_solutions * m, np.int64)
+    k = 0
+    while k < n_solutions and n_active > 0:
+        u0 = np.where(active, draws[k], 0.0)
+        u0 /= np.sqrt(np.dot(u0, u0))  # as np.linalg.norm computes it
+        u, d, objective = _solve(indptr, indices, w, dg, active, u0, power_iterations, tol_u,
+                                 eps, beta, max_outer, max_inner, max_line_search)
+        nodes = _round(u, objective, eps, use_threshold, threshold)
+        edges = _edges_within(indptr, indices, nodes, member)
+        if nodes.shape[0]:
+            scores[k] = (_sum(diag[nodes]) + _sum(weights[edges])) / nodes.shape[0]
+        us[k] = u
+        penalties[k] = d
+        ends[k + 1] = ends[k] + nodes.shape[0]
+        nodes_all[ends[k]: ends[k + 1]] = nodes
+        k += 1
+        if nodes.shape[0] == 0:
+            break
+        if downweight == 0.0:
+            active[nodes] = False
+            n_active -= nodes.shape[0]
+        else:
+            for e in edges:
+                w[e] *= downweight
+            for p in nodes:
+                dg[p] *= downweight
+    return k, ends, nodes_all, us, penalties, scores
+
+
+def _solutions(graph: ConsistencyGraph, n_solutions: int, params: ClipperParams,
+               downweight: float) -> list[ClipperSolution]:
+    """`mno_clipper` on checked arguments, the last solution possibly empty (see `_mno`)."""
     m = graph.m
-    if m == 0 or not active.any():
-        return ClipperSolution(np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros(m),
-                               0.0, 0.0)
-    u0 = rng.uniform(0.0, 1.0, m) * active
-    u0 /= np.linalg.norm(u0)
-    u, d, objective = _solve(graph.indptr, graph.indices, weights, diag, active, u0,
-                             params.power_iterations, params.tol_u, params.eps, params.beta,
-                             params.max_outer, params.max_inner, params.max_line_search)
-    nodes = _round(u, objective, params)
-    return ClipperSolution(nodes, graph.associations[nodes], u, _selection_score(graph, nodes),
-                           float(d))
+    # one row of start draws per solution that can be found: the same stream as drawing them
+    # one by one; with downweight 0 each solution removes a node, so there are at most m
+    rows = min(n_solutions, m) if downweight == 0.0 else n_solutions
+    draws = np.random.default_rng(params.seed).uniform(0.0, 1.0, (rows, m))
+    k, ends, nodes, us, penalties, scores = _mno(
+        graph.indptr, graph.indices, graph.weights, graph.diag, draws, float(downweight),
+        params.rounding == "threshold", float(params.threshold), int(params.power_iterations),
+        float(params.tol_u), float(params.eps), float(params.beta), int(params.max_outer),
+        int(params.max_inner), int(params.max_line_search))
+    out = []
+    for s in range(k):
+        chosen = nodes[ends[s]: ends[s + 1]]
+        out.append(ClipperSolution(chosen, graph.associations[chosen], us[s], float(scores[s]),
+                                   float(penalties[s])))
+    return out
 
 
 def clipper_solve(graph: ConsistencyGraph, params: ClipperParams | None = None) -> ClipperSolution:
@@ -562,8 +679,11 @@ def clipper_solve(graph: ConsistencyGraph, params: ClipperParams | None = None) 
         DataError: graph is not a ConsistencyGraph.
     """
     params = _checked_graph("clipper_solve", graph, params)
-    return _run(graph, graph.weights, graph.diag, np.ones(graph.m, dtype=np.bool_), params,
-                np.random.default_rng(params.seed))
+    found = _solutions(graph, 1, params, 0.0)
+    if found:
+        return found[0]
+    return ClipperSolution(np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros(graph.m),
+                           0.0, 0.0)
 
 
 def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
@@ -586,20 +706,4 @@ def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
              "must be an int >= 1")
     _require(_real(downweight) and 0 <= downweight < 1, "mno_clipper", "downweight", downweight,
              "must be in [0, 1)")
-    rng = np.random.default_rng(params.seed)
-    weights = graph.weights.copy()
-    diag = graph.diag.copy()
-    active = np.ones(graph.m, dtype=np.bool_)
-    solutions: list[ClipperSolution] = []
-    for _ in range(n_solutions):
-        solution = _run(graph, weights, diag, active, params, rng)
-        if len(solution) == 0:
-            break
-        solutions.append(solution)
-        nodes = solution.nodes
-        if downweight == 0.0:
-            active[nodes] = False
-        else:
-            weights[_edges_within(graph, nodes)] *= downweight
-            diag[nodes] *= downweight
-    return solutions
+    return [s for s in _solutions(graph, n_solutions, params, downweight) if len(s)]
