@@ -646,14 +646,39 @@ def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, thres
     return k, ends, nodes_all, us, penalties, scores
 
 
+#: the start draws kept per seed, and the longest stream kept: a few seeds serve every solve
+_STREAMS: dict[int, np.ndarray] = {}
+_STREAMS_KEPT = 4
+_STREAM_LONGEST = 1 << 20
+
+
+def _start_draws(seed: int, count: int) -> np.ndarray:
+    """The first `count` uniform [0, 1) draws of numpy's generator seeded with `seed`, read-only.
+
+    A seed's stream is the same on every solve, and seeding a generator costs as much as the
+    rest of a small solve's Python work, so streams are kept (a few seeds, up to
+    `_STREAM_LONGEST` draws each) and extended when a longer one is asked for.
+    """
+    stream = _STREAMS.get(seed)
+    if stream is None or stream.shape[0] < count:
+        stream = np.random.default_rng(seed).random(max(count, 4096))
+        stream.flags.writeable = False
+        if count > _STREAM_LONGEST:
+            return stream
+        if seed not in _STREAMS and len(_STREAMS) >= _STREAMS_KEPT:
+            _STREAMS.clear()  # one call, safe beside other threads' solves
+        _STREAMS[seed] = stream
+    return stream[:count]
+
+
 def _solutions(graph: ConsistencyGraph, n_solutions: int, params: ClipperParams,
                downweight: float) -> list[ClipperSolution]:
     """`mno_clipper` on checked arguments, the last solution possibly empty (see `_mno`)."""
     m = graph.m
-    # one row of start draws per solution that can be found: the same stream as drawing them
-    # one by one; with downweight 0 each solution removes a node, so there are at most m
+    # one row of start draws per solution that can be found (with downweight 0 each solution
+    # removes a node, so there are at most m): the stream drawn one solution at a time
     rows = min(n_solutions, m) if downweight == 0.0 else n_solutions
-    draws = np.random.default_rng(params.seed).uniform(0.0, 1.0, (rows, m))
+    draws = _start_draws(params.seed, rows * m).reshape(rows, m)
     k, ends, nodes, us, penalties, scores = _mno(
         graph.indptr, graph.indices, graph.weights, graph.diag, draws, float(downweight),
         params.rounding == "threshold", float(params.threshold), int(params.power_iterations),
