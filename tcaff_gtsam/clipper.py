@@ -133,6 +133,22 @@ class ClipperSolution:
         return self.nodes.shape[0]
 
 
+#: other-map distances are kept as a matrix up to this many object pairs (8 MB); beyond it each
+#: row is computed when it is needed, so memory stays linear in the map sizes
+_DISTANCE_MATRIX_MAX = 1 << 20
+
+
+@numba.njit(cache=True)
+def _distances_from(points, j, out):
+    """out[l] = |points[j] - points[l]| for every l."""
+    for ell in range(points.shape[0]):
+        s = 0.0
+        for a in range(points.shape[1]):
+            diff = points[j, a] - points[ell, a]
+            s += diff * diff
+        out[ell] = np.sqrt(s)
+
+
 @numba.njit(cache=True)
 def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_start,
                       inv_two_sigma_sq, epsilon):
@@ -140,16 +156,22 @@ def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_star
 
     Nodes are sorted by ego index and grouped: group g holds the nodes
     group_start[g]:group_start[g+1], all with ego object group_ego[g]. The ego distances
-    |p_i - p_k| from group g to every later group are computed once per group, and the i != k
-    rule means skipping g's own group. Distances are computed from the points, not read from
-    n x n matrices, so memory stays linear in the map sizes. Each row is gathered in a fixed
-    scratch buffer so the inner loop never reallocates; the output grows only between rows.
+    |p_i - p_k| from group g to every later group are computed once per group and spread over
+    the later nodes, and the i != k rule means skipping g's own group. Other-map distances
+    |q_j - q_l| come from a matrix when the map is small (`_DISTANCE_MATRIX_MAX`), else from
+    the points, one row per node. Each row is gathered in a fixed scratch buffer so the inner
+    loop never reallocates; the output grows only between rows.
     """
     m = other_idx.shape[0]
     n_groups = group_ego.shape[0]
+    n_other = other_points.shape[0]
     dim = ego_points.shape[1]
-    d_g = np.empty(n_groups)
-    d_j = np.empty(other_points.shape[0])
+    d_ego = np.empty(m)  # |p_i - p_k| for each later node q = (k, l), i the current group's
+    matrix = n_other * n_other <= _DISTANCE_MATRIX_MAX
+    d_other = np.empty((n_other if matrix else 1, n_other))
+    if matrix:
+        for j in range(n_other):
+            _distances_from(other_points, j, d_other[j])
     row_cols = np.empty(m, np.int64)
     row_c = np.empty(m)
     capacity = max(16, 4 * m)
@@ -165,25 +187,25 @@ def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_star
             for a in range(dim):
                 diff = ego_points[i, a] - ego_points[k, a]
                 s += diff * diff
-            d_g[h] = np.sqrt(s)
-        for p in range(group_start[g], group_start[g + 1]):
+            d_ik = np.sqrt(s)
+            for q in range(group_start[h], group_start[h + 1]):
+                d_ego[q] = d_ik
+        later = group_start[g + 1]
+        for p in range(group_start[g], later):
             j = other_idx[p]
-            for ell in range(other_points.shape[0]):
-                s = 0.0
-                for a in range(dim):
-                    diff = other_points[j, a] - other_points[ell, a]
-                    s += diff * diff
-                d_j[ell] = np.sqrt(s)
+            if matrix:
+                d_j = d_other[j]
+            else:
+                d_j = d_other[0]
+                _distances_from(other_points, j, d_j)
             count = 0
-            for h in range(g + 1, n_groups):
-                d_ik = d_g[h]
-                for q in range(group_start[h], group_start[h + 1]):
-                    ell = other_idx[q]
-                    c = abs(d_ik - d_j[ell])
-                    if c < epsilon and ell != j:
-                        row_cols[count] = q
-                        row_c[count] = c
-                        count += 1
+            for q in range(later, m):
+                ell = other_idx[q]
+                c = abs(d_ego[q] - d_j[ell])
+                if c < epsilon and ell != j:
+                    row_cols[count] = q
+                    row_c[count] = c
+                    count += 1
             if n + count > capacity:
                 capacity = max(2 * capacity, n + count)
                 rows = np.concatenate((rows[:n], np.empty(capacity - n, np.int64)))
