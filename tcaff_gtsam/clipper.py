@@ -245,23 +245,40 @@ def _symmetric_csr(m, rows, cols, wts):
 @numba.njit(cache=True)
 def _graph_csr(ego_points, other_points, associations, inv_two_sigma_sq, epsilon):
     """CSR arrays (indptr, indices, weights) of the consistency graph: the nodes grouped by
-    ego object (a stable sort, the identity for sorted input), their consistent pairs, and the
-    symmetric matrix of those. One compiled call, so a small graph costs no Python steps."""
+    ego object (a stable counting sort, the identity for sorted input), their consistent
+    pairs, and the symmetric matrix of those. One compiled call, so a small graph costs no
+    Python steps. Written with loops only: numpy's sorts cost seconds of compilation each."""
     m = associations.shape[0]
-    order = np.argsort(associations[:, 0], kind="mergesort")
-    ego_sorted = associations[order, 0]
-    other_sorted = associations[order, 1].copy()
-    group_start = np.empty(m + 1, np.int64)
-    n_groups = 0
+    n_ego = 0
     for s in range(m):
-        if s == 0 or ego_sorted[s] != ego_sorted[s - 1]:
-            group_start[n_groups] = s
-            n_groups += 1
-    group_start[n_groups] = m
-    group_start = group_start[: n_groups + 1]
-    group_ego = ego_sorted[group_start[:-1]]
+        n_ego = max(n_ego, associations[s, 0] + 1)
+    group_start = np.zeros(n_ego + 1, np.int64)  # nodes per ego object, then where each starts
+    for s in range(m):
+        group_start[associations[s, 0] + 1] += 1
+    n_groups = 0
+    for i in range(n_ego):
+        n_groups += group_start[i + 1] > 0
+        group_start[i + 1] += group_start[i]
+    cursor = group_start[:-1].copy()
+    order = np.empty(m, np.int64)
+    for s in range(m):
+        i = associations[s, 0]
+        order[cursor[i]] = s
+        cursor[i] += 1
+    other_sorted = np.empty(m, np.int64)
+    for s in range(m):
+        other_sorted[s] = associations[order[s], 1]
+    group_ego = np.empty(n_groups, np.int64)
+    starts = np.empty(n_groups + 1, np.int64)
+    g = 0
+    for i in range(n_ego):
+        if group_start[i + 1] > group_start[i]:
+            group_ego[g] = i
+            starts[g] = group_start[i]
+            g += 1
+    starts[n_groups] = m
     rows, cols, wts = _consistent_pairs(ego_points, other_points, other_sorted, group_ego,
-                                        group_start, inv_two_sigma_sq, epsilon)
+                                        starts, inv_two_sigma_sq, epsilon)
     for e in range(rows.shape[0]):
         rows[e] = order[rows[e]]
         cols[e] = order[cols[e]]
@@ -585,7 +602,9 @@ def _sum(a):
             total += a[i]
         return total
     if n <= 128:
-        r = a[:8].copy()
+        r = np.empty(8)
+        for j in range(8):
+            r[j] = a[j]
         i = 8
         while i < n - n % 8:
             for j in range(8):
@@ -602,19 +621,84 @@ def _sum(a):
 
 
 @numba.njit(cache=True)
-def _round(u, objective, eps, use_threshold, threshold):
+def _largest_first(u, support):
+    """`support` reordered by u descending, ties in their given order: a stable merge sort
+    (numpy's sorts cost seconds of compilation each)."""
+    k = support.shape[0]
+    order = support.copy()
+    scratch = np.empty(k, np.int64)
+    width = 1
+    while width < k:
+        for lo in range(0, k, 2 * width):
+            mid = min(lo + width, k)
+            hi = min(lo + 2 * width, k)
+            a, b, out = lo, mid, lo
+            while a < mid and b < hi:
+                if u[order[b]] > u[order[a]]:
+                    scratch[out] = order[b]
+                    b += 1
+                else:
+                    scratch[out] = order[a]
+                    a += 1
+                out += 1
+            while a < mid:
+                scratch[out] = order[a]
+                a += 1
+                out += 1
+            while b < hi:
+                scratch[out] = order[b]
+                b += 1
+                out += 1
+        order, scratch = scratch, order
+        width *= 2
+    return order
+
+
+@numba.njit(cache=True)
+def _round(u, objective, eps, use_threshold, threshold, member):
     """Nodes (ascending) of a relaxed solution u: of those above eps, the ones above
-    `threshold` * max(u), or the round(objective) largest (ties to the lower node)."""
-    support = np.flatnonzero(u > eps)
-    if support.shape[0] == 0:
-        return support
-    values = u[support]
+    `threshold` * max(u), or the round(objective) largest (ties to the lower node).
+    `member` is (m,) bool scratch, all False on entry and on return."""
+    n_support = 0
+    largest = 0.0
+    for p in range(u.shape[0]):
+        if u[p] > eps:
+            n_support += 1
+            largest = max(largest, u[p])
+    support = np.empty(n_support, np.int64)
+    n_support = 0
+    for p in range(u.shape[0]):
+        if u[p] > eps:
+            support[n_support] = p
+            n_support += 1
     if use_threshold:
-        chosen = support[values > threshold * values.max()]
+        bound = threshold * largest
+        for p in support:
+            member[p] = u[p] > bound
     else:
-        size = int(max(1.0, min(np.rint(objective), support.shape[0])))
-        chosen = support[np.argsort(-values, kind="mergesort")[:size]]
-    return np.sort(chosen)
+        size = int(max(1.0, min(np.rint(objective), n_support)))
+        for p in _largest_first(u, support)[:size]:
+            member[p] = True
+    count = 0
+    for p in support:
+        count += member[p]
+    chosen = np.empty(count, np.int64)
+    count = 0
+    for p in support:  # ascending
+        if member[p]:
+            chosen[count] = p
+            count += 1
+            member[p] = False
+    return chosen
+
+
+@numba.njit(cache=True)
+def _gathered(values, at):
+    """values[at], written as a loop (array expressions cost seconds of compilation)."""
+    out = np.empty(at.shape[0])
+    for s in range(at.shape[0]):
+        out[s] = values[at[s]]
+    return out
 
 
 @numba.njit(cache=True)
@@ -642,23 +726,32 @@ def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, thres
     nodes_all = np.empty(n_solutions * m, np.int64)
     k = 0
     while k < n_solutions and n_active > 0:
-        u0 = np.where(active, draws[k], 0.0)
-        u0 /= np.sqrt(np.dot(u0, u0))  # as np.linalg.norm computes it
+        u0 = np.zeros(m)
+        for p in range(m):
+            if active[p]:
+                u0[p] = draws[k, p]
+        norm = np.sqrt(np.dot(u0, u0))  # as np.linalg.norm computes it
+        for p in range(m):
+            u0[p] /= norm
         u, d, objective = _solve(indptr, indices, w, dg, active, u0, power_iterations, tol_u,
                                  eps, beta, max_outer, max_inner, max_line_search)
-        nodes = _round(u, objective, eps, use_threshold, threshold)
+        nodes = _round(u, objective, eps, use_threshold, threshold, member)
         edges = _edges_within(indptr, indices, nodes, member)
         if nodes.shape[0]:
-            scores[k] = (_sum(diag[nodes]) + _sum(weights[edges])) / nodes.shape[0]
-        us[k] = u
+            scores[k] = ((_sum(_gathered(diag, nodes)) + _sum(_gathered(weights, edges)))
+                         / nodes.shape[0])
+        for p in range(m):
+            us[k, p] = u[p]
         penalties[k] = d
         ends[k + 1] = ends[k] + nodes.shape[0]
-        nodes_all[ends[k]: ends[k + 1]] = nodes
+        for s in range(nodes.shape[0]):
+            nodes_all[ends[k] + s] = nodes[s]
         k += 1
         if nodes.shape[0] == 0:
             break
         if downweight == 0.0:
-            active[nodes] = False
+            for p in nodes:
+                active[p] = False
             n_active -= nodes.shape[0]
         else:
             for e in edges:

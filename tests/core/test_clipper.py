@@ -344,3 +344,15 @@ def test_compiled_sum_adds_in_numpys_order(values):
 
     a = np.array(values, dtype=float)
     assert _sum(a) == a.sum()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(0, 5), max_size=80))
+def test_largest_first_is_numpys_stable_descending_order(values):
+    """Rounding keeps the largest entries of u, ties to the lower node, as a stable sort does."""
+    from tcaff_gtsam.clipper import _largest_first
+
+    u = np.array(values, dtype=float)
+    support = np.flatnonzero(u > 0)
+    expected = support[np.argsort(-u[support], kind="stable")]
+    np.testing.assert_array_equal(_largest_first(u, support), expected)
