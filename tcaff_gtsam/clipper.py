@@ -133,6 +133,22 @@ class ClipperSolution:
         return self.nodes.shape[0]
 
 
+#: other-map distances are kept as a matrix up to this many object pairs (8 MB); beyond it each
+#: row is computed when it is needed, so memory stays linear in the map sizes
+_DISTANCE_MATRIX_MAX = 1 << 20
+
+
+@numba.njit(cache=True)
+def _distances_from(points, j, out):
+    """out[l] = |points[j] - points[l]| for every l."""
+    for ell in range(points.shape[0]):
+        s = 0.0
+        for a in range(points.shape[1]):
+            diff = points[j, a] - points[ell, a]
+            s += diff * diff
+        out[ell] = np.sqrt(s)
+
+
 @numba.njit(cache=True)
 def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_start,
                       inv_two_sigma_sq, epsilon):
@@ -140,16 +156,22 @@ def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_star
 
     Nodes are sorted by ego index and grouped: group g holds the nodes
     group_start[g]:group_start[g+1], all with ego object group_ego[g]. The ego distances
-    |p_i - p_k| from group g to every later group are computed once per group, and the i != k
-    rule means skipping g's own group. Distances are computed from the points, not read from
-    n x n matrices, so memory stays linear in the map sizes. Each row is gathered in a fixed
-    scratch buffer so the inner loop never reallocates; the output grows only between rows.
+    |p_i - p_k| from group g to every later group are computed once per group and spread over
+    the later nodes, and the i != k rule means skipping g's own group. Other-map distances
+    |q_j - q_l| come from a matrix when the map is small (`_DISTANCE_MATRIX_MAX`), else from
+    the points, one row per node. Each row is gathered in a fixed scratch buffer so the inner
+    loop never reallocates; the output grows only between rows.
     """
     m = other_idx.shape[0]
     n_groups = group_ego.shape[0]
+    n_other = other_points.shape[0]
     dim = ego_points.shape[1]
-    d_g = np.empty(n_groups)
-    d_j = np.empty(other_points.shape[0])
+    d_ego = np.empty(m)  # |p_i - p_k| for each later node q = (k, l), i the current group's
+    matrix = n_other * n_other <= _DISTANCE_MATRIX_MAX
+    d_other = np.empty((n_other if matrix else 1, n_other))
+    if matrix:
+        for j in range(n_other):
+            _distances_from(other_points, j, d_other[j])
     row_cols = np.empty(m, np.int64)
     row_c = np.empty(m)
     capacity = max(16, 4 * m)
@@ -165,25 +187,25 @@ def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_star
             for a in range(dim):
                 diff = ego_points[i, a] - ego_points[k, a]
                 s += diff * diff
-            d_g[h] = np.sqrt(s)
-        for p in range(group_start[g], group_start[g + 1]):
+            d_ik = np.sqrt(s)
+            for q in range(group_start[h], group_start[h + 1]):
+                d_ego[q] = d_ik
+        later = group_start[g + 1]
+        for p in range(group_start[g], later):
             j = other_idx[p]
-            for ell in range(other_points.shape[0]):
-                s = 0.0
-                for a in range(dim):
-                    diff = other_points[j, a] - other_points[ell, a]
-                    s += diff * diff
-                d_j[ell] = np.sqrt(s)
+            if matrix:
+                d_j = d_other[j]
+            else:
+                d_j = d_other[0]
+                _distances_from(other_points, j, d_j)
             count = 0
-            for h in range(g + 1, n_groups):
-                d_ik = d_g[h]
-                for q in range(group_start[h], group_start[h + 1]):
-                    ell = other_idx[q]
-                    c = abs(d_ik - d_j[ell])
-                    if c < epsilon and ell != j:
-                        row_cols[count] = q
-                        row_c[count] = c
-                        count += 1
+            for q in range(later, m):
+                ell = other_idx[q]
+                c = abs(d_ego[q] - d_j[ell])
+                if c < epsilon and ell != j:
+                    row_cols[count] = q
+                    row_c[count] = c
+                    count += 1
             if n + count > capacity:
                 capacity = max(2 * capacity, n + count)
                 rows = np.concatenate((rows[:n], np.empty(capacity - n, np.int64)))
@@ -218,6 +240,49 @@ def _symmetric_csr(m, rows, cols, wts):
         weights[cursor[q]] = wts[e]
         cursor[q] += 1
     return indptr, indices, weights
+
+
+@numba.njit(cache=True)
+def _graph_csr(ego_points, other_points, associations, inv_two_sigma_sq, epsilon):
+    """CSR arrays (indptr, indices, weights) of the consistency graph: the nodes grouped by
+    ego object (a stable counting sort, the identity for sorted input), their consistent
+    pairs, and the symmetric matrix of those. One compiled call, so a small graph costs no
+    Python steps. Written with loops only: numpy's sorts cost seconds of compilation each."""
+    m = associations.shape[0]
+    n_ego = 0
+    for s in range(m):
+        n_ego = max(n_ego, associations[s, 0] + 1)
+    group_start = np.zeros(n_ego + 1, np.int64)  # nodes per ego object, then where each starts
+    for s in range(m):
+        group_start[associations[s, 0] + 1] += 1
+    n_groups = 0
+    for i in range(n_ego):
+        n_groups += group_start[i + 1] > 0
+        group_start[i + 1] += group_start[i]
+    cursor = group_start[:-1].copy()
+    order = np.empty(m, np.int64)
+    for s in range(m):
+        i = associations[s, 0]
+        order[cursor[i]] = s
+        cursor[i] += 1
+    other_sorted = np.empty(m, np.int64)
+    for s in range(m):
+        other_sorted[s] = associations[order[s], 1]
+    group_ego = np.empty(n_groups, np.int64)
+    starts = np.empty(n_groups + 1, np.int64)
+    g = 0
+    for i in range(n_ego):
+        if group_start[i + 1] > group_start[i]:
+            group_ego[g] = i
+            starts[g] = group_start[i]
+            g += 1
+    starts[n_groups] = m
+    rows, cols, wts = _consistent_pairs(ego_points, other_points, other_sorted, group_ego,
+                                        starts, inv_two_sigma_sq, epsilon)
+    for e in range(rows.shape[0]):
+        rows[e] = order[rows[e]]
+        cols[e] = order[cols[e]]
+    return _symmetric_csr(m, rows, cols, wts)
 
 
 def _int_vector(owner: str, name: str, value) -> np.ndarray:
@@ -288,16 +353,18 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         if diag.shape != (m,) or not np.all(np.isfinite(diag)) or np.any(diag < 0):
             raise DataError(f"consistency_graph: prior must be ({m},) finite and >= 0, "
                             f"got shape {diag.shape}")
-    order = np.argsort(associations[:, 0], kind="stable")  # identity for sorted input
-    ego_sorted = associations[order, 0]
-    starts = np.flatnonzero(np.diff(ego_sorted, prepend=-1))  # first node of each ego object
-    rows, cols, wts = _consistent_pairs(
+    return _graph(ego_points, other_points, associations, epsilon, sigma, diag)
+
+
+def _graph(ego_points: np.ndarray, other_points: np.ndarray, associations: np.ndarray,
+           epsilon: float, sigma: float, diag: np.ndarray) -> ConsistencyGraph:
+    """`consistency_graph` on arguments already checked: (n1, d) and (n2, d) finite points,
+    (m, 2) int64 associations in range, (m,) diag, epsilon and sigma finite and > 0."""
+    indptr, indices, weights = _graph_csr(
         np.ascontiguousarray(ego_points, np.float64),
         np.ascontiguousarray(other_points, np.float64),
-        np.ascontiguousarray(associations[order, 1]), ego_sorted[starts],
-        np.r_[starts, m].astype(np.int64), 1.0 / (2.0 * sigma * sigma), epsilon)
-    rows, cols = order[rows], order[cols]
-    indptr, indices, weights = _symmetric_csr(m, rows, cols, wts)
+        np.ascontiguousarray(associations, np.int64), 1.0 / (2.0 * sigma * sigma),
+        float(epsilon))
     return ConsistencyGraph._built(associations, indptr, indices, weights, diag)
 
 
@@ -502,52 +569,242 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
     return u, d, F_affinity
 
 
-def _edges_within(graph: ConsistencyGraph, nodes: np.ndarray) -> np.ndarray:
-    """Positions in the CSR arrays of the edges joining two of `nodes` (both directions)."""
-    member = np.zeros(graph.m, dtype=bool)
-    member[nodes] = True
-    starts, stops = graph.indptr[nodes], graph.indptr[nodes + 1]
-    lengths = stops - starts
-    # arange over each selected row, concatenated: row offsets plus a running index
-    edge_ids = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
-    return edge_ids[member[graph.indices[edge_ids]]]
+@numba.njit(cache=True)
+def _edges_within(indptr, indices, nodes, member):
+    """Positions in the CSR arrays of the edges joining two of `nodes` (ascending), both
+    directions, row by row. `member` is (m,) bool scratch, all False on entry and on return."""
+    for p in nodes:
+        member[p] = True
+    count = 0
+    for p in nodes:
+        for e in range(indptr[p], indptr[p + 1]):
+            count += member[indices[e]]
+    edges = np.empty(count, np.int64)
+    count = 0
+    for p in nodes:
+        for e in range(indptr[p], indptr[p + 1]):
+            if member[indices[e]]:
+                edges[count] = e
+                count += 1
+    for p in nodes:
+        member[p] = False
+    return edges
 
 
-def _selection_score(graph: ConsistencyGraph, nodes: np.ndarray) -> float:
-    """x'Mx / x'x for the indicator x of `nodes` on the original affinity."""
-    if nodes.size == 0:
-        return 0.0
-    inside = _edges_within(graph, nodes)
-    return float((graph.diag[nodes].sum() + graph.weights[inside].sum()) / nodes.size)
+@numba.njit(cache=True)
+def _sum(a):
+    """sum(a) in the order numpy's pairwise summation adds (blocks of up to 128 with eight
+    accumulators), so compiled scores equal the ones numpy computes to the last bit."""
+    n = a.shape[0]
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += a[i]
+        return total
+    if n <= 128:
+        r = np.empty(8)
+        for j in range(8):
+            r[j] = a[j]
+        i = 8
+        while i < n - n % 8:
+            for j in range(8):
+                r[j] += a[i + j]
+            i += 8
+        total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            total += a[i]
+            i += 1
+        return total
+    half = n // 2
+    half -= half % 8
+    return _sum(a[:half]) + _sum(a[half:])
 
 
-def _round(u: np.ndarray, Mu_objective: float, params: ClipperParams) -> np.ndarray:
-    support = np.flatnonzero(u > params.eps)
-    if support.size == 0:
-        return support.astype(np.int64)
-    if params.rounding == "threshold":
-        chosen = support[u[support] > params.threshold * u[support].max()]
+@numba.njit(cache=True)
+def _largest_first(u, support):
+    """`support` reordered by u descending, ties in their given order: a stable merge sort
+    (numpy's sorts cost seconds of compilation each)."""
+    k = support.shape[0]
+    order = support.copy()
+    scratch = np.empty(k, np.int64)
+    width = 1
+    while width < k:
+        for lo in range(0, k, 2 * width):
+            mid = min(lo + width, k)
+            hi = min(lo + 2 * width, k)
+            a, b, out = lo, mid, lo
+            while a < mid and b < hi:
+                if u[order[b]] > u[order[a]]:
+                    scratch[out] = order[b]
+                    b += 1
+                else:
+                    scratch[out] = order[a]
+                    a += 1
+                out += 1
+            while a < mid:
+                scratch[out] = order[a]
+                a += 1
+                out += 1
+            while b < hi:
+                scratch[out] = order[b]
+                b += 1
+                out += 1
+        order, scratch = scratch, order
+        width *= 2
+    return order
+
+
+@numba.njit(cache=True)
+def _round(u, objective, eps, use_threshold, threshold, member):
+    """Nodes (ascending) of a relaxed solution u: of those above eps, the ones above
+    `threshold` * max(u), or the round(objective) largest (ties to the lower node).
+    `member` is (m,) bool scratch, all False on entry and on return."""
+    n_support = 0
+    largest = 0.0
+    for p in range(u.shape[0]):
+        if u[p] > eps:
+            n_support += 1
+            largest = max(largest, u[p])
+    support = np.empty(n_support, np.int64)
+    n_support = 0
+    for p in range(u.shape[0]):
+        if u[p] > eps:
+            support[n_support] = p
+            n_support += 1
+    if use_threshold:
+        bound = threshold * largest
+        for p in support:
+            member[p] = u[p] > bound
     else:
-        size = int(np.clip(round(Mu_objective), 1, support.size))
-        order = np.argsort(-u[support], kind="stable")
-        chosen = support[order[:size]]
-    return np.sort(chosen).astype(np.int64)
+        size = int(max(1.0, min(np.rint(objective), n_support)))
+        for p in _largest_first(u, support)[:size]:
+            member[p] = True
+    count = 0
+    for p in support:
+        count += member[p]
+    chosen = np.empty(count, np.int64)
+    count = 0
+    for p in support:  # ascending
+        if member[p]:
+            chosen[count] = p
+            count += 1
+            member[p] = False
+    return chosen
 
 
-def _run(graph: ConsistencyGraph, weights: np.ndarray, diag: np.ndarray, active: np.ndarray,
-         params: ClipperParams, rng: np.random.Generator) -> ClipperSolution:
+@numba.njit(cache=True)
+def _gathered(values, at):
+    """values[at], written as a loop (array expressions cost seconds of compilation)."""
+    out = np.empty(at.shape[0])
+    for s in range(at.shape[0]):
+        out[s] = values[at[s]]
+    return out
+
+
+@numba.njit(cache=True)
+def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, threshold,
+         power_iterations, tol_u, eps, beta, max_outer, max_inner, max_line_search):
+    """MNO-CLIPPER in one compiled call: up to len(draws) solutions, the start vector of
+    solution s from draws[s] (uniform [0, 1) per node). After each, the affinities among its
+    nodes are multiplied by `downweight` (0: its nodes leave the graph). Stops after the
+    first empty solution (which is returned) or when no node is left.
+
+    Returns (k, ends, nodes, us, penalties, scores): solution s < k selected
+    nodes[ends[s]:ends[s + 1]], relaxed vector us[s] (m,), final penalty penalties[s] and
+    score scores[s] (x'Mx / x'x of its indicator x on the original affinity).
+    """
+    n_solutions, m = draws.shape
+    w = weights.copy()
+    dg = diag.copy()
+    active = np.ones(m, np.bool_)
+    member = np.zeros(m, np.bool_)
+    n_active = m
+    us = np.zeros((n_solutions, m))
+    penalties = np.zeros(n_solutions)
+    scores = np.zeros(n_solutions)
+    ends = np.zeros(n_solutions + 1, np.int64)
+    nodes_all = np.empty(n_solutions * m, np.int64)
+    k = 0
+    while k < n_solutions and n_active > 0:
+        u0 = np.zeros(m)
+        for p in range(m):
+            if active[p]:
+                u0[p] = draws[k, p]
+        norm = np.sqrt(np.dot(u0, u0))  # as np.linalg.norm computes it
+        for p in range(m):
+            u0[p] /= norm
+        u, d, objective = _solve(indptr, indices, w, dg, active, u0, power_iterations, tol_u,
+                                 eps, beta, max_outer, max_inner, max_line_search)
+        nodes = _round(u, objective, eps, use_threshold, threshold, member)
+        edges = _edges_within(indptr, indices, nodes, member)
+        if nodes.shape[0]:
+            scores[k] = ((_sum(_gathered(diag, nodes)) + _sum(_gathered(weights, edges)))
+                         / nodes.shape[0])
+        for p in range(m):
+            us[k, p] = u[p]
+        penalties[k] = d
+        ends[k + 1] = ends[k] + nodes.shape[0]
+        for s in range(nodes.shape[0]):
+            nodes_all[ends[k] + s] = nodes[s]
+        k += 1
+        if nodes.shape[0] == 0:
+            break
+        if downweight == 0.0:
+            for p in nodes:
+                active[p] = False
+            n_active -= nodes.shape[0]
+        else:
+            for e in edges:
+                w[e] *= downweight
+            for p in nodes:
+                dg[p] *= downweight
+    return k, ends, nodes_all, us, penalties, scores
+
+
+#: the start draws kept per seed, and the longest stream kept: a few seeds serve every solve
+_STREAMS: dict[int, np.ndarray] = {}
+_STREAMS_KEPT = 4
+_STREAM_LONGEST = 1 << 20
+
+
+def _start_draws(seed: int, count: int) -> np.ndarray:
+    """The first `count` uniform [0, 1) draws of numpy's generator seeded with `seed`, read-only.
+
+    A seed's stream is the same on every solve, and seeding a generator costs as much as the
+    rest of a small solve's Python work, so streams are kept (a few seeds, up to
+    `_STREAM_LONGEST` draws each) and extended when a longer one is asked for.
+    """
+    stream = _STREAMS.get(seed)
+    if stream is None or stream.shape[0] < count:
+        stream = np.random.default_rng(seed).random(max(count, 4096))
+        stream.flags.writeable = False
+        if count > _STREAM_LONGEST:
+            return stream
+        if seed not in _STREAMS and len(_STREAMS) >= _STREAMS_KEPT:
+            _STREAMS.clear()  # one call, safe beside other threads' solves
+        _STREAMS[seed] = stream
+    return stream[:count]
+
+
+def _solutions(graph: ConsistencyGraph, n_solutions: int, params: ClipperParams,
+               downweight: float) -> list[ClipperSolution]:
+    """`mno_clipper` on checked arguments, the last solution possibly empty (see `_mno`)."""
     m = graph.m
-    if m == 0 or not active.any():
-        return ClipperSolution(np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros(m),
-                               0.0, 0.0)
-    u0 = rng.uniform(0.0, 1.0, m) * active
-    u0 /= np.linalg.norm(u0)
-    u, d, objective = _solve(graph.indptr, graph.indices, weights, diag, active, u0,
-                             params.power_iterations, params.tol_u, params.eps, params.beta,
-                             params.max_outer, params.max_inner, params.max_line_search)
-    nodes = _round(u, objective, params)
-    return ClipperSolution(nodes, graph.associations[nodes], u, _selection_score(graph, nodes),
-                           float(d))
+    # one row of start draws per solution that can be found (with downweight 0 each solution
+    # removes a node, so there are at most m): the stream drawn one solution at a time
+    rows = min(n_solutions, m) if downweight == 0.0 else n_solutions
+    draws = _start_draws(params.seed, rows * m).reshape(rows, m)
+    k, ends, nodes, us, penalties, scores = _mno(
+        graph.indptr, graph.indices, graph.weights, graph.diag, draws, float(downweight),
+        params.rounding == "threshold", float(params.threshold), int(params.power_iterations),
+        float(params.tol_u), float(params.eps), float(params.beta), int(params.max_outer),
+        int(params.max_inner), int(params.max_line_search))
+    out = []
+    for s in range(k):
+        chosen = nodes[ends[s]: ends[s + 1]]
+        out.append(ClipperSolution(chosen, graph.associations[chosen], us[s], float(scores[s]),
+                                   float(penalties[s])))
+    return out
 
 
 def clipper_solve(graph: ConsistencyGraph, params: ClipperParams | None = None) -> ClipperSolution:
@@ -562,8 +819,11 @@ def clipper_solve(graph: ConsistencyGraph, params: ClipperParams | None = None) 
         DataError: graph is not a ConsistencyGraph.
     """
     params = _checked_graph("clipper_solve", graph, params)
-    return _run(graph, graph.weights, graph.diag, np.ones(graph.m, dtype=np.bool_), params,
-                np.random.default_rng(params.seed))
+    found = _solutions(graph, 1, params, 0.0)
+    if found:
+        return found[0]
+    return ClipperSolution(np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros(graph.m),
+                           0.0, 0.0)
 
 
 def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
@@ -586,20 +846,4 @@ def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
              "must be an int >= 1")
     _require(_real(downweight) and 0 <= downweight < 1, "mno_clipper", "downweight", downweight,
              "must be in [0, 1)")
-    rng = np.random.default_rng(params.seed)
-    weights = graph.weights.copy()
-    diag = graph.diag.copy()
-    active = np.ones(graph.m, dtype=np.bool_)
-    solutions: list[ClipperSolution] = []
-    for _ in range(n_solutions):
-        solution = _run(graph, weights, diag, active, params, rng)
-        if len(solution) == 0:
-            break
-        solutions.append(solution)
-        nodes = solution.nodes
-        if downweight == 0.0:
-            active[nodes] = False
-        else:
-            weights[_edges_within(graph, nodes)] *= downweight
-            diag[nodes] *= downweight
-    return solutions
+    return [s for s in _solutions(graph, n_solutions, params, downweight) if len(s)]

@@ -16,16 +16,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .clipper import consistency_graph, mno_clipper
+from .clipper import _graph, _solutions
 from .errors import DataError
 from .geometry import _se2_from_params, _se2_to_params, _se3_to_se2, _wrap_angle
 from .inputs import finite_time, real_array, shown
 from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, _finite, _given_or_default, _real, _require
 from .registration import (
+    MAX_COORDINATE,
+    MAX_WEIGHT,
     _mutual_inliers,
     _registration_rmse,
     _spread,
+    _weighted_arun,
     _weights,
     most_recent_pairs,
     size_compatible,
@@ -284,10 +287,19 @@ class FrameAligner:
             assoc = np.argwhere(compatible).astype(np.int64)
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
-        graph = consistency_graph(p_all, q_all, assoc, prm.clipper.epsilon, prm.clipper.sigma)
-        solutions = mno_clipper(graph, prm.n_solutions, prm.clipper, prm.mno_downweight)
+        # the maps and parameters were checked when they were made, so the graph and solver
+        # skip their checks; so does registration unless coordinates or weights (at most
+        # 1 / weight_offset) are beyond what it takes, where weighted_arun says which
+        graph = _graph(p_all, q_all, assoc, prm.clipper.epsilon, prm.clipper.sigma,
+                       np.ones(assoc.shape[0]))
+        solutions = [s for s in _solutions(graph, prm.n_solutions, prm.clipper,
+                                           prm.mno_downweight) if len(s)]
         if not solutions:
             return []
+        in_range = (np.abs(p_all).max() <= MAX_COORDINATE
+                    and np.abs(q_all).max() <= MAX_COORDINATE
+                    and 1.0 / prm.weight_offset <= MAX_WEIGHT)
+        arun = _weighted_arun if in_range else weighted_arun
         best = max(s.score for s in solutions)
         counting = prm.min_inliers is not None or prm.check_ambiguity
         found = []
@@ -295,7 +307,7 @@ class FrameAligner:
             a = sol.associations
             p, q = p_all[a[:, 0]], q_all[a[:, 1]]
             w = _weights(ages_ego[a[:, 0]] * ages_other[a[:, 1]], prm.weight_offset)
-            T = weighted_arun(p, q, w)
+            T = arun(p, q, w)
             if T is None:
                 continue
             T2 = _se3_to_se2(T) if prm.dim == 3 else T

@@ -190,7 +190,7 @@ def weighted_arun(p: np.ndarray, q: np.ndarray, weights: np.ndarray | None = Non
     if p.ndim != 2 or p.shape != q.shape or p.shape[1] not in (2, 3):
         raise DataError(f"weighted_arun: p and q must both be (k, 2) or (k, 3), "
                         f"got {p.shape} and {q.shape}")
-    k, d = p.shape
+    k = p.shape[0]
     w = np.ones(k) if weights is None else real_array(o, "weights", weights)
     if w.shape != (k,):
         raise DataError(f"weighted_arun: weights must have shape ({k},), got {w.shape}")
@@ -208,6 +208,13 @@ def weighted_arun(p: np.ndarray, q: np.ndarray, weights: np.ndarray | None = Non
         largest = max(float(np.abs(p).max()), float(np.abs(q).max()))
         raise DataError(f"weighted_arun: coordinates must lie within {MAX_COORDINATE:g} "
                         f"metres of the origin, got one of magnitude {largest:.3g}")
+    return _weighted_arun(p, q, w)
+
+
+def _weighted_arun(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray | None:
+    """`weighted_arun` on checked arguments: (k, d) finite points within MAX_COORDINATE and
+    (k,) weights in [0, MAX_WEIGHT]."""
+    d = p.shape[1]
     if np.count_nonzero(w > 0) < 2:
         return None
     w_sum = w.sum()

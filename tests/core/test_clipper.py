@@ -216,7 +216,10 @@ def test_edges_within_a_node_set(seed):
     member[nodes] = True
     rows = np.repeat(np.arange(graph.m), np.diff(graph.indptr))
     expected = np.flatnonzero(member[rows] & member[graph.indices])
-    np.testing.assert_array_equal(np.sort(_edges_within(graph, nodes)), expected)
+    scratch = np.zeros(graph.m, bool)
+    edges = _edges_within(graph.indptr, graph.indices, nodes, scratch)
+    np.testing.assert_array_equal(edges, expected)  # row by row, in CSR order
+    assert not scratch.any()  # the scratch is handed back cleared
 
 
 # ---------------------------------------------------------------------------------------------
@@ -331,3 +334,25 @@ def test_every_seed_clipper_params_accepts_solves(seed):
 def test_seeds_the_solver_cannot_take_are_config_errors(seed):
     with pytest.raises(ConfigError, match=r"^ClipperParams\.seed = .*must be an int >= 0"):
         ClipperParams(seed=seed)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(0, 1e6, allow_nan=False), max_size=600))
+def test_compiled_sum_adds_in_numpys_order(values):
+    """Scores are summed in compiled code; they must equal numpy's sums to the last bit."""
+    from tcaff_gtsam.clipper import _sum
+
+    a = np.array(values, dtype=float)
+    assert _sum(a) == a.sum()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(0, 5), max_size=80))
+def test_largest_first_is_numpys_stable_descending_order(values):
+    """Rounding keeps the largest entries of u, ties to the lower node, as a stable sort does."""
+    from tcaff_gtsam.clipper import _largest_first
+
+    u = np.array(values, dtype=float)
+    support = np.flatnonzero(u > 0)
+    expected = support[np.argsort(-u[support], kind="stable")]
+    np.testing.assert_array_equal(_largest_first(u, support), expected)

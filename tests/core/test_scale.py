@@ -145,8 +145,8 @@ def test_a_step_whose_gate_passes_more_than_the_cap_keeps_the_recent_pairs(caplo
 def test_the_cap_bounds_the_graph(monkeypatch):
     pair, ego, other = big_pair(200)
     seen = []
-    real = fa.consistency_graph
-    monkeypatch.setattr(fa, "consistency_graph",
+    real = fa._graph
+    monkeypatch.setattr(fa, "_graph",
                         lambda p, q, assoc, *a: seen.append(len(assoc)) or real(p, q, assoc, *a))
     FrameAligner(FrameAlignerParams(max_associations=500)).measurements(ego, other, pair.now)
     assert seen == [500]
