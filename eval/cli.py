@@ -978,6 +978,10 @@ def _click_errors() -> tuple[type, type]:
 
 _TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
              "mutual TLS).")
+_TEAM_HELP = ("Also take the other robots' alignments and publish each pair's team-consistent "
+              "one (pairwise alignments that fail a cycle of three robots left out, pairs "
+              "without one chained through a third robot) on tcaff/<team>/<robot>/team/<other>;"
+              " written to <robot>.team.csv.")
 
 
 def _tls(ca: Path | None, cert: Path | None, key: Path | None):
@@ -1046,6 +1050,7 @@ def node(
     drop_share: Annotated[float, typer.Option(
         help="Share of neighbours' maps to discard on arrival (to try a lossy link).")] = 0.0,
     drop_seed: Annotated[int, typer.Option(help="Seed of the discards.")] = 0,
+    team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
     tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
     tls_cert: Annotated[Path | None, typer.Option(
         help="PEM file: this node's certificate, signed by the team's authority.")] = None,
@@ -1068,7 +1073,7 @@ def node(
     _check_speed(speed)
     link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
     params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
-                        seed=drop_seed)
+                        seed=drop_seed, team_consistency=team_consistency)
     _writable_folder(output, "--output")
     if replay is not None:
         source = RobotReplay.load(replay)
@@ -1085,22 +1090,25 @@ def node(
     print(f"{robot}: {counts}")
 
 
-def _team_table(run, output: Path, names: tuple[str, ...]) -> Table:
-    """Per directed pair: alignments made, accepted share, final and median error."""
+def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -> Table:
+    """Per directed pair: alignments made, accepted share, final and median error (the team
+    alignments of `<robot>.team.csv` when `team`, with the share chained through a robot)."""
     import json
 
     import numpy as np
-    from tcaff_gtsam.node.results import read_alignments
+    from tcaff_gtsam.node.results import COLUMNS, TEAM_COLUMNS, read_alignments
 
     from tcaff_gtsam.errors import DataError
     from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 
-    table = _table("Per directed pair: the node's alignments against the truth")
-    _add_columns(table, ("pair", "steps", "accepted", "median error [m, deg]",
-                         "last error [m, deg]"))
+    table = _table("Per directed pair: the team-consistent alignments against the truth" if team
+                   else "Per directed pair: the node's alignments against the truth")
+    _add_columns(table, ("pair", "steps", "accepted", *(("chained",) if team else ()),
+                         "median error [m, deg]", "last error [m, deg]"))
     for i, robot in enumerate(names):
         try:
-            rows = read_alignments(output / f"{robot}.csv")
+            rows = (read_alignments(output / f"{robot}.team.csv", TEAM_COLUMNS) if team
+                    else read_alignments(output / f"{robot}.csv", COLUMNS))
         except DataError:
             continue
         for j, other in enumerate(names):
@@ -1113,18 +1121,21 @@ def _team_table(run, output: Path, names: tuple[str, ...]) -> Table:
             x = np.column_stack([rows[c][mine] for c in ("x", "y", "theta")])
             dt = np.linalg.norm(x[:, :2] - truth[:, :2], axis=1)
             dh = np.degrees(np.abs(wrap_angle(x[:, 2] - truth[:, 2])))
-            med = (f"{np.median(dt[accepted]):.2f}, {np.median(dh[accepted]):.1f}"
-                   if accepted.any() else "-")
-            last = f"{dt[-1]:.2f}, {dh[-1]:.1f}" if accepted[-1] else "-"
+            scored = accepted & np.isfinite(dt)  # a recorded run may lack the truth
+            med = (f"{np.median(dt[scored]):.2f}, {np.median(dh[scored]):.1f}"
+                   if scored.any() else "-")
+            last = f"{dt[-1]:.2f}, {dh[-1]:.1f}" if scored[-1] else "-"
+            chained = ([f"{100 * (rows['via'][mine][accepted] != '').mean():.0f} %"
+                        if accepted.any() else "-"] if team else [])
             table.add_row(f"{robot}->{other}", str(mine.sum()),
-                          f"{100 * accepted.mean():.0f} %", med, last)
+                          f"{100 * accepted.mean():.0f} %", *chained, med, last)
     late = {"dropped_stale": 0, "silent_steps": 0}
     for robot in names:
         path = output / f"{robot}.json"
         counters = json.loads(path.read_text()) if path.exists() else {}
         for key in late:
             late[key] += counters.get(key, 0)
-    if any(late.values()):
+    if any(late.values()) and not team:
         table.caption = (f"{late['dropped_stale']} maps came too late and "
                          f"{late['silent_steps']} steps had no neighbour's map: the team fell "
                          f"behind its schedule (try a lower --speed) or lost maps")
@@ -1164,6 +1175,7 @@ def team(
     ] = Path("results/team"),
     drop_share: Annotated[float, typer.Option(
         help="Share of maps each node discards on arrival (a lossy link).")] = 0.0,
+    team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
     tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
     tls_cert: Annotated[Path | None, typer.Option(help="PEM file: the nodes' certificate.")
     ] = None,
@@ -1190,7 +1202,7 @@ def team(
         _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
     replays = save_replays(run, output / "replay")
     argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
-                       tls=tls) for k in range(n)]
+                       tls=tls, team_consistency=team_consistency) for k in range(n)]
     console = _console()
     console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "
                   f"{len(run.times)} exchanges at {speed:g}x, about "
@@ -1201,6 +1213,8 @@ def team(
     codes = wait_team(procs, 180 + len(run.times) / speed)
     failed = [f"r{k}" for k, c in enumerate(codes) if c != 0]
     console.print(_team_table(run, output, robot_names(n)))
+    if team_consistency:
+        console.print(_team_table(run, output, robot_names(n), team=True))
     if failed:
         from tcaff_gtsam.errors import TcaffError
 
