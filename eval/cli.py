@@ -982,6 +982,10 @@ _TEAM_HELP = ("Also take the other robots' alignments and publish each pair's te
               "one (pairwise alignments that fail a cycle of three robots left out, pairs "
               "without one chained through a third robot) on tcaff/<team>/<robot>/team/<other>;"
               " written to <robot>.team.csv.")
+_KIMERA_HELP = ("Or a folder of Kimera-Multi rosbags and <robot>_gt_odom.csv files to replay, "
+                "mapped through the RGB-D front end (maps saved in OUTPUT/maps/ and reused).")
+_KIMERA_TEST_HELP = (f"With --kimera: the Kimera-Multi test YAML or shipped name "
+                     f"({_shipped('kimera_multi')}) naming the robots, topics and settings.")
 
 
 def _tls(ca: Path | None, cert: Path | None, key: Path | None):
@@ -1023,6 +1027,8 @@ def node(
     replay: Annotated[Path | None, typer.Option(
         help="Replay this robot from a replay file (what `tcaff team` writes to "
              "<output>/replay/).")] = None,
+    kimera: Annotated[Path | None, typer.Option(help=_KIMERA_HELP)] = None,
+    kimera_test: Annotated[str, typer.Option(help=_KIMERA_TEST_HELP)] = "same_direction",
     team: Annotated[str, typer.Option(help="Team name: keys are tcaff/<team>/<robot>/...")
     ] = "team",
     listen: Annotated[list[str] | None, typer.Option(
@@ -1059,17 +1065,18 @@ def node(
 ) -> None:
     """One robot of a live team: publishes its maps over Zenoh, aligns to every neighbour.
 
-    The robot's maps are replayed (--scenario or --replay) on a wall-clock schedule that the
-    robots of one run share through --start-at. From Python, `tcaff_gtsam.node.RobotNode`
-    takes maps from a live mapping pipeline instead.
+    The robot's maps are replayed (--scenario, --kimera or --replay) on a wall-clock schedule
+    that the robots of one run share through --start-at. From Python,
+    `tcaff_gtsam.node.RobotNode` takes maps from a live mapping pipeline instead.
     """
     from tcaff_gtsam.node.link import Link
     from tcaff_gtsam.node.node import NodeParams
     from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
     from tcaff_gtsam.node.run import replay_node
 
-    if (scenario is None) == (replay is None):
-        _refuse("--scenario/--replay", [scenario, replay and str(replay)], "give exactly one")
+    sources = [scenario, kimera and str(kimera), replay and str(replay)]
+    if sum(x is not None for x in sources) != 1:
+        _refuse("--scenario/--kimera/--replay", sources, "give exactly one")
     _check_speed(speed)
     link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
     params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
@@ -1080,10 +1087,11 @@ def node(
         if robot != source.robots[source.robot]:
             _refuse("--robot", robot, f"{replay} replays {source.robots[source.robot]}")
     else:
-        run = _simulated(scenario, seed, duration)
+        run = (_simulated(scenario, seed, duration) if kimera is None
+               else _kimera_run(kimera, kimera_test, duration, output / "maps"))
         names = robot_names(run.n_robots)
         if robot not in names:
-            _refuse("--robot", robot, f"the run's robots are {', '.join(names)}")
+            _refuse("--robot", robot, f"the run's robots are {_named(run, names)}")
         source = run_replay(run, names.index(robot), names)
     node_ = replay_node(source, team, link, params, start_at, output, clock_offset, state)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items()))
@@ -1142,6 +1150,30 @@ def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -
     return _keep_numbers_whole(table)
 
 
+def _kimera_run(data: Path, test: str, duration: float | None, maps: Path):
+    """The Kimera-Multi test `test` on the bags in `data` as a recorded run: every robot's
+    RGB-D frames through the front end, with progress bars; the maps are saved in `maps` and
+    reused by a later call with the same settings and bags."""
+    from .config import load_kimera_multi
+    from .datasets import kimera_multi
+
+    _check_duration(duration)
+    config = load_kimera_multi(test)
+    if duration is not None:
+        config = config.model_copy(update={"duration": duration})
+    with _bars() as bars:
+        run, _, _ = kimera_multi.load_run(config, data, maps, True, _kimera_bars(bars))
+    return run
+
+
+def _named(run, names: tuple[str, ...]) -> str:
+    """"r0, r1" or, for a data set that names its robots, "r0 (acl_jackal2), r1 (...)"."""
+    own = getattr(run, "robot_names", ())
+    if not own or tuple(own) == tuple(str(k) for k in range(len(names))):
+        return ", ".join(names)
+    return ", ".join(f"{n} ({o})" for n, o in zip(names, own, strict=True))
+
+
 def _mrclam_run(data: Path, seed: int, duration: float | None):
     """The UTIAS MRCLAM data set in `data` as a recorded run (default settings, VIO-like
     odometry drawn with `seed`)."""
@@ -1164,6 +1196,8 @@ def team(
     mrclam: Annotated[Path | None, typer.Option(
         help="Or a UTIAS MRCLAM data set folder to replay (one node per robot; the "
              "'default' MRCLAM settings).")] = None,
+    kimera: Annotated[Path | None, typer.Option(help=_KIMERA_HELP)] = None,
+    kimera_test: Annotated[str, typer.Option(help=_KIMERA_TEST_HELP)] = "same_direction",
     seed: Annotated[int, typer.Option(
         help="Seed of the simulated run (MRCLAM: of its VIO-like odometry).")] = 0,
     speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
@@ -1184,18 +1218,27 @@ def team(
 ) -> None:
     """Start one node process per robot of a simulated or recorded run on this machine
     (Zenoh over loopback), wait for the run to end, and print every pair's alignments against
-    the truth. Robots are named r0, r1, ... in the run's order."""
+    the truth. Robots are named r0, r1, ... in the run's order.
+
+    Kimera-Multi bags (--kimera) go through the RGB-D front end first, once for the team (each
+    robot's maps saved in OUTPUT/maps/ and reused by a later run with the same settings and
+    bags); the nodes then replay the maps at the 1 Hz exchanges every robot shares."""
 
     from tcaff_gtsam.node.replay import robot_names
     from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
 
-    if (scenario is None) == (mrclam is None):
-        _refuse("--scenario/--mrclam", [scenario, mrclam and str(mrclam)], "give exactly one")
+    sources = [scenario, mrclam and str(mrclam), kimera and str(kimera)]
+    if sum(x is not None for x in sources) != 1:
+        _refuse("--scenario/--mrclam/--kimera", sources, "give exactly one")
     _check_speed(speed)
     tls = _tls(tls_ca, tls_cert, tls_key)
     _writable_folder(output, "--output")
-    run = (_simulated(scenario, seed, duration) if mrclam is None
-           else _mrclam_run(mrclam, seed, duration))
+    if scenario is not None:
+        run = _simulated(scenario, seed, duration)
+    elif mrclam is not None:
+        run = _mrclam_run(mrclam, seed, duration)
+    else:
+        run = _kimera_run(kimera, kimera_test, duration, output / "maps")
     n = run.n_robots
     ports = free_ports(n) if base_port == 0 else list(range(base_port, base_port + n))
     if not all(0 < p < 65536 for p in ports):
@@ -1204,6 +1247,7 @@ def team(
     argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
                        tls=tls, team_consistency=team_consistency) for k in range(n)]
     console = _console()
+    console.print(f"robots: {_named(run, robot_names(n))}", soft_wrap=True)
     console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "
                   f"{len(run.times)} exchanges at {speed:g}x, about "
                   f"{len(run.times) / speed:.0f} s once every node is up. Watch with: tcaff "
