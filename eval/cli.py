@@ -1154,10 +1154,12 @@ def _kimera_run(data: Path, test: str, duration: float | None, maps: Path):
     """The Kimera-Multi test `test` on the bags in `data` as a recorded run: every robot's
     RGB-D frames through the front end, with progress bars; the maps are saved in `maps` and
     reused by a later call with the same settings and bags."""
-    from .config import load_kimera_multi
-    from .datasets import kimera_multi
-
     _check_duration(duration)
+    if not Path(data).is_dir():
+        _refuse("--kimera", str(data), "must be a folder of Kimera-Multi bags")
+    from .config import load_kimera_multi
+    from .datasets import kimera_multi  # the RGB-D front end: loaded only when needed
+
     config = load_kimera_multi(test)
     if duration is not None:
         config = config.model_copy(update={"duration": duration})

@@ -77,6 +77,9 @@ class NodeParams:
             raise ConfigError(f"NodeParams.drop_share = {self.drop_share!r}: must be in [0, 1)")
         if not (isinstance(self.queue, int) and self.queue >= 1):
             raise ConfigError(f"NodeParams.queue = {self.queue!r}: must be an int >= 1")
+        for name in ("lockstep", "team_consistency"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"NodeParams.{name} = {getattr(self, name)!r}: must be a bool")
 
 
 def warm_up(object_map: ObjectMap, aligner_params: FrameAlignerParams | None = None,
