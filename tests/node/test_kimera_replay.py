@@ -4,19 +4,18 @@ RGB-D front end once, then one node process per robot replays the maps over Zeno
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.config import MethodsConfig, load_kimera_multi
 from tcaff_gtsam.eval.datasets import kimera_multi
 from tcaff_gtsam.eval.methods import run_methods
 from tcaff_gtsam.eval.sim import kimera_bags
 from tcaff_gtsam.node.results import read_alignments
 
-TCAFF = str(Path(sys.executable).parent / "tcaff")
 SCENARIO = Path(__file__).resolve().parents[1] / "eval" / "data" / "small_room_rgbd.yaml"
 ROBOTS = ("acl_jackal2", "sparkal2")  # the robots of the shipped test same_direction
 
@@ -30,15 +29,27 @@ def bags(tmp_path_factory) -> Path:
     return data
 
 
-def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path) -> None:
+def tcaff(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
+    """(exit status, stdout, stderr) of the console entry point, run in this process (the
+    node processes it starts are processes of their own)."""
+    monkeypatch.setattr(sys, "argv", ["tcaff", *args])
+    monkeypatch.setenv("COLUMNS", "200")
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    out = capsys.readouterr()
+    return exited.value.code or 0, out.out, out.err
+
+
+def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path, monkeypatch,
+                                                  capsys) -> None:
     """Each node aligns at every exchange the robots share, as the offline study does on the
     same maps; a node asked for a robot the bags do not have is refused in one line."""
     out = tmp_path / "team"
-    result = subprocess.run([TCAFF, "team", "--kimera", str(bags), "--speed", "4", "--output",
-                             str(out)], capture_output=True, text=True, timeout=300,
-                            env={"COLUMNS": "200", "PATH": ""})
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert "r0 (acl_jackal2), r1 (sparkal2)" in result.stdout
+    code, stdout, stderr = tcaff(monkeypatch, capsys, "team", "--kimera", str(bags), "--speed",
+                                 "4", "--output", str(out))
+    assert code == 0, stdout + stderr
+    assert "r0 (acl_jackal2), r1 (sparkal2)" in stdout
     for robot in ROBOTS:
         assert (out / "maps" / f"{robot}.npz").is_file()
     # the maps the team made, read back (reused, not mapped again)
@@ -56,10 +67,9 @@ def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path) ->
         np.testing.assert_array_equal(rows["accepted"] == 1, np.isfinite(expected[:, 0]))
         np.testing.assert_allclose(x[rows["accepted"] == 1],
                                    expected[np.isfinite(expected[:, 0])], atol=1e-4)
-    refused = subprocess.run([TCAFF, "node", "--robot", "r5", "--kimera", str(bags),
-                              "--listen", "127.0.0.1:7447", "--output", str(out)],
-                             capture_output=True, text=True, timeout=120,
-                             env={"COLUMNS": "200", "PATH": ""})
-    assert refused.returncode == 2
-    lines = refused.stderr.strip().splitlines()
-    assert len(lines) == 1 and "r0 (acl_jackal2), r1 (sparkal2)" in lines[0], refused.stderr
+    # a node of the same bags (their maps reused) for a robot they do not have
+    code, _, stderr = tcaff(monkeypatch, capsys, "node", "--robot", "r5", "--kimera", str(bags),
+                            "--listen", "127.0.0.1:7447", "--output", str(out))
+    assert code == 2
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and "r0 (acl_jackal2), r1 (sparkal2)" in lines[0], stderr
