@@ -19,7 +19,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv  # chi2.ppf's own formula, without scipy.stats' import
 
 from .errors import DataError
 from .geometry import _se2_from_params, _wrap_angle
@@ -122,7 +122,7 @@ class TeamConsistency:
         self.params = TeamParams() if params is None else params
         _require(isinstance(self.params, TeamParams), "TeamConsistency", "params", params,
                  "must be a TeamParams")
-        self._gate = float(chi2.ppf(self.params.cycle_probability, 3))
+        self._gate = float(2 * gammaincinv(1.5, self.params.cycle_probability))
         self.rejected: list[tuple[int, int]] = []
 
     def _edges(self, estimates: Mapping) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
