@@ -52,10 +52,10 @@ class NodeParams:
         drop_share: share of neighbours' maps discarded on arrival, to try a lossy link.
         seed: draws of `drop_share`.
         team_consistency: also take the alignments the other robots publish and, after each
-            step of a pair, publish the team-consistent alignment of this robot to every other
+            step of a pair, publish the pair's team-consistent alignment
             (`tcaff_gtsam.TeamConsistency`: pair alignments that fail a cycle of three robots
             left out, pairs without one chained through a third robot) on
-            `tcaff/<team>/<robot>/team/<other>`. Another robot's alignment counts for
+            `tcaff/<team>/<robot>/team/<neighbour>`. Another robot's alignment counts for
             `silence` s (ego clock) after it arrives.
     """
 
@@ -175,7 +175,7 @@ class RobotNode:
         self.latencies: deque[float] = deque(maxlen=10_000)
         self.team_latest: dict[str, TeamMessage] = {}
         # robots in index order for TeamConsistency, and the other robots' latest alignments:
-        # (robot, neighbour) -> (message, monotonic arrival)
+        # (robot, neighbour) -> (message, perf_counter time of arrival)
         self._robots = sorted(self.members | {self.robot})
         self._team = (TeamConsistency(len(self._robots), team_params)
                       if self.params.team_consistency else None)
