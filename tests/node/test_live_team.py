@@ -88,7 +88,9 @@ def test_four_nodes_align_as_the_offline_study_and_drop_bad_messages(tmp_path: P
         with link.open() as session, TeamListener(team, link, run.T_true) as listener:
             wait_present(session, team)
             for key, payload in bad_payloads(team):
-                session.put(key, payload)
+                # blocking: by default a put that finds the link's queue full is dropped, as a
+                # 240 kB payload can on a loaded machine
+                session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
             offline = run_methods(run, MethodsConfig(methods=["tcaff"]))
             codes = wait_team(procs, 120)
             time.sleep(0.5)
