@@ -419,7 +419,7 @@ class RobotNode:
         estimates |= {(index[self.robot], index[b]): m for b, m in self.latest.items()
                       if m.accepted}
         i, j = index[self.robot], index[name]
-        est = self._team.update(estimates).get((i, j))
+        est = self._team.update(estimates, [(i, j)]).get((i, j))
         if self.latest[name].accepted and (min(i, j), max(i, j)) in self._team.rejected:
             self.counters["team_rejected"] += 1
         if est is None:
