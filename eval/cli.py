@@ -1036,14 +1036,15 @@ def node(
     connect: Annotated[list[str] | None, typer.Option(
         help="host:port of a peer to dial (repeat; retried until it is up).")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the simulated run.")] = 0,
-    duration: Annotated[float | None, typer.Option(help="Cap the simulated run (s).")] = None,
+    duration: Annotated[float | None, typer.Option(help="Cap the run (s).")] = None,
     speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
     start_at: Annotated[float | None, typer.Option(
         help="Wall time (epoch s) of the run's first exchange, shared by the team; "
              "default: 1 s after every robot of the run is up. A node started after it "
              "joins where the run is.")] = None,
     output: Annotated[Path, typer.Option(
-        help="Folder for <robot>.csv (every alignment) and <robot>.json (counters).")
+        help="Folder for <robot>.csv (every alignment), <robot>.json (counters) and, "
+             "with --kimera, maps/ (each robot's maps, reused by later runs).")
     ] = Path("results/team"),
     state: Annotated[Path | None, typer.Option(
         help="Folder to save each filter after each step and restore them from on start.")

@@ -247,6 +247,9 @@ class TeamConsistency:
 
     def _wanted(self, pairs: Iterable) -> list[tuple[int, int]]:
         n, wanted = self.n_robots, []
+        if not isinstance(pairs, Iterable):
+            raise DataError(f"TeamConsistency.update: pairs must be ordered pairs of robots, "
+                            f"got {shown(pairs)}")
         for pair in pairs:
             if not (isinstance(pair, tuple) and len(pair) == 2
                     and all(isinstance(r, (int, np.integer)) and not isinstance(r, bool)
