@@ -978,10 +978,9 @@ def _click_errors() -> tuple[type, type]:
 
 _TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
              "mutual TLS).")
-_TEAM_HELP = ("Also take the other robots' alignments and publish each pair's team-consistent "
-              "one (pairwise alignments that fail a cycle of three robots left out, pairs "
-              "without one chained through a third robot) on tcaff/<team>/<robot>/team/<other>;"
-              " written to <robot>.team.csv.")
+_TEAM_HELP = ("Also publish each pair's team-consistent alignment (those failing a cycle of "
+              "three robots left out, missing ones chained through a third) on team/<other> "
+              "keys and in <robot>.team.csv.")
 _KIMERA_HELP = ("Or a folder of Kimera-Multi rosbags and <robot>_gt_odom.csv files to replay, "
                 "mapped through the RGB-D front end (maps saved in OUTPUT/maps/ and reused).")
 _KIMERA_TEST_HELP = (f"With --kimera: the Kimera-Multi test YAML or shipped name "
