@@ -56,10 +56,10 @@ def bridged_team(duration: float) -> RecordedRun:
 def test_three_nodes_chain_the_pair_that_shares_no_objects(tmp_path: Path) -> None:
     """r0 and r2 never align on their own; with team consistency each publishes the other's
     alignment chained through r1, within 0.5 m and 2 deg of the truth."""
-    run, team, n = bridged_team(30.0), "chain", 3
+    run, team, n = bridged_team(26.0), "chain", 3
     ports = free_ports(n)
     replays = save_replays(run, tmp_path / "replay")
-    argvs = [node_argv(replays[k], k, n, team, ports, None, tmp_path, speed=6.0, silence=10.0,
+    argvs = [node_argv(replays[k], k, n, team, ports, None, tmp_path, speed=8.0, silence=10.0,
                        team_consistency=True) for k in range(n)]
     procs = start_team(argvs, tmp_path / "logs")
     try:
