@@ -978,6 +978,13 @@ def _click_errors() -> tuple[type, type]:
 
 _TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
              "mutual TLS).")
+_TEAM_HELP = ("Also publish each pair's team-consistent alignment (those failing a cycle of "
+              "three robots left out, missing ones chained through a third) on team/<other> "
+              "keys and in <robot>.team.csv.")
+_KIMERA_HELP = ("Or a folder of Kimera-Multi rosbags and <robot>_gt_odom.csv files to replay, "
+                "mapped through the RGB-D front end (maps saved in OUTPUT/maps/ and reused).")
+_KIMERA_TEST_HELP = (f"With --kimera: the Kimera-Multi test YAML or shipped name "
+                     f"({_shipped('kimera_multi')}) naming the robots, topics and settings.")
 
 
 def _tls(ca: Path | None, cert: Path | None, key: Path | None):
@@ -1019,6 +1026,8 @@ def node(
     replay: Annotated[Path | None, typer.Option(
         help="Replay this robot from a replay file (what `tcaff team` writes to "
              "<output>/replay/).")] = None,
+    kimera: Annotated[Path | None, typer.Option(help=_KIMERA_HELP)] = None,
+    kimera_test: Annotated[str, typer.Option(help=_KIMERA_TEST_HELP)] = "same_direction",
     team: Annotated[str, typer.Option(help="Team name: keys are tcaff/<team>/<robot>/...")
     ] = "team",
     listen: Annotated[list[str] | None, typer.Option(
@@ -1026,14 +1035,15 @@ def node(
     connect: Annotated[list[str] | None, typer.Option(
         help="host:port of a peer to dial (repeat; retried until it is up).")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the simulated run.")] = 0,
-    duration: Annotated[float | None, typer.Option(help="Cap the simulated run (s).")] = None,
+    duration: Annotated[float | None, typer.Option(help="Cap the run (s).")] = None,
     speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
     start_at: Annotated[float | None, typer.Option(
         help="Wall time (epoch s) of the run's first exchange, shared by the team; "
              "default: 1 s after every robot of the run is up. A node started after it "
              "joins where the run is.")] = None,
     output: Annotated[Path, typer.Option(
-        help="Folder for <robot>.csv (every alignment) and <robot>.json (counters).")
+        help="Folder for <robot>.csv (every alignment), <robot>.json (counters) and, "
+             "with --kimera, maps/ (each robot's maps, reused by later runs).")
     ] = Path("results/team"),
     state: Annotated[Path | None, typer.Option(
         help="Folder to save each filter after each step and restore them from on start.")
@@ -1046,6 +1056,7 @@ def node(
     drop_share: Annotated[float, typer.Option(
         help="Share of neighbours' maps to discard on arrival (to try a lossy link).")] = 0.0,
     drop_seed: Annotated[int, typer.Option(help="Seed of the discards.")] = 0,
+    team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
     tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
     tls_cert: Annotated[Path | None, typer.Option(
         help="PEM file: this node's certificate, signed by the team's authority.")] = None,
@@ -1054,53 +1065,58 @@ def node(
 ) -> None:
     """One robot of a live team: publishes its maps over Zenoh, aligns to every neighbour.
 
-    The robot's maps are replayed (--scenario or --replay) on a wall-clock schedule that the
-    robots of one run share through --start-at. From Python, `tcaff_gtsam.node.RobotNode`
-    takes maps from a live mapping pipeline instead.
+    The robot's maps are replayed (--scenario, --kimera or --replay) on a wall-clock schedule
+    that the robots of one run share through --start-at. From Python,
+    `tcaff_gtsam.node.RobotNode` takes maps from a live mapping pipeline instead.
     """
     from tcaff_gtsam.node.link import Link
     from tcaff_gtsam.node.node import NodeParams
     from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
     from tcaff_gtsam.node.run import replay_node
 
-    if (scenario is None) == (replay is None):
-        _refuse("--scenario/--replay", [scenario, replay and str(replay)], "give exactly one")
+    sources = [scenario, kimera and str(kimera), replay and str(replay)]
+    if sum(x is not None for x in sources) != 1:
+        _refuse("--scenario/--kimera/--replay", sources, "give exactly one")
     _check_speed(speed)
     link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
     params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
-                        seed=drop_seed)
+                        seed=drop_seed, team_consistency=team_consistency)
     _writable_folder(output, "--output")
     if replay is not None:
         source = RobotReplay.load(replay)
         if robot != source.robots[source.robot]:
             _refuse("--robot", robot, f"{replay} replays {source.robots[source.robot]}")
     else:
-        run = _simulated(scenario, seed, duration)
+        run = (_simulated(scenario, seed, duration) if kimera is None
+               else _kimera_run(kimera, kimera_test, duration, output / "maps"))
         names = robot_names(run.n_robots)
         if robot not in names:
-            _refuse("--robot", robot, f"the run's robots are {', '.join(names)}")
+            _refuse("--robot", robot, f"the run's robots are {_named(run, names)}")
         source = run_replay(run, names.index(robot), names)
     node_ = replay_node(source, team, link, params, start_at, output, clock_offset, state)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items()))
     print(f"{robot}: {counts}")
 
 
-def _team_table(run, output: Path, names: tuple[str, ...]) -> Table:
-    """Per directed pair: alignments made, accepted share, final and median error."""
+def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -> Table:
+    """Per directed pair: alignments made, accepted share, final and median error (the team
+    alignments of `<robot>.team.csv` when `team`, with the share chained through a robot)."""
     import json
 
     import numpy as np
-    from tcaff_gtsam.node.results import read_alignments
+    from tcaff_gtsam.node.results import COLUMNS, TEAM_COLUMNS, read_alignments
 
     from tcaff_gtsam.errors import DataError
     from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 
-    table = _table("Per directed pair: the node's alignments against the truth")
-    _add_columns(table, ("pair", "steps", "accepted", "median error [m, deg]",
-                         "last error [m, deg]"))
+    table = _table("Per directed pair: the team-consistent alignments against the truth" if team
+                   else "Per directed pair: the node's alignments against the truth")
+    _add_columns(table, ("pair", "steps", "accepted", *(("chained",) if team else ()),
+                         "median error [m, deg]", "last error [m, deg]"))
     for i, robot in enumerate(names):
         try:
-            rows = read_alignments(output / f"{robot}.csv")
+            rows = (read_alignments(output / f"{robot}.team.csv", TEAM_COLUMNS) if team
+                    else read_alignments(output / f"{robot}.csv", COLUMNS))
         except DataError:
             continue
         for j, other in enumerate(names):
@@ -1113,22 +1129,51 @@ def _team_table(run, output: Path, names: tuple[str, ...]) -> Table:
             x = np.column_stack([rows[c][mine] for c in ("x", "y", "theta")])
             dt = np.linalg.norm(x[:, :2] - truth[:, :2], axis=1)
             dh = np.degrees(np.abs(wrap_angle(x[:, 2] - truth[:, 2])))
-            med = (f"{np.median(dt[accepted]):.2f}, {np.median(dh[accepted]):.1f}"
-                   if accepted.any() else "-")
-            last = f"{dt[-1]:.2f}, {dh[-1]:.1f}" if accepted[-1] else "-"
+            scored = accepted & np.isfinite(dt)  # a recorded run may lack the truth
+            med = (f"{np.median(dt[scored]):.2f}, {np.median(dh[scored]):.1f}"
+                   if scored.any() else "-")
+            last = f"{dt[-1]:.2f}, {dh[-1]:.1f}" if scored[-1] else "-"
+            chained = ([f"{100 * (rows['via'][mine][accepted] != '').mean():.0f} %"
+                        if accepted.any() else "-"] if team else [])
             table.add_row(f"{robot}->{other}", str(mine.sum()),
-                          f"{100 * accepted.mean():.0f} %", med, last)
+                          f"{100 * accepted.mean():.0f} %", *chained, med, last)
     late = {"dropped_stale": 0, "silent_steps": 0}
     for robot in names:
         path = output / f"{robot}.json"
         counters = json.loads(path.read_text()) if path.exists() else {}
         for key in late:
             late[key] += counters.get(key, 0)
-    if any(late.values()):
+    if any(late.values()) and not team:
         table.caption = (f"{late['dropped_stale']} maps came too late and "
                          f"{late['silent_steps']} steps had no neighbour's map: the team fell "
                          f"behind its schedule (try a lower --speed) or lost maps")
     return _keep_numbers_whole(table)
+
+
+def _kimera_run(data: Path, test: str, duration: float | None, maps: Path):
+    """The Kimera-Multi test `test` on the bags in `data` as a recorded run: every robot's
+    RGB-D frames through the front end, with progress bars; the maps are saved in `maps` and
+    reused by a later call with the same settings and bags."""
+    _check_duration(duration)
+    if not Path(data).is_dir():
+        _refuse("--kimera", str(data), "must be a folder of Kimera-Multi bags")
+    from .config import load_kimera_multi
+    from .datasets import kimera_multi  # the RGB-D front end: loaded only when needed
+
+    config = load_kimera_multi(test)
+    if duration is not None:
+        config = config.model_copy(update={"duration": duration})
+    with _bars() as bars:
+        run, _, _ = kimera_multi.load_run(config, data, maps, True, _kimera_bars(bars))
+    return run
+
+
+def _named(run, names: tuple[str, ...]) -> str:
+    """"r0, r1" or, for a data set that names its robots, "r0 (acl_jackal2), r1 (...)"."""
+    own = getattr(run, "robot_names", ())
+    if not own or tuple(own) == tuple(str(k) for k in range(len(names))):
+        return ", ".join(names)
+    return ", ".join(f"{n} ({o})" for n, o in zip(names, own, strict=True))
 
 
 def _mrclam_run(data: Path, seed: int, duration: float | None):
@@ -1153,6 +1198,8 @@ def team(
     mrclam: Annotated[Path | None, typer.Option(
         help="Or a UTIAS MRCLAM data set folder to replay (one node per robot; the "
              "'default' MRCLAM settings).")] = None,
+    kimera: Annotated[Path | None, typer.Option(help=_KIMERA_HELP)] = None,
+    kimera_test: Annotated[str, typer.Option(help=_KIMERA_TEST_HELP)] = "same_direction",
     seed: Annotated[int, typer.Option(
         help="Seed of the simulated run (MRCLAM: of its VIO-like odometry).")] = 0,
     speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
@@ -1164,6 +1211,7 @@ def team(
     ] = Path("results/team"),
     drop_share: Annotated[float, typer.Option(
         help="Share of maps each node discards on arrival (a lossy link).")] = 0.0,
+    team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
     tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
     tls_cert: Annotated[Path | None, typer.Option(help="PEM file: the nodes' certificate.")
     ] = None,
@@ -1172,26 +1220,36 @@ def team(
 ) -> None:
     """Start one node process per robot of a simulated or recorded run on this machine
     (Zenoh over loopback), wait for the run to end, and print every pair's alignments against
-    the truth. Robots are named r0, r1, ... in the run's order."""
+    the truth. Robots are named r0, r1, ... in the run's order.
+
+    Kimera-Multi bags (--kimera) go through the RGB-D front end first, once for the team (each
+    robot's maps saved in OUTPUT/maps/ and reused by a later run with the same settings and
+    bags); the nodes then replay the maps at the 1 Hz exchanges every robot shares."""
 
     from tcaff_gtsam.node.replay import robot_names
     from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
 
-    if (scenario is None) == (mrclam is None):
-        _refuse("--scenario/--mrclam", [scenario, mrclam and str(mrclam)], "give exactly one")
+    sources = [scenario, mrclam and str(mrclam), kimera and str(kimera)]
+    if sum(x is not None for x in sources) != 1:
+        _refuse("--scenario/--mrclam/--kimera", sources, "give exactly one")
     _check_speed(speed)
     tls = _tls(tls_ca, tls_cert, tls_key)
     _writable_folder(output, "--output")
-    run = (_simulated(scenario, seed, duration) if mrclam is None
-           else _mrclam_run(mrclam, seed, duration))
+    if scenario is not None:
+        run = _simulated(scenario, seed, duration)
+    elif mrclam is not None:
+        run = _mrclam_run(mrclam, seed, duration)
+    else:
+        run = _kimera_run(kimera, kimera_test, duration, output / "maps")
     n = run.n_robots
     ports = free_ports(n) if base_port == 0 else list(range(base_port, base_port + n))
     if not all(0 < p < 65536 for p in ports):
         _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
     replays = save_replays(run, output / "replay")
     argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
-                       tls=tls) for k in range(n)]
+                       tls=tls, team_consistency=team_consistency) for k in range(n)]
     console = _console()
+    console.print(f"robots: {_named(run, robot_names(n))}", soft_wrap=True)
     console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "
                   f"{len(run.times)} exchanges at {speed:g}x, about "
                   f"{len(run.times) / speed:.0f} s once every node is up. Watch with: tcaff "
@@ -1201,6 +1259,8 @@ def team(
     codes = wait_team(procs, 180 + len(run.times) / speed)
     failed = [f"r{k}" for k, c in enumerate(codes) if c != 0]
     console.print(_team_table(run, output, robot_names(n)))
+    if team_consistency:
+        console.print(_team_table(run, output, robot_names(n), team=True))
     if failed:
         from tcaff_gtsam.errors import TcaffError
 

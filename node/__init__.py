@@ -11,10 +11,11 @@ The names below load their module on first use, so that the wire format and the 
 import importlib as _importlib
 
 __all__ = ["AlignmentMessage", "Link", "MapMessage", "MessageError", "NodeParams", "RobotNode",
-           "TeamListener", "TlsFiles", "decode", "encode"]
+           "TeamListener", "TeamMessage", "TlsFiles", "decode", "encode"]
 
 _LAZY = {"AlignmentMessage": "messages", "MapMessage": "messages", "MessageError": "messages",
-         "decode": "messages", "encode": "messages", "Link": "link", "TlsFiles": "link",
+         "TeamMessage": "messages", "decode": "messages", "encode": "messages", "Link": "link",
+         "TlsFiles": "link",
          "NodeParams": "node", "RobotNode": "node", "TeamListener": "listener"}
 
 

@@ -3,6 +3,7 @@
 Keys of a team (names are letters, digits, `_` and `-`):
     tcaff/<team>/<robot>/map                    a robot's object map
     tcaff/<team>/<robot>/alignment/<neighbour>  its alignment T_oi_oj to a neighbour
+    tcaff/<team>/<robot>/team/<other>           its team-consistent alignment to another robot
     tcaff/<team>/<robot>/alive                  liveliness token of its node
 """
 
@@ -15,7 +16,8 @@ from pathlib import Path
 
 from tcaff_gtsam.errors import ConfigError
 
-__all__ = ["Link", "TlsFiles", "alignment_key", "alive_key", "check_name", "map_key", "team_keys"]
+__all__ = ["Link", "TlsFiles", "alignment_key", "alive_key", "check_name", "map_key", "team_key",
+           "team_keys"]
 
 _NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _ENDPOINT = re.compile(r"^[A-Za-z0-9_.-]+:\d{1,5}$")
@@ -39,6 +41,11 @@ def alive_key(team: str, robot: str) -> str:
 
 def alignment_key(team: str, robot: str, neighbour: str) -> str:
     return f"tcaff/{team}/{robot}/alignment/{neighbour}"
+
+
+def team_key(team: str, robot: str, other: str) -> str:
+    """Where a robot publishes the team-consistent alignment T_oi_oj to another robot."""
+    return f"tcaff/{team}/{robot}/team/{other}"
 
 
 def team_keys(team: str) -> tuple[str, str]:

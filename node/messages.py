@@ -4,7 +4,7 @@ Every message is little-endian and starts with the same header:
 
     magic  b"TCAF"      4 bytes
     version u8          `VERSION`; any other is refused
-    kind    u8          1: map, 2: alignment
+    kind    u8          1: map, 2: alignment, 3: team alignment
     sender  u8 + UTF-8  the robot that sent it (1 to 64 bytes)
     boot    u32         a number the sender draws when it starts (tells a restart from a replay)
     seq     u32         the sender's exchange counter (a map's, or the ego map an alignment used)
@@ -20,6 +20,10 @@ An alignment then holds: neighbour u8 + UTF-8, neighbour_seq u32 (the neighbour'
 neighbour_stamp f64 (that map's stamp on the neighbour's clock), step u32 (the pair's filter
 updates so far), hypothesis i32 (-1 with no estimate), accepted u8, x, y, theta f64 (T_oi_oj)
 and the six upper-triangle entries of its 3x3 covariance, f64 (NaN when not accepted).
+
+A team alignment (what the node's team consistency selects for a pair) then holds: neighbour
+u8 + UTF-8, via u8 (the robots it is chained through, 0 for the pair's own alignment) and as
+many names (u8 + UTF-8 each), accepted u8, x, y, theta f64 and the covariance's upper triangle.
 """
 
 from __future__ import annotations
@@ -34,11 +38,11 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.object_map import ObjectMap
 
 __all__ = ["BYTES_PER_OBJECT", "MAX_OBJECTS", "VERSION", "AlignmentMessage", "MapMessage",
-           "MessageError", "decode", "encode"]
+           "MessageError", "TeamMessage", "decode", "encode"]
 
 VERSION = 1
 MAGIC = b"TCAF"
-MAP, ALIGNMENT = 1, 2
+MAP, ALIGNMENT, TEAM = 1, 2, 3
 BYTES_PER_OBJECT = 24
 #: the most objects a map message may hold; a larger one is refused before it is read
 MAX_OBJECTS = 10_000
@@ -48,6 +52,7 @@ _HEAD = struct.Struct("<4sBB")
 _COUNTERS = struct.Struct("<IId")  # boot, seq, stamp
 _N = struct.Struct("<I")
 _ALIGN = struct.Struct("<Idii B 3d 6d")  # neighbour_seq, neighbour_stamp, step, hypothesis, ...
+_ESTIMATE = struct.Struct("<B 3d 6d")  # accepted, x, upper triangle of P
 _OBJECT = np.dtype("<f4")
 _UPPER = np.triu_indices(3)
 #: the largest message: a map of MAX_OBJECTS objects from a robot with the longest name
@@ -125,6 +130,29 @@ class AlignmentMessage:
     P: np.ndarray
 
 
+@dataclass(frozen=True, eq=False)
+class TeamMessage:
+    """A team-consistent alignment of a robot to another (see `tcaff_gtsam.TeamConsistency`).
+
+    Attributes:
+        sender: the ego robot i; neighbour: robot j (any robot of the team); seq: the ego map's
+            seq; stamp: s, ego clock.
+        via: the robots between i and j of a chained alignment, () for the pair's own.
+        accepted: the team has an alignment of the pair; x: (3,) (x [m], y [m], theta [rad])
+            of T_oi_oj; P: (3, 3) its covariance (NaN when not accepted).
+    """
+
+    sender: str
+    boot: int
+    seq: int
+    stamp: float
+    neighbour: str
+    via: tuple[str, ...]
+    accepted: bool
+    x: np.ndarray
+    P: np.ndarray
+
+
 def _name(name: str) -> bytes:
     raw = name.encode()
     if not 1 <= len(raw) <= MAX_NAME:
@@ -138,14 +166,14 @@ def _u32(name: str, value: int) -> int:
     return value
 
 
-def encode(message: MapMessage | AlignmentMessage) -> bytes:
+def encode(message: MapMessage | AlignmentMessage | TeamMessage) -> bytes:
     """The bytes of a message.
 
     Raises:
         DataError: a name longer than 64 bytes (or empty), counters beyond 32 bits, a stamp
             that is not finite, or a map of more than `MAX_OBJECTS` objects.
     """
-    kind = MAP if isinstance(message, MapMessage) else ALIGNMENT
+    kind = {MapMessage: MAP, AlignmentMessage: ALIGNMENT, TeamMessage: TEAM}[type(message)]
     if not math.isfinite(message.stamp):
         raise DataError(f"stamp = {message.stamp}: must be a finite number of seconds")
     head = (_HEAD.pack(MAGIC, VERSION, kind) + _name(message.sender)
@@ -159,6 +187,12 @@ def encode(message: MapMessage | AlignmentMessage) -> bytes:
                                 message.ages]).astype(_OBJECT)
         return head + _N.pack(n) + body.tobytes()
     P = np.asarray(message.P, dtype=float)[_UPPER]
+    if kind == TEAM:
+        if len(message.via) > 255:
+            raise DataError(f"via holds {len(message.via)} robots, at most 255")
+        return (head + _name(message.neighbour) + bytes([len(message.via)])
+                + b"".join(map(_name, message.via))
+                + _ESTIMATE.pack(int(message.accepted), *np.asarray(message.x, dtype=float), *P))
     return (head + _name(message.neighbour)
             + _ALIGN.pack(_u32("neighbour_seq", message.neighbour_seq),
                           message.neighbour_stamp, message.step, message.hypothesis,
@@ -191,7 +225,8 @@ class _Reader:
             raise MessageError("malformed", f"{what} is not UTF-8") from None
 
 
-def decode(payload: bytes, max_bytes: int | None = None) -> MapMessage | AlignmentMessage:
+def decode(payload: bytes, max_bytes: int | None = None
+           ) -> MapMessage | AlignmentMessage | TeamMessage:
     """The message in `payload`, fully checked.
 
     Raises:
@@ -211,7 +246,7 @@ def decode(payload: bytes, max_bytes: int | None = None) -> MapMessage | Alignme
         raise MessageError("malformed", f"magic {magic!r}, expected {MAGIC!r}")
     if version != VERSION:
         raise MessageError("version", f"format version {version}, this node reads {VERSION}")
-    if kind not in (MAP, ALIGNMENT):
+    if kind not in (MAP, ALIGNMENT, TEAM):
         raise MessageError("malformed", f"kind {kind}")
     sender = read.name("sender")
     boot, seq, stamp = read.unpack(_COUNTERS, "header")
@@ -231,11 +266,27 @@ def decode(payload: bytes, max_bytes: int | None = None) -> MapMessage | Alignme
         return MapMessage(sender, boot, seq, stamp, values[:, :3], values[:, 3], values[:, 4],
                           values[:, 5])
     neighbour = read.name("neighbour")
+    if kind == TEAM:
+        (n_via,) = read.take(1, "via")
+        via = tuple(read.name("via") for _ in range(n_via))
+        accepted, *numbers = read.unpack(_ESTIMATE, "team alignment")
+        _finished(read)
+        if accepted not in (0, 1):
+            raise MessageError("malformed", f"accepted {accepted}")
+        x, P = _estimate(bool(accepted), numbers)
+        return TeamMessage(sender, boot, seq, stamp, neighbour, via, bool(accepted), x, P)
     nseq, nstamp, step, hypothesis, accepted, *numbers = read.unpack(_ALIGN, "alignment")
     _finished(read)
     if accepted not in (0, 1) or step < 0 or not math.isfinite(nstamp):
         raise MessageError("malformed", f"accepted {accepted}, step {step}, neighbour stamp "
                                         f"{nstamp}")
+    x, P = _estimate(bool(accepted), numbers)
+    return AlignmentMessage(sender, boot, seq, stamp, neighbour, nseq, nstamp, step,
+                            hypothesis, bool(accepted), x, P)
+
+
+def _estimate(accepted: bool, numbers: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """x (3,) and the symmetric P (3, 3) of an alignment's nine numbers, checked."""
     x = np.array(numbers[:3])
     P = np.zeros((3, 3))
     P[_UPPER] = numbers[3:]
@@ -244,8 +295,7 @@ def decode(payload: bytes, max_bytes: int | None = None) -> MapMessage | Alignme
                          and np.linalg.eigvalsh(P).min() >= -1e-12):
         raise MessageError("malformed", "an accepted alignment needs a finite x and a "
                                         "positive semi-definite P")
-    return AlignmentMessage(sender, boot, seq, stamp, neighbour, nseq, nstamp, step,
-                            hypothesis, bool(accepted), x, P)
+    return x, P
 
 
 def _finished(read: _Reader) -> None:

@@ -22,9 +22,10 @@ from tcaff_gtsam.object_map import ObjectMap, as_object_map
 from tcaff_gtsam.pairwise import PairwiseAligner
 from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
 from tcaff_gtsam.tcaff import TCAFF
+from tcaff_gtsam.team import TeamConsistency, TeamParams
 
-from .link import Link, alignment_key, alive_key, check_name, map_key, team_keys
-from .messages import AlignmentMessage, MapMessage, MessageError, decode, encode
+from .link import Link, alignment_key, alive_key, check_name, map_key, team_key, team_keys
+from .messages import AlignmentMessage, MapMessage, MessageError, TeamMessage, decode, encode
 
 __all__ = ["NodeParams", "RobotNode", "warm_up"]
 
@@ -50,6 +51,12 @@ class NodeParams:
         queue: incoming messages waiting to be aligned; beyond it the newest are dropped.
         drop_share: share of neighbours' maps discarded on arrival, to try a lossy link.
         seed: draws of `drop_share`.
+        team_consistency: also take the alignments the other robots publish and, after each
+            step of a pair, publish the pair's team-consistent alignment
+            (`tcaff_gtsam.TeamConsistency`: pair alignments that fail a cycle of three robots
+            left out, pairs without one chained through a third robot) on
+            `tcaff/<team>/<robot>/team/<neighbour>`. Another robot's alignment counts for
+            `silence` s (ego clock) after it arrives.
     """
 
     kappa: float = 20.0
@@ -59,6 +66,7 @@ class NodeParams:
     queue: int = 256
     drop_share: float = 0.0
     seed: int = 0
+    team_consistency: bool = False
 
     def __post_init__(self) -> None:
         for name in ("kappa", "silence", "speed"):
@@ -69,6 +77,9 @@ class NodeParams:
             raise ConfigError(f"NodeParams.drop_share = {self.drop_share!r}: must be in [0, 1)")
         if not (isinstance(self.queue, int) and self.queue >= 1):
             raise ConfigError(f"NodeParams.queue = {self.queue!r}: must be an int >= 1")
+        for name in ("lockstep", "team_consistency"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"NodeParams.{name} = {getattr(self, name)!r}: must be a bool")
 
 
 def warm_up(object_map: ObjectMap, aligner_params: FrameAlignerParams | None = None,
@@ -116,8 +127,12 @@ class RobotNode:
         counters: Counter of "maps_sent", "maps_received", "aligned", "silent_steps",
             "dropped_<reason>", "lost" (discarded on purpose, `NodeParams.drop_share`),
             "early" (a neighbour's map before this robot's first) and "errors" (a step that
-            failed, logged with its traceback; the node goes on).
+            failed, logged with its traceback; the node goes on); with team consistency also
+            "alignments_heard" (other robots'), "team_rejected" (steps whose own accepted
+            alignment failed the team's cycles) and "team_chained" (steps whose team alignment
+            is chained through another robot).
         latest: neighbour -> the latest AlignmentMessage of that pair.
+        team_latest: with team consistency, neighbour -> the latest TeamMessage of that pair.
         latencies: s from each of the latest 10 000 neighbours' maps arriving to its
             alignment being published (queueing included).
     """
@@ -127,7 +142,8 @@ class RobotNode:
                  aligner_params: FrameAlignerParams | None = None,
                  tcaff_params: TCAFFParams | None = None,
                  on_alignment: Callable[[AlignmentMessage], None] | None = None,
-                 state_dir: str | Path | None = None) -> None:
+                 state_dir: str | Path | None = None, team_params: TeamParams | None = None,
+                 on_team: Callable[[TeamMessage], None] | None = None) -> None:
         """Open the session, restore saved filters, and start listening.
 
         Args:
@@ -135,6 +151,9 @@ class RobotNode:
                 dropped.
             state_dir: each pair's filter is saved there after each step (`TCAFF.save`) and
                 restored from there on start; None: nothing saved.
+            team_params, on_team: with `NodeParams.team_consistency`, the settings of the
+                team consistency, and a callback given every TeamMessage the node publishes
+                (on the worker thread).
         Raises:
             ConfigError: bad names, a team of fewer than two robots, bad parameters.
             DataError: a saved filter that cannot be read.
@@ -149,10 +168,18 @@ class RobotNode:
         self._aligner_params = aligner_params or FrameAlignerParams(kappa=self.params.kappa)
         self._tcaff_params = tcaff_params
         self._on_alignment = on_alignment
+        self._on_team = on_team
         self._state_dir = None if state_dir is None else Path(state_dir)
         self.counters: Counter[str] = Counter()
         self.latest: dict[str, AlignmentMessage] = {}
         self.latencies: deque[float] = deque(maxlen=10_000)
+        self.team_latest: dict[str, TeamMessage] = {}
+        # robots in index order for TeamConsistency, and the other robots' latest alignments:
+        # (robot, neighbour) -> (message, perf_counter time of arrival)
+        self._robots = sorted(self.members | {self.robot})
+        self._team = (TeamConsistency(len(self._robots), team_params)
+                      if self.params.team_consistency else None)
+        self._heard: dict[tuple[str, str], tuple[AlignmentMessage, float]] = {}
         self._neighbours: dict[str, _Neighbour] = {}
         self._restore()
         self.boot = random.SystemRandom().randrange(2**32)
@@ -165,7 +192,11 @@ class RobotNode:
         self._session = link.open()
         self._map_pub = self._session.declare_publisher(map_key(team, robot))
         self._align_pubs: dict[str, object] = {}
-        self._subscriber = self._session.declare_subscriber(team_keys(team)[0], self._arrived)
+        self._team_pubs: dict[str, object] = {}
+        self._subscribers = [self._session.declare_subscriber(team_keys(team)[0], self._arrived)]
+        if self._team is not None:
+            self._subscribers.append(self._session.declare_subscriber(team_keys(team)[1],
+                                                                      self._arrived))
         self._alive = self._session.liveliness().declare_token(alive_key(team, robot))
         self._worker = threading.Thread(target=self._work, name=f"tcaff-node-{robot}",
                                         daemon=True)
@@ -224,9 +255,10 @@ class RobotNode:
 
     def _arrived(self, sample) -> None:
         """Zenoh's callback: queue the payload (never block the network thread)."""
+        key = str(sample.key_expr)
+        kind = "map" if key.endswith("/map") else "alignment"
         try:
-            self._inbox.put_nowait(("map", str(sample.key_expr), sample.payload.to_bytes(),
-                                    time.perf_counter()))
+            self._inbox.put_nowait((kind, key, sample.payload.to_bytes(), time.perf_counter()))
         except queue.Full:
             self._drop("overflow", "queue full")
 
@@ -241,6 +273,8 @@ class RobotNode:
                     self._ego_step(*item[1:])
                 elif item[0] == "map":
                     self._take(*item[1:])
+                elif item[0] == "alignment":
+                    self._hear(*item[1:])
                 else:
                     self._idle.set()
             except Exception:  # a failure of one step must not stop the node
@@ -349,6 +383,59 @@ class RobotNode:
         self._save(name, nb.aligner.filter)
         if self._on_alignment is not None:
             self._on_alignment(out)
+        if self._team is not None:
+            self._team_step(name, seq, t)
+
+    # -- team consistency ---------------------------------------------------------------------
+
+    def _hear(self, key: str, payload: bytes, arrived: float) -> None:
+        """Keep another robot's alignment for the team consistency."""
+        key_robot = key.split("/")[2]
+        if key_robot == self.robot:
+            return
+        try:
+            message = decode(payload)
+            if not isinstance(message, AlignmentMessage):
+                raise MessageError("malformed", "not an alignment on an alignment key")
+            if message.sender != key_robot:
+                raise MessageError("mismatch", f"sender {message.sender!r} on the key of "
+                                               f"{key_robot!r}")
+            if not {message.sender, message.neighbour} <= self.members | {self.robot}:
+                raise MessageError("outsider", f"pair {message.sender!r}, "
+                                               f"{message.neighbour!r} is not of the team")
+        except MessageError as exc:
+            self._drop(exc.reason, f"on {key}: {exc}")
+            return
+        self.counters["alignments_heard"] += 1
+        self._heard[(message.sender, message.neighbour)] = (message, arrived)
+
+    def _team_step(self, name: str, seq: int, t: float) -> None:
+        """Publish the team-consistent alignment of the pair (robot, name) just stepped, from
+        the node's own latest alignments and the other robots' recent ones."""
+        index = {r: k for k, r in enumerate(self._robots)}
+        horizon = time.perf_counter() - self.params.silence / self.params.speed
+        estimates = {(index[a], index[b]): m for (a, b), (m, arrived) in self._heard.items()
+                     if m.accepted and arrived >= horizon}
+        estimates |= {(index[self.robot], index[b]): m for b, m in self.latest.items()
+                      if m.accepted}
+        i, j = index[self.robot], index[name]
+        est = self._team.update(estimates, [(i, j)]).get((i, j))
+        if self.latest[name].accepted and (min(i, j), max(i, j)) in self._team.rejected:
+            self.counters["team_rejected"] += 1
+        if est is None:
+            out = TeamMessage(self.robot, self.boot, seq, t, name, (), False,
+                              np.full(3, np.nan), np.full((3, 3), np.nan))
+        else:
+            out = TeamMessage(self.robot, self.boot, seq, t, name,
+                              tuple(self._robots[k] for k in est.path[1:-1]), True, est.x, est.P)
+            self.counters["team_chained"] += est.chained
+        if name not in self._team_pubs:
+            self._team_pubs[name] = self._session.declare_publisher(
+                team_key(self.team, self.robot, name))
+        self._team_pubs[name].put(encode(out))
+        self.team_latest[name] = out
+        if self._on_team is not None:
+            self._on_team(out)
 
     # -- restarts -----------------------------------------------------------------------------
 

@@ -10,56 +10,65 @@ import numpy as np
 
 from tcaff_gtsam.errors import DataError
 
-from .messages import AlignmentMessage
+from .messages import AlignmentMessage, TeamMessage
 
-__all__ = ["COLUMNS", "AlignmentCsv", "read_alignments", "write_counters"]
+__all__ = ["COLUMNS", "TEAM_COLUMNS", "AlignmentCsv", "read_alignments", "write_counters"]
 
+_ESTIMATE = ("accepted", "x", "y", "theta", "P_xx", "P_xy", "P_xt", "P_yy", "P_yt", "P_tt")
 COLUMNS = ("robot", "neighbour", "seq", "stamp", "neighbour_seq", "neighbour_stamp", "step",
-           "hypothesis", "accepted", "x", "y", "theta", "P_xx", "P_xy", "P_xt", "P_yy", "P_yt",
-           "P_tt")
+           "hypothesis", *_ESTIMATE)
+#: a team alignment's row: `via` names the robots it is chained through, joined by "+"
+TEAM_COLUMNS = ("robot", "neighbour", "seq", "stamp", "via", *_ESTIMATE)
+_TEXT = ("robot", "neighbour", "via")
 _UPPER = np.triu_indices(3)
 
 
 class AlignmentCsv:
-    """Appends each AlignmentMessage to a CSV file (x, y in metres, theta in radians, P the
-    upper triangle of the covariance), flushed per row so that a killed node keeps its rows."""
+    """Appends each AlignmentMessage (or, given `TEAM_COLUMNS`, each TeamMessage) to a CSV
+    file (x, y in metres, theta in radians, P the upper triangle of the covariance), flushed
+    per row so that a killed node keeps its rows."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, columns: tuple[str, ...] = COLUMNS) -> None:
         path = Path(path)
         fresh = not path.exists() or path.stat().st_size == 0
         self._file = open(path, "a", newline="")
         self._rows = csv.writer(self._file)
         if fresh:
-            self._rows.writerow(COLUMNS)
+            self._rows.writerow(columns)
 
-    def write(self, m: AlignmentMessage) -> None:
-        self._rows.writerow([m.sender, m.neighbour, m.seq, repr(m.stamp), m.neighbour_seq,
-                             repr(m.neighbour_stamp), m.step, m.hypothesis, int(m.accepted),
-                             *map(repr, m.x.tolist()), *map(repr, m.P[_UPPER].tolist())])
+    def write(self, m: AlignmentMessage | TeamMessage) -> None:
+        if isinstance(m, TeamMessage):
+            head = [m.sender, m.neighbour, m.seq, repr(m.stamp), "+".join(m.via)]
+        else:
+            head = [m.sender, m.neighbour, m.seq, repr(m.stamp), m.neighbour_seq,
+                    repr(m.neighbour_stamp), m.step, m.hypothesis]
+        self._rows.writerow([*head, int(m.accepted), *map(repr, m.x.tolist()),
+                             *map(repr, m.P[_UPPER].tolist())])
         self._file.flush()
 
     def close(self) -> None:
         self._file.close()
 
 
-def read_alignments(path: str | Path) -> dict[str, np.ndarray]:
+def read_alignments(path: str | Path, columns: tuple[str, ...] = COLUMNS
+                    ) -> dict[str, np.ndarray]:
     """The columns of an alignments CSV as arrays (names as text, the rest numbers).
 
     Raises:
-        DataError: the file is missing or its header is not `COLUMNS`.
+        DataError: the file is missing or its header is not `columns`.
     """
     try:
         with open(path, newline="") as file:
             rows = list(csv.reader(file))
     except OSError as exc:
         raise DataError(f"{path}: cannot read alignments ({exc.strerror})") from None
-    if not rows or tuple(rows[0]) != COLUMNS:
+    if not rows or tuple(rows[0]) != columns:
         raise DataError(f"{path}: not an alignments CSV (header {rows[:1]})")
-    table = np.array(rows[1:], dtype=object).reshape(-1, len(COLUMNS))
+    table = np.array(rows[1:], dtype=object).reshape(-1, len(columns))
     out: dict[str, np.ndarray] = {}
-    for c, name in enumerate(COLUMNS):
+    for c, name in enumerate(columns):
         column = table[:, c]
-        out[name] = column.astype(str) if name in ("robot", "neighbour") else column.astype(float)
+        out[name] = column.astype(str) if name in _TEXT else column.astype(float)
     return out
 
 

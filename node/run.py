@@ -20,7 +20,7 @@ from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
 from .link import Link, TlsFiles
 from .node import NodeParams, RobotNode, warm_up
 from .replay import RobotReplay, replay, robot_names, run_replay
-from .results import AlignmentCsv, write_counters
+from .results import TEAM_COLUMNS, AlignmentCsv, write_counters
 
 __all__ = ["free_ports", "node_argv", "replay_node", "save_replays", "start_team",
            "wait_team"]
@@ -37,14 +37,17 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
     Args:
         start: wall time (epoch s) of the run's first exchange; None: 1 s after every robot
             of the run is up and linked (or `TEAM_WAIT` s have passed).
-    Writes `<output>/<robot>.csv` (every alignment, as made) and `<output>/<robot>.json` (the
-    start, then also the node's counters at the end, its share of one core over the replay
-    and the latency from a neighbour's map arriving to its alignment going out). Returns the
-    closed node.
+    Writes `<output>/<robot>.csv` (every alignment, as made), with team consistency
+    `<output>/<robot>.team.csv` (every team alignment), and `<output>/<robot>.json` (the start,
+    then also the node's counters at the end, its share of one core over the replay and the
+    latency from a neighbour's map arriving to its alignment going out). Returns the closed
+    node.
     """
     robot = source.robots[source.robot]
     output.mkdir(parents=True, exist_ok=True)
     rows = AlignmentCsv(output / f"{robot}.csv")
+    team_rows = (AlignmentCsv(output / f"{robot}.team.csv", TEAM_COLUMNS)
+                 if params.team_consistency else None)
     timing: dict[str, float] = {}
     stop = threading.Event()
     if threading.current_thread() is threading.main_thread():
@@ -55,8 +58,8 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
     aligner = FrameAlignerParams(kappa=source.kappa)
     if source.maps:
         warm_up(max(source.maps, key=len), aligner, tcaff)
-    node = RobotNode(robot, team, list(source.robots), link, params,
-                     aligner, tcaff, rows.write, state_dir)
+    node = RobotNode(robot, team, list(source.robots), link, params, aligner, tcaff,
+                     rows.write, state_dir, on_team=team_rows and team_rows.write)
     try:
         if start is None:
             start = _team_start(node, stop)
@@ -71,6 +74,8 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
     finally:
         node.close()
         rows.close()
+        if team_rows is not None:
+            team_rows.close()
         latency = np.array(node.latencies)
         if latency.size:
             timing |= {"latency_median_ms": 1e3 * float(np.median(latency)),
@@ -109,7 +114,8 @@ def free_ports(n: int) -> list[int]:
 def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int],
               start: float | None, output: Path, speed: float = 1.0, drop_share: float = 0.0,
               clock_offset: float = 0.0, state: Path | None = None,
-              tls: TlsFiles | None = None, silence: float | None = None) -> list[str]:
+              tls: TlsFiles | None = None, silence: float | None = None,
+              team_consistency: bool = False) -> list[str]:
     """The command line of robot `robot` of a team of n on loopback, replaying its
     `RobotReplay` file: it listens on ports[robot] and dials every robot before it, so every
     pair is linked once."""
@@ -129,6 +135,8 @@ def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int]
         argv += ["--state", str(state)]
     if silence is not None:
         argv += ["--silence", str(silence)]
+    if team_consistency:
+        argv.append("--team-consistency")
     if tls is not None:
         argv += ["--tls-ca", str(tls.ca), "--tls-cert", str(tls.certificate),
                  "--tls-key", str(tls.key)]

@@ -11,11 +11,15 @@
              Prints per node: alignments made and expected, latency (median, max) and its
              share of one core over the run. It keeps up when every alignment is made and the
              maximum latency stays under the 1 s exchange period.
+             With --team-consistency every node also runs the team consistency.
   bytes      the size of a map message at --objects objects and of an alignment message, and
              the team's bandwidth at --robots robots from the maps of the team run.
+  consistency  the time of one team-consistency step of a node (TeamConsistency.update over
+             every directed pair's alignment, one pair wrong) at 3, 4, 6 and 8 robots.
 
-    python scripts/bench_node.py [--parts latency team bytes] [--objects 100] [--robots 8]
-                                 [--seconds 60] [--rate 5] [--exchanges 80]
+    python scripts/bench_node.py [--parts latency team bytes consistency] [--objects 100]
+                                 [--robots 8] [--seconds 60] [--rate 5] [--exchanges 80]
+                                 [--team-consistency]
 
 Timings are wall-clock on a shared machine: run it twice and compare.
 """
@@ -40,7 +44,7 @@ from tcaff_gtsam.node import AlignmentMessage, Link, MapMessage, decode, encode
 from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
 
 from tcaff_gtsam import ObjectMap
-from tcaff_gtsam.geometry import se2_from_params
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params
 
 TRUE = np.array([3.0, -2.0, 0.7])  # T_r0_r1
 
@@ -144,7 +148,36 @@ def codec(objects: int, repeats: int = 200) -> np.ndarray:
     return np.array(times)
 
 
-def team(robots: int, seconds: float):
+def consistency_step(robots: int, wanted: bool, repeats: int = 30) -> np.ndarray:
+    """s per TeamConsistency.update with every directed pair's alignment known and one pair's
+    wrong by 3 m; `wanted`: only the wrong pair's team alignment asked for (what a node with
+    team consistency runs after each step of a pair), else every pair's."""
+    from types import SimpleNamespace
+
+    from tcaff_gtsam.team import TeamConsistency
+
+    rng = np.random.default_rng(0)
+    poses = [se2_from_params(np.r_[rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)])
+             for _ in range(robots)]
+    P = np.diag([0.01, 0.01, 1e-4])
+    estimates = {}
+    for i in range(robots):
+        for j in range(robots):
+            if i != j:
+                x = se2_to_params(np.linalg.inv(poses[i]) @ poses[j]) + rng.normal(0, 0.02, 3)
+                if (i, j) in ((0, 1), (1, 0)):
+                    x[0] += 3.0
+                estimates[(i, j)] = SimpleNamespace(x=x, P=P)
+    team = TeamConsistency(robots)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        team.update(estimates, [(0, 1)] if wanted else None)
+        times.append(time.perf_counter() - start)
+    return np.array(times)
+
+
+def team(robots: int, seconds: float, team_consistency: bool = False):
     """(each node's JSON, the simulated run)."""
     config = load_scenario("four_robots")
     config = override(config, "bench", duration=seconds,
@@ -154,7 +187,8 @@ def team(robots: int, seconds: float):
         out = Path(folder)
         replays = save_replays(run, out / "replay")
         ports = free_ports(robots)
-        procs = start_team([node_argv(replays[k], k, robots, "bench8", ports, None, out)
+        procs = start_team([node_argv(replays[k], k, robots, "bench8", ports, None, out,
+                                      team_consistency=team_consistency)
                             for k in range(robots)], out / "logs")
         codes = wait_team(procs, seconds + 300)
         if any(codes):
@@ -166,7 +200,9 @@ def team(robots: int, seconds: float):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--parts", nargs="+", default=["latency", "team", "bytes"],
-                        choices=["latency", "team", "bytes"])
+                        choices=["latency", "team", "bytes", "consistency"])
+    parser.add_argument("--team-consistency", action="store_true",
+                        help="team: every node also runs the team consistency")
     parser.add_argument("--objects", type=int, default=100)
     parser.add_argument("--robots", type=int, default=8)
     parser.add_argument("--seconds", type=float, default=60.0)
@@ -191,10 +227,11 @@ def main() -> None:
                           f"{np.percentile(ms, 95):.2f}", f"{ms.max():.2f}")
         console.print(table)
     if "team" in args.parts or "bytes" in args.parts:
-        stats, run = team(args.robots, args.seconds)
+        stats, run = team(args.robots, args.seconds, args.team_consistency)
         S = len(run.times)
         table = Table(title=f"{args.robots} robots at 1 Hz for {S} exchanges, each aligning "
-                            f"to {args.robots - 1} neighbours")
+                            f"to {args.robots - 1} neighbours"
+                            + (", with team consistency" if args.team_consistency else ""))
         for column in ("node", "aligned", "expected", "latency median [ms]",
                        "latency max [ms]", "CPU [% of a core]"):
             table.add_column(column, justify="right")
@@ -226,6 +263,18 @@ def main() -> None:
         table.add_row(f"team of {n}, published per s (maps + alignments)", f"{published:.0f}")
         table.add_row(f"team of {n}, delivered per s (each map to {n - 1} peers)",
                       f"{n * (n - 1) * mean_map:.0f}")
+        console.print(table)
+    if "consistency" in args.parts:
+        table = Table(title="One team-consistency step: every directed pair known, one wrong "
+                            "[ms]")
+        for column in ("robots", "every pair: median", "p95", "one pair: median", "p95"):
+            table.add_column(column, justify="right")
+        for robots in (3, 4, 6, 8):
+            cells = []
+            for wanted in (False, True):
+                ms = 1e3 * consistency_step(robots, wanted)
+                cells += [f"{np.median(ms):.2f}", f"{np.percentile(ms, 95):.2f}"]
+            table.add_row(str(robots), *cells)
         console.print(table)
 
 

@@ -29,7 +29,7 @@ from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv  # chi2.ppf's own formula, without scipy.stats' import
 
 from .errors import DataError, TcaffError
 from .geometry import _se2_from_params, _wrap_angle
@@ -110,9 +110,10 @@ class TCAFF:
         nm_cost = -np.log(prm.p_no_measurement)
         if prm.cost_model == "paper":
             nm_cost -= 0.5 * d * np.log(2.0 * np.pi)
+        gate_chi2 = float(2 * gammaincinv(d / 2, prm.gate_probability))  # chi2.ppf(p, d)
         self._model = CostModel(
             Q=prm.Q, angular=angular, reference=prm.cost_model == "reference",
-            use_box=prm.gate == "box", gate_chi2=float(chi2.ppf(prm.gate_probability, d)),
+            use_box=prm.gate == "box", gate_chi2=gate_chi2,
             gate_box=np.array(prm.gate_box), no_measurement_cost=float(nm_cost))
         self._columns = prm.window + 2
         self.reset()

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv  # chi2.ppf's own formula, without scipy.stats' import
 
 from .errors import DataError
 from .geometry import _se2_from_params, _wrap_angle
@@ -122,7 +122,7 @@ class TeamConsistency:
         self.params = TeamParams() if params is None else params
         _require(isinstance(self.params, TeamParams), "TeamConsistency", "params", params,
                  "must be a TeamParams")
-        self._gate = float(chi2.ppf(self.params.cycle_probability, 3))
+        self._gate = float(2 * gammaincinv(1.5, self.params.cycle_probability))
         self.rejected: list[tuple[int, int]] = []
 
     def _edges(self, estimates: Mapping) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
@@ -202,20 +202,24 @@ class TeamConsistency:
             cycles = [c for c in cycles if worst not in c]
         return kept
 
-    def update(self, estimates: Mapping[tuple[int, int], object]) -> dict[tuple[int, int],
-                                                                        TeamEstimate]:
+    def update(self, estimates: Mapping[tuple[int, int], object],
+               pairs: Iterable[tuple[int, int]] | None = None
+               ) -> dict[tuple[int, int], TeamEstimate]:
         """The team-consistent alignment of every directed pair that has one.
 
         Args:
             estimates: (i, j) -> the pair's estimate of T_oi_oj (anything with `.x` (3,) and
                 `.P` (3, 3), e.g. an `AlignmentEstimate`), or None.
+            pairs: the ordered pairs (i, j) wanted (None: every pair). What is kept is decided
+                over every estimate all the same; only the chains of the pairs not wanted are
+                not searched (a robot that needs its own pairs only).
         Returns:
-            (i, j) -> `TeamEstimate` for every ordered pair of robots that has a kept alignment
-            or a chain of at most `max_chain` kept ones. `rejected` holds the undirected pairs
-            (i < j) left out this step.
+            (i, j) -> `TeamEstimate` for every wanted ordered pair of robots that has a kept
+            alignment or a chain of at most `max_chain` kept ones. `rejected` holds the
+            undirected pairs (i < j) left out this step.
         Raises:
-            DataError: a key that is not two robots of the team, a non-finite or misshapen
-                estimate.
+            DataError: a key or wanted pair that is not two robots of the team, a non-finite
+                or misshapen estimate.
         """
         edges = self._edges(estimates)
         failed = [((i, j), (j, k), (i, k))
@@ -228,13 +232,32 @@ class TeamConsistency:
         for (i, j) in kept:
             directed[(i, j)] = (edges[(i, j)], (i, j))
             directed[(j, i)] = (_invert(edges[(i, j)]), (j, i))
-        out = {key: TeamEstimate(xP[0], xP[1], path) for key, (xP, path) in directed.items()}
-        for i, j in itertools.permutations(range(self.n_robots), 2):
-            if (i, j) not in out:
+        wanted = (itertools.permutations(range(self.n_robots), 2) if pairs is None
+                  else self._wanted(pairs))
+        out = {}
+        for i, j in wanted:
+            if (i, j) in directed:
+                xP, path = directed[(i, j)]
+                out[(i, j)] = TeamEstimate(xP[0], xP[1], path)
+            else:
                 chain = self._chain(i, j, directed)
                 if chain is not None:
                     out[(i, j)] = chain
         return out
+
+    def _wanted(self, pairs: Iterable) -> list[tuple[int, int]]:
+        n, wanted = self.n_robots, []
+        if not isinstance(pairs, Iterable):
+            raise DataError(f"TeamConsistency.update: pairs must be ordered pairs of robots, "
+                            f"got {shown(pairs)}")
+        for pair in pairs:
+            if not (isinstance(pair, tuple) and len(pair) == 2
+                    and all(isinstance(r, (int, np.integer)) and not isinstance(r, bool)
+                            and 0 <= r < n for r in pair) and pair[0] != pair[1]):
+                raise DataError(f"TeamConsistency.update: wanted pair {shown(pair)} is not two "
+                                f"different robots of 0 to {n - 1}")
+            wanted.append((int(pair[0]), int(pair[1])))
+        return wanted
 
     def _chain(self, i: int, j: int, directed: dict) -> TeamEstimate | None:
         """The chain of kept alignments from i to j with the fewest links (up to max_chain),

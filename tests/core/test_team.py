@@ -127,3 +127,33 @@ def test_bad_parameters_are_config_errors(kwargs, field):
         TeamParams(**kwargs)
     with pytest.raises(ConfigError, match="n_robots"):
         TeamConsistency(1)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 6), data=st.data())
+def test_the_wanted_pairs_are_those_of_the_whole_team(seed, n, data):
+    """Asked for some pairs only, the team gives exactly what it gives them when asked for
+    all, and leaves out the same pairs (one pair is wrong and some have no estimate)."""
+    rng = np.random.default_rng(seed)
+    frames = team_frames(rng, n)
+    every = list(itertools.permutations(range(n), 2))
+    known = [p for p in every if rng.random() < 0.6]
+    estimates = true_estimates(frames, known)
+    if known:
+        estimates[known[0]] = SimpleNamespace(x=estimates[known[0]].x + np.array([3.0, 0, 0]), P=P)
+    whole = TeamConsistency(n)
+    full = whole.update(estimates)
+    wanted = data.draw(st.lists(st.sampled_from(every), unique=True))
+    some = TeamConsistency(n)
+    part = some.update(estimates, wanted)
+    assert some.rejected == whole.rejected
+    assert set(part) == {p for p in wanted if p in full}
+    for p in part:
+        assert part[p].path == full[p].path
+        np.testing.assert_array_equal(part[p].x, full[p].x)
+
+
+@pytest.mark.parametrize("pairs", [[(0, 0)], [(0, 3)], [(0,)], [(True, 1)], ["01"]])
+def test_a_wanted_pair_outside_the_team_is_refused(pairs):
+    with pytest.raises(DataError, match="wanted pair"):
+        TeamConsistency(3).update({}, pairs)

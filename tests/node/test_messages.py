@@ -15,6 +15,7 @@ from tcaff_gtsam.node.messages import (
     AlignmentMessage,
     MapMessage,
     MessageError,
+    TeamMessage,
     decode,
     encode,
 )
@@ -81,6 +82,26 @@ def test_an_alignment_survives_the_wire() -> None:
     assert not empty.accepted and np.isnan(empty.P).all()
 
 
+@settings(max_examples=60, deadline=None)
+@given(names, names, st.lists(names, max_size=4), st.booleans(), st.data())
+def test_a_team_alignment_survives_the_wire_and_every_truncation_is_malformed(
+        sender, neighbour, via, accepted, data) -> None:
+    x = np.array([1.5, -2.0, 0.3]) if accepted else np.full(3, np.nan)
+    P = np.diag([0.1, 0.2, 0.01]) if accepted else np.full((3, 3), np.nan)
+    m = TeamMessage(sender, 4, 9, 50.25, neighbour, tuple(via), accepted, x, P)
+    payload = encode(m)
+    back = decode(payload)
+    assert isinstance(back, TeamMessage)
+    assert ((back.sender, back.neighbour, back.via, back.seq, back.stamp, back.accepted)
+            == (sender, neighbour, tuple(via), 9, 50.25, accepted))
+    np.testing.assert_array_equal(back.x, x)
+    np.testing.assert_array_equal(back.P, P)
+    cut = data.draw(st.integers(0, len(payload) - 1))
+    with pytest.raises(MessageError) as caught:
+        decode(payload[:cut])
+    assert caught.value.reason == "malformed"
+
+
 @settings(max_examples=40, deadline=None)
 @given(map_messages(), st.data())
 def test_every_truncation_is_malformed(m: MapMessage, data) -> None:
@@ -111,7 +132,7 @@ def test_a_flipped_byte_is_refused_or_read_as_a_valid_message(m: MapMessage, dat
     except MessageError:
         return
     # what passes is a well-formed map: finite, sizes and ages >= 0
-    assert isinstance(back, MapMessage | AlignmentMessage)
+    assert isinstance(back, MapMessage | AlignmentMessage | TeamMessage)
     if isinstance(back, MapMessage):
         values = np.column_stack([back.centroids, back.widths, back.heights, back.ages])
         assert np.isfinite(values).all() and (values[:, 3:] >= 0).all()

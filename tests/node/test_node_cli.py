@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from tcaff_gtsam.eval import cli
 
 REPO = Path(__file__).resolve().parents[2]
 TCAFF = str(Path(sys.executable).parent / "tcaff")
@@ -37,18 +38,26 @@ def test_layers_import_one_way(folder, above) -> None:
 
 @pytest.mark.parametrize(("args", "words"), [
     (["node", "--robot", "r0", "--listen", "127.0.0.1:7447"],
-     "--scenario/--replay [None, None]: give exactly one"),
+     "--scenario/--kimera/--replay [None, None, None]: give exactly one"),
     (["team", "--scenario", "four_robots", "--speed", "nan"], "--speed nan"),
+    (["team", "--kimera", "missing"], "--kimera 'missing': must be a folder"),
+    (["team", "--scenario", "four_robots", "--kimera", "."], "give exactly one"),
     (["listen", "--team", "a/b", "--connect", "127.0.0.1:7447"], "--team 'a/b'"),
 ])
-def test_bad_options_end_in_one_line_and_status_2(tmp_path: Path, args: list[str],
-                                                  words: str) -> None:
-    result = subprocess.run([TCAFF, *args, *(["--output", str(tmp_path)]
-                                             if args[0] != "listen" else [])],
-                            capture_output=True, text=True, cwd=tmp_path, timeout=120)
-    assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and words in lines[0], result.stderr
+def test_bad_options_end_in_one_line_and_status_2(tmp_path: Path, monkeypatch, capsys,
+                                                  args: list[str], words: str) -> None:
+    """Through the console entry point, in this process (a subprocess would only add the
+    interpreter's start)."""
+    argv = ["tcaff", *args, *(["--output", str(tmp_path)] if args[0] != "listen" else [])]
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", argv)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    stderr = capsys.readouterr().err
+    assert exited.value.code == 2, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0], stderr
 
 
 def test_help_explains_the_team_commands() -> None:

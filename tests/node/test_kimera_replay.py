@@ -1,0 +1,75 @@
+"""A team replaying Kimera-Multi bags: `tcaff team --kimera` maps each robot's bag through the
+RGB-D front end once, then one node process per robot replays the maps over Zenoh on
+127.0.0.1. The bags are small ones written from the rendered simulator."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tcaff_gtsam.eval import cli
+from tcaff_gtsam.eval.config import MethodsConfig, load_kimera_multi
+from tcaff_gtsam.eval.datasets import kimera_multi
+from tcaff_gtsam.eval.methods import run_methods
+from tcaff_gtsam.eval.sim import kimera_bags
+from tcaff_gtsam.node.results import read_alignments
+
+SCENARIO = Path(__file__).resolve().parents[1] / "eval" / "data" / "small_room_rgbd.yaml"
+ROBOTS = ("acl_jackal2", "sparkal2")  # the robots of the shipped test same_direction
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory) -> Path:
+    """12 s of two robots at 240 x 180, 5 Hz."""
+    data = tmp_path_factory.mktemp("kimera_like")
+    kimera_bags.write_sequence(data, ROBOTS, 12.0, 5.0, 240, 180, seed=1,
+                               scenario=str(SCENARIO))
+    return data
+
+
+def tcaff(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
+    """(exit status, stdout, stderr) of the console entry point, run in this process (the
+    node processes it starts are processes of their own)."""
+    monkeypatch.setattr(sys, "argv", ["tcaff", *args])
+    monkeypatch.setenv("COLUMNS", "200")
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    out = capsys.readouterr()
+    return exited.value.code or 0, out.out, out.err
+
+
+def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path, monkeypatch,
+                                                  capsys) -> None:
+    """Each node aligns at every exchange the robots share, as the offline study does on the
+    same maps; a node asked for a robot the bags do not have is refused in one line."""
+    out = tmp_path / "team"
+    code, stdout, stderr = tcaff(monkeypatch, capsys, "team", "--kimera", str(bags), "--speed",
+                                 "4", "--output", str(out))
+    assert code == 0, stdout + stderr
+    assert "r0 (acl_jackal2), r1 (sparkal2)" in stdout
+    for robot in ROBOTS:
+        assert (out / "maps" / f"{robot}.npz").is_file()
+    # the maps the team made, read back (reused, not mapped again)
+    run, _, reused = kimera_multi.load_run(load_kimera_multi("same_direction"), bags,
+                                           out / "maps")
+    assert reused == list(ROBOTS)
+    assert all(sum(len(m) for m in maps) > 0 for maps in run.maps)
+    offline = run_methods(run, MethodsConfig(methods=["tcaff"]))
+    S = len(run.times)
+    for i in range(2):
+        rows = read_alignments(out / f"r{i}.csv")
+        assert rows["seq"].astype(int).tolist() == list(range(S))
+        x = np.column_stack([rows[c] for c in ("x", "y", "theta")])
+        expected = offline.estimates["tcaff"][offline.pairs.index((i, 1 - i))]
+        np.testing.assert_array_equal(rows["accepted"] == 1, np.isfinite(expected[:, 0]))
+        np.testing.assert_allclose(x[rows["accepted"] == 1],
+                                   expected[np.isfinite(expected[:, 0])], atol=1e-4)
+    # a node of the same bags (their maps reused) for a robot they do not have
+    code, _, stderr = tcaff(monkeypatch, capsys, "node", "--robot", "r5", "--kimera", str(bags),
+                            "--listen", "127.0.0.1:7447", "--output", str(out))
+    assert code == 2
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and "r0 (acl_jackal2), r1 (sparkal2)" in lines[0], stderr
