@@ -283,7 +283,8 @@ class TCAFF:
         if estimate is None:
             return None
         report_after = self.params.report_after
-        if report_after is not None and self._main.since[np.argmin(self._main.cost)] >= report_after:
+        quiet = self._main.since[np.argmin(self._main.cost)]
+        if report_after is not None and quiet >= report_after:
             return None
         if self.params.withhold_contested and self._contested():
             return None

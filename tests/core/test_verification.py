@@ -251,7 +251,7 @@ def test_a_held_alignment_is_tracked_on_fewer_objects_than_a_candidate_needs(pos
     ego, other = three_shared(T)
     aligner = FrameAligner(TRACKING)
     assert aligner.measurements(ego, other, 10.0) == []
-    held = np.array(pose) + [dx, dy, dtheta]
+    held = np.array(pose) + np.array([dx, dy, dtheta])
     found = aligner.measurements(ego, other, 10.0, held=held)
     assert len(found) == 1 and found[0].tracked and found[0].inliers == 3
     assert sorted(map(tuple, found[0].associations)) == [(0, 0), (1, 1), (2, 2)]
@@ -269,7 +269,8 @@ def test_nothing_is_tracked_when_the_held_alignment_pairs_too_few_or_is_off():
     assert FrameAligner(replace(TRACKING, track_min=4)).measurements(ego, other, 10.0,
                                                                      held=z) == []
     # one metre off pairs nothing within confirm_translation
-    assert FrameAligner(TRACKING).measurements(ego, other, 10.0, held=z + [1.0, 0, 0]) == []
+    off = z + np.array([1.0, 0.0, 0.0])
+    assert FrameAligner(TRACKING).measurements(ego, other, 10.0, held=off) == []
     # objects on a line fix no rotation: refused by min_spread like a candidate
     line = object_map(np.array([[0.0, 0.0], [1.0, 0.0], [2.5, 0.0]]))
     assert FrameAligner(TRACKING).measurements(line, line, 10.0, held=np.zeros(3)) == []
