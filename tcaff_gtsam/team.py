@@ -263,23 +263,24 @@ class TeamConsistency:
                 the kept alignments T_oi_oj and their covariances.
         """
         n = self.n_robots
-        # hops[a, b]: the fewest links from robot a to robot b (n + 1: none within max_chain);
-        # every chain with the fewest links visits no robot twice
-        hops = np.where(linked, 1, n + 1)
+        longest = min(self.params.max_chain, n - 1)  # no chain without repeats is longer
+        # hops[a, b]: the fewest links from robot a to robot b (longest + 1: none within
+        # reach); every chain with the fewest links visits no robot twice
+        hops = np.where(linked, 1, longest + 1)
         np.fill_diagonal(hops, 0)
         reach = linked.astype(np.int64)
-        for d in range(2, self.params.max_chain + 1):
+        for d in range(2, longest + 1):
             reach = ((reach @ linked.astype(np.int64)) > 0).astype(np.int64)
             hops[(hops > d) & (reach > 0)] = d
         paths: list[tuple[int, ...]] = []
-        for i, j in zip(*np.nonzero((hops >= 2) & (hops <= self.params.max_chain)), strict=True):
+        for i, j in zip(*np.nonzero((hops >= 2) & (hops <= longest)), strict=True):
             grown = [(int(i),)]
             for left in range(int(hops[i, j]) - 1, -1, -1):
                 grown = [(*path, int(k)) for path in grown
                          for k in np.flatnonzero(linked[path[-1]] & (hops[:, j] == left))]
             paths += grown
         out: dict[tuple[int, int], TeamEstimate] = {}
-        for length in range(2, self.params.max_chain + 1):
+        for length in range(2, longest + 1):
             chains = np.array([path for path in paths if len(path) == length + 1],
                               dtype=np.int64).reshape(-1, length + 1)
             if not len(chains):
@@ -292,5 +293,6 @@ class TeamConsistency:
             for c in np.lexsort((spread, chains[:, -1], chains[:, 0])):
                 key = (int(chains[c, 0]), int(chains[c, -1]))
                 if key not in out:  # the first of the pair's chains is its most certain
-                    out[key] = TeamEstimate(x[c], cov[c], tuple(int(r) for r in chains[c]))
+                    out[key] = TeamEstimate(x[c].copy(), cov[c].copy(),
+                                            tuple(int(r) for r in chains[c]))
         return out
