@@ -92,6 +92,8 @@ def main() -> None:
     parser.add_argument("--warm-up", type=int, default=30, help="exchanges before them")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    if min(args.robots) < 2 or args.seconds < 1 or args.warm_up < 0:
+        parser.error("a team has at least 2 robots; --seconds >= 1, --warm-up >= 0")
     warm_up()
     header = (f"{'robots':>6} {'pairs':>5} {'ms/s mean':>9} {'median':>7} {'max':>7} "
               f"{'pairs %':>7} {'team %':>6} {'graph %':>7} {'ms/pair':>7} {'held':>5} "
