@@ -33,14 +33,21 @@ $(STAMP): pyproject.toml
 demo: install
 	$(VENV)/bin/tcaff demo
 
+# every test, spread over the machine's cores (worksteal: an idle worker takes queued tests
+# from a busy one, so the long end-to-end tests do not end up queued behind each other); the
+# live nodes that must keep up with the clock (`realtime`) run alone afterwards. Both parts
+# always run; make fails if either does.
 test: install
-	$(VENV)/bin/pytest -q
+	@status=0; \
+	$(VENV)/bin/pytest -q -n auto --dist worksteal -m "not realtime" || status=$$?; \
+	$(VENV)/bin/pytest -q -m realtime tests/node || status=$$?; \
+	exit $$status
 
 # the quick subset for development: everything but the end-to-end runs marked `slow`
 test-fast: install
 	$(VENV)/bin/pytest -q -m "not slow"
 
-BENCH_SCRIPTS := bench_startup bench_association bench_tcaff bench_graph bench_scale \
+BENCH_SCRIPTS := bench_startup bench_association bench_tcaff bench_graph bench_team bench_scale \
 	bench_study bench_mapping bench_mot bench_results_io
 BENCH_OUT := docs/benchmarks.md
 

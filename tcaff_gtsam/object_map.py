@@ -126,8 +126,14 @@ class ObjectMap:
             bad = idx[(idx < -n) | (idx >= n)][0]
             raise DataError(f"ObjectMap.subset: index {bad} is out of range for a map of {n} "
                             f"objects")
-        return ObjectMap(self.centroids[idx], self.widths[idx], self.heights[idx],
-                         self.last_seen[idx])
+        # rows of a valid map are valid: the checks of construction are not run again (they
+        # cost more than the indexing at the map sizes aligned every second)
+        subset = object.__new__(ObjectMap)
+        for name in _FIELDS:
+            arr = getattr(self, name)[idx]  # a copy: numpy's advanced indexing
+            arr.setflags(write=False)
+            object.__setattr__(subset, name, arr)
+        return subset
 
     def recent_indices(self, now: float, kappa: float) -> np.ndarray:
         """(k,) int indices of objects seen less than `kappa` seconds before `now` (l < kappa);

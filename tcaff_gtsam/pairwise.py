@@ -98,6 +98,9 @@ class PairwiseAligner:
         aligner: the FrameAligner making candidate alignments.
         filter: the TCAFF filter choosing among them over time.
         measurements: the candidates of the latest step (ambiguous ones included).
+        taken: those of them the filter was given (`admitted`), in the order it was given
+            them: the latest estimate's `measurement` indexes this list (for
+            `InterRobotGraph.add_tcaff_estimate`).
     """
 
     def __init__(self, aligner_params: FrameAlignerParams | None = None,
@@ -117,6 +120,7 @@ class PairwiseAligner:
         self.aligner = FrameAligner(aligner_params)
         self.filter = TCAFF(tcaff_params)
         self.measurements: list[AlignmentMeasurement] = []
+        self.taken: list[AlignmentMeasurement] = []
         self._last_time: float | None = None
         self._memory = (MapMemory.of(self.aligner.params), MapMemory.of(self.aligner.params))
         self._identities = (ObjectIdentities(), ObjectIdentities())
@@ -164,6 +168,7 @@ class PairwiseAligner:
         estimate = self.filter.update(zs, Rs, evidence_of(kept, ids))
         # the step succeeded: only now does it count as taken
         self.measurements = measurements
+        self.taken = kept
         ego_memory.add(t, ego_map)
         other_memory.add(t, other_map)
         self._identities = identities

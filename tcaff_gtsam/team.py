@@ -82,18 +82,20 @@ class TeamEstimate:
         return len(self.path) > 2
 
 
-def _compose(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]
+def _compose(xa: np.ndarray, Pa: np.ndarray, xb: np.ndarray, Pb: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray]:
-    """(x, P) of T_a T_b, the covariance propagated to first order."""
-    (xa, Pa), (xb, Pb) = a, b
-    c, s = math.cos(xa[2]), math.sin(xa[2])
-    R = np.array([[c, -s], [s, c]])
-    t = R @ xb[:2]
-    x = np.array([xa[0] + t[0], xa[1] + t[1], _wrap_angle(xa[2] + xb[2])])
-    Ja = np.array([[1.0, 0.0, -t[1]], [0.0, 1.0, t[0]], [0.0, 0.0, 1.0]])
-    Jb = np.eye(3)
-    Jb[:2, :2] = R
-    return x, Ja @ Pa @ Ja.T + Jb @ Pb @ Jb.T
+    """(x (m, 3), P (m, 3, 3)) of T_a T_b for m pairs of alignments given as x (m, 3) and
+    P (m, 3, 3), the covariance propagated to first order."""
+    c, s = np.cos(xa[:, 2]), np.sin(xa[:, 2])
+    tx = c * xb[:, 0] - s * xb[:, 1]
+    ty = s * xb[:, 0] + c * xb[:, 1]
+    x = np.column_stack([xa[:, 0] + tx, xa[:, 1] + ty, _wrap_angle(xa[:, 2] + xb[:, 2])])
+    Ja = np.broadcast_to(np.eye(3), (len(xa), 3, 3)).copy()
+    Ja[:, 0, 2], Ja[:, 1, 2] = -ty, tx
+    Jb = Ja.copy()
+    Jb[:, :2, 2] = 0.0
+    Jb[:, 0, 0], Jb[:, 0, 1], Jb[:, 1, 0], Jb[:, 1, 1] = c, -s, s, c
+    return x, (Ja @ Pa @ Ja.transpose(0, 2, 1)) + (Jb @ Pb @ Jb.transpose(0, 2, 1))
 
 
 def _invert(a: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -106,6 +108,13 @@ def _invert(a: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     J[:2, :2] = -Rt
     J[:2, 2] = [t[1], -t[0]]
     return np.array([t[0], t[1], _wrap_angle(-x[2])]), J @ P @ J.T
+
+
+def _distances(xa: np.ndarray, Pa: np.ndarray, xb: np.ndarray, Pb: np.ndarray) -> np.ndarray:
+    """(m,) squared Mahalanobis distances of xa - xb (m, 3), heading wrapped, under Pa + Pb."""
+    r = xa - xb
+    r[:, 2] = _wrap_angle(r[:, 2])
+    return np.einsum("mi,mi->m", r, np.linalg.solve(Pa + Pb, r[:, :, None])[:, :, 0])
 
 
 class TeamConsistency:
@@ -161,21 +170,30 @@ class TeamConsistency:
             other = given.get((j, i))
             if other is not None:
                 backward = other if j < i else _invert(other)
-                if self._distance(forward, backward) > self._gate:
+                if _distances(forward[0][None], forward[1][None], backward[0][None],
+                              backward[1][None])[0] > self._gate:
                     continue
             edges[(a, b)] = forward
         return edges
 
-    def _distance(self, a: tuple[np.ndarray, np.ndarray],
-                  b: tuple[np.ndarray, np.ndarray]) -> float:
-        r = a[0] - b[0]
-        r[2] = _wrap_angle(r[2])
-        return float(r @ np.linalg.solve(a[1] + b[1], r))
+    def _failed_cycles(self, edges) -> list[tuple]:
+        """The cycles ((i, j), (j, k), (i, k)), i < j < k, of three known alignments where
+        T_ij T_jk does not close on T_ik within the gate."""
+        cycles = [(i, j, k) for i, j, k in itertools.combinations(range(self.n_robots), 3)
+                  if (i, j) in edges and (j, k) in edges and (i, k) in edges]
+        if not cycles:
+            return []
 
-    def _cycle_fails(self, edges, i: int, j: int, k: int) -> bool:
-        """Whether T_ij T_jk closes on T_ik within the gate (i < j < k)."""
-        x_ik, P_ik = _compose(edges[(i, j)], edges[(j, k)])
-        return self._distance((x_ik, P_ik), edges[(i, k)]) > self._gate
+        def stacked(links):
+            return (np.array([edges[e][0] for e in links]),
+                    np.array([edges[e][1] for e in links]))
+
+        ij = stacked([(i, j) for i, j, _ in cycles])
+        jk = stacked([(j, k) for _, j, k in cycles])
+        ik = stacked([(i, k) for i, _, k in cycles])
+        fails = _distances(*_compose(*ij, *jk), *ik) > self._gate
+        return [((i, j), (j, k), (i, k))
+                for (i, j, k), fail in zip(cycles, fails.tolist(), strict=True) if fail]
 
     def _largest_consistent(self, edges, failed: list[tuple]) -> set[tuple[int, int]]:
         pairs = sorted(edges)
@@ -222,27 +240,24 @@ class TeamConsistency:
                 or misshapen estimate.
         """
         edges = self._edges(estimates)
-        failed = [((i, j), (j, k), (i, k))
-                  for i, j, k in itertools.combinations(range(self.n_robots), 3)
-                  if {(i, j), (j, k), (i, k)} <= edges.keys() and self._cycle_fails(edges, i, j,
-                                                                                     k)]
-        kept = self._largest_consistent(edges, failed)
+        kept = self._largest_consistent(edges, self._failed_cycles(edges))
         self.rejected = [p for p in sorted(edges) if p not in kept]
-        directed = {}
-        for (i, j) in kept:
-            directed[(i, j)] = (edges[(i, j)], (i, j))
-            directed[(j, i)] = (_invert(edges[(i, j)]), (j, i))
-        wanted = (itertools.permutations(range(self.n_robots), 2) if pairs is None
-                  else self._wanted(pairs))
-        out = {}
-        for i, j in wanted:
-            if (i, j) in directed:
-                xP, path = directed[(i, j)]
-                out[(i, j)] = TeamEstimate(xP[0], xP[1], path)
-            else:
-                chain = self._chain(i, j, directed)
-                if chain is not None:
-                    out[(i, j)] = chain
+        n = self.n_robots
+        want = np.ones((n, n), dtype=bool)
+        if pairs is not None:
+            want[:] = False
+            for i, j in self._wanted(pairs):
+                want[i, j] = True
+        # every kept alignment in both directions, as (n, n) arrays
+        linked = np.zeros((n, n), dtype=bool)
+        X, P = np.zeros((n, n, 3)), np.zeros((n, n, 3, 3))
+        for i, j in sorted(kept):
+            linked[i, j] = linked[j, i] = True
+            X[i, j], P[i, j] = edges[(i, j)]
+            X[j, i], P[j, i] = _invert(edges[(i, j)])
+        out = {(int(i), int(j)): TeamEstimate(X[i, j].copy(), P[i, j].copy(), (int(i), int(j)))
+               for i, j in zip(*np.nonzero(linked & want), strict=True)}
+        out.update(self._chains(linked, X, P, want))
         return out
 
     def _wanted(self, pairs: Iterable) -> list[tuple[int, int]]:
@@ -259,20 +274,48 @@ class TeamConsistency:
             wanted.append((int(pair[0]), int(pair[1])))
         return wanted
 
-    def _chain(self, i: int, j: int, directed: dict) -> TeamEstimate | None:
-        """The chain of kept alignments from i to j with the fewest links (up to max_chain),
-        the most certain (smallest translation covariance) among those."""
-        frontier = [((np.zeros(3), np.zeros((3, 3))), (i,))]
-        for _ in range(self.params.max_chain):
-            found, grown = [], []
-            for xP, path in frontier:
-                for (a, b), (step, _) in directed.items():
-                    if a != path[-1] or b in path:
-                        continue
-                    composed = _compose(xP, step) if len(path) > 1 else step
-                    (found if b == j else grown).append((composed, (*path, b)))
-            if found:
-                xP, path = min(found, key=lambda f: np.trace(f[0][1][:2, :2]))
-                return TeamEstimate(xP[0], xP[1], path)
-            frontier = grown
-        return None
+    def _chains(self, linked: np.ndarray, X: np.ndarray, P: np.ndarray, want: np.ndarray
+                ) -> dict[tuple[int, int], TeamEstimate]:
+        """For every ordered pair (i, j) without a kept alignment, the chain of kept ones from
+        i to j with the fewest links (2 up to max_chain), the most certain (smallest
+        translation covariance) among those.
+
+        Args:
+            linked: (n, n) bool, where a kept alignment exists; X (n, n, 3), P (n, n, 3, 3):
+                the kept alignments T_oi_oj and their covariances; want: (n, n) bool, the
+                ordered pairs whose chains are searched.
+        """
+        n = self.n_robots
+        longest = min(self.params.max_chain, n - 1)  # no chain without repeats is longer
+        # hops[a, b]: the fewest links from robot a to robot b (longest + 1: none within
+        # reach); every chain with the fewest links visits no robot twice
+        hops = np.where(linked, 1, longest + 1)
+        np.fill_diagonal(hops, 0)
+        reach = linked.astype(np.int64)
+        for d in range(2, longest + 1):
+            reach = ((reach @ linked.astype(np.int64)) > 0).astype(np.int64)
+            hops[(hops > d) & (reach > 0)] = d
+        paths: list[tuple[int, ...]] = []
+        for i, j in zip(*np.nonzero((hops >= 2) & (hops <= longest) & want), strict=True):
+            grown = [(int(i),)]
+            for left in range(int(hops[i, j]) - 1, -1, -1):
+                grown = [(*path, int(k)) for path in grown
+                         for k in np.flatnonzero(linked[path[-1]] & (hops[:, j] == left))]
+            paths += grown
+        out: dict[tuple[int, int], TeamEstimate] = {}
+        for length in range(2, longest + 1):
+            chains = np.array([path for path in paths if len(path) == length + 1],
+                              dtype=np.int64).reshape(-1, length + 1)
+            if not len(chains):
+                continue
+            x, cov = X[chains[:, 0], chains[:, 1]], P[chains[:, 0], chains[:, 1]]
+            for link in range(1, length):
+                a, b = chains[:, link], chains[:, link + 1]
+                x, cov = _compose(x, cov, X[a, b], P[a, b])
+            spread = np.trace(cov[:, :2, :2], axis1=1, axis2=2)
+            for c in np.lexsort((spread, chains[:, -1], chains[:, 0])):
+                key = (int(chains[c, 0]), int(chains[c, -1]))
+                if key not in out:  # the first of the pair's chains is its most certain
+                    out[key] = TeamEstimate(x[c].copy(), cov[c].copy(),
+                                            tuple(int(r) for r in chains[c]))
+        return out

@@ -283,8 +283,10 @@ def test_subset_with_mask_and_index():
     assert len(s) == 2
     for name in FIELDS:
         np.testing.assert_array_equal(getattr(s, name), getattr(m, name)[[4, 1]])
-    assert len(m.subset(np.zeros(5, dtype=bool))) == 0
-    assert len(m.subset(np.array([], dtype=int))) == 0
+        assert not getattr(s, name).flags.writeable
+        assert not np.shares_memory(getattr(s, name), getattr(m, name))
+    for empty in (m.subset(np.zeros(5, dtype=bool)), m.subset(np.array([], dtype=int))):
+        assert len(empty) == 0 and empty.centroids.shape == (0, 3)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -25,6 +25,12 @@ def test_maps_over_time_give_the_true_alignment_after_the_window():
     dt, dtheta = se2_error(T_true, estimates[-1].T)
     assert dt < 0.3 and np.degrees(dtheta) < 2.0
     assert pair_aligner.measurements  # the latest step's candidates are kept
+    # the estimate's measurement indexes the candidates the filter was given
+    taken = pair_aligner.taken
+    assert set(map(id, taken)) <= set(map(id, pair_aligner.measurements))
+    m = estimates[-1].measurement
+    assert 0 <= m < len(taken)
+    assert se2_error(taken[m].T, T_true)[0] < 0.5
 
 
 def test_tracking_holds_an_alignment_through_steps_too_sparse_for_candidates():

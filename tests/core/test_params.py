@@ -41,7 +41,10 @@ def cases(values):
 
 
 def short(value) -> str:
-    return value.__name__ if isinstance(value, type) else repr(value)
+    """A test id that is the same in every process (parallel workers must agree on them)."""
+    if isinstance(value, type):
+        return value.__name__
+    return "object()" if type(value) is object else repr(value)
 
 
 @pytest.mark.parametrize(("cls", "name", "value"), cases(JUNK), ids=short)

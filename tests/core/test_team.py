@@ -89,6 +89,87 @@ def test_pairs_without_an_alignment_are_chained_through_a_third_robot():
     assert np.trace(out[(0, 2)].P) > np.trace(out[(0, 1)].P)
 
 
+def fewest_links(n: int, links: set, i: int, j: int, max_chain: int) -> list[tuple[int, ...]]:
+    """Every simple path of robots from i to j along `links` (both directions) with the fewest
+    links, up to max_chain; [] when there is none."""
+    for length in range(1, max_chain + 1):
+        found = [(i, *middle, j) for middle in itertools.permutations(
+                     [r for r in range(n) if r not in (i, j)], length - 1)
+                 if all(tuple(sorted(link)) in links
+                        for link in itertools.pairwise((i, *middle, j)))]
+        if found:
+            return found
+    return []
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 7), max_chain=st.integers(1, 4),
+       share=st.floats(0.1, 0.9))
+def test_chains_have_the_fewest_links_and_the_least_spread_among_those(seed, n, max_chain,
+                                                                       share):
+    """A consistent team with some alignments missing: every pair gets the chain a brute-force
+    search over simple paths finds (fewest links, then smallest translation covariance), and
+    the composed alignment is the true one."""
+    rng = np.random.default_rng(seed)
+    frames = team_frames(rng, n)
+    links = {pair for pair in itertools.combinations(range(n), 2) if rng.random() < share}
+    estimates = true_estimates(frames, links)
+    for pair in links:  # covariances of different sizes, so that the spread decides
+        estimates[pair].P = P * rng.uniform(0.5, 4.0)
+    out = TeamConsistency(n, TeamParams(max_chain=max_chain)).update(estimates)
+    for i, j in itertools.permutations(range(n), 2):
+        paths = fewest_links(n, links, i, j, max_chain)
+        if not paths:
+            assert (i, j) not in out
+            continue
+        assert len(out[(i, j)].path) == len(paths[0]) and out[(i, j)].path in paths
+        assert close(out[(i, j)], frames, i, j, 1e-9)
+        if len(paths) > 1:
+            least = min(np.trace(chain_covariance(estimates, path)[:2, :2]) for path in paths)
+            assert np.trace(out[(i, j)].P[:2, :2]) <= least * (1 + 1e-6)
+
+
+def chain_covariance(estimates: dict, path: tuple[int, ...]) -> np.ndarray:
+    """First-order covariance of the composition of the alignments along `path`, by numerical
+    differentiation of the composed parameters (independent of the code under test)."""
+    def composed(params: list[np.ndarray]) -> np.ndarray:
+        T = np.eye(3)
+        for x in params:
+            T = T @ se2_from_params(x)
+        return se2_to_params(T)
+
+    links, covs = [], []
+    for a, b in itertools.pairwise(path):
+        est = estimates.get((a, b))
+        if est is None:
+            T = np.linalg.inv(se2_from_params(estimates[(b, a)].x))
+            links.append(se2_to_params(T))
+            J = numeric_jacobian(lambda x: se2_to_params(np.linalg.inv(se2_from_params(x))),
+                                 estimates[(b, a)].x)
+            covs.append(J @ estimates[(b, a)].P @ J.T)
+        else:
+            links.append(est.x)
+            covs.append(est.P)
+    total = np.zeros((3, 3))
+    for k, cov in enumerate(covs):
+        def moved(x, k=k):
+            return composed([*links[:k], x, *links[k + 1:]])
+        J = numeric_jacobian(moved, links[k])
+        total += J @ cov @ J.T
+    return total
+
+
+def numeric_jacobian(f, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    cols = []
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = h
+        diff = f(x + d) - f(x - d)
+        diff[2] = math.remainder(diff[2], 2 * math.pi)
+        cols.append(diff / (2 * h))
+    return np.column_stack(cols)
+
+
 def test_the_two_directions_of_a_pair_must_agree():
     frames = team_frames(np.random.default_rng(4), 2)
     estimates = true_estimates(frames, [(0, 1), (1, 0)])

@@ -207,3 +207,24 @@ def test_graph_estimates_wait_for_the_first_factor_and_smoothed_fills_the_filter
         err = np.linalg.norm(job.arrays[f"est_tcaff_isam2_{name}"][..., :2] - truth[..., :2],
                              axis=-1)
         assert np.nanmax(err) < 1.0  # no gauge guesses (identity, metres away) among them
+
+
+def test_expected_seconds_grow_with_the_work_and_rank_the_demo_longest_first():
+    """A parallel study starts its jobs longest first by `expected_seconds`: the guess grows
+    with the duration, the robots, a camera and people to track, and puts the demo's people
+    tracking, then its rendered scenario, before the object-level ones."""
+    from tcaff_gtsam.eval.executor import JobSpec, expected_seconds
+
+    demo = load_study("demo")
+
+    def guess(scenario, **updates) -> float:
+        return expected_seconds(JobSpec(scenario.model_copy(update=updates), demo.methods, 0))
+
+    room = load_scenario("four_robots")
+    assert guess(room, duration=200) > guess(room, duration=100)
+    assert guess(room) > guess(room, layout=room.layout.model_copy(update={"robots": 2}))
+    assert guess(load_scenario("mot")) > guess(load_scenario("mot"), pedestrians=None)
+    rgbd = load_scenario("indoor_rgbd")
+    assert guess(rgbd) > guess(rgbd, camera=None)
+    ranked = sorted(demo.scenarios, key=lambda s: -guess(s))
+    assert [s.name for s in ranked[:3]] == ["mot", "indoor_rgbd", "four_robots"]

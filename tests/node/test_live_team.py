@@ -1,7 +1,8 @@
 """A live team: node processes replaying four_robots over Zenoh on 127.0.0.1.
 
 Every node is its own process (`tcaff node`), with its own Zenoh session; the test process opens
-sessions of its own to watch the team and to send it bad messages.
+sessions of its own to watch the team and to send it bad messages. The nodes replay against the
+clock, so these tests are marked `realtime`: `make test` runs them alone, after the others.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 
 N = 4
 NAMES = [f"r{i}" for i in range(N)]
+
+pytestmark = pytest.mark.realtime
 
 
 def simulated(duration: float):
