@@ -283,16 +283,10 @@ class RobotNode:
 
     def _take(self, key: str, payload: bytes, arrived: float) -> None:
         """Check a neighbour's map message and align it, now or when its ego map comes."""
-        key_robot = key.split("/")[2]
-        if key_robot == self.robot:
+        if key.split("/")[2] == self.robot:
             return  # our own map, delivered back by the local session
         try:
-            message = decode(payload)
-            if not isinstance(message, MapMessage):
-                raise MessageError("malformed", "an alignment on a map key")
-            if message.sender != key_robot:
-                raise MessageError("mismatch", f"sender {message.sender!r} on the key of "
-                                               f"{key_robot!r}")
+            message = _sent_on(key, payload, MapMessage, "a map")
             if message.sender not in self.members:
                 raise MessageError("outsider", f"robot {message.sender!r} is not in the team")
         except MessageError as exc:
@@ -390,16 +384,10 @@ class RobotNode:
 
     def _hear(self, key: str, payload: bytes, arrived: float) -> None:
         """Keep another robot's alignment for the team consistency."""
-        key_robot = key.split("/")[2]
-        if key_robot == self.robot:
+        if key.split("/")[2] == self.robot:
             return
         try:
-            message = decode(payload)
-            if not isinstance(message, AlignmentMessage):
-                raise MessageError("malformed", "not an alignment on an alignment key")
-            if message.sender != key_robot:
-                raise MessageError("mismatch", f"sender {message.sender!r} on the key of "
-                                               f"{key_robot!r}")
+            message = _sent_on(key, payload, AlignmentMessage, "an alignment")
             if not {message.sender, message.neighbour} <= self.members | {self.robot}:
                 raise MessageError("outsider", f"pair {message.sender!r}, "
                                                f"{message.neighbour!r} is not of the team")
@@ -459,3 +447,20 @@ class RobotNode:
             if path.exists():
                 self._neighbour(name).aligner.filter = TCAFF.load(path)
                 log.info("%s: restored the filter of %s from %s", self.robot, name, path)
+
+
+def _sent_on(key: str, payload: bytes, kind: type, what: str):
+    """The message of `payload`, received on `key` (tcaff/<team>/<robot>/...): a `kind`
+    (`what` names it in the error) sent by the robot of its key.
+
+    Raises:
+        MessageError: a payload that does not decode, of another kind, or from another robot.
+    """
+    message = decode(payload)
+    if not isinstance(message, kind):
+        raise MessageError("malformed", f"not {what} on {what}'s key")
+    key_robot = key.split("/")[2]
+    if message.sender != key_robot:
+        raise MessageError("mismatch", f"sender {message.sender!r} on the key of "
+                                       f"{key_robot!r}")
+    return message
