@@ -59,8 +59,8 @@ def one_case(kind: str, n: int, seed: int) -> dict:
         ego, other = (ObjectMap(m.centroids, np.ones(len(m)), np.ones(len(m)), m.last_seen)
                       for m in (ego, other))
     nodes = []
-    build = fa.consistency_graph
-    fa.consistency_graph = lambda p, q, a, *rest: nodes.append(len(a)) or build(p, q, a, *rest)
+    build = fa._graph  # the aligner's unchecked graph builder
+    fa._graph = lambda p, q, a, *rest: nodes.append(len(a)) or build(p, q, a, *rest)
     base = _reset_peak()
     start = time.perf_counter()
     found = aligner.measurements(ego, other, pair.now)
