@@ -163,7 +163,8 @@ class TCAFF:
                 that persist across steps (`ObjectIdentities`). Used by `min_distinct` and
                 `switch_stale`; without it every measurement is distinct evidence.
         Returns:
-            The estimate from the main tree's best leaf, or None while there is no main tree.
+            The estimate from the main tree's best leaf, or None while there is no main tree
+            or it is not reported (`withhold_contested`, `report_after`; `held` has it).
         Raises:
             DataError: wrong shapes, non-finite values, R not symmetric positive definite,
                 evidence of the wrong length or shape.
