@@ -1310,6 +1310,10 @@ def listen(
             pass
 
 
+#: the characters str.splitlines breaks lines at
+_LINE_BREAKS = frozenset("\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029")
+
+
 def main() -> None:
     """Console entry point: library errors and bad options or arguments become a one-line
     message and exit status 2."""
@@ -1323,6 +1327,8 @@ def main() -> None:
     usage_error, click_exception = _click_errors()
 
     def refuse(message: str, code: int = 2) -> None:
+        # one line whatever the message quotes (a file name may hold any line break)
+        message = "".join(repr(c)[1:-1] if c in _LINE_BREAKS else c for c in message)
         _console(stderr=True).print(f"[red]error:[/] {escape(message)}", soft_wrap=True)
         raise SystemExit(code) from None
 

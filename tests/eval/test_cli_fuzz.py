@@ -84,3 +84,14 @@ def test_any_arguments_end_in_success_or_one_line(workspace, monkeypatch, capsys
         cli.main()
     code = exited.value.code
     one_line_or_success(0 if code is None else code, capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("name", ["\x85", "a\u2028b", "line\nbreak", "x\x1cy"])
+def test_a_file_name_with_a_line_break_is_reported_on_one_line(monkeypatch, capsys, name):
+    """Every character str.splitlines breaks at is shown escaped in the error."""
+    monkeypatch.setattr(sys, "argv", ["tcaff", "align-maps", name, "other.npz"])
+    with pytest.raises(SystemExit) as done:
+        cli.main()
+    stderr = capsys.readouterr().err
+    one_line_or_success(done.value.code, stderr)
+    assert repr(name)[1:-1] in stderr  # the name, escaped, still says which file
