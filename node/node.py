@@ -20,7 +20,13 @@ from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.inputs import finite_time
 from tcaff_gtsam.object_map import ObjectMap, as_object_map
 from tcaff_gtsam.pairwise import PairwiseAligner
-from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
+from tcaff_gtsam.params import (
+    FrameAlignerParams,
+    TCAFFParams,
+    _finite,
+    _int_at_least,
+    _require,
+)
 from tcaff_gtsam.tcaff import TCAFF
 from tcaff_gtsam.team import TeamConsistency, TeamParams
 
@@ -69,17 +75,17 @@ class NodeParams:
     team_consistency: bool = False
 
     def __post_init__(self) -> None:
+        o = "NodeParams"
         for name in ("kappa", "silence", "speed"):
             value = getattr(self, name)
-            if not (isinstance(value, int | float) and 0 < value < float("inf")):
-                raise ConfigError(f"NodeParams.{name} = {value!r}: must be a number > 0")
-        if not 0.0 <= self.drop_share < 1.0:
-            raise ConfigError(f"NodeParams.drop_share = {self.drop_share!r}: must be in [0, 1)")
-        if not (isinstance(self.queue, int) and self.queue >= 1):
-            raise ConfigError(f"NodeParams.queue = {self.queue!r}: must be an int >= 1")
+            _require(_finite(value) and value > 0, o, name, value, "must be a number > 0")
+        _require(_finite(self.drop_share) and 0 <= self.drop_share < 1, o, "drop_share",
+                 self.drop_share, "must be a number in [0, 1)")
+        _require(_int_at_least(self.queue, 1), o, "queue", self.queue, "must be an int >= 1")
+        _require(_int_at_least(self.seed, 0), o, "seed", self.seed, "must be an int >= 0")
         for name in ("lockstep", "team_consistency"):
-            if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"NodeParams.{name} = {getattr(self, name)!r}: must be a bool")
+            value = getattr(self, name)
+            _require(isinstance(value, bool), o, name, value, "must be True or False")
 
 
 def warm_up(object_map: ObjectMap, aligner_params: FrameAlignerParams | None = None,

@@ -171,3 +171,12 @@ def test_publish_refuses_bad_maps(team: Team) -> None:
     team.node.publish(1.0, ObjectMap.empty(), seq=4)
     with pytest.raises(DataError, match="seq 4 is not after the previous 4"):
         team.node.publish(2.0, ObjectMap.empty(), seq=4)
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("kappa", 0), ("silence", float("nan")), ("speed", "1"), ("drop_share", 1.0),
+    ("drop_share", "0.1"), ("queue", 0), ("queue", True), ("seed", -1),
+    ("lockstep", 1), ("team_consistency", None)])
+def test_bad_node_parameters_are_config_errors_naming_the_field(field, value):
+    with pytest.raises(ConfigError, match=field):
+        NodeParams(**{field: value})
