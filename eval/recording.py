@@ -31,10 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.geometry import invert, se2_error, se2_from_params
+from tcaff_gtsam.geometry import invert, se2_from_params
 
+from .metrics import step_errors
 from .results import JobResult
-from .trajectories import frame_alignment, robot_names
+from .trajectories import check_reference, estimate_streams, frame_alignment, robot_names
 
 __all__ = ["RERUN_VERSION", "check_rerun", "record"]
 
@@ -68,7 +69,7 @@ def _place(T: np.ndarray, xy: np.ndarray, counts: np.ndarray) -> np.ndarray:
 
 
 def _shown_method(job: JobResult, method: str | None) -> str:
-    streams = [k.removeprefix("est_") for k in job.arrays if k.startswith("est_")]
+    streams = estimate_streams(job)
     if method is None:
         return "tcaff" if "tcaff" in streams else streams[0]
     if method not in streams:
@@ -175,13 +176,13 @@ class _Writer:
         if not np.all(np.isfinite(a["truth"])):
             return
         T_true = se2_from_params(a["truth"])
-        for stream in (k.removeprefix("est_") for k in a if k.startswith("est_")):
+        for stream in estimate_streams(self.job):
             for p, (i, j) in enumerate(self.job.pairs):
                 estimate = a[f"est_{stream}"][p]
                 steps = np.flatnonzero(np.all(np.isfinite(estimate), axis=1))
                 if not len(steps):
                     continue
-                err = se2_error(T_true[p, steps], se2_from_params(estimate[steps]))
+                err = step_errors(T_true[p], estimate)[steps]
                 pair = f"{self.names[i]}_to_{self.names[j]}"
                 self.send(f"errors/{pair}/translation/{stream}", steps,
                           self.rr.Scalars.columns(scalars=err[:, 0]))
@@ -208,10 +209,7 @@ def record(path: Path, jobs: Iterable[JobResult], reference: int = 0,
     if not jobs:
         raise DataError(f"{path}: no runs to record")
     for job in jobs:
-        n = job.arrays["poses_odom"].shape[0]
-        if isinstance(reference, bool) or not 0 <= reference < n:
-            raise ConfigError(f"reference {reference!r}: expected a robot index in "
-                              f"0..{n - 1} ({job.stem} has {n} robots)")
+        check_reference(job, reference)
     shown = [_shown_method(job, method) for job in jobs]
     if path.is_dir() or not path.parent.is_dir():
         raise DataError(f"{path}: not a file in an existing folder")

@@ -39,7 +39,8 @@ def robot_names(job: JobResult) -> list[str]:
     return [re.sub(r"[^\w.-]", "_", str(name)) for name in names]
 
 
-def _check_reference(job: JobResult, reference: int) -> None:
+def check_reference(job: JobResult, reference: int) -> None:
+    """ConfigError unless `reference` is a robot index of the job."""
     n = job.arrays["poses_odom"].shape[0]
     if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) or not (
             0 <= reference < n):
@@ -62,7 +63,7 @@ def robot_paths(job: JobResult, stream: str, reference: int = 0
     Raises:
         ConfigError: `reference` is no robot of the job, or `stream` no estimate of it.
     """
-    _check_reference(job, reference)
+    check_reference(job, reference)
     a = job.arrays
     key = "truth" if stream == TRUTH else f"est_{stream}"
     if key not in a:
@@ -106,10 +107,15 @@ def _times(job: JobResult) -> np.ndarray:
     return job.arrays["times"] + float(job.arrays.get("t0", 0.0))
 
 
+def estimate_streams(job: JobResult) -> list[str]:
+    """The names of the job's estimate streams, one per method (`est_<name>` arrays)."""
+    return [k.removeprefix("est_") for k in job.arrays if k.startswith("est_")]
+
+
 def _streams(job: JobResult) -> list[str]:
     """The truth (where the job knows it) and every method's estimate stream."""
     truth = [TRUTH] if np.isfinite(job.arrays["truth"]).any() else []
-    return truth + [k.removeprefix("est_") for k in job.arrays if k.startswith("est_")]
+    return truth + estimate_streams(job)
 
 
 def _folder(root: Path, job: JobResult, reference: int) -> Path:
