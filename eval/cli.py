@@ -1181,14 +1181,12 @@ def _mrclam_run(data: Path, seed: int, duration: float | None):
     odometry drawn with `seed`)."""
     from .config import load_mrclam
     from .datasets import mrclam
+    from .recorded import load_mrclam_run
 
     _check_duration(duration)
     config = load_mrclam("default")
-    run, _ = mrclam.load_run(
-        mrclam.read_dataset(data), config.odometry, seed, config.kappa, config.nu,
-        config.min_shared, config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std,
-        config.window, config.graph_drift, duration or config.duration)
-    return run
+    return load_mrclam_run(mrclam.read_dataset(data), config, config.odometry, seed,
+                           duration or None)
 
 
 @app.command()

@@ -228,6 +228,18 @@ def _saved(folder: Path, name: str, fingerprint: str, methods: MethodsConfig,
     return RecordedOutcome(folder, job, summary, methods)
 
 
+def load_mrclam_run(dataset: mrclam.MrclamData, config: MrclamConfig, odometry: str,
+                    seed: int | None, duration: float | None = None, name: str | None = None,
+                    pairs: list[tuple[int, int]] | None = None) -> RecordedRun:
+    """`mrclam.load_run` with an evaluation config's settings (`duration`: None takes the
+    config's)."""
+    run, _ = mrclam.load_run(
+        dataset, odometry, seed, config.kappa, config.nu, config.min_shared,
+        config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std, config.window,
+        config.graph_drift, config.duration if duration is None else duration, name, pairs)
+    return run
+
+
 def run_mrclam(config: MrclamConfig, data: Path, output: Path, odometries: list[str],
                seeds: list[int], pairs: list[tuple[int, int]] | None = None,
                resume: bool = True, figures: bool = True,
@@ -258,10 +270,7 @@ def run_mrclam(config: MrclamConfig, data: Path, output: Path, odometries: list[
         if saved is not None:
             outcomes.append(MrclamOutcome(odometry, seed, saved, True, dataset.skipped))
             continue
-        run, _ = mrclam.load_run(
-            dataset, odometry, seed, config.kappa, config.nu, config.min_shared,
-            config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std, config.window,
-            config.graph_drift, config.duration, name, pairs)
+        run = load_mrclam_run(dataset, config, odometry, seed, name=name, pairs=pairs)
         landmarks = np.array(list(dataset.landmarks.values()))
         arrays = {"world_xy": landmarks,
                   "world_widths": np.full(len(landmarks), mrclam.LANDMARK_SIZE[0]),

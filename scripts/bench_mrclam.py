@@ -19,7 +19,7 @@ from pathlib import Path
 
 from tcaff_gtsam.eval.config import load_methods, load_mrclam
 from tcaff_gtsam.eval.datasets import mrclam
-from tcaff_gtsam.eval.recorded import evaluate_run
+from tcaff_gtsam.eval.recorded import evaluate_run, load_mrclam_run
 from tcaff_gtsam.eval.registry import describe, estimate_names, shown_streams
 from tcaff_gtsam.eval.results import summarize, thresholds_of
 
@@ -50,10 +50,7 @@ def main() -> None:
         jobs, build = [], 0.0
         for seed in seeds:
             start = time.perf_counter()
-            run, _ = mrclam.load_run(data, odometry, seed, config.kappa, config.nu,
-                                     config.min_shared, config.vio.heading_rw_deg_per_sqrt_min,
-                                     config.vio.scale_std, config.window, config.graph_drift,
-                                     args.duration, f"{odometry}")
+            run = load_mrclam_run(data, config, odometry, seed, args.duration, odometry)
             build += time.perf_counter() - start
             jobs.append(evaluate_run(run, methods)[0])
         pair_steps = sum(len(j.pairs) * j.n_steps for j in jobs)
