@@ -214,9 +214,7 @@ class FrameAligner:
                         break
         out = []
         for f, flag in zip(kept, ambiguous, strict=True):
-            R = (prm.R_constant.copy() if prm.covariance == "constant"
-                 else _residual_covariance(f.T, f.p[:, :2], f.q[:, :2], f.w,
-                                           prm.residual_floor))
+            R = self._covariance(f.T, f.p, f.q, f.w)
             a = f.associations
             associations = np.column_stack([ego_idx[a[:, 0]], other_idx[a[:, 1]]])
             out.append(AlignmentMeasurement(f.z, R, associations, f.score, f.rmse, f.inliers,
@@ -254,18 +252,33 @@ class FrameAligner:
             return None
         w = _weights(ego_r.ages(now)[pairs[:, 0]] * other_r.ages(now)[pairs[:, 1]],
                      prm.weight_offset)
-        T = weighted_arun(p, q, w)
-        if T is None:
+        fit = self._fit(weighted_arun, p, q, w)
+        if fit is None:
             return None
-        T2 = _se3_to_se2(T) if prm.dim == 3 else T
+        T2, rmse = fit
         z = _se2_to_params(T2)
-        rmse = _registration_rmse(T2, p[:, :2], q[:, :2])
         if (prm.max_rmse is not None and rmse > prm.max_rmse) or not _confirms(z, held, prm):
             return None
-        R = (prm.R_constant.copy() if prm.covariance == "constant"
-             else _residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor))
-        return AlignmentMeasurement(z, R, pairs.astype(np.int64), 0.0, rmse, pairs.shape[0],
-                                    tracked=True)
+        return AlignmentMeasurement(z, self._covariance(T2, p, q, w), pairs.astype(np.int64),
+                                    0.0, rmse, pairs.shape[0], tracked=True)
+
+    def _fit(self, arun, p: np.ndarray, q: np.ndarray, w: np.ndarray
+             ) -> tuple[np.ndarray, float] | None:
+        """The registration of q (k, dim) onto p by `arun` (checked or not) with weights w:
+        (T (3, 3) SE(2), residual RMS in the plane [m]), or None when it is degenerate."""
+        T = arun(p, q, w)
+        if T is None:
+            return None
+        T2 = _se3_to_se2(T) if self.params.dim == 3 else T
+        return T2, _registration_rmse(T2, p[:, :2], q[:, :2])
+
+    def _covariance(self, T2: np.ndarray, p: np.ndarray, q: np.ndarray, w: np.ndarray
+                    ) -> np.ndarray:
+        """R (3, 3) of a registered alignment T2 of q onto p (k, dim) with weights w."""
+        prm = self.params
+        if prm.covariance == "constant":
+            return prm.R_constant.copy()
+        return _residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor)
 
     def _registered(self, ego_r: ObjectMap, other_r: ObjectMap, now: float) -> list[_Solution]:
         """Every registrable MNO-CLIPPER solution between two maps of recent objects, with
@@ -307,11 +320,10 @@ class FrameAligner:
             a = sol.associations
             p, q = p_all[a[:, 0]], q_all[a[:, 1]]
             w = _weights(ages_ego[a[:, 0]] * ages_other[a[:, 1]], prm.weight_offset)
-            T = arun(p, q, w)
-            if T is None:
+            fit = self._fit(arun, p, q, w)
+            if fit is None:
                 continue
-            T2 = _se3_to_se2(T) if prm.dim == 3 else T
-            rmse = _registration_rmse(T2, p[:, :2], q[:, :2])
+            T2, rmse = fit
             qualifies = (len(sol) >= prm.min_associations
                          and sol.score >= prm.min_score_ratio * best
                          and (prm.max_rmse is None or rmse <= prm.max_rmse))
