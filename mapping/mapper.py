@@ -167,7 +167,7 @@ class ObjectMapper:
             touched = np.concatenate([touched, np.ones(n_new, dtype=bool)])
 
         out = self._ids[rows]  # int64, and fancy indexing copies
-        self._merge(touched, touched.copy(), out)
+        self._merge(touched, out)
         return out
 
     def object_map(self) -> ObjectMap:
@@ -254,14 +254,15 @@ class ObjectMapper:
         rows[r_idx[r[ok]]] = cand[c_idx[c[ok]]]
         return rows
 
-    def _merge(self, touched: np.ndarray, in_frame: np.ndarray, out: np.ndarray) -> None:
+    def _merge(self, touched: np.ndarray, out: np.ndarray) -> None:
         """Merge near-duplicate tracks in place; rewrites merged-away ids in `out` (k,).
 
         After every update no two tracks qualify for merging, and tracks this update did not
         touch have not moved, so only pairs involving a touched track (or a merge survivor)
-        need checking. Two tracks that both hold an observation of this frame (`in_frame`,
-        per row) are never merged: one frame's segments are distinct objects, so the ids in
-        `out` stay unique.
+        need checking. The touched tracks are those holding an observation of this frame (a
+        merge survivor holds its pair's), and two of them are never merged: one frame's
+        segments are distinct objects, so the ids in `out` stay unique. A touched track
+        merges only with an untouched one.
         """
         p = self.params
         if p.merge_distance <= 0:
@@ -277,7 +278,7 @@ class ObjectMapper:
             ok = ((dist < p.merge_distance)
                   & (np.abs(lw[idx][:, None] - lw[None]) <= self._log_size_gate)
                   & (np.abs(lh[idx][:, None] - lh[None]) <= self._log_size_gate)
-                  & ~(in_frame[idx][:, None] & in_frame[None]))
+                  & ~touched[None])
             if not ok.any():
                 return
             r, c = np.unravel_index(np.argmin(np.where(ok, dist, np.inf)), dist.shape)
@@ -295,5 +296,4 @@ class ObjectMapper:
             keep[j] = False
             self._keep_rows(keep)
             touched[i] = True
-            in_frame[i] |= in_frame[j]
-            touched, in_frame = touched[keep], in_frame[keep]
+            touched = touched[keep]
