@@ -33,7 +33,7 @@ from tcaff_gtsam.team import TeamConsistency, TeamParams
 from .link import Link, alignment_key, alive_key, check_name, map_key, team_key, team_keys
 from .messages import AlignmentMessage, MapMessage, MessageError, TeamMessage, decode, encode
 
-__all__ = ["NodeParams", "RobotNode", "warm_up"]
+__all__ = ["NodeParams", "RobotNode"]
 
 log = logging.getLogger(__name__)
 
@@ -86,21 +86,6 @@ class NodeParams:
         for name in ("lockstep", "team_consistency"):
             value = getattr(self, name)
             _require(isinstance(value, bool), o, name, value, "must be True or False")
-
-
-def warm_up(object_map: ObjectMap, aligner_params: FrameAlignerParams | None = None,
-            tcaff_params: TCAFFParams | None = None) -> None:
-    """Compile the aligner's and the filter's kernels (numba) before a run, so that the first
-    exchanges are not late: a throwaway aligner steps a few times on `object_map` (a typical
-    map of the run) against a turned and shifted copy of it."""
-    c, s = np.cos(0.3), np.sin(0.3)
-    turned = object_map.centroids @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    other = ObjectMap(turned + np.array([1.0, -0.5, 0.0]), object_map.widths, object_map.heights,
-                      object_map.last_seen)
-    aligner = PairwiseAligner(aligner_params, tcaff_params)
-    now = float(object_map.last_seen.max(initial=0.0))
-    for step in range(3):
-        aligner.update(now + step, object_map, other)
 
 
 class _Neighbour:

@@ -16,9 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
+from tcaff_gtsam.precompile import compile_kernels
 
 from .link import Link, TlsFiles
-from .node import NodeParams, RobotNode, warm_up
+from .node import NodeParams, RobotNode
 from .replay import RobotReplay, replay, robot_names, run_replay
 from .results import TEAM_COLUMNS, AlignmentCsv, write_counters
 
@@ -56,8 +57,7 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
     params = replace(params, kappa=source.kappa)
     tcaff = None if source.window is None else TCAFFParams(window=source.window)
     aligner = FrameAlignerParams(kappa=source.kappa)
-    if source.maps:
-        warm_up(max(source.maps, key=len), aligner, tcaff)
+    compile_kernels()  # so that the first exchanges are not late
     node = RobotNode(robot, team, list(source.robots), link, params, aligner, tcaff,
                      rows.write, state_dir, on_team=team_rows and team_rows.write)
     try:

@@ -79,10 +79,11 @@ def serve(port: int, objects: int, rate: float) -> None:
     """The node process of `latency`: r0 publishing its map at `rate` Hz until stdin closes,
     then printing its latencies (s) as JSON."""
     from tcaff_gtsam.node import NodeParams, RobotNode
-    from tcaff_gtsam.node.node import warm_up
+
+    from tcaff_gtsam.precompile import compile_kernels
 
     mine, _, widths, heights = scene(objects)
-    warm_up(ObjectMap(mine, widths, heights, np.zeros(objects)))
+    compile_kernels()
     node = RobotNode("r0", "bench", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",)),
                      NodeParams(kappa=1e9))
     stop = threading.Event()

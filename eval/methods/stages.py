@@ -13,7 +13,7 @@ from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.identities import ObjectIdentities, recent_ids
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.pairwise import admitted, evidence_of, unchecked
-from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
+from tcaff_gtsam.precompile import compile_kernels
 from tcaff_gtsam.tcaff import TCAFF, AlignmentEstimate
 
 from ..config import MethodsConfig
@@ -172,28 +172,9 @@ _warm = False
 
 
 def warm_up() -> None:
-    """Compile the aligner's and the filters' numba kernels once per process, on a small map
-    and its rotated copy, so that no method's timing includes compilation."""
+    """Compile (or load) the aligner's and the filters' numba kernels once per process, so
+    that no method's timing includes compilation."""
     global _warm
-    if _warm:
-        return
-    rng = np.random.default_rng(0)
-    n = 12
-    xy = rng.uniform(-5.0, 5.0, (n, 2))
-    c, s = np.cos(0.3), np.sin(0.3)
-    moved = xy @ np.array([[c, s], [-s, c]]) + [1.0, -0.5]
-    sizes, seen = np.full(n, 0.5), np.zeros(n)
-
-    def object_map(points: np.ndarray) -> ObjectMap:
-        return ObjectMap(np.c_[points, np.zeros(n)], sizes, sizes, seen)
-
-    found = FrameAligner(FrameAlignerParams()).measurements(object_map(xy), object_map(moved),
-                                                            0.0)
-    zs = np.array([m.z for m in found]).reshape(-1, 3)
-    Rs = np.array([m.R for m in found]).reshape(-1, 3, 3)
-    for params in (TCAFFParams(), TCAFFParams.reference()):
-        tcaff = TCAFF(params)
-        for _ in range(params.window + 2):
-            tcaff.update(zs, Rs)
-        tcaff.update(np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    _warm = True
+    if not _warm:
+        compile_kernels()
+        _warm = True
