@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.special import gammaincinv  # chi2.ppf's own formula, without scipy.stats' import
 
 from .errors import DataError
 from .inputs import real_array, shown
@@ -290,3 +291,9 @@ def transform_points_batch(T_a_b, points_b) -> np.ndarray:
         raise DataError(f"{o}: T_a_b {T_a_b.shape} and points_b {points_b.shape} do not "
                         f"broadcast") from None
     return np.einsum("...ij,...j->...i", T_a_b[..., :d, :d], points_b) + T_a_b[..., :d, d]
+
+
+def _chi2_quantile(probability: float, dof: int) -> float:
+    """The squared Mahalanobis distance within which a `dof`-dimensional Gaussian falls with
+    `probability` (scipy.stats.chi2.ppf(probability, dof), to the last bit)."""
+    return float(2.0 * gammaincinv(dof / 2.0, probability))

@@ -35,10 +35,15 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
 from .errors import DataError
-from .geometry import _se2_from_params, _se2_to_params, _se3_from_xyz_yaw, _se3_to_se2
+from .geometry import (
+    _chi2_quantile,
+    _se2_from_params,
+    _se2_to_params,
+    _se3_from_xyz_yaw,
+    _se3_to_se2,
+)
 from .inputs import output_path, real_array, shown
 from .params import GraphParams, _given_or_default, _int_at_least
 from .tcaff import AlignmentEstimate
@@ -47,7 +52,7 @@ __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 
 log = logging.getLogger(__name__)
 
-_AGREE_CHI2 = float(chi2.ppf(0.999, 3))
+_AGREE_CHI2 = _chi2_quantile(0.999, 3)
 # what the solver can take: beyond these, gtsam's elimination fails ("indeterminate linear
 # system") and, without the roll-back, the graph stayed broken
 _MAX_CONDITION = 1e10  # of a factor's covariance

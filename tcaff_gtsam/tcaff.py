@@ -29,10 +29,9 @@ from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
-from scipy.special import gammaincinv  # chi2.ppf's own formula, without scipy.stats' import
 
 from .errors import DataError, TcaffError
-from .geometry import _se2_from_params, _wrap_angle
+from .geometry import _chi2_quantile, _se2_from_params, _wrap_angle
 from .hypothesis_tree import (
     BEFORE_ROOT,
     LEAF_DTYPES,
@@ -110,10 +109,9 @@ class TCAFF:
         nm_cost = -np.log(prm.p_no_measurement)
         if prm.cost_model == "paper":
             nm_cost -= 0.5 * d * np.log(2.0 * np.pi)
-        gate_chi2 = float(2 * gammaincinv(d / 2, prm.gate_probability))  # chi2.ppf(p, d)
         self._model = CostModel(
             Q=prm.Q, angular=angular, reference=prm.cost_model == "reference",
-            use_box=prm.gate == "box", gate_chi2=gate_chi2,
+            use_box=prm.gate == "box", gate_chi2=_chi2_quantile(prm.gate_probability, d),
             gate_box=np.array(prm.gate_box), no_measurement_cost=float(nm_cost))
         self._columns = prm.window + 2
         self.reset()
@@ -284,8 +282,8 @@ class TCAFF:
         if estimate is None:
             return None
         report_after = self.params.report_after
-        quiet = self._main.since[np.argmin(self._main.cost)]
-        if report_after is not None and quiet >= report_after:
+        if (report_after is not None
+                and self._main.since[np.argmin(self._main.cost)] >= report_after):
             return None
         if self.params.withhold_contested and self._contested():
             return None

@@ -19,10 +19,9 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaincinv  # chi2.ppf's own formula, without scipy.stats' import
 
 from .errors import DataError
-from .geometry import _se2_from_params, _wrap_angle
+from .geometry import _chi2_quantile, _se2_from_params, _wrap_angle
 from .inputs import real_array, shown
 from .params import _int_at_least, _require
 
@@ -131,7 +130,7 @@ class TeamConsistency:
         self.params = TeamParams() if params is None else params
         _require(isinstance(self.params, TeamParams), "TeamConsistency", "params", params,
                  "must be a TeamParams")
-        self._gate = float(2 * gammaincinv(1.5, self.params.cycle_probability))
+        self._gate = _chi2_quantile(self.params.cycle_probability, 3)
         self.rejected: list[tuple[int, int]] = []
 
     def _edges(self, estimates: Mapping) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:

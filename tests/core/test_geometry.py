@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import (
+    _chi2_quantile,
     compose,
     invert,
     se2_error,
@@ -454,3 +455,11 @@ def test_transform_points_batch_applies_one_transform_per_point_or_per_set():
                        [transform_points(T3[k], p3[k:k + 1])[0] for k in range(5)])
     with pytest.raises(DataError, match="transform_points_batch"):
         transform_points_batch(T, rng.normal(size=(6, 3)))
+
+
+@settings(deadline=None)  # the first example imports scipy.stats
+@given(st.floats(0.5, 0.99999), st.integers(1, 6))
+def test_the_gates_chi2_quantile_is_scipys(probability, dof):
+    from scipy.stats import chi2
+
+    assert _chi2_quantile(probability, dof) == float(chi2.ppf(probability, dof))
