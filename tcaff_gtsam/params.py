@@ -32,7 +32,11 @@ class ParameterError(ConfigError):
     """
 
     def __init__(self, owner: str, name: str, value: Any, rule: str) -> None:
-        super().__init__(f"{owner}.{name} = {value!r}: {rule}")
+        try:
+            shown = repr(value)
+        except Exception:  # an int beyond Python's digit limit, a broken __repr__
+            shown = f"<{type(value).__name__} that has no repr>"
+        super().__init__(f"{owner}.{name} = {shown}: {rule}")
         self.owner, self.name, self.value, self.rule = owner, name, value, rule
 
     def __reduce__(self):

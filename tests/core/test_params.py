@@ -154,3 +154,9 @@ def test_infinite_values_where_they_mean_no_limit():
     assert FrameAlignerParams(kappa=math.inf).kappa == math.inf
     with pytest.raises(ConfigError, match=r"TCAFFParams\.tau = inf"):
         TCAFFParams(tau=math.inf)
+
+
+def test_a_value_without_a_repr_is_still_a_config_error_naming_the_field():
+    """An int beyond Python's 4300-digit conversion limit raised ValueError from the message."""
+    with pytest.raises(ConfigError, match="power_iterations = <int that has no repr>"):
+        ClipperParams(power_iterations=10**5000)
