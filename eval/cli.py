@@ -635,7 +635,7 @@ def _run_sweep(sweep_config: SweepConfig, study_config: StudyConfig, executor: E
     with _bars() as bars:
         outcome = run_sweep(sweep_config, study_config, executor,
                             _study_bars(bars, len(jobs_to_run(plan, folder)), "sweep"),
-                            figures, source)
+                            figures, source, plan=plan)
     if outcome.reused:
         console.print(f"{outcome.reused} of {len(plan.jobs)} jobs done by an earlier run: "
                       f"reused")

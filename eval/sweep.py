@@ -198,7 +198,8 @@ def jobs_to_run(plan: SweepPlan, folder: Path) -> list[str]:
 
 def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None = None,
               progress: Progress | None = None, figures: bool = True, source: str = "sweep",
-              on_job_done: Callable[[JobResult], None] | None = None) -> SweepOutcome:
+              on_job_done: Callable[[JobResult], None] | None = None,
+              plan: SweepPlan | None = None) -> SweepOutcome:
     """Run the jobs of a sweep not done yet, then write its report.
 
     Args:
@@ -208,11 +209,12 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
         figures: draw the PNG figures.
         source: names the sweep in errors.
         on_job_done: called in this process with each finished job, after it is written.
+        plan: `plan_sweep(sweep, study, source)` when the caller has made it already.
     Returns:
         The outcome; Ctrl-C stops the jobs, writes the report of what is done and sets
         `interrupted`.
     """
-    plan = plan_sweep(sweep, study, source)
+    plan = plan or plan_sweep(sweep, study, source)
     progress = progress or Progress()
     executor = executor or Executor(workers=study.workers)
     folder = Path(sweep.output) / sweep.name
