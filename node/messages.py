@@ -95,9 +95,8 @@ class MapMessage:
     def of(cls, sender: str, boot: int, seq: int, stamp: float, object_map: ObjectMap
            ) -> MapMessage:
         """The message of `object_map` at time `stamp` (the clock of its `last_seen`)."""
-        ages = np.maximum(stamp - object_map.last_seen, 0.0)
         return cls(sender, boot, seq, stamp, object_map.centroids, object_map.widths,
-                   object_map.heights, ages)
+                   object_map.heights, object_map.ages(stamp))
 
     def object_map(self, now: float) -> ObjectMap:
         """The objects as an ObjectMap with `last_seen` on the receiver's clock, now = `now`."""
