@@ -356,7 +356,9 @@ def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
                 "  " + escape(label),
                 f"{_cell(r, 'translation_error_m_mean')} ± {_cell(r, 'translation_error_m_std')}",
                 f"{_cell(r, 'heading_error_deg_mean')} ± {_cell(r, 'heading_error_deg_std')}",
-                _cell(r, "availability", 100, 0) + " %", _cell(r, "false_accept", 100, 1) + " %",
+                f"{_cell(r, 'availability', 100, 0)} "
+                f"({_cell(r, 'correct_availability', 100, 0)}) %",
+                _cell(r, "false_accept", 100, 1) + " %",
                 _cell(r, "time_to_first_correct_s", digits=0),
                 f"{_cell(r, 'ape_m')}, {_cell(r, 'rpe_m')}",
                 _cell(r, "ms_per_pair_step", digits=2),
@@ -435,7 +437,8 @@ def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None,
         console.print(_summary_table(outcome.summary, study_config.methods))
         console.print("CLIPPER's whole sweep, every pair and seed: metrics.csv and "
                       "figures/clipper_sweep.png. APE and RPE (as evo computes them; RMSE, m) "
-                      "of the other robot's path in the ego's frame; the paths are in "
+                      "of the other robot's path in the ego's frame; available: the overlap steps "
+                      "with an estimate (with a correct one); the paths are in "
                       "trajectories/. ms is each method's own time per pair and step; the TCAFF "
                       "methods share the MNO-CLIPPER candidates on top.")
     if outcome.mot_summary:

@@ -10,6 +10,8 @@ module derives
   an estimate,
 * availability: the share of the steps at which the maps overlap (an alignment is possible) that
   have an estimate,
+* correct availability: the share of the overlap steps that have an estimate within both
+  thresholds, so a method that answers often but wrongly does not look available,
 * false accept rate: the share of estimates off by more than a translation or heading threshold,
 * time to first correct: seconds from the first overlap step to the first estimate within both
   thresholds,
@@ -240,6 +242,9 @@ class Metrics:
     translation_mean/std/median [m], heading_mean/std [rad]: over the steps with an estimate,
     population standard deviation (ddof=0); NaN if there is no estimate.
     availability: share of overlap steps that have an estimate (NaN if no overlap).
+    correct_availability: share of overlap steps whose estimate is within both thresholds (NaN
+    if no overlap); availability * (1 - false_accept) when every estimate falls on an overlap
+    step.
     false_accept: share of estimates whose error exceeds either threshold (NaN if no estimates).
     time_to_first_correct [s]: from the first overlap step to the first step, at or after it, whose
     estimate is within both thresholds (NaN if never or no overlap); pooled, the mean over the
@@ -260,6 +265,7 @@ class Metrics:
     heading_mean: float
     heading_std: float
     availability: float
+    correct_availability: float
     false_accept: float
     time_to_first_correct: float
     rpe_translation_mean: float
@@ -281,6 +287,7 @@ class Metrics:
             "heading_error_deg_mean": num(self.heading_mean, deg),
             "heading_error_deg_std": num(self.heading_std, deg),
             "availability": num(self.availability),
+            "correct_availability": num(self.correct_availability),
             "false_accept": num(self.false_accept),
             "time_to_first_correct_s": num(self.time_to_first_correct),
             "rpe_translation_m": num(self.rpe_translation_mean),
@@ -338,7 +345,7 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
     thresholds = Thresholds() if thresholds is None else thresholds
 
     errs, rpes, ttfcs, apes, rpe_paths = [], [], [], [], []
-    n_steps = n_overlap = n_available = 0
+    n_steps = n_overlap = n_available = n_correct = 0
     for trace in traces:
         has = trace.has_estimate
         err = _errors(trace.T_true, trace.estimate, has)
@@ -353,6 +360,7 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
         n_steps += trace.n_steps
         n_overlap += int(np.count_nonzero(trace.overlap))
         n_available += int(np.count_nonzero(trace.overlap & has))
+        n_correct += int(np.count_nonzero(trace.overlap & correct))
 
     err = np.concatenate(errs)
     rpe = np.concatenate(rpes)
@@ -371,6 +379,7 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
         heading_mean=heading_mean,
         heading_std=heading_std,
         availability=_share(n_available, n_overlap),
+        correct_availability=_share(n_correct, n_overlap),
         false_accept=_share(int(np.count_nonzero(wrong)), n_estimates),
         time_to_first_correct=float(np.mean(found)) if found else math.nan,
         rpe_translation_mean=_mean_std(rpe[:, 0])[0],

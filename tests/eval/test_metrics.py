@@ -132,6 +132,8 @@ def test_pair_metrics_hand_trace():
     assert (m.n_steps, m.n_estimates, m.n_overlap) == (10, 6, 8)
     assert m.availability == pytest.approx(6 / 8)
     assert m.false_accept == pytest.approx(1 / 6)
+    # five of the eight overlap steps have a correct estimate
+    assert m.correct_availability == pytest.approx(5 / 8)
     assert m.time_to_first_correct == pytest.approx(TIMES[5] - TIMES[2])
     assert m.time_to_first_correct == pytest.approx(3.25)
     assert m.translation_mean == pytest.approx(np.mean(TRANS))
@@ -177,7 +179,7 @@ def test_no_estimates():
     assert math.isnan(m.translation_mean) and math.isnan(m.translation_std)
     assert math.isnan(m.translation_median)
     assert math.isnan(m.heading_mean) and math.isnan(m.rpe_translation_mean)
-    assert m.availability == 0.0
+    assert m.availability == 0.0 and m.correct_availability == 0.0
     assert math.isnan(m.false_accept)
     assert math.isnan(m.time_to_first_correct)
     report = m.as_report()
@@ -190,7 +192,7 @@ def test_no_estimates():
 def test_no_overlap_gives_nan_availability():
     T_true = se2_from_params(np.zeros((3, 3)))
     m = pair_metrics(make_trace([0.0, 1.0, 2.0], T_true, np.zeros((3, 3)), [False] * 3))
-    assert math.isnan(m.availability)
+    assert math.isnan(m.availability) and math.isnan(m.correct_availability)
     assert math.isnan(m.time_to_first_correct)
     assert m.false_accept == 0.0
     assert m.as_report()["availability"] is None
@@ -201,8 +203,8 @@ def test_as_report_keys_units_and_json():
     report = m.as_report()
     assert set(report) == {
         "translation_error_m_mean", "translation_error_m_std", "translation_error_m_median",
-        "heading_error_deg_mean",
-        "heading_error_deg_std", "availability", "false_accept", "time_to_first_correct_s",
+        "heading_error_deg_mean", "heading_error_deg_std", "availability",
+        "correct_availability", "false_accept", "time_to_first_correct_s",
         "rpe_translation_m", "rpe_heading_deg", "ape_m", "rpe_m", "n_steps",
         "n_estimates", "n_overlap"}
     assert report["heading_error_deg_mean"] == pytest.approx(math.degrees(np.mean(HEAD)))
@@ -325,8 +327,8 @@ def test_pooled_equals_concatenation(seed_a, seed_b):
     for name in ("n_steps", "n_estimates", "n_overlap"):
         assert getattr(pooled, name) == getattr(joined, name)
     for name in ("translation_mean", "translation_std", "heading_mean", "heading_std",
-                 "availability", "false_accept", "rpe_translation_mean", "rpe_heading_mean",
-                 "ape_rmse"):
+                 "availability", "correct_availability", "false_accept",
+                 "rpe_translation_mean", "rpe_heading_mean", "ape_rmse"):
         p, j = getattr(pooled, name), getattr(joined, name)
         assert (math.isnan(p) and math.isnan(j)) or p == pytest.approx(j, rel=1e-9, abs=1e-12)
 
