@@ -124,6 +124,9 @@ class PairwiseAligner:
         taken: those of them the filter was given (`admitted`), in the order it was given
             them: the latest estimate's `measurement` indexes this list (for
             `InterRobotGraph.add_tcaff_estimate`).
+        guided: whether the latest step's search was guided by the held alignment
+            (`guided_search`; the aligner still searched in full when nothing guided
+            confirmed the hold).
     """
 
     def __init__(self, aligner_params: FrameAlignerParams | None = None,
@@ -147,7 +150,8 @@ class PairwiseAligner:
         self._last_time: float | None = None
         self._memory = (MapMemory.of(self.aligner.params), MapMemory.of(self.aligner.params))
         self._identities = (ObjectIdentities(), ObjectIdentities())
-        self._since_full = 0  # steps since the last full search (`full_search_every`)
+        self.guided = False
+        self._since_full = 0  # steps in a row guided (`full_search_every`)
 
     @classmethod
     def reference(cls) -> PairwiseAligner:
@@ -200,5 +204,6 @@ class PairwiseAligner:
         other_memory.add(t, other_map)
         self._identities = identities
         self._last_time = t
+        self.guided = guided
         self._since_full = self._since_full + 1 if guided else 0
         return estimate
