@@ -365,8 +365,14 @@ class FrameAligner:
         q = q_all[:, :2]
         moved = q @ T[:2, :2].T + T[:2, 2]
         reach = prm.guide_radius + prm.confirm_heading * np.hypot(q[:, 0], q[:, 1])
-        gap = p_all[:, None, :2] - moved[None, :, :]
-        return np.einsum("ijk,ijk->ij", gap, gap) <= reach**2
+        # a k-d tree, not an n_ego x n_other distance matrix: large maps stay at one byte a pair
+        near = cKDTree(p_all[:, :2]).query_ball_point(moved, reach, return_sorted=False)
+        agree = np.zeros((p_all.shape[0], q_all.shape[0]), dtype=bool)
+        counts = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+        if counts.any():
+            agree[np.concatenate(near).astype(np.int64), np.repeat(np.arange(len(near)),
+                                                                   counts)] = True
+        return agree
 
     def _thin(self, n_pairs: int, n_ego: int, n_other: int) -> None:
         """Count a step whose associations were cut to `max_associations`, and say so: a
