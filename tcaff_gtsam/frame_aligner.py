@@ -153,6 +153,9 @@ class FrameAligner:
         self.params = _given_or_default(FrameAlignerParams, params, "FrameAligner")
         #: steps on which the size gate passed more than `max_associations` pairs
         self.thinned = 0
+        #: guided steps on which nothing guided confirmed the held alignment, so that they
+        #: searched in full
+        self.guided_misses = 0
 
     def measurements(self, ego: ObjectMap, other: ObjectMap, now: float,
                      ego_past: Sequence[tuple[float, ObjectMap]] = (),
@@ -203,6 +206,7 @@ class FrameAligner:
         if guided and held is not None and prm.guide_radius is not None:
             found = self._registered(ego_r, other_r, now, held)
             kept = [f for f in self._passing(found) if _confirms(f.z, held, prm)]
+            self.guided_misses += not kept
         if not kept:
             found = self._registered(ego_r, other_r, now)
             kept = self._passing(found)

@@ -250,8 +250,10 @@ def test_map_memory_settings_are_config_errors(span, every):
 def test_a_guided_search_near_the_truth_finds_the_full_searchs_best_candidate(
         seed, dx, dy, dtheta_deg):
     """Held near the true alignment (within the confirmation bounds), the guided search's
-    candidate associates the same objects as the full search's best and registers the same
-    alignment; the guided step returns only candidates confirming the hold."""
+    candidate is the full search's best: the same alignment (MNO-CLIPPER on the smaller graph
+    may settle on a clique one or two associations smaller: 9 of 149 random cases, at most
+    7.5 cm and 0.3 deg apart), explaining as many objects; the guided step returns only
+    candidates confirming the hold and needs no full search."""
     rng = np.random.default_rng(seed)
     T_true = se2_from_params([*rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)])
     pair = overlapping_maps(rng, 40, 0.6, 0.05, T_oi_oj=T_true)
@@ -261,8 +263,10 @@ def test_a_guided_search_near_the_truth_finds_the_full_searchs_best_candidate(
     guided = aligner.measurements(pair.ego, pair.other, pair.now, held=held, guided=True)
     assume(full and se2_error(T_true, full[0].T)[0] < 0.3)
     assert guided and all(confirms(m.z, held, aligner.params) for m in guided)
-    assert {tuple(a) for a in guided[0].associations} == {tuple(a) for a in full[0].associations}
-    assert np.allclose(guided[0].z, full[0].z, atol=1e-9)
+    assert aligner.guided_misses == 0
+    dt, dtheta = se2_error(full[0].T, guided[0].T)
+    assert dt < 0.1 and np.degrees(dtheta) < 0.5
+    assert guided[0].inliers == full[0].inliers
 
 
 def test_a_guided_search_that_confirms_nothing_searches_in_full():
@@ -276,6 +280,7 @@ def test_a_guided_search_that_confirms_nothing_searches_in_full():
     full = aligner.measurements(pair.ego, pair.other, pair.now)
     guided = aligner.measurements(pair.ego, pair.other, pair.now, held=wrong, guided=True)
     assert [m.z.tolist() for m in guided] == [m.z.tolist() for m in full]
+    assert aligner.guided_misses == 1
     assert se2_error(T_true, guided[0].T)[0] < 0.3
 
 

@@ -218,7 +218,8 @@ def test_a_switch_from_an_early_decoy_happens_with_guided_search():
 
 
 def test_guided_search_keeps_the_alignment_of_full_search():
-    """A held, correct alignment: the guided steps return what the full search does."""
+    """A held, correct alignment: the guided steps give the estimates the full search does,
+    and every one of them found a candidate confirming the hold."""
     T_true = se2_from_params([4.0, -7.0, 2.5])
     runs = {}
     for radius in (None, 2.0):
@@ -230,12 +231,14 @@ def test_guided_search_keeps_the_alignment_of_full_search():
             out.append(pa.update(pair.now, pair.ego, pair.other))
             guided.append(pa.guided)
         runs[radius] = out, guided
+    steered_aligner = pa
     (full, never), (steered, guided) = runs[None], runs[2.0]
     assert not any(never) and sum(guided) >= 8
     for a, b in zip(full, steered, strict=True):
         assert (a is None) == (b is None)
         if a is not None:
-            assert np.allclose(a.x, b.x, atol=1e-9) and a.hypothesis == b.hypothesis
+            assert np.allclose(a.x, b.x, atol=0.02) and a.hypothesis == b.hypothesis
+    assert steered_aligner.aligner.guided_misses == 0
 
 
 @pytest.mark.parametrize("since_full", [-1, 1.5, True, None, "2"])
