@@ -176,9 +176,10 @@ class FrameAligner:
                 ambiguous, so only the step's own solutions are searched for their rivals,
                 not the earlier maps: a filter that holds a steady estimate costs no search.
             guided: with held and `guide_radius`, search only the pairs that agree under the
-                held alignment and return only candidates confirming it (their rivals
-                elsewhere unseen, so `ambiguous` speaks only of the guided solutions); a full
-                search when none confirms it. Ignored without held or guide_radius.
+                held alignment and return only candidates confirming it, not searched for
+                rivals (`ambiguous` compares them only with each other: they may confirm
+                the hold either way); a full search when none confirms it. Ignored without
+                held or guide_radius.
         Raises:
             DataError: ego or other not an ObjectMap; now not a finite number (a string, None,
                 an array, NaN); ego_past or other_past not a sequence of (finite time,
@@ -341,8 +342,13 @@ class FrameAligner:
         arun = _weighted_arun if in_range else weighted_arun
         best = max(s.score for s in solutions)
         counting = prm.min_inliers is not None or prm.check_ambiguity
+        # a guided step returns only candidates confirming the hold, which need no rivals
+        rivals = prm.check_ambiguity and guide is None
         found = []
         for sol in solutions:
+            if not rivals and (len(sol) < prm.min_associations
+                               or sol.score < prm.min_score_ratio * best):
+                continue  # it cannot qualify and nothing needs it as a rival
             a = sol.associations
             p, q = p_all[a[:, 0]], q_all[a[:, 1]]
             w = _weights(ages_ego[a[:, 0]] * ages_other[a[:, 1]], prm.weight_offset)
@@ -353,7 +359,7 @@ class FrameAligner:
             qualifies = (len(sol) >= prm.min_associations
                          and sol.score >= prm.min_score_ratio * best
                          and (prm.max_rmse is None or rmse <= prm.max_rmse))
-            if not (qualifies or prm.check_ambiguity):
+            if not (qualifies or rivals):
                 continue
             inliers = (_mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,
                                        prm.inlier_radius).shape[0] if counting else 0)
