@@ -280,7 +280,8 @@ class FrameAlignerParams(_ByValue):
             alignment's own pairs and MNO-CLIPPER costs a fraction of a full search. A guided
             step yields only candidates confirming the held alignment; when none does, the
             step searches in full. The radius must cover `confirm_translation`, the map noise
-            and the drift between steps. None: every search is full.
+            and the drift between steps: 2 m is four times `confirm_translation`. None: every
+            search is full (the paper's and the released code's way).
         full_search_every: with guide_radius set, at least every this many steps of a pair
             search in full (`PairwiseAligner`), so that an alignment elsewhere is still seen;
             while the filter has a rival hypothesis open every step does (1: always).
@@ -312,7 +313,7 @@ class FrameAlignerParams(_ByValue):
     confirm_translation: float = 0.5
     confirm_heading: float = math.radians(2.5)
     track_min: int | None = None
-    guide_radius: float | None = None
+    guide_radius: float | None = 2.0
     full_search_every: int = 5
 
     def __post_init__(self) -> None:
@@ -372,8 +373,9 @@ class FrameAlignerParams(_ByValue):
     @classmethod
     def reference(cls) -> FrameAlignerParams:
         """The authors' released settings, without this project's residual, spread and
-        ambiguity checks."""
-        return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False)
+        ambiguity checks and with every search full."""
+        return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False,
+                   guide_radius=None)
 
 
 @dataclass(frozen=True, eq=False)
