@@ -19,7 +19,7 @@
 
     python scripts/bench_node.py [--parts latency team bytes consistency] [--objects 100]
                                  [--robots 8] [--seconds 60] [--rate 5] [--exchanges 80]
-                                 [--team-consistency]
+                                 [--team-consistency] [--guide-radius METRES|none]
 
 Timings are wall-clock on a shared machine: run it twice and compare.
 """
@@ -59,12 +59,20 @@ def scene(objects: int, seed: int = 0) -> tuple[np.ndarray, ...]:
             rng.uniform(0.3, 1.5, objects), rng.uniform(0.3, 1.5, objects))
 
 
-def aligner_alone(objects: int, steps: int, warm: int) -> np.ndarray:
+def aligner_params(guide_radius: float | None):
+    """The node's aligner settings with `guide_radius` (None: every search full)."""
+    from tcaff_gtsam import FrameAlignerParams
+
+    return FrameAlignerParams(kappa=1e9, guide_radius=guide_radius)
+
+
+def aligner_alone(objects: int, steps: int, warm: int, guide_radius: float | None = None
+                  ) -> np.ndarray:
     """s per PairwiseAligner.update on the latency maps, in this process (no transport)."""
     from tcaff_gtsam import PairwiseAligner
 
     mine, theirs, widths, heights = scene(objects)
-    aligner = PairwiseAligner()
+    aligner = PairwiseAligner(aligner_params(guide_radius))
     times = []
     for k in range(steps):
         seen = np.full(objects, float(k))
@@ -75,7 +83,7 @@ def aligner_alone(objects: int, steps: int, warm: int) -> np.ndarray:
     return np.array(times[warm:])
 
 
-def serve(port: int, objects: int, rate: float) -> None:
+def serve(port: int, objects: int, rate: float, guide_radius: float | None) -> None:
     """The node process of `latency`: r0 publishing its map at `rate` Hz until stdin closes,
     then printing its latencies (s) as JSON."""
     from tcaff_gtsam.node import NodeParams, RobotNode
@@ -85,7 +93,7 @@ def serve(port: int, objects: int, rate: float) -> None:
     mine, _, widths, heights = scene(objects)
     compile_kernels()
     node = RobotNode("r0", "bench", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",)),
-                     NodeParams(kappa=1e9))
+                     NodeParams(kappa=1e9), aligner_params(guide_radius))
     stop = threading.Event()
     threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
     t0 = time.time()
@@ -96,10 +104,12 @@ def serve(port: int, objects: int, rate: float) -> None:
     print(json.dumps(list(node.latencies)))
 
 
-def latency(objects: int, rate: float, exchanges: int, warm: int) -> dict[str, np.ndarray]:
+def latency(objects: int, rate: float, exchanges: int, warm: int,
+            guide_radius: float | None) -> dict[str, np.ndarray]:
     port = free_ports(1)[0]
     server = subprocess.Popen([sys.executable, __file__, "--serve", str(port), "--objects",
-                               str(objects), "--rate", str(rate)],
+                               str(objects), "--rate", str(rate), "--guide-radius",
+                               str(guide_radius).lower()],
                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     _, theirs, widths, heights = scene(objects)
     sent: dict[int, float] = {}
@@ -132,8 +142,20 @@ def latency(objects: int, rate: float, exchanges: int, warm: int) -> dict[str, n
     trip = np.array([back[k] - sent[k] for k in sorted(back) if k >= warm])
     return {"node: map in -> alignment out": node_side,
             "round trip from the neighbour": trip,
-            "PairwiseAligner.update alone": aligner_alone(objects, exchanges, warm),
+            "PairwiseAligner.update alone": aligner_alone(objects, exchanges, warm,
+                                                          guide_radius),
             "encode + decode of the map": codec(objects)}
+
+
+def radius(text: str) -> float | None:
+    """--guide-radius: metres, or 'none'."""
+    return None if text.lower() == "none" else float(text)
+
+
+def default_radius() -> float | None:
+    from tcaff_gtsam import FrameAlignerParams
+
+    return FrameAlignerParams().guide_radius
 
 
 def codec(objects: int, repeats: int = 200) -> np.ndarray:
@@ -210,10 +232,13 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=5.0, help="latency: exchanges per s")
     parser.add_argument("--exchanges", type=int, default=80, help="latency: maps sent")
     parser.add_argument("--warm", type=int, default=10, help="latency: exchanges left out")
+    parser.add_argument("--guide-radius", type=radius, default=default_radius(),
+                        help="latency: FrameAlignerParams.guide_radius of the node's aligner, "
+                             "metres or 'none' (every search full); default: the library's")
     parser.add_argument("--serve", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve is not None:
-        serve(args.serve, args.objects, args.rate)
+        serve(args.serve, args.objects, args.rate, args.guide_radius)
         return
     console = Console()
     if "latency" in args.parts:
@@ -222,7 +247,7 @@ def main() -> None:
         for column in ("measured", "n", "median", "p95", "max"):
             table.add_column(column, justify="right")
         for name, values in latency(args.objects, args.rate, args.exchanges,
-                                    args.warm).items():
+                                    args.warm, args.guide_radius).items():
             ms = 1e3 * values
             table.add_row(name, str(len(ms)), f"{np.median(ms):.2f}",
                           f"{np.percentile(ms, 95):.2f}", f"{ms.max():.2f}")

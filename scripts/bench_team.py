@@ -14,6 +14,7 @@ the median and maximum of single seconds) and each stage's share, on one thread 
 and OpenMP are limited to one thread before they load).
 
     python scripts/bench_team.py [--robots 2 4 8 16] [--seconds 20] [--warm-up 30] [--seed 0]
+                                 [--guide-radius METRES|none]
 """
 
 from __future__ import annotations
@@ -32,7 +33,12 @@ from tcaff_gtsam.eval.config import load_scenario  # noqa: E402
 from tcaff_gtsam.eval.methods.stages import warm_up  # noqa: E402
 from tcaff_gtsam.eval.sim.simulate import simulate  # noqa: E402
 
-from tcaff_gtsam import InterRobotGraph, PairwiseAligner, TeamConsistency  # noqa: E402
+from tcaff_gtsam import (  # noqa: E402
+    FrameAlignerParams,
+    InterRobotGraph,
+    PairwiseAligner,
+    TeamConsistency,
+)
 from tcaff_gtsam.geometry import se2_error  # noqa: E402
 
 STAGES = ("pairs", "team", "graph")
@@ -47,12 +53,14 @@ def team_run(n_robots: int, seconds: float, seed: int):
     return simulate(config.model_copy(update={"layout": layout, "duration": seconds}), seed)
 
 
-def run_team(run, warm: int) -> tuple[dict[str, list[float]], dict[str, float]]:
+def run_team(run, warm: int, guide_radius: float | None = None
+             ) -> tuple[dict[str, list[float]], dict[str, float]]:
     """Seconds of each stage per measured exchange (those from `warm` on), and what the team
     found over them: pairs with an estimate, median translation error [m] of those."""
     n = run.n_robots
     pairs = [(i, j) for i in range(n) for j in range(n) if i != j]
-    aligners = {pair: PairwiseAligner() for pair in pairs}
+    aligners = {pair: PairwiseAligner(FrameAlignerParams(guide_radius=guide_radius))
+                for pair in pairs}
     team = TeamConsistency(n)
     graph = InterRobotGraph(n)
     seconds = {stage: [] for stage in STAGES}
@@ -91,6 +99,10 @@ def main() -> None:
     parser.add_argument("--seconds", type=int, default=20, help="measured 1 Hz exchanges")
     parser.add_argument("--warm-up", type=int, default=30, help="exchanges before them")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--guide-radius", type=lambda text: None if text.lower() == "none"
+                        else float(text), default=FrameAlignerParams().guide_radius,
+                        help="FrameAlignerParams.guide_radius of the pairs' aligners, metres "
+                             "or 'none' (every search full); default: the library's")
     args = parser.parse_args()
     if min(args.robots) < 2 or args.seconds < 1 or args.warm_up < 0:
         parser.error("a team has at least 2 robots; --seconds >= 1, --warm-up >= 0")
@@ -101,7 +113,7 @@ def main() -> None:
     print(header)
     for n in args.robots:
         run = team_run(n, args.warm_up + args.seconds, args.seed)
-        seconds, found = run_team(run, args.warm_up)
+        seconds, found = run_team(run, args.warm_up, args.guide_radius)
         total = np.sum([seconds[stage] for stage in STAGES], axis=0)
         share = {stage: 100 * sum(seconds[stage]) / total.sum() for stage in STAGES}
         n_pairs = n * (n - 1)

@@ -153,11 +153,15 @@ class FrameAligner:
         self.params = _given_or_default(FrameAlignerParams, params, "FrameAligner")
         #: steps on which the size gate passed more than `max_associations` pairs
         self.thinned = 0
+        #: guided steps on which nothing guided confirmed the held alignment, so that they
+        #: searched in full
+        self.guided_misses = 0
 
     def measurements(self, ego: ObjectMap, other: ObjectMap, now: float,
                      ego_past: Sequence[tuple[float, ObjectMap]] = (),
                      other_past: Sequence[tuple[float, ObjectMap]] = (),
-                     held: np.ndarray | None = None) -> list[AlignmentMeasurement]:
+                     held: np.ndarray | None = None, guided: bool = False
+                     ) -> list[AlignmentMeasurement]:
         """Candidate alignments, best score first; empty when nothing qualifies.
 
         Args:
@@ -171,11 +175,17 @@ class FrameAligner:
                 `confirm_translation` and `confirm_heading` of it may confirm it even when
                 ambiguous, so only the step's own solutions are searched for their rivals,
                 not the earlier maps: a filter that holds a steady estimate costs no search.
+            guided: with held and `guide_radius`, search only the pairs that agree under the
+                held alignment and return only candidates confirming it, not searched for
+                rivals (`ambiguous` compares them only with each other: they may confirm
+                the hold either way); a full search when none confirms it. Ignored without
+                held or guide_radius.
         Raises:
             DataError: ego or other not an ObjectMap; now not a finite number (a string, None,
                 an array, NaN); ego_past or other_past not a sequence of (finite time,
-                ObjectMap); held neither None nor a finite (3,) array; or a registration the
-                maps make impossible (coordinates beyond `registration.MAX_COORDINATE`).
+                ObjectMap); held neither None nor a finite (3,) array; guided not a bool; or a
+                registration the maps make impossible (coordinates beyond
+                `registration.MAX_COORDINATE`).
         """
         o = "FrameAligner.measurements"
         ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
@@ -187,14 +197,20 @@ class FrameAligner:
             if held.shape != (3,) or not np.all(np.isfinite(held)):
                 raise DataError(f"{o}: held must be None or a finite (3,) (x, y, theta), got "
                                 f"{shown(held)}")
+        if not isinstance(guided, (bool, np.bool_)):
+            raise DataError(f"{o}: guided must be True or False, got {shown(guided)}")
         prm = self.params
         ego_idx = ego.recent_indices(now, prm.kappa)
         other_idx = other.recent_indices(now, prm.kappa)
         ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
-        found = self._registered(ego_r, other_r, now)
-        kept = [f for f in found if f.qualifies
-                and (prm.min_inliers is None or f.inliers >= prm.min_inliers)
-                and (prm.min_spread == 0 or _spread(f.p[:, :2]) >= prm.min_spread)]
+        kept: list[_Solution] = []
+        if guided and held is not None and prm.guide_radius is not None:
+            found = self._registered(ego_r, other_r, now, held)
+            kept = [f for f in self._passing(found) if _confirms(f.z, held, prm)]
+            self.guided_misses += not kept
+        if not kept:
+            found = self._registered(ego_r, other_r, now)
+            kept = self._passing(found)
         ambiguous = [False] * len(kept)
         if kept and prm.check_ambiguity:
             ambiguous = [self._has_rival(f, found) for f in kept]
@@ -228,6 +244,13 @@ class FrameAligner:
                 out.append(replace(tracked, associations=np.column_stack(
                     [ego_idx[a[:, 0]], other_idx[a[:, 1]]])))
         return out
+
+    def _passing(self, found: list[_Solution]) -> list[_Solution]:
+        """The solutions that pass every check of a candidate."""
+        prm = self.params
+        return [f for f in found if f.qualifies
+                and (prm.min_inliers is None or f.inliers >= prm.min_inliers)
+                and (prm.min_spread == 0 or _spread(f.p[:, :2]) >= prm.min_spread)]
 
     def _tracked(self, ego_r: ObjectMap, other_r: ObjectMap, now: float, held: np.ndarray
                  ) -> AlignmentMeasurement | None:
@@ -280,26 +303,30 @@ class FrameAligner:
             return prm.R_constant.copy()
         return _residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor)
 
-    def _registered(self, ego_r: ObjectMap, other_r: ObjectMap, now: float) -> list[_Solution]:
+    def _registered(self, ego_r: ObjectMap, other_r: ObjectMap, now: float,
+                    guide: np.ndarray | None = None) -> list[_Solution]:
         """Every registrable MNO-CLIPPER solution between two maps of recent objects, with
         whether it passes the size, score and residual checks and (when the aligner counts
-        them) the objects it explains. Those that do not pass are still rivals of the others."""
+        them) the objects it explains. Those that do not pass are still rivals of the others.
+        With guide (3,), a held alignment, only the pairs agreeing under it are searched."""
         prm = self.params
         if min(len(ego_r), len(other_r)) < prm.min_associations:
             return []
         # the size gate of putative_associations, kept whole for counting the inliers
         compatible = size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
-        n_pairs = int(np.count_nonzero(compatible))
+        p_all = ego_r.centroids[:, : prm.dim]
+        q_all = other_r.centroids[:, : prm.dim]
+        searched = compatible if guide is None else compatible & self._agree(p_all, q_all,
+                                                                             guide)
+        n_pairs = int(np.count_nonzero(searched))
         if n_pairs < prm.min_associations:
             return []
         ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
         if n_pairs > prm.max_associations:
-            assoc = most_recent_pairs(compatible, ages_ego, ages_other, prm.max_associations)
+            assoc = most_recent_pairs(searched, ages_ego, ages_other, prm.max_associations)
             self._thin(n_pairs, len(ego_r), len(other_r))
         else:
-            assoc = np.argwhere(compatible).astype(np.int64)
-        p_all = ego_r.centroids[:, : prm.dim]
-        q_all = other_r.centroids[:, : prm.dim]
+            assoc = np.argwhere(searched).astype(np.int64)
         # the maps and parameters were checked when they were made, so the graph and solver
         # skip their checks; so does registration unless coordinates or weights (at most
         # 1 / weight_offset) are beyond what it takes, where weighted_arun says which
@@ -315,8 +342,13 @@ class FrameAligner:
         arun = _weighted_arun if in_range else weighted_arun
         best = max(s.score for s in solutions)
         counting = prm.min_inliers is not None or prm.check_ambiguity
+        # a guided step returns only candidates confirming the hold, which need no rivals
+        rivals = prm.check_ambiguity and guide is None
         found = []
         for sol in solutions:
+            if not rivals and (len(sol) < prm.min_associations
+                               or sol.score < prm.min_score_ratio * best):
+                continue  # it cannot qualify and nothing needs it as a rival
             a = sol.associations
             p, q = p_all[a[:, 0]], q_all[a[:, 1]]
             w = _weights(ages_ego[a[:, 0]] * ages_other[a[:, 1]], prm.weight_offset)
@@ -327,13 +359,30 @@ class FrameAligner:
             qualifies = (len(sol) >= prm.min_associations
                          and sol.score >= prm.min_score_ratio * best
                          and (prm.max_rmse is None or rmse <= prm.max_rmse))
-            if not (qualifies or prm.check_ambiguity):
+            if not (qualifies or rivals):
                 continue
             inliers = (_mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,
                                        prm.inlier_radius).shape[0] if counting else 0)
             found.append(_Solution(a, sol.score, T2, _se2_to_params(T2), p, q, w, rmse,
                                    qualifies, inliers))
         return found
+
+    def _agree(self, p_all: np.ndarray, q_all: np.ndarray, held: np.ndarray) -> np.ndarray:
+        """(n_ego, n_other) whether each pair's centroids agree in the plane under the held
+        alignment (3,), within `guide_radius` + `confirm_heading` * |q|."""
+        prm = self.params
+        T = _se2_from_params(held)
+        q = q_all[:, :2]
+        moved = q @ T[:2, :2].T + T[:2, 2]
+        reach = prm.guide_radius + prm.confirm_heading * np.hypot(q[:, 0], q[:, 1])
+        # a k-d tree, not an n_ego x n_other distance matrix: large maps stay at one byte a pair
+        near = cKDTree(p_all[:, :2]).query_ball_point(moved, reach, return_sorted=False)
+        agree = np.zeros((p_all.shape[0], q_all.shape[0]), dtype=bool)
+        counts = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+        if counts.any():
+            agree[np.concatenate(near).astype(np.int64), np.repeat(np.arange(len(near)),
+                                                                   counts)] = True
+        return agree
 
     def _thin(self, n_pairs: int, n_ego: int, n_other: int) -> None:
         """Count a step whose associations were cut to `max_associations`, and say so: a

@@ -15,7 +15,7 @@ from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
-__all__ = ["PairwiseAligner", "admitted", "evidence_of", "unchecked"]
+__all__ = ["PairwiseAligner", "admitted", "evidence_of", "guided_search", "unchecked"]
 
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
@@ -81,6 +81,29 @@ def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.nda
             for m in found]
 
 
+def guided_search(params: FrameAlignerParams, tcaff: TCAFF, since_full: int) -> bool:
+    """Whether a pair's next search may be guided by the alignment its filter holds
+    (`FrameAlignerParams.guide_radius`): the filter `tcaff` holds one, no rival hypothesis of
+    the filter is open (`TCAFF.rivalled`: a search near the held alignment would starve it) and
+    fewer than `full_search_every` - 1 steps in a row were guided (`since_full`, counted by
+    the caller: steps since the last step not guided).
+
+    Raises:
+        ConfigError: params not a FrameAlignerParams; DataError: tcaff not a TCAFF or
+            since_full not an int >= 0.
+    """
+    _require(isinstance(params, FrameAlignerParams), "guided_search", "params", params,
+             "must be a FrameAlignerParams")
+    if not isinstance(tcaff, TCAFF):
+        raise DataError(f"guided_search: tcaff must be a TCAFF, got {shown(tcaff)}")
+    if not (isinstance(since_full, (int, np.integer)) and not isinstance(since_full, bool)
+            and since_full >= 0):
+        raise DataError(f"guided_search: since_full must be an int >= 0, got "
+                        f"{shown(since_full)}")
+    return (params.guide_radius is not None and tcaff.held is not None
+            and since_full + 1 < params.full_search_every and not tcaff.rivalled)
+
+
 def _measurements(owner: str, found) -> list[AlignmentMeasurement]:
     """`found` as a list of AlignmentMeasurement, else DataError naming `owner`."""
     if not isinstance(found, (list, tuple)) or not all(
@@ -101,6 +124,9 @@ class PairwiseAligner:
         taken: those of them the filter was given (`admitted`), in the order it was given
             them: the latest estimate's `measurement` indexes this list (for
             `InterRobotGraph.add_tcaff_estimate`).
+        guided: whether the latest step's search was guided by the held alignment
+            (`guided_search`; the aligner still searched in full when nothing guided
+            confirmed the hold).
     """
 
     def __init__(self, aligner_params: FrameAlignerParams | None = None,
@@ -124,6 +150,8 @@ class PairwiseAligner:
         self._last_time: float | None = None
         self._memory = (MapMemory.of(self.aligner.params), MapMemory.of(self.aligner.params))
         self._identities = (ObjectIdentities(), ObjectIdentities())
+        self.guided = False
+        self._since_full = 0  # steps in a row guided (`full_search_every`)
 
     @classmethod
     def reference(cls) -> PairwiseAligner:
@@ -132,7 +160,8 @@ class PairwiseAligner:
 
     def update(self, t: float, ego_map: ObjectMap, other_map: ObjectMap
                ) -> AlignmentEstimate | None:
-        """One step: align the maps, filter the candidates.
+        """One step: align the maps, filter the candidates. With `guide_radius` set, the
+        search is guided by the filter's held alignment while `guided_search` allows it.
 
         Args:
             t: seconds, the current time on the maps' `last_seen` clock; increasing.
@@ -154,15 +183,17 @@ class PairwiseAligner:
                             f"t = {self._last_time}")
         ego_memory, other_memory = self._memory
         held = None if self.filter.held is None else self.filter.held.x
+        prm = self.aligner.params
+        guided = guided_search(prm, self.filter, self._since_full)
         measurements = self.aligner.measurements(
-            ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held)
-        kappa = self.aligner.params.kappa
+            ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held,
+            guided)
         # the identities advance on copies, kept only once the filter has taken the step
         identities = tuple(copy.copy(ids) for ids in self._identities)
-        ids = (tuple(recent_ids(each, objects, t, kappa) for each, objects
+        ids = (tuple(recent_ids(each, objects, t, prm.kappa) for each, objects
                      in zip(identities, (ego_map, other_map), strict=True))
                if self.filter.params.counts_evidence else None)
-        kept = admitted(measurements, self.filter.held, self.aligner.params)
+        kept = admitted(measurements, self.filter.held, prm)
         zs = np.array([m.z for m in kept]).reshape(-1, 3)
         Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
         estimate = self.filter.update(zs, Rs, evidence_of(kept, ids))
@@ -173,4 +204,6 @@ class PairwiseAligner:
         other_memory.add(t, other_map)
         self._identities = identities
         self._last_time = t
+        self.guided = guided
+        self._since_full = self._since_full + 1 if guided else 0
         return estimate

@@ -271,6 +271,20 @@ class FrameAlignerParams(_ByValue):
             that pass the size gate) re-register it when there are at least this many: a
             tracked measurement, which like an ambiguous one may confirm the held alignment
             but never start or move one. None: no tracking.
+        guide_radius: metres; with an alignment held by the caller's filter and nothing
+            contesting it, a guided search (`FrameAligner.measurements`, guided=True) puts into
+            the consistency graph only the size-compatible pairs whose centroids agree under
+            the held alignment: the other's centroid q, moved by it, within guide_radius +
+            confirm_heading * |q| of the ego's (|q| its distance from its frame's origin, the
+            lever of a heading error). The graph then holds little more than the held
+            alignment's own pairs and MNO-CLIPPER costs a fraction of a full search. A guided
+            step yields only candidates confirming the held alignment; when none does, the
+            step searches in full. The radius must cover `confirm_translation`, the map noise
+            and the drift between steps: 2 m is four times `confirm_translation`. None: every
+            search is full (the paper's and the released code's way).
+        full_search_every: with guide_radius set, at least every this many steps of a pair
+            search in full (`PairwiseAligner`), so that an alignment elsewhere is still seen;
+            while the filter has a rival hypothesis open every step does (1: always).
     """
 
     kappa: float = 20.0
@@ -299,6 +313,8 @@ class FrameAlignerParams(_ByValue):
     confirm_translation: float = 0.5
     confirm_heading: float = math.radians(2.5)
     track_min: int | None = None
+    guide_radius: float | None = 2.0
+    full_search_every: int = 5
 
     def __post_init__(self) -> None:
         o = "FrameAlignerParams"
@@ -348,12 +364,18 @@ class FrameAlignerParams(_ByValue):
                  "memory_span", self.memory_span, "must be a finite number >= 0 seconds")
         _require(_int_at_least(self.memory_searches, 0), o, "memory_searches",
                  self.memory_searches, "must be an int >= 0")
+        _require(self.guide_radius is None
+                 or (_finite(self.guide_radius) and self.guide_radius > 0), o, "guide_radius",
+                 self.guide_radius, "must be a finite number > 0 metres or None")
+        _require(_int_at_least(self.full_search_every, 1), o, "full_search_every",
+                 self.full_search_every, "must be an int >= 1")
 
     @classmethod
     def reference(cls) -> FrameAlignerParams:
         """The authors' released settings, without this project's residual, spread and
-        ambiguity checks."""
-        return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False)
+        ambiguity checks and with every search full."""
+        return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False,
+                   guide_radius=None)
 
 
 @dataclass(frozen=True, eq=False)

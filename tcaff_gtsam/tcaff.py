@@ -150,6 +150,16 @@ class TCAFF:
         there is no main tree."""
         return self._held
 
+    @property
+    def rivalled(self) -> bool:
+        """Whether an exploring hypothesis that disagrees with the main tree's best leaf is
+        open (one seeded within the last W steps): a search for measurements only near the
+        held estimate would starve it. False while there is no main tree."""
+        if self._main is None or len(self._explore) == 0:
+            return False
+        best = self._main.take([int(np.argmin(self._main.cost))])
+        return not bool(self._consistent(self._explore, best).all())
+
     def update(self, zs, Rs, evidence=None) -> AlignmentEstimate | None:
         """One step.
 

@@ -12,7 +12,7 @@ from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner, MapMem
 from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.identities import ObjectIdentities, recent_ids
 from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.pairwise import admitted, evidence_of, unchecked
+from tcaff_gtsam.pairwise import admitted, evidence_of, guided_search, unchecked
 from tcaff_gtsam.precompile import compile_kernels
 from tcaff_gtsam.tcaff import TCAFF, AlignmentEstimate
 
@@ -99,6 +99,7 @@ class SharedStages:
         self._memory = [MapMemory.of(self.checked) for _ in range(n)]
         self._identities = [ObjectIdentities() for _ in range(n)]
         self._ids: dict[int, np.ndarray] = {}
+        self._since_full = [0] * len(setup.pairs)  # per pair, steps in a row guided
 
     def begin(self, s: int, t: float) -> None:
         """Start exchange s at time t (s)."""
@@ -126,12 +127,15 @@ class SharedStages:
             max_rmse = self.checked.max_rmse
             return [m for m in self.candidates(p) if max_rmse is None or m.rmse <= max_rmse]
         i, j = self.setup.pairs[p]
-        estimate = None if self._filters is None else self._filters[p].held
+        tcaff = None if self._filters is None else self._filters[p]
+        guided = tcaff is not None and guided_search(self.checked, tcaff, self._since_full[p])
+        self._since_full[p] = self._since_full[p] + 1 if guided else 0
         start = time.perf_counter()
         found = self._verifier.measurements(*self.setup.maps(p, self.s), self.t,
                                             self._memory[i].snapshots(),
                                             self._memory[j].snapshots(),
-                                            None if estimate is None else estimate.x)
+                                            None if tcaff is None or tcaff.held is None
+                                            else tcaff.held.x, guided)
         self.seconds["candidates"] += time.perf_counter() - start
         return found
 

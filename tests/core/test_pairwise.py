@@ -9,6 +9,7 @@ from tcaff_gtsam.eval.sim.maps import overlapping_maps
 from tcaff_gtsam import FrameAlignerParams, ObjectMap, PairwiseAligner, TCAFFParams
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_error, se2_from_params
+from tcaff_gtsam.pairwise import guided_search
 
 
 def test_maps_over_time_give_the_true_alignment_after_the_window():
@@ -170,3 +171,85 @@ def test_t_must_be_a_finite_number(t):
 def test_parameters_of_the_wrong_type_are_config_errors(kwargs, field):
     with pytest.raises(ConfigError, match=rf"^{field} = "):
         PairwiseAligner(**kwargs)
+
+
+def test_a_switch_from_an_early_decoy_happens_with_guided_search():
+    """First the maps share only a look-alike cluster (the decoy, accepted); then the truth,
+    three times the objects, appears beside it. Guided steps see only the decoy, but a full
+    search comes within `full_search_every` steps, its truth opens a rival hypothesis and every
+    step searches in full until the filter switches to the truth."""
+    rng = np.random.default_rng(3)
+    T_true, T_decoy = se2_from_params([4.0, -7.0, 2.5]), se2_from_params([-6.0, 3.0, -1.0])
+    other = np.column_stack([rng.uniform(0, 25, (30, 2)), np.zeros(30)])
+    widths, heights = rng.uniform(0.3, 1.5, 30), rng.uniform(0.3, 1.5, 30)
+
+    def placed(T, rows):  # the other robot's objects `rows` in the ego frame under T
+        xy = other[rows, :2] @ T[:2, :2].T + T[:2, 2] + rng.normal(0, 0.03, (len(rows), 2))
+        return np.column_stack([xy, np.zeros(len(rows))])
+
+    decoy, everything = np.arange(10), np.arange(30)
+    every = 4
+    pa = PairwiseAligner(FrameAlignerParams(guide_radius=2.0, full_search_every=every))
+    estimates, guided = [], []
+    for t in range(60):
+        if t < 25:  # the ego robot sees the look-alike cluster, the other robot ten objects
+            ego = ObjectMap(placed(T_decoy, decoy), widths[decoy], heights[decoy],
+                            np.full(10, float(t)))
+            theirs = ObjectMap(other[decoy], widths[decoy], heights[decoy],
+                               np.full(10, float(t)))
+        else:
+            rows = np.r_[decoy, everything]
+            ego = ObjectMap(np.vstack([placed(T_decoy, decoy), placed(T_true, everything)]),
+                            widths[rows], heights[rows], np.full(40, float(t)))
+            theirs = ObjectMap(other, widths, heights, np.full(30, float(t)))
+        estimates.append(pa.update(float(t), ego, theirs))
+        guided.append(pa.guided)
+    held_decoy = [e is not None and se2_error(T_decoy, e.T)[0] < 0.3 for e in estimates]
+    assert held_decoy[24]
+    assert any(guided[:25])  # the decoy was held under guided search ...
+    runs = np.diff(np.flatnonzero(np.r_[False, ~np.array(guided), False]))
+    assert runs.max() <= every  # ... never more than every - 1 guided steps in a row
+    assert se2_error(T_true, estimates[-1].T)[0] < 0.3
+    switched = next(t for t in range(25, 60) if se2_error(T_true, estimates[t].T)[0] < 0.3)
+    # the truth opened a rival at the first full search after it appeared: no guided step
+    # from then until the switch
+    first_full = next(t for t in range(25, 60) if not guided[t])
+    assert not any(guided[first_full:switched])
+
+
+def test_guided_search_keeps_the_alignment_of_full_search():
+    """A held, correct alignment: the guided steps give the estimates the full search does,
+    and every one of them found a candidate confirming the hold."""
+    T_true = se2_from_params([4.0, -7.0, 2.5])
+    runs = {}
+    for radius in (None, 2.0):
+        pa = PairwiseAligner(FrameAlignerParams(guide_radius=radius))
+        rng = np.random.default_rng(1)
+        out, guided = [], []
+        for t in range(20):
+            pair = overlapping_maps(rng, 40, 0.6, 0.05, T_oi_oj=T_true, now=float(t))
+            out.append(pa.update(pair.now, pair.ego, pair.other))
+            guided.append(pa.guided)
+        runs[radius] = out, guided
+    steered_aligner = pa
+    (full, never), (steered, guided) = runs[None], runs[2.0]
+    assert not any(never) and sum(guided) >= 8
+    for a, b in zip(full, steered, strict=True):
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert np.allclose(a.x, b.x, atol=0.02) and a.hypothesis == b.hypothesis
+    assert steered_aligner.aligner.guided_misses == 0
+
+
+@pytest.mark.parametrize("since_full", [-1, 1.5, True, None, "2"])
+def test_guided_search_refuses_a_bad_count(since_full):
+    with pytest.raises(DataError, match="since_full"):
+        guided_search(FrameAlignerParams(guide_radius=1.0), PairwiseAligner().filter,
+                      since_full)
+
+
+def test_guided_search_refuses_bad_parameters_and_filters():
+    with pytest.raises(ConfigError, match="params"):
+        guided_search(TCAFFParams(), PairwiseAligner().filter, 0)
+    with pytest.raises(DataError, match="tcaff"):
+        guided_search(FrameAlignerParams(), PairwiseAligner(), 0)

@@ -24,7 +24,8 @@ from tcaff_gtsam.params import (
 CLASSES = [ClipperParams, FrameAlignerParams, TCAFFParams, GraphParams]
 #: fields where None is a valid value (it means "off" or "the default")
 OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inliers"),
-            ("FrameAlignerParams", "track_min"), ("TCAFFParams", "report_after"),
+            ("FrameAlignerParams", "track_min"), ("FrameAlignerParams", "guide_radius"),
+            ("TCAFFParams", "report_after"),
             ("TCAFFParams", "gate_box"),
             ("TCAFFParams", "switch_after"), ("GraphParams", "Q"),
             ("GraphParams", "odometry_cov"), ("GraphParams", "horizon")}
