@@ -845,7 +845,8 @@ def mrclam(
     pairs: Annotated[str | None, typer.Option(
         help="Directed pairs of robots to align, like 1:2,2:1 (default: all 20).")] = None,
     kappa: Annotated[float | None, typer.Option(
-        help="Seconds of sightings a map holds (default: the config's).")] = None,
+        help="Seconds of sightings a map holds, with either odometry (default: the "
+        "config's, per odometry: 20 s raw, 150 s vio).")] = None,
     duration: Annotated[float | None, typer.Option(
         help="Use only this many seconds of data, for a quick look.")] = None,
     output: Annotated[Path, typer.Option(

@@ -688,6 +688,29 @@ class VioDriftConfig(_Model):
         "std of each robot's distance scale error (0.01: 1 % of the distance driven)"))
 
 
+_MapSpan = Annotated[float, _rule_of(MapperParams, "kappa")]
+
+
+class KappaConfig(_Model):
+    """Seconds of sightings a map holds, per odometry. The paper sets kappa by how fast drift
+    accumulates: here the longest span, in steps of 30 s, over which the odometry misplaces a
+    landmark by at most half of CLIPPER's epsilon (0.25 m; RMS over robots, times and seeds 0-2
+    of data set 6, `mrclam.map_drift`, printed by scripts/mrclam_drift.py), so that the
+    distance between two landmarks of one map stays within epsilon. VIO-like drift allows
+    150 s (0.116 m); dead reckoning misplaces a landmark by 0.27 m in 5 s already, so no span
+    keeps its maps consistent and it keeps the paper's 20 s. A number sets both."""
+
+    raw: _MapSpan = Field(20.0, description="s, with dead-reckoned odometry")
+    vio: _MapSpan = Field(150.0, description="s, with VIO-like odometry")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_number(cls, value: Any) -> Any:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return {"raw": value, "vio": value}
+        return value
+
+
 class MrclamConfig(_Model):
     """An evaluation on a UTIAS MRCLAM data set: how its sightings become maps and which
     methods align them. Robots, landmarks and truth come from the data set's folder."""
@@ -696,8 +719,8 @@ class MrclamConfig(_Model):
     odometry: Literal["raw", "vio"] = Field("vio", description=(
         "raw: dead-reckoned commanded velocities; vio: the truth with VIO-like drift"))
     vio: VioDriftConfig = VioDriftConfig()
-    kappa: Annotated[float, _rule_of(MapperParams, "kappa")] = Field(
-        MapperParams.kappa, description="s; a map holds the landmarks sighted this recently")
+    kappa: KappaConfig = Field(KappaConfig(), description=(
+        "s; a map holds the landmarks sighted this recently, per odometry (raw, vio)"))
     nu: Annotated[int, _rule_of(MapperParams, "nu")] = Field(
         1, description="sightings within kappa before a landmark enters the map")
     min_shared: int = Field(3, ge=1, description="landmarks two maps must share to overlap")
@@ -707,6 +730,12 @@ class MrclamConfig(_Model):
         None, description="iSAM2 between-step drift (m, deg) per 1 Hz step; None: TCAFF's Q")
     duration: float | None = Field(None, gt=0, description="s of data to use (default: all)")
     methods: str | MethodsConfig = "default"
+
+    def kappa_of(self, odometry: str) -> float:
+        """s of sightings a map holds with this odometry ("raw" or "vio")."""
+        if odometry not in ("raw", "vio"):
+            raise ConfigError(f"odometry: expected 'raw' or 'vio', got {odometry!r}")
+        return getattr(self.kappa, odometry)
 
 
 # -- loading -----------------------------------------------------------------------------------

@@ -234,7 +234,7 @@ def load_mrclam_run(dataset: mrclam.MrclamData, config: MrclamConfig, odometry: 
     """`mrclam.load_run` with an evaluation config's settings (`duration`: None takes the
     config's)."""
     run, _ = mrclam.load_run(
-        dataset, odometry, seed, config.kappa, config.nu, config.min_shared,
+        dataset, odometry, seed, config.kappa_of(odometry), config.nu, config.min_shared,
         config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std, config.window,
         config.graph_drift, config.duration if duration is None else duration, name, pairs)
     return run

@@ -46,7 +46,7 @@ from tcaff_gtsam.object_map import ObjectMap
 
 from ..runs import RecordedRun, RunSettings
 
-__all__ = ["LANDMARK_SIZE", "MrclamData", "RobotRecord", "load_run", "read_dataset",
+__all__ = ["LANDMARK_SIZE", "MrclamData", "RobotRecord", "load_run", "map_drift", "read_dataset",
            "read_table"]
 
 ROBOTS = range(1, 6)        # subjects
@@ -271,6 +271,65 @@ def vio_like(rng: np.random.Generator, truth: np.ndarray, start: float, end: flo
     return times, np.column_stack([xy, wrap_angle(heading)])
 
 
+def odometry_of(data: MrclamData, robot: int, odometry: str, seed: int | None,
+                heading_rw_deg_per_sqrt_min: float, scale_std: float, end: float | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """A robot's odometry from the start of the data set to `end` (None: its end): times
+    (k,) s on the data set's clock and poses (k, 3) in its odometry frame; raw (dead
+    reckoning, no seed) or vio (VIO-like drift drawn from `seed`)."""
+    if odometry not in ("raw", "vio"):
+        raise DataError(f"odometry: expected 'raw' or 'vio', got {odometry!r}")
+    if odometry == "vio" and seed is None:
+        raise DataError("seed: VIO-like odometry needs a seed")
+    record, (start, last) = data.robots[robot], data.span
+    if odometry == "raw":
+        return dead_reckoning(record.odometry, start)
+    # a generator per robot: its drift does not depend on the other robots or duration
+    return vio_like(np.random.default_rng([seed, robot]), record.truth, start,
+                    last if end is None else end, heading_rw_deg_per_sqrt_min, scale_std)
+
+
+def map_drift(data: MrclamData, odometry: str, seed: int | None, kappas: np.ndarray,
+              heading_rw_deg_per_sqrt_min: float, scale_std: float, every: float = 5.0
+              ) -> np.ndarray:
+    """How far the odometry misplaces, in the robot's current frame, a landmark it sighted
+    kappa seconds earlier: what bounds the span of sightings a map can hold before its
+    objects disagree (the paper sets kappa by how fast drift accumulates).
+
+    The landmark is taken straight ahead at the median sighting range of the data set. For
+    each kappa, every robot and every `every` s from kappa after the start: the position of
+    that landmark, placed with the odometry at t - kappa and seen from the odometry at t,
+    against the same with the truth.
+
+    Returns: (len(kappas),) root mean square of that error over robots and times [m] (NaN
+    where the data set is shorter than kappa).
+    """
+    kappas = np.asarray(kappas, dtype=float)
+    if kappas.ndim != 1 or not np.all(np.isfinite(kappas) & (kappas > 0)):
+        raise DataError(f"kappas: expected a 1-D array of seconds > 0, got {kappas!r}")
+    start, end = data.span
+    sightings = np.concatenate([r.sightings for r in data.robots.values()])
+    landmark = np.array([float(np.median(sightings[:, 2])) if len(sightings) else 0.0, 0.0, 1.0])
+    odometries = {robot: odometry_of(data, robot, odometry, seed, heading_rw_deg_per_sqrt_min,
+                                     scale_std) for robot in data.robots}
+    rms = np.full(kappas.shape, np.nan)
+    for k, kappa in enumerate(kappas):
+        errors = []
+        at = np.arange(start + kappa, end, every)
+        if at.size == 0:
+            continue
+        for robot, record in data.robots.items():
+            odom_t, odom = odometries[robot]
+            seen = []
+            for times, poses in ((odom_t, odom), (record.truth[:, 0], record.truth[:, 1:4])):
+                now = se2_from_params(_interpolate(times, poses, at))
+                then = se2_from_params(_interpolate(times, poses, at - kappa))
+                seen.append(np.linalg.solve(now, then) @ landmark)
+            errors.append(np.hypot(*(seen[0] - seen[1])[:, :2].T))
+        rms[k] = math.sqrt(float(np.mean(np.square(np.concatenate(errors)))))
+    return rms
+
+
 # -- maps --------------------------------------------------------------------------------------
 
 
@@ -323,10 +382,6 @@ def load_run(data: MrclamData, odometry: str, seed: int | None, kappa: float, nu
         The run (times: s since the start), and labels[r][s]: the landmark subject of each
         entry of robot r's map at exchange s (for scoring; never handed to an aligner).
     """
-    if odometry not in ("raw", "vio"):
-        raise DataError(f"odometry: expected 'raw' or 'vio', got {odometry!r}")
-    if odometry == "vio" and seed is None:
-        raise DataError("seed: VIO-like odometry needs a seed")
     start, end = data.span
     if duration is not None:
         end = min(end, start + duration)
@@ -335,12 +390,8 @@ def load_run(data: MrclamData, odometry: str, seed: int | None, kappa: float, nu
         raise DataError(f"{data.folder}: less than one second of data to align")
     maps, labels, T_world_odom, T_odom_body = [], [], [], []
     for robot, record in data.robots.items():
-        if odometry == "raw":
-            odom_t, odom = dead_reckoning(record.odometry, start)
-        else:
-            # a generator per robot: its drift does not depend on the other robots or duration
-            odom_t, odom = vio_like(np.random.default_rng([seed, robot]), record.truth, start,
-                                    end, heading_rw_deg_per_sqrt_min, scale_std)
+        odom_t, odom = odometry_of(data, robot, odometry, seed, heading_rw_deg_per_sqrt_min,
+                                   scale_std, end)
         # maps are stamped on the run's clock: seconds since the start; sightings from before
         # it have no odometry pose
         sightings = record.sightings[record.sightings[:, 0] >= start].copy()

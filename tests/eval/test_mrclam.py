@@ -152,6 +152,47 @@ def test_vio_drift_has_the_documented_size():
     assert np.std(scaled[:, 0] / 30.0 - 1.0) == pytest.approx(0.01, rel=0.2)
 
 
+def test_map_drift_is_zero_without_drift_and_grows_with_it(dataset):
+    """Odometry that is the truth misplaces nothing; VIO-like drift misplaces an old sighting
+    more the older it is and more the stronger the drift; the circles' commanded odometry is
+    exact, so dead reckoning drifts only by its sampling."""
+    data = mrclam.read_dataset(dataset)
+    kappas = np.array([2.0, 8.0, 30.0])
+    np.testing.assert_allclose(mrclam.map_drift(data, "vio", 0, kappas, 0.0, 0.0), 0.0,
+                               atol=1e-9)
+    weak = mrclam.map_drift(data, "vio", 0, kappas, 1.0, 0.01)
+    strong = mrclam.map_drift(data, "vio", 0, kappas, 10.0, 0.1)
+    assert np.all(np.diff(strong) > 0) and np.all(strong > weak) and np.all(weak > 0)
+    assert np.all(mrclam.map_drift(data, "raw", None, kappas, 0.0, 0.0) < 0.05)
+    # longer than the data set: nothing to measure
+    assert np.isnan(mrclam.map_drift(data, "vio", 0, np.array([1e4]), 1.0, 0.01)[0])
+    for bad in (np.array([0.0]), np.array([np.nan]), np.ones((2, 2))):
+        with pytest.raises(DataError, match="kappas"):
+            mrclam.map_drift(data, "vio", 0, bad, 1.0, 0.01)
+    with pytest.raises(DataError, match="seed"):
+        mrclam.map_drift(data, "vio", None, kappas, 1.0, 0.01)
+
+
+def test_kappa_is_set_per_odometry():
+    """The shipped config holds VIO-like maps longer than dead-reckoned ones; one number sets
+    both; a bad span or odometry is refused by name."""
+    from tcaff_gtsam.eval.config import load_mrclam, override
+
+    from tcaff_gtsam.errors import ConfigError
+
+    config = load_mrclam("default")
+    assert config.kappa_of("vio") > config.kappa_of("raw") == 20.0
+    both = override(config, "test", kappa=10)
+    assert both.kappa_of("raw") == both.kappa_of("vio") == 10.0
+    one = override(config, "test", kappa={"raw": 5.0, "vio": 60.0})
+    assert (one.kappa_of("raw"), one.kappa_of("vio")) == (5.0, 60.0)
+    for bad in (-1, {"raw": 5.0, "vio": 0.0}, {"raw": 5.0, "gps": 1.0}, True):
+        with pytest.raises(ConfigError, match="kappa"):
+            override(config, "test", kappa=bad)
+    with pytest.raises(ConfigError, match="gps"):
+        config.kappa_of("gps")
+
+
 @settings(max_examples=30, deadline=None)
 @given(v=st.floats(0.0, 1.0), w=st.floats(-1.0, 1.0), seconds=st.floats(1.0, 20.0))
 def test_dead_reckoning_follows_the_arc_of_constant_commands(v, w, seconds):
