@@ -694,8 +694,8 @@ _MapSpan = Annotated[float, _rule_of(MapperParams, "kappa")]
 class KappaConfig(_Model):
     """Seconds of sightings a map holds, per odometry. The paper sets kappa by how fast drift
     accumulates: here the longest span, in steps of 30 s, over which the odometry misplaces a
-    landmark by at most half of CLIPPER's epsilon (0.25 m; RMS over robots, times and seeds 0-2
-    of data set 6, `mrclam.map_drift`, printed by scripts/mrclam_drift.py), so that the
+    landmark by at most half of CLIPPER's epsilon of 0.25 m (RMS over robots, times and seeds
+    0-2 of data set 6, `mrclam.map_drift`, printed by scripts/mrclam_drift.py), so that the
     distance between two landmarks of one map stays within epsilon. VIO-like drift allows
     150 s (0.116 m); dead reckoning misplaces a landmark by 0.27 m in 5 s already, so no span
     keeps its maps consistent and it keeps the paper's 20 s. A number sets both."""

@@ -307,6 +307,8 @@ def map_drift(data: MrclamData, odometry: str, seed: int | None, kappas: np.ndar
     kappas = np.asarray(kappas, dtype=float)
     if kappas.ndim != 1 or not np.all(np.isfinite(kappas) & (kappas > 0)):
         raise DataError(f"kappas: expected a 1-D array of seconds > 0, got {kappas!r}")
+    if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
+        raise DataError(f"every: expected seconds > 0, got {every!r}")
     start, end = data.span
     sightings = np.concatenate([r.sightings for r in data.robots.values()])
     landmark = np.array([float(np.median(sightings[:, 2])) if len(sightings) else 0.0, 0.0, 1.0])

@@ -171,6 +171,9 @@ def test_map_drift_is_zero_without_drift_and_grows_with_it(dataset):
             mrclam.map_drift(data, "vio", 0, bad, 1.0, 0.01)
     with pytest.raises(DataError, match="seed"):
         mrclam.map_drift(data, "vio", None, kappas, 1.0, 0.01)
+    for every in (0.0, -1.0, float("nan"), "5"):
+        with pytest.raises(DataError, match="every"):
+            mrclam.map_drift(data, "vio", 0, kappas, 1.0, 0.01, every)
 
 
 def test_kappa_is_set_per_odometry():
