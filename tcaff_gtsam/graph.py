@@ -351,14 +351,16 @@ class InterRobotGraph:
         if step is None and key not in self._keyframe_rank:  # a keyframe that left
             robot, index = _keyframe_of(key)
             return self._left_keyframes[robot][index].copy()
+        return self._estimate(key).matrix()
+
+    def _estimate(self, key: int):
+        """gtsam pose of a variable in the graph (its initial value while it is queued)."""
         if self._pending_values.exists(key):
             values = self._pending_values
-            pose = values.atPose2(key) if self._planar else values.atPose3(key)
-        elif self._planar:
-            pose = self._isam.calculateEstimatePose2(key)
-        else:
-            pose = self._isam.calculateEstimatePose3(key)
-        return pose.matrix()
+            return values.atPose2(key) if self._planar else values.atPose3(key)
+        if self._planar:
+            return self._isam.calculateEstimatePose2(key)
+        return self._isam.calculateEstimatePose3(key)
 
     def _exists(self, key: int) -> bool:
         return self._pending_values.exists(key) or self._isam.valueExists(key)
@@ -488,9 +490,11 @@ class InterRobotGraph:
                             f"factors queued for this update ({reason}); they were dropped and "
                             f"the graph is as it was before (tagged among them: {tags[:5]})"
                             ) from None
-        for q, index in zip(self._queued, indices, strict=True):
-            self._active[index] = q
-            self._count(q, index, +1)
+        committed = self._queued
+        self._active.update(zip(indices, committed, strict=True))
+        self._links.update(q.link for q in committed if q.link)
+        self._free.update((q.tag[1], index) for q, index in zip(committed, indices, strict=True)
+                          if q.tag and q.tag[0] == "free")
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._marginalise(leaving)
         if self.params.horizon is not None and self._steps:
@@ -593,11 +597,13 @@ class InterRobotGraph:
         if not keys:
             return
         marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
+        active = self._active
         for index in deleted:
-            self._active.pop(index, None)
-            self._marginal.discard(index)
+            active.pop(index, None)
+        self._marginal.difference_update(deleted)
         self._marginal.update(marginal)
-        self._free = {chain: i for chain, i in self._free.items() if i in self._active}
+        if self._free:
+            self._free = {chain: i for chain, i in self._free.items() if i in active}
 
     def _forget_keyframes(self, keys: set[int]) -> None:
         """Unregister keyframes whose values were dropped with a failed update."""
@@ -715,10 +721,12 @@ class InterRobotGraph:
             if noise is None:
                 drift = self._tangent_cov(identity, prm.Q * span / 2.0)
                 noise = self._drift_noise[span] = self._noise(drift, False)
+            cls = gtsam.BetweenFactorPose2 if self._planar else gtsam.BetweenFactorPose3
+            unmoved = self._pose(identity)
             for r in range(self.n_robots):
                 before, key = _a_key(r, previous), _a_key(r, step)
                 self._insert(key, self._value(before))
-                self._queue_between(before, key, identity, noise)
+                self._queued.append(_Factor(cls(before, key, unmoved, noise), (before, key)))
         self._steps.append(step)
         self._step_set.add(step)
 
