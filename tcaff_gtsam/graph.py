@@ -674,10 +674,9 @@ class InterRobotGraph:
             chains = chains | {("X", r) for r, last in self._last_keyframe.items()
                                if not self._has_left(_x_key(r, last))}
         removing = self._to_remove
-        linked = set(self._links)  # pairs of chains with committed factors between them
-        if removing:
-            dropped = Counter(self._active[i].link for i in removing if self._active[i].link)
-            linked = {link for link in linked if self._links[link] > dropped[link]}
+        dropped = Counter(self._active[i].link for i in removing if self._active[i].link)
+        # pairs of chains with committed factors between them
+        linked = {link for link, n in self._links.items() if n > dropped[link]}
         linked.update(q.link for q in self._queued if q.link)
         free = {c: i for c, i in self._free.items() if i not in removing}
         # all the decision depends on: as it was when nothing was to be done (every step of a
@@ -788,7 +787,7 @@ class InterRobotGraph:
         arbitrary and its covariance huge."""
         self._check_robot("i", i)
         self._check_robot("j", j)
-        root = _components(self._a_chains, self._links)
+        root = _components(self._a_chains, (link for link, n in self._links.items() if n > 0))
         return root(("A", i)) == root(("A", j))
 
     def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
