@@ -351,16 +351,14 @@ class InterRobotGraph:
         if step is None and key not in self._keyframe_rank:  # a keyframe that left
             robot, index = _keyframe_of(key)
             return self._left_keyframes[robot][index].copy()
-        return self._estimate(key).matrix()
-
-    def _estimate(self, key: int):
-        """gtsam pose of a variable in the graph (its initial value while it is queued)."""
         if self._pending_values.exists(key):
             values = self._pending_values
-            return values.atPose2(key) if self._planar else values.atPose3(key)
-        if self._planar:
-            return self._isam.calculateEstimatePose2(key)
-        return self._isam.calculateEstimatePose3(key)
+            pose = values.atPose2(key) if self._planar else values.atPose3(key)
+        elif self._planar:
+            pose = self._isam.calculateEstimatePose2(key)
+        else:
+            pose = self._isam.calculateEstimatePose3(key)
+        return pose.matrix()
 
     def _exists(self, key: int) -> bool:
         return self._pending_values.exists(key) or self._isam.valueExists(key)
@@ -689,20 +687,18 @@ class InterRobotGraph:
         groups: dict[tuple, list] = defaultdict(list)
         for c in sorted(chains):
             groups[root(c)].append(c)
-        changed = False
+        actions = (len(removing), len(self._queued))
         for group_root, members in groups.items():
             have = [c for c in members if c in free]
             keep = [] if group_root in anchored else have[:1]
-            drop = [free[c] for c in have if c not in keep]
-            removing.extend(drop)
+            removing.extend(free[c] for c in have if c not in keep)
             if group_root not in anchored and not keep:
                 kind, robot = members[0]
                 key = (_a_key(robot, self._steps[-1]) if kind == "A"
                        else _x_key(robot, self._last_keyframe[robot]))
                 self._queue_prior(key, self._value(key), self.params.free_sigmas,
                                   ("free", members[0]))
-            changed |= bool(drop) or (group_root not in anchored and not keep)
-        self._gauge_kept = None if changed else state
+        self._gauge_kept = state if actions == (len(removing), len(self._queued)) else None
 
     def _add_step(self, step: int) -> None:
         """Queue A_r(step) for every robot: for the first step at the identity, robot 0's
