@@ -32,6 +32,7 @@ from bisect import bisect_left
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import gtsam
 import numpy as np
@@ -59,9 +60,13 @@ _MAX_CONDITION = 1e10  # of a factor's covariance
 _MAX_TRANSLATION = 1e4  # metres, of an alignment: far beyond any map two robots share
 
 # One symbol character; kind, robot and index share the symbol's index, which is all that g2o
-# files keep, so exported vertex ids stay unique.
+# files keep, so exported vertex ids stay unique. gtsam.symbol(c, index) is ord(c) << 56 | index,
+# so keys are made and taken apart with integer arithmetic (no gtsam call in the update's loops).
 _ROBOT_SHIFT, _KIND_SHIFT = 36, 52
 _INDEX_MASK = (1 << _ROBOT_SHIFT) - 1
+_SYMBOL = ord("r") << 56
+_SYMBOL_INDEX = (1 << 56) - 1
+_KEYFRAME = _SYMBOL | 1 << _KIND_SHIFT
 
 
 def _check_index(name: str, value, bits: int) -> int:
@@ -78,9 +83,9 @@ def _key_list(keys) -> gtsam.KeyList:
     return out
 
 
-def _components(nodes: set, links: Counter):
-    """Union-find over `nodes` joined by the links (a, b) with a positive count; returns the
-    function mapping a node to its group's root. Links to other nodes are ignored."""
+def _components(nodes, links):
+    """Union-find over `nodes` joined by the links, pairs (a, b); returns the function mapping
+    a node to its group's root. Links to other nodes are ignored."""
     parent = {n: n for n in nodes}
 
     def root(n):
@@ -89,54 +94,63 @@ def _components(nodes: set, links: Counter):
             n = parent[n]
         return n
 
-    for (a, b), count in links.items():
-        if count > 0 and a in parent and b in parent:
+    for a, b in links:
+        if a in parent and b in parent:
             parent[root(a)] = root(b)
     return root
+
+
+def _a_key(robot: int, step: int) -> int:
+    """gtsam key of A_robot(step) for a robot and step already checked."""
+    return _SYMBOL | robot << _ROBOT_SHIFT | step
+
+
+def _x_key(robot: int, index: int) -> int:
+    """gtsam key of X_robot(index) for a robot and index already checked."""
+    return _KEYFRAME | robot << _ROBOT_SHIFT | index
 
 
 def alignment_key(robot: int, step: int) -> int:
     """gtsam key of A_robot(step); robot < 2^16, step < 2^36."""
     robot = _check_index("robot", robot, _KIND_SHIFT - _ROBOT_SHIFT)
-    return gtsam.symbol("r", (robot << _ROBOT_SHIFT) | _check_index("step", step, _ROBOT_SHIFT))
+    return _a_key(robot, _check_index("step", step, _ROBOT_SHIFT))
 
 
 def keyframe_key(robot: int, index: int) -> int:
     """gtsam key of X_robot(index); robot < 2^16, index < 2^36."""
     robot = _check_index("robot", robot, _KIND_SHIFT - _ROBOT_SHIFT)
-    index = _check_index("keyframe index", index, _ROBOT_SHIFT)
-    return gtsam.symbol("r", (1 << _KIND_SHIFT) | (robot << _ROBOT_SHIFT) | index)
+    return _x_key(robot, _check_index("keyframe index", index, _ROBOT_SHIFT))
 
 
 def _step_of(key: int) -> int | None:
     """The alignment step of an A key; None for a keyframe key."""
-    index = gtsam.Symbol(key).index()
+    index = key & _SYMBOL_INDEX
     return None if index >> _KIND_SHIFT else index & _INDEX_MASK
 
 
 def _keyframe_of(key: int) -> tuple[int, int]:
     """(robot, index) of a keyframe key."""
-    index = gtsam.Symbol(key).index()
-    return (index >> _ROBOT_SHIFT) & 0xFFFF, index & _INDEX_MASK
+    return (key >> _ROBOT_SHIFT) & 0xFFFF, key & _INDEX_MASK
 
 
 def _chain(key: int) -> tuple[str, int]:
     """("A", robot) or ("X", robot): the chain a key belongs to."""
-    index = gtsam.Symbol(key).index()
-    return ("X" if index >> _KIND_SHIFT else "A", (index >> _ROBOT_SHIFT) & 0xFFFF)
+    return ("X" if key >> _KIND_SHIFT & 1 else "A", (key >> _ROBOT_SHIFT) & 0xFFFF)
 
 
-@dataclass(frozen=True)
-class _Factor:
-    """A factor and what the graph needs to know about it.
+class _Factor(NamedTuple):
+    """A factor and what the graph needs to know about it (a tuple: one is made for every
+    factor, 16 per step for 4 robots).
 
     Attributes:
+        keys: the factor's variables.
         tag: ("alignment" | "keyframe", i, j, hypothesis), ("free", chain) or None.
         step: the alignment step an alignment factor refers to.
         link: (chain, chain) when the factor connects two chains.
     """
 
     factor: gtsam.NonlinearFactor
+    keys: tuple[int, ...]
     tag: tuple | None = None
     step: int | None = None
     link: tuple | None = None
@@ -234,6 +248,8 @@ class InterRobotGraph:
         self._active: dict[int, _Factor] = {}  # by iSAM2 factor index
         self._links: Counter[tuple] = Counter()  # committed factors per linked chain pair
         self._free: dict[tuple, int] = {}  # chain -> index of its gauge prior
+        self._a_chains = frozenset(("A", r) for r in range(n_robots))
+        self._gauge_kept: tuple | None = None  # what `_fix_gauge` last found nothing to do in
         self._drift_noise: dict[int, gtsam.noiseModel.Base] = {}  # chain noise per step span
         self._hypothesis: dict[tuple[int, int], int] = {}
         # pair -> an abandoned hypothesis whose factors wait for removal
@@ -255,16 +271,20 @@ class InterRobotGraph:
             return gtsam.Pose2(T[0, 2], T[1, 2], math.atan2(T[1, 0], T[0, 0]))
         return gtsam.Pose3(T)
 
-    def _between(self, a: int, b: int, T: np.ndarray, noise):
+    def _queue_between(self, a: int, b: int, T: np.ndarray, noise, tag: tuple | None = None,
+                       step: int | None = None, link: tuple | None = None) -> None:
+        """Queue the factor a^-1 b = T (a (side, side) matrix)."""
         cls = gtsam.BetweenFactorPose2 if self._planar else gtsam.BetweenFactorPose3
-        return cls(a, b, self._pose(T), noise)
+        self._queued.append(_Factor(cls(a, b, self._pose(T), noise), (a, b), tag, step, link))
 
-    def _prior(self, key: int, T: np.ndarray, sigmas: tuple[float, float]):
+    def _queue_prior(self, key: int, T: np.ndarray, sigmas: tuple[float, float],
+                     tag: tuple | None = None) -> None:
+        """Queue a prior on `key` at T with sigmas (translation [m], rotation [rad])."""
         t, r = sigmas
         s = np.array([t, t, r]) if self._planar else np.array([r, r, r, t, t, t])
         noise = gtsam.noiseModel.Diagonal.Sigmas(s)
         cls = gtsam.PriorFactorPose2 if self._planar else gtsam.PriorFactorPose3
-        return cls(key, self._pose(T), noise)
+        self._queued.append(_Factor(cls(key, self._pose(T), noise), (key,), tag))
 
     def _matrix(self, T_params) -> np.ndarray:
         """Homogeneous matrix of an alignment given as a matrix or as parameters."""
@@ -346,10 +366,6 @@ class InterRobotGraph:
     def _insert(self, key: int, T: np.ndarray) -> None:
         self._pending_values.insert(key, self._pose(T))
 
-    def _queue(self, factor, tag: tuple | None = None, step: int | None = None,
-               link: tuple | None = None) -> None:
-        self._queued.append(_Factor(factor, tag, step, link))
-
     def _rigid(self, name: str, T) -> np.ndarray:
         """A homogeneous rigid transform of this graph's dimension, else DataError."""
         size = self._side
@@ -402,9 +418,9 @@ class InterRobotGraph:
         T = self._matrix(T_oi_oj)
         C = _check_cov("add_alignment: cov", cov, self._n_param)
         noise = self._noise(self._tangent_cov(T, C), robust)
-        self._queue(self._between(alignment_key(i, step), alignment_key(j, step), T, noise),
-                    ("alignment", int(i), int(j), hypothesis), int(step),
-                    (("A", int(i)), ("A", int(j))))
+        i, j = int(i), int(j)
+        self._queue_between(_a_key(i, step), _a_key(j, step), T, noise,
+                            ("alignment", i, j, hypothesis), step, (("A", i), ("A", j)))
 
     def update(self, step: int | None = None) -> None:
         """Commit the queued factors, creating A_r(step) for every robot if `step` is given.
@@ -434,8 +450,10 @@ class InterRobotGraph:
         if step is not None:
             self._add_step(step)
         # alignments for later steps wait in the queue until their step is committed
-        later = [q for q in self._queued if q.step is not None and q.step > newest]
-        self._queued = [q for q in self._queued if q.step is None or q.step <= newest]
+        now, later = [], []
+        for q in self._queued:
+            (later if q.step is not None and q.step > newest else now).append(q)
+        self._queued = now
         leaving = self._leaving(step)
         self._fix_gauge()
         if not self._queued and not self._to_remove:
@@ -445,17 +463,19 @@ class InterRobotGraph:
         touched = set()
         for q in self._queued:
             graph.add(q.factor)
-            touched.update(q.factor.keys())
+            touched.update(q.keys)
         gone = [(index, self._active.pop(index)) for index in self._to_remove]
+        removed_keys = set()
         for index, f in gone:
-            touched.update(f.factor.keys())
+            removed_keys.update(f.keys)
             self._count(f, index, -1)
+        touched |= removed_keys
         factors = self._isam.getFactorsUnsafe()
         self._settled_from = None
         # the marginal factors of what left (a roll-back needs them)
         marginals = {i: factors.at(i) for i in self._marginal}
         try:
-            indices = self._commit(graph, self._pending_values, self._to_remove)
+            indices = self._commit(graph, self._pending_values, self._to_remove, removed_keys)
             self._settle(touched)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             self._roll_back(gone, marginals, step, leaving)
@@ -468,9 +488,11 @@ class InterRobotGraph:
                             f"factors queued for this update ({reason}); they were dropped and "
                             f"the graph is as it was before (tagged among them: {tags[:5]})"
                             ) from None
-        for q, index in zip(self._queued, indices, strict=True):
-            self._active[index] = q
-            self._count(q, index, +1)
+        committed = self._queued
+        self._active.update(zip(indices, committed, strict=True))
+        self._links.update(q.link for q in committed if q.link)
+        self._free.update((q.tag[1], index) for q, index in zip(committed, indices, strict=True)
+                          if q.tag and q.tag[0] == "free")
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._marginalise(leaving)
         if self.params.horizon is not None and self._steps:
@@ -478,48 +500,51 @@ class InterRobotGraph:
 
     def _joint(self, step: int) -> np.ndarray:
         """Joint marginal covariance of every robot's A at `step`, gtsam's tangent order."""
-        keys = gtsam.KeyVector([alignment_key(r, step) for r in range(self.n_robots)])
+        keys = [_a_key(r, step) for r in range(self.n_robots)]
         return self._isam.jointMarginalCovariance(keys).fullMatrix()
 
     def _new_solver(self, isam_params: gtsam.ISAM2Params) -> None:
         self._isam = gtsam.ISAM2(isam_params)
 
     def _solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-               remove: list[int]) -> gtsam.ISAM2Result:
+               remove: list[int], removed_keys=()) -> gtsam.ISAM2Result:
         """One iSAM2 update. With a horizon, the part of the Bayes tree it eliminates again is
         ordered by the variables' groups (the rank of their step), so that no variable has a
         newer one below it: what leaves is then always a set of leaves, and marginalising it
         touches only their cliques (gtsam's fixed-lag smoother instead eliminates the whole
-        path from them to the root, the whole horizon, every time)."""
+        path from them to the root, the whole horizon, every time). `removed_keys`: the
+        variables of the factors `remove` lists."""
         if self.params.horizon is None:
             return self._isam.update(graph, values, remove)
         update = gtsam.ISAM2UpdateParams()
         update.removeFactorIndices = remove
         if remove:  # the prediction leaves out the variables of removed factors
-            factors = self._isam.getFactorsUnsafe()
-            update.extraReelimKeys = _key_list({key for i in remove
-                                                for key in factors.at(i).keys()})
+            update.extraReelimKeys = _key_list(removed_keys)
         affected, batch = self._isam.predictUpdateInfo(graph, values, update)
-        if batch:
-            affected = [*self._isam.getLinearizationPoint().keys(), *values.keys()]
+        affected = ([*self._isam.getLinearizationPoint().keys(), *values.keys()] if batch
+                    else list(affected))
         # ccolamd wants the groups numbered from 0 without gaps
-        group = {key: self._group(key) for key in affected}
-        dense = {g: n for n, g in enumerate(sorted(set(group.values())))}
-        update.constrainedKeys = gtsam.KeyGroupMap()
-        for key, g in group.items():
-            update.constrainedKeys.insert2(key, dense[g])
+        groups = [self._group(key) for key in affected]
+        dense = {g: n for n, g in enumerate(sorted(set(groups)))}
+        constrained = gtsam.KeyGroupMap()  # the attribute keeps a copy: fill it first
+        for key, g in zip(affected, groups, strict=True):
+            constrained.insert2(key, dense[g])
+        update.constrainedKeys = constrained
         return self._isam.update(graph, values, update)
 
     def _commit(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                remove: list[int]) -> list[int]:
-        """New factors, new values, removals; the new factors' indices."""
-        return list(self._solve(graph, values, remove).getNewFactorsIndices())
+                remove: list[int], removed_keys=()) -> list[int]:
+        """New factors, new values, removals (and their factors' variables); the new
+        factors' indices."""
+        return list(self._solve(graph, values, remove, removed_keys).getNewFactorsIndices())
 
     def _group(self, key: int) -> int:
         """Elimination group of a variable: the rank in self._steps of its step (for a
         keyframe, of the first step added after it)."""
-        step = _step_of(key)
-        return self._keyframe_rank[key] if step is None else bisect_left(self._steps, step)
+        index = key & _SYMBOL_INDEX
+        if index >> _KIND_SHIFT:
+            return self._keyframe_rank[key]
+        return bisect_left(self._steps, index & _INDEX_MASK)
 
     def _has_left(self, key: int) -> bool:
         """Whether a variable of the graph has left it (or leaves with this update)."""
@@ -545,7 +570,7 @@ class InterRobotGraph:
             self._n_left += 1
         self._to_remove.extend(index for index in self._free.values()
                                if index not in self._to_remove
-                               and self._has_left(self._active[index].factor.keys()[0]))
+                               and self._has_left(self._active[index].keys[0]))
         return list(range(first, self._n_left))
 
     def _marginalise(self, ranks: list[int]) -> None:
@@ -554,8 +579,10 @@ class InterRobotGraph:
         keys = []
         for rank in ranks:
             k = self._steps[rank]
-            step_keys = [alignment_key(r, k) for r in range(self.n_robots)]
-            A = np.array([self._value(key) for key in step_keys])
+            step_keys = [_a_key(r, k) for r in range(self.n_robots)]
+            estimate = self._isam.calculateEstimate(step_keys)
+            get = estimate.atPose2 if self._planar else estimate.atPose3
+            A = np.array([get(key).matrix() for key in step_keys])
             joint = self._joints.pop(k, None)
             self._left[k] = (A, self._joint(k) if joint is None else joint)
             keys += step_keys
@@ -568,11 +595,13 @@ class InterRobotGraph:
         if not keys:
             return
         marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
+        active = self._active
         for index in deleted:
-            self._active.pop(index, None)
-            self._marginal.discard(index)
+            active.pop(index, None)
+        self._marginal.difference_update(deleted)
         self._marginal.update(marginal)
-        self._free = {chain: i for chain, i in self._free.items() if i in self._active}
+        if self._free:
+            self._free = {chain: i for chain, i in self._free.items() if i in active}
 
     def _forget_keyframes(self, keys: set[int]) -> None:
         """Unregister keyframes whose values were dropped with a failed update."""
@@ -638,50 +667,61 @@ class InterRobotGraph:
         by exactly one weak prior, and no prior on the others (priors there would bias the
         alignments). Runs before each iSAM2 update, so priors come and go with the factors
         (a first alignment, a removed hypothesis) in the same update."""
-        chains = ({("A", r) for r in range(self.n_robots)} if self._steps else set())
-        chains |= {("X", r) for r, last in self._last_keyframe.items()
-                   if not self._has_left(keyframe_key(r, last))}
-        links = Counter(self._links)
-        for index in self._to_remove:
-            if self._active[index].link:
-                links[self._active[index].link] -= 1
-        links.update(q.link for q in self._queued if q.link)
-        root = _components(chains, links)
+        chains = self._a_chains if self._steps else frozenset()
+        if self._last_keyframe:
+            chains = chains | {("X", r) for r, last in self._last_keyframe.items()
+                               if not self._has_left(_x_key(r, last))}
+        removing = self._to_remove
+        dropped = Counter(self._active[i].link for i in removing if self._active[i].link)
+        # pairs of chains with committed factors between them
+        linked = {link for link, n in self._links.items() if n > dropped[link]}
+        linked.update(q.link for q in self._queued if q.link)
+        free = {c: i for c, i in self._free.items() if i not in removing}
+        # all the decision depends on: as it was when nothing was to be done (every step of a
+        # connected team), nothing is to be done
+        state = (chains, frozenset(linked), frozenset(free))
+        if state == self._gauge_kept:
+            return
+        root = _components(chains, linked)
         anchored = {root(c) for c in (("A", 0), ("X", 0)) if c in chains}
-        free = {c: i for c, i in self._free.items() if i not in self._to_remove}
         groups: dict[tuple, list] = defaultdict(list)
         for c in sorted(chains):
             groups[root(c)].append(c)
+        actions = (len(removing), len(self._queued))
         for group_root, members in groups.items():
             have = [c for c in members if c in free]
             keep = [] if group_root in anchored else have[:1]
-            self._to_remove.extend(free[c] for c in have if c not in keep)
+            removing.extend(free[c] for c in have if c not in keep)
             if group_root not in anchored and not keep:
                 kind, robot = members[0]
-                key = (alignment_key(robot, self._steps[-1]) if kind == "A"
-                       else keyframe_key(robot, self._last_keyframe[robot]))
-                self._queue(self._prior(key, self._value(key), self.params.free_sigmas),
-                            ("free", members[0]))
+                key = (_a_key(robot, self._steps[-1]) if kind == "A"
+                       else _x_key(robot, self._last_keyframe[robot]))
+                self._queue_prior(key, self._value(key), self.params.free_sigmas,
+                                  ("free", members[0]))
+        self._gauge_kept = state if actions == (len(removing), len(self._queued)) else None
 
     def _add_step(self, step: int) -> None:
+        """Queue A_r(step) for every robot: for the first step at the identity, robot 0's
+        anchored; after it at A_r of the previous step, linked to it by the drift factor."""
         prm = self.params
-        previous = self._steps[-1] if self._steps else None
         identity = np.eye(self._side)
-        if previous is not None:
+        if not self._steps:
+            for r in range(self.n_robots):
+                self._insert(_a_key(r, step), identity)
+            self._queue_prior(_a_key(0, step), identity, (prm.anchor_sigma,) * 2)
+        else:
+            previous = self._steps[-1]
             span = step - previous
-            if span not in self._drift_noise:
+            noise = self._drift_noise.get(span)
+            if noise is None:
                 drift = self._tangent_cov(identity, prm.Q * span / 2.0)
-                self._drift_noise[span] = self._noise(drift, False)
-        for r in range(self.n_robots):
-            key = alignment_key(r, step)
-            if previous is None:
-                self._insert(key, identity)
-                if r == 0:
-                    self._queue(self._prior(key, identity, (prm.anchor_sigma,) * 2))
-            else:
-                before = alignment_key(r, previous)
+                noise = self._drift_noise[span] = self._noise(drift, False)
+            cls = gtsam.BetweenFactorPose2 if self._planar else gtsam.BetweenFactorPose3
+            unmoved = self._pose(identity)
+            for r in range(self.n_robots):
+                before, key = _a_key(r, previous), _a_key(r, step)
                 self._insert(key, self._value(before))
-                self._queue(self._between(before, key, identity, self._drift_noise[span]))
+                self._queued.append(_Factor(cls(before, key, unmoved, noise), (before, key)))
         self._steps.append(step)
         self._step_set.add(step)
 
@@ -689,10 +729,11 @@ class InterRobotGraph:
         """Extra iterations while a variable the update touched is still far from its
         linearisation point (after a first alignment or a removed hypothesis); ordinary steps
         leave the usual relinearisation to the next update."""
+        keys = list(keys)
         for _ in range(self.params.max_iterations):
             delta = self._isam.getDelta()
-            if max((np.abs(delta.at(key)).max() for key in keys if delta.exists(key)),
-                   default=0.0) < self.params.settle_threshold:
+            present = [key for key in keys if delta.exists(key)]
+            if not present or np.abs(delta.vector(present)).max() < self.params.settle_threshold:
                 return
             if self._settled_from is None:  # a roll-back restarts from here, not from the
                 # point a failed iteration moved (rare: big corrections only)
@@ -742,7 +783,7 @@ class InterRobotGraph:
         arbitrary and its covariance huge."""
         self._check_robot("i", i)
         self._check_robot("j", j)
-        root = _components({("A", r) for r in range(self.n_robots)}, self._links)
+        root = _components(self._a_chains, (link for link, n in self._links.items() if n > 0))
         return root(("A", i)) == root(("A", j))
 
     def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -917,7 +958,7 @@ class InterRobotGraph:
                 del self._links[link]  # what linked the chain that left went with it
             if robot == 0:  # robot 0's odometry frame is the common frame
                 self._insert(key, T)
-                self._queue(self._prior(key, T, (self.params.anchor_sigma,) * 2))
+                self._queue_prior(key, T, (self.params.anchor_sigma,) * 2)
             else:
                 A = (self._value(alignment_key(robot, self._steps[-1])) if self._steps
                      else np.eye(T.shape[0]))
@@ -929,7 +970,7 @@ class InterRobotGraph:
                                    3 if self._planar else 6))
             prev_key = keyframe_key(robot, last)
             self._insert(key, self._value(prev_key) @ delta)
-            self._queue(self._between(prev_key, key, delta, self._noise(cov, False)))
+            self._queue_between(prev_key, key, delta, self._noise(cov, False))
         frames[index] = T
         self._last_keyframe[robot] = index
         rank = len(self._steps)  # the step the next update adds
@@ -963,8 +1004,9 @@ class InterRobotGraph:
         T_bi_bj = np.linalg.inv(self._keyframes[i][m_i]) @ T @ T_oj_bj
         Ad = self._pose(np.linalg.inv(T_oj_bj)).AdjointMap()
         noise = self._noise(Ad @ C @ Ad.T, True)
-        self._queue(self._between(keyframe_key(i, m_i), keyframe_key(j, m_j), T_bi_bj, noise),
-                    ("keyframe", int(i), int(j), hypothesis), link=(("X", int(i)), ("X", int(j))))
+        i, j = int(i), int(j)
+        self._queue_between(_x_key(i, m_i), _x_key(j, m_j), T_bi_bj, noise,
+                            ("keyframe", i, j, hypothesis), link=(("X", i), ("X", j)))
 
     def add_between(self, key_a: int, key_b: int, T_a_b, cov_tangent, robust: bool = True
                     ) -> None:
@@ -989,8 +1031,8 @@ class InterRobotGraph:
                 gone = "has left the graph" if self._has_left(key) else "does not exist"
                 raise DataError(f"add_between: key {gtsam.Symbol(key).string()} {gone}")
         link = (_chain(key_a), _chain(key_b))
-        self._queue(self._between(key_a, key_b, T, self._noise(C, robust)),
-                    link=link if link[0] != link[1] else None)
+        self._queue_between(key_a, key_b, T, self._noise(C, robust),
+                            link=link if link[0] != link[1] else None)
 
     def trajectory(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
         """Committed keyframes of `robot`: indices (m,) and poses (m, 3, 3) / (m, 4, 4) in the
