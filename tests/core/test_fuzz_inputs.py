@@ -216,8 +216,11 @@ def test_pairwise_aligner_update(steps):
             last = float(t)
         except TcaffError:
             pass
-    # whatever was refused left no trace: the next valid step is taken
-    aligner.update(last + max(1.0, abs(last) * 1e-9), PAIR.ego, PAIR.other)
+    # whatever was refused left no trace: the next valid step is taken (unless the last
+    # accepted time was so near the largest float that no later finite time exists)
+    after = last + max(1.0, abs(last) * 1e-9)
+    if np.isfinite(after):
+        aligner.update(after, PAIR.ego, PAIR.other)
 
 
 @FUZZ
