@@ -222,6 +222,8 @@ def _weighted_arun(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray | 
     q_mean = w @ q / w_sum
     p_c = p - p_mean
     q_c = q - q_mean
+    if d == 2:
+        return _planar_arun(p_c, q_c, w, w_sum, p_mean, q_mean, float(np.max(np.abs(q))))
     scatter = (q_c * w[:, None]).T @ q_c
     spread = np.sort(np.linalg.eigvalsh(scatter))[::-1]
     # 2D needs two distinct points; 3D needs the points off a single line. Centring loses
@@ -239,6 +241,28 @@ def _weighted_arun(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray | 
     T = np.eye(d + 1)
     T[:d, :d] = R
     T[:d, d] = p_mean - R @ q_mean
+    return T
+
+
+def _planar_arun(p_c: np.ndarray, q_c: np.ndarray, w: np.ndarray, w_sum: float,
+                 p_mean: np.ndarray, q_mean: np.ndarray, q_max: float) -> np.ndarray | None:
+    """`_weighted_arun` in the plane on centred points: the rotation that maximises
+    sum w p_c . R q_c is the angle of sum w (q_c . p_c, q_c x p_c), with no decomposition
+    (the same optimum as the SVD's, a fifth of its cost on the few points of a candidate)."""
+    wq = q_c * w[:, None]
+    sxx, syy, sxy = wq[:, 0] @ q_c[:, 0], wq[:, 1] @ q_c[:, 1], wq[:, 0] @ q_c[:, 1]
+    # the larger eigenvalue of the 2 x 2 scatter, against the same rounding floor as in 3D
+    largest = 0.5 * (sxx + syy) + math.hypot(0.5 * (sxx - syy), sxy)
+    if largest <= w_sum * (1e-9 * max(1.0, q_max)) ** 2:
+        return None
+    dot = wq[:, 0] @ p_c[:, 0] + wq[:, 1] @ p_c[:, 1]
+    cross = wq[:, 0] @ p_c[:, 1] - wq[:, 1] @ p_c[:, 0]
+    theta = math.atan2(cross, dot)
+    c, s = math.cos(theta), math.sin(theta)
+    T = np.eye(3)
+    T[0, 0], T[0, 1], T[1, 0], T[1, 1] = c, -s, s, c
+    T[0, 2] = p_mean[0] - (c * q_mean[0] - s * q_mean[1])
+    T[1, 2] = p_mean[1] - (s * q_mean[0] + c * q_mean[1])
     return T
 
 

@@ -109,6 +109,30 @@ def test_weighted_arun_recovers_2d_transform(seed, n, theta, tx, ty):
 
 
 @PROPS
+@given(seeds, st.integers(2, 30), st.sampled_from([0.01, 0.5, 5.0]))
+def test_weighted_arun_in_the_plane_is_the_weighted_least_squares_optimum(seed, n, noise):
+    """On noisy, weighted pairs the planar closed form equals the SVD solution (Kabsch with the
+    reflection fixed), which minimises the weighted squared residual over proper rotations."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-20, 20, (n, 2))
+    p = apply(rigid(rot2(rng.uniform(-np.pi, np.pi)), rng.uniform(-5, 5, 2)), q)
+    p = p + rng.normal(0.0, noise, p.shape)
+    w = rng.uniform(0.0, 3.0, n)
+    T = weighted_arun(p, q, w)
+    if np.count_nonzero(w > 0) < 2:
+        assert T is None
+        return
+    p_mean, q_mean = w @ p / w.sum(), w @ q / w.sum()
+    U, _, Vt = np.linalg.svd(((q - q_mean) * w[:, None]).T @ (p - p_mean))
+    D = np.diag([1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
+    R = Vt.T @ D @ U.T
+    assert T is not None
+    assert_proper_rigid(T, 2)
+    np.testing.assert_allclose(T[:2, :2], R, atol=1e-9)
+    np.testing.assert_allclose(T[:2, 2], p_mean - R @ q_mean, atol=1e-8)
+
+
+@PROPS
 @given(seeds, n_points, st.tuples(angle, angle, angle), translation, translation, translation)
 def test_weighted_arun_recovers_3d_transform(seed, n, rotvec, tx, ty, tz):
     rng = np.random.default_rng(seed)
