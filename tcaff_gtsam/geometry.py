@@ -11,6 +11,8 @@ the library's own per-step code calls the unchecked `_` versions on arrays it ha
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.special import gammaincinv  # chi2.ppf's own formula, without scipy.stats' import
@@ -57,6 +59,9 @@ def wrap_angle(angle):
 
 
 def _wrap_angle(angle):
+    if isinstance(angle, float):  # also np.float64; the filter and aligner's scalar path
+        wrapped = (angle + math.pi) % (2.0 * math.pi) - math.pi
+        return wrapped - 2.0 * math.pi if wrapped >= math.pi else wrapped
     wrapped = np.mod(np.asarray(angle, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
     # np.mod of a tiny negative number rounds to 2 pi, which would give +pi
     wrapped = np.where(wrapped >= np.pi, wrapped - 2.0 * np.pi, wrapped)
