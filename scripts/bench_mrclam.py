@@ -67,7 +67,7 @@ def main() -> None:
             r = by_method[method]
             print(f"{odometry:9} {describe(method).label:22} "
                   f"{cell(r['false_accept'], 100, 1):>8} % {cell(r['availability'], 1, 3):>9} "
-                  f"{cell(r.get('correct_availability'), 1, 3):>7} "
+                  f"{cell(r['correct_availability'], 1, 3):>7} "
                   f"{cell(r['translation_error_m_median']):>8} "
                   f"{cell(r['heading_error_deg_mean']):>8} "
                   f"{cell(r['time_to_first_correct_s'], 1, 0):>8} "

@@ -346,8 +346,9 @@ class FrameAligner:
         rivals = prm.check_ambiguity and guide is None
         found = []
         for sol in solutions:
-            if not rivals and (len(sol) < prm.min_associations
-                               or sol.score < prm.min_score_ratio * best):
+            supported = (len(sol) >= prm.min_associations
+                         and sol.score >= prm.min_score_ratio * best)
+            if not (supported or rivals):
                 continue  # it cannot qualify and nothing needs it as a rival
             a = sol.associations
             p, q = p_all[a[:, 0]], q_all[a[:, 1]]
@@ -356,9 +357,7 @@ class FrameAligner:
             if fit is None:
                 continue
             T2, rmse = fit
-            qualifies = (len(sol) >= prm.min_associations
-                         and sol.score >= prm.min_score_ratio * best
-                         and (prm.max_rmse is None or rmse <= prm.max_rmse))
+            qualifies = supported and (prm.max_rmse is None or rmse <= prm.max_rmse)
             if not (qualifies or rivals):
                 continue
             inliers = (_mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,

@@ -488,11 +488,9 @@ class InterRobotGraph:
                             f"factors queued for this update ({reason}); they were dropped and "
                             f"the graph is as it was before (tagged among them: {tags[:5]})"
                             ) from None
-        committed = self._queued
-        self._active.update(zip(indices, committed, strict=True))
-        self._links.update(q.link for q in committed if q.link)
-        self._free.update((q.tag[1], index) for q, index in zip(committed, indices, strict=True)
-                          if q.tag and q.tag[0] == "free")
+        for q, index in zip(self._queued, indices, strict=True):
+            self._active[index] = q
+            self._count(q, index, +1)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._marginalise(leaving)
         if self.params.horizon is not None and self._steps:
@@ -541,10 +539,8 @@ class InterRobotGraph:
     def _group(self, key: int) -> int:
         """Elimination group of a variable: the rank in self._steps of its step (for a
         keyframe, of the first step added after it)."""
-        index = key & _SYMBOL_INDEX
-        if index >> _KIND_SHIFT:
-            return self._keyframe_rank[key]
-        return bisect_left(self._steps, index & _INDEX_MASK)
+        step = _step_of(key)
+        return self._keyframe_rank[key] if step is None else bisect_left(self._steps, step)
 
     def _has_left(self, key: int) -> bool:
         """Whether a variable of the graph has left it (or leaves with this update)."""
@@ -716,12 +712,10 @@ class InterRobotGraph:
             if noise is None:
                 drift = self._tangent_cov(identity, prm.Q * span / 2.0)
                 noise = self._drift_noise[span] = self._noise(drift, False)
-            cls = gtsam.BetweenFactorPose2 if self._planar else gtsam.BetweenFactorPose3
-            unmoved = self._pose(identity)
             for r in range(self.n_robots):
                 before, key = _a_key(r, previous), _a_key(r, step)
                 self._insert(key, self._value(before))
-                self._queued.append(_Factor(cls(before, key, unmoved, noise), (before, key)))
+                self._queue_between(before, key, identity, noise)
         self._steps.append(step)
         self._step_set.add(step)
 

@@ -222,14 +222,14 @@ def _weighted_arun(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray | 
     q_mean = w @ q / w_sum
     p_c = p - p_mean
     q_c = q - q_mean
-    if d == 2:
-        return _planar_arun(p_c, q_c, w, w_sum, p_mean, q_mean, float(np.max(np.abs(q))))
-    scatter = (q_c * w[:, None]).T @ q_c
-    spread = np.sort(np.linalg.eigvalsh(scatter))[::-1]
     # 2D needs two distinct points; 3D needs the points off a single line. Centring loses
     # about 1e-16 of the coordinates' magnitude and the eigensolver about 1e-16 of the largest
     # spread, so spreads below those (with a wide margin) are rounding, not geometry.
     floor = w_sum * (1e-9 * max(1.0, float(np.max(np.abs(q))))) ** 2
+    if d == 2:
+        return _planar_arun(p_c, q_c, w, floor, p_mean, q_mean)
+    scatter = (q_c * w[:, None]).T @ q_c
+    spread = np.sort(np.linalg.eigvalsh(scatter))[::-1]
     if spread[0] <= floor or (d == 3 and spread[1] <= max(floor, 1e-12 * spread[0])):
         return None
     H = (q_c * w[:, None]).T @ p_c
@@ -244,16 +244,16 @@ def _weighted_arun(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray | 
     return T
 
 
-def _planar_arun(p_c: np.ndarray, q_c: np.ndarray, w: np.ndarray, w_sum: float,
-                 p_mean: np.ndarray, q_mean: np.ndarray, q_max: float) -> np.ndarray | None:
-    """`_weighted_arun` in the plane on centred points: the rotation that maximises
-    sum w p_c . R q_c is the angle of sum w (q_c . p_c, q_c x p_c), with no decomposition
-    (the same optimum as the SVD's, a fifth of its cost on the few points of a candidate)."""
+def _planar_arun(p_c: np.ndarray, q_c: np.ndarray, w: np.ndarray, floor: float,
+                 p_mean: np.ndarray, q_mean: np.ndarray) -> np.ndarray | None:
+    """`_weighted_arun` in the plane on centred points, None when the weighted scatter of q
+    is not above `floor` (rounding): the rotation that maximises sum w p_c . R q_c is the
+    angle of sum w (q_c . p_c, q_c x p_c), with no decomposition (the same optimum as the
+    SVD's, at a fraction of its cost on the few points of a candidate)."""
     wq = q_c * w[:, None]
     sxx, syy, sxy = wq[:, 0] @ q_c[:, 0], wq[:, 1] @ q_c[:, 1], wq[:, 0] @ q_c[:, 1]
-    # the larger eigenvalue of the 2 x 2 scatter, against the same rounding floor as in 3D
-    largest = 0.5 * (sxx + syy) + math.hypot(0.5 * (sxx - syy), sxy)
-    if largest <= w_sum * (1e-9 * max(1.0, q_max)) ** 2:
+    # the larger eigenvalue of the 2 x 2 scatter
+    if 0.5 * (sxx + syy) + math.hypot(0.5 * (sxx - syy), sxy) <= floor:
         return None
     dot = wq[:, 0] @ p_c[:, 0] + wq[:, 1] @ p_c[:, 1]
     cross = wq[:, 0] @ p_c[:, 1] - wq[:, 1] @ p_c[:, 0]

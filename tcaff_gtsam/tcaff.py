@@ -157,8 +157,7 @@ class TCAFF:
         held estimate would starve it. False while there is no main tree."""
         if self._main is None or len(self._explore) == 0:
             return False
-        best = self._main.take([int(np.argmin(self._main.cost))])
-        return not bool(self._consistent(self._explore, best).all())
+        return not bool(self._consistent(self._explore, self._main_best()).all())
 
     def update(self, zs, Rs, evidence=None) -> AlignmentEstimate | None:
         """One step.
@@ -238,7 +237,7 @@ class TCAFF:
         done = explore.choice[:, 1] != BEFORE_ROOT  # root at step n - W
         index = np.arange(zs.shape[0])
         if self._main is not None and prm.switch_after is not None:
-            best = self._main.take([int(np.argmin(self._main.cost))])
+            best = self._main_best()
             index = index[~np.isfinite(measurement_costs(best, zs, Rs, self._model)[0])]
         ids = self._next_tree + np.arange(index.size)
         self._next_tree += index.size
@@ -396,6 +395,10 @@ class TCAFF:
         if choice[0, column - 1] != BEFORE_ROOT:
             keep = branch(choice, int(np.argmin(cost)) if best is None else best, column)
         return keep[lowest(cost[keep], self.params.max_leaves)]
+
+    def _main_best(self) -> Leaves:
+        """The main tree's best leaf, as one-leaf Leaves (there is a main tree)."""
+        return self._main.take([int(np.argmin(self._main.cost))])
 
     def _main_is_stale(self) -> bool:
         """Checked before the main tree takes the new step, on its best path so far."""
