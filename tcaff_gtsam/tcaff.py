@@ -705,11 +705,15 @@ class TCAFF:
 
 
 def _counter(value, name: str) -> int:
-    """A counter of a state dict: one integer."""
+    """A counter of a state dict: one integer below 2**62, which no run reaches (10^11 years
+    of steps at 1 Hz) and which leaves the filter's int64 id and step arithmetic room."""
     arr = np.asarray(value)
     if arr.dtype.kind not in "iu":
         raise TypeError(f"{name} must be an integer, got dtype {arr.dtype}")
-    return int(arr.item())
+    count = int(arr.item())
+    if count >= 2**62:
+        raise ValueError(f"{name} = {count} is not below 2**62")
+    return count
 
 
 def _state_array(value, name: str, dtype) -> np.ndarray:

@@ -719,3 +719,16 @@ def test_the_cap_cuts_the_evidence_with_the_measurements():
 def test_max_measurements_is_an_int_of_at_least_one(value):
     with pytest.raises(ConfigError, match="max_measurements"):
         TCAFFParams(max_measurements=value)
+
+
+@pytest.mark.parametrize("counter", ["_next_tree", "step", "hypothesis"])
+def test_a_state_with_a_counter_past_int64s_room_is_refused(counter):
+    filt = TCAFF()
+    for _ in range(3):
+        filt.update([[3.0, -2.0, 1.0]], np.diag([0.25, 0.25, 0.01])[None])
+    state = filt.state_dict()
+    state[counter] = np.uint64(2**64 - 1)
+    target = TCAFF()
+    with pytest.raises(DataError, match=counter):
+        target.load_state_dict(state)
+    assert target.step == 0  # nothing was restored
