@@ -448,6 +448,8 @@ class InterRobotGraph:
             raise DataError(f"update: {len(skipped)} queued alignments refer to step "
                             f"{skipped[0].step}, which was skipped; they were dropped")
         if step is not None:
+            if self.params.horizon is not None and self._steps:
+                self._keep_joint(self._steps[-1])  # the latest step's, before it stops being so
             self._add_step(step)
         # alignments for later steps wait in the queue until their step is committed
         now, later = [], []
@@ -493,13 +495,22 @@ class InterRobotGraph:
             self._count(q, index, +1)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._marginalise(leaving)
-        if self.params.horizon is not None and self._steps:
-            self._joints[self._steps[-1]] = self._joint(self._steps[-1])
+        if self._steps:  # the latest step's joint changed: computed again when it is needed
+            self._joints.pop(self._steps[-1], None)
 
     def _joint(self, step: int) -> np.ndarray:
         """Joint marginal covariance of every robot's A at `step`, gtsam's tangent order."""
         keys = [_a_key(r, step) for r in range(self.n_robots)]
         return self._isam.jointMarginalCovariance(keys).fullMatrix()
+
+    def _keep_joint(self, step: int) -> np.ndarray:
+        """With a horizon, the joint of the latest step as it is now, kept until the graph
+        changes: the first read of the step computes it (a caller reading every pair pays
+        for one joint, not a marginal per pair), else the update that adds the next step."""
+        joint = self._joints.get(step)
+        if joint is None:
+            joint = self._joints[step] = self._joint(step)
+        return joint
 
     def _new_solver(self, isam_params: gtsam.ISAM2Params) -> None:
         self._isam = gtsam.ISAM2(isam_params)
@@ -760,7 +771,8 @@ class InterRobotGraph:
             return T, np.zeros((self._n_param, self._n_param))
         # kept for steps that left, and with a horizon for the latest step after each update
         every = (self._left[step][1] if step in self._left
-                 else self._joints.get(step) if step == self._steps[-1] else None)
+                 else self._keep_joint(step)
+                 if step == self._steps[-1] and self.params.horizon is not None else None)
         if every is not None:
             n = 3 if self._planar else 6
             rows = np.r_[i * n:(i + 1) * n, j * n:(j + 1) * n]
