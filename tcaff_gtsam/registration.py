@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -345,15 +346,39 @@ def _mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible:
     moved = _transform_points(T_a_b, q)
     if p.shape[0] * q.shape[0] > _DENSE_INLIERS:
         return _mutual_inliers_by_tree(p, moved, compatible, radius)
-    # |p - m|^2 expanded: one matrix product instead of an (n, m, 2) difference array
-    d2 = np.maximum((p * p).sum(1)[:, None] + (moved * moved).sum(1)[None, :]
-                    - 2.0 * p @ moved.T, 0.0)
-    d2[~compatible] = np.inf
-    nearest_q = np.argmin(d2, axis=1)
-    nearest_p = np.argmin(d2, axis=0)
-    rows = np.arange(p.shape[0])
-    keep = (nearest_p[nearest_q] == rows) & (d2[rows, nearest_q] <= radius * radius)
-    return np.column_stack([rows[keep], nearest_q[keep]]).astype(np.int64)
+    return _mutual_nearest(np.ascontiguousarray(p), np.ascontiguousarray(moved), compatible,
+                           radius * radius)
+
+
+@numba.njit(cache=True)
+def _mutual_nearest(p: np.ndarray, moved: np.ndarray, compatible: np.ndarray, r2: float
+                    ) -> np.ndarray:
+    """(k, 2) pairs (i, j), sorted by i, where moved[j] is p[i]'s nearest compatible point
+    and p[i] moved[j]'s, within squared distance r2; ties go to the lower index. One pass
+    over the pairs, no (n, m) temporaries (small maps call this for every candidate)."""
+    n, m = p.shape[0], moved.shape[0]
+    nearest_q = np.full(n, -1, np.int64)
+    nearest_p = np.full(m, -1, np.int64)
+    best_q = np.full(n, np.inf)
+    best_p = np.full(m, np.inf)
+    for i in range(n):
+        for j in range(m):
+            if compatible[i, j]:
+                dx = p[i, 0] - moved[j, 0]
+                dy = p[i, 1] - moved[j, 1]
+                d2 = dx * dx + dy * dy
+                if d2 < best_q[i]:
+                    best_q[i], nearest_q[i] = d2, j
+                if d2 < best_p[j]:
+                    best_p[j], nearest_p[j] = d2, i
+    out = np.empty((n, 2), np.int64)
+    k = 0
+    for i in range(n):
+        j = nearest_q[i]
+        if j >= 0 and nearest_p[j] == i and best_q[i] <= r2:
+            out[k, 0], out[k, 1] = i, j
+            k += 1
+    return out[:k]
 
 
 def _mutual_inliers_by_tree(p: np.ndarray, moved: np.ndarray, compatible: np.ndarray,
@@ -394,6 +419,10 @@ def spread(points: np.ndarray) -> float:
 
 
 def _spread(points: np.ndarray) -> float:
-    if points.shape[0] < 2:
+    n = points.shape[0]
+    if n < 2:
         return 0.0
-    return float(np.sqrt(max(np.linalg.eigvalsh(np.cov(points.T, bias=True))[0], 0.0)))
+    c = points - points.sum(0) / n
+    sxx, syy, sxy = c[:, 0] @ c[:, 0] / n, c[:, 1] @ c[:, 1] / n, c[:, 0] @ c[:, 1] / n
+    # the smaller eigenvalue of the 2 x 2 covariance, in closed form
+    return math.sqrt(max(0.5 * (sxx + syy) - math.hypot(0.5 * (sxx - syy), sxy), 0.0))

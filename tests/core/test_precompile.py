@@ -10,14 +10,15 @@ import sys
 ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_measurement_costs"),
                  ("hypothesis_tree", "_kalman_children"), ("hypothesis_tree", "_children"),
-                 ("hypothesis_tree", "_best_per_group")]
+                 ("hypothesis_tree", "_best_per_group"), ("registration", "_mutual_nearest")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():
     """In a fresh interpreter, where nothing else has run the aligner: no entry kernel has a
     compiled signature before `compile_kernels`, every one has after it."""
     check = "; ".join([
-        "import tcaff_gtsam.clipper as clipper, tcaff_gtsam.hypothesis_tree as hypothesis_tree",
+        ("import tcaff_gtsam.clipper as clipper, tcaff_gtsam.hypothesis_tree as hypothesis_tree, "
+         "tcaff_gtsam.registration as registration"),
         "from tcaff_gtsam.precompile import compile_kernels",
         f"kernels = [getattr(globals()[m], n) for m, n in {ENTRY_KERNELS!r}]",
         "print([bool(k.signatures) for k in kernels])",
