@@ -23,6 +23,8 @@ from typing import NamedTuple
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]  # the repository
+DEMO_SCENARIOS = ["indoor_return", "same_direction", "opposite_directions", "four_robots",
+                  "ambiguous_grid", "indoor_rgbd", "mot"]
 
 PROBE = """
 import importlib, importlib.util, json, sys
@@ -255,7 +257,9 @@ class TestWheelInstall:
 @pytest.mark.slow
 def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
     """A new user's first steps: a fresh virtual environment, `pip install .` (not editable),
-    then the demo and `python -m tcaff_gtsam --help`, run from a folder outside the repository.
+    then the demo (`make demo`'s job, every scenario shortened: it prints every scenario's
+    table and writes every figure) and `python -m tcaff_gtsam --help`, run from a folder
+    outside the repository.
 
     The new environment borrows the dependencies this one installed from pyproject.toml (a
     .pth file puts this environment's site-packages after its own), so that pip installs the
@@ -287,14 +291,21 @@ def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
     work = tmp_path / "work"
     work.mkdir()
     shutil.rmtree(src)  # nothing may come from the source tree
-    # short: test_cli's demo test checks what the demo shows; this one that it runs installed
-    demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "25",
+    demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "45",
                            "--output", "results"], cwd=work, capture_output=True, text=True,
                           timeout=1800, env=clean_env())
     assert demo.returncode == 0, demo.stdout + demo.stderr
-    assert "indoor_return" in demo.stdout and "TCAFF+iSAM2 smoothed" in demo.stdout
+    for name in DEMO_SCENARIOS:
+        assert name in demo.stdout
+    for row in ("TCAFF+iSAM2 smoothed", "CLIPPER k>=10", "Tracking people together",
+                "no sharing"):
+        assert row in demo.stdout
     latest = work / "results" / "latest"
     assert (latest / "metrics.csv").is_file()
+    figures = {p.name for p in (latest / "figures").glob("*.png")}
+    assert figures == {"leave_and_return.png", "clipper_sweep.png", "scenarios.png",
+                       "mot_mot.png", "mot_sweep.png",
+                       *(f"errors_{name}.png" for name in DEMO_SCENARIOS)}
     assert (latest / "trajectories" / "indoor_return-seed0" / "frame_0" / "truth"
             / "1.tum").is_file()
     helped = subprocess.run([str(python), "-m", "tcaff_gtsam", "--help"], cwd=work,

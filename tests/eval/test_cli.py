@@ -217,22 +217,6 @@ def test_bad_study_config_is_one_line_and_exit_2(tmp_path):
                                    "equal to 1 (got 0)")
 
 
-@pytest.mark.slow
-def test_demo_prints_the_table_and_writes_the_figures(tmp_path):
-    """`make demo`'s job, through the installed command (every scenario shortened)."""
-    done = subprocess.run([TCAFF, "demo", "--output", str(tmp_path), "--duration", "45"],
-                          capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
-    for name in SCENARIOS:
-        assert name in done.stdout
-    assert "CLIPPER k>=10" in done.stdout
-    assert "Tracking people together" in done.stdout and "no sharing" in done.stdout
-    figures = {p.name for p in (tmp_path / "latest" / "figures").glob("*.png")}
-    assert figures == {"leave_and_return.png", "clipper_sweep.png", "scenarios.png",
-                       "mot_mot.png", "mot_sweep.png",
-                       *(f"errors_{name}.png" for name in SCENARIOS)}
-
-
 # -- bad input ends in one line on stderr and exit status 2 -------------------------------------
 
 
