@@ -2,7 +2,8 @@
 
 Every node is its own process (`tcaff node`), with its own Zenoh session; the test process opens
 sessions of its own to watch the team and to send it bad messages. The nodes replay against the
-clock, so these tests are marked `realtime`: `make test` runs them alone, after the others.
+clock, so these tests are marked `realtime`: `make test` runs them beside the others, which
+run at a lower priority.
 """
 
 from __future__ import annotations
