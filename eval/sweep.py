@@ -22,6 +22,7 @@ import logging
 import os
 import traceback
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -212,7 +213,8 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
         plan: `plan_sweep(sweep, study, source)` when the caller has made it already.
     Returns:
         The outcome; Ctrl-C stops the jobs, writes the report of what is done and sets
-        `interrupted`.
+        `interrupted`. With no job left to run, `executor` is not started (no cluster, no
+        connection to a scheduler).
     """
     plan = plan or plan_sweep(sweep, study, source)
     progress = progress or Progress()
@@ -225,7 +227,7 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
     failed: list[dict] = []
     ran = 0
     interrupted = False
-    with job_runner(executor) as run:
+    with job_runner(executor) if specs else nullcontext() as run:
         try:
             jobs_folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -264,7 +266,8 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
         for key, (digest, spec) in enumerate(zip(todo, specs, strict=True)):
             progress.start(key, f"{spec.label} ({point_of[digest].label})")
         try:
-            run(specs, progress, done, fail)
+            if run is not None:
+                run(specs, progress, done, fail)
         except KeyboardInterrupt:
             interrupted = True
             log.info("interrupted: reporting the %d finished jobs", reused + ran)

@@ -22,3 +22,25 @@ REPO = Path(__file__).resolve().parents[1]
 def repo() -> Path:
     """The repository's root folder."""
     return REPO
+
+
+@pytest.fixture
+def tcaff_main(monkeypatch, capsys):
+    """`tcaff ARGS` through its entry point `cli.main` in this process (a subprocess costs
+    seconds of imports): the exit status, stdout and stderr as a `CompletedProcess`. Processes
+    the command starts (Dask workers, nodes) are still processes of their own."""
+    import subprocess
+    import sys
+
+    from tcaff_gtsam.eval import cli
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        monkeypatch.setattr(sys, "argv", ["tcaff", *args])
+        monkeypatch.setenv("COLUMNS", "200")
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exited:
+            cli.main()
+        out = capsys.readouterr()
+        return subprocess.CompletedProcess(args, exited.value.code or 0, out.out, out.err)
+
+    return run

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -290,12 +291,36 @@ def test_damaged_bag_keeps_the_robots_already_mapped(sequence, tmp_path, damage)
     assert not (maps / "sparkal2.npz").exists()
 
 
+@pytest.fixture(scope="module")
+def mapped(sequence, tmp_path_factory):
+    """The sequence mapped and aligned once with the tcaff_only methods, no figures: the
+    config and the outcome, whose saved maps later runs start from."""
+    data, _ = sequence
+    config = load_kimera_multi("same_direction").model_copy(
+        update={"methods": load_methods("tcaff_only")})
+    return config, run_kimera_multi(config, data, tmp_path_factory.mktemp("mapped"),
+                                    figures=False)
+
+
+def saved_maps(mapped, output: Path, robots: tuple[str, ...]) -> None:
+    """`robots`' saved maps of `mapped` copied where a run into `output` looks for them."""
+    _, outcome = mapped
+    maps = output / outcome.folder.name / "maps"
+    maps.mkdir(parents=True)
+    for robot in robots:
+        for path in outcome.folder.glob(f"maps/{robot}.*"):
+            shutil.copy2(path, maps / path.name)
+
+
 @pytest.mark.slow
-def test_without_ground_truth_alignments_are_still_saved(sequence, tmp_path):
+def test_without_ground_truth_alignments_are_still_saved(sequence, mapped, tmp_path):
+    """The robot without ground truth is mapped (the other's map, which has it, is reused)."""
     data, _ = sequence
     bare = copy_of(data, tmp_path / "data", skip=("sparkal2_gt_odom.csv",))
     config = load_kimera_multi("same_direction")
+    saved_maps(mapped, tmp_path / "out", ("acl_jackal2",))
     outcome = run_kimera_multi(config, bare, tmp_path / "out", figures=False)
+    assert outcome.reused == ["acl_jackal2"]
     assert outcome.recorded.summary == {}
     methods = outcome.recorded.methods.methods
     assert "icp" not in methods and "ground_truth" not in methods
@@ -328,13 +353,13 @@ def test_recorded_run_checks_its_shapes():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncated", "keyless"])
-def test_a_damaged_saved_map_is_mapped_again_with_a_warning(sequence, tmp_path, damage, caplog):
+def test_a_damaged_saved_map_is_mapped_again_with_a_warning(sequence, mapped, tmp_path, damage,
+                                                             caplog):
     """--resume (the default) treats an unreadable map file as no reusable map."""
     data, _ = sequence
-    config = load_kimera_multi("same_direction").model_copy(
-        update={"methods": load_methods("tcaff_only")})
-    first = run_kimera_multi(config, data, tmp_path, figures=False)
-    saved = first.folder / "maps" / "sparkal2.npz"
+    config, first = mapped
+    saved_maps(mapped, tmp_path, ROBOTS)
+    saved = tmp_path / first.folder.name / "maps" / "sparkal2.npz"
     if damage == "truncated":
         saved.write_bytes(saved.read_bytes()[:200])
     else:

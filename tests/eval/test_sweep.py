@@ -16,6 +16,7 @@ import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tcaff_gtsam.eval import executor as executor_module
 from tcaff_gtsam.eval import jobs as jobs_module
 from tcaff_gtsam.eval.config import (
     MethodsConfig,
@@ -132,6 +133,10 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_jobs(tmp_path):
     assert [r["methods.tcaff.tau"] for r in rows] == ["8.0", "4.0", "12.0", "16.0"]
     assert all(r["jobs_done"] == r["jobs"] == 2 for r in rows)
     assert all(r["availability"] is not None for r in rows)
+    # all done: the report is written again without reaching the (here unreachable) scheduler
+    fourth = run_sweep(tau_sweep(tmp_path, (4.0, 12.0, 16.0)), study,
+                       Executor(scheduler="tcp://127.0.0.1:9"), figures=False)
+    assert fourth.reused == 8 and fourth.ran == 0 and fourth.rows == third.rows
 
 
 def test_a_failing_job_is_recorded_the_others_finish_and_a_rerun_retries_it(tmp_path,
@@ -227,7 +232,8 @@ def test_executor_refuses_two_places_and_bad_counts():
         Executor(workers=0)
 
 
-def test_an_unreachable_scheduler_is_a_config_error(tmp_path):
+def test_an_unreachable_scheduler_is_a_config_error(tmp_path, monkeypatch):
+    monkeypatch.setattr(executor_module, "_CONNECT_TIMEOUT", 0.5)  # s; nothing will answer
     expected = re.escape("scheduler 'tcp://127.0.0.1:9': no Dask scheduler")
     with pytest.raises(ConfigError, match=expected), \
             job_runner(Executor(scheduler="tcp://127.0.0.1:9")):
@@ -235,12 +241,11 @@ def test_an_unreachable_scheduler_is_a_config_error(tmp_path):
 
 
 @pytest.mark.slow
-def test_cli_sweep_on_a_local_cluster_writes_the_report(tmp_path):
+def test_cli_sweep_on_a_local_cluster_writes_the_report(tmp_path, tcaff_main):
     path = write_sweep(tmp_path, {"grid": {"scenario.window": [4, 12]},
                                   "output": str(tmp_path / "out")})
-    command = [TCAFF, "sweep", str(path), "--local-cluster", "2", "--duration", "12",
-               "--seeds", "1"]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    command = ["sweep", str(path), "--local-cluster", "2", "--duration", "12", "--seeds", "1"]
+    done = tcaff_main(*command)
     assert done.returncode == 0, done.stderr
     assert "3 points (scenario.window) x 1 scenarios x 1 seeds = 3 jobs" in done.stdout
     folder = tmp_path / "out" / "s"
@@ -249,7 +254,7 @@ def test_cli_sweep_on_a_local_cluster_writes_the_report(tmp_path):
     assert len(lines) == 1 + 3 * len(estimate_names(load_methods("tcaff_only")))
     assert sorted(p.name for p in (folder / "figures").iterdir()) == [
         "response_window.png", "tradeoff.png"]
-    again = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    again = tcaff_main(*command)
     assert again.returncode == 0 and "3 of 3 jobs done by an earlier run" in again.stdout
 
 

@@ -4,12 +4,10 @@ RGB-D front end once, then one node process per robot replays the maps over Zeno
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.config import MethodsConfig, load_kimera_multi
 from tcaff_gtsam.eval.datasets import kimera_multi
 from tcaff_gtsam.eval.methods import run_methods
@@ -29,27 +27,14 @@ def bags(tmp_path_factory) -> Path:
     return data
 
 
-def tcaff(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
-    """(exit status, stdout, stderr) of the console entry point, run in this process (the
-    node processes it starts are processes of their own)."""
-    monkeypatch.setattr(sys, "argv", ["tcaff", *args])
-    monkeypatch.setenv("COLUMNS", "200")
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as exited:
-        cli.main()
-    out = capsys.readouterr()
-    return exited.value.code or 0, out.out, out.err
-
-
-def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path, monkeypatch,
-                                                  capsys) -> None:
+def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path,
+                                                  tcaff_main) -> None:
     """Each node aligns at every exchange the robots share, as the offline study does on the
     same maps; a node asked for a robot the bags do not have is refused in one line."""
     out = tmp_path / "team"
-    code, stdout, stderr = tcaff(monkeypatch, capsys, "team", "--kimera", str(bags), "--speed",
-                                 "4", "--output", str(out))
-    assert code == 0, stdout + stderr
-    assert "r0 (acl_jackal2), r1 (sparkal2)" in stdout
+    done = tcaff_main("team", "--kimera", str(bags), "--speed", "4", "--output", str(out))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "r0 (acl_jackal2), r1 (sparkal2)" in done.stdout
     for robot in ROBOTS:
         assert (out / "maps" / f"{robot}.npz").is_file()
     # the maps the team made, read back (reused, not mapped again)
@@ -68,8 +53,8 @@ def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path, mo
         np.testing.assert_allclose(x[rows["accepted"] == 1],
                                    expected[np.isfinite(expected[:, 0])], atol=1e-4)
     # a node of the same bags (their maps reused) for a robot they do not have
-    code, _, stderr = tcaff(monkeypatch, capsys, "node", "--robot", "r5", "--kimera", str(bags),
-                            "--listen", "127.0.0.1:7447", "--output", str(out))
-    assert code == 2
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and "r0 (acl_jackal2), r1 (sparkal2)" in lines[0], stderr
+    refused = tcaff_main("node", "--robot", "r5", "--kimera", str(bags), "--listen",
+                         "127.0.0.1:7447", "--output", str(out))
+    assert refused.returncode == 2
+    lines = refused.stderr.strip().splitlines()
+    assert len(lines) == 1 and "r0 (acl_jackal2), r1 (sparkal2)" in lines[0], refused.stderr
