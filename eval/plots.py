@@ -18,6 +18,7 @@ A sweep (see `sweep`) draws tradeoff.png and response_<parameter>.png (`draw_swe
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
@@ -396,10 +397,18 @@ def _tradeoff(path: Path, done: list, method_label: str) -> None:
     ax.set_title(f"{method_label}: one dot per parameter point (numbered as in sweep.csv), "
                  f"pooled over scenarios, seeds and pairs", fontsize=9)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+    if ax.get_legend_handles_labels()[0]:  # nothing to label when no point has both figures
+        ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _mean_or_nan(values: list[float]) -> float:
+    """Mean of the finite values; NaN, without numpy's empty-slice warning, when none is."""
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    return float(finite.mean()) if finite.size else math.nan
 
 
 def _response(path: Path, grid: list, default: dict | None, parameter: str,
@@ -420,7 +429,7 @@ def _response(path: Path, grid: list, default: dict | None, parameter: str,
     for ax, (key, name, scale) in zip(axes, _RESPONSES, strict=True):
         for label_, items in lines.items():
             xs = np.array(sorted({x_ for x_, _ in items}))
-            ys = [np.nanmean([_none_nan(r.get(key)) * scale for x_, r in items if x_ == v])
+            ys = [_mean_or_nan([_none_nan(r.get(key)) * scale for x_, r in items if x_ == v])
                   for v in xs]
             ax.plot(xs, ys, "o-", ms=4, lw=1.2, label=label_ or method_label)
         if default is not None and default.get(key) is not None:
