@@ -291,7 +291,7 @@ def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
     work = tmp_path / "work"
     work.mkdir()
     shutil.rmtree(src)  # nothing may come from the source tree
-    demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "45",
+    demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "25",
                            "--output", "results"], cwd=work, capture_output=True, text=True,
                           timeout=1800, env=clean_env())
     assert demo.returncode == 0, demo.stdout + demo.stderr
