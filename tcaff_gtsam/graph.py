@@ -209,8 +209,10 @@ class InterRobotGraph:
     """
 
     def __init__(self, n_robots: int, params: GraphParams | None = None) -> None:
-        if not _int_at_least(n_robots, 1):
-            raise DataError(f"InterRobotGraph: n_robots must be an int >= 1, got {n_robots!r}")
+        most = 1 << (_KIND_SHIFT - _ROBOT_SHIFT)  # robots the variables' keys can tell apart
+        if not (_int_at_least(n_robots, 1) and n_robots <= most):
+            raise DataError(f"InterRobotGraph: n_robots must be an int in [1, {most}], got "
+                            f"{shown(n_robots)}")
         self.n_robots = n_robots
         self.params = _given_or_default(GraphParams, params, "InterRobotGraph")
         prm = self.params

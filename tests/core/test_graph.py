@@ -725,3 +725,15 @@ def test_bad_robots_and_keys_are_data_errors(call, match):
     graph.update(0)
     with pytest.raises(DataError, match=match):
         call(graph)
+
+
+@pytest.mark.parametrize("n_robots", [0, -1, 2.0, True, (1 << 16) + 1, 10**12])
+def test_a_team_size_the_keys_cannot_hold_is_refused_at_once(n_robots):
+    """Robots are told apart by 16 bits of a variable's key; a larger team was accepted (and
+    10^12 robots filled the memory building the graph's chains)."""
+    with pytest.raises(DataError, match="n_robots"):
+        InterRobotGraph(n_robots)
+
+
+def test_the_largest_team_the_keys_hold_is_accepted():
+    assert InterRobotGraph(1 << 16).n_robots == 1 << 16
