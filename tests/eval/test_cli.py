@@ -224,23 +224,6 @@ def tcaff(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([TCAFF, *args], capture_output=True, text=True, timeout=120)
 
 
-@pytest.fixture
-def tcaff_here(monkeypatch, capsys):
-    """`tcaff ARGS` through its entry point `cli.main` in this process (quicker than a
-    subprocess): the exit status and stderr, as a `CompletedProcess`."""
-
-    def run(*args: str) -> subprocess.CompletedProcess:
-        monkeypatch.setattr(sys, "argv", ["tcaff", *args])
-        capsys.readouterr()
-        with pytest.raises(SystemExit) as exited:
-            cli.main()
-        code = exited.value.code
-        return subprocess.CompletedProcess(args, 0 if code is None else code, "",
-                                           capsys.readouterr().err)
-
-    return run
-
-
 def one_line_error(done: subprocess.CompletedProcess, *named: str) -> str:
     """The single stderr line of a refused command, which names each of `named`."""
     assert done.returncode == 2, done.stderr
@@ -256,7 +239,7 @@ DUPLICATE = "scenarios: [indoor_return]\nworkers: 1\nseeds: [0]\nworkers: 2\n"
 
 
 @pytest.mark.parametrize("where", ["study", "scenario", "methods", "kimera-config"])
-def test_a_binary_yaml_is_named_in_one_line(tmp_path, tcaff_here, where):
+def test_a_binary_yaml_is_named_in_one_line(tmp_path, tcaff_main, where):
     bad = tmp_path / "bad.yaml"
     bad.write_bytes(BINARY)
     args = {"study": ["study", str(bad)],
@@ -264,13 +247,13 @@ def test_a_binary_yaml_is_named_in_one_line(tmp_path, tcaff_here, where):
             "methods": ["study", "demo", "--methods", str(bad), "--output", str(tmp_path)],
             "kimera-config": ["kimera-multi", "--data", str(tmp_path), "--config", str(bad),
                               "--output", str(tmp_path)]}[where]
-    run = tcaff if where in ("study", "kimera-config") else tcaff_here
+    run = tcaff if where in ("study", "kimera-config") else tcaff_main
     line = one_line_error(run(*args), str(bad), "not a UTF-8 text file")
     assert line == f"error: {bad}: not a UTF-8 text file (byte 0xff at offset 11)"
 
 
 @pytest.mark.parametrize("where", ["study", "scenario", "methods"])
-def test_a_duplicate_yaml_key_is_named_in_one_line(tmp_path, tcaff_here, where):
+def test_a_duplicate_yaml_key_is_named_in_one_line(tmp_path, tcaff_main, where):
     bad = tmp_path / "dup.yaml"
     if where == "study":
         bad.write_text(DUPLICATE)
@@ -282,7 +265,7 @@ def test_a_duplicate_yaml_key_is_named_in_one_line(tmp_path, tcaff_here, where):
     else:
         bad.write_text("methods: [tcaff]\nmethods: [ground_truth]\n")
         args = ["study", "demo", "--methods", str(bad), "--output", str(tmp_path)]
-    line = one_line_error((tcaff if where == "study" else tcaff_here)(*args), str(bad),
+    line = one_line_error((tcaff if where == "study" else tcaff_main)(*args), str(bad),
                           "duplicate key")
     key = {"study": "workers", "scenario": "duration", "methods": "methods"}[where]
     assert f"duplicate key {key!r}" in line
@@ -325,7 +308,7 @@ def test_arbitrary_bytes_as_a_config_load_or_fail_in_one_line(tmp_path):
 
 @pytest.mark.parametrize("command", ["study", "demo", "kimera-multi", "mrclam", "make-maps"])
 @pytest.mark.parametrize("kind", ["file", "under-a-file"])
-def test_an_output_that_cannot_be_a_folder_is_refused_first(tmp_path, tcaff_here, command,
+def test_an_output_that_cannot_be_a_folder_is_refused_first(tmp_path, tcaff_main, command,
                                                              kind):
     taken = tmp_path / "taken"
     taken.write_text("keep me")
@@ -336,7 +319,7 @@ def test_an_output_that_cannot_be_a_folder_is_refused_first(tmp_path, tcaff_here
             "mrclam": ["mrclam", "--data", str(tmp_path), "--output", str(out)],
             "make-maps": ["make-maps", str(out)]}[command]
     option = "OUT_DIR" if command == "make-maps" else "--output"
-    run = tcaff if command == "study" else tcaff_here
+    run = tcaff if command == "study" else tcaff_main
     line = one_line_error(run(*args), option, str(out))
     assert line.endswith("exists and is not a folder" if kind == "file"
                          else "not a writable folder (Not a directory)")
@@ -347,8 +330,8 @@ def test_an_output_that_cannot_be_a_folder_is_refused_first(tmp_path, tcaff_here
     (["--noise", "-1"], "--noise"), (["--noise", "nan"], "--noise"),
     (["--overlap", "1.5"], "--overlap"), (["--objects", "-1"], "--objects"),
     (["--clutter", "-2"], "--clutter"), (["--seed", "-1"], "--seed")])
-def test_make_maps_options_are_checked(tmp_path, tcaff_here, args, option):
-    run = tcaff if option == "--noise" else tcaff_here
+def test_make_maps_options_are_checked(tmp_path, tcaff_main, args, option):
+    run = tcaff if option == "--noise" else tcaff_main
     line = one_line_error(run("make-maps", str(tmp_path / "maps"), *args), option)
     assert line.startswith(f"error: {option} ")
     assert not (tmp_path / "maps").exists()
@@ -365,8 +348,8 @@ def maps(tmp_path_factory):
     (["--seed", "-1"], "--seed"), (["--kappa", "nan"], "--kappa"),
     (["--solutions", "0"], "--solutions"), (["--min-associations", "0"], "--min-associations"),
     (["--covariance", "bogus"], "--covariance"), (["--now", "inf"], "--now")])
-def test_align_maps_options_are_named(maps, tcaff_here, args, option):
-    run = tcaff if option == "--seed" else tcaff_here
+def test_align_maps_options_are_named(maps, tcaff_main, args, option):
+    run = tcaff if option == "--seed" else tcaff_main
     line = one_line_error(run("align-maps", *maps, *args), option)
     assert line.startswith(f"error: {option} ")
 
@@ -381,11 +364,11 @@ def test_align_maps_seed_message():
 
 @pytest.mark.parametrize("value", ["inf", "nan", "0", "-3"])
 @pytest.mark.parametrize("command", ["study", "demo", "kimera-multi", "mrclam"])
-def test_duration_must_be_finite_and_positive(tmp_path, tcaff_here, command, value):
+def test_duration_must_be_finite_and_positive(tmp_path, tcaff_main, command, value):
     args = {"study": ["study", "demo"], "demo": ["demo"],
             "kimera-multi": ["kimera-multi", "--data", str(tmp_path)],
             "mrclam": ["mrclam", "--data", str(tmp_path)]}[command]
-    run = tcaff if value == "inf" else tcaff_here
+    run = tcaff if value == "inf" else tcaff_main
     line = one_line_error(run(*args, "--duration", value, "--output", str(tmp_path / "out")),
                           "--duration")
     assert line.endswith("must be a finite number of seconds >= 1")
@@ -439,11 +422,11 @@ def test_the_study_workers_ignore_ctrl_c_from_their_start():
     (["make-maps"], ["out_dir", "tcaff make-maps --help"]),
     (["nocmd"], ["nocmd", "tcaff --help"]),
 ])
-def test_a_bad_option_or_argument_is_one_line(tcaff_here, args, named):
-    one_line_error(tcaff_here(*args), *named)
+def test_a_bad_option_or_argument_is_one_line(tcaff_main, args, named):
+    one_line_error(tcaff_main(*args), *named)
 
 
-def test_help_still_works_and_tcaff_alone_shows_it(tcaff_here, capsys):
-    assert tcaff_here("--help").returncode == 0
-    alone = tcaff_here()
+def test_help_still_works_and_tcaff_alone_shows_it(tcaff_main, capsys):
+    assert tcaff_main("--help").returncode == 0
+    alone = tcaff_main()
     assert alone.returncode == 2 and "error" not in alone.stderr
