@@ -238,3 +238,26 @@ def test_the_wanted_pairs_are_those_of_the_whole_team(seed, n, data):
 def test_a_wanted_pair_outside_the_team_is_refused(pairs):
     with pytest.raises(DataError, match="wanted pair"):
         TeamConsistency(3).update({}, pairs)
+
+
+@pytest.mark.parametrize("n_robots", [TeamConsistency.MAX_ROBOTS + 1, 10**9])
+def test_a_team_too_large_for_the_update_is_refused_at_once(n_robots):
+    with pytest.raises(ConfigError, match="n_robots"):
+        TeamConsistency(n_robots)
+
+
+def test_the_largest_team_checks_its_few_cycles_without_visiting_every_triple():
+    """Robots 0, 1, 2 close a cycle, 500 and 700 share one alignment; the cycles come from the
+    alignments given, not from the 1.8 * 10^8 triples of 1024 robots (which took minutes)."""
+    team = TeamConsistency(TeamConsistency.MAX_ROBOTS)
+    P = np.diag([0.01, 0.01, 1e-4])
+
+    def estimate(x):
+        return SimpleNamespace(x=np.array(x, float), P=P.copy())
+
+    out = team.update({(0, 1): estimate([1.0, 0.0, 0.0]), (1, 2): estimate([1.0, 0.0, 0.0]),
+                       (0, 2): estimate([2.0, 0.0, 0.0]), (500, 700): estimate([0.0, 3.0, 0.0])},
+                      pairs=[(0, 2), (2, 0), (500, 700)])
+    assert team.rejected == []
+    assert sorted(out) == [(0, 2), (2, 0), (500, 700)]
+    np.testing.assert_allclose(out[(2, 0)].x, [-2.0, 0.0, 0.0], atol=1e-12)
