@@ -37,13 +37,15 @@ demo: install
 # from a busy one, so the long end-to-end tests do not end up queued behind each other). The
 # live nodes that must keep up with the clock (`realtime`) run beside them: they need the CPU
 # for moments only, and get it first because the others run at a lower priority (nice); their
-# report follows the others'. Both parts always run; make fails if either does.
+# report follows the others'. Both parts always run; make fails if either does; Ctrl-C stops
+# both.
 test: install
 	@status=0; live=$$(mktemp); \
-	$(VENV)/bin/pytest -q -m realtime tests/node >$$live 2>&1 & nodes=$$!; \
+	$(VENV)/bin/pytest -q -p no:cacheprovider -m realtime tests/node >"$$live" 2>&1 & nodes=$$!; \
+	trap 'kill $$nodes 2>/dev/null; rm -f "$$live"' EXIT; trap 'exit 130' INT TERM; \
 	nice -n 10 $(VENV)/bin/pytest -q -n auto --dist worksteal -m "not realtime" || status=$$?; \
 	wait $$nodes || status=$$?; \
-	echo "live nodes (realtime):"; cat $$live; rm -f $$live; \
+	echo "live nodes (realtime):"; cat "$$live"; \
 	exit $$status
 
 # the quick subset for development: everything but the end-to-end runs marked `slow`

@@ -406,8 +406,8 @@ def _tradeoff(path: Path, done: list, method_label: str) -> None:
 
 def _mean_or_nan(values: list[float]) -> float:
     """Mean of the finite values; NaN, without numpy's empty-slice warning, when none is."""
-    finite = np.asarray(values, dtype=float)
-    finite = finite[np.isfinite(finite)]
+    array = np.asarray(values, dtype=float)
+    finite = array[np.isfinite(array)]
     return float(finite.mean()) if finite.size else math.nan
 
 

@@ -346,8 +346,10 @@ def _mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible:
     moved = _transform_points(T_a_b, q)
     if p.shape[0] * q.shape[0] > _DENSE_INLIERS:
         return _mutual_inliers_by_tree(p, moved, compatible, radius)
-    return _mutual_nearest(np.ascontiguousarray(p), np.ascontiguousarray(moved), compatible,
-                           radius * radius)
+    # one compiled signature (the one precompiled) whatever the callers' layouts and types
+    return _mutual_nearest(np.ascontiguousarray(p, np.float64),
+                           np.ascontiguousarray(moved, np.float64),
+                           np.ascontiguousarray(compatible), float(radius) ** 2)
 
 
 @numba.njit(cache=True)

@@ -515,10 +515,10 @@ class TCAFF:
         Raises:
             DataError: missing entries, arrays of the wrong kind or shape, or values no filter
                 reaches: non-finite states, costs or measurements; covariances that are not
-                symmetric positive definite; negative counters or steps since a measurement;
-                tree ids out of range (main tree ids other than the hypothesis counter,
-                exploring ids not below the next id or not grouped); measurement choices
-                before the first step or beyond the step's measurements.
+                symmetric positive definite; negative counters or steps since a measurement,
+                counters of 2^62 or more; tree ids out of range (main tree ids other than the
+                hypothesis counter, exploring ids not below the next id or not grouped);
+                measurement choices before the first step or beyond the step's measurements.
         """
         if not isinstance(state, Mapping):
             raise DataError(f"TCAFF state: must be a mapping of names to arrays, got "
@@ -539,7 +539,8 @@ class TCAFF:
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
         except (TypeError, ValueError, OverflowError) as exc:
-            raise DataError(f"TCAFF state: an entry has the wrong kind ({exc})") from None
+            raise DataError(f"TCAFF state: an entry has the wrong kind or is out of range "
+                            f"({exc})") from None
         if "explore" not in trees:
             raise DataError("TCAFF state: missing entry 'explore.x'")
         for name, leaves in trees.items():

@@ -116,6 +116,17 @@ def _distances(xa: np.ndarray, Pa: np.ndarray, xb: np.ndarray, Pb: np.ndarray) -
     return np.einsum("mi,mi->m", r, np.linalg.solve(Pa + Pb, r[:, :, None])[:, :, 0])
 
 
+def _three_cycles(edges) -> list[tuple[int, int, int]]:
+    """Every (i, j, k), i < j < k, whose three pairs (i, j), (j, k), (i, k) are keys of
+    `edges` (pairs (a, b), a < b), in lexicographic order; found from the pairs, not by
+    visiting every triple of robots (n^3 / 6 of them)."""
+    pairs = sorted(edges)
+    above = defaultdict(list)  # robot -> the robots after it it has an alignment with
+    for a, b in pairs:
+        above[a].append(b)
+    return [(i, j, k) for i, j in pairs for k in above[j] if (i, k) in edges]
+
+
 class TeamConsistency:
     """The jointly consistent pairwise alignments of a team, one step at a time (`update`).
 
@@ -183,11 +194,7 @@ class TeamConsistency:
     def _failed_cycles(self, edges) -> list[tuple]:
         """The cycles ((i, j), (j, k), (i, k)), i < j < k, of three known alignments where
         T_ij T_jk does not close on T_ik within the gate."""
-        # from the known alignments, not from every triple of robots (n^3 / 6 of them)
-        above = defaultdict(list)  # robot -> the robots after it it has an alignment with
-        for a, b in sorted(edges):
-            above[a].append(b)
-        cycles = [(i, j, k) for i, j in sorted(edges) for k in above[j] if (i, k) in edges]
+        cycles = _three_cycles(edges)
         if not cycles:
             return []
 

@@ -24,11 +24,17 @@ def repo() -> Path:
     return REPO
 
 
+#: seconds an in-process command may take before the test process is stopped with every
+#: thread's traceback (as a subprocess's timeout would stop the subprocess)
+COMMAND_TIMEOUT = 300.0
+
+
 @pytest.fixture
 def tcaff_main(monkeypatch, capsys):
     """`tcaff ARGS` through its entry point `cli.main` in this process (a subprocess costs
     seconds of imports): the exit status, stdout and stderr as a `CompletedProcess`. Processes
     the command starts (Dask workers, nodes) are still processes of their own."""
+    import faulthandler
     import subprocess
     import sys
 
@@ -37,9 +43,14 @@ def tcaff_main(monkeypatch, capsys):
     def run(*args: str) -> subprocess.CompletedProcess:
         monkeypatch.setattr(sys, "argv", ["tcaff", *args])
         monkeypatch.setenv("COLUMNS", "200")
+        monkeypatch.setattr(cli, "_consoles", {})  # made again at that width
         capsys.readouterr()
-        with pytest.raises(SystemExit) as exited:
-            cli.main()
+        faulthandler.dump_traceback_later(COMMAND_TIMEOUT, exit=True, file=sys.__stderr__)
+        try:
+            with pytest.raises(SystemExit) as exited:
+                cli.main()
+        finally:
+            faulthandler.cancel_dump_traceback_later()
         out = capsys.readouterr()
         return subprocess.CompletedProcess(args, exited.value.code or 0, out.out, out.err)
 

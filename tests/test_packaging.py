@@ -23,8 +23,6 @@ from typing import NamedTuple
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]  # the repository
-DEMO_SCENARIOS = ["indoor_return", "same_direction", "opposite_directions", "four_robots",
-                  "ambiguous_grid", "indoor_rgbd", "mot"]
 
 PROBE = """
 import importlib, importlib.util, json, sys
@@ -291,11 +289,14 @@ def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
     work = tmp_path / "work"
     work.mkdir()
     shutil.rmtree(src)  # nothing may come from the source tree
+    from tcaff_gtsam.eval.config import load_study
+
+    scenarios = [s.name for s in load_study("demo").scenarios]
     demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "25",
                            "--output", "results"], cwd=work, capture_output=True, text=True,
                           timeout=1800, env=clean_env())
     assert demo.returncode == 0, demo.stdout + demo.stderr
-    for name in DEMO_SCENARIOS:
+    for name in scenarios:
         assert name in demo.stdout
     for row in ("TCAFF+iSAM2 smoothed", "CLIPPER k>=10", "Tracking people together",
                 "no sharing"):
@@ -305,7 +306,7 @@ def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
     figures = {p.name for p in (latest / "figures").glob("*.png")}
     assert figures == {"leave_and_return.png", "clipper_sweep.png", "scenarios.png",
                        "mot_mot.png", "mot_sweep.png",
-                       *(f"errors_{name}.png" for name in DEMO_SCENARIOS)}
+                       *(f"errors_{name}.png" for name in scenarios)}
     assert (latest / "trajectories" / "indoor_return-seed0" / "frame_0" / "truth"
             / "1.tum").is_file()
     helped = subprocess.run([str(python), "-m", "tcaff_gtsam", "--help"], cwd=work,

@@ -737,3 +737,39 @@ def test_a_team_size_the_keys_cannot_hold_is_refused_at_once(n_robots):
 
 def test_the_largest_team_the_keys_hold_is_accepted():
     assert InterRobotGraph(1 << 16).n_robots == 1 << 16
+
+
+def test_the_latest_steps_kept_joint_follows_every_change_of_the_graph():
+    """With a horizon the latest step's covariances come from one joint, computed on the first
+    read and kept until the graph changes; read after a new step, after an update without a
+    step, after a removed hypothesis and after a failed update, they equal the unbounded
+    graph's fresh marginals."""
+    graphs = [InterRobotGraph(3, GraphParams(horizon=50)), InterRobotGraph(3)]
+
+    def both(call):
+        for graph in graphs:
+            call(graph)
+
+    def same_covariances():
+        bounded, whole = ([g.alignment(i, j)[1] for i in range(3) for j in range(3) if i != j]
+                          for g in graphs)
+        for a, b in zip(bounded, whole, strict=True):
+            np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-12)
+
+    for k in range(6):
+        both(lambda g, k=k: g.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R, hypothesis=k // 3))
+        both(lambda g, k=k: g.update(k))
+        same_covariances()
+    both(lambda g: g.add_alignment(5, 1, 2, [-1.0, 0.5, 0.1], R))
+    both(lambda g: g.update())  # the same latest step, one factor more
+    same_covariances()
+    both(lambda g: g.remove_hypothesis(0, 1, 1))
+    both(lambda g: g.update())
+    same_covariances()
+    for graph in graphs:  # a failed update leaves the graph, and its covariances, as they were
+        for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
+            graph.add_between(alignment_key(0, 5), alignment_key(1, 5), se2_from_params(T),
+                              np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+        with pytest.raises(DataError, match="as it was before"):
+            graph.update(6)
+    same_covariances()

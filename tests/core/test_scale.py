@@ -156,3 +156,48 @@ def test_the_cap_bounds_the_graph(monkeypatch):
 def test_the_cap_is_an_int_at_least_min_associations(value):
     with pytest.raises(ConfigError, match="max_associations"):
         FrameAlignerParams(max_associations=value)
+
+
+def reference_mutual_inliers(T, p, q, compatible, radius):
+    """Mutual nearest compatible neighbours within the radius, ties to the lower index, by
+    direct differences: what the compiled pass must give."""
+    moved = q @ T[:2, :2].T + T[:2, 2]
+    d2 = ((p[:, None, :] - moved[None, :, :]) ** 2).sum(axis=2)
+    d2[~compatible] = np.inf
+    out = []
+    for i in range(len(p)):
+        if not np.isfinite(d2[i]).any():
+            continue
+        j = int(np.argmin(d2[i]))
+        if int(np.argmin(d2[:, j])) == i and d2[i, j] <= radius**2:
+            out.append((i, j))
+    return np.array(out, dtype=np.int64).reshape(-1, 2)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seeds, st.integers(0, 12), st.integers(0, 12), st.sampled_from([0, 1, 2]),
+       st.sampled_from([0, 1, 1.5]))
+def test_inliers_on_a_grid_of_ties_take_the_lower_index(seed, n, m, turns, radius):
+    """Points on an integer grid, a quarter turn apart: many exact ties and distances exactly
+    at the radius."""
+    rng = np.random.default_rng(seed)
+    p = rng.integers(0, 4, (n, 2)).astype(float)
+    q = rng.integers(0, 4, (m, 2)).astype(float)
+    compatible = rng.random((n, m)) < 0.7
+    T = se2_from_params([1.0, 0.0, turns * math.pi / 2])
+    T[:2, :2] = np.round(T[:2, :2])  # exact quarter turns
+    np.testing.assert_array_equal(mutual_inliers(T, p, q, compatible, radius),
+                                  reference_mutual_inliers(T, p, q, compatible, radius))
+
+
+def test_any_layout_and_radius_type_use_the_one_compiled_inlier_pass():
+    """A strided mask, float32 points and an int radius give the same inliers through the
+    signature that installation compiled, not a new compilation on a user's first step."""
+    rng = np.random.default_rng(4)
+    p, q = rng.uniform(0, 5, (9, 2)), rng.uniform(0, 5, (7, 2))
+    wide = rng.random((9, 14)) < 0.8
+    T = se2_from_params([0.3, -0.2, 0.4])
+    expected = mutual_inliers(T, p, q, np.ascontiguousarray(wide[:, ::2]), 2.0)
+    got = reg._mutual_inliers(T, p.astype(np.float32), q, wide[:, ::2], 2)
+    np.testing.assert_array_equal(got, expected)
+    assert len(reg._mutual_nearest.signatures) == 1

@@ -302,7 +302,7 @@ def mapped(sequence, tmp_path_factory):
                                     figures=False)
 
 
-def saved_maps(mapped, output: Path, robots: tuple[str, ...]) -> None:
+def copy_saved_maps(mapped, output: Path, robots: tuple[str, ...]) -> None:
     """`robots`' saved maps of `mapped` copied where a run into `output` looks for them."""
     _, outcome = mapped
     maps = output / outcome.folder.name / "maps"
@@ -318,7 +318,7 @@ def test_without_ground_truth_alignments_are_still_saved(sequence, mapped, tmp_p
     data, _ = sequence
     bare = copy_of(data, tmp_path / "data", skip=("sparkal2_gt_odom.csv",))
     config = load_kimera_multi("same_direction")
-    saved_maps(mapped, tmp_path / "out", ("acl_jackal2",))
+    copy_saved_maps(mapped, tmp_path / "out", ("acl_jackal2",))
     outcome = run_kimera_multi(config, bare, tmp_path / "out", figures=False)
     assert outcome.reused == ["acl_jackal2"]
     assert outcome.recorded.summary == {}
@@ -358,7 +358,7 @@ def test_a_damaged_saved_map_is_mapped_again_with_a_warning(sequence, mapped, tm
     """--resume (the default) treats an unreadable map file as no reusable map."""
     data, _ = sequence
     config, first = mapped
-    saved_maps(mapped, tmp_path, ROBOTS)
+    copy_saved_maps(mapped, tmp_path, ROBOTS)
     saved = tmp_path / first.folder.name / "maps" / "sparkal2.npz"
     if damage == "truncated":
         saved.write_bytes(saved.read_bytes()[:200])

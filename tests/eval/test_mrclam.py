@@ -310,6 +310,7 @@ def test_command_scores_every_pair_and_resumes(dataset, tmp_path):
         folder = tmp_path / name
         for f in ("metrics.json", "metrics.csv", "table.md", f"{name}.npz"):
             assert (folder / f).is_file(), f
+        assert not (folder / "figures").exists()
         metrics = json.loads((folder / "metrics.json").read_text())
         truth = metrics["summary"][name]["ground_truth"]
         assert truth["false_accept"] == 0.0 and truth["n_overlap"] > 0

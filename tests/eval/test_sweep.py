@@ -264,3 +264,22 @@ def test_cli_bad_sweep_is_one_line_and_status_2(tmp_path):
                           timeout=120)
     assert done.returncode == 2
     assert done.stderr.strip().count("\n") == 0 and "methods.tcaff.tau" in done.stderr
+
+
+def test_sweep_figures_of_points_without_figures_draw_without_warnings(tmp_path):
+    """Points whose reports hold no availability or false accepts (no estimate anywhere) draw
+    empty figures quietly: no legend warning, no empty-slice warning."""
+    import warnings
+    from types import SimpleNamespace
+
+    from tcaff_gtsam.eval.plots import draw_sweep
+
+    points = [SimpleNamespace(default=k == 0, settings=k > 0,
+                              values={"methods.tcaff.tau": float(4 * k)}) for k in range(3)]
+    reports = [dict.fromkeys(("false_accept", "availability", "translation_error_m_mean",
+                              "time_to_first_correct_s")) for _ in points]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        written = draw_sweep(tmp_path, points, reports, ["methods.tcaff.tau"], "TCAFF")
+    assert [p.name for p in written] == ["tradeoff.png", "response_tau.png"]
+    assert all(p.stat().st_size > 0 for p in written)
