@@ -18,7 +18,13 @@ from scipy.spatial import cKDTree
 
 from .clipper import _graph, _solutions
 from .errors import DataError
-from .geometry import _se2_from_params, _se2_to_params, _se3_to_se2, _wrap_angle
+from .geometry import (
+    _se2_from_params,
+    _se2_to_params,
+    _se3_to_se2,
+    _transform_points,
+    _wrap_angle,
+)
 from .inputs import finite_time, real_array, shown
 from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, _finite, _given_or_default, _real, _require
@@ -370,9 +376,8 @@ class FrameAligner:
         """(n_ego, n_other) whether each pair's centroids agree in the plane under the held
         alignment (3,), within `guide_radius` + `confirm_heading` * |q|."""
         prm = self.params
-        T = _se2_from_params(held)
         q = q_all[:, :2]
-        moved = q @ T[:2, :2].T + T[:2, 2]
+        moved = _transform_points(_se2_from_params(held), q)
         reach = prm.guide_radius + prm.confirm_heading * np.hypot(q[:, 0], q[:, 1])
         # a k-d tree, not an n_ego x n_other distance matrix: large maps stay at one byte a pair
         near = cKDTree(p_all[:, :2]).query_ball_point(moved, reach, return_sorted=False)

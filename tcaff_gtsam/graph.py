@@ -596,8 +596,8 @@ class InterRobotGraph:
             estimate = self._isam.calculateEstimate(step_keys)
             get = estimate.atPose2 if self._planar else estimate.atPose3
             A = np.array([get(key).matrix() for key in step_keys])
-            joint = self._joints.pop(k, None)
-            self._left[k] = (A, self._joint(k) if joint is None else joint)
+            # kept by the update that added the next step (a step leaves only after one)
+            self._left[k] = (A, self._joints.pop(k))
             keys += step_keys
             for key in self._keyframes_at.pop(rank, []):
                 robot, index = _keyframe_of(key)

@@ -252,9 +252,8 @@ def _planar_arun(p_c: np.ndarray, q_c: np.ndarray, w: np.ndarray, floor: float,
     angle of sum w (q_c . p_c, q_c x p_c), with no decomposition (the same optimum as the
     SVD's, at a fraction of its cost on the few points of a candidate)."""
     wq = q_c * w[:, None]
-    sxx, syy, sxy = wq[:, 0] @ q_c[:, 0], wq[:, 1] @ q_c[:, 1], wq[:, 0] @ q_c[:, 1]
-    # the larger eigenvalue of the 2 x 2 scatter
-    if 0.5 * (sxx + syy) + math.hypot(0.5 * (sxx - syy), sxy) <= floor:
+    if _eigenvalues_2x2(wq[:, 0] @ q_c[:, 0], wq[:, 1] @ q_c[:, 1], wq[:, 0] @ q_c[:, 1]
+                        )[1] <= floor:
         return None
     dot = wq[:, 0] @ p_c[:, 0] + wq[:, 1] @ p_c[:, 1]
     cross = wq[:, 0] @ p_c[:, 1] - wq[:, 1] @ p_c[:, 0]
@@ -265,6 +264,13 @@ def _planar_arun(p_c: np.ndarray, q_c: np.ndarray, w: np.ndarray, floor: float,
     T[0, 2] = p_mean[0] - (c * q_mean[0] - s * q_mean[1])
     T[1, 2] = p_mean[1] - (s * q_mean[0] + c * q_mean[1])
     return T
+
+
+def _eigenvalues_2x2(sxx: float, syy: float, sxy: float) -> tuple[float, float]:
+    """(smaller, larger) eigenvalue of the symmetric matrix [[sxx, sxy], [sxy, syy]], in
+    closed form (an eigensolver call costs more than the few points it is asked about)."""
+    mean, half_gap = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
+    return mean - half_gap, mean + half_gap
 
 
 def _points(owner: str, name: str, value, d: int | None = None) -> np.ndarray:
@@ -425,6 +431,6 @@ def _spread(points: np.ndarray) -> float:
     if n < 2:
         return 0.0
     c = points - points.sum(0) / n
-    sxx, syy, sxy = c[:, 0] @ c[:, 0] / n, c[:, 1] @ c[:, 1] / n, c[:, 0] @ c[:, 1] / n
-    # the smaller eigenvalue of the 2 x 2 covariance, in closed form
-    return math.sqrt(max(0.5 * (sxx + syy) - math.hypot(0.5 * (sxx - syy), sxy), 0.0))
+    smaller = _eigenvalues_2x2(c[:, 0] @ c[:, 0] / n, c[:, 1] @ c[:, 1] / n,
+                               c[:, 0] @ c[:, 1] / n)[0]
+    return math.sqrt(max(smaller, 0.0))
