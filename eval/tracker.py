@@ -3,15 +3,16 @@
 Each track is a constant-velocity Kalman filter with state (x, y, vx, vy) in the tracking
 robot's odometry frame. A frame brings one set of detections per source (the robot's own, then
 each neighbour's, already moved into this frame); each set is associated with the tracks by
-global nearest neighbour (the Hungarian method on the negative log-likelihood d^2 + ln|S|,
+global nearest neighbour (an optimal assignment on the negative log-likelihood d^2 + ln|S|,
 gated on the squared Mahalanobis distance d^2) and applied in turn, so one person seen by
 three robots updates one track three times. Unassigned detections start tentative tracks. A
 track is reported once it has had a detection in `confirm_hits` frames; a tentative track dies
 after `tentative_misses` frames in a row without one, a confirmed track after `max_coast`
 seconds without one.
 
-All tracks live in arrays (state (n, 4), covariance (n, 4, 4), counters (n,)), so prediction,
-gating and updates are vectorised over tracks and detections.
+All tracks live in arrays (state (n, 4), covariance (n, 4, 4), counters (n,)), and a frame is
+one compiled pass over them: the tracker runs once per frame, robot and method in a study,
+where numpy's per-call overhead on a handful of tracks was most of its time.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
@@ -69,15 +71,13 @@ class TrackerParams:
                  "must be a number >= 0 seconds")
 
 
-_H = np.eye(2, 4)
-_FAR = 1e12  # the cost of a pair outside the gate; linear_sum_assignment needs finite costs
 
 
 class MultiObjectTracker:
     """Constant-velocity Kalman tracks, Hungarian GNN association, confirmation and deletion.
 
     Call `step` once per frame with the frame's time and detection sets; it returns the
-    confirmed tracks.
+    confirmed tracks. A frame is one compiled pass (`_advance`) over the tracks in arrays.
 
     Args:
         params: `TrackerParams` (None: the defaults).
@@ -96,14 +96,6 @@ class MultiObjectTracker:
         self.confirmed = np.zeros(0, dtype=bool)
         self.time: float | None = None
         self._next_id = 0
-        # imported here, not with the module: configs import this module for TrackerParams
-        from scipy.optimize import linear_sum_assignment
-
-        self._assign = linear_sum_assignment
-        r = self.params.detection_noise ** 2
-        self._R = r * np.eye(2)
-        v = self.params.initial_speed ** 2
-        self._P0 = np.diag([r, r, v, v])
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -124,100 +116,250 @@ class MultiObjectTracker:
         if not np.isfinite(t) or (self.time is not None and t < self.time):
             raise DataError(f"tracker step: time must be finite and not before {self.time} s, "
                             f"got {t}")
-        self._predict(0.0 if self.time is None else t - self.time)
-        self.time = t
-        hit = np.zeros(len(self), dtype=bool)
-        for z in sets:
-            if len(z) == 0:
-                continue
-            tracks, dets = self._associate(z)
-            self._update(tracks, z[dets])
-            hit[tracks] = True
-            new = np.ones(len(z), dtype=bool)
-            new[dets] = False
-            self._spawn(z[new], t)
-            hit = np.concatenate([hit, np.ones(int(new.sum()), dtype=bool)])
-        if len(self):
-            self._bookkeep(hit, t)
-        return self.ids[self.confirmed], self.x[self.confirmed, :2].copy()
-
-    def _predict(self, dt: float) -> None:
-        if dt == 0.0 or len(self) == 0:
-            return
-        F = np.eye(4)
-        F[0, 2] = F[1, 3] = dt
-        q = self.params.accel_noise ** 2
-        Q = np.zeros((4, 4))
-        Q[[0, 1], [0, 1]] = q * dt**4 / 4
-        Q[[0, 1, 2, 3], [2, 3, 0, 1]] = q * dt**3 / 2
-        Q[[2, 3], [2, 3]] = q * dt**2
-        self.x = self.x @ F.T
-        self.P = F @ self.P @ F.T + Q
-
-    def _associate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(tracks (a,), detections (a,)) assigned pairs within the gate."""
-        if len(self) == 0:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        S_inv, det = _inverse_2x2(self.P[:, :2, :2] + self._R)
-        diff = z[None, :, :] - self.x[:, None, :2]                  # (n, k, 2)
-        d2 = np.einsum("nki,nij,nkj->nk", diff, S_inv, diff)
-        inside = d2 <= self.params.gate
-        # The negative log-likelihood, not d2 alone: otherwise a new, uncertain track wins a
-        # detection from the settled track of the same person and the person gets two tracks.
-        cost = d2 + np.log(det)[:, None]
-        rows, cols = self._assign(np.where(inside, cost, _FAR))
-        keep = inside[rows, cols]
-        return rows[keep], cols[keep]
-
-    def _update(self, tracks: np.ndarray, z: np.ndarray) -> None:
-        if len(tracks) == 0:
-            return
-        P = self.P[tracks]
-        K = P[:, :, :2] @ _inverse_2x2(P[:, :2, :2] + self._R)[0]  # (a, 4, 2)
-        innovation = z - self.x[tracks, :2]
-        self.x[tracks] += np.einsum("aij,aj->ai", K, innovation)
-        self.P[tracks] = P - K @ P[:, :2, :]
-
-    def _spawn(self, z: np.ndarray, t: float) -> None:
-        k = len(z)
-        if k == 0:
-            return
-        self.x = np.vstack([self.x, np.column_stack([z, np.zeros((k, 2))])])
-        self.P = np.concatenate([self.P, np.broadcast_to(self._P0, (k, 4, 4))])
-        self.ids = np.concatenate([self.ids, self._next_id + np.arange(k)])
-        self._next_id += k
-        zeros = np.zeros(k, dtype=np.int64)
-        self.hits = np.concatenate([self.hits, zeros])
-        self.misses = np.concatenate([self.misses, zeros])
-        self.last_hit = np.concatenate([self.last_hit, np.full(k, t)])
-        self.confirmed = np.concatenate([self.confirmed, zeros.astype(bool)])
-
-    def _bookkeep(self, hit: np.ndarray, t: float) -> None:
+        z = np.concatenate(sets) if sets else np.zeros((0, 2))
+        bounds = np.zeros(len(sets) + 1, dtype=np.int64)
+        bounds[1:] = np.cumsum([len(s) for s in sets])
         prm = self.params
-        self.hits += hit
-        self.misses = np.where(hit, 0, self.misses + 1)
-        self.last_hit = np.where(hit, t, self.last_hit)
-        self.confirmed |= self.hits >= prm.confirm_hits
+        t = float(t)
+        (self.x, self.P, self.ids, self.hits, self.misses, self.last_hit, self.confirmed,
+         self._next_id) = _advance(
+            self.x, self.P, self.ids, self.hits, self.misses, self.last_hit, self.confirmed,
+            self._next_id, 0.0 if self.time is None else t - self.time, t, z, bounds,
+            float(prm.accel_noise) ** 2, float(prm.detection_noise) ** 2,
+            float(prm.initial_speed) ** 2, float(prm.gate), int(prm.confirm_hits),
+            int(prm.tentative_misses), float(prm.max_coast))
+        self.time = t
+        return self.ids[self.confirmed], self.x[self.confirmed, :2]
+
+
+@numba.njit(cache=True)
+def _advance(x, P, ids, hits, misses, last_hit, confirmed, next_id, dt, t, z, bounds,
+             q, r, v0, gate, confirm_hits, tentative_misses, max_coast):  # pragma: no cover
+    """One frame of `MultiObjectTracker.step` on its arrays: predict by dt seconds, associate
+    and apply each detection set z[bounds[s]:bounds[s + 1]] in turn, spawn tracks from the
+    unassigned detections, then confirm and delete.
+
+    Args:
+        x (n, 4), P (n, 4, 4), ids, hits, misses (n,) int64, last_hit (n,) s, confirmed (n,)
+            bool: the tracks; next_id: the id of the next new track.
+        z: (D, 2) metres, every set's detections one set after another; bounds (S + 1,).
+        q: (m/s^2)^2 acceleration variance; r: m^2 detection variance per axis; v0: (m/s)^2
+            velocity variance of a new track.
+    Returns:
+        the new track arrays (as the arguments, fresh) and next_id.
+    """
+    n = x.shape[0]
+    cap = n + z.shape[0]
+    X = np.empty((cap, 4))
+    C = np.empty((cap, 4, 4))
+    out_ids = np.empty(cap, np.int64)
+    out_hits = np.empty(cap, np.int64)
+    out_misses = np.empty(cap, np.int64)
+    out_last = np.empty(cap)
+    out_conf = np.empty(cap, np.bool_)
+    for i in range(n):
+        out_ids[i], out_hits[i], out_misses[i] = ids[i], hits[i], misses[i]
+        out_last[i], out_conf[i] = last_hit[i], confirmed[i]
+        _predict(x[i], P[i], dt, q, X[i], C[i])
+    hit = np.zeros(cap, np.bool_)
+    for s in range(bounds.size - 1):
+        k = bounds[s + 1] - bounds[s]
+        if k == 0:
+            continue
+        zs = z[bounds[s]:bounds[s + 1]]
+        taken = np.zeros(k, np.bool_)
+        if n > 0:
+            det_of_track = _associate(X[:n], C[:n], zs, r, gate)
+            for i in range(n):
+                j = det_of_track[i]
+                if j >= 0:
+                    _kalman_update(X[i], C[i], zs[j], r)
+                    hit[i] = True
+                    taken[j] = True
+        for j in range(k):
+            if taken[j]:
+                continue
+            X[n, 0], X[n, 1], X[n, 2], X[n, 3] = zs[j, 0], zs[j, 1], 0.0, 0.0
+            C[n] = 0.0
+            C[n, 0, 0] = C[n, 1, 1] = r
+            C[n, 2, 2] = C[n, 3, 3] = v0
+            out_ids[n] = next_id
+            next_id += 1
+            out_hits[n] = out_misses[n] = 0
+            out_last[n] = t
+            out_conf[n] = False
+            hit[n] = True
+            n += 1
+    keep = np.ones(n, np.bool_)
+    for i in range(n):
+        if hit[i]:
+            out_hits[i] += 1
+            out_misses[i] = 0
+            out_last[i] = t
+        else:
+            out_misses[i] += 1
+        out_conf[i] = out_conf[i] or out_hits[i] >= confirm_hits
         # the tolerance keeps a gap of exactly max_coast on a clock like 0.2 k from being
         # deleted or kept by rounding
-        dead = np.where(self.confirmed, t - self.last_hit > prm.max_coast + 1e-9,
-                        self.misses >= prm.tentative_misses)
-        if dead.any():
-            keep = ~dead
-            self.x, self.P, self.ids = self.x[keep], self.P[keep], self.ids[keep]
-            self.hits, self.misses = self.hits[keep], self.misses[keep]
-            self.last_hit, self.confirmed = self.last_hit[keep], self.confirmed[keep]
+        if out_conf[i]:
+            keep[i] = not t - out_last[i] > max_coast + 1e-9
+        else:
+            keep[i] = out_misses[i] < tentative_misses
+    idx = np.flatnonzero(keep)
+    return (X[idx], C[idx], out_ids[idx], out_hits[idx], out_misses[idx], out_last[idx],
+            out_conf[idx], next_id)
 
 
-def _inverse_2x2(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inverses (n, 2, 2) and determinants (n,) of symmetric positive definite (n, 2, 2)
-    matrices, in closed form (numpy's batched inverse costs more for 2 x 2)."""
-    a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+@numba.njit(cache=True)
+def _predict(x, P, dt, q, x_out, P_out):  # pragma: no cover
+    """The constant-velocity prediction of one track (4,), (4, 4) by dt seconds into x_out,
+    P_out: F = [[I, dt I], [0, I]], Q of white acceleration of variance q."""
+    for a in range(4):
+        x_out[a] = x[a] + (dt * x[a + 2] if a < 2 else 0.0)
+    if dt == 0.0:
+        P_out[:, :] = P
+        return
+    FP = np.empty((4, 4))
+    for a in range(4):
+        for b in range(4):
+            FP[a, b] = P[a, b] + (dt * P[a + 2, b] if a < 2 else 0.0)
+    for a in range(4):
+        for b in range(4):
+            P_out[a, b] = FP[a, b] + (dt * FP[a, b + 2] if b < 2 else 0.0)
+    q4, q3, q2 = q * dt ** 4 / 4.0, q * dt ** 3 / 2.0, q * dt ** 2
+    for a in range(2):
+        P_out[a, a] += q4
+        P_out[a, a + 2] += q3
+        P_out[a + 2, a] += q3
+        P_out[a + 2, a + 2] += q2
+
+
+@numba.njit(cache=True)
+def _associate(x, P, z, r, gate):  # pragma: no cover
+    """(n,) the detection of z (k, 2) each track of x (n, 4), P (n, 4, 4) takes, -1 for none.
+
+    Global nearest neighbour: the assignment of least total negative log-likelihood
+    d^2 + ln|S| (S = P_xy + r I) among those with the most pairs inside the gate d^2 <= gate;
+    pairs outside it are never returned. The log-likelihood, not d^2 alone: otherwise a new,
+    uncertain track wins a detection from the settled track of the same person and the person
+    gets two tracks."""
+    n, k = x.shape[0], z.shape[0]
+    cost = np.empty((n, k))
+    inside = np.zeros((n, k), np.bool_)
+    lo, hi = np.inf, -np.inf
+    for i in range(n):
+        a, b, d = P[i, 0, 0] + r, P[i, 0, 1], P[i, 1, 1] + r
+        det = a * d - b * b
+        log_det = np.log(det)
+        for j in range(k):
+            ex, ey = z[j, 0] - x[i, 0], z[j, 1] - x[i, 1]
+            d2 = (d * ex * ex - 2.0 * b * ex * ey + a * ey * ey) / det
+            if d2 <= gate:
+                inside[i, j] = True
+                cost[i, j] = d2 + log_det
+                lo, hi = min(lo, cost[i, j]), max(hi, cost[i, j])
+    det_of_track = np.full(n, -1, np.int64)
+    if hi < lo:  # nothing inside the gate
+        return det_of_track
+    # outside the gate costs more than any number of inside pairs can make up: among the
+    # assignments with the most pairs inside, the cheapest
+    far = hi + min(n, k) * (hi - lo) + 1.0
+    for i in range(n):
+        for j in range(k):
+            if not inside[i, j]:
+                cost[i, j] = far
+    if n <= k:
+        col = _min_cost_assignment(cost)
+        for i in range(n):
+            if inside[i, col[i]]:
+                det_of_track[i] = col[i]
+    else:
+        row = _min_cost_assignment(cost.T.copy())
+        for j in range(k):
+            if inside[row[j], j]:
+                det_of_track[row[j]] = j
+    return det_of_track
+
+
+@numba.njit(cache=True)
+def _min_cost_assignment(cost):  # pragma: no cover
+    """(r,) the column of each row in an assignment of least total cost of a finite (r, c)
+    matrix with r <= c: shortest augmenting paths with dual potentials (Jonker and
+    Volgenant), one row at a time."""
+    nr, nc = cost.shape
+    u = np.zeros(nr)
+    v = np.zeros(nc)
+    col_of_row = np.full(nr, -1, np.int64)
+    row_of_col = np.full(nc, -1, np.int64)
+    shortest = np.empty(nc)
+    path = np.empty(nc, np.int64)
+    remaining = np.empty(nc, np.int64)
+    row_seen = np.empty(nr, np.bool_)
+    col_seen = np.empty(nc, np.bool_)
+    for start in range(nr):
+        shortest[:] = np.inf
+        row_seen[:] = False
+        col_seen[:] = False
+        for j in range(nc):
+            remaining[j] = j
+        n_left = nc
+        i, sink, reach = start, -1, 0.0
+        while sink < 0:
+            row_seen[i] = True
+            best, best_at = np.inf, -1
+            for m in range(n_left):
+                j = remaining[m]
+                through = reach + cost[i, j] - u[i] - v[j]
+                if through < shortest[j]:
+                    path[j] = i
+                    shortest[j] = through
+                # ties go to a free column: the path ends sooner
+                if shortest[j] < best or (shortest[j] == best and row_of_col[j] < 0):
+                    best, best_at = shortest[j], m
+            reach = best
+            j = remaining[best_at]
+            col_seen[j] = True
+            n_left -= 1
+            remaining[best_at] = remaining[n_left]
+            if row_of_col[j] < 0:
+                sink = j
+            else:
+                i = row_of_col[j]
+        u[start] += reach
+        for i in range(nr):
+            if row_seen[i] and i != start:
+                u[i] += reach - shortest[col_of_row[i]]
+        for j in range(nc):
+            if col_seen[j]:
+                v[j] -= reach - shortest[j]
+        j = sink
+        while True:  # augment along the path back to the start row
+            i = path[j]
+            row_of_col[j] = i
+            col_of_row[i], j = j, col_of_row[i]
+            if i == start:
+                break
+    return col_of_row
+
+
+@numba.njit(cache=True)
+def _kalman_update(x, P, z, r):  # pragma: no cover
+    """The Kalman update of one track (4,), (4, 4) in place with a position z (2,) of
+    variance r per axis."""
+    a, b, d = P[0, 0] + r, P[0, 1], P[1, 1] + r
     det = a * d - b * b
-    inv = np.empty_like(S)
-    inv[:, 0, 0], inv[:, 1, 1] = d / det, a / det
-    inv[:, 0, 1] = inv[:, 1, 0] = -b / det
-    return inv, det
+    s00, s01, s11 = d / det, -b / det, a / det  # S^-1
+    K = np.empty((4, 2))
+    for row in range(4):
+        K[row, 0] = P[row, 0] * s00 + P[row, 1] * s01
+        K[row, 1] = P[row, 0] * s01 + P[row, 1] * s11
+    ex, ey = z[0] - x[0], z[1] - x[1]
+    for row in range(4):
+        x[row] += K[row, 0] * ex + K[row, 1] * ey
+    top = P[:2, :].copy()
+    for row in range(4):
+        for col in range(4):
+            P[row, col] -= K[row, 0] * top[0, col] + K[row, 1] * top[1, col]
 
 
 def _checked(z, source: int) -> np.ndarray:
