@@ -25,9 +25,10 @@ $(STAMP): pyproject.toml
 	@# setuptools' notice that an editable install is one (a UserWarning re-raised by pip) is
 	@# the only output left; the layout it warns about is deliberate (tests/test_packaging.py).
 	PYTHONWARNINGS="ignore:Editable installation:UserWarning" $(PY) -m pip install -q -e ".[dev]"
-	@# numba compiles the core's kernels once, here, into the cache next to the package, so that
-	@# no process pays seconds of compilation on its first alignment step
-	$(PY) -m tcaff_gtsam.precompile
+	@# numba compiles the package's kernels (alignment, people tracker, mapping) once, here, into
+	@# the cache next to the package, so that no process pays seconds of compilation on its first
+	@# step
+	$(PY) -m tcaff_gtsam.eval.precompile
 	@touch $(STAMP)
 
 demo: install

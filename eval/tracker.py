@@ -180,9 +180,9 @@ def _advance(x, P, ids, hits, misses, last_hit, confirmed, next_id, dt, t, z, bo
             if taken[j]:
                 continue
             X[n, 0], X[n, 1], X[n, 2], X[n, 3] = zs[j, 0], zs[j, 1], 0.0, 0.0
-            C[n] = 0.0
-            C[n, 0, 0] = C[n, 1, 1] = r
-            C[n, 2, 2] = C[n, 3, 3] = v0
+            for a in range(4):
+                for b in range(4):
+                    C[n, a, b] = 0.0 if a != b else (r if a < 2 else v0)
             out_ids[n] = next_id
             next_id += 1
             out_hits[n] = out_misses[n] = 0
@@ -190,7 +190,7 @@ def _advance(x, P, ids, hits, misses, last_hit, confirmed, next_id, dt, t, z, bo
             out_conf[n] = False
             hit[n] = True
             n += 1
-    keep = np.ones(n, np.bool_)
+    kept = 0
     for i in range(n):
         if hit[i]:
             out_hits[i] += 1
@@ -202,36 +202,42 @@ def _advance(x, P, ids, hits, misses, last_hit, confirmed, next_id, dt, t, z, bo
         # the tolerance keeps a gap of exactly max_coast on a clock like 0.2 k from being
         # deleted or kept by rounding
         if out_conf[i]:
-            keep[i] = not t - out_last[i] > max_coast + 1e-9
+            dead = t - out_last[i] > max_coast + 1e-9
         else:
-            keep[i] = out_misses[i] < tentative_misses
-    idx = np.flatnonzero(keep)
-    return (X[idx], C[idx], out_ids[idx], out_hits[idx], out_misses[idx], out_last[idx],
-            out_conf[idx], next_id)
+            dead = out_misses[i] >= tentative_misses
+        if dead:
+            continue
+        if kept < i:
+            for a in range(4):
+                X[kept, a] = X[i, a]
+                for b in range(4):
+                    C[kept, a, b] = C[i, a, b]
+            out_ids[kept], out_hits[kept], out_misses[kept] = out_ids[i], out_hits[i], out_misses[i]
+            out_last[kept], out_conf[kept] = out_last[i], out_conf[i]
+        kept += 1
+    return (X[:kept], C[:kept], out_ids[:kept], out_hits[:kept], out_misses[:kept],
+            out_last[:kept], out_conf[:kept], next_id)
 
 
 @numba.njit(cache=True)
 def _predict(x, P, dt, q, x_out, P_out):  # pragma: no cover
     """The constant-velocity prediction of one track (4,), (4, 4) by dt seconds into x_out,
-    P_out: F = [[I, dt I], [0, I]], Q of white acceleration of variance q."""
-    for a in range(4):
-        x_out[a] = x[a] + (dt * x[a + 2] if a < 2 else 0.0)
-    if dt == 0.0:
-        P_out[:, :] = P
-        return
+    P_out: F = [[I, dt I], [0, I]], Q of white acceleration of variance q. Plain loops: array
+    expressions cost seconds of compilation."""
     FP = np.empty((4, 4))
     for a in range(4):
+        x_out[a] = x[a] + dt * x[a + 2] if a < 2 else x[a]
         for b in range(4):
-            FP[a, b] = P[a, b] + (dt * P[a + 2, b] if a < 2 else 0.0)
+            FP[a, b] = P[a, b] + dt * P[a + 2, b] if a < 2 else P[a, b]
     for a in range(4):
         for b in range(4):
-            P_out[a, b] = FP[a, b] + (dt * FP[a, b + 2] if b < 2 else 0.0)
-    q4, q3, q2 = q * dt ** 4 / 4.0, q * dt ** 3 / 2.0, q * dt ** 2
+            P_out[a, b] = FP[a, b] + dt * FP[a, b + 2] if b < 2 else FP[a, b]
+    dt2 = dt * dt
     for a in range(2):
-        P_out[a, a] += q4
-        P_out[a, a + 2] += q3
-        P_out[a + 2, a] += q3
-        P_out[a + 2, a + 2] += q2
+        P_out[a, a] += q * dt2 * dt2 / 4.0
+        P_out[a, a + 2] += q * dt2 * dt / 2.0
+        P_out[a + 2, a] += q * dt2 * dt / 2.0
+        P_out[a + 2, a + 2] += q * dt2
 
 
 @numba.njit(cache=True)
@@ -258,7 +264,7 @@ def _associate(x, P, z, r, gate):  # pragma: no cover
                 inside[i, j] = True
                 cost[i, j] = d2 + log_det
                 lo, hi = min(lo, cost[i, j]), max(hi, cost[i, j])
-    det_of_track = np.full(n, -1, np.int64)
+    det_of_track = -np.ones(n, np.int64)
     if hi < lo:  # nothing inside the gate
         return det_of_track
     # outside the gate costs more than any number of inside pairs can make up: among the
@@ -274,7 +280,7 @@ def _associate(x, P, z, r, gate):  # pragma: no cover
             if inside[i, col[i]]:
                 det_of_track[i] = col[i]
     else:
-        row = _min_cost_assignment(cost.T.copy())
+        row = _min_cost_assignment(np.ascontiguousarray(cost.T))
         for j in range(k):
             if inside[row[j], j]:
                 det_of_track[row[j]] = j
@@ -289,18 +295,19 @@ def _min_cost_assignment(cost):  # pragma: no cover
     nr, nc = cost.shape
     u = np.zeros(nr)
     v = np.zeros(nc)
-    col_of_row = np.full(nr, -1, np.int64)
-    row_of_col = np.full(nc, -1, np.int64)
+    col_of_row = -np.ones(nr, np.int64)
+    row_of_col = -np.ones(nc, np.int64)
     shortest = np.empty(nc)
     path = np.empty(nc, np.int64)
     remaining = np.empty(nc, np.int64)
     row_seen = np.empty(nr, np.bool_)
     col_seen = np.empty(nc, np.bool_)
     for start in range(nr):
-        shortest[:] = np.inf
-        row_seen[:] = False
-        col_seen[:] = False
+        for i in range(nr):
+            row_seen[i] = False
         for j in range(nc):
+            shortest[j] = np.inf
+            col_seen[j] = False
             remaining[j] = j
         n_left = nc
         i, sink, reach = start, -1, 0.0
@@ -356,7 +363,10 @@ def _kalman_update(x, P, z, r):  # pragma: no cover
     ex, ey = z[0] - x[0], z[1] - x[1]
     for row in range(4):
         x[row] += K[row, 0] * ex + K[row, 1] * ey
-    top = P[:2, :].copy()
+    top = np.empty((2, 4))
+    for row in range(2):
+        for col in range(4):
+            top[row, col] = P[row, col]
     for row in range(4):
         for col in range(4):
             P[row, col] -= K[row, 0] * top[0, col] + K[row, 1] * top[1, col]

@@ -389,6 +389,7 @@ def test_frames_match_the_plain_reference(seed):
         assert np.allclose(mot.last_hit, [tr["last"] for tr in ref.tracks], rtol=0, atol=0)
         assert np.allclose(mot.x, [tr["x"] for tr in ref.tracks], rtol=0, atol=1e-9)
         assert np.allclose(mot.P, [tr["P"] for tr in ref.tracks], rtol=0, atol=1e-9)
+        assert np.array_equal(ids, mot.ids[mot.confirmed])
         assert np.array_equal(xy, mot.x[mot.confirmed, :2])
         crowded += len(mot) > 8
     assert crowded > 10  # the scenes had rivals for the detections
