@@ -36,7 +36,7 @@ from .registration import (
     _spread,
     _weighted_arun,
     _weights,
-    most_recent_pairs,
+    neighbourhood_pairs,
     size_compatible,
     weighted_arun,
 )
@@ -157,7 +157,8 @@ class FrameAligner:
             ConfigError: params is neither a FrameAlignerParams nor None.
         """
         self.params = _given_or_default(FrameAlignerParams, params, "FrameAligner")
-        #: steps on which the size gate passed more than `max_associations` pairs
+        #: steps on which the size gate passed more than `max_associations` pairs, so that
+        #: each object kept only its `pairs_per_object` best
         self.thinned = 0
         #: guided steps on which nothing guided confirmed the held alignment, so that they
         #: searched in full
@@ -329,7 +330,9 @@ class FrameAligner:
             return []
         ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
         if n_pairs > prm.max_associations:
-            assoc = most_recent_pairs(searched, ages_ego, ages_other, prm.max_associations)
+            assoc = neighbourhood_pairs(searched, p_all, q_all, ages_ego, ages_other,
+                                        prm.clipper.epsilon, prm.pairs_per_object,
+                                        prm.max_associations)
             self._thin(n_pairs, len(ego_r), len(other_r))
         else:
             assoc = np.argwhere(searched).astype(np.int64)
@@ -389,13 +392,15 @@ class FrameAligner:
         return agree
 
     def _thin(self, n_pairs: int, n_ego: int, n_other: int) -> None:
-        """Count a step whose associations were cut to `max_associations`, and say so: a
-        warning the first time, then at debug level."""
+        """Count a step whose associations were thinned for exceeding `max_associations`,
+        and say so: a warning the first time, then at debug level."""
         self.thinned += 1
         level = logging.WARNING if self.thinned == 1 else logging.DEBUG
-        log.log(level, "FrameAligner: the size gate passed %d pairs of %d x %d recent objects; "
-                "kept the max_associations=%d whose objects were seen most recently%s",
+        log.log(level, "FrameAligner: the size gate passed %d pairs of %d x %d recent objects, "
+                "more than max_associations=%d; kept each object's pairs_per_object=%d whose "
+                "neighbourhoods agree best%s",
                 n_pairs, n_ego, n_other, self.params.max_associations,
+                self.params.pairs_per_object,
                 " (repeats are logged at debug level; FrameAligner.thinned counts them)"
                 if self.thinned == 1 else "")
 

@@ -233,9 +233,15 @@ class FrameAlignerParams(_ByValue):
             0 removes those associations, as in the paper.
         min_associations: solutions with fewer associations are discarded.
         max_associations: the most putative associations (nodes of the consistency graph)
-            per map pair; when the size gate passes more, the pairs whose two objects were
-            seen most recently are kept (and it is logged). It bounds the step's time and
-            memory in large maps: the graph costs about m^2 / 2 distance checks.
+            per map pair. When the size gate passes more (large maps of look-alike objects),
+            each object of either map keeps only its `pairs_per_object` best pairs, at most
+            max_associations of them, and it is logged. It bounds the step's time and memory
+            in large maps: the graph costs about m^2 / 2 distance checks.
+        pairs_per_object: with more pairs than `max_associations`, the pairs each object of
+            either map keeps: those whose objects' surroundings agree best, each within its
+            own map (`registration.neighbourhood_agreement`: the distances to their nearest
+            neighbours that match within `clipper.epsilon`; then the most recently seen, as
+            a tie-break). 2 keeps at most 2 (n_ego + n_other) pairs. Not used below the cap.
         min_score_ratio: solutions scoring below this fraction of the best are discarded.
         weight_offset: Arun weights are 1 / (weight_offset + age_i * age_j), ages in seconds.
         max_rmse: metres; solutions whose registration residual RMS exceeds it are discarded
@@ -296,6 +302,7 @@ class FrameAlignerParams(_ByValue):
     mno_downweight: float = 0.0
     min_associations: int = 5
     max_associations: int = 10000
+    pairs_per_object: int = 2
     min_score_ratio: float = 0.75
     weight_offset: float = 0.01
     max_rmse: float | None = 0.5
@@ -336,6 +343,8 @@ class FrameAlignerParams(_ByValue):
         _require(_int_at_least(self.max_associations, self.min_associations), o,
                  "max_associations", self.max_associations,
                  f"must be an int >= min_associations ({self.min_associations})")
+        _require(_int_at_least(self.pairs_per_object, 1), o, "pairs_per_object",
+                 self.pairs_per_object, "must be an int >= 1")
         _require(_real(self.min_score_ratio) and 0 <= self.min_score_ratio <= 1, o,
                  "min_score_ratio", self.min_score_ratio, "must be in [0, 1]")
         _require(_real(self.weight_offset) and self.weight_offset > 0, o, "weight_offset",

@@ -10,13 +10,14 @@ from scipy.spatial import cKDTree
 
 from .errors import DataError
 from .geometry import _transform_points
-from .inputs import real_array, shown
+from .inputs import index_pairs, real_array, shown
 from .object_map import ObjectMap, as_object_map
-from .params import _finite, _require
+from .params import _finite, _int_at_least, _require
 
 __all__ = [
     "arun_weights",
     "mutual_inliers",
+    "neighbourhood_agreement",
     "putative_associations",
     "registration_rmse",
     "spread",
@@ -31,6 +32,13 @@ MAX_WEIGHT = 1e100
 #: object pairs (rows x columns) in one block of the size gate: its float temporaries then take
 #: tens of MB whatever the map sizes, where the whole gate at 5000 objects per map took 1 GB
 _GATE_BLOCK = 1 << 20
+#: neighbours that describe an object for `neighbourhood_pairs`: enough to reach past its own
+#: cluster (a row of cars, a group of chairs) to the next ones, whose distances tell apart
+#: objects that look alike up close
+NEIGHBOURS = 48
+#: the most merge steps (compatible pairs x both neighbour lists) one `neighbourhood_pairs`
+#: takes, about 0.1 s: beyond it each object is described by fewer neighbours
+_RANKING_STEPS = 1 << 27
 #: object pairs above which mutual inliers are found with k-d trees: the dense distance matrix
 #: costs 8 bytes per pair, several times over in temporaries
 _DENSE_INLIERS = 1 << 20
@@ -92,43 +100,190 @@ def _gate_blocks(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float
                       & _sizes_similar(ego.heights[part], other.heights, ratio, abs_diff))
 
 
-def most_recent_pairs(compatible: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
-                      cap: int) -> np.ndarray:
-    """The `cap` compatible pairs whose objects were seen most recently.
+def neighbourhood_agreement(ego_points: np.ndarray, other_points: np.ndarray,
+                            pairs: np.ndarray, epsilon: float = 0.25,
+                            neighbours: int = NEIGHBOURS) -> np.ndarray:
+    """How well the surroundings of each pair's two objects agree, each within its own map.
 
-    Pairs are ranked by the sum of their two objects' ages, then by ego and other index, and
-    found block by block, so the memory taken is that of `cap` pairs and one block however
-    many pairs are compatible.
+    Object i of the ego map is described by the sorted distances to its `neighbours` nearest
+    ego objects, object j of the other map likewise; the score of (i, j) is the largest number
+    of one-to-one pairs of those distances that differ by less than `epsilon` (CLIPPER's
+    consistency test, taken against the pair itself). A true pair scores at least the number
+    of neighbours both robots mapped, up to noise; the score is an upper bound on the
+    associations among those neighbours that a consistent set holding (i, j) can have. It
+    depends on distances only, so it is the same in any frame: rotating or moving either map
+    changes nothing.
+
+    Args:
+        ego_points: (n1, d) metres, d = 2 or 3. other_points: (n2, d) metres.
+        pairs: (m, 2) int (ego index, other index).
+        epsilon: metres, finite and > 0. neighbours: an int >= 1 (fewer when a map has fewer
+            other objects).
+    Returns:
+        (m,) int64 scores in [0, neighbours].
+    Raises:
+        ConfigError: epsilon not a finite number > 0, neighbours not an int >= 1.
+        DataError: points not finite (n, 2) or (n, 3) real numbers of one dimension, pairs not
+            (m, 2) indices within the maps.
+    """
+    o = "neighbourhood_agreement"
+    _require(_finite(epsilon) and epsilon > 0, o, "epsilon", epsilon,
+             "must be a finite number > 0 metres")
+    _require(_int_at_least(neighbours, 1), o, "neighbours", neighbours, "must be an int >= 1")
+    p = _points(o, "ego_points", ego_points)
+    q = _points(o, "other_points", other_points, p.shape[1])
+    pairs = index_pairs(o, "pairs", pairs)
+    if pairs.size and (pairs[:, 0].max() >= len(p) or pairs[:, 1].max() >= len(q)):
+        raise DataError(f"{o}: pair indices out of range for maps of {len(p)} and {len(q)} "
+                        f"points, got {shown(pairs)}")
+    return _agreement(_neighbour_distances(p, neighbours), _neighbour_distances(q, neighbours),
+                      pairs, float(epsilon))
+
+
+def neighbourhood_pairs(compatible: np.ndarray, ego_points: np.ndarray,
+                        other_points: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
+                        epsilon: float, per_object: int, cap: int) -> np.ndarray:
+    """The compatible pairs whose neighbourhoods agree best (`neighbourhood_agreement`): for
+    each object of either map its `per_object` best pairs, then at most `cap` of those.
+
+    Ties in the score go to the pair whose objects were seen most recently (the smaller sum
+    of ages), then to the lower index. Each object is described by `NEIGHBOURS` neighbours,
+    fewer when the compatible pairs are so many that comparing them would take more than
+    `_RANKING_STEPS` steps (maps of thousands of look-alike objects). Memory: one byte per
+    object pair beside `compatible`.
 
     Args:
         compatible: (n, m) bool, the size gate (`size_compatible`).
+        ego_points, other_points: (n, d) and (m, d) metres, finite.
         ages_ego, ages_other: (n,) and (m,) seconds since each object was last seen.
-        cap: the most pairs returned.
+        epsilon: metres, > 0; per_object: int >= 1; cap: the most pairs returned.
     Returns:
-        (min(cap, compatible pairs), 2) int64 (ego index, other index), sorted by ego then
-        other index, as `putative_associations` sorts.
+        (k, 2) int64 (ego index, other index), k <= min(cap, per_object * (n + m)), sorted by
+        ego then other index, as `putative_associations` sorts.
     """
+    n_pairs = int(np.count_nonzero(compatible))
+    if n_pairs == 0:
+        return np.empty((0, 2), np.int64)
+    neighbours = max(1, min(NEIGHBOURS, _RANKING_STEPS // (2 * n_pairs)))
+    per_object = min(per_object, max(compatible.shape))  # more than a map holds adds nothing
+    d_ego = _neighbour_distances(ego_points, neighbours)
+    d_other = _neighbour_distances(other_points, neighbours)
+    ages_ego = np.ascontiguousarray(ages_ego, np.float64)
+    ages_other = np.ascontiguousarray(ages_other, np.float64)
+    kept = np.argwhere(_best_per_object(np.ascontiguousarray(compatible), d_ego, d_other,
+                                        ages_ego, ages_other, float(epsilon), int(per_object)))
+    if kept.shape[0] > cap:
+        score = _agreement(d_ego, d_other, kept, float(epsilon))
+        age = ages_ego[kept[:, 0]] + ages_other[kept[:, 1]]
+        best = np.lexsort((kept[:, 1], kept[:, 0], age, -score))[:cap]
+        kept = kept[np.sort(best)]  # kept is in index order, so sorted positions keep it
+    return kept.astype(np.int64)
+
+
+def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
+    """(n, k + 1) float64: each point's distances to its k = min(neighbours, n - 1) nearest
+    other points, ascending, then an inf that ends the row for `_merge_steps`."""
+    n = points.shape[0]
+    k = min(neighbours, n - 1)
+    out = np.full((n, k + 1), np.inf)
+    if k > 0:
+        # the nearest is the point itself (or a duplicate of it: distance 0 either way)
+        distances, _ = cKDTree(points).query(points, k + 1)
+        out[:, :k] = distances[:, 1:]
+    return out
+
+
+@numba.njit(cache=True)
+def _agreement(d_ego, d_other, pairs, epsilon):
+    """(m,) int64 `neighbourhood_agreement` of pairs (m, 2) from `_neighbour_distances` rows."""
+    out = np.empty(pairs.shape[0], np.int64)
+    for s in range(pairs.shape[0]):
+        a, b = d_ego[pairs[s, 0]], d_other[pairs[s, 1]]
+        i = j = count = 0
+        while i < a.shape[0] - 1 and j < b.shape[0] - 1:
+            d = a[i] - b[j]
+            if abs(d) < epsilon:  # greedy in sorted order: the largest one-to-one matching
+                count += 1
+                i += 1
+                j += 1
+            elif d < 0:
+                i += 1
+            else:
+                j += 1
+        out[s] = count
+    return out
+
+
+@numba.njit(cache=True)
+def _best_per_object(compatible, d_ego, d_other, ages_ego, ages_other, epsilon, per_object):
+    """(n, m) bool: the `per_object` best compatible pairs of every ego and every other object
+    by (agreement, then smaller age sum, then lower index)."""
     n, m = compatible.shape
-    rows = _block_rows(m)
-    kept = np.empty((0, 2), np.int64)
-    for start in range(0, n, rows):
-        found = np.argwhere(compatible[start: start + rows]) + np.array([start, 0])
-        kept = _first_by_age(np.concatenate([kept, found]), ages_ego, ages_other, cap)
-    return kept
+    steps = d_ego.shape[1] + d_other.shape[1] - 2
+    keep = np.zeros((n, m), np.bool_)
+    cols = np.empty(m, np.int64)
+    at_ego = np.empty(m, np.int64)
+    at_other = np.empty(m, np.int64)
+    count = np.empty(m, np.int64)
+    row_score = np.empty(per_object, np.int64)
+    row_age = np.empty(per_object)
+    row_pick = np.empty(per_object, np.int64)
+    col_score = np.full((m, per_object), -1, np.int64)
+    col_age = np.full((m, per_object), np.inf)
+    col_pick = np.full((m, per_object), -1, np.int64)
+    for i in range(n):
+        k = 0
+        for j in range(m):
+            if compatible[i, j]:
+                cols[k] = j
+                k += 1
+        if k == 0:
+            continue
+        a = d_ego[i]
+        at_ego[:k] = 0
+        at_other[:k] = 0
+        count[:k] = 0
+        # The greedy matching of `_agreement`, run on all the row's pairs in lockstep and
+        # without branches: each pair's step waits on none of the others, which makes it
+        # about twice as fast as one pair after another. The inf ending every row stops an
+        # index there; after `steps` steps every matching is finished.
+        for _ in range(steps):
+            for c in range(k):
+                d = a[at_ego[c]] - d_other[cols[c], at_other[c]]
+                hit = abs(d) < epsilon
+                count[c] += hit
+                at_ego[c] += hit | (d < 0)
+                at_other[c] += hit | (d > 0)
+        row_score[:] = -1
+        row_age[:] = np.inf
+        row_pick[:] = -1
+        for c in range(k):
+            j = cols[c]
+            age = ages_ego[i] + ages_other[j]
+            _offer(row_score, row_age, row_pick, count[c], age, j)
+            _offer(col_score[j], col_age[j], col_pick[j], count[c], age, i)
+        for r in range(per_object):
+            if row_pick[r] >= 0:
+                keep[i, row_pick[r]] = True
+    for j in range(m):
+        for r in range(per_object):
+            if col_pick[j, r] >= 0:
+                keep[col_pick[j, r], j] = True
+    return keep
 
 
-def _first_by_age(pairs: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
-                  cap: int) -> np.ndarray:
-    """The first `cap` of (k, 2) pairs, given in index order (ego, then other index), when
-    ordered by age sum, then index; returned in index order."""
-    if pairs.shape[0] <= cap:
-        return pairs
-    key = ages_ego[pairs[:, 0]] + ages_other[pairs[:, 1]]
-    bound = np.partition(key, cap - 1)[cap - 1]
-    below = np.flatnonzero(key < bound)
-    # ties at the bound are taken in index order, so the result never depends on the blocks
-    at = np.flatnonzero(key == bound)[: cap - below.size]
-    return pairs[np.sort(np.r_[below, at])]
+@numba.njit(cache=True)
+def _offer(scores, ages, picks, score, age, pick):
+    """Insert (score, age, pick) into the best-first lists if it beats their last entry:
+    higher score first, then smaller age; offered in index order, so equals keep the lower."""
+    last = scores.shape[0] - 1
+    if score < scores[last] or (score == scores[last] and age >= ages[last]):
+        return
+    r = last
+    while r > 0 and (score > scores[r - 1] or (score == scores[r - 1] and age < ages[r - 1])):
+        scores[r], ages[r], picks[r] = scores[r - 1], ages[r - 1], picks[r - 1]
+        r -= 1
+    scores[r], ages[r], picks[r] = score, age, pick
 
 
 def arun_weights(ages_ego: np.ndarray, ages_other: np.ndarray, offset: float = 0.01) -> np.ndarray:

@@ -1,6 +1,6 @@
-"""Large maps: the size gate by blocks, the cap on associations (the pairs seen most recently),
-mutual inliers by k-d tree, and a FrameAligner step on maps whose gate passes far more pairs
-than the cap."""
+"""Large maps: the size gate by blocks, the cap on associations (each object's pairs whose
+neighbourhoods agree best), mutual inliers by k-d tree, and a FrameAligner step on maps whose
+gate passes far more pairs than the cap."""
 
 from __future__ import annotations
 
@@ -21,7 +21,6 @@ from tcaff_gtsam import registration as reg
 from tcaff_gtsam.errors import ConfigError
 from tcaff_gtsam.geometry import se2_error, se2_from_params
 from tcaff_gtsam.registration import (
-    most_recent_pairs,
     mutual_inliers,
     putative_associations,
     size_compatible,
@@ -59,23 +58,6 @@ def test_the_gate_by_blocks_is_the_whole_gate(seed, n_ego, n_other, block):
         np.testing.assert_array_equal(putative_associations(ego, other), whole)
         np.testing.assert_array_equal(size_compatible(ego, other, 1.35, 0.1), compatible)
     np.testing.assert_array_equal(np.argwhere(compatible), whole)
-
-
-@settings(max_examples=60, deadline=None)
-@given(seeds, st.integers(0, 30), st.integers(0, 30), st.integers(1, 80), st.integers(1, 50))
-def test_the_cap_keeps_the_pairs_seen_most_recently(seed, n, m, cap, block):
-    rng = np.random.default_rng(seed)
-    compatible = rng.random((n, m)) < 0.6
-    # whole seconds: many ties in the age sum, which the index order must break
-    ages_ego, ages_other = rng.integers(0, 4, n).astype(float), rng.integers(0, 4, m)
-    pairs = np.argwhere(compatible)
-    key = ages_ego[pairs[:, 0]] + ages_other[pairs[:, 1]]
-    expected = pairs[np.lexsort((pairs[:, 1], pairs[:, 0], key))][:cap]
-    expected = expected[np.lexsort((expected[:, 1], expected[:, 0]))]
-    with gate_block(block):
-        kept = most_recent_pairs(compatible, ages_ego, ages_other.astype(float), cap)
-    np.testing.assert_array_equal(kept, expected)
-    assert kept.dtype == np.int64 and kept.shape == (min(cap, len(pairs)), 2)
 
 
 @settings(max_examples=60, deadline=None)
@@ -123,7 +105,7 @@ def big_pair(n: int, seed: int = 0):
     return pair, ages[0], ages[1]
 
 
-def test_a_step_whose_gate_passes_more_than_the_cap_keeps_the_recent_pairs(caplog):
+def test_a_step_whose_gate_passes_more_than_the_cap_keeps_the_true_pairs(caplog):
     pair, ego, other = big_pair(300)
     n_pairs = len(putative_associations(ego, other))
     cap = n_pairs // 4
@@ -136,7 +118,7 @@ def test_a_step_whose_gate_passes_more_than_the_cap_keeps_the_recent_pairs(caplo
     assert f"passed {n_pairs} pairs" in records[0].getMessage()
     assert aligner.thinned == 2
     assert first and len(first[0].associations) >= 5
-    assert se2_error(first[0].T, pair.T_oi_oj)[0] < 0.5  # the recent pairs hold the truth
+    assert se2_error(first[0].T, pair.T_oi_oj)[0] < 0.5  # the kept pairs hold the truth
     untouched = FrameAligner(FrameAlignerParams(max_associations=n_pairs))
     untouched.measurements(ego, other, pair.now)
     assert untouched.thinned == 0
@@ -149,7 +131,7 @@ def test_the_cap_bounds_the_graph(monkeypatch):
     monkeypatch.setattr(fa, "_graph",
                         lambda p, q, assoc, *a: seen.append(len(assoc)) or real(p, q, assoc, *a))
     FrameAligner(FrameAlignerParams(max_associations=500)).measurements(ego, other, pair.now)
-    assert seen == [500]
+    assert len(seen) == 1 and 0 < seen[0] <= 500
 
 
 @pytest.mark.parametrize("value", [4, 1, 2.5, None, True])
