@@ -1,6 +1,7 @@
 """Compile the core's numba kernels into their on-disk cache: `python -m tcaff_gtsam.precompile`.
 
-The kernels (consistency graph, MNO-CLIPPER, mutual inliers, the TCAFF hypothesis trees) are
+The kernels (consistency graph, MNO-CLIPPER, mutual inliers, the ranking of look-alike pairs,
+the TCAFF hypothesis trees) are
 compiled with `cache=True`: the machine code is written next to each module (in its
 `__pycache__`, or numba's user cache when that is not writable) and loaded by later processes.
 The first process to use them otherwise pays the compilation, seconds, on its first alignment
@@ -18,6 +19,7 @@ import numpy as np
 from .hypothesis_tree import best_per_tree
 from .object_map import ObjectMap
 from .pairwise import PairwiseAligner
+from .registration import neighbourhood_pairs
 
 __all__ = ["compile_kernels"]
 
@@ -39,8 +41,9 @@ def _maps(rng: np.random.Generator, t: float) -> tuple[ObjectMap, ObjectMap]:
 
 def compile_kernels() -> float:
     """Run the default and the reference pair aligner through a few steps (every kernel of the
-    alignment path: graph, MNO-CLIPPER, the TCAFF filter) and prune a large hypothesis tree,
-    so that each kernel is compiled, or loaded from the cache.
+    alignment path: graph, MNO-CLIPPER, the TCAFF filter), prune a large hypothesis tree and
+    rank the pairs of look-alike maps past the association cap, so that each kernel is
+    compiled, or loaded from the cache.
 
     Returns:
         seconds taken.
@@ -53,6 +56,9 @@ def compile_kernels() -> float:
         for pair in pairs:
             pair.update(float(step), *maps)
     best_per_tree(rng.uniform(0.0, 1.0, 8), np.zeros(8, np.int64), 2)  # a tree past its bound
+    # look-alike maps past max_associations: each object's best pairs, cut to a cap
+    xy = rng.uniform(0.0, 15.0, (12, 2))
+    neighbourhood_pairs(np.ones((12, 12), bool), xy, xy, np.zeros(12), np.zeros(12), 0.25, 2, 5)
     return time.perf_counter() - start
 
 

@@ -10,7 +10,8 @@ import sys
 ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_measurement_costs"),
                  ("hypothesis_tree", "_kalman_children"), ("hypothesis_tree", "_children"),
-                 ("hypothesis_tree", "_best_per_group"), ("registration", "_mutual_nearest")]
+                 ("hypothesis_tree", "_best_per_group"), ("registration", "_mutual_nearest"),
+                 ("registration", "_best_per_object"), ("registration", "_agreement")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():
