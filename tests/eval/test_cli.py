@@ -198,9 +198,9 @@ def test_study_runs_each_shipped_method_set(tmp_path, methods):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("study", ["demo", "paper"])
+@pytest.mark.parametrize("study", ["paper"])  # demo: tests/test_packaging.py runs `tcaff demo`
 def test_study_runs_each_shipped_study(tmp_path, study):
-    result = runner.invoke(app, ["study", study, "--seeds", "1", "--duration", "8",
+    result = runner.invoke(app, ["study", study, "--seeds", "1", "--duration", "4",
                                  "--workers", "1", "--output", str(tmp_path), "--no-figures"])
     assert result.exit_code == 0, result.output
     metrics = json.loads((tmp_path / "latest" / "metrics.json").read_text())
