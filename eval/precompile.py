@@ -24,8 +24,9 @@ __all__ = ["compile_kernels"]
 
 
 def compile_kernels() -> float:
-    """The core's kernels, then a few tracker frames (more tracks than detections and fewer)
-    and the footprint of one cloud, so that each kernel is compiled or loaded from the cache.
+    """The core's kernels, then two tracker frames (tracks spawned, then associated and
+    updated) and the footprint of one cloud, so that each kernel is compiled or loaded from
+    the cache.
 
     Returns:
         seconds taken.

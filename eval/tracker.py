@@ -63,7 +63,8 @@ class TrackerParams:
             value = getattr(self, name)
             _require(_real(value) and 0 < value < math.inf, o, name, value,
                      f"must be a finite number > 0 {unit}")
-        _require(_real(self.gate) and self.gate > 0, o, "gate", self.gate, "must be a number > 0")
+        _require(_real(self.gate) and 0 < self.gate < math.inf, o, "gate", self.gate,
+                 "must be a finite number > 0")
         for name in ("confirm_hits", "tentative_misses"):
             value = getattr(self, name)
             _require(_int_at_least(value, 1), o, name, value, "must be an int >= 1")
@@ -71,10 +72,9 @@ class TrackerParams:
                  "must be a number >= 0 seconds")
 
 
-
-
 class MultiObjectTracker:
-    """Constant-velocity Kalman tracks, Hungarian GNN association, confirmation and deletion.
+    """Constant-velocity Kalman tracks, global nearest neighbour association, confirmation and
+    deletion.
 
     Call `step` once per frame with the frame's time and detection sets; it returns the
     confirmed tracks. A frame is one compiled pass (`_advance`) over the tracks in arrays.
@@ -254,13 +254,13 @@ def _associate(x, P, z, r, gate):  # pragma: no cover
     inside = np.zeros((n, k), np.bool_)
     lo, hi = np.inf, -np.inf
     for i in range(n):
-        a, b, d = P[i, 0, 0] + r, P[i, 0, 1], P[i, 1, 1] + r
-        det = a * d - b * b
+        s00, s01, s11, det = _innovation_inverse(P[i], r)
         log_det = np.log(det)
         for j in range(k):
             ex, ey = z[j, 0] - x[i, 0], z[j, 1] - x[i, 1]
-            d2 = (d * ex * ex - 2.0 * b * ex * ey + a * ey * ey) / det
-            if d2 <= gate:
+            d2 = s00 * ex * ex + 2.0 * s01 * ex * ey + s11 * ey * ey
+            # a track or detection so far out that its numbers overflow is outside the gate
+            if d2 <= gate and np.isfinite(d2 + log_det):
                 inside[i, j] = True
                 cost[i, j] = d2 + log_det
                 lo, hi = min(lo, cost[i, j]), max(hi, cost[i, j])
@@ -308,7 +308,7 @@ def _min_cost_assignment(cost):  # pragma: no cover
         for j in range(nc):
             shortest[j] = np.inf
             col_seen[j] = False
-            remaining[j] = j
+            remaining[j] = nc - 1 - j  # the order scipy scans in: equal costs are split alike
         n_left = nc
         i, sink, reach = start, -1, 0.0
         while sink < 0:
@@ -350,12 +350,18 @@ def _min_cost_assignment(cost):  # pragma: no cover
 
 
 @numba.njit(cache=True)
+def _innovation_inverse(P, r):  # pragma: no cover
+    """(S^-1 00, 01, 11, |S|) of a track's innovation covariance S = P[:2, :2] + r I."""
+    a, b, d = P[0, 0] + r, P[0, 1], P[1, 1] + r
+    det = a * d - b * b
+    return d / det, -b / det, a / det, det
+
+
+@numba.njit(cache=True)
 def _kalman_update(x, P, z, r):  # pragma: no cover
     """The Kalman update of one track (4,), (4, 4) in place with a position z (2,) of
     variance r per axis."""
-    a, b, d = P[0, 0] + r, P[0, 1], P[1, 1] + r
-    det = a * d - b * b
-    s00, s01, s11 = d / det, -b / det, a / det  # S^-1
+    s00, s01, s11, _ = _innovation_inverse(P, r)
     K = np.empty((4, 2))
     for row in range(4):
         K[row, 0] = P[row, 0] * s00 + P[row, 1] * s01

@@ -15,7 +15,7 @@ elsewhere, single thread, on problems of the issue's sizes), not run here. The s
 medians over the map pairs:
   m          putative associations (nodes of the consistency graph)
   rank       choosing the best pairs per object when the gate passes more than the cap [ms]
-             (`registration.neighbourhood_pairs`; - where the cap is not reached)
+             (`registration._neighbourhood_pairs`; - where the cap is not reached)
   edges      consistent pairs in the graph
   graph      consistency graph construction [ms]
   solve      one CLIPPER solve [ms]
@@ -61,7 +61,7 @@ from tcaff_gtsam import (
 from tcaff_gtsam.geometry import invert, se2_from_params, transform_points
 from tcaff_gtsam.pairwise import unchecked
 from tcaff_gtsam.registration import (
-    neighbourhood_pairs,
+    _neighbourhood_pairs,
     putative_associations,
     size_compatible,
 )
@@ -146,7 +146,7 @@ def one_run(kind: str, n: int, seed: int, cap: int | None, all_to_all: bool, rep
         associations = np.argwhere(compatible)
         if associations.shape[0] > cap:
             def rank() -> np.ndarray:
-                return neighbourhood_pairs(compatible, p, q, pair.ego.ages(pair.now),
+                return _neighbourhood_pairs(compatible, p, q, pair.ego.ages(pair.now),
                                            pair.other.ages(pair.now), params.epsilon,
                                            aligner_params.pairs_per_object, cap)
 

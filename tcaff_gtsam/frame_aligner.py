@@ -32,11 +32,11 @@ from .registration import (
     MAX_COORDINATE,
     MAX_WEIGHT,
     _mutual_inliers,
+    _neighbourhood_pairs,
     _registration_rmse,
     _spread,
     _weighted_arun,
     _weights,
-    neighbourhood_pairs,
     size_compatible,
     weighted_arun,
 )
@@ -330,7 +330,7 @@ class FrameAligner:
             return []
         ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
         if n_pairs > prm.max_associations:
-            assoc = neighbourhood_pairs(searched, p_all, q_all, ages_ego, ages_other,
+            assoc = _neighbourhood_pairs(searched, p_all, q_all, ages_ego, ages_other,
                                         prm.clipper.epsilon, prm.pairs_per_object,
                                         prm.max_associations)
             self._thin(n_pairs, len(ego_r), len(other_r))

@@ -19,7 +19,7 @@ import numpy as np
 from .hypothesis_tree import best_per_tree
 from .object_map import ObjectMap
 from .pairwise import PairwiseAligner
-from .registration import neighbourhood_pairs
+from .registration import _neighbourhood_pairs
 
 __all__ = ["compile_kernels"]
 
@@ -58,7 +58,7 @@ def compile_kernels() -> float:
     best_per_tree(rng.uniform(0.0, 1.0, 8), np.zeros(8, np.int64), 2)  # a tree past its bound
     # look-alike maps past max_associations: each object's best pairs, cut to a cap
     xy = rng.uniform(0.0, 15.0, (12, 2))
-    neighbourhood_pairs(np.ones((12, 12), bool), xy, xy, np.zeros(12), np.zeros(12), 0.25, 2, 5)
+    _neighbourhood_pairs(np.ones((12, 12), bool), xy, xy, np.zeros(12), np.zeros(12), 0.25, 2, 5)
     return time.perf_counter() - start
 
 

@@ -32,12 +32,12 @@ MAX_WEIGHT = 1e100
 #: object pairs (rows x columns) in one block of the size gate: its float temporaries then take
 #: tens of MB whatever the map sizes, where the whole gate at 5000 objects per map took 1 GB
 _GATE_BLOCK = 1 << 20
-#: neighbours that describe an object for `neighbourhood_pairs`: enough to reach past its own
+#: neighbours that describe an object for `_neighbourhood_pairs`: enough to reach past its own
 #: cluster (a row of cars, a group of chairs) to the next ones, whose distances tell apart
 #: objects that look alike up close
 NEIGHBOURS = 48
-#: the most merge steps (compatible pairs x both neighbour lists) one `neighbourhood_pairs`
-#: takes, about 0.1 s: beyond it each object is described by fewer neighbours
+#: the most merge steps (compatible pairs x both neighbour lists) one `_neighbourhood_pairs`
+#: takes, about half a second: beyond it each object is described by fewer neighbours
 _RANKING_STEPS = 1 << 27
 #: object pairs above which mutual inliers are found with k-d trees: the dense distance matrix
 #: costs 8 bytes per pair, several times over in temporaries
@@ -137,20 +137,21 @@ def neighbourhood_agreement(ego_points: np.ndarray, other_points: np.ndarray,
         raise DataError(f"{o}: pair indices out of range for maps of {len(p)} and {len(q)} "
                         f"points, got {shown(pairs)}")
     return _agreement(_neighbour_distances(p, neighbours), _neighbour_distances(q, neighbours),
-                      pairs, float(epsilon))
+                      np.ascontiguousarray(pairs), float(epsilon))
 
 
-def neighbourhood_pairs(compatible: np.ndarray, ego_points: np.ndarray,
-                        other_points: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
-                        epsilon: float, per_object: int, cap: int) -> np.ndarray:
+def _neighbourhood_pairs(compatible: np.ndarray, ego_points: np.ndarray,
+                         other_points: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
+                         epsilon: float, per_object: int, cap: int) -> np.ndarray:
     """The compatible pairs whose neighbourhoods agree best (`neighbourhood_agreement`): for
-    each object of either map its `per_object` best pairs, then at most `cap` of those.
+    each object of either map its `per_object` best pairs, then at most `cap` of those. The
+    arguments are not checked: the aligner's are (its maps and parameters were).
 
     Ties in the score go to the pair whose objects were seen most recently (the smaller sum
     of ages), then to the lower index. Each object is described by `NEIGHBOURS` neighbours,
     fewer when the compatible pairs are so many that comparing them would take more than
     `_RANKING_STEPS` steps (maps of thousands of look-alike objects). Memory: one byte per
-    object pair beside `compatible`.
+    object pair beside `compatible`, and 24 bytes per other object and kept pair.
 
     Args:
         compatible: (n, m) bool, the size gate (`size_compatible`).
@@ -182,7 +183,8 @@ def neighbourhood_pairs(compatible: np.ndarray, ego_points: np.ndarray,
 
 def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
     """(n, k + 1) float64: each point's distances to its k = min(neighbours, n - 1) nearest
-    other points, ascending, then an inf that ends the row for `_merge_steps`."""
+    other points, ascending, then an inf that ends the row for `_agreement` and
+    `_best_per_object`."""
     n = points.shape[0]
     k = min(neighbours, n - 1)
     out = np.full((n, k + 1), np.inf)

@@ -256,9 +256,9 @@ class TestWheelInstall:
 def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
     """A new user's first steps: a fresh virtual environment, `pip install .` (not editable),
     the kernels compiled into the installed package (`python -m tcaff_gtsam.eval.precompile`,
-    as the README says), then the demo (`make demo`'s job, every scenario shortened: it prints every scenario's
-    table and writes every figure) and `python -m tcaff_gtsam --help`, run from a folder
-    outside the repository.
+    as the README says), then the demo (`make demo`'s job, every scenario shortened: it prints
+    every scenario's table and writes every figure) and `python -m tcaff_gtsam --help`, run
+    from a folder outside the repository.
 
     The new environment borrows the dependencies this one installed from pyproject.toml (a
     .pth file puts this environment's site-packages after its own), so that pip installs the
@@ -299,8 +299,8 @@ def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
     assert "numba kernels compiled and cached" in compiled.stderr
     # one process: the workers' pool is tested elsewhere, and this test is the suite's longest
     demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "25",
-                           "--workers", "1", "--output", "results"], cwd=work, capture_output=True, text=True,
-                          timeout=1800, env=clean_env())
+                           "--workers", "1", "--output", "results"], cwd=work,
+                          capture_output=True, text=True, timeout=1800, env=clean_env())
     assert demo.returncode == 0, demo.stdout + demo.stderr
     for name in scenarios:
         assert name in demo.stdout

@@ -16,7 +16,7 @@ from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
 from tcaff_gtsam import registration as reg
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_error, se2_from_params, transform_points
-from tcaff_gtsam.registration import neighbourhood_agreement, neighbourhood_pairs
+from tcaff_gtsam.registration import _neighbourhood_pairs, neighbourhood_agreement
 
 seeds = st.integers(0, 2**32 - 1)
 poses = st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-math.pi, math.pi))
@@ -114,7 +114,7 @@ def test_each_object_keeps_its_best_pairs_up_to_the_cap(seed, n, m, per_object, 
     saved = reg.NEIGHBOURS
     reg.NEIGHBOURS = neighbours
     try:
-        kept = neighbourhood_pairs(compatible, p, q, ages_ego, ages_other, 0.3, per_object, cap)
+        kept = _neighbourhood_pairs(compatible, p, q, ages_ego, ages_other, 0.3, per_object, cap)
     finally:
         reg.NEIGHBOURS = saved
     pairs = np.argwhere(np.ones((n, m), bool))
@@ -135,7 +135,7 @@ def test_neighbourhoods_keep_the_true_pairs_where_recency_does_not():
     ego, other, true, _ = clustered(rng, 150, 75)
     compatible = np.ones((150, 150), bool)
     ages_ego, ages_other = ego.ages(20.0), other.ages(20.0)
-    kept = neighbourhood_pairs(compatible, ego.centroids[:, :2], other.centroids[:, :2],
+    kept = _neighbourhood_pairs(compatible, ego.centroids[:, :2], other.centroids[:, :2],
                                ages_ego, ages_other, 0.25, 2, 10000)
     # the same number of pairs, those whose objects were seen most recently
     pairs = np.argwhere(compatible)

@@ -6,7 +6,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
-#: module -> kernels called from Python outside the core (the core's are tests/core's)
+#: the kernels called from Python outside the core, and one of the core's (all of which
+#: tests/core/test_precompile.py checks)
 ENTRY_KERNELS = [("tcaff_gtsam.eval.tracker", "_advance"),
                  ("tcaff_gtsam.mapping.lift", "_calipers"),
                  ("tcaff_gtsam.clipper", "_mno")]

@@ -1,5 +1,5 @@
 """Tests for tcaff_gtsam.eval.tracker: the multi-object tracker of people on the floor plane
-(constant-velocity Kalman tracks, Hungarian association per detection set, confirmation and
+(constant-velocity Kalman tracks, optimal association per detection set, confirmation and
 deletion), on hand-made walks whose right answer is known."""
 
 from __future__ import annotations
@@ -286,10 +286,10 @@ def test_covariances_stay_symmetric_positive_definite():
 
 @FEW
 @given(rows=st.integers(1, 7), extra=st.integers(0, 4), ties=st.booleans(),
-       transpose=st.booleans(), seed=st.integers(0, 2**32 - 1))
-def test_min_cost_assignment_is_optimal(rows, extra, ties, transpose, seed):
-    """The compiled assignment is a matching of every row (distinct columns) whose total cost
-    is scipy's optimum, on random matrices, with many ties (small integers) or without."""
+       seed=st.integers(0, 2**32 - 1))
+def test_min_cost_assignment_is_scipys(rows, extra, ties, seed):
+    """The compiled assignment is scipy's, on random matrices with many ties (small integers)
+    or none: optimal, and equal costs split the same way (duplicate tracks get the same ids)."""
     from scipy.optimize import linear_sum_assignment
     from tcaff_gtsam.eval.tracker import _min_cost_assignment
 
@@ -297,10 +297,61 @@ def test_min_cost_assignment_is_optimal(rows, extra, ties, transpose, seed):
     shape = (rows, rows + extra)
     cost = (rng.integers(0, 3, shape).astype(float) if ties
             else rng.normal(0.0, 10.0, shape))
-    col = _min_cost_assignment(cost)
-    assert len(set(col.tolist())) == rows and col.min() >= 0 and col.max() < shape[1]
-    r, c = linear_sum_assignment(cost)
-    assert cost[np.arange(rows), col].sum() == pytest.approx(cost[r, c].sum(), abs=1e-9)
+    _, expected = linear_sum_assignment(cost)
+    np.testing.assert_array_equal(_min_cost_assignment(cost), expected)
+
+
+@FEW
+@given(n=st.integers(1, 4), k=st.integers(1, 4), seed=st.integers(0, 2**32 - 1))
+def test_association_has_the_most_pairs_in_the_gate_then_the_least_cost(n, k, seed):
+    """Against every partial matching of a few tracks and detections (more of either): the
+    compiled association matches as many pairs inside the gate as any, none outside, at the
+    least total d^2 + ln|S| among those."""
+    from itertools import permutations
+
+    from tcaff_gtsam.eval.tracker import _associate
+
+    rng = np.random.default_rng(seed)
+    x = np.column_stack([rng.uniform(-2.0, 2.0, (n, 2)), np.zeros((n, 2))])
+    P = np.stack([np.diag([v, v, 1.0, 1.0]) for v in rng.uniform(0.01, 1.0, n)])
+    z = rng.uniform(-2.0, 2.0, (k, 2))
+    r, gate = 0.09, 4.0
+    S = P[:, :2, :2] + r * np.eye(2)
+    diff = z[None] - x[:, None, :2]
+    d2 = np.einsum("nki,nij,nkj->nk", diff, np.linalg.inv(S), diff)
+    cost = d2 + np.log(np.linalg.det(S))[:, None]
+    best = (0, 0.0)
+    for cols in permutations([*range(k), *[-1] * n], n):  # -1: the track takes nothing
+        pairs = [(i, j) for i, j in enumerate(cols) if j >= 0]
+        if all(d2[i, j] <= gate for i, j in pairs):
+            best = max(best, (len(pairs), -sum(cost[i, j] for i, j in pairs)))
+    taken = _associate(x, P, z, r, gate)
+    pairs = [(i, int(j)) for i, j in enumerate(taken) if j >= 0]
+    assert len({j for _, j in pairs}) == len(pairs)
+    assert all(d2[i, j] <= gate for i, j in pairs)
+    assert len(pairs) == best[0]
+    assert sum(cost[i, j] for i, j in pairs) == pytest.approx(-best[1], abs=1e-9)
+
+
+def test_a_detection_reported_twice_leaves_the_first_of_its_two_tracks():
+    """One set holding the same detection twice starts two identical tracks; the next frame's
+    detection ties exactly between them and goes to the first (as scipy's assignment splits
+    ties), and the second, tentative and missed, is deleted."""
+    mot = tracker()
+    mot.step(0.0, [np.array([[1.0, 1.0], [1.0, 1.0]])])
+    assert mot.ids.tolist() == [0, 1]
+    mot.step(DT, [np.array([[1.05, 1.0]])])
+    assert mot.ids.tolist() == [0] and mot.hits.tolist() == [2]
+
+
+def test_detections_too_far_out_for_the_numbers_start_tracks():
+    """A detection at 1e200 m overflows the gating distance: it is outside every gate and
+    starts a track of its own, and the tracker goes on."""
+    mot = tracker()
+    mot.step(0.0, [np.array([[0.0, 0.0]])])
+    mot.step(DT, [np.array([[0.1, 0.0], [1e200, -1e200]])])
+    assert len(mot) == 2
+    assert mot.x[0, 0] < 1.0 and mot.x[1, 0] == 1e200
 
 
 class PlainTracker:
@@ -480,7 +531,8 @@ def test_tracker_params_refuse_junk_naming_the_field(field, value):
 
 @pytest.mark.parametrize(("field", "value"), [
     ("accel_noise", 0.0), ("detection_noise", float("inf")), ("initial_speed", -1.0),
-    ("gate", 0), ("confirm_hits", 0), ("confirm_hits", 2.0), ("tentative_misses", 0),
+    ("gate", 0), ("gate", float("inf")), ("confirm_hits", 0), ("confirm_hits", 2.0),
+    ("tentative_misses", 0),
     ("max_coast", -0.1),
 ])
 def test_tracker_params_refuse_values_out_of_range(field, value):
