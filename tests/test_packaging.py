@@ -297,8 +297,9 @@ def test_fresh_venv_pip_install_runs_the_demo(tmp_path):
                               capture_output=True, text=True, timeout=900, env=clean_env())
     assert compiled.returncode == 0, compiled.stderr
     assert "numba kernels compiled and cached" in compiled.stderr
-    # one process: the workers' pool is tested elsewhere, and this test is the suite's longest
-    demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "25",
+    # one process, 12 s scenarios (every table row and figure is there by then): the workers'
+    # pool is tested elsewhere, and this is the suite's longest test
+    demo = subprocess.run([str(venv / "bin" / "tcaff"), "demo", "--duration", "12",
                            "--workers", "1", "--output", "results"], cwd=work,
                           capture_output=True, text=True, timeout=1800, env=clean_env())
     assert demo.returncode == 0, demo.stdout + demo.stderr

@@ -133,7 +133,7 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
     ({"scenarios": [{**SCENARIO, "window": 0}]},
      "scenarios.0.window: must be an int >= 1 (got 0)"),
     ({"scenarios": [{**SCENARIO, "pedestrians": {"tracker": {"gate": -1}}}]},
-     "scenarios.0.pedestrians.tracker.gate: must be a number > 0 (got -1)"),
+     "scenarios.0.pedestrians.tracker.gate: must be a finite number > 0 (got -1)"),
     ({"scenarios": [{**SCENARIO, "pedestrians": {"tracker": {"confirm_hits": "3"}}}]},
      "scenarios.0.pedestrians.tracker.confirm_hits: must be an int >= 1 (got '3')"),
     ("scenarios: [\n", "not valid YAML"),
