@@ -1,8 +1,9 @@
 """Shared test set-up.
 
 The suite mirrors the package: `core/` (tcaff_gtsam), `mapping/` and `eval/`. Helper modules
-that several folders use (`rgbd_scenes.py`) sit beside this file, whose folder pytest puts on
-the import path. End-to-end tests that run whole studies, data sets or bags are marked `slow`:
+that several folders use (`rgbd_scenes.py`, `precompiled.py`) sit beside this file, whose
+folder pytest puts on the import path. End-to-end tests that run whole studies, data sets or
+bags are marked `slow`:
 
     make test                      # everything (what CI runs)
     .venv/bin/pytest -m "not slow"  # the quick subset for development

@@ -6,6 +6,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+from precompiled import signatures_around
+
 #: the kernels the alignment path calls from Python (the others are called only by these)
 ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_measurement_costs"),
@@ -17,20 +19,11 @@ ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
 def test_compile_kernels_compiles_every_entry_kernel():
     """In a fresh interpreter, where nothing else has run the aligner: no entry kernel has a
     compiled signature before `compile_kernels`, every one has after it."""
-    check = "; ".join([
-        ("import tcaff_gtsam.clipper as clipper, tcaff_gtsam.hypothesis_tree as hypothesis_tree, "
-         "tcaff_gtsam.registration as registration"),
-        "from tcaff_gtsam.precompile import compile_kernels",
-        f"kernels = [getattr(globals()[m], n) for m, n in {ENTRY_KERNELS!r}]",
-        "print([bool(k.signatures) for k in kernels])",
-        "compile_kernels()",
-        "print([bool(k.signatures) for k in kernels])"])
-    done = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True,
-                          timeout=600)
-    assert done.returncode == 0, done.stderr
-    before, after = done.stdout.strip().splitlines()[-2:]
-    assert before == str([False] * len(ENTRY_KERNELS))
-    assert after == str([True] * len(ENTRY_KERNELS))
+    kernels = [(f"tcaff_gtsam.{module}", name) for module, name in ENTRY_KERNELS]
+    before, after, _ = signatures_around(
+        kernels, "from tcaff_gtsam.precompile import compile_kernels; compile_kernels()")
+    assert before == [False] * len(kernels)
+    assert after == [True] * len(kernels)
 
 
 def test_the_module_runs_and_says_what_it_did():

@@ -409,10 +409,15 @@ def test_the_study_workers_ignore_ctrl_c_from_their_start():
 
     from tcaff_gtsam.eval import executor
 
-    context = executor._QuietSpawnContext()
-    with context.Pool(1) as pool:
-        assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # as in a terminal, whatever the test runner was started with (a background job ignores it)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        context = executor._QuietSpawnContext()
+        with context.Pool(1) as pool:
+            assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @pytest.mark.parametrize(("args", "named"), [
