@@ -276,9 +276,11 @@ class TeamConsistency:
 
     def _wanted(self, pairs: Iterable) -> list[tuple[int, int]]:
         n, wanted = self.n_robots, []
-        if not isinstance(pairs, Iterable):
+        try:  # not isinstance(pairs, Iterable): a 0-d array is one and cannot be iterated
+            pairs = list(pairs)
+        except TypeError:
             raise DataError(f"TeamConsistency.update: pairs must be ordered pairs of robots, "
-                            f"got {shown(pairs)}")
+                            f"got {shown(pairs)}") from None
         for pair in pairs:
             if not (isinstance(pair, tuple) and len(pair) == 2
                     and all(isinstance(r, (int, np.integer)) and not isinstance(r, bool)

@@ -241,6 +241,13 @@ def test_a_wanted_pair_outside_the_team_is_refused(pairs):
         TeamConsistency(3).update({}, pairs)
 
 
+@pytest.mark.parametrize("pairs", [5, np.array(0.0), object()])
+def test_wanted_pairs_that_cannot_be_listed_are_refused(pairs):
+    """Not an iterable, or one that cannot be iterated (a 0-d array is an Iterable)."""
+    with pytest.raises(DataError, match="pairs must be ordered pairs of robots"):
+        TeamConsistency(3).update({(0, 1): None}, pairs)
+
+
 @pytest.mark.parametrize("n_robots", [TeamConsistency.MAX_ROBOTS + 1, 10**9])
 def test_a_team_too_large_for_the_update_is_refused_at_once(n_robots):
     with pytest.raises(ConfigError, match="n_robots"):
