@@ -313,7 +313,8 @@ def arun_weights(ages_ego: np.ndarray, ages_other: np.ndarray, offset: float = 0
         if bad.any():
             raise DataError(f"{o}: {name} must be finite numbers >= 0 seconds, got "
                             f"{ages[bad].flat[0]}")
-    return _weights(a * b, offset)
+    with np.errstate(over="ignore"):  # ages whose product overflows weigh 0, their limit
+        return _weights(a * b, offset)
 
 
 def _weights(age_products: np.ndarray, offset: float) -> np.ndarray:

@@ -460,6 +460,15 @@ def test_arun_weights_formula(seed, n):
     assert np.all(w > 0)
 
 
+def test_arun_weights_of_ages_whose_product_overflows_are_zero_without_a_warning():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        w = arun_weights(np.array([1e200, 2.0]), np.array([1e200, 3.0]))
+    np.testing.assert_array_equal(w, [0.0, 1.0 / 6.01])
+
+
 def test_arun_weights_known_values():
     w = arun_weights([0.0, 1.0, 2.0, 0.0], [5.0, 1.0, 3.0, 0.0])
     np.testing.assert_allclose(w, [100.0, 1.0 / 1.01, 1.0 / 6.01, 100.0])
