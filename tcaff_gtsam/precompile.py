@@ -3,10 +3,9 @@
 The kernels (consistency graph, MNO-CLIPPER, mutual inliers, the ranking of look-alike pairs,
 the TCAFF hypothesis trees) are compiled with `cache=True`: the machine code is written next to
 each module (in its `__pycache__`, or numba's user cache when that is not writable) and loaded
-by later processes.
-The first process to use them otherwise pays the compilation, seconds, on its first alignment
-step; `make install` runs this once so that no user process does. Source changes are noticed
-by numba, which compiles again on the next call.
+by later processes. The first process to use them otherwise pays the compilation, seconds, on
+its first alignment step; `make install` runs this once so that no user process does. Source
+changes are noticed by numba, which compiles again on the next call.
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ MAX_WEIGHT = 1e100
 _GATE_BLOCK = 1 << 20
 #: neighbours that describe an object for `_neighbourhood_pairs`: enough to reach past its own
 #: cluster (a row of cars, a group of chairs) to the next ones, whose distances tell apart
-#: objects that look alike up close
+#: objects that look alike up close (at most 254: a kept pair's score + 1 takes one byte)
 NEIGHBOURS = 48
 #: the most merge steps (compatible pairs x both neighbour lists) one `_neighbourhood_pairs`
 #: takes, about half a second: beyond it each object is described by fewer neighbours
@@ -171,10 +171,11 @@ def _neighbourhood_pairs(compatible: np.ndarray, ego_points: np.ndarray,
     d_other = _neighbour_distances(other_points, neighbours)
     ages_ego = np.ascontiguousarray(ages_ego, np.float64)
     ages_other = np.ascontiguousarray(ages_other, np.float64)
-    kept = np.argwhere(_best_per_object(np.ascontiguousarray(compatible), d_ego, d_other,
-                                        ages_ego, ages_other, float(epsilon), int(per_object)))
+    scored = _best_per_object(np.ascontiguousarray(compatible), d_ego, d_other, ages_ego,
+                              ages_other, float(epsilon), int(per_object))
+    kept = np.argwhere(scored)
     if kept.shape[0] > cap:
-        score = _agreement(d_ego, d_other, kept, float(epsilon))
+        score = scored[kept[:, 0], kept[:, 1]]  # the score + 1, which ranks alike
         age = ages_ego[kept[:, 0]] + ages_other[kept[:, 1]]
         best = np.lexsort((kept[:, 1], kept[:, 0], age, -score))[:cap]
         kept = kept[np.sort(best)]  # kept is in index order, so sorted positions keep it
@@ -218,11 +219,12 @@ def _agreement(d_ego, d_other, pairs, epsilon):
 
 @numba.njit(cache=True)
 def _best_per_object(compatible, d_ego, d_other, ages_ego, ages_other, epsilon, per_object):
-    """(n, m) bool: the `per_object` best compatible pairs of every ego and every other object
-    by (agreement, then smaller age sum, then lower index)."""
+    """(n, m) uint8: the agreement + 1 of the `per_object` best compatible pairs of every ego
+    and every other object by (agreement, then smaller age sum, then lower index), 0 for the
+    pairs not kept."""
     n, m = compatible.shape
     steps = d_ego.shape[1] + d_other.shape[1] - 2
-    keep = np.zeros((n, m), np.bool_)
+    keep = np.zeros((n, m), np.uint8)
     cols = np.empty(m, np.int64)
     at_ego = np.empty(m, np.int64)
     at_other = np.empty(m, np.int64)
@@ -266,11 +268,11 @@ def _best_per_object(compatible, d_ego, d_other, ages_ego, ages_other, epsilon, 
             _offer(col_score[j], col_age[j], col_pick[j], count[c], age, i)
         for r in range(per_object):
             if row_pick[r] >= 0:
-                keep[i, row_pick[r]] = True
+                keep[i, row_pick[r]] = row_score[r] + 1
     for j in range(m):
         for r in range(per_object):
             if col_pick[j, r] >= 0:
-                keep[col_pick[j, r], j] = True
+                keep[col_pick[j, r], j] = col_score[j, r] + 1
     return keep
 
 

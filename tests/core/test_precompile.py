@@ -13,7 +13,7 @@ ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_measurement_costs"),
                  ("hypothesis_tree", "_kalman_children"), ("hypothesis_tree", "_children"),
                  ("hypothesis_tree", "_best_per_group"), ("registration", "_mutual_nearest"),
-                 ("registration", "_best_per_object"), ("registration", "_agreement")]
+                 ("registration", "_best_per_object")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():
