@@ -2,8 +2,8 @@
 `python -m tcaff_gtsam.eval.precompile`.
 
 The core's alignment kernels (`tcaff_gtsam.precompile`, which a user of the core alone runs),
-the people tracker's frame (`tracker`) and the mapping front end's footprint calipers
-(`mapping.lift`). `make install` runs it once, so that no study, demo or mapping run pays
+the people tracker's frame (`tracker`), the mapping front end's footprint calipers
+(`mapping.lift`) and the depth segmenter's and mask filter's kernels (`mapping.segment`). `make install` runs it once, so that no study, demo or mapping run pays
 seconds of compilation in its first process. Source changes are noticed by numba, which
 compiles again on the next call.
 """
@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 from tcaff_gtsam.mapping.lift import _footprint_widths
+from tcaff_gtsam.mapping.segment import _compile_kernels as compile_segmenter_kernels
 
 from tcaff_gtsam.precompile import compile_kernels as compile_core_kernels
 
@@ -25,8 +26,8 @@ __all__ = ["compile_kernels"]
 
 def compile_kernels() -> float:
     """The core's kernels, then two tracker frames (tracks spawned, then associated and
-    updated) and the footprint of one cloud, so that each kernel is compiled or loaded from
-    the cache.
+    updated), the footprint of one cloud and the segmenter on a small frame, so that each
+    kernel is compiled or loaded from the cache.
 
     Returns:
         seconds taken.
@@ -38,6 +39,7 @@ def compile_kernels() -> float:
     tracker.step(0.2, [np.array([[0.1, 0.0]]), np.zeros((0, 2))])
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     _footprint_widths(square, np.array([0]), np.array([4]))
+    compile_segmenter_kernels()
     return time.perf_counter() - start
 
 

@@ -20,6 +20,7 @@ from tcaff_gtsam.geometry import se3_from_rt
 from tcaff_gtsam.params import ParameterError, _finite, _int_at_least, _real, _require
 
 __all__ = [
+    "ORTHONORMAL_TOL",
     "R_BODY_OPTICAL",
     "PinholeCamera",
     "T_body_camera",
@@ -43,6 +44,12 @@ MAX_RAY_DEG = 89.0
 MIN_FOV_DEG = 0.01
 #: pixels; the widest (or tallest) image, the largest int32 (OpenCV's pixel coordinates)
 _MAX_PIXELS = 2**31 - 1
+#: the largest max |R R' - I| of a pose's rotation taken as rounding and re-orthonormalised:
+#: poses stored to four digits (7-Scenes: up to 4e-4), and products of a few of them, stay well
+#: within it; a rotation off by more is not a pose (a scale or shear of a per cent or more)
+ORTHONORMAL_TOL = 1e-2
+#: rotations orthonormal to this are taken as they are (float64 products of rotations)
+_EXACT = 1e-12
 
 
 @dataclass(frozen=True)
@@ -181,30 +188,46 @@ def check_depth_scale(name: str, depth_scale) -> float:
 
 
 def rigid_transform(name: str, T, error: type[Exception] = DataError) -> np.ndarray:
-    """`T` as a (4, 4) float array if it is a finite rigid transform (orthonormal rotation with
-    determinant 1, last row 0 0 0 1); else `error` naming `name`."""
+    """`T` as a (4, 4) float array with an exactly orthonormal rotation, if it is a finite
+    rigid transform up to `ORTHONORMAL_TOL`; else `error` naming `name` and by how much.
+
+    Poses read from files, or composed from a few of them, are orthonormal only to the digits
+    they were stored with (7-Scenes' to about 4e-4); those rotations are replaced by the
+    nearest rotation (the SVD's U V'), so that nothing downstream inherits the shear. A
+    rotation farther than `ORTHONORMAL_TOL` from orthonormal (max |R R' - I|), a determinant
+    of the wrong sign or a last row other than 0 0 0 1 is not a pose: refused.
+    """
     try:
-        M = np.asarray(T, dtype=float)
+        M = np.array(T, dtype=float)
     except (TypeError, ValueError):
         raise error(f"{name} must be a (4, 4) matrix, got {type(T).__name__}") from None
     if M.shape != (4, 4) or not np.all(np.isfinite(M)):
         raise error(f"{name} must be a finite (4, 4) matrix, got shape {M.shape}")
     R = M[:3, :3]
-    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0
-            and np.allclose(M[3], (0, 0, 0, 1))):
-        raise error(f"{name} is not a rigid transform (its rotation is not orthonormal with "
-                    "determinant 1, or its last row is not 0 0 0 1)")
+    off = float(np.abs(R @ R.T - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    row = float(np.abs(M[3] - (0.0, 0.0, 0.0, 1.0)).max())
+    if off > ORTHONORMAL_TOL or det <= 0 or row > ORTHONORMAL_TOL:
+        raise error(f"{name} is not a rigid transform: max |R R' - I| = {off:.3g} (at most "
+                    f"{ORTHONORMAL_TOL:g}), det R = {det:.6g} (must be > 0), last row "
+                    f"{M[3].tolist()} (must be 0 0 0 1 within {ORTHONORMAL_TOL:g})")
+    if off > _EXACT:
+        U, _, Vt = np.linalg.svd(R)
+        M[:3, :3] = U @ Vt
+    M[3] = (0.0, 0.0, 0.0, 1.0)
     return M
 
 
 def depth_in_metres(depth, depth_scale: float, shape: tuple[int, int] | None = None,
-                    name: str = "depth") -> np.ndarray:
+                    name: str = "depth", copy: bool = True) -> np.ndarray:
     """A raw depth image as (H, W) float32 metres, 0 where there is no return.
 
     Args:
         depth: (H, W) uint16, float32 or float64 raw depth; NaN and inf count as no return.
         depth_scale: raw units per metre (> 0).
         shape: the (H, W) the image must have, if given.
+        copy: False: `depth` itself is returned when it is float32 metres already (depth_scale
+            1, every value finite and >= 0), for a caller that only reads it.
 
     Raises:
         DataError: wrong type, dtype or shape, or negative depth.
@@ -219,10 +242,19 @@ def depth_in_metres(depth, depth_scale: float, shape: tuple[int, int] | None = N
         raise DataError(f"{name} has shape {depth.shape}; expected {want}")
     if not (_real(depth_scale) and math.isfinite(depth_scale) and depth_scale > 0):
         raise DataError(f"depth_scale = {depth_scale!r}: must be a finite number > 0")
-    metres = depth.astype(np.float32) / np.float32(depth_scale)
-    metres[~np.isfinite(metres)] = 0.0
-    if (metres < 0).any():
-        raise DataError(f"{name} has negative value {float(metres.min())} m")
+    if depth.dtype == np.float32 and depth_scale == 1 and not copy:
+        metres = depth
+    else:
+        metres = depth.astype(np.float32)
+        if depth_scale != 1:
+            np.divide(metres, np.float32(depth_scale), out=metres)
+    if metres.size and not (metres.min() >= 0 and metres.max() < np.inf):
+        # NaN, infinities or negative values (two reductions found them; the rest is rare)
+        if metres is depth:
+            metres = depth.copy()
+        metres[~np.isfinite(metres)] = 0.0
+        if (metres < 0).any():
+            raise DataError(f"{name} has negative value {float(metres.min())} m")
     return metres
 
 

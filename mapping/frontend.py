@@ -1,12 +1,15 @@
 """The mapping front end of one robot: RGB-D frame + odometry pose -> its object map.
 
 One `process` call per frame runs the paper's mapping step: register depth to the colour image
-(when the cameras differ), segment, filter the masks, lift them to observations in the odometry
-frame, and track them in the `ObjectMapper`. Each call reports how long each stage took.
+(when the cameras differ), segment with the frame's own gravity, filter the masks, lift them to
+observations in the odometry frame (each with its cleaned cloud and the colour histogram of its
+pixels), and track them in the `ObjectMapper`, which merges each object's views. Each call
+reports how long each stage took.
 """
 
 from __future__ import annotations
 
+import inspect
 import time
 from dataclasses import dataclass
 
@@ -25,7 +28,16 @@ from .camera import (
 )
 from .lift import LiftParams, MaskLifter, Observations
 from .mapper import MapperParams, ObjectMapper
-from .segment import DepthSegmenter, MaskFilter, Segmenter, check_masks, check_rgb, filter_masks
+from .objects import colour_bins
+from .segment import (
+    DepthSegmenter,
+    MaskFilter,
+    Segmenter,
+    check_masks,
+    check_rgb,
+    filter_labels,
+    filter_masks,
+)
 
 __all__ = ["DepthRegistration", "FrameResult", "RgbdFrontEnd"]
 
@@ -101,20 +113,30 @@ class RgbdFrontEnd:
         if not callable(getattr(self.segmenter, "segment", None)):
             raise ConfigError(f"RgbdFrontEnd.segmenter = {segmenter!r}: needs a "
                               "segment(rgb, depth) method")
+        self._segmenter_takes_up = _takes_keyword(self.segmenter.segment, "up")
         self.mask_filter = MaskFilter() if mask_filter is None else mask_filter
         self.lifter = MaskLifter(camera, 1.0, lift_params)
         self.mapper = ObjectMapper(mapper_params)
 
     def process(self, t: float, rgb: np.ndarray, depth: np.ndarray,
-                T_odom_body: np.ndarray) -> FrameResult:
+                T_odom_body: np.ndarray, T_body_camera: np.ndarray | None = None
+                ) -> FrameResult:
         """Map one frame.
+
+        The odometry frame is gravity aligned (z up, as VIO gives it), so the camera's
+        attitude at this frame, T_odom_body @ T_body_camera, tells the segmenter which planes
+        are level (a segmenter whose `segment` takes the keyword `up`, as `DepthSegmenter`'s
+        does): a hand-held, tilting or pan-tilt camera is segmented with its own gravity.
 
         Args:
             t: seconds, the frame's time (not earlier than the previous frame's).
             rgb: (H, W, 3) uint8 colour image.
             depth: raw depth image, in the depth camera when `registration` is set, else
                 registered to the colour image.
-            T_odom_body: (4, 4) the body pose in the odometry frame at time t.
+            T_odom_body: (4, 4) the body pose in the gravity-aligned odometry frame at time t.
+            T_body_camera: (4, 4) the camera's optical frame in the body frame at time t, for
+                a camera that moves on the body (a pan-tilt unit); None: the one given at
+                construction.
         """
         seconds = {}
         clock = time.perf_counter()
@@ -126,7 +148,9 @@ class RgbdFrontEnd:
             clock = now
 
         check_rgb(rgb, self.camera.shape)
-        T_ob = rigid_transform("T_odom_body", T_odom_body)
+        T_odom_camera = rigid_transform("T_odom_body", T_odom_body) @ (
+            self.T_body_camera if T_body_camera is None
+            else rigid_transform("T_body_camera", T_body_camera))
         reg = self.registration
         if reg is None:
             z = depth_in_metres(depth, self.depth_scale, self.camera.shape)
@@ -134,19 +158,65 @@ class RgbdFrontEnd:
             z = register_depth(depth, reg.camera, self.camera, reg.T_color_depth,
                                depth_scale=self.depth_scale)
         lap("register")
-        masks = check_masks(self.segmenter.segment(rgb, z), self.camera.shape,
-                            f"{type(self.segmenter).__name__}.segment's masks")
-        lap("segment")
-        kept = filter_masks(masks, z, self.mask_filter)
+        # the odometry frame's up axis (z) in the optical frame
+        up = {"up": T_odom_camera[2, :3].copy()} if self._segmenter_takes_up else {}
+        if isinstance(self.segmenter, DepthSegmenter):
+            # the label image is filtered as it is; only the kept masks are ever made
+            labels, n_masks = self.segmenter.label(rgb, z, **up)
+            lap("segment")
+            kept = filter_labels(labels, n_masks, z, self.mask_filter)
+            candidates = labels[None] == (kept + 1).astype(labels.dtype)[:, None, None]
+        else:
+            masks = check_masks(self.segmenter.segment(rgb, z, **up), self.camera.shape,
+                                f"{type(self.segmenter).__name__}.segment's masks")
+            n_masks = masks.shape[0]
+            lap("segment")
+            kept = filter_masks(masks, z, self.mask_filter)
+            candidates = masks[kept]
         lap("filter")
-        obs = self.lifter.measure(masks[kept], z, T_ob @ self.T_body_camera)
-        lifted = kept[obs.mask_indices]
-        obs = Observations(obs.centroids, obs.widths, obs.heights, obs.point_counts, lifted)
+        obs = self.lifter.measure(candidates, z, T_odom_camera)
+        lifted_masks = candidates[obs.mask_indices]
+        obs = Observations(obs.centroids, obs.widths, obs.heights, obs.point_counts,
+                           kept[obs.mask_indices], obs.points, obs.cloud_starts)
+        colours = self._colours(rgb, lifted_masks)
         lap("lift")
-        track_ids = self.mapper.update(t, obs.centroids, obs.widths, obs.heights)
+        track_ids = self.mapper.update(t, obs.centroids, obs.widths, obs.heights,
+                                       obs.clouds(), colours)
         lap("track")
-        return FrameResult(obs, masks[lifted], track_ids, int(masks.shape[0]), seconds)
+        return FrameResult(obs, lifted_masks, track_ids, int(n_masks), seconds)
+
+    def _colours(self, rgb: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """(k, B) the hue-saturation histogram of each mask's pixels, from every second row
+        and column (a histogram of a few hundred pixels or more is as good as of all)."""
+        p = self.mapper.params
+        n_bins = p.hue_bins * p.saturation_bins + 1
+        out = np.zeros((masks.shape[0], n_bins))
+        if masks.shape[0] == 0:
+            return out
+        index = colour_bins(np.ascontiguousarray(rgb[::2, ::2]), p.hue_bins, p.saturation_bins)
+        sampled = masks[:, ::2, ::2]
+        rows_hit, cols_hit = sampled.any(axis=2), sampled.any(axis=1)
+        for k, mask in enumerate(sampled):
+            rows, cols = np.flatnonzero(rows_hit[k]), np.flatnonzero(cols_hit[k])
+            if rows.size == 0:  # a mask thinner than the sampling: its own pixels then
+                counts = np.bincount(colour_bins(rgb[masks[k]][None], p.hue_bins,
+                                                 p.saturation_bins)[0], minlength=n_bins)
+            else:
+                crop = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+                counts = np.bincount(index[crop][mask[crop]], minlength=n_bins)
+            out[k] = counts / max(counts.sum(), 1)
+        return out
 
     def object_map(self) -> ObjectMap:
         """The robot's current map (confirmed tracks) in its odometry frame."""
         return self.mapper.object_map()
+
+
+def _takes_keyword(method, name: str) -> bool:
+    """Whether `method` accepts the keyword argument `name`."""
+    try:
+        params = inspect.signature(method).parameters
+    except (TypeError, ValueError):  # a builtin without a signature
+        return False
+    return name in params or any(p.kind is inspect.Parameter.VAR_KEYWORD
+                                 for p in params.values())

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numba
@@ -132,6 +132,10 @@ class Observations:
         widths: (k,) horizontal extents; heights: (k,) vertical extents.
         point_counts: (k,) surface samples left after cleaning (the centroid's support).
         mask_indices: (k,) which input mask each observation came from.
+        points: (N, 3) the cleaned clouds, one after another in observation order (the
+            surface samples and the outline samples of each mask).
+        cloud_starts: (k + 1,) int64, observation o's cloud is
+            points[cloud_starts[o]:cloud_starts[o + 1]].
     """
 
     centroids: np.ndarray
@@ -139,9 +143,28 @@ class Observations:
     heights: np.ndarray
     point_counts: np.ndarray
     mask_indices: np.ndarray
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    cloud_starts: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
 
     def __len__(self) -> int:
         return self.centroids.shape[0]
+
+    def clouds(self) -> list[np.ndarray]:
+        """The k clouds, (n_o, 3) each (empty arrays when the clouds were not kept)."""
+        if self.cloud_starts.size != len(self) + 1:
+            return [np.zeros((0, 3)) for _ in range(len(self))]
+        return [self.points[a:b] for a, b in itertools.pairwise(self.cloud_starts)]
+
+    def subset(self, index: np.ndarray) -> Observations:
+        """The observations at `index` ((j,) int, increasing), their clouds with them."""
+        index = np.asarray(index, dtype=np.int64)
+        clouds = self.clouds()
+        kept = [clouds[i] for i in index]
+        sizes = np.array([c.shape[0] for c in kept], dtype=np.int64)
+        return Observations(self.centroids[index], self.widths[index], self.heights[index],
+                            self.point_counts[index], self.mask_indices[index],
+                            np.concatenate([np.zeros((0, 3)), *kept]),
+                            np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64))
 
 
 def _footprint_widths(xy: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
@@ -303,8 +326,12 @@ class MaskLifter:
         solid = ~(level | wall)
         if not solid.any():
             return _no_observations()
+        lengths = (ends - starts)[solid]
         return Observations(centroids[solid], widths[solid], heights[solid],
-                            counts[lifted][solid], source[solid])
+                            counts[lifted][solid], source[solid],
+                            np.concatenate([points[a:b] for a, b in
+                                            zip(starts[solid], ends[solid], strict=True)]),
+                            np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64))
 
     def _slabs(self, points: np.ndarray, starts: np.ndarray, ends: np.ndarray,
                widths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

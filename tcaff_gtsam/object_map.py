@@ -15,6 +15,9 @@ from .params import _real
 __all__ = ["ObjectMap", "as_object_map", "object_arrays"]
 
 _FIELDS = ("centroids", "widths", "heights", "last_seen")
+_ALL_FIELDS = (*_FIELDS, "descriptors")
+#: how far from 1 a descriptor's length may be (float32 storage, sums of rounded terms)
+_UNIT_TOL = 1e-4
 
 
 def object_arrays(prefix: str, centroids, widths, heights, **per_object
@@ -63,6 +66,32 @@ def object_arrays(prefix: str, centroids, widths, heights, **per_object
     return arrays
 
 
+def _descriptor_array(name: str, value, n: int) -> np.ndarray:
+    """`value` as a float (n, d) copy (d >= 1) of finite numbers >= 0 in rows of unit length;
+    else DataError naming `name`, the row and the value."""
+    try:
+        arr = np.array(real_array(name, "", value), dtype=np.float64)
+    except DataError:
+        raise DataError(f"{name} must be real numbers, got {type(value).__name__} "
+                        f"{shown(value)}") from None
+    if arr.size == 0 and n == 0:
+        return arr.reshape(0, max(arr.shape[-1], 1) if arr.ndim == 2 else 1)
+    if arr.ndim != 2 or arr.shape[0] != n or arr.shape[1] < 1:
+        raise DataError(f"{name} must have shape ({n}, d) with d >= 1, got {arr.shape}")
+    bad = ~np.isfinite(arr) | (arr < 0)
+    if bad.any():
+        i, j = (int(k) for k in np.argwhere(bad)[0])
+        raise DataError(f"{name} must be finite numbers >= 0, got {arr[i, j]} at row {i}, "
+                        f"column {j}")
+    length = np.sqrt(np.einsum("ij,ij->i", arr, arr))
+    off = np.flatnonzero(np.abs(length - 1.0) > _UNIT_TOL)
+    if off.size:
+        i = int(off[0])
+        raise DataError(f"{name} rows must have unit length (L2), row {i} has length "
+                        f"{length[i]:.6g}")
+    return arr
+
+
 @dataclass(frozen=True, eq=False)
 class ObjectMap:
     """Objects a robot has seen recently, in its own odometry frame.
@@ -73,6 +102,13 @@ class ObjectMap:
         heights: (n,) metres, vertical extent of each object.
         last_seen: (n,) seconds, time each object was last observed (same clock as `now` below).
 
+        descriptors: (n, d) or None, what each object looks like, for telling apart objects
+            of one size (`FrameAlignerParams.descriptor_min`, `descriptor_prior`): rows of
+            non-negative numbers of unit length (L2), compared by their dot product, a
+            similarity in [0, 1]. The mapping front end fills them with the object's colour
+            and shape (`mapping.objects`); appearance embeddings of any kind fit. None: the
+            map carries none, and its objects are told apart by size alone.
+
     Construction validates shapes, finiteness and non-negative sizes and raises `DataError`
     naming the field; the arrays are copied and made read-only. Empty maps (n = 0) are legal.
     """
@@ -81,10 +117,14 @@ class ObjectMap:
     widths: np.ndarray
     heights: np.ndarray
     last_seen: np.ndarray
+    descriptors: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         arrays = object_arrays("ObjectMap.", self.centroids, self.widths, self.heights,
                                last_seen=self.last_seen)
+        if self.descriptors is not None:
+            arrays["descriptors"] = _descriptor_array("ObjectMap.descriptors",
+                                                     self.descriptors, len(arrays["widths"]))
         for name, arr in arrays.items():
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
@@ -129,9 +169,11 @@ class ObjectMap:
         # rows of a valid map are valid: the checks of construction are not run again (they
         # cost more than the indexing at the map sizes aligned every second)
         subset = object.__new__(ObjectMap)
-        for name in _FIELDS:
-            arr = getattr(self, name)[idx]  # a copy: numpy's advanced indexing
-            arr.setflags(write=False)
+        for name in _ALL_FIELDS:
+            arr = getattr(self, name)
+            if arr is not None:
+                arr = arr[idx]  # a copy: numpy's advanced indexing
+                arr.setflags(write=False)
             object.__setattr__(subset, name, arr)
         return subset
 
@@ -181,7 +223,8 @@ class ObjectMap:
         except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the name
             raise DataError(f"ObjectMap.save: cannot write {path} ({exc})") from None
         with file:
-            np.savez(file, **{name: getattr(self, name) for name in _FIELDS})
+            np.savez(file, **{name: getattr(self, name) for name in _ALL_FIELDS
+                              if getattr(self, name) is not None})
 
     @classmethod
     def load(cls, path: str | Path) -> ObjectMap:
@@ -197,7 +240,7 @@ class ObjectMap:
         if missing:
             raise DataError(f"{path}: not an ObjectMap file, missing arrays {missing} "
                             f"(has {sorted(data)})")
-        return cls(**{name: data[name] for name in _FIELDS})
+        return cls(**{name: data[name] for name in _ALL_FIELDS if name in data})
 
 
 def as_object_map(owner: str, name: str, value) -> ObjectMap:

@@ -8,6 +8,7 @@ import numpy as np
 from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 from tcaff_gtsam.mapping.frontend import RgbdFrontEnd
 from tcaff_gtsam.mapping.mapper import MapperParams
+from tcaff_gtsam.mapping.segment import DepthSegmenter, DepthSegmenterParams, MaskFilter
 
 from tcaff_gtsam.geometry import se3_from_xyz_yaw
 
@@ -64,9 +65,18 @@ class RenderedCamera:
         self.scene = scene
         self.config = config
         self.camera = PinholeCamera.from_fov(config.width, config.height, config.hfov_deg)
+        # the masks' smallest areas are set for 640 x 480 images: the same share of this one
+        share = config.width * config.height / (640 * 480)
+        segmenter = DepthSegmenter(
+            self.camera, 1.0, DepthSegmenterParams(
+                min_area=round(DepthSegmenterParams.min_area * share)),
+            T_body_camera(config.mount_height, config.pitch_deg))
         self.front_end = RgbdFrontEnd(self.camera, T_body_camera(config.mount_height,
                                                                  config.pitch_deg),
-                                      depth_scale=1.0, mapper_params=mapper_params)
+                                      depth_scale=1.0, segmenter=segmenter,
+                                      mask_filter=MaskFilter(
+                                          min_area=round(MaskFilter.min_area * share)),
+                                      mapper_params=mapper_params)
 
     def step(self, rng: np.random.Generator, t: float, pose_true: np.ndarray,
              pose_odom: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

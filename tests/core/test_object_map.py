@@ -530,3 +530,142 @@ def test_any_damaged_map_file_loads_or_is_a_data_error(tmp_path_factory, data):
     except DataError:
         return
     assert isinstance(loaded, ObjectMap)
+
+
+# ---------------------------------------------------------------------------------------------
+# descriptors: (n, d) non-negative rows of unit length, kept through subsets and files
+
+
+def unit_rows(rng: np.random.Generator, n: int, d: int) -> np.ndarray:
+    rows = rng.random((n, d)) * (rng.random((n, d)) < 0.7)
+    rows[:, 0] += 0.05  # never all zero
+    return rows / np.linalg.norm(rows, axis=1, keepdims=True)
+
+
+def described_map(n: int = 5, d: int = 7, seed: int = 0) -> ObjectMap:
+    m = make_map(n, seed)
+    return ObjectMap(m.centroids, m.widths, m.heights, m.last_seen,
+                     unit_rows(np.random.default_rng(seed), n, d))
+
+
+def test_descriptors_are_validated_copied_and_read_only():
+    rows = unit_rows(np.random.default_rng(1), 3, 4)
+    given_rows = rows.copy()
+    m = ObjectMap(**valid_kwargs(3), descriptors=rows.tolist())
+    assert m.descriptors.dtype == np.float64 and m.descriptors.shape == (3, 4)
+    np.testing.assert_allclose(m.descriptors, rows, rtol=0, atol=0)
+    assert not m.descriptors.flags.writeable
+    m2 = ObjectMap(**valid_kwargs(3), descriptors=rows)
+    rows[0, 0] = 99.0
+    assert m2.descriptors[0, 0] != 99.0 and not np.shares_memory(m2.descriptors, rows)
+    np.testing.assert_array_equal(m2.descriptors, given_rows)
+    with pytest.raises(ValueError):
+        m.descriptors[0, 0] = 0.5
+    assert ObjectMap(**valid_kwargs(3)).descriptors is None
+    assert ObjectMap.empty().descriptors is None
+    # one-hot rows and a float32-rounded row are unit enough
+    ObjectMap(**valid_kwargs(2), descriptors=np.eye(2, 5))
+    ObjectMap(**valid_kwargs(3), descriptors=given_rows.astype(np.float32))
+
+
+@pytest.mark.parametrize("shape", [(0, 1), (0, 6)])
+def test_an_empty_map_takes_empty_descriptors(shape):
+    m = ObjectMap(**valid_kwargs(0), descriptors=np.zeros(shape))
+    assert len(m) == 0 and m.descriptors.shape == shape
+
+
+def _row_one(value) -> np.ndarray:
+    rows = np.eye(3, 4)
+    rows[1] = value
+    return rows
+
+
+@pytest.mark.parametrize(("descriptors", "message"), [
+    (np.eye(3, 4)[0], "must have shape (3, d) with d >= 1, got (4,)"),
+    (np.eye(2, 4), "must have shape (3, d) with d >= 1, got (2, 4)"),
+    (np.eye(4, 4), "must have shape (3, d) with d >= 1, got (4, 4)"),
+    (np.zeros((3, 0)), "must have shape (3, d) with d >= 1, got (3, 0)"),
+    (np.ones((3, 4, 1)) / 2, "must have shape (3, d) with d >= 1, got (3, 4, 1)"),
+    (_row_one([0.6, -0.8, 0.0, 0.0]), "must be finite numbers >= 0, got -0.8 at row 1, column 1"),
+    (_row_one([np.nan, 1.0, 0.0, 0.0]), "must be finite numbers >= 0, got nan at row 1, column 0"),
+    (_row_one([0.0, 0.0, np.inf, 0.0]), "must be finite numbers >= 0, got inf at row 1, column 2"),
+    (_row_one([0.6, 0.6, 0.6, 0.6]), "rows must have unit length (L2), row 1 has length 1.2"),
+    (_row_one([0.0, 0.0, 0.0, 0.0]), "rows must have unit length (L2), row 1 has length 0"),
+    (_row_one([0.5, 0.5, 0.0, 0.0]), "rows must have unit length (L2), row 1 has length 0.707107"),
+    (np.full((3, 4), "x"), "must be real numbers"),
+    (np.eye(3, 4) * (1 + 1j), "must be real numbers"),
+])
+def test_bad_descriptors_are_refused_naming_the_row_and_value(descriptors, message):
+    with pytest.raises(DataError, match=r"^ObjectMap\.descriptors " + re.escape(message)):
+        ObjectMap(**valid_kwargs(3), descriptors=descriptors)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 6), st.integers(1, 9), st.data())
+def test_unit_length_is_checked_to_1e_4_on_every_row(seed, n, d, data):
+    rng = np.random.default_rng(seed)
+    rows = unit_rows(rng, n, d)
+    row = data.draw(st.integers(0, n - 1))
+    ok = rows.copy()
+    ok[row] *= 1 + data.draw(st.floats(-5e-5, 5e-5))
+    np.testing.assert_array_equal(ObjectMap(**valid_kwargs(n), descriptors=ok).descriptors, ok)
+    bad = rows.copy()
+    scale = 1 + data.draw(st.sampled_from([-1, 1])) * data.draw(st.floats(3e-4, 0.5))
+    bad[row] *= scale
+    with pytest.raises(DataError, match=rf"row {row} has length ") as info:
+        ObjectMap(**valid_kwargs(n), descriptors=bad)
+    length = float(str(info.value).rsplit(" ", 1)[1])
+    assert length == pytest.approx(scale, rel=1e-5)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 8), st.data())
+def test_subset_and_recent_keep_the_descriptors_of_their_rows(seed, n, data):
+    m = described_map(n, seed=seed % 1000)
+    mask = np.array(data.draw(st.lists(st.booleans(), min_size=n, max_size=n)))
+    for index in (mask, np.flatnonzero(mask)[::-1]):
+        s = m.subset(index)
+        np.testing.assert_array_equal(s.descriptors, m.descriptors[index])
+        np.testing.assert_array_equal(s.centroids, m.centroids[index])
+        assert s.descriptors.shape == (len(s), 7)
+        assert not s.descriptors.flags.writeable
+        assert not np.shares_memory(s.descriptors, m.descriptors)
+    now = data.draw(st.floats(0.0, 100.0))
+    kappa = data.draw(st.floats(0.5, 100.0))
+    kept = np.flatnonzero(now - m.last_seen < kappa)
+    recent = m.recent(now, kappa)
+    np.testing.assert_array_equal(recent.descriptors, m.descriptors[kept])
+    np.testing.assert_array_equal(recent.last_seen, m.last_seen[kept])
+    assert make_map(n).subset(mask).descriptors is None
+
+
+@pytest.mark.parametrize("n", [0, 1, 5])
+def test_save_load_round_trips_descriptors(tmp_path, n):
+    m = described_map(n, seed=n) if n else ObjectMap(**valid_kwargs(0),
+                                                       descriptors=np.zeros((0, 7)))
+    path = tmp_path / "described.npz"
+    m.save(path)
+    with np.load(path) as data:
+        assert "descriptors" in data.files
+    loaded = ObjectMap.load(path)
+    assert_maps_equal(loaded, m)
+    assert loaded.descriptors.shape == (n, 7) and loaded.descriptors.dtype == np.float64
+    np.testing.assert_array_equal(loaded.descriptors, m.descriptors)
+    assert not loaded.descriptors.flags.writeable
+
+
+def test_save_load_without_descriptors_gives_none(tmp_path):
+    path = tmp_path / "plain.npz"
+    make_map(3).save(path)
+    with np.load(path) as data:
+        assert "descriptors" not in data.files
+    assert ObjectMap.load(path).descriptors is None
+
+
+def test_a_map_file_with_bad_descriptors_is_a_data_error_naming_them(tmp_path):
+    m = make_map(2)
+    path = tmp_path / "bad.npz"
+    np.savez(path, centroids=m.centroids, widths=m.widths, heights=m.heights,
+             last_seen=m.last_seen, descriptors=np.array([[1.0, 0.0], [0.9, 0.0]]))
+    with pytest.raises(DataError, match=r"ObjectMap\.descriptors .*row 1 has length 0\.9"):
+        ObjectMap.load(path)

@@ -11,11 +11,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from tcaff_gtsam.mapping.camera import (
+    ORTHONORMAL_TOL,
     R_BODY_OPTICAL,
     PinholeCamera,
     T_body_camera,
     depth_in_metres,
     register_depth,
+    rigid_transform,
 )
 
 from tcaff_gtsam.errors import ConfigError, DataError
@@ -416,3 +418,165 @@ def test_register_depth_accepts_float64_metres():
     out = register_depth(depth, cam, cam, np.eye(4))
     assert out.dtype == np.float32
     np.testing.assert_allclose(out, 2.5)
+
+
+# ---------------------------------------------------------------------------------------------
+# rigid_transform: rounded rotations are re-orthonormalised, others refused by how much
+
+
+def random_pose(rng: np.random.Generator) -> np.ndarray:
+    """(4, 4) a uniformly random rotation (a normalised Gaussian quaternion) and translation."""
+    q = rng.standard_normal(4)
+    w, x, y, z = q / np.linalg.norm(q)
+    T = np.eye(4)
+    T[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                 [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                 [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]]
+    T[:3, 3] = rng.uniform(-10, 10, 3)
+    return T
+
+
+def perturbed(T: np.ndarray, rng: np.random.Generator, norm: float) -> np.ndarray:
+    """`T` with its rotation plus a random matrix of Frobenius norm `norm`."""
+    E = rng.standard_normal((3, 3))
+    out = T.copy()
+    out[:3, :3] += norm * E / np.linalg.norm(E)
+    return out
+
+
+def orthonormality_error(R: np.ndarray) -> float:
+    return float(np.abs(R @ R.T - np.eye(3)).max())
+
+
+def refusal(off: float) -> str:
+    """The start of the message naming by how much a rotation is not orthonormal."""
+    return re.escape(f"max |R R' - I| = {off:.3g}")
+
+
+def check_accepted(T: np.ndarray, out: np.ndarray, error: float) -> None:
+    """`out` is `T` with an exactly orthonormal rotation (det 1) within `error` of T's, the
+    same translation and the last row 0 0 0 1."""
+    R = out[:3, :3]
+    assert out.shape == (4, 4) and out.dtype == np.float64
+    assert orthonormality_error(R) < 1e-12
+    assert abs(np.linalg.det(R) - 1.0) < 1e-12
+    np.testing.assert_array_equal(out[:3, 3], T[:3, 3])
+    np.testing.assert_array_equal(out[3], [0.0, 0.0, 0.0, 1.0])
+    # the nearest rotation to R + E is no farther from it than R is: |E|_F = error
+    assert np.linalg.norm(R - T[:3, :3]) <= error * (1 + 1e-9) + 1e-12
+
+
+@PROPS
+@given(st.integers(0, 2**32 - 1), st.floats(-7.0, -0.5))
+def test_rotations_off_by_rounding_are_made_orthonormal_and_the_rest_refused(seed, log_norm):
+    """A pose whose rotation is perturbed by a random matrix of Frobenius norm `norm` (1e-7
+    to 0.3) is accepted, and comes back with the nearest rotation, exactly when
+    max |R R' - I| is within ORTHONORMAL_TOL; otherwise it is refused with that error in the
+    message."""
+    norm = 10.0**log_norm
+    rng = np.random.default_rng(seed)
+    T0 = random_pose(rng)
+    T = perturbed(T0, rng, norm)
+    off = orthonormality_error(T[:3, :3])
+    given_T = T.copy()
+    if off <= ORTHONORMAL_TOL:
+        out = rigid_transform("T_test", T)
+        check_accepted(T, out, norm)
+        assert np.linalg.norm(out[:3, :3] - T0[:3, :3]) <= 2 * norm + 1e-12
+    else:
+        with pytest.raises(DataError, match=r"^T_test is not a rigid transform: "
+                           + refusal(off)):
+            rigid_transform("T_test", T)
+    np.testing.assert_array_equal(T, given_T)  # the caller's array is left alone
+
+
+@FEW
+@given(st.integers(0, 2**32 - 1))
+def test_a_rotation_off_by_1e_4_is_accepted_and_one_off_by_0_1_refused(seed):
+    rng = np.random.default_rng(seed)
+    T0 = random_pose(rng)
+    near = perturbed(T0, rng, 1e-4)
+    assert 1e-6 < orthonormality_error(near[:3, :3]) < 1e-3
+    out = rigid_transform("T_odom_body", near)
+    check_accepted(near, out, 1e-4)
+    np.testing.assert_allclose(out, T0, atol=2e-4)
+    # 0.1 along the rotation's own axes (a scale and a shear, not a turn): clearly no rotation
+    S = rng.standard_normal((3, 3))
+    S = (S + S.T) / np.linalg.norm(S + S.T)
+    far = T0.copy()
+    far[:3, :3] = T0[:3, :3] @ (np.eye(3) + 0.1 * S)
+    off = orthonormality_error(far[:3, :3])
+    assert off > ORTHONORMAL_TOL
+    with pytest.raises(DataError, match=refusal(off)) as info:
+        rigid_transform("T_odom_body", far)
+    message = str(info.value)
+    assert message.startswith("T_odom_body is not a rigid transform")
+    assert f"det R = {np.linalg.det(far[:3, :3]):.6g}" in message
+    assert "last row" in message
+
+
+def test_exact_rotations_are_returned_as_given():
+    """Rotations orthonormal to float64 rounding are not touched (no SVD noise)."""
+    T = T_body_camera(0.6, 5.0, 0.2)
+    out = rigid_transform("T", T)
+    np.testing.assert_array_equal(out, T)
+    assert out is not T
+
+
+def test_reflections_and_bad_last_rows_are_refused_naming_them():
+    mirror = np.diag([1.0, 1.0, -1.0, 1.0])  # orthonormal, det -1
+    with pytest.raises(DataError, match=re.escape("det R = -1 (must be > 0)")):
+        rigid_transform("T_mirror", mirror)
+    row = np.eye(4)
+    row[3, 0] = 0.05
+    with pytest.raises(DataError, match=r"T_row is not a rigid transform: .*last row "
+                       + re.escape("[0.05, 0.0, 0.0, 1.0]")):
+        rigid_transform("T_row", row)
+    # a last row off by rounding is set to 0 0 0 1
+    row[3] = (1e-5, 0.0, 0.0, 1.0 + 1e-5)
+    np.testing.assert_array_equal(rigid_transform("T_row", row)[3], [0.0, 0.0, 0.0, 1.0])
+    with pytest.raises(ConfigError, match="T_scaled"):
+        rigid_transform("T_scaled", np.diag([1.1, 1.1, 1.1, 1.0]), ConfigError)
+
+
+def test_front_end_takes_rounded_poses_and_refuses_sheared_ones_naming_them():
+    """Through `RgbdFrontEnd.process`: an odometry pose off by 1e-4 maps the frame as the
+    exact pose does; one off by 0.1 is a DataError naming T_odom_body and the error size, as
+    is a per-frame T_body_camera; a sheared mount is a ConfigError."""
+    from tcaff_gtsam.eval.sim.render import RgbdScene, render
+    from tcaff_gtsam.mapping.frontend import RgbdFrontEnd
+
+    from tcaff_gtsam.geometry import se3_from_xyz_yaw
+
+    cam = PinholeCamera.from_fov(320, 240, 87)
+    T_bc = T_body_camera(0.6, 5.0)
+    scene = RgbdScene([[2.5, 0.2]], [0.5], [0.9])
+    T_odom_body = se3_from_xyz_yaw(0.3, -0.1, 0.0, 0.05)
+    frame = render(scene, T_odom_body @ T_bc, cam)
+    rng = np.random.default_rng(3)
+    rounded = perturbed(T_odom_body, rng, 1e-4)
+    exact = RgbdFrontEnd(cam, T_bc, depth_scale=1.0).process(0.0, frame.rgb, frame.depth,
+                                                            T_odom_body)
+    front = RgbdFrontEnd(cam, T_bc, depth_scale=1.0)
+    got = front.process(0.0, frame.rgb, frame.depth, rounded)
+    assert len(exact.observations) == len(got.observations) == 1
+    np.testing.assert_allclose(got.observations.centroids, exact.observations.centroids,
+                               atol=2e-3)
+    sheared = T_odom_body.copy()
+    sheared[:3, :3] = sheared[:3, :3] @ np.diag([1.1, 1.0, 1.0])
+    off = orthonormality_error(sheared[:3, :3])
+    with pytest.raises(DataError, match=r"^T_odom_body is not a rigid transform: "
+                       + refusal(off)):
+        front.process(0.1, frame.rgb, frame.depth, sheared)
+    sheared_mount = T_bc.copy()
+    sheared_mount[:3, :3] = sheared_mount[:3, :3] @ np.diag([1.0, 1.1, 1.0])
+    off = orthonormality_error(sheared_mount[:3, :3])
+    with pytest.raises(DataError, match=r"^T_body_camera is not a rigid transform: "
+                       + refusal(off)):
+        front.process(0.1, frame.rgb, frame.depth, T_odom_body, T_body_camera=sheared_mount)
+    with pytest.raises(ConfigError, match=r"^RgbdFrontEnd.T_body_camera is not a rigid "
+                       + "transform: " + refusal(off)):
+        RgbdFrontEnd(cam, sheared_mount, depth_scale=1.0)
+    # nothing was mapped by the refused frames; a later good one still is
+    assert len(front.mapper) == 1
+    assert len(front.process(0.2, frame.rgb, frame.depth, rounded).observations) == 1

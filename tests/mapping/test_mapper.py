@@ -518,3 +518,231 @@ def test_default_params_and_edge_values_are_accepted():
             p.merge_distance) == (3, 20.0, 1.0, 2.0, 0.5, 10, 0.3)
     MapperParams(nu=1, size_gate=1.0, size_weight=0.0, max_average=1, merge_distance=0.0,
                  kappa=math.inf)
+
+
+# ---------------------------------------------------------------------------------------------
+# observations with their point clouds (and colours)
+
+VOXEL = MapperParams().cloud_voxel  # 0.02 m
+
+
+def voxel_grid(lo, hi) -> np.ndarray:
+    """(n, 3) the centres of the cloud voxels with integer indices lo <= (i, j, k) < hi: a
+    cloud a track's `ObjectCloud` keeps exactly as it is (one point per voxel)."""
+    axes = [VOXEL * (np.arange(a, b) + 0.5) for a, b in zip(lo, hi, strict=True)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+#: a 0.6 x 0.4 x 0.5 m box, in voxels: x 2.0 to 2.6 m, y -1.0 to -0.6 m, z 0 to 0.5 m
+BOX_LO, BOX_HI = (100, -50, 0), (130, -30, 25)
+BOX_CENTRE = VOXEL * (np.array(BOX_LO) + BOX_HI) / 2  # (2.3, -0.8, 0.25)
+
+
+def box_face(side: str) -> np.ndarray:
+    """The voxels of one face of the box, one voxel thick: "-y" (the long face in front, 750
+    voxels), "+x" (the short face on its right, 475 voxels: the edge is the front's) or
+    "-x" (on its left)."""
+    (x0, y0, z0), (x1, y1, z1) = BOX_LO, BOX_HI
+    if side == "-y":
+        return voxel_grid((x0, y0, z0), (x1, y0 + 1, z1))
+    x = x1 - 1 if side == "+x" else x0
+    return voxel_grid((x, y0 + 1, z0), (x + 1, y1, z1))
+
+
+def observe_clouds(mapper: ObjectMapper, t: float, clouds, colours=None) -> np.ndarray:
+    """Observations whose centroids and sizes are junk (far off, huge): with clouds, the
+    track's centroid and sizes must come from the merged cloud, never from these."""
+    k = len(clouds)
+    return mapper.update(t, np.full((k, 3), 50.0), np.full(k, 9.0), np.full(k, 9.0),
+                         clouds=clouds, colours=colours)
+
+
+def test_faces_seen_apart_then_together_are_one_track_with_the_whole_box():
+    """The front face, then the right face (they share an edge, nothing else), then both (a
+    view from the corner): the corner view lands on the track of the face it shares most with
+    and the other face's track is merged into it, the lower id surviving. The map's object
+    is the whole box: its centre, width (longer side) and height, from the merged cloud,
+    whatever the observations' own centroids and sizes said."""
+    mapper = ObjectMapper(MapperParams(nu=1))
+    front, right = box_face("-y"), box_face("+x")
+    a = int(observe_clouds(mapper, 0.0, [front])[0])
+    b = int(observe_clouds(mapper, 0.1, [right])[0])
+    assert a != b  # nothing but an edge in common: two tracks until a view holds both
+    corner = int(observe_clouds(mapper, 0.2, [np.vstack([front, right])])[0])
+    assert corner == min(a, b) == a
+    assert len(mapper) == 1 and mapper.confirmed_ids().tolist() == [a]
+    om = mapper.object_map()
+    assert len(om) == 1
+    np.testing.assert_allclose(om.centroids[0], BOX_CENTRE, atol=0.02)
+    assert om.widths[0] == pytest.approx(0.6, abs=0.03)
+    assert om.heights[0] == pytest.approx(0.5, abs=0.03)
+    assert om.last_seen[0] == pytest.approx(0.2)
+    # later views of either face stay on it
+    assert observe_clouds(mapper, 0.3, [right])[0] == a
+    assert observe_clouds(mapper, 0.4, [front])[0] == a
+    assert len(mapper) == 1
+
+
+def test_a_fragment_lying_on_a_coarser_cloud_is_merged_into_it():
+    mapper = ObjectMapper(MapperParams(nu=1, cloud_points=600))
+    front, right = box_face("-y"), box_face("+x")
+    a = int(observe_clouds(mapper, 0.0, [front])[0])
+    observe_clouds(mapper, 0.1, [right])
+    assert observe_clouds(mapper, 0.2, [np.vstack([front, right])])[0] == a
+    assert len(mapper) == 1
+
+
+def test_neighbouring_objects_03m_apart_stay_two_tracks_with_clouds():
+    """Two 0.2 m cubes 0.3 m apart (0.1 m gap), seen alone and together: with their clouds
+    they are two tracks throughout. By centroids alone (the old rule) the second cube's
+    first sighting joins the first cube's track (0.3 m, inside the 1 m gate)."""
+    left = voxel_grid((0, 0, 0), (10, 10, 10))
+    right = voxel_grid((15, 0, 0), (25, 10, 10))
+    sequence = [[left], [right], [left, right], [right, left], [left], [right]]
+    mapper = ObjectMapper(MapperParams(nu=1))
+    ids = {}
+    for i, clouds in enumerate(sequence):
+        got = observe_clouds(mapper, 0.1 * i, clouds)
+        for cloud, track in zip(clouds, got, strict=True):
+            name = "left" if cloud is left else "right"
+            assert ids.setdefault(name, int(track)) == track, f"frame {i}: {name} moved"
+    assert ids["left"] != ids["right"] and len(mapper) == 2
+    om = mapper.object_map()
+    np.testing.assert_allclose(om.centroids, [[0.1, 0.1, 0.1], [0.4, 0.1, 0.1]], atol=0.02)
+
+    old = ObjectMapper(MapperParams(nu=1))
+    c_left, c_right = left.mean(axis=0), right.mean(axis=0)
+    assert one(old, 0.0, c_left, 0.2, 0.2) == one(old, 0.1, c_right, 0.2, 0.2)
+
+
+def bhattacharyya(p: np.ndarray, q: np.ndarray) -> float:
+    return float(np.sum(np.sqrt(p * q)))
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0.0, 1.0))
+def test_descriptors_are_unit_and_weigh_colour_and_shape(seed, colour_weight):
+    """Two objects of different shape (a pole and a board) with random colour histograms:
+    the map's descriptors are unit rows sqrt(w c / sum c) and sqrt((1 - w) s) (s the merged
+    cloud's shape features), so their dot product is w BC(colour) + (1 - w) BC(shape). A
+    second sighting averages the histograms (running mean)."""
+    from tcaff_gtsam.mapping.objects import shape_features
+
+    rng = np.random.default_rng(seed)
+    p = MapperParams(nu=1, colour_weight=colour_weight)
+    bins = p.hue_bins * p.saturation_bins + 1
+    pole = voxel_grid((0, 0, 0), (2, 2, 50))  # 0.04 x 0.04 x 1 m
+    board = voxel_grid((50, 0, 0), (75, 1, 30))  # 0.5 x 0.02 x 0.6 m
+    first = rng.random((2, bins)) * (rng.random((2, bins)) < 0.5)
+    first[:, 0] += 0.01  # never all zero
+    second = rng.random((2, bins))
+    mapper = ObjectMapper(p)
+    observe_clouds(mapper, 0.0, [pole, board], colours=first)
+    observe_clouds(mapper, 0.1, [pole, board], colours=second)
+    d = mapper.object_map().descriptors
+    assert d is not None and d.shape == (2, bins + 3)
+    assert np.all(d >= 0)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    mean = (first + second) / 2  # hits 1 then 2: weight 1/2
+    colours = mean / mean.sum(axis=1, keepdims=True)
+    shapes = np.array([shape_features(pole), shape_features(board)])
+    assert shapes[0, 0] > 0.9 and shapes[1, 1] > 0.5  # a pole is linear, a board planar
+    w = colour_weight
+    np.testing.assert_allclose(d[:, :bins], np.sqrt(w * colours), atol=1e-12)
+    np.testing.assert_allclose(d[:, bins:], np.sqrt((1 - w) * shapes), atol=1e-12)
+    expected = (w * bhattacharyya(colours[0], colours[1])
+                + (1 - w) * bhattacharyya(shapes[0], shapes[1]))
+    assert float(d[0] @ d[1]) == pytest.approx(expected, abs=1e-12)
+
+
+def test_descriptors_need_colours_and_clouds_for_every_confirmed_track():
+    cloud = voxel_grid((0, 0, 0), (10, 10, 10))
+    mapper = ObjectMapper(MapperParams(nu=1))
+    observe_clouds(mapper, 0.0, [cloud])
+    assert mapper.object_map().descriptors is None  # no colours
+    plain = ObjectMapper(MapperParams(nu=1))
+    plain.update(0.0, [[0.1, 0.1, 0.1]], [0.2], [0.2], colours=np.ones((1, 37)))
+    assert plain.object_map().descriptors is None  # no cloud
+    both = ObjectMapper(MapperParams(nu=1))
+    observe_clouds(both, 0.0, [cloud], colours=np.ones((1, 37)))
+    observe_clouds(both, 0.1, [cloud + 5.0])  # a second track without colours
+    assert len(both) == 2 and both.object_map().descriptors is None
+    observe_clouds(both, 0.2, [cloud + 5.0], colours=np.ones((1, 37)))
+    assert both.object_map().descriptors.shape == (2, 40)
+
+
+def test_an_all_zero_colour_histogram_does_not_break_the_map():
+    mapper = ObjectMapper(MapperParams(nu=1))
+    cloud = voxel_grid((0, 0, 0), (10, 10, 10))
+    try:
+        observe_clouds(mapper, 0.0, [cloud], colours=np.zeros((1, 37)))
+    except DataError as exc:  # refusing it, naming it, is fine too
+        assert "colours" in str(exc)
+        return
+    om = mapper.object_map()
+    assert len(om) == 1
+
+
+GOOD_CLOUD = voxel_grid((0, 0, 0), (5, 5, 5))  # 125 points, 0.1 m cube
+
+
+def with_nan(cloud: np.ndarray) -> np.ndarray:
+    out = cloud.copy()
+    out[3, 1] = np.nan
+    return out
+
+
+@pytest.mark.parametrize(
+    ("clouds", "colours", "match"),
+    [
+        (GOOD_CLOUD[None], None, r"clouds must be None or a list of 1"),
+        ([], None, r"clouds must be None or a list of 1 .* of 0"),
+        ([GOOD_CLOUD, GOOD_CLOUD], None, r"list of 1 .* of 2"),
+        ([GOOD_CLOUD[:, :2]], None, r"clouds\[0\] must have shape \(n, 3\) .* \(125, 2\)"),
+        ([np.zeros((0, 3))], None, r"clouds\[0\] must have shape \(n, 3\) with n >= 1"),
+        ([with_nan(GOOD_CLOUD)], None, r"clouds\[0\] holds non-finite"),
+        ([[*GOOD_CLOUD.tolist(), ["a", "b", "c"]]], None, r"clouds\[0\]"),
+        ([GOOD_CLOUD], -np.ones((1, 37)), r"colours must be finite numbers >= 0"),
+        ([GOOD_CLOUD], np.full((1, 37), np.nan), r"colours must be finite"),
+        ([GOOD_CLOUD], np.ones((2, 37)), r"colours must have shape \(1, B\)"),
+        ([GOOD_CLOUD], np.ones(37), r"colours must have shape \(1, B\)"),
+        ([GOOD_CLOUD], np.ones((1, 36)), r"colours has 36 bins, earlier updates 37"),
+        ([GOOD_CLOUD], [["x"] * 37], r"colours"),
+    ],
+    ids=["array", "none", "two", "xy", "empty", "nan", "strings", "negative", "nan-colour",
+         "rows", "1-d", "bins", "str-colour"],
+)
+def test_bad_clouds_and_colours_are_refused_naming_them_and_change_nothing(clouds, colours,
+                                                                           match):
+    mapper = ObjectMapper(MapperParams(nu=1))
+    track = int(observe_clouds(mapper, 0.0, [GOOD_CLOUD], colours=np.ones((1, 37)))[0])
+    before = mapper.object_map()
+    with pytest.raises(DataError, match=r"^ObjectMapper.update: .*" + match):
+        mapper.update(100.0, [[0.05, 0.05, 0.05]], [0.1], [0.1], clouds=clouds,
+                      colours=colours)
+    assert len(mapper) == 1  # nothing forgotten at t = 100, nothing added
+    after = mapper.object_map()
+    np.testing.assert_array_equal(after.centroids, before.centroids)
+    np.testing.assert_array_equal(after.descriptors, before.descriptors)
+    # a later good update (earlier than the refused one's t) still works, on the same track
+    got = observe_clouds(mapper, 1.0, [GOOD_CLOUD + 0.01], colours=np.ones((1, 37)))
+    assert got.tolist() == [track] and len(mapper) == 1
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("cloud_voxel", 0.0), ("cloud_voxel", math.inf), ("cloud_points", 15),
+     ("cloud_points", 100.0), ("cloud_span", 0.0), ("hue_bins", 0), ("hue_bins", 65),
+     ("saturation_bins", 0), ("colour_weight", -0.1), ("colour_weight", 1.5),
+     ("overlap_cell", 0.0), ("overlap_cell", math.inf), ("min_overlap", 0.0),
+     ("min_overlap", 1.01), ("merge_overlap", 0.0), ("merge_overlap", 2.0)],
+)
+def test_bad_cloud_params_raise_config_error_naming_field_and_value(field, value):
+    with pytest.raises(ConfigError, match=re.escape(f"MapperParams.{field} = {value!r}")):
+        MapperParams(**{field: value})
+
+
+def test_cloud_params_accept_their_edge_values():
+    MapperParams(cloud_points=16, colour_weight=0.0, min_overlap=1.0, merge_overlap=1.0,
+                 hue_bins=64, saturation_bins=1, cloud_span=math.inf)
+    MapperParams(colour_weight=1.0)

@@ -32,8 +32,11 @@ from tcaff_gtsam.mapping.segment import (
     DepthSegmenterParams,
     MaskFilter,
     Segmenter,
+    _median_network,
+    _sampled_median,
     check_rgb,
     depth_border,
+    filter_labels,
     filter_masks,
     stands_in_front,
 )
@@ -300,6 +303,94 @@ def test_filter_rejects_bad_masks():
             filter_masks(bad, depth, MaskFilter())
 
 
+def random_masks(rng: np.random.Generator, shape: tuple[int, int], k: int) -> np.ndarray:
+    """(k, H, W) disjoint masks: blobs of random sizes and shapes (a label image cut up)."""
+    labels = np.zeros(shape, np.int32)
+    for i in range(1, k + 1):
+        r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        a, b = rng.integers(1, shape[0] // 2), rng.integers(1, shape[1] // 2)
+        rr, cc = np.ogrid[:shape[0], :shape[1]]
+        labels[((rr - r) / a) ** 2 + ((cc - c) / b) ** 2 <= 1] = i
+    return labels[None] == np.arange(1, k + 1)[:, None, None]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_filter_paths_agree(seed):
+    """The compiled pass over the stack (width a multiple of 8, C order) and the per-mask path
+    (any other stack), and `filter_labels` on the label image, keep the same masks."""
+    rng = np.random.default_rng(seed)
+    for shape in ((120, 160), (97, 131)):
+        masks = random_masks(rng, shape, 12)
+        depth = np.where(rng.random(shape) < 0.8, 2.0, 0.0).astype(np.float32)
+        depth[:, :rng.integers(0, 20)] = 0.0  # a band without depth along the left edge
+        labels = (masks * np.arange(1, 13)[:, None, None]).sum(axis=0)
+        for f in (MaskFilter(min_area=30, min_depth_share=0.7, max_elongation=3.0),
+                  MaskFilter(min_area=0, border=0), MaskFilter(border=4, invalid_margin=10)):
+            kept = filter_masks(masks, depth, f)
+            np.testing.assert_array_equal(filter_masks(np.asfortranarray(masks), depth, f),
+                                          kept)
+            np.testing.assert_array_equal(filter_labels(labels, 12, depth, f), kept)
+            np.testing.assert_array_equal(
+                filter_masks(masks, depth, f, border=depth_border(depth > 0, f.invalid_margin)),
+                kept)
+
+
+def test_filter_labels_ignores_labels_past_count_and_refuses_junk():
+    depth = np.full((H, W), 2.0, dtype=np.float32)
+    labels = np.zeros((H, W), np.int64)
+    labels[40:70, 40:70] = 1
+    labels[80:110, 20:50] = 2
+    labels[10:30, 100:130] = 7  # past count: no mask
+    np.testing.assert_array_equal(filter_labels(labels, 2, depth, MaskFilter()), [0, 1])
+    assert filter_labels(labels, 0, depth, MaskFilter()).shape == (0,)
+    for bad, match in ((labels.astype(float), "labels"), (labels[:-1], "labels"),
+                       (labels.tolist(), "labels")):
+        with pytest.raises(DataError, match=match):
+            filter_labels(bad, 2, depth, MaskFilter())
+    for count in (-1, 2.0, None):
+        with pytest.raises(DataError, match="count"):
+            filter_labels(labels, count, depth, MaskFilter())
+    with pytest.raises(DataError, match="depth_m"):
+        filter_labels(labels, 2, depth.tolist(), MaskFilter())
+    with pytest.raises(DataError, match="border"):
+        filter_labels(labels, 2, depth, MaskFilter(), border=np.zeros((H, W), np.uint8))
+    with pytest.raises(DataError, match="depth_m"):
+        filter_masks(np.zeros((1, H, W), bool), depth[None], MaskFilter())
+
+
+def labelled_depth_border(valid: np.ndarray, margin: int) -> np.ndarray:
+    """`depth_border` as first written: every region without depth labelled, with its area."""
+    H_, W_ = valid.shape
+    edge = np.zeros((H_, W_), dtype=bool)
+    edge[0], edge[-1], edge[:, 0], edge[:, -1] = True, True, True, True
+    if margin == 0:
+        return edge
+    near = np.ones((H_, W_), dtype=bool)
+    near[margin:H_ - margin, margin:W_ - margin] = False
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        (~valid).view(np.uint8), connectivity=8)
+    reaches = np.zeros(count, dtype=bool)
+    reaches[labels[edge]] = True
+    inside = np.bincount(labels[near], minlength=count)
+    band = reaches & (2 * inside > stats[:, cv2.CC_STAT_AREA])
+    band[0] = False
+    return edge | (band[labels] & near)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 60), st.integers(1, 60),
+       st.floats(0.0, 1.0), st.integers(0, 25), st.booleans())
+def test_depth_border_matches_labelling_every_region(seed, rows, cols, holes, margin, blobs):
+    """The flood fill from the edge finds the regions that labelling them all finds, on noise
+    (many small regions, runs that join diagonally) and on blobs (a few large ones)."""
+    rng = np.random.default_rng(seed)
+    missing = rng.random((rows, cols)) < holes
+    if blobs:
+        missing = cv2.dilate(missing.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool)
+    np.testing.assert_array_equal(depth_border(~missing, margin),
+                                  labelled_depth_border(~missing, margin))
+
+
 @pytest.mark.parametrize("kwargs", [
     {"min_area": -1}, {"min_area": 10.5}, {"min_area": True}, {"border": -1}, {"border": 1.5},
     {"max_area_share": 0.0}, {"max_area_share": 1.5}, {"max_elongation": 0.5},
@@ -311,6 +402,109 @@ def test_bad_mask_filter_raises_config_error(kwargs):
 
 
 # ---------------------------------------------------------------------------------------------
+# the coarser grid of wide images
+
+
+def test_wide_images_are_segmented_on_a_coarser_grid():
+    assert DepthSegmenter(CAMERA).step == 2
+    assert DepthSegmenter(PinholeCamera.from_fov(1280, 960, 87)).step == 4
+    assert DepthSegmenter(PinholeCamera.from_fov(400, 300, 87)).step == 1
+    assert DepthSegmenter(CAMERA, params=DepthSegmenterParams(work_width=0)).step == 1
+    assert DepthSegmenter(CAMERA, params=DepthSegmenterParams(work_width=640)).step == 1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_coarse_grid_masks_match_objects_as_well_as_full_resolution(seed):
+    """On the grid of every second row and column, with labels brought back to full
+    resolution by depth, each unoccluded object's best mask matches it (IoU) within 0.02 of
+    the full-resolution segmenter's, with and without depth noise."""
+    rng = np.random.default_rng(100 + seed)
+    scene = random_room(rng, 6)
+    full = DepthSegmenter(CAMERA, 1.0, DepthSegmenterParams(work_width=0))
+    coarse = DepthSegmenter(CAMERA, 1.0)
+    checked, failures = 0, []
+    for p in range(2):
+        T = camera_pose(*(free_pose(rng, scene) if p == 0 else
+                          pose_facing(rng, scene, int(rng.integers(len(scene))), (1.0, 5.0))))
+        for noise in (0.0, 0.0025):
+            frame = render(scene, T, CAMERA, depth_noise=noise, rng=rng)
+            at_full = full.segment(None, frame.depth)
+            at_coarse = coarse.segment(None, frame.depth)
+            for k in unoccluded_objects(scene, T, frame):
+                gt = frame.instance == k + 1
+                best_full = max((iou(m, gt) for m in at_full), default=0.0)
+                best_coarse = max((iou(m, gt) for m in at_coarse), default=0.0)
+                checked += 1
+                if best_coarse < best_full - 0.02:
+                    failures.append(f"pose {p}, noise {noise}: object {k} "
+                                    f"({np.count_nonzero(gt)} px) IoU {best_coarse:.3f} on the "
+                                    f"grid, {best_full:.3f} at full resolution")
+    assert checked >= 2
+    assert not failures, "\n".join(failures)
+
+
+def test_coarse_grid_masks_do_not_take_the_background_behind_their_object():
+    """A box 1.5 m in front of a wall: no pixel of its mask is wall (the grid pixels on its
+    outline cover wall pixels too, which the depth check gives back)."""
+    scene = RgbdScene([[5.0, 4.0]], [0.5], [1.0], [False], [0.4], walls=room_walls(*ROOM))
+    T = camera_pose(3.5, 4.0, 0.0)
+    frame = render(scene, T, CAMERA)
+    masks = DepthSegmenter(CAMERA, 1.0).segment(None, frame.depth)
+    gt = frame.instance == 1
+    best = masks[int(np.argmax([iou(m, gt) for m in masks]))]
+    assert iou(best, gt) > 0.97
+    assert not (best & ~gt).any()
+
+
+@pytest.mark.parametrize("shape", [(48, 64), (45, 67), (480, 640)])
+@pytest.mark.parametrize("k", [1, 3, 5])
+def test_ransac_sample_is_the_full_resolution_median(shape, k):
+    """RANSAC's points are the median-filtered image's (OpenCV's medianBlur, replicated border)
+    at every ransac_stride-th pixel, as the full-resolution segmenter samples them: the same
+    frame gives the same planes on the coarse grid."""
+    rng = np.random.default_rng(k)
+    z = np.where(rng.random(shape) < 0.8, rng.uniform(0.5, 6.0, shape), 0.0).astype(np.float32)
+    for stride in (1, 3, 8):
+        expected = (cv2.medianBlur(z, k) if k > 1 else z)[::stride, ::stride]
+        np.testing.assert_array_equal(_sampled_median(z, stride, k, _median_network(k)),
+                                      expected)
+
+
+def test_more_than_255_masks():
+    """300 boxes before a wall: 300 masks (the label image holds more than a byte), each its
+    box, and the filters keep them all."""
+    depth = np.full(CAMERA.shape, 4.0, dtype=np.float32)
+    for r in range(15):
+        for c in range(20):
+            depth[32 * r + 6:32 * r + 26, 32 * c + 6:32 * c + 26] = 2.0
+    segmenter = DepthSegmenter(CAMERA, 1.0, DepthSegmenterParams(max_planes=0))
+    masks = segmenter.segment(None, depth)
+    labels, count = segmenter.label(None, depth)
+    assert count == masks.shape[0] == 300 and labels.dtype == np.int32
+    assert masks.sum(axis=(1, 2)).tolist() == [400] * 300
+    for i in (0, 255, 299):
+        np.testing.assert_array_equal(masks[i], labels == i + 1)
+    f = MaskFilter(min_area=100)
+    np.testing.assert_array_equal(filter_masks(masks, depth, f), np.arange(300))
+    np.testing.assert_array_equal(filter_labels(labels, count, depth, f), np.arange(300))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_segmenter_leaves_the_depth_image_alone(dtype):
+    """Depth in float32 metres is read where it lies, not copied: it must come back as it
+    went in, and so must depth with NaN and infinities (no return), which is copied."""
+    rng = np.random.default_rng(3)
+    scene = random_room(rng, 6)
+    depth = render(scene, camera_pose(*pose_facing(rng, scene, 0)), CAMERA).depth.astype(dtype)
+    depth[:5, :5] = np.nan
+    depth[-5:, -5:] = np.inf
+    before = depth.copy()
+    masks = DepthSegmenter(CAMERA, 1.0).segment(None, depth)
+    np.testing.assert_array_equal(depth, before)
+    assert masks.shape[0] > 0 and not masks[:, :5, :5].any() and not masks[:, -5:, -5:].any()
+
+
+# ---------------------------------------------------------------------------------------------
 # input checks
 
 
@@ -319,10 +513,12 @@ def test_bad_mask_filter_raises_config_error(kwargs):
     {"plane_distance": -1.0}, {"plane_distance_per_m2": "0.1"}, {"max_planes": -1},
     {"max_planes": 1.5}, {"ransac_iterations": -5}, {"ransac_stride": 0}, {"min_area": -1},
     {"seed": -1}, {"plane_share": 0.0}, {"plane_share": 1.5}, {"max_area_share": 0.0},
-    {"max_area_share": 2.0}, {"depth_max": 0.1}, {"depth_min": 9.0},
+    {"max_area_share": 2.0}, {"depth_max": 0.1}, {"depth_min": 9.0}, {"work_width": -1},
+    {"work_width": 320.5}, {"work_width": True}, {"level_slice": -1}, {"level_slice": 2.5},
+    {"level_slice": True}, {"level_slice": "24"},
 ])
 def test_bad_segmenter_params_raise_config_error(kwargs):
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=next(iter(kwargs))):
         DepthSegmenterParams(**kwargs)
 
 

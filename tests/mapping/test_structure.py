@@ -16,7 +16,12 @@ from tcaff_gtsam.eval.sim.render import RgbdFrame, RgbdScene, render
 from tcaff_gtsam.eval.sim.world import room_walls
 from tcaff_gtsam.mapping.camera import T_body_camera
 from tcaff_gtsam.mapping.frontend import FrameResult, RgbdFrontEnd
-from tcaff_gtsam.mapping.segment import MaskFilter, depth_border
+from tcaff_gtsam.mapping.segment import (
+    DepthSegmenter,
+    DepthSegmenterParams,
+    MaskFilter,
+    depth_border,
+)
 
 from tcaff_gtsam.geometry import transform_points
 
@@ -119,11 +124,17 @@ def check_frame(scene: RgbdScene, frame: RgbdFrame, T_world_camera: np.ndarray,
     return len(visible), failures
 
 
+@pytest.mark.parametrize("grid", ["coarse", "full"])
 @pytest.mark.parametrize("mount", list(MOUNTS))
-def test_furnished_room_finds_the_objects_and_no_structure(mount):
+def test_furnished_room_finds_the_objects_and_no_structure(mount, grid):
+    """With the segmenter's default grid (every second row and column of these 640 x 480
+    frames) and at full resolution."""
     T_bc = MOUNTS[mount]
     scene = furnished_room()
-    front = RgbdFrontEnd(CAMERA, T_bc, depth_scale=1.0)
+    params = DepthSegmenterParams() if grid == "coarse" else DepthSegmenterParams(work_width=0)
+    segmenter = DepthSegmenter(CAMERA, 1.0, params, T_body_camera=T_bc)
+    assert segmenter.step == (2 if grid == "coarse" else 1)
+    front = RgbdFrontEnd(CAMERA, T_bc, depth_scale=1.0, segmenter=segmenter)
     checked, failures, ceiling_share = 0, [], 0.0
     for i, (x, y, yaw) in enumerate(POSES):
         T_wc = camera_pose(x, y, yaw, T_bc)
