@@ -139,10 +139,11 @@ def one_run(kind: str, n: int, seed: int, cap: int | None, all_to_all: bool, rep
     if all_to_all:
         associations = np.argwhere(np.ones((n, n), bool))
     elif cap is None:
-        associations = putative_associations(pair.ego, pair.other)
+        associations = putative_associations(pair.ego, pair.other,
+                                             partial_ratio=aligner_params.size_partial)
     else:
         compatible = size_compatible(pair.ego, pair.other, aligner_params.size_ratio,
-                                     aligner_params.size_abs_diff)
+                                     aligner_params.size_abs_diff, aligner_params.size_partial)
         associations = np.argwhere(compatible)
         if associations.shape[0] > cap:
             def rank() -> np.ndarray:
@@ -277,7 +278,8 @@ def main() -> None:
         graphs = []
         for seed in range(20):
             pair = overlapping_maps(np.random.default_rng(seed), n, 0.5, 0.1)
-            graphs.append((pair, putative_associations(pair.ego, pair.other)))
+            graphs.append((pair, putative_associations(
+                pair.ego, pair.other, partial_ratio=FrameAlignerParams().size_partial)))
         profiler = Profiler(interval=0.0002)
         profiler.start()
         for pair, associations in graphs:

@@ -67,7 +67,8 @@ def one_case(kind: str, n: int, seed: int) -> dict:
     step = time.perf_counter() - start
     peak = (_status_kb("VmHWM") - base) / 1024
     prm = aligner.params
-    pairs = int(np.count_nonzero(size_compatible(ego, other, prm.size_ratio, prm.size_abs_diff)))
+    pairs = int(np.count_nonzero(size_compatible(ego, other, prm.size_ratio, prm.size_abs_diff,
+                                                 prm.size_partial)))
     error = se2_error(found[0].T, pair.T_oi_oj)[0] if found else float("nan")
     return {"pairs": pairs, "graph": nodes[0] if nodes else 0, "step": step, "peak": peak,
             "error": error}

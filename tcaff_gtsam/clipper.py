@@ -150,9 +150,12 @@ def _distances_from(points, j, out):
 
 
 @numba.njit(cache=True)
-def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_start,
-                      inv_two_sigma_sq, epsilon):
-    """Upper-triangle edges (p < q) of the consistency graph: rows, cols, weights.
+def _consistent_pairs(ego_points, other_points, ego_z, other_z, slack, other_idx, group_ego,
+                      group_start, inv_two_sigma_sq, epsilon, height_epsilon):
+    """Upper-triangle edges (p < q) of the consistency graph: rows, cols, weights. With a
+    finite height_epsilon, an edge also needs the height differences z_i - z_k and z_j - z_l
+    (ego_z (n1,), other_z (n2,)) to agree within height_epsilon + slack[p] + slack[q]
+    (slack (m,) per node, in the sorted order).
 
     Nodes are sorted by ego index and grouped: group g holds the nodes
     group_start[g]:group_start[g+1], all with ego object group_ego[g]. The ego distances
@@ -167,6 +170,8 @@ def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_star
     n_other = other_points.shape[0]
     dim = ego_points.shape[1]
     d_ego = np.empty(m)  # |p_i - p_k| for each later node q = (k, l), i the current group's
+    dz_ego = np.zeros(m)  # z_i - z_k likewise
+    heights = height_epsilon < np.inf
     matrix = n_other * n_other <= _DISTANCE_MATRIX_MAX
     d_other = np.empty((n_other if matrix else 1, n_other))
     if matrix:
@@ -188,8 +193,10 @@ def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_star
                 diff = ego_points[i, a] - ego_points[k, a]
                 s += diff * diff
             d_ik = np.sqrt(s)
+            dz_ik = ego_z[i] - ego_z[k] if heights else 0.0
             for q in range(group_start[h], group_start[h + 1]):
                 d_ego[q] = d_ik
+                dz_ego[q] = dz_ik
         later = group_start[g + 1]
         for p in range(group_start[g], later):
             j = other_idx[p]
@@ -202,7 +209,9 @@ def _consistent_pairs(ego_points, other_points, other_idx, group_ego, group_star
             for q in range(later, m):
                 ell = other_idx[q]
                 c = abs(d_ego[q] - d_j[ell])
-                if c < epsilon and ell != j:
+                if c < epsilon and ell != j and (
+                        not heights or abs(dz_ego[q] - (other_z[j] - other_z[ell]))
+                        < height_epsilon + slack[p] + slack[q]):
                     row_cols[count] = q
                     row_c[count] = c
                     count += 1
@@ -243,7 +252,8 @@ def _symmetric_csr(m, rows, cols, wts):
 
 
 @numba.njit(cache=True)
-def _graph_csr(ego_points, other_points, associations, inv_two_sigma_sq, epsilon):
+def _graph_csr(ego_points, other_points, ego_z, other_z, slack, associations,
+               inv_two_sigma_sq, epsilon, height_epsilon):
     """CSR arrays (indptr, indices, weights) of the consistency graph: the nodes grouped by
     ego object (a stable counting sort, the identity for sorted input), their consistent
     pairs, and the symmetric matrix of those. One compiled call, so a small graph costs no
@@ -266,8 +276,10 @@ def _graph_csr(ego_points, other_points, associations, inv_two_sigma_sq, epsilon
         order[cursor[i]] = s
         cursor[i] += 1
     other_sorted = np.empty(m, np.int64)
+    slack_sorted = np.empty(m)
     for s in range(m):
         other_sorted[s] = associations[order[s], 1]
+        slack_sorted[s] = slack[order[s]]
     group_ego = np.empty(n_groups, np.int64)
     starts = np.empty(n_groups + 1, np.int64)
     g = 0
@@ -277,8 +289,9 @@ def _graph_csr(ego_points, other_points, associations, inv_two_sigma_sq, epsilon
             starts[g] = group_start[i]
             g += 1
     starts[n_groups] = m
-    rows, cols, wts = _consistent_pairs(ego_points, other_points, other_sorted, group_ego,
-                                        starts, inv_two_sigma_sq, epsilon)
+    rows, cols, wts = _consistent_pairs(ego_points, other_points, ego_z, other_z, slack_sorted,
+                                        other_sorted, group_ego, starts, inv_two_sigma_sq,
+                                        epsilon, height_epsilon)
     for e in range(rows.shape[0]):
         rows[e] = order[rows[e]]
         cols[e] = order[cols[e]]
@@ -309,11 +322,20 @@ def _checked_graph(owner: str, graph, params) -> ClipperParams:
 
 def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
                       associations: np.ndarray, epsilon: float = 0.25, sigma: float = 0.15,
-                      prior: np.ndarray | None = None) -> ConsistencyGraph:
+                      prior: np.ndarray | None = None,
+                      heights: tuple[np.ndarray, np.ndarray] | None = None,
+                      height_epsilon: float | None = None,
+                      extents: tuple[np.ndarray, np.ndarray] | None = None) -> ConsistencyGraph:
     """Build CLIPPER's consistency graph.
 
     Associations a = (i, j) and b = (k, l) with i != k and j != l are consistent when
     c = | |p_i - p_k| - |q_j - q_l| | < epsilon; their edge weight is exp(-c^2 / (2 sigma^2)).
+    With `heights` and `height_epsilon` (maps whose frames are both gravity aligned, so that
+    heights differ between them by a constant at most), they must also climb alike:
+    | (z_i - z_k) - (z_j - z_l) | < height_epsilon + s_a + s_b, where an association's slack
+    s = | h_i - h_j | / 2 allows for a partial view: with `extents` (the objects' vertical
+    extents h), a view that cuts an object's height by d moves its centre by d / 2 (0 without
+    extents).
 
     Args:
         ego_points: (n1, d) metres, d = 2 (x, y) or 3, in the ego robot's odometry frame.
@@ -321,17 +343,29 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         associations: (m, 2) int (ego index, other index).
         epsilon, sigma: metres, finite and > 0.
         prior: optional (m,) non-negative prior weight per association (affinity diagonal).
+        heights: optional ((n1,), (n2,)) metres, each object's height z above its frame's
+            origin (along gravity).
+        height_epsilon: metres, finite and > 0, with heights (None without).
+        extents: optional ((n1,), (n2,)) metres >= 0, the objects' vertical extents, with
+            heights.
 
     Raises:
-        ConfigError: epsilon or sigma not a finite number > 0.
-        DataError: points, associations or prior of the wrong shape or out of range, not
-            real numbers (complex ones included), or associations that are not whole numbers:
-            an (m, 3) array is refused, not read as pairs, and 1.5 is not truncated to 1.
+        ConfigError: epsilon, sigma or height_epsilon not a finite number > 0, or heights and
+            height_epsilon not given together.
+        DataError: points, associations, prior or heights of the wrong shape or out of range,
+            not real numbers (complex ones included), or associations that are not whole
+            numbers: an (m, 3) array is refused, not read as pairs, and 1.5 is not truncated
+            to 1.
     """
     o = "consistency_graph"
     for name, value in (("epsilon", epsilon), ("sigma", sigma)):
         _require(_finite(value) and value > 0, o, name, value,
                  "must be a finite number > 0 metres")
+    _require((heights is None) == (height_epsilon is None), o, "height_epsilon",
+             height_epsilon, "must be given with heights, and only with them")
+    if height_epsilon is not None:
+        _require(_finite(height_epsilon) and height_epsilon > 0, o, "height_epsilon",
+                 height_epsilon, "must be a finite number > 0 metres")
     ego_points = real_array(o, "ego_points", ego_points)
     other_points = real_array(o, "other_points", other_points)
     associations = index_pairs(o, "associations", associations)
@@ -353,18 +387,53 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         if diag.shape != (m,) or not np.all(np.isfinite(diag)) or np.any(diag < 0):
             raise DataError(f"consistency_graph: prior must be ({m},) finite and >= 0, "
                             f"got shape {diag.shape}")
-    return _graph(ego_points, other_points, associations, epsilon, sigma, diag)
+    sizes = (len(ego_points), len(other_points))
+    heights = _per_object(o, "heights", heights, sizes)
+    extents = _per_object(o, "extents", extents, sizes)
+    if extents is not None and (heights is None or min(e.min(initial=0.0) for e in extents) < 0):
+        raise DataError("consistency_graph: extents must be >= 0 metres, and given with heights")
+    slack = (np.zeros(m) if extents is None else
+             0.5 * np.abs(extents[0][associations[:, 0]] - extents[1][associations[:, 1]]))
+    return _graph(ego_points, other_points, associations, epsilon, sigma, diag, heights,
+                  height_epsilon, slack)
+
+
+def _per_object(owner: str, name: str, value, sizes: tuple[int, int]
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """`value` as a pair of finite float arrays of shapes ((n1,), (n2,)), or None."""
+    if value is None:
+        return None
+    if not (isinstance(value, (tuple, list)) and len(value) == 2):
+        raise DataError(f"{owner}: {name} must be (ego values, other values), got "
+                        f"{shown(value)}")
+    out = (real_array(owner, f"{name}[0]", value[0]), real_array(owner, f"{name}[1]", value[1]))
+    for side, (arr, n) in enumerate(zip(out, sizes, strict=True)):
+        if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+            raise DataError(f"{owner}: {name}[{side}] must be ({n},) finite metres, got "
+                            f"{shown(arr)}")
+    return out
 
 
 def _graph(ego_points: np.ndarray, other_points: np.ndarray, associations: np.ndarray,
-           epsilon: float, sigma: float, diag: np.ndarray) -> ConsistencyGraph:
+           epsilon: float, sigma: float, diag: np.ndarray,
+           heights: tuple[np.ndarray, np.ndarray] | None = None,
+           height_epsilon: float | None = None, slack: np.ndarray | None = None
+           ) -> ConsistencyGraph:
     """`consistency_graph` on arguments already checked: (n1, d) and (n2, d) finite points,
-    (m, 2) int64 associations in range, (m,) diag, epsilon and sigma finite and > 0."""
+    (m, 2) int64 associations in range, (m,) diag, epsilon and sigma finite and > 0, heights
+    ((n1,), (n2,)) finite with height_epsilon > 0 or both None, slack (m,) >= 0 or None."""
+    m = associations.shape[0]
+    if heights is None:
+        ego_z, other_z, cut = np.zeros(len(ego_points)), np.zeros(len(other_points)), np.inf
+    else:
+        ego_z, other_z, cut = heights[0], heights[1], float(height_epsilon)
     indptr, indices, weights = _graph_csr(
         np.ascontiguousarray(ego_points, np.float64),
         np.ascontiguousarray(other_points, np.float64),
+        np.ascontiguousarray(ego_z, np.float64), np.ascontiguousarray(other_z, np.float64),
+        np.zeros(m) if slack is None else np.ascontiguousarray(slack, np.float64),
         np.ascontiguousarray(associations, np.int64), 1.0 / (2.0 * sigma * sigma),
-        float(epsilon))
+        float(epsilon), cut)
     return ConsistencyGraph._built(associations, indptr, indices, weights, diag)
 
 

@@ -31,8 +31,10 @@ from .params import FrameAlignerParams, _finite, _given_or_default, _real, _requ
 from .registration import (
     MAX_COORDINATE,
     MAX_WEIGHT,
+    _descriptor_gate,
     _mutual_inliers,
     _neighbourhood_pairs,
+    _pair_similarity,
     _registration_rmse,
     _spread,
     _weighted_arun,
@@ -270,7 +272,7 @@ class FrameAligner:
         prm = self.params
         if min(len(ego_r), len(other_r)) < prm.track_min:
             return None
-        compatible = size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
+        compatible = self._compatible(ego_r, other_r)
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
         pairs = _mutual_inliers(_se2_from_params(held), p_all[:, :2], q_all[:, :2], compatible,
@@ -319,8 +321,8 @@ class FrameAligner:
         prm = self.params
         if min(len(ego_r), len(other_r)) < prm.min_associations:
             return []
-        # the size gate of putative_associations, kept whole for counting the inliers
-        compatible = size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff)
+        # the gate of the putative associations, kept whole for counting the inliers
+        compatible = self._compatible(ego_r, other_r)
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
         searched = compatible if guide is None else compatible & self._agree(p_all, q_all,
@@ -339,8 +341,15 @@ class FrameAligner:
         # the maps and parameters were checked when they were made, so the graph and solver
         # skip their checks; so does registration unless coordinates or weights (at most
         # 1 / weight_offset) are beyond what it takes, where weighted_arun says which
+        prior = (_pair_similarity(ego_r, other_r, assoc) if prm.descriptor_prior else None)
+        heights = slack = None
+        if prm.height_epsilon is not None:
+            heights = (ego_r.centroids[:, 2], other_r.centroids[:, 2])
+            # a view that cuts an object's height moves its centre by half the cut
+            slack = 0.5 * np.abs(ego_r.heights[assoc[:, 0]] - other_r.heights[assoc[:, 1]])
         graph = _graph(p_all, q_all, assoc, prm.clipper.epsilon, prm.clipper.sigma,
-                       np.ones(assoc.shape[0]))
+                       np.ones(assoc.shape[0]) if prior is None else prior, heights,
+                       prm.height_epsilon, slack)
         solutions = [s for s in _solutions(graph, prm.n_solutions, prm.clipper,
                                            prm.mno_downweight) if len(s)]
         if not solutions:
@@ -369,11 +378,59 @@ class FrameAligner:
             qualifies = supported and (prm.max_rmse is None or rmse <= prm.max_rmse)
             if not (qualifies or rivals):
                 continue
-            inliers = (_mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,
-                                       prm.inlier_radius).shape[0] if counting else 0)
+            level = self._same_level(compatible, ego_r, other_r, a)
+            explained = (_mutual_inliers(T2, p_all[:, :2], q_all[:, :2], level,
+                                         prm.inlier_radius) if counting or prm.refit else None)
+            if prm.refit and qualifies and explained.shape[0] >= len(sol):
+                refitted = self._refit(arun, explained, p_all, q_all, ages_ego, ages_other,
+                                       level)
+                if refitted is not None:
+                    T2, p, q, w, rmse, explained = refitted
+            inliers = explained.shape[0] if counting else 0
             found.append(_Solution(a, sol.score, T2, _se2_to_params(T2), p, q, w, rmse,
                                    qualifies, inliers))
         return found
+
+    def _refit(self, arun, pairs: np.ndarray, p_all: np.ndarray, q_all: np.ndarray,
+               ages_ego: np.ndarray, ages_other: np.ndarray, compatible: np.ndarray):
+        """A candidate registered again on every pair it explains (`pairs` (k, 2), the mutual
+        inliers under it): (T2, p, q, w, rmse, the inliers under T2), or None when the fit is
+        degenerate or fails the residual check. MNO-CLIPPER's clique is often a subset of
+        the pairs an alignment explains, and the few most recently seen of it outweigh the
+        rest (the Arun weights): a heading fixed by a handful of nearby objects."""
+        prm = self.params
+        p, q = p_all[pairs[:, 0]], q_all[pairs[:, 1]]
+        w = _weights(ages_ego[pairs[:, 0]] * ages_other[pairs[:, 1]], prm.weight_offset)
+        fit = self._fit(arun, p, q, w)
+        if fit is None or (prm.max_rmse is not None and fit[1] > prm.max_rmse):
+            return None
+        T2, rmse = fit
+        explained = _mutual_inliers(T2, p_all[:, :2], q_all[:, :2], compatible,
+                                    prm.inlier_radius)
+        return T2, p, q, w, rmse, explained
+
+    def _same_level(self, compatible: np.ndarray, ego_r: ObjectMap, other_r: ObjectMap,
+                    associations: np.ndarray) -> np.ndarray:
+        """`compatible` without, under the gravity prior (`height_epsilon`), the pairs whose
+        height difference is not the solution's (the median over its associations (k, 2)),
+        within height_epsilon and the pair's slack for partial views: an alignment explains
+        an object only if it matches it in height too. Unchanged without the prior."""
+        prm = self.params
+        if prm.height_epsilon is None:
+            return compatible
+        z_ego, z_other = ego_r.centroids[:, 2], other_r.centroids[:, 2]
+        offset = float(np.median(z_ego[associations[:, 0]] - z_other[associations[:, 1]]))
+        gap = np.abs(z_ego[:, None] - z_other[None, :] - offset)
+        slack = 0.5 * np.abs(ego_r.heights[:, None] - other_r.heights[None, :])
+        return compatible & (gap < prm.height_epsilon + slack)
+
+    def _compatible(self, ego_r: ObjectMap, other_r: ObjectMap) -> np.ndarray:
+        """(n_ego, n_other) bool, the pairs that may be associated: sizes within the size gate
+        and, when both maps carry descriptors, similarity at least `descriptor_min`."""
+        prm = self.params
+        compatible = size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff,
+                                     prm.size_partial)
+        return _descriptor_gate(ego_r, other_r, compatible, prm.descriptor_min)
 
     def _agree(self, p_all: np.ndarray, q_all: np.ndarray, held: np.ndarray) -> np.ndarray:
         """(n_ego, n_other) whether each pair's centroids agree in the plane under the held

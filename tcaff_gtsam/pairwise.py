@@ -20,7 +20,7 @@ __all__ = ["PairwiseAligner", "admitted", "evidence_of", "guided_search", "unche
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
     """`params` without the checks beyond MNO-CLIPPER's (residual, objects explained, spread,
-    ambiguity): the candidates the released code sees.
+    ambiguity) and with the paper's size gate: the candidates the released code sees.
 
     Raises:
         ConfigError: params not a FrameAlignerParams.
@@ -28,7 +28,7 @@ def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
     _require(isinstance(params, FrameAlignerParams), "unchecked", "params", params,
              "must be a FrameAlignerParams")
     return replace(params, max_rmse=None, min_inliers=None, min_spread=0.0,
-                   check_ambiguity=False)
+                   check_ambiguity=False, size_partial=None)
 
 
 def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | None,

@@ -52,36 +52,42 @@ def _sizes_similar(a: np.ndarray, b: np.ndarray, ratio: float, abs_diff: float) 
 
 
 def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
-                          abs_diff: float = 0.1) -> np.ndarray:
+                          abs_diff: float = 0.1, partial_ratio: float | None = None
+                          ) -> np.ndarray:
     """Pairs of objects of similar size, the nodes of the consistency graph.
 
     A pair (i, j) is kept when both the widths and the heights of ego object i and other object j
     are similar: the larger is at most `ratio` times the smaller, or they differ by at most
-    `abs_diff` metres (which keeps small objects whose ratio is noisy).
+    `abs_diff` metres (which keeps small objects whose ratio is noisy): the paper's gate. With
+    `partial_ratio` (the aligner's `size_partial`, 2 by default), one of the two (width or
+    height) may differ by up to that ratio instead, as a partial view makes it: a chair behind
+    a table loses its height, a box seen on one face its width.
 
     Returns:
         (m, 2) int64 array of (ego index, other index), sorted by ego then other index;
         (0, 2) when either map is empty or nothing passes.
     Raises:
-        ConfigError: ratio not a finite number >= 1, or abs_diff not a finite number >= 0
-            (NaN included).
+        ConfigError: ratio not a finite number >= 1, abs_diff not a finite number >= 0 (NaN
+            included), partial_ratio neither None nor a finite number >= ratio.
         DataError: ego or other is not an ObjectMap.
     """
     o = "putative_associations"
     _require(_finite(ratio) and ratio >= 1, o, "ratio", ratio, "must be a finite number >= 1")
     _require(_finite(abs_diff) and abs_diff >= 0, o, "abs_diff", abs_diff,
              "must be a finite number >= 0 metres")
+    _require(partial_ratio is None or (_finite(partial_ratio) and partial_ratio >= ratio), o,
+             "partial_ratio", partial_ratio, f"must be None or a finite number >= ratio ({ratio})")
     ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
     pairs = [np.argwhere(block) + np.array([start, 0])
-             for start, block in _gate_blocks(ego, other, ratio, abs_diff)]
+             for start, block in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio)]
     return np.concatenate([np.empty((0, 2), np.int64), *pairs]).astype(np.int64)
 
 
-def size_compatible(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float
-                    ) -> np.ndarray:
+def size_compatible(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float,
+                    partial_ratio: float | None = None) -> np.ndarray:
     """(n_ego, n_other) bool: the size gate of `putative_associations` for every pair."""
     out = np.empty((len(ego), len(other)), bool)
-    for start, block in _gate_blocks(ego, other, ratio, abs_diff):
+    for start, block in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio):
         out[start: start + block.shape[0]] = block
     return out
 
@@ -91,13 +97,65 @@ def _block_rows(n_other: int) -> int:
     return max(1, _GATE_BLOCK // max(n_other, 1))
 
 
-def _gate_blocks(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float):
+def _gate_blocks(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float,
+                 partial_ratio: float | None = None):
     """The size gate by blocks of ego rows: yields (first row, (rows, n_other) bool)."""
     rows = _block_rows(len(other))
     for start in range(0, len(ego), rows):
         part = slice(start, start + rows)
-        yield start, (_sizes_similar(ego.widths[part], other.widths, ratio, abs_diff)
-                      & _sizes_similar(ego.heights[part], other.heights, ratio, abs_diff))
+        widths = _sizes_similar(ego.widths[part], other.widths, ratio, abs_diff)
+        heights = _sizes_similar(ego.heights[part], other.heights, ratio, abs_diff)
+        block = widths & heights
+        if partial_ratio is not None and partial_ratio > ratio:
+            block |= widths & _sizes_similar(ego.heights[part], other.heights, partial_ratio,
+                                             abs_diff)
+            block |= heights & _sizes_similar(ego.widths[part], other.widths, partial_ratio,
+                                              abs_diff)
+        yield start, block
+
+
+def _descriptor_gate(ego: ObjectMap, other: ObjectMap, compatible: np.ndarray,
+                    minimum: float) -> np.ndarray:
+    """`compatible` ((n_ego, n_other) bool, e.g. `size_compatible`) without the pairs whose
+    descriptors' similarity is below `minimum`; unchanged when either map carries no
+    descriptors (`_descriptors_comparable`). Computed by blocks of ego rows: large maps never
+    hold a dense matrix of similarities.
+
+    Raises:
+        DataError: the two maps' descriptors have different lengths.
+    """
+    if minimum <= 0 or not _descriptors_comparable(ego, other):
+        return compatible
+    out = compatible.copy()
+    rows = _block_rows(len(other))
+    for start in range(0, len(ego), rows):
+        part = slice(start, start + rows)
+        out[part] &= ego.descriptors[part] @ other.descriptors.T >= minimum
+    return out
+
+
+def _pair_similarity(ego: ObjectMap, other: ObjectMap, pairs: np.ndarray) -> np.ndarray | None:
+    """(m,) the descriptor similarity (dot product, in [0, 1]) of each pair (m, 2) (ego index,
+    other index), or None when either map carries no descriptors."""
+    if not _descriptors_comparable(ego, other):
+        return None
+    return np.einsum("ij,ij->i", ego.descriptors[pairs[:, 0]], other.descriptors[pairs[:, 1]])
+
+
+def _descriptors_comparable(ego: ObjectMap, other: ObjectMap) -> bool:
+    """Whether both maps carry descriptors (and objects) to compare.
+
+    Raises:
+        DataError: both carry descriptors, of different lengths (made by front ends with
+            other settings: their dot product means nothing).
+    """
+    a, b = ego.descriptors, other.descriptors
+    if a is None or b is None or len(ego) == 0 or len(other) == 0:
+        return False
+    if a.shape[1] != b.shape[1]:
+        raise DataError(f"descriptors of the two maps have different lengths, {a.shape[1]} and "
+                        f"{b.shape[1]}: the robots' front ends describe objects differently")
+    return True
 
 
 def neighbourhood_agreement(ego_points: np.ndarray, other_points: np.ndarray,

@@ -25,6 +25,7 @@ CLASSES = [ClipperParams, FrameAlignerParams, TCAFFParams, GraphParams]
 #: fields where None is a valid value (it means "off" or "the default")
 OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inliers"),
             ("FrameAlignerParams", "track_min"), ("FrameAlignerParams", "guide_radius"),
+            ("FrameAlignerParams", "size_partial"), ("FrameAlignerParams", "height_epsilon"),
             ("TCAFFParams", "report_after"),
             ("TCAFFParams", "gate_box"),
             ("TCAFFParams", "switch_after"), ("GraphParams", "Q"),
@@ -32,7 +33,8 @@ OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inli
 #: fields that are switches
 SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),
             ("TCAFFParams", "withhold_contested"),
-            ("FrameAlignerParams", "check_ambiguity")}
+            ("FrameAlignerParams", "check_ambiguity"),
+            ("FrameAlignerParams", "descriptor_prior"), ("FrameAlignerParams", "refit")}
 #: values of the wrong kind for a number, a choice, a matrix or a nested parameter object
 JUNK = ("8", "huge", b"1", [["a"]], {}, object(), float("nan"))
 

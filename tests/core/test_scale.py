@@ -107,7 +107,8 @@ def big_pair(n: int, seed: int = 0):
 
 def test_a_step_whose_gate_passes_more_than_the_cap_keeps_the_true_pairs(caplog):
     pair, ego, other = big_pair(300)
-    n_pairs = len(putative_associations(ego, other))
+    n_pairs = len(putative_associations(ego, other,
+                                        partial_ratio=FrameAlignerParams().size_partial))
     cap = n_pairs // 4
     aligner = FrameAligner(FrameAlignerParams(max_associations=cap))
     with caplog.at_level(logging.DEBUG, logger="tcaff_gtsam.frame_aligner"):
