@@ -53,6 +53,7 @@ __all__ = [
     "KimeraMultiConfig",
     "MethodsConfig",
     "MrclamConfig",
+    "RgbdConfig",
     "ScenarioConfig",
     "StudyConfig",
     "SweepConfig",
@@ -61,6 +62,7 @@ __all__ = [
     "load_kimera_multi",
     "load_methods",
     "load_mrclam",
+    "load_rgbd",
     "load_scenario",
     "load_study",
     "load_sweep",
@@ -738,6 +740,33 @@ class MrclamConfig(_Model):
         return getattr(self.kappa, odometry)
 
 
+class RgbdConfig(_Model):
+    """An evaluation on recorded RGB-D sequences (7-Scenes or TUM RGB-D folders): how their
+    frames become robots' maps and which methods align them. Robots, frames and truth come
+    from the folders and the command line."""
+
+    description: str = ""
+    odometry: Literal["exact", "vio"] = Field("vio", description=(
+        "exact: the sequence's poses; vio: the poses with VIO-like drift"))
+    vio: VioDriftConfig = VioDriftConfig()
+    kappa: _MapSpan = Field(20.0, description=(
+        "s; a map holds the objects seen this recently (the paper's 20 s)"))
+    nu: Annotated[int, _rule_of(MapperParams, "nu")] = Field(
+        3, description="sightings before an object enters the map")
+    min_shared: int = Field(5, ge=1, description=(
+        "objects two maps must share under the truth to overlap"))
+    match_radius: float = Field(0.3, gt=0, description=(
+        "m; two objects share a place under the truth when they are mutual nearest "
+        "neighbours this close in the plane"))
+    tight: ThresholdConfig = Field(ThresholdConfig(translation=0.3, heading_deg=3.0),
+                                   description="a second, tighter false-accept threshold")
+    window: Annotated[int | None, _rule_of(TCAFFParams, "window")] = Field(
+        None, description="TCAFF window W of every TCAFF method; None: each preset's")
+    graph_drift: GraphDrift = Field(
+        None, description="iSAM2 between-step drift (m, deg) per 1 Hz step; None: TCAFF's Q")
+    methods: str | MethodsConfig = "default"
+
+
 # -- loading -----------------------------------------------------------------------------------
 
 
@@ -844,7 +873,7 @@ def _resolve(ref: str, folder: str) -> Path:
         names = sorted(p.stem for p in (CONFIG_DIR / folder).glob("*.yaml"))
         kind = {"scenarios": "scenario", "methods": "method set", "studies": "study",
                 "kimera_multi": "Kimera-Multi test", "mrclam": "MRCLAM evaluation",
-                "sweeps": "sweep"}[folder]
+                "rgbd": "RGB-D evaluation", "sweeps": "sweep"}[folder]
         raise ConfigError(f"no {kind} config named {ref!r}; shipped: {', '.join(names)}")
     return shipped
 
@@ -968,6 +997,12 @@ def load_mrclam(ref: str | Path) -> MrclamConfig:
     """An MRCLAM evaluation by shipped name (`default`) or path, its method set loaded
     inline."""
     return _load_with_methods(MrclamConfig, ref, "mrclam")
+
+
+def load_rgbd(ref: str | Path) -> RgbdConfig:
+    """An RGB-D sequence evaluation by shipped name (`default`) or path, its method set loaded
+    inline."""
+    return _load_with_methods(RgbdConfig, ref, "rgbd")
 
 
 def dump_study(study: StudyConfig) -> str:

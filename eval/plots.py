@@ -13,6 +13,10 @@
 - mot_sweep.png: MOTA against single-shot CLIPPER's threshold k, the other methods as
   horizontal lines.
 
+A recorded data set draws errors_<i>_<j>.png, candidates_<i>_<j>.png and arena.png
+(`draw_recorded`); RGB-D sequences also top_view_<i>_<j>.png (`top_view`): both maps from
+above under the truth and under the estimate.
+
 A sweep (see `sweep`) draws tradeoff.png and response_<parameter>.png (`draw_sweep`).
 """
 
@@ -36,7 +40,7 @@ from .metrics import step_errors
 from .mot import NO_SHARING, rolling_mota
 from .registry import Estimate, describe, shown_streams
 
-__all__ = ["draw_all", "draw_sweep", "label"]
+__all__ = ["draw_all", "draw_sweep", "label", "top_view"]
 
 #: the tracking baseline, which is not an alignment method
 _NO_SHARING = Estimate("no sharing", "0.5", ":")
@@ -230,6 +234,61 @@ def mot_sweep(path: Path, mot_summary: dict, methods: MethodsConfig) -> None:
 
 def _none_nan(value: float | None) -> float:
     return np.nan if value is None else value
+
+
+def top_view(path: Path, job, pair: int, stream: str = "tcaff") -> None:
+    """Both robots' maps of one exchange from above, in the ego robot's odometry frame: the
+    other map moved by the true alignment (left) and by the estimate (right). The exchange is
+    the last one at which `stream` has an estimate (the last exchange when it never has one).
+    Circles are sized by object width; ego objects blue, the other robot's red."""
+    a = job.arrays
+    i, j = job.pairs[pair]
+    estimate = a[f"est_{stream}"][pair] if f"est_{stream}" in a else None
+    has = np.zeros(len(a["times"]), bool) if estimate is None else ~np.isnan(estimate[:, 0])
+    s = int(np.flatnonzero(has)[-1]) if has.any() else len(a["times"]) - 1
+
+    def objects(r: int) -> tuple[np.ndarray, np.ndarray]:
+        counts = a[f"map_counts_{r}"].astype(np.int64)
+        start = int(counts[:s].sum())
+        part = slice(start, start + int(counts[s]))
+        return a[f"map_xy_{r}"][part].astype(float), a[f"map_widths_{r}"][part].astype(float)
+
+    ego_xy, ego_w = objects(i)
+    other_xy, other_w = objects(j)
+    panels = [("truth", a["truth"][pair][s])]
+    if has[s]:
+        panels.append((label(stream), estimate[s]))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6))
+    shown = []
+    for ax, (title, z) in zip(axes, panels, strict=False):
+        T = se2_from_params(z)
+        moved = other_xy @ T[:2, :2].T + T[:2, 2]
+        for xy, w, color, who in ((ego_xy, ego_w, "tab:blue", f"robot {i}"),
+                                  (moved, other_w, "tab:red", f"robot {j}")):
+            ax.scatter(xy[:, 0], xy[:, 1], s=400 * w**2 + 8, facecolors="none",
+                       edgecolors=color, lw=1.2, label=f"{who} ({len(xy)})")
+        err = step_errors(se2_from_params(a["truth"][pair][s:s + 1]), np.asarray(z)[None])[0]
+        ax.set_title(f"{title}: {err[0]:.2f} m, {math.degrees(err[1]):.1f} deg off the truth"
+                     if title != "truth" else "under the true alignment", fontsize=10)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+        ax.set_xlabel(f"x in o{i} [m]")
+        shown.append(np.vstack([ego_xy, moved]))
+    if shown and np.concatenate(shown).size:  # one view in both panels, to compare them
+        every = np.concatenate(shown)
+        lo, hi = every.min(axis=0) - 0.5, every.max(axis=0) + 0.5
+        for ax in axes:
+            ax.set_xlim(lo[0], hi[0])
+            ax.set_ylim(lo[1], hi[1])
+    if len(panels) == 1:
+        axes[1].text(0.5, 0.5, f"{label(stream)}: no estimate", ha="center", va="center",
+                     transform=axes[1].transAxes)
+    axes[0].set_ylabel(f"y in o{i} [m]")
+    fig.suptitle(f"{_title(job)}: maps of exchange {s + 1} (t = {a['times'][s]:.0f} s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def scenarios_overview(path: Path, first: list) -> None:

@@ -25,17 +25,21 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.geometry import se2_from_params
+from tcaff_gtsam.params import TCAFFParams
 
-from .config import KimeraMultiConfig, MethodsConfig, MrclamConfig
-from .datasets import kimera_multi, mrclam
+from .config import KimeraMultiConfig, MethodsConfig, MrclamConfig, RgbdConfig
+from .datasets import kimera_multi, mrclam, rgbd_robots
 from .jobs import evaluate
+from .metrics import Thresholds, step_errors
 from .registry import METHODS, describe, estimate_names, shown_streams
 from .results import JobResult, summarize, thresholds_of, write_tables
 from .runs import RecordedRun, planar_poses
 from .trajectories import write_tum
 
-__all__ = ["KimeraOutcome", "MrclamOutcome", "RecordedOutcome", "evaluate_recorded", "evaluate_run",
-           "mrclam_name", "run_kimera_multi", "run_mrclam"]
+__all__ = ["KimeraOutcome", "MrclamOutcome", "RecordedOutcome", "RgbdOutcome",
+           "evaluate_recorded", "evaluate_run", "mrclam_name", "rgbd_name", "run_kimera_multi",
+           "run_mrclam", "run_rgbd", "walk_report"]
 
 log = logging.getLogger(__name__)
 
@@ -283,3 +287,163 @@ def run_mrclam(config: MrclamConfig, data: Path, output: Path, odometries: list[
             arrays, {"fingerprint": fingerprint, "odometry": odometry, "seed": seed})
         outcomes.append(MrclamOutcome(odometry, seed, recorded, False, dataset.skipped))
     return outcomes
+
+
+# -- recorded RGB-D sequences ------------------------------------------------------------------
+
+
+@dataclass
+class RgbdOutcome:
+    """One odometry and seed (None for exact odometry) of an RGB-D evaluation.
+
+    Attributes:
+        recorded: the evaluation (or the one an earlier run saved, `reused`).
+        frame_seconds: per robot, (k, 5) seconds of the front end's stages per frame
+            (register, segment, filter, lift, track); None when the maps were reused.
+        report: estimate stream -> `walk_report` of it.
+    """
+
+    odometry: str
+    seed: int | None
+    recorded: RecordedOutcome
+    reused: bool
+    frame_seconds: list[np.ndarray] | None
+    report: dict[str, dict]
+
+
+def rgbd_name(walks: list[rgbd_robots.Walk], odometry: str, seed: int | None) -> str:
+    """The results' name of one set of walks, odometry and seed (exact odometry has none)."""
+    names = "+".join(dict.fromkeys(w.sequence.name for w in walks))
+    back = "-back" if any(w.label.endswith("there and back") for w in walks) else ""
+    return f"{names}{back}-{odometry}" + ("" if seed is None else f"-seed{seed}")
+
+
+def walk_report(job: JobResult, streams: list[str], thresholds: Thresholds, tight: Thresholds,
+                first: int) -> dict[str, dict]:
+    """Per estimate stream, pooled over the job's pairs: false accepts at `thresholds` and at
+    `tight` (shares of the estimates), availability from exchange `first` + 1 on (the share of
+    those exchanges with an estimate: the first TCAFF can answer at is W + 1), and the median
+    translation [m] and heading [deg] errors."""
+    report = {}
+    T_true = [se2_from_params(job.arrays["truth"][p]) for p in range(len(job.pairs))]
+    for stream in streams:
+        errors = np.concatenate([step_errors(T, job.arrays[f"est_{stream}"][p])
+                                 for p, T in enumerate(T_true)])
+        late = np.concatenate([~np.isnan(job.arrays[f"est_{stream}"][p][first:, 0])
+                               for p in range(len(job.pairs))])
+        got = errors[~np.isnan(errors[:, 0])]
+        n = got.shape[0]
+
+        def wrong(limit: Thresholds, got=got, n=n) -> float | None:
+            bad = (got[:, 0] > limit.translation) | (got[:, 1] > limit.heading)
+            return None if n == 0 else float(bad.mean())
+
+        report[stream] = {
+            "estimates": n, "false_accept": wrong(thresholds), "false_accept_tight": wrong(tight),
+            "availability_from_first": float(late.mean()) if late.size else None,
+            "first_exchange": first + 1,
+            "median_translation_m": float(np.median(got[:, 0])) if n else None,
+            "median_heading_deg": float(np.degrees(np.median(got[:, 1]))) if n else None}
+    return report
+
+
+def _walk_fingerprint(config: RgbdConfig, walks: list[rgbd_robots.Walk], odometry: str,
+                      seed: int | None) -> str:
+    """Changes when anything that shapes the results changes: settings, frames, files and the
+    front end's settings."""
+    from tcaff_gtsam.mapping.lift import LiftParams
+    from tcaff_gtsam.mapping.segment import DepthSegmenterParams, MaskFilter
+
+    files = sorted({(str(w.sequence.folder), f.name, f.stat().st_size, f.stat().st_mtime_ns)
+                    for w in walks for f in w.sequence.folder.glob("*.txt")})
+    blob = json.dumps({
+        "config": config.model_dump(mode="json"), "odometry": odometry, "seed": seed,
+        "walks": [[str(w.sequence.folder), w.sequence.frame_ids[w.positions].tolist(),
+                   w.times.tolist()] for w in walks],
+        "files": files, "front_end": repr((DepthSegmenterParams(), MaskFilter(), LiftParams(),
+                                           _mapper_params(config)))}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _mapper_params(config: RgbdConfig):
+    from tcaff_gtsam.mapping.mapper import MapperParams
+
+    return MapperParams(nu=config.nu, kappa=config.kappa)
+
+
+def run_rgbd(config: RgbdConfig, walks: list[rgbd_robots.Walk], output: Path,
+             odometries: list[str], seeds: list[int], resume: bool = True,
+             figures: bool = True, progress: Callable[[str, str, float], None] | None = None
+             ) -> list[RgbdOutcome]:
+    """Every method over every directed pair of robots walking RGB-D sequences, for each
+    odometry and seed (exact odometry once), each into `<output>/<name>/` (`rgbd_name`).
+
+    A run whose results are already there, from the same settings, frames and files, is
+    reused when `resume`; a run that fails leaves the finished ones in place.
+
+    Args:
+        walks: one per robot (`rgbd_robots.walk`).
+        progress: called with the run's name, the stage ("mapping <robot>" or "aligning")
+            and the share done.
+    Raises:
+        DataError: a frame cannot be read (see `datasets.rgbd_sequence`).
+    """
+    methods = config.methods
+    assert isinstance(methods, MethodsConfig)
+    thresholds = thresholds_of(methods)
+    tight = Thresholds(config.tight.translation, np.radians(config.tight.heading_deg))
+    first = config.window if config.window is not None else TCAFFParams().window
+    todo = [(o, s) for o in dict.fromkeys(odometries)
+            for s in (dict.fromkeys(seeds) if o == "vio" else [None])]
+    outcomes = []
+    for odometry, seed in todo:
+        name = rgbd_name(walks, odometry, seed)
+        folder = Path(output) / name
+        fingerprint = _walk_fingerprint(config, walks, odometry, seed)
+        saved = _saved(folder, name, fingerprint, methods, figures) if resume else None
+        if saved is not None:
+            if figures:
+                _draw_top_views(folder, saved.job)
+            report = walk_report(saved.job, _scored(saved.methods), thresholds, tight, first)
+            outcomes.append(RgbdOutcome(odometry, seed, saved, True, None, report))
+            continue
+
+        def mapping(robot: int, share: float, name=name) -> None:
+            if progress is not None:
+                progress(name, f"mapping {walks[robot].label}", share)
+
+        run, seconds = rgbd_robots.load_run(
+            walks, odometry, seed, config.kappa, _mapper_params(config), config.min_shared,
+            config.match_radius, config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std,
+            config.window, config.graph_drift, name, mapping)
+        header = {"data": sorted({str(w.sequence.folder) for w in walks}),
+                  "robots": [w.label for w in walks], "odometry": odometry, "seed": seed,
+                  "ms_per_frame": {w.label: 1e3 * float(np.median(s.sum(axis=1)))
+                                   for w, s in zip(walks, seconds, strict=True)}}
+        recorded = evaluate_recorded(
+            run, methods, folder, figures, header,
+            None if progress is None else (lambda share, n=name: progress(n, "aligning", share)),
+            None, {"fingerprint": fingerprint, "odometry": odometry, "seed": seed})
+        report = walk_report(recorded.job, _scored(recorded.methods), thresholds, tight, first)
+        (folder / "walk_report.json").write_text(json.dumps(report, indent=2) + "\n")
+        if figures:
+            _draw_top_views(folder, recorded.job)
+        outcomes.append(RgbdOutcome(odometry, seed, recorded, False, seconds, report))
+    return outcomes
+
+
+def _scored(methods: MethodsConfig) -> list[str]:
+    """The causal estimate streams of a method set, without the truth itself."""
+    return [m for m in estimate_names(methods)
+            if describe(m).causal and m != "ground_truth"]
+
+
+def _draw_top_views(folder: Path, job: JobResult) -> None:
+    """Each pair's top view (`plots.top_view`) into folder/figures, unless it is there."""
+    from . import plots
+
+    for p, (i, j) in enumerate(job.pairs):
+        path = folder / "figures" / f"top_view_{i}_{j}.png"
+        if not path.is_file():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            plots.top_view(path, job, p)
