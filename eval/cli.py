@@ -945,12 +945,6 @@ def _parse_ranges(text: str | None, n_data: int) -> list[tuple[int | None, int |
     return ranges
 
 
-def _halves(frame_ids) -> list[tuple[int, int]]:
-    """The first and second half of a sequence's frame ids, as two robots' ranges."""
-    middle = int(frame_ids[len(frame_ids) // 2])
-    return [(int(frame_ids[0]), middle), (middle, int(frame_ids[-1]) + 1)]
-
-
 def _walk_table(outcome, labels: dict[str, str]) -> Table:
     """The numbers of an RGB-D evaluation per estimate stream (pooled over pairs)."""
     table = _table(f"{outcome.recorded.job.name}: false accepts, availability from the "
@@ -1002,7 +996,8 @@ def rgbd(
     methods: Annotated[str | None, typer.Option(
         help=f"Method set: a YAML path or a shipped name ({_shipped('methods')}).")] = None,
     output: Annotated[Path, typer.Option(
-        help="Results go to OUTPUT/<sequence>[-back]-<odometry>[-seed<s>]/.")
+        help="Results go to OUTPUT/<sequence>[-<ranges>][-<rate>hz][-back]-<odometry>"
+             "[-seed<s>]/ (ranges unless the default ones).")
     ] = Path("results/rgbd"),
     resume: Annotated[bool, typer.Option(
         help="Reuse the results of an earlier run with the same settings and files.")] = True,
@@ -1029,7 +1024,7 @@ def rgbd(
     from tcaff_gtsam.errors import ConfigError
 
     from .config import load_methods, load_rgbd, override
-    from .datasets.rgbd_robots import walk
+    from .datasets.rgbd_robots import halves, walk
     from .datasets.rgbd_sequence import read_sequence
     from .recorded import run_rgbd
     from .registry import describe
@@ -1055,7 +1050,7 @@ def rgbd(
     ranges = _parse_ranges(robots, len(data))
     sequences = [read_sequence(folder, down, fps) for folder in data]
     if len(data) == 1:
-        ranges = ranges or _halves(sequences[0].frame_ids)
+        ranges = ranges or halves(sequences[0].frame_ids)
         sequences = sequences * len(ranges)
     walks = [walk(seq, start, stop, rate, there_and_back)
              for seq, (start, stop) in zip(sequences, ranges, strict=True)]

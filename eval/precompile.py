@@ -3,8 +3,9 @@
 
 The core's alignment kernels (`tcaff_gtsam.precompile`, which a user of the core alone runs),
 the people tracker's frame (`tracker`), the mapping front end's footprint calipers
-(`mapping.lift`) and the depth segmenter's and mask filter's kernels (`mapping.segment`). `make install` runs it once, so that no study, demo or mapping run pays
-seconds of compilation in its first process. Source changes are noticed by numba, which
+(`mapping.objects`) and the depth segmenter's and mask filter's kernels (`mapping.segment`).
+`make install` runs it once, so that no study, demo or mapping run pays seconds of
+compilation in its first process. Source changes are noticed by numba, which
 compiles again on the next call.
 """
 

@@ -26,7 +26,6 @@ import numpy as np
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import se2_from_params
-from tcaff_gtsam.params import TCAFFParams
 
 from .config import KimeraMultiConfig, MethodsConfig, MrclamConfig, RgbdConfig
 from .datasets import kimera_multi, mrclam, rgbd_robots
@@ -312,10 +311,39 @@ class RgbdOutcome:
 
 
 def rgbd_name(walks: list[rgbd_robots.Walk], odometry: str, seed: int | None) -> str:
-    """The results' name of one set of walks, odometry and seed (exact odometry has none)."""
+    """The results' name of one set of walks, odometry and seed (exact odometry has none):
+    `<sequences>[-<ranges>][-<rate>hz][-back]-<odometry>[-seed<s>]`.
+
+    The ranges are left out when they are the default: the two halves of one sequence
+    (`rgbd_robots.halves`), or each of several sequences whole. Else each robot's range
+    [start, stop) is `<start>to<stop>` (an open end left empty, `all` for a whole sequence),
+    joined by `+`. The rate is left out when every frame is walked (one per robot when they
+    differ, `all` for every frame). `-back`: the robots walk there and back (`-back<r>+<r>`,
+    robot indices, when only some do). E.g. `redkitchen-back-exact`,
+    `redkitchen-0to500+400to900-5hz-vio-seed0`.
+    """
     names = "+".join(dict.fromkeys(w.sequence.name for w in walks))
-    back = "-back" if any(w.label.endswith("there and back") for w in walks) else ""
-    return f"{names}{back}-{odometry}" + ("" if seed is None else f"-seed{seed}")
+    ranges = [(w.start, w.stop) for w in walks]
+    folders = [w.sequence.folder for w in walks]
+    if len(set(folders)) == 1 and len(walks) == 2:
+        default = ranges == rgbd_robots.halves(walks[0].sequence.frame_ids)
+    else:
+        default = len(set(folders)) == len(walks) and all(r == (None, None) for r in ranges)
+    span = "" if default else "-" + "+".join(
+        "all" if (a, b) == (None, None) else f"{_bound(a)}to{_bound(b)}" for a, b in ranges)
+    rates = [w.rate for w in walks]
+    if len(set(rates)) == 1:
+        rates = rates[:1]
+    rate = "" if rates == [None] else "-" + "+".join(
+        "all" if r is None else f"{r:g}hz" for r in rates)
+    walked_back = [r for r, w in enumerate(walks) if w.there_and_back]
+    back = ("" if not walked_back else "-back" if len(walked_back) == len(walks)
+            else "-back" + "+".join(map(str, walked_back)))
+    return f"{names}{span}{rate}{back}-{odometry}" + ("" if seed is None else f"-seed{seed}")
+
+
+def _bound(frame_id: int | None) -> str:
+    return "" if frame_id is None else str(frame_id)
 
 
 def walk_report(job: JobResult, streams: list[str], thresholds: Thresholds, tight: Thresholds,
@@ -347,6 +375,10 @@ def walk_report(job: JobResult, streams: list[str], thresholds: Thresholds, tigh
     return report
 
 
+#: bump when what a saved RGB-D run holds changes (2: paths of level bodies in a level world)
+RGBD_RESULTS_VERSION = 2
+
+
 def _walk_fingerprint(config: RgbdConfig, walks: list[rgbd_robots.Walk], odometry: str,
                       seed: int | None) -> str:
     """Changes when anything that shapes the results changes: settings, frames, files and the
@@ -357,6 +389,7 @@ def _walk_fingerprint(config: RgbdConfig, walks: list[rgbd_robots.Walk], odometr
     files = sorted({(str(w.sequence.folder), f.name, f.stat().st_size, f.stat().st_mtime_ns)
                     for w in walks for f in w.sequence.folder.glob("*.txt")})
     blob = json.dumps({
+        "version": RGBD_RESULTS_VERSION,
         "config": config.model_dump(mode="json"), "odometry": odometry, "seed": seed,
         "walks": [[str(w.sequence.folder), w.sequence.frame_ids[w.positions].tolist(),
                    w.times.tolist()] for w in walks],
@@ -392,7 +425,7 @@ def run_rgbd(config: RgbdConfig, walks: list[rgbd_robots.Walk], output: Path,
     assert isinstance(methods, MethodsConfig)
     thresholds = thresholds_of(methods)
     tight = Thresholds(config.tight.translation, np.radians(config.tight.heading_deg))
-    first = config.window if config.window is not None else TCAFFParams().window
+    first = methods.tcaff_params(False, config.window).window
     todo = [(o, s) for o in dict.fromkeys(odometries)
             for s in (dict.fromkeys(seeds) if o == "vio" else [None])]
     outcomes = []

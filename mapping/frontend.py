@@ -160,7 +160,8 @@ class RgbdFrontEnd:
         lap("register")
         # the odometry frame's up axis (z) in the optical frame
         up = {"up": T_odom_camera[2, :3].copy()} if self._segmenter_takes_up else {}
-        if isinstance(self.segmenter, DepthSegmenter):
+        labels = None
+        if type(self.segmenter).segment is DepthSegmenter.segment:
             # the label image is filtered as it is; only the kept masks are ever made
             labels, n_masks = self.segmenter.label(rgb, z, **up)
             lap("segment")
@@ -178,34 +179,44 @@ class RgbdFrontEnd:
         lifted_masks = candidates[obs.mask_indices]
         obs = Observations(obs.centroids, obs.widths, obs.heights, obs.point_counts,
                            kept[obs.mask_indices], obs.points, obs.cloud_starts)
-        colours = self._colours(rgb, lifted_masks)
+        colours = self._colours(rgb, lifted_masks, None if labels is None
+                                else (labels, obs.mask_indices + 1))
         lap("lift")
         track_ids = self.mapper.update(t, obs.centroids, obs.widths, obs.heights,
                                        obs.clouds(), colours)
         lap("track")
         return FrameResult(obs, lifted_masks, track_ids, int(n_masks), seconds)
 
-    def _colours(self, rgb: np.ndarray, masks: np.ndarray) -> np.ndarray:
-        """(k, B) the hue-saturation histogram of each mask's pixels, from every second row
-        and column (a histogram of a few hundred pixels or more is as good as of all)."""
+    def _colours(self, rgb: np.ndarray, masks: np.ndarray,
+                 labelled: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """(k, B) the hue-saturation histogram of each of the k masks' pixels, from every
+        second row and column (a histogram of a few hundred pixels or more is as good as of
+        all). With `labelled` = (the (H, W) label image the masks come from, (k,) each mask's
+        label), one pass over the label image gives the same counts as one pass per mask."""
         p = self.mapper.params
         n_bins = p.hue_bins * p.saturation_bins + 1
-        out = np.zeros((masks.shape[0], n_bins))
-        if masks.shape[0] == 0:
-            return out
+        k = masks.shape[0]
+        if k == 0:
+            return np.zeros((0, n_bins))
         index = colour_bins(np.ascontiguousarray(rgb[::2, ::2]), p.hue_bins, p.saturation_bins)
-        sampled = masks[:, ::2, ::2]
-        rows_hit, cols_hit = sampled.any(axis=2), sampled.any(axis=1)
-        for k, mask in enumerate(sampled):
-            rows, cols = np.flatnonzero(rows_hit[k]), np.flatnonzero(cols_hit[k])
-            if rows.size == 0:  # a mask thinner than the sampling: its own pixels then
-                counts = np.bincount(colour_bins(rgb[masks[k]][None], p.hue_bins,
-                                                 p.saturation_bins)[0], minlength=n_bins)
-            else:
-                crop = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
-                counts = np.bincount(index[crop][mask[crop]], minlength=n_bins)
-            out[k] = counts / max(counts.sum(), 1)
-        return out
+        if labelled is None:
+            counts = np.zeros((k, n_bins), dtype=np.int64)
+            sampled = masks[:, ::2, ::2]
+            for r, mask in enumerate(sampled):
+                counts[r] = np.bincount(index[mask], minlength=n_bins)
+        else:
+            labels, ids = labelled
+            row_of = np.full(int(labels.max()) + 1, -1, dtype=np.int64)
+            row_of[ids] = np.arange(k)
+            row = row_of[labels[::2, ::2]]
+            inside = row >= 0
+            counts = np.bincount(row[inside] * n_bins + index[inside],
+                                 minlength=k * n_bins).reshape(k, n_bins)
+        for r in np.flatnonzero(counts.sum(axis=1) == 0):
+            # a mask thinner than the sampling: its own pixels then
+            counts[r] = np.bincount(colour_bins(rgb[masks[r]][None], p.hue_bins,
+                                                p.saturation_bins)[0], minlength=n_bins)
+        return counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
 
     def object_map(self) -> ObjectMap:
         """The robot's current map (confirmed tracks) in its odometry frame."""

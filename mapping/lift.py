@@ -24,10 +24,9 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
-import numba
 import numpy as np
 import open3d as o3d
 
@@ -35,6 +34,7 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.params import _int_at_least, _real, _require
 
 from .camera import PinholeCamera, check_camera, check_depth_scale, depth_in_metres, rigid_transform
+from .objects import footprint_rectangles
 from .segment import check_masks, stands_in_front
 
 __all__ = ["LiftParams", "MaskLifter", "Observations"]
@@ -143,77 +143,32 @@ class Observations:
     heights: np.ndarray
     point_counts: np.ndarray
     mask_indices: np.ndarray
-    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    cloud_starts: np.ndarray = field(default_factory=lambda: np.zeros(1, dtype=np.int64))
+    points: np.ndarray
+    cloud_starts: np.ndarray
 
     def __len__(self) -> int:
         return self.centroids.shape[0]
 
     def clouds(self) -> list[np.ndarray]:
-        """The k clouds, (n_o, 3) each (empty arrays when the clouds were not kept)."""
-        if self.cloud_starts.size != len(self) + 1:
-            return [np.zeros((0, 3)) for _ in range(len(self))]
+        """The k clouds, (n_o, 3) each."""
         return [self.points[a:b] for a, b in itertools.pairwise(self.cloud_starts)]
-
-    def subset(self, index: np.ndarray) -> Observations:
-        """The observations at `index` ((j,) int, increasing), their clouds with them."""
-        index = np.asarray(index, dtype=np.int64)
-        clouds = self.clouds()
-        kept = [clouds[i] for i in index]
-        sizes = np.array([c.shape[0] for c in kept], dtype=np.int64)
-        return Observations(self.centroids[index], self.widths[index], self.heights[index],
-                            self.point_counts[index], self.mask_indices[index],
-                            np.concatenate([np.zeros((0, 3)), *kept]),
-                            np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64))
 
 
 def _footprint_widths(xy: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """Longer side of the smallest-perimeter rectangle around each cloud's footprint.
+    """Longer side of the smallest-perimeter rectangle around each cloud's footprint
+    (`objects.footprint_rectangles`).
 
     Args:
         xy: (n, 2) metres, the clouds' points on the ground plane, one cloud after another;
         starts, ends: (c,) each cloud's slice of `xy`.
     Returns:
         (c,) metres.
-
-    Not the smallest-area rectangle: for the L of a box's two visible faces that one ties
-    between the box itself and one along the diagonal, while the smallest perimeter picks the
-    box. One side of the optimal rectangle lies along a hull edge.
     """
     hulls = [cv2.convexHull(xy[a:b].astype(np.float32)).reshape(-1, 2) for a, b in
              zip(starts, ends, strict=True)]
     sizes = np.array([h.shape[0] for h in hulls], dtype=np.int64)
     stacked = np.concatenate(hulls).astype(np.float64) if hulls else np.zeros((0, 2))
-    return _calipers(stacked, np.concatenate([[0], np.cumsum(sizes)]))
-
-
-@numba.njit(cache=True)
-def _calipers(hulls: np.ndarray, bounds: np.ndarray) -> np.ndarray:  # pragma: no cover
-    """`_footprint_widths` on convex hulls stacked one after another, hull g being
-    hulls[bounds[g]:bounds[g + 1]]."""
-    widths = np.zeros(bounds.size - 1)
-    for g in range(bounds.size - 1):
-        pts = hulls[bounds[g]:bounds[g + 1]]
-        h = pts.shape[0]
-        best = np.inf
-        for i in range(h):
-            ex = pts[(i + 1) % h, 0] - pts[i, 0]
-            ey = pts[(i + 1) % h, 1] - pts[i, 1]
-            norm = np.sqrt(ex * ex + ey * ey)
-            if norm < 1e-12:
-                continue
-            ux, uy = ex / norm, ey / norm
-            lo_a = lo_c = np.inf
-            hi_a = hi_c = -np.inf
-            for j in range(h):
-                along = pts[j, 0] * ux + pts[j, 1] * uy
-                across = pts[j, 1] * ux - pts[j, 0] * uy
-                lo_a, hi_a = min(lo_a, along), max(hi_a, along)
-                lo_c, hi_c = min(lo_c, across), max(hi_c, across)
-            if (hi_a - lo_a) + (hi_c - lo_c) < best:
-                best = (hi_a - lo_a) + (hi_c - lo_c)
-                widths[g] = max(hi_a - lo_a, hi_c - lo_c)
-    return widths
+    return footprint_rectangles(stacked, np.concatenate([[0], np.cumsum(sizes)]))[0]
 
 
 class MaskLifter:
@@ -484,4 +439,5 @@ def _grid_lines(start: int, stop: int, step: float) -> np.ndarray:
 
 def _no_observations() -> Observations:
     return Observations(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.int64),
-                        np.zeros(0, dtype=np.int64))
+                        np.zeros(0, dtype=np.int64), np.zeros((0, 3)),
+                        np.zeros(1, dtype=np.int64))

@@ -24,6 +24,7 @@ from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.inputs import real_array
 from tcaff_gtsam.object_map import ObjectMap, object_arrays
 from tcaff_gtsam.params import FrameAlignerParams, _int_at_least, _real, _require
+from tcaff_gtsam.registration import MAX_COORDINATE
 
 from .objects import ObjectCloud, cloud_extent, shape_features
 
@@ -65,6 +66,9 @@ class MapperParams:
             (`objects.cloud_extent`, measured when the map is read) rather than running
             means of single views: the object seen from everywhere it was seen from.
         cloud_points: the most voxels a track's cloud keeps (coarser voxels beyond).
+        extent_pad: metres added to a merged cloud's width and height: lifted points are
+            the means of the lifter's voxels (`LiftParams.voxel_size`, 1 cm), which pulls
+            the outermost inside; the lifter pads a single view's sizes by the same.
         cloud_span: seconds; voxels unseen this long leave the cloud (odometry drifts).
         hue_bins, saturation_bins: the colour histogram of an object (`objects.colour_bins`
             of its pixels; the front end makes them).
@@ -94,6 +98,7 @@ class MapperParams:
     tentative_timeout: float = 1.0
     cloud_voxel: float = 0.02
     cloud_points: int = 1500
+    extent_pad: float = 0.01
     cloud_span: float = 60.0
     hue_bins: int = 12
     saturation_bins: int = 3
@@ -126,6 +131,9 @@ class MapperParams:
                  "must be a finite number > 0 metres")
         _require(_int_at_least(self.cloud_points, 16), o, "cloud_points", self.cloud_points,
                  "must be an int >= 16")
+        _require(_real(self.extent_pad) and math.isfinite(self.extent_pad)
+                 and self.extent_pad >= 0, o, "extent_pad", self.extent_pad,
+                 "must be a finite number >= 0 metres")
         _require(_real(self.cloud_span) and self.cloud_span > 0, o, "cloud_span",
                  self.cloud_span, "must be a number > 0 seconds")
         for name in ("hue_bins", "saturation_bins"):
@@ -168,9 +176,11 @@ class ObjectMapper:
         self._last_seen = np.zeros(0)
         self._clouds: list[ObjectCloud | None] = []  # per track, when clouds are given
         self._dirty = np.zeros(0, dtype=bool)  # clouds changed since their box was measured
-        self._colours = np.zeros((0, 0))  # (n, B) histograms, NaN rows where none was given
+        # (n, B) colour histograms, NaN rows where none was given
+        self._colours = np.zeros((0, params.hue_bins * params.saturation_bins + 1))
         self._next_id = 0
         self._t_last: float | None = None
+        self._with_clouds: bool | None = None  # fixed by the first update with observations
 
     def __len__(self) -> int:
         """Number of live tracks, confirmed or not."""
@@ -194,19 +204,23 @@ class ObjectMapper:
             clouds: None, or the k observations' point clouds ((n_o, 3) metres each, odometry
                 frame, n_o >= 1): each track then merges the clouds of its observations, and
                 its centroid and sizes are those of the merged cloud (`cloud_voxel`).
-            colours: None, or (k, B) colour histograms (each from `objects.colour_bins`, B
-                the same in every update): each track keeps their running mean.
+            colours: None, or (k, B) colour histograms (counts of `objects.colour_bins` of
+                each object's pixels, B = hue_bins x saturation_bins + 1): each track keeps
+                their running mean.
 
         Returns:
             (k,) int64, the id of the track each observation was assigned to (after merging);
             distinct, since two observations of one frame are never merged.
 
         Raises:
-            DataError: on a bad time stamp or bad observation arrays (nothing is changed).
+            DataError: on a bad time stamp or bad observation arrays, or observations with
+                clouds after some without or the reverse (nothing is changed).
         """
         t, C, W, H = self._validate(t, centroids, widths, heights)
         clouds = self._valid_clouds(clouds, C.shape[0])
         colours = self._valid_colours(colours, C.shape[0])
+        if C.shape[0]:
+            self._check_mode(clouds is not None)
         self._t_last = t
         self._forget(t)
         if clouds is None:
@@ -219,13 +233,13 @@ class ObjectMapper:
         tr = rows[assigned]
         self._hits[tr] += 1
         weight = 1.0 / np.minimum(self._hits[tr], self.params.max_average)
-        self._centroids[tr] += weight[:, None] * (C[assigned] - self._centroids[tr])
-        self._widths[tr] += weight * (W[assigned] - self._widths[tr])
-        self._heights[tr] += weight * (H[assigned] - self._heights[tr])
+        if clouds is None:  # with clouds, the merged cloud's box replaces these
+            self._centroids[tr] += weight[:, None] * (C[assigned] - self._centroids[tr])
+            self._widths[tr] += weight * (W[assigned] - self._widths[tr])
+            self._heights[tr] += weight * (H[assigned] - self._heights[tr])
         self._last_seen[tr] = t
 
         if colours is not None:
-            self._colours = _widened(self._colours, colours.shape[1], len(self))
             known = ~np.isnan(self._colours[tr, 0])
             self._colours[tr] = np.where(known[:, None], self._colours[tr] + weight[:, None]
                                          * (colours[assigned] - self._colours[tr]),
@@ -274,19 +288,19 @@ class ObjectMapper:
     def object_map(self) -> ObjectMap:
         """The confirmed tracks (hits >= nu) as an `ObjectMap` in the odometry frame, rows in
         increasing track id (the order of `confirmed_ids`). It carries descriptors when every
-        confirmed track has a colour histogram and a cloud (`descriptors`)."""
+        confirmed track has a colour histogram and a cloud (`_descriptors`)."""
         self._refresh()
         m = self._confirmed()
         return ObjectMap(self._centroids[m], self._widths[m], self._heights[m],
-                         self._last_seen[m], self.descriptors(np.flatnonzero(m)))
+                         self._last_seen[m], self._descriptors(np.flatnonzero(m)))
 
-    def descriptors(self, rows: np.ndarray) -> np.ndarray | None:
+    def _descriptors(self, rows: np.ndarray) -> np.ndarray | None:
         """(len(rows), B + 3) unit descriptors of the tracks at `rows`: the square roots of
         colour_weight times the colour histogram and of (1 - colour_weight) times the merged
         cloud's `objects.shape_features`, so that two descriptors' dot product weighs the
         Bhattacharyya coefficients of colour and shape; None unless every one of those
         tracks has both."""
-        if (self._colours.shape[1] == 0 or np.isnan(self._colours[rows, 0]).any()
+        if (np.isnan(self._colours[rows, 0]).any()
                 or any(self._clouds[r] is None or len(self._clouds[r]) == 0 for r in rows)):
             return None
         w = self.params.colour_weight
@@ -319,6 +333,18 @@ class ObjectMapper:
         C = arrays["centroids"]
         return t, C, arrays["widths"], arrays["heights"]
 
+    def _check_mode(self, with_clouds: bool) -> None:
+        """Observations come with clouds in every update or in none: a track without a cloud
+        could never be assigned by overlap, and its object would start a second track."""
+        if self._with_clouds is None:
+            self._with_clouds = with_clouds
+        elif with_clouds != self._with_clouds:
+            raise DataError(
+                "ObjectMapper.update: clouds = " + ("a list" if with_clouds else "None")
+                + ", but this mapper's earlier observations came "
+                + ("without" if with_clouds else "with")
+                + " clouds; give them in every update or in none")
+
     def _forget(self, t: float) -> None:
         unseen = t - self._last_seen
         keep = (unseen <= self.params.kappa) & (
@@ -341,9 +367,8 @@ class ObjectMapper:
         """Centroid, width and height of every track whose merged cloud changed since they
         were last measured, from the cloud's upright box. Measured when they are read (a map
         once a second), not at every frame."""
-        pad = 0.5 * self.params.cloud_voxel
         for r in np.flatnonzero(self._dirty):
-            extent = cloud_extent(self._clouds[r].points, pad=pad)
+            extent = cloud_extent(self._clouds[r].points, pad=self.params.extent_pad)
             self._centroids[r] = extent.centre
             self._widths[r] = extent.width
             self._heights[r] = extent.height
@@ -366,6 +391,9 @@ class ObjectMapper:
                                 f"{arr.shape}")
             if not np.all(np.isfinite(arr)):
                 raise DataError(f"{o}: clouds[{i}] holds non-finite values")
+            if np.abs(arr).max() > MAX_COORDINATE:
+                raise DataError(f"{o}: clouds[{i}] holds coordinates beyond "
+                                f"{MAX_COORDINATE:g} m")
             out.append(arr)
         return out
 
@@ -374,12 +402,13 @@ class ObjectMapper:
         if colours is None:
             return None
         arr = real_array(o, "colours", colours)
-        if arr.ndim != 2 or arr.shape[0] != k or arr.shape[1] < 1:
-            raise DataError(f"{o}: colours must have shape ({k}, B) with B >= 1, got "
-                            f"{arr.shape}")
-        if self._colours.shape[1] and arr.shape[1] != self._colours.shape[1]:
-            raise DataError(f"{o}: colours has {arr.shape[1]} bins, earlier updates "
-                            f"{self._colours.shape[1]}")
+        bins = self._colours.shape[1]
+        if arr.ndim != 2 or arr.shape[0] != k:
+            raise DataError(f"{o}: colours must have shape ({k}, B), got {arr.shape}")
+        if arr.shape[1] != bins:
+            raise DataError(f"{o}: colours has {arr.shape[1]} bins; the histograms of "
+                            f"hue_bins = {self.params.hue_bins} x saturation_bins = "
+                            f"{self.params.saturation_bins} have {bins} (one for grey)")
         if not np.all(np.isfinite(arr)) or (arr < 0).any():
             raise DataError(f"{o}: colours must be finite numbers >= 0")
         empty = np.flatnonzero(arr.sum(axis=1) <= 0)
@@ -495,10 +524,11 @@ class ObjectMapper:
 
     def _merge_clouds(self, touched: np.ndarray, out: np.ndarray) -> None:
         """`_merge` for tracks with clouds: two tracks are one object when at least
-        `merge_overlap` of the smaller cloud lies on the larger (`ObjectCloud.share_on`), as
-        when the two faces of a box, first seen apart, meet in a later view. The same rules
-        as `_merge` on which pairs are checked."""
+        `merge_overlap` of either cloud lies on the other (`ObjectCloud.share_on`), as when
+        the two faces of a box, first seen apart, meet in a later view. The same rules as
+        `_merge` on which pairs are checked."""
         p = self.params
+        reach = p.overlap_cell
         while len(self) >= 2:
             have = np.array([c is not None and len(c) > 0 for c in self._clouds])
             lo = np.array([c.lo if h else np.full(3, np.inf)
@@ -507,14 +537,14 @@ class ObjectMapper:
                            for c, h in zip(self._clouds, have, strict=True)])
             pair = None
             for i in np.flatnonzero(touched & have):
-                near = np.flatnonzero(~touched & have & np.all((hi >= lo[i]) & (lo <= hi[i]),
-                                                               axis=1))
+                near = np.flatnonzero(~touched & have & np.all(
+                    (hi + reach >= lo[i]) & (lo - reach <= hi[i]), axis=1))
                 for j in near:
                     a, b = self._clouds[i], self._clouds[j]
                     # either may be the fragment: a grown cloud has coarser voxels, so fewer
                     # points need not mean a smaller object
-                    if max(a.share_on(b.points, p.overlap_cell),
-                           b.share_on(a.points, p.overlap_cell)) >= p.merge_overlap:
+                    if max(a.share_of(b, p.overlap_cell),
+                           b.share_of(a, p.overlap_cell)) >= p.merge_overlap:
                         pair = (int(i), int(j))
                         break
                 if pair is not None:
@@ -537,7 +567,7 @@ class ObjectMapper:
         self._hits[i] = total
         self._last_seen[i] = max(self._last_seen[i], self._last_seen[j])
         ci, cj = self._colours[i], self._colours[j]
-        if cj.size and not np.isnan(cj[0]):
+        if not np.isnan(cj[0]):
             self._colours[i] = cj if np.isnan(ci[0]) else (hi * ci + hj * cj) / total
         if self._clouds[j] is not None:
             if self._clouds[i] is None:
@@ -552,9 +582,3 @@ class ObjectMapper:
         touched[i] = True
         return touched[keep]
 
-
-def _widened(colours: np.ndarray, bins: int, n: int) -> np.ndarray:
-    """The (n, bins) histogram table, NaN-filled if it had no bins yet."""
-    if colours.shape[1] == bins:
-        return colours
-    return np.full((n, bins), np.nan)

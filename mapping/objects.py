@@ -10,16 +10,24 @@ frame (metres, z up), as the lifted clouds are.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
-__all__ = ["CloudExtent", "ObjectCloud", "cloud_extent", "colour_bins", "shape_features"]
+from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.inputs import real_array
+from tcaff_gtsam.params import _int_at_least, _real, _require
 
-#: voxel indices are packed into one int64 key, 21 bits per axis (about 20 km at 1 cm voxels)
+__all__ = ["CloudExtent", "ObjectCloud", "check_rgb", "cloud_extent", "colour_bins",
+           "footprint_rectangles", "shape_features"]
+
+#: voxel indices are packed into one int64 key, 21 bits per axis, wrapping around: two voxels
+#: share a key only 2**21 voxels apart (42 km at 2 cm), and clouds are only compared when
+#: their boxes touch
 _BITS = 21
-_OFFSET = 1 << (_BITS - 1)
 #: share of the points trimmed at each end of an axis when measuring extents: a few stray
 #: points (a mask that bled onto the background in one view) must not stretch the object
 TRIM = 0.01
@@ -51,7 +59,16 @@ def cloud_extent(points: np.ndarray, pad: float = 0.0) -> CloudExtent:
     Args:
         points: (n, 3) metres, n >= 1, gravity-aligned frame.
         pad: metres added to each extent (voxel averaging pulls extreme points inside).
+
+    Raises:
+        DataError: points not an (n, 3) array of finite numbers with n >= 1.
     """
+    points = real_array("cloud_extent", "points", points)
+    if points.ndim != 2 or points.shape[1] != 3 or points.shape[0] == 0:
+        raise DataError(f"cloud_extent: points must have shape (n, 3) with n >= 1, got "
+                        f"{points.shape}")
+    if not np.isfinite(points).all():
+        raise DataError("cloud_extent: points holds non-finite values")
     xy = points[:, :2]
     # the rectangle's axes from the points but the farthest TRIM share from their median, so
     # that a stray point of one view cannot turn the box
@@ -61,17 +78,7 @@ def cloud_extent(points: np.ndarray, pad: float = 0.0) -> CloudExtent:
         core = xy[radius <= np.partition(radius, int((1.0 - TRIM) * (xy.shape[0] - 1)))[
             int((1.0 - TRIM) * (xy.shape[0] - 1))]]
     hull = cv2.convexHull(core.astype(np.float32)).reshape(-1, 2).astype(np.float64)
-    u = np.array([1.0, 0.0])
-    if hull.shape[0] >= 2:
-        edges = np.roll(hull, -1, axis=0) - hull
-        norms = np.hypot(edges[:, 0], edges[:, 1])
-        ok = norms > 1e-12
-        if ok.any():
-            dirs = edges[ok] / norms[ok, None]
-            along = hull @ dirs.T  # (h, e)
-            across = hull @ np.column_stack([-dirs[:, 1], dirs[:, 0]]).T
-            perimeter = np.ptp(along, axis=0) + np.ptp(across, axis=0)
-            u = dirs[int(np.argmin(perimeter))]
+    u = footprint_rectangles(hull, np.array([0, hull.shape[0]]))[1][0]
     v = np.array([-u[1], u[0]])
     lo, hi = _trimmed_range(np.column_stack([xy @ u, xy @ v, points[:, 2]]))
     mid = 0.5 * (lo + hi)
@@ -79,6 +86,48 @@ def cloud_extent(points: np.ndarray, pad: float = 0.0) -> CloudExtent:
     centre = np.array([*(mid[0] * u + mid[1] * v), mid[2]])
     return CloudExtent(centre, float(max(size[0], size[1])), float(min(size[0], size[1])),
                        float(size[2]))
+
+
+@numba.njit(cache=True)
+def footprint_rectangles(hulls: np.ndarray, bounds: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+    """The smallest-perimeter rectangle around each of convex hulls stacked one after
+    another (hull g is hulls[bounds[g]:bounds[g + 1]], (h, 2) metres, in order around it).
+
+    Not the smallest-area rectangle: for the L of a box's two visible faces that one ties
+    between the box itself and one along the diagonal, while the smallest perimeter picks the
+    box. One side of the optimal rectangle lies along a hull edge.
+
+    Returns:
+        (g,) metres, each rectangle's longer side (0 for a hull without an edge), and (g, 2)
+        the unit direction of the hull edge it lies along ((1, 0) for none).
+    """
+    widths = np.zeros(bounds.size - 1)
+    axes = np.zeros((bounds.size - 1, 2))
+    axes[:, 0] = 1.0
+    for g in range(bounds.size - 1):
+        pts = hulls[bounds[g]:bounds[g + 1]]
+        h = pts.shape[0]
+        best = np.inf
+        for i in range(h):
+            ex = pts[(i + 1) % h, 0] - pts[i, 0]
+            ey = pts[(i + 1) % h, 1] - pts[i, 1]
+            norm = np.sqrt(ex * ex + ey * ey)
+            if norm < 1e-12:
+                continue
+            ux, uy = ex / norm, ey / norm
+            lo_a = lo_c = np.inf
+            hi_a = hi_c = -np.inf
+            for j in range(h):
+                along = pts[j, 0] * ux + pts[j, 1] * uy
+                across = pts[j, 1] * ux - pts[j, 0] * uy
+                lo_a, hi_a = min(lo_a, along), max(hi_a, along)
+                lo_c, hi_c = min(lo_c, across), max(hi_c, across)
+            if (hi_a - lo_a) + (hi_c - lo_c) < best:
+                best = (hi_a - lo_a) + (hi_c - lo_c)
+                widths[g] = max(hi_a - lo_a, hi_c - lo_c)
+                axes[g, 0], axes[g, 1] = ux, uy
+    return widths, axes
 
 
 def _trimmed_range(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -123,6 +172,10 @@ class ObjectCloud:
     """
 
     def __init__(self, voxel: float, max_points: int) -> None:
+        _require(_real(voxel) and math.isfinite(voxel) and voxel > 0, "ObjectCloud", "voxel",
+                 voxel, "must be a finite number > 0 metres")
+        _require(_int_at_least(max_points, 1), "ObjectCloud", "max_points", max_points,
+                 "must be an int >= 1")
         self.voxel = float(voxel)
         self.max_points = int(max_points)
         self._set(np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64))
@@ -155,16 +208,33 @@ class ObjectCloud:
         if len(self) == 0:
             return 0.0
         cell = max(cell, self.voxel)
+        return self._share(_voxel_keys(points, cell), cell)
+
+    def share_of(self, other: ObjectCloud, cell: float) -> float:
+        """`share_on(other.points, cell)`, with the other cloud's cells kept from one call to
+        the next while it does not change (most tracks do not, from one frame to the next)."""
+        if len(self) == 0 or len(other) == 0:
+            return 0.0
+        cell = max(cell, self.voxel)
+        return self._share(other._cells_at(cell)[0], cell)
+
+    def _cells_at(self, cell: float) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) the cell of each point and (m,) the distinct cells, sorted, on the grid of
+        edge `cell`; kept until the cloud or the cell edge changes."""
         if self._cells is None or self._cells[0] != cell:
-            self._cells = (cell, np.unique(_voxel_keys(self.points, cell)))
-        cells = self._cells[1]
-        keys = _voxel_keys(points, cell)
+            keys = _voxel_keys(self.points, cell)
+            self._cells = (cell, keys, np.unique(keys))
+        return self._cells[1], self._cells[2]
+
+    def _share(self, keys: np.ndarray, cell: float) -> float:
+        cells = self._cells_at(cell)[1]
         at = np.minimum(np.searchsorted(cells, keys), cells.size - 1)
-        return float(np.count_nonzero(cells[at] == keys)) / points.shape[0]
+        return float(np.count_nonzero(cells[at] == keys)) / keys.size
 
     def _set(self, points: np.ndarray, seen: np.ndarray, keys: np.ndarray) -> None:
         self.points, self.seen, self._keys = points, seen, keys
-        self._cells: tuple[float, np.ndarray] | None = None  # made when next needed
+        # (cell edge, each point's cell, the distinct cells): made when next needed
+        self._cells: tuple[float, np.ndarray, np.ndarray] | None = None
         empty = points.shape[0] == 0
         self.lo = np.full(3, np.inf) if empty else points.min(axis=0)
         self.hi = np.full(3, -np.inf) if empty else points.max(axis=0)
@@ -187,9 +257,21 @@ class ObjectCloud:
 
 def _voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
     """(n,) int64: each point's voxel, packed."""
-    ijk = np.floor(points / voxel).astype(np.int64) + _OFFSET
-    np.clip(ijk, 0, (1 << _BITS) - 1, out=ijk)
+    ijk = np.floor(points / voxel).astype(np.int64) & ((1 << _BITS) - 1)
     return (ijk[:, 0] << (2 * _BITS)) | (ijk[:, 1] << _BITS) | ijk[:, 2]
+
+
+def check_rgb(rgb, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """`rgb` as given if it is an (H, W, 3) uint8 image (of `shape` (H, W) if given); else
+    DataError."""
+    if not isinstance(rgb, np.ndarray):
+        raise DataError(f"rgb must be a numpy array, got {type(rgb).__name__}")
+    if rgb.dtype != np.uint8:
+        raise DataError(f"rgb has dtype {rgb.dtype}; expected uint8")
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or (shape is not None and rgb.shape[:2] != shape):
+        want = "(H, W, 3)" if shape is None else str((*shape, 3))
+        raise DataError(f"rgb has shape {rgb.shape}; expected {want}")
+    return rgb
 
 
 def colour_bins(rgb: np.ndarray, hue_bins: int, saturation_bins: int) -> np.ndarray:
@@ -200,7 +282,11 @@ def colour_bins(rgb: np.ndarray, hue_bins: int, saturation_bins: int) -> np.ndar
 
     Args:
         rgb: (H, W, 3) uint8, RGB order.
+
+    Raises:
+        DataError: rgb of another kind.
     """
+    check_rgb(rgb)
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV_FULL)
     # one lookup table per channel, then a sum: no wide temporaries per pixel
     level = np.arange(256)

@@ -37,6 +37,7 @@ from .camera import (
     depth_in_metres,
     rigid_transform,
 )
+from .objects import check_rgb
 
 __all__ = [
     "INVALID_MARGIN",
@@ -44,7 +45,6 @@ __all__ = [
     "DepthSegmenterParams",
     "MaskFilter",
     "Segmenter",
-    "check_border",
     "check_masks",
     "check_rgb",
     "depth_border",
@@ -78,19 +78,6 @@ class Segmenter(Protocol):
             (k, H, W) bool, one mask per candidate object (k may be 0).
         """
         ...
-
-
-def check_rgb(rgb, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """`rgb` as given if it is an (H, W, 3) uint8 image (of `shape` (H, W) if given); else
-    DataError."""
-    if not isinstance(rgb, np.ndarray):
-        raise DataError(f"rgb must be a numpy array, got {type(rgb).__name__}")
-    if rgb.dtype != np.uint8:
-        raise DataError(f"rgb has dtype {rgb.dtype}; expected uint8")
-    if rgb.ndim != 3 or rgb.shape[2] != 3 or (shape is not None and rgb.shape[:2] != shape):
-        want = "(H, W, 3)" if shape is None else str((*shape, 3))
-        raise DataError(f"rgb has shape {rgb.shape}; expected {want}")
-    return rgb
 
 
 @dataclass(frozen=True)
@@ -177,35 +164,21 @@ def depth_border(valid: np.ndarray, margin: int) -> np.ndarray:
     return out | _edge_band(np.ascontiguousarray(~valid), margin)
 
 
-def check_border(border, shape: tuple[int, int], owner: str = "border") -> np.ndarray:
-    """`border` as given if it is an (H, W) bool array with (H, W) = `shape`; else DataError
-    naming `owner`."""
-    if not (isinstance(border, np.ndarray) and border.dtype == np.bool_
-            and border.shape == tuple(shape)):
-        got = (f"{border.shape} {border.dtype}" if isinstance(border, np.ndarray)
-               else type(border).__name__)
-        raise DataError(f"{owner} must be a {tuple(shape)} bool array, got {got}")
-    return border
-
-
-def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter,
-                 border: np.ndarray | None = None) -> np.ndarray:
+def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter
+                 ) -> np.ndarray:
     """Indices of the masks that pass `mask_filter`.
 
     Args:
         masks: (k, H, W) bool.
         depth_m: (H, W) metres, 0 = no return.
-        border: (H, W) bool, `depth_border(depth_m > 0, mask_filter.invalid_margin)` if the
-            caller has it already (it is computed here otherwise; unused when
-            `mask_filter.border` is 0).
 
     Returns:
         (k',) int64 indices into `masks`, increasing.
 
     Raises:
-        DataError: masks, depth_m or border of the wrong kind or shape.
+        DataError: masks or depth_m of the wrong kind or shape.
     """
-    valid, near = _filter_images(depth_m, mask_filter, border, "filter_masks")
+    valid, near = _filter_images(depth_m, mask_filter, "filter_masks")
     k, (H, W) = len(check_masks(masks, valid.shape)), valid.shape
     if k == 0:
         return np.zeros(0, dtype=np.int64)
@@ -219,7 +192,7 @@ def filter_masks(masks: np.ndarray, depth_m: np.ndarray, mask_filter: MaskFilter
 
 
 def filter_labels(labels: np.ndarray, count: int, depth_m: np.ndarray,
-                  mask_filter: MaskFilter, border: np.ndarray | None = None) -> np.ndarray:
+                  mask_filter: MaskFilter) -> np.ndarray:
     """`filter_masks` of the masks of a label image, without making them: the indices of the
     labels 1..count (as 0..count - 1) whose masks (labels == i + 1) pass `mask_filter`. One
     pass over the image, where `filter_masks` reads every mask of the stack.
@@ -227,15 +200,15 @@ def filter_labels(labels: np.ndarray, count: int, depth_m: np.ndarray,
     Args:
         labels: (H, W) integer label image, 0 = no mask (as `DepthSegmenter.label` gives).
         count: the number of labels (labels outside 1..count are ignored).
-        depth_m, border: as in `filter_masks`.
+        depth_m: as in `filter_masks`.
 
     Returns:
         (k',) int64 increasing indices i of the labels i + 1 that pass.
 
     Raises:
-        DataError: labels, count, depth_m or border of the wrong kind or shape.
+        DataError: labels, count or depth_m of the wrong kind or shape.
     """
-    valid, near = _filter_images(depth_m, mask_filter, border, "filter_labels")
+    valid, near = _filter_images(depth_m, mask_filter, "filter_labels")
     if not (isinstance(labels, np.ndarray) and labels.dtype.kind in "iu"
             and labels.shape == valid.shape):
         got = (f"{labels.shape} {labels.dtype}" if isinstance(labels, np.ndarray)
@@ -253,7 +226,7 @@ def filter_labels(labels: np.ndarray, count: int, depth_m: np.ndarray,
     return _passing(stats, mask_filter, labels.size)
 
 
-def _filter_images(depth_m, mask_filter: MaskFilter, border, owner: str
+def _filter_images(depth_m, mask_filter: MaskFilter, owner: str
                    ) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) bool each, C-contiguous: the pixels with depth, and those within
     `mask_filter.border` pixels of the border (none when it is 0)."""
@@ -265,8 +238,7 @@ def _filter_images(depth_m, mask_filter: MaskFilter, border, owner: str
     valid = np.ascontiguousarray(depth_m > 0)
     if not mask_filter.border:
         return valid, np.zeros(valid.shape, dtype=bool)
-    border = (depth_border(valid, mask_filter.invalid_margin) if border is None
-              else check_border(border, valid.shape, f"{owner}: border"))
+    border = depth_border(valid, mask_filter.invalid_margin)
     # within `border` pixels of the border: inside the image, a border pixel is 1 away
     kernel = np.ones((2 * mask_filter.border - 1,) * 2, np.uint8)
     return valid, np.ascontiguousarray(cv2.dilate(border.view(np.uint8), kernel).view(bool))
@@ -397,10 +369,13 @@ class DepthSegmenterParams:
                  "level_tolerance_deg", self.level_tolerance_deg, "must be in [0, 90] degrees")
         _require(_real(self.max_area_share) and 0 < self.max_area_share <= 1,
                  o, "max_area_share", self.max_area_share, "must be in (0, 1]")
-        _require(_real(self.depth_min) and self.depth_min >= 0, o,
-                 "depth_min", self.depth_min, "must be a number >= 0 metres")
-        _require(_real(self.depth_max) and self.depth_max > self.depth_min,
-                 o, "depth_max", self.depth_max, f"must be > depth_min = {self.depth_min}")
+        _require(_real(self.depth_min) and math.isfinite(self.depth_min)
+                 and self.depth_min >= 0, o, "depth_min", self.depth_min,
+                 "must be a finite number >= 0 metres")
+        # finite: the kernels compare depths to it under fastmath, which assumes no infinities
+        _require(_real(self.depth_max) and math.isfinite(self.depth_max)
+                 and self.depth_max > self.depth_min, o, "depth_max", self.depth_max,
+                 f"must be a finite number > depth_min = {self.depth_min}")
 
 
 def up_direction(name: str, up) -> np.ndarray:

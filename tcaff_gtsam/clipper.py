@@ -323,19 +323,20 @@ def _checked_graph(owner: str, graph, params) -> ClipperParams:
 def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
                       associations: np.ndarray, epsilon: float = 0.25, sigma: float = 0.15,
                       prior: np.ndarray | None = None,
-                      heights: tuple[np.ndarray, np.ndarray] | None = None,
+                      z: tuple[np.ndarray, np.ndarray] | None = None,
                       height_epsilon: float | None = None,
-                      extents: tuple[np.ndarray, np.ndarray] | None = None) -> ConsistencyGraph:
+                      vertical_extents: tuple[np.ndarray, np.ndarray] | None = None
+                      ) -> ConsistencyGraph:
     """Build CLIPPER's consistency graph.
 
     Associations a = (i, j) and b = (k, l) with i != k and j != l are consistent when
     c = | |p_i - p_k| - |q_j - q_l| | < epsilon; their edge weight is exp(-c^2 / (2 sigma^2)).
-    With `heights` and `height_epsilon` (maps whose frames are both gravity aligned, so that
+    With `z` and `height_epsilon` (maps whose frames are both gravity aligned, so that
     heights differ between them by a constant at most), they must also climb alike:
     | (z_i - z_k) - (z_j - z_l) | < height_epsilon + s_a + s_b, where an association's slack
-    s = | h_i - h_j | / 2 allows for a partial view: with `extents` (the objects' vertical
-    extents h), a view that cuts an object's height by d moves its centre by d / 2 (0 without
-    extents).
+    s = | h_i - h_j | / 2 allows for a partial view: with `vertical_extents` (the objects'
+    heights h), a view that cuts an object's height by d moves its centre by d / 2 (0
+    without them).
 
     Args:
         ego_points: (n1, d) metres, d = 2 (x, y) or 3, in the ego robot's odometry frame.
@@ -343,26 +344,26 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         associations: (m, 2) int (ego index, other index).
         epsilon, sigma: metres, finite and > 0.
         prior: optional (m,) non-negative prior weight per association (affinity diagonal).
-        heights: optional ((n1,), (n2,)) metres, each object's height z above its frame's
+        z: optional ((n1,), (n2,)) metres, each object's centre's height above its frame's
             origin (along gravity).
-        height_epsilon: metres, finite and > 0, with heights (None without).
-        extents: optional ((n1,), (n2,)) metres >= 0, the objects' vertical extents, with
-            heights.
+        height_epsilon: metres, finite and > 0, with z (None without).
+        vertical_extents: optional ((n1,), (n2,)) metres >= 0, the objects' heights
+            (`ObjectMap.heights`), with z.
 
     Raises:
-        ConfigError: epsilon, sigma or height_epsilon not a finite number > 0, or heights and
+        ConfigError: epsilon, sigma or height_epsilon not a finite number > 0, or z and
             height_epsilon not given together.
-        DataError: points, associations, prior or heights of the wrong shape or out of range,
-            not real numbers (complex ones included), or associations that are not whole
-            numbers: an (m, 3) array is refused, not read as pairs, and 1.5 is not truncated
-            to 1.
+        DataError: points, associations, prior, z or vertical_extents of the wrong shape or
+            out of range, not real numbers (complex ones included), or associations that are
+            not whole numbers: an (m, 3) array is refused, not read as pairs, and 1.5 is not
+            truncated to 1.
     """
     o = "consistency_graph"
     for name, value in (("epsilon", epsilon), ("sigma", sigma)):
         _require(_finite(value) and value > 0, o, name, value,
                  "must be a finite number > 0 metres")
-    _require((heights is None) == (height_epsilon is None), o, "height_epsilon",
-             height_epsilon, "must be given with heights, and only with them")
+    _require((z is None) == (height_epsilon is None), o, "height_epsilon",
+             height_epsilon, "must be given with z, and only with it")
     if height_epsilon is not None:
         _require(_finite(height_epsilon) and height_epsilon > 0, o, "height_epsilon",
                  height_epsilon, "must be a finite number > 0 metres")
@@ -388,14 +389,22 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
             raise DataError(f"consistency_graph: prior must be ({m},) finite and >= 0, "
                             f"got shape {diag.shape}")
     sizes = (len(ego_points), len(other_points))
-    heights = _per_object(o, "heights", heights, sizes)
-    extents = _per_object(o, "extents", extents, sizes)
-    if extents is not None and (heights is None or min(e.min(initial=0.0) for e in extents) < 0):
-        raise DataError("consistency_graph: extents must be >= 0 metres, and given with heights")
+    z = _per_object(o, "z", z, sizes)
+    extents = _per_object(o, "vertical_extents", vertical_extents, sizes)
+    if extents is not None and (z is None or min(e.min(initial=0.0) for e in extents) < 0):
+        raise DataError("consistency_graph: vertical_extents must be >= 0 metres, and given "
+                        "with z")
     slack = (np.zeros(m) if extents is None else
-             0.5 * np.abs(extents[0][associations[:, 0]] - extents[1][associations[:, 1]]))
-    return _graph(ego_points, other_points, associations, epsilon, sigma, diag, heights,
+             _height_slack(extents[0][associations[:, 0]], extents[1][associations[:, 1]]))
+    return _graph(ego_points, other_points, associations, epsilon, sigma, diag, z,
                   height_epsilon, slack)
+
+
+def _height_slack(ego_heights: np.ndarray, other_heights: np.ndarray) -> np.ndarray:
+    """Metres of slack on the gravity prior for pairs of objects of these vertical extents
+    (arrays that broadcast): a view that cuts an object's height by d moves its centre by
+    d / 2."""
+    return 0.5 * np.abs(ego_heights - other_heights)
 
 
 def _per_object(owner: str, name: str, value, sizes: tuple[int, int]
@@ -416,17 +425,17 @@ def _per_object(owner: str, name: str, value, sizes: tuple[int, int]
 
 def _graph(ego_points: np.ndarray, other_points: np.ndarray, associations: np.ndarray,
            epsilon: float, sigma: float, diag: np.ndarray,
-           heights: tuple[np.ndarray, np.ndarray] | None = None,
+           z: tuple[np.ndarray, np.ndarray] | None = None,
            height_epsilon: float | None = None, slack: np.ndarray | None = None
            ) -> ConsistencyGraph:
     """`consistency_graph` on arguments already checked: (n1, d) and (n2, d) finite points,
-    (m, 2) int64 associations in range, (m,) diag, epsilon and sigma finite and > 0, heights
+    (m, 2) int64 associations in range, (m,) diag, epsilon and sigma finite and > 0, z
     ((n1,), (n2,)) finite with height_epsilon > 0 or both None, slack (m,) >= 0 or None."""
     m = associations.shape[0]
-    if heights is None:
+    if z is None:
         ego_z, other_z, cut = np.zeros(len(ego_points)), np.zeros(len(other_points)), np.inf
     else:
-        ego_z, other_z, cut = heights[0], heights[1], float(height_epsilon)
+        ego_z, other_z, cut = z[0], z[1], float(height_epsilon)
     indptr, indices, weights = _graph_csr(
         np.ascontiguousarray(ego_points, np.float64),
         np.ascontiguousarray(other_points, np.float64),

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .clipper import _graph, _solutions
+from .clipper import _graph, _height_slack, _solutions
 from .errors import DataError
 from .geometry import (
     _se2_from_params,
@@ -342,13 +342,12 @@ class FrameAligner:
         # skip their checks; so does registration unless coordinates or weights (at most
         # 1 / weight_offset) are beyond what it takes, where weighted_arun says which
         prior = (_pair_similarity(ego_r, other_r, assoc) if prm.descriptor_prior else None)
-        heights = slack = None
+        z = slack = None
         if prm.height_epsilon is not None:
-            heights = (ego_r.centroids[:, 2], other_r.centroids[:, 2])
-            # a view that cuts an object's height moves its centre by half the cut
-            slack = 0.5 * np.abs(ego_r.heights[assoc[:, 0]] - other_r.heights[assoc[:, 1]])
+            z = (ego_r.centroids[:, 2], other_r.centroids[:, 2])
+            slack = _height_slack(ego_r.heights[assoc[:, 0]], other_r.heights[assoc[:, 1]])
         graph = _graph(p_all, q_all, assoc, prm.clipper.epsilon, prm.clipper.sigma,
-                       np.ones(assoc.shape[0]) if prior is None else prior, heights,
+                       np.ones(assoc.shape[0]) if prior is None else prior, z,
                        prm.height_epsilon, slack)
         solutions = [s for s in _solutions(graph, prm.n_solutions, prm.clipper,
                                            prm.mno_downweight) if len(s)]
@@ -421,7 +420,7 @@ class FrameAligner:
         z_ego, z_other = ego_r.centroids[:, 2], other_r.centroids[:, 2]
         offset = float(np.median(z_ego[associations[:, 0]] - z_other[associations[:, 1]]))
         gap = np.abs(z_ego[:, None] - z_other[None, :] - offset)
-        slack = 0.5 * np.abs(ego_r.heights[:, None] - other_r.heights[None, :])
+        slack = _height_slack(ego_r.heights[:, None], other_r.heights[None, :])
         return compatible & (gap < prm.height_epsilon + slack)
 
     def _compatible(self, ego_r: ObjectMap, other_r: ObjectMap) -> np.ndarray:

@@ -225,11 +225,11 @@ class FrameAlignerParams(_ByValue):
         size_ratio, size_abs_diff: the size gate; a pair of objects may be associated when, for
             width and for height alike, the larger over the smaller is <= size_ratio or the
             absolute difference is <= size_abs_diff metres.
-        size_partial: None, or a ratio >= size_ratio by which one of width and height may
-            differ when the other is within the gate: a partial view cuts one extent (a chair
-            behind a table loses its height, a box seen on one face its width) and leaves the
-            other. None: both must be within size_ratio (the paper's gate, and the released
-            code's).
+        size_partial: None, or a ratio (above size_ratio to matter) by which one of width
+            and height may differ when the other is within the gate: a partial view cuts one
+            extent (a chair behind a table loses its height, a box seen on one face its width)
+            and leaves the other. None: both must be within size_ratio (the paper's gate,
+            and the released code's).
         dim: 2 matches (x, y) centroids (the original's choice), 3 matches full 3D centroids
             (the alignment is then projected onto the gravity-aligned plane).
         clipper: consistency graph and solver settings.
@@ -363,9 +363,8 @@ class FrameAlignerParams(_ByValue):
         _require(_real(self.size_abs_diff) and self.size_abs_diff >= 0, o, "size_abs_diff",
                  self.size_abs_diff, "must be a number >= 0 metres")
         _require(self.size_partial is None or (_finite(self.size_partial)
-                                                and self.size_partial >= self.size_ratio),
-                 o, "size_partial", self.size_partial,
-                 f"must be None or a finite number >= size_ratio ({self.size_ratio})")
+                                                and self.size_partial >= 1),
+                 o, "size_partial", self.size_partial, "must be None or a finite number >= 1")
         _require(_one_of(self.dim, (2, 3)), o, "dim", self.dim, "must be 2 or 3")
         _require(isinstance(self.clipper, ClipperParams), o, "clipper", self.clipper,
                  "must be a ClipperParams")
@@ -439,11 +438,13 @@ class FrameAlignerParams(_ByValue):
         other fields.
 
         On the 7-Scenes kitchen (two hand-held halves, VIO-like drift) these take false
-        accepts from about 1 in 4 to none and heading errors from 4 to under 1 degree
+        accepts from about 1 in 4 to none and heading errors from 4 to about 1 degree
         (docs/mapping.md); outdoors, where the simulator's partial views move tall objects'
         centres by metres in height, the gravity prior costs availability, so it is not the
         default."""
-        return cls(**{"height_epsilon": ClipperParams().epsilon, "covariance": "residual",
+        clipper = changes.get("clipper", ClipperParams())
+        epsilon = clipper.epsilon if isinstance(clipper, ClipperParams) else None
+        return cls(**{"height_epsilon": epsilon, "covariance": "residual",
                       "descriptor_min": 0.5, "descriptor_prior": True, **changes})
 
 

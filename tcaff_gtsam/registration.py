@@ -59,24 +59,25 @@ def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
     A pair (i, j) is kept when both the widths and the heights of ego object i and other object j
     are similar: the larger is at most `ratio` times the smaller, or they differ by at most
     `abs_diff` metres (which keeps small objects whose ratio is noisy): the paper's gate. With
-    `partial_ratio` (the aligner's `size_partial`, 2 by default), one of the two (width or
+    `partial_ratio` above `ratio` (the aligner's `size_partial`), one of the two (width or
     height) may differ by up to that ratio instead, as a partial view makes it: a chair behind
-    a table loses its height, a box seen on one face its width.
+    a table loses its height, a box seen on one face its width. None (the default here) or a
+    value not above `ratio` is the paper's gate.
 
     Returns:
         (m, 2) int64 array of (ego index, other index), sorted by ego then other index;
         (0, 2) when either map is empty or nothing passes.
     Raises:
         ConfigError: ratio not a finite number >= 1, abs_diff not a finite number >= 0 (NaN
-            included), partial_ratio neither None nor a finite number >= ratio.
+            included), partial_ratio neither None nor a finite number >= 1.
         DataError: ego or other is not an ObjectMap.
     """
     o = "putative_associations"
     _require(_finite(ratio) and ratio >= 1, o, "ratio", ratio, "must be a finite number >= 1")
     _require(_finite(abs_diff) and abs_diff >= 0, o, "abs_diff", abs_diff,
              "must be a finite number >= 0 metres")
-    _require(partial_ratio is None or (_finite(partial_ratio) and partial_ratio >= ratio), o,
-             "partial_ratio", partial_ratio, f"must be None or a finite number >= ratio ({ratio})")
+    _require(partial_ratio is None or (_finite(partial_ratio) and partial_ratio >= 1), o,
+             "partial_ratio", partial_ratio, "must be None or a finite number >= 1")
     ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
     pairs = [np.argwhere(block) + np.array([start, 0])
              for start, block in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio)]
@@ -570,10 +571,10 @@ def _mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible:
     moved = _transform_points(T_a_b, q)
     if p.shape[0] * q.shape[0] > _DENSE_INLIERS:
         return _mutual_inliers_by_tree(p, moved, compatible, radius)
-    # one compiled signature (the one precompiled) whatever the callers' layouts and types
-    return _mutual_nearest(np.ascontiguousarray(p, np.float64),
-                           np.ascontiguousarray(moved, np.float64),
-                           np.ascontiguousarray(compatible), float(radius) ** 2)
+    # one compiled signature (the one precompiled) whatever the callers' layouts, types and
+    # write flags (numba compiles read-only arrays apart)
+    return _mutual_nearest(np.require(p, np.float64, "CW"), np.require(moved, np.float64, "CW"),
+                           np.require(compatible, np.bool_, "CW"), float(radius) ** 2)
 
 
 @numba.njit(cache=True)

@@ -365,7 +365,8 @@ class RobotBags:
 
 # -- mapping a robot's bags ---------------------------------------------------------------------
 
-MAPS_VERSION = 1  # bump when the saved maps' meaning changes
+MAPS_VERSION = 2  # bump when the saved maps' meaning changes (2: merged object clouds, half-
+# resolution segmentation, descriptors)
 
 
 def extrinsic(config: ExtrinsicsConfig, optical: bool) -> np.ndarray:
@@ -418,6 +419,13 @@ class RobotMapping:
         sizes = np.array([len(m) for m in self.maps], dtype=np.int64)
         entries = {key: np.concatenate([getattr(m, key) for m in self.maps])
                    for key in ("centroids", "widths", "heights", "last_seen")}
+        # per map its descriptors' width d (-1: none), the values of all maps in one array
+        entries["descriptor_dims"] = np.array(
+            [-1 if m.descriptors is None else m.descriptors.shape[1] for m in self.maps],
+            dtype=np.int64)
+        entries["descriptors"] = np.concatenate(
+            [np.zeros(0), *(m.descriptors.ravel() for m in self.maps
+                            if m.descriptors is not None)])
         with open(folder / f"{self.robot}.npz", "wb") as file:
             np.savez_compressed(
                 file, times=self.times, frame_times=self.frame_times,
@@ -446,9 +454,18 @@ class RobotMapping:
             with np.load(folder / f"{robot}.npz") as a:
                 arrays = {k: a[k] for k in a.files}
             ends = np.cumsum(arrays["map_sizes"])
-            maps = [ObjectMap(arrays["centroids"][e - n:e], arrays["widths"][e - n:e],
-                              arrays["heights"][e - n:e], arrays["last_seen"][e - n:e])
-                    for n, e in zip(arrays["map_sizes"], ends, strict=True)]
+            values, used, maps = arrays["descriptors"], 0, []
+            for n, e, d in zip(arrays["map_sizes"], ends, arrays["descriptor_dims"],
+                               strict=True):
+                descriptors = None
+                if d >= 0:
+                    descriptors = values[used:used + n * d].reshape(n, d)
+                    used += n * d
+                maps.append(ObjectMap(arrays["centroids"][e - n:e], arrays["widths"][e - n:e],
+                                      arrays["heights"][e - n:e], arrays["last_seen"][e - n:e],
+                                      descriptors))
+            if used != values.size:
+                raise ValueError(f"{values.size} descriptor values for {used}")
             return cls(robot, arrays["times"], arrays["frame_times"], arrays["T_odom_body"],
                        arrays["T_map_body"], maps, int(meta["frames"]),
                        float(meta["seconds"]), meta["fingerprint"],

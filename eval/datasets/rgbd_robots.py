@@ -5,8 +5,13 @@ exchanged at 1 Hz. The truth comes from the sequence's poses.
 - **Odometry frames.** A robot's odometry frame is gravity aligned (z up, from the sequence's
   gravity direction) with its origin at the robot's first camera position and its x axis
   along that camera's horizontal viewing direction, as a VIO system would set it up. The
-  body is the camera (`T_body_camera` = identity): a hand-held camera tilts and rolls, and
-  the front end takes its gravity from each frame's pose.
+  front end maps the camera's poses (`T_body_camera` = identity): a hand-held camera tilts
+  and rolls, and the front end takes its gravity from each frame's pose.
+- **The run's frames.** A sequence's world frame need not be level (7-Scenes' is not), so
+  the run's world is the level world: the first robot's sequence world turned by
+  `level_rotation` of its gravity (sequences of one place share their world frame). The
+  run's body is the level body: at the camera, z up, x along the horizontal part of the
+  optical axis, so a body's planar pose is the camera's position and viewing heading.
 - **Odometry.** `exact`: the sequence's poses. `vio`: the poses with VIO-like drift, as the
   MRCLAM loader draws it: the heading takes a random walk (after t minutes its error's std
   is `heading_rw_deg_per_sqrt_min` * sqrt(t) degrees) and every distance moved is scaled by
@@ -39,7 +44,8 @@ from tcaff_gtsam.registration import mutual_inliers
 from ..runs import RecordedRun, RunSettings
 from .rgbd_sequence import RgbdSequence
 
-__all__ = ["Walk", "level_rotation", "load_run", "map_walk", "odometry", "walk"]
+__all__ = ["Walk", "halves", "level_body", "level_rotation", "load_run", "map_walk",
+           "odometry", "walk"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,12 +57,19 @@ class Walk:
         positions: (k,) int, the frames (positions in `sequence`, each with truth).
         times: (k,) s on the robot's clock (0 at its first frame), increasing.
         label: the robot's name, e.g. "redkitchen[0:500]".
+        start, stop: the frame-id range [start, stop) asked for (None: open).
+        rate: Hz asked for (None: every frame the folder holds).
+        there_and_back: walked forward, then back to the start.
     """
 
     sequence: RgbdSequence
     positions: np.ndarray
     times: np.ndarray
     label: str
+    start: int | None = None
+    stop: int | None = None
+    rate: float | None = None
+    there_and_back: bool = False
 
     @property
     def duration(self) -> float:
@@ -107,7 +120,14 @@ def walk(sequence: RgbdSequence, start: int | None = None, stop: int | None = No
         positions = np.concatenate([positions, back])
         times = np.concatenate([times, back_times])
         label += " there and back"
-    return Walk(sequence, positions, times, label)
+    return Walk(sequence, positions, times, label, start, stop, rate, there_and_back)
+
+
+def halves(frame_ids: np.ndarray) -> list[tuple[int, int]]:
+    """The frame-id ranges [start, stop) of the first and second half of a sequence's frame
+    ids (k,) (increasing), as two robots' ranges: the default split of one sequence."""
+    middle = int(frame_ids[len(frame_ids) // 2])
+    return [(int(frame_ids[0]), middle), (middle, int(frame_ids[-1]) + 1)]
 
 
 def level_rotation(gravity: np.ndarray) -> np.ndarray:
@@ -128,6 +148,19 @@ def level_rotation(gravity: np.ndarray) -> np.ndarray:
 def _yaw(R: np.ndarray) -> np.ndarray:
     """(...,) the heading of the horizontal part of a camera's optical axis (its z column)."""
     return np.arctan2(R[..., 1, 2], R[..., 0, 2])
+
+
+def level_body(T_frame_camera: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) the level body of (..., 4, 4) camera poses (optical frame: x right, y down,
+    z forward) in a gravity-aligned (z up) frame: at the camera, turned about z only, x along
+    the horizontal part of the optical axis (heading 0 for a camera looking straight up or
+    down, which has none)."""
+    T = np.asarray(T_frame_camera, dtype=float)
+    out = np.zeros_like(T)
+    out[..., :3, :3] = _rz(_yaw(T[..., :3, :3]))
+    out[..., :3, 3] = T[..., :3, 3]
+    out[..., 3, 3] = 1.0
+    return out
 
 
 def _rz(angle: np.ndarray) -> np.ndarray:
@@ -250,7 +283,10 @@ def load_run(walks: list[Walk], kind: str, seed: int | None, kappa: float,
         kappa: s; the front end's maps hold objects seen this recently (`MapperParams.kappa`).
         progress: called with the robot's index and its share mapped.
     Returns:
-        The run, and per robot the front end's seconds per frame and stage (k, 5).
+        The run, in the level world with level bodies (see the module's notes): its
+        T_world_odom (n, S, 4, 4) places each odometry frame in the level world, its
+        T_odom_body (n, S, 4, 4) each level body in its odometry frame. And per robot the
+        front end's seconds per frame and stage (k, 5).
     Raises:
         DataError: fewer than two robots, a walk shorter than one second, vio without a seed.
     """
@@ -265,6 +301,8 @@ def load_run(walks: list[Walk], kind: str, seed: int | None, kappa: float,
                         "once per second")
     mapper_params = MapperParams(kappa=kappa) if mapper_params is None else mapper_params
     maps, seconds, T_world_odom, T_odom_body = [], [], [], []
+    T_level_world = np.eye(4)
+    T_level_world[:3, :3] = level_rotation(walks[0].sequence.gravity)
     for r, route in enumerate(walks):
         seq = route.sequence
         rng = None if seed is None else np.random.default_rng([seed, r])
@@ -277,8 +315,8 @@ def load_run(walks: list[Walk], kind: str, seed: int | None, kappa: float,
         seconds.append(robot_seconds)
         # the poses at the exchanges: the last frame at or before each
         at = np.searchsorted(route.times, exchanges, side="right") - 1
-        T_world_odom.append(T_wo[at])
-        T_odom_body.append(T_oc[at])
+        T_world_odom.append(T_level_world @ T_wo[at])
+        T_odom_body.append(level_body(T_oc[at]))
     T_world_odom, T_odom_body = np.array(T_world_odom), np.array(T_odom_body)
     n = len(walks)
     shared = np.zeros((n, n, exchanges.size), dtype=bool)

@@ -263,11 +263,20 @@ def test_a_partial_view_keeps_one_extent():
     assert putative_associations(one, sized_map([1.35], [1.35]), 1.35, 0.0).tolist() == [[0, 0]]
 
 
-@pytest.mark.parametrize("partial", [1.2, 0.5, -1.0, math.inf, math.nan, "2"])
-def test_a_partial_ratio_below_the_ratio_is_a_config_error(partial):
+@pytest.mark.parametrize("partial", [0.99, 0.5, -1.0, math.inf, math.nan, "2"])
+def test_a_partial_ratio_below_one_is_a_config_error(partial):
     a = sized_map([0.5], [1.0])
     with pytest.raises(ConfigError, match="partial_ratio"):
         putative_associations(a, a, 1.35, 0.1, partial_ratio=partial)
+
+
+def test_a_partial_ratio_not_above_the_ratio_is_the_papers_gate():
+    ego, other = sized_map([1.0], [1.0]), sized_map([1.0, 2.5, 1.3], [1.9, 1.0, 1.3])
+    paper = putative_associations(ego, other, 1.35, 0.0).tolist()
+    assert paper == [[0, 2]]
+    for partial in (1.0, 1.2, 1.35):
+        assert putative_associations(ego, other, 1.35, 0.0, partial).tolist() == paper
+    assert putative_associations(ego, other, 1.35, 0.0, 2.0).tolist() == [[0, 0], [0, 2]]
 
 
 def test_the_aligner_pairs_objects_cut_by_a_partial_view():
@@ -359,8 +368,8 @@ def test_the_gravity_prior_cuts_exactly_the_edges_whose_heights_disagree(
     P, Q, assoc, heights, extents = random_scene(seed)
     extents = extents if with_extents else None
     sigma = 0.15
-    graph = consistency_graph(P, Q, assoc, epsilon, sigma, heights=heights,
-                              height_epsilon=height_epsilon, extents=extents)
+    graph = consistency_graph(P, Q, assoc, epsilon, sigma, z=heights,
+                              height_epsilon=height_epsilon, vertical_extents=extents)
     reference, close = graph_reference(P, Q, assoc, epsilon, sigma, heights, height_epsilon,
                                        extents)
     same_edges(graph, reference, close)
@@ -370,8 +379,8 @@ def test_the_gravity_prior_cuts_exactly_the_edges_whose_heights_disagree(
     same_edges(planar, planar_ref, planar_close)
     assert set(edges(graph)) - close <= set(edges(planar))  # the prior only ever cuts
     # a height tolerance beyond every height difference cuts nothing
-    loose = consistency_graph(P, Q, assoc, epsilon, sigma, heights=heights,
-                              height_epsilon=1e6, extents=extents)
+    loose = consistency_graph(P, Q, assoc, epsilon, sigma, z=heights,
+                              height_epsilon=1e6, vertical_extents=extents)
     for name in ("indptr", "indices", "weights"):
         np.testing.assert_array_equal(getattr(loose, name), getattr(planar, name))
 
@@ -385,12 +394,12 @@ def test_extents_widen_the_tolerance_by_half_their_differences():
     heights = (np.array([0.5, 1.0]), np.array([0.5, 1.4]))
     same = (np.array([1.0, 1.0]), np.array([1.0, 1.0]))
     cut = (np.array([1.0, 1.0]), np.array([1.2, 0.8]))
-    assert consistency_graph(P, Q, assoc, heights=heights, height_epsilon=0.25).n_edges == 0
-    assert consistency_graph(P, Q, assoc, heights=heights, height_epsilon=0.25,
-                             extents=same).n_edges == 0
-    assert consistency_graph(P, Q, assoc, heights=heights, height_epsilon=0.25,
-                             extents=cut).n_edges == 1
-    assert consistency_graph(P, Q, assoc, heights=heights, height_epsilon=0.41).n_edges == 1
+    assert consistency_graph(P, Q, assoc, z=heights, height_epsilon=0.25).n_edges == 0
+    assert consistency_graph(P, Q, assoc, z=heights, height_epsilon=0.25,
+                             vertical_extents=same).n_edges == 0
+    assert consistency_graph(P, Q, assoc, z=heights, height_epsilon=0.25,
+                             vertical_extents=cut).n_edges == 1
+    assert consistency_graph(P, Q, assoc, z=heights, height_epsilon=0.41).n_edges == 1
     assert consistency_graph(P, Q, assoc).n_edges == 1
 
 
@@ -443,7 +452,7 @@ def test_a_shift_along_a_row_is_a_clique_only_without_the_gravity_prior(seed):
 
     planar = consistency_graph(P, P, assoc)
     assert clique(planar, t) and clique(planar, s)
-    prior = consistency_graph(P, P, assoc, heights=(z, other_z), height_epsilon=0.25)
+    prior = consistency_graph(P, P, assoc, z=(z, other_z), height_epsilon=0.25)
     assert clique(prior, t)
     assert not clique(prior, s)
     # a shelf's object and the floor's never agree: no shifted edge spans a height change
@@ -455,15 +464,16 @@ def test_a_shift_along_a_row_is_a_clique_only_without_the_gravity_prior(seed):
 
 
 @pytest.mark.parametrize(("kwargs", "error", "match"), [
-    ({"heights": "both"}, ConfigError, "height_epsilon"),
+    ({"z": "both"}, ConfigError, "height_epsilon"),
     ({"height_epsilon": 0.25}, ConfigError, "height_epsilon"),
-    ({"heights": "both", "height_epsilon": 0.0}, ConfigError, "height_epsilon"),
-    ({"heights": "both", "height_epsilon": math.inf}, ConfigError, "height_epsilon"),
-    ({"heights": "both", "height_epsilon": math.nan}, ConfigError, "height_epsilon"),
-    ({"heights": "short", "height_epsilon": 0.25}, DataError, r"heights\[1\]"),
-    ({"heights": "nan", "height_epsilon": 0.25}, DataError, r"heights\[0\]"),
-    ({"heights": "both", "height_epsilon": 0.25, "extents": "negative"}, DataError, "extents"),
-    ({"extents": "ok"}, DataError, "extents"),
+    ({"z": "both", "height_epsilon": 0.0}, ConfigError, "height_epsilon"),
+    ({"z": "both", "height_epsilon": math.inf}, ConfigError, "height_epsilon"),
+    ({"z": "both", "height_epsilon": math.nan}, ConfigError, "height_epsilon"),
+    ({"z": "short", "height_epsilon": 0.25}, DataError, r"z\[1\]"),
+    ({"z": "nan", "height_epsilon": 0.25}, DataError, r"z\[0\]"),
+    ({"z": "both", "height_epsilon": 0.25, "vertical_extents": "negative"}, DataError,
+     "vertical_extents"),
+    ({"vertical_extents": "ok"}, DataError, "vertical_extents"),
 ])
 def test_bad_heights_are_refused_naming_the_argument(kwargs, error, match):
     P = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 2.0]])
@@ -517,8 +527,7 @@ def test_the_gravity_prior_leaves_the_truth_unambiguous_in_a_symmetric_grid(seed
 
 
 @pytest.mark.parametrize(("changes", "name"), [
-    ({"size_partial": 1.2}, "size_partial"),
-    ({"size_partial": 1.5, "size_ratio": 1.6}, "size_partial"),
+    ({"size_partial": 0.9}, "size_partial"),
     ({"size_partial": math.inf}, "size_partial"),
     ({"size_partial": math.nan}, "size_partial"),
     ({"height_epsilon": 0.0}, "height_epsilon"),
@@ -544,6 +553,7 @@ def test_new_fields_are_validated_naming_the_field(changes, name):
 
 @pytest.mark.parametrize("changes", [
     {"size_partial": None}, {"size_partial": 1.35}, {"size_partial": 3.0},
+    {"size_partial": 1.0}, {"size_ratio": 2.5}, {"size_ratio": 2.5, "size_partial": 1.5},
     {"height_epsilon": None}, {"height_epsilon": 1e-3}, {"descriptor_min": 0.0},
     {"descriptor_min": 1.0}, {"descriptor_prior": True}, {"refit": True}])
 def test_new_fields_take_their_range(changes):
@@ -558,6 +568,8 @@ def test_the_defaults_and_the_camera_preset():
             default.descriptor_prior, default.refit) == (2.0, None, 0.0, False, False)
     camera = FrameAlignerParams.camera()
     assert camera.height_epsilon == ClipperParams().epsilon == 0.25
+    wider = FrameAlignerParams.camera(clipper=ClipperParams(epsilon=0.4))
+    assert wider.height_epsilon == wider.clipper.epsilon == 0.4
     assert camera.covariance == "residual"
     assert camera.descriptor_min == 0.5 and camera.descriptor_prior is True
     changed = {"height_epsilon", "covariance", "descriptor_min", "descriptor_prior"}

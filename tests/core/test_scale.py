@@ -183,4 +183,7 @@ def test_any_layout_and_radius_type_use_the_one_compiled_inlier_pass():
     expected = mutual_inliers(T, p, q, np.ascontiguousarray(wide[:, ::2]), 2.0)
     got = reg._mutual_inliers(T, p.astype(np.float32), q, wide[:, ::2], 2)
     np.testing.assert_array_equal(got, expected)
+    frozen = np.ascontiguousarray(wide[:, ::2])
+    frozen.flags.writeable = False
+    np.testing.assert_array_equal(reg._mutual_inliers(T, p, q, frozen, 2.0), expected)
     assert len(reg._mutual_nearest.signatures) == 1

@@ -22,7 +22,9 @@ from tcaff_gtsam.eval.config import (
 )
 from tcaff_gtsam.eval.datasets.kimera_multi import (
     GT_HEADER,
+    MAPS_VERSION,
     PoseTrack,
+    RobotMapping,
     extrinsic,
     read_ground_truth,
 )
@@ -161,6 +163,50 @@ def test_methods_that_need_the_truth_refuse_a_run_without_it():
     tcaff_only = methods.model_copy(update={"methods": ["tcaff", "tcaff_isam2"]})
     runs = run_methods(run, tcaff_only)
     assert np.isnan(runs.truth).all() and np.isnan(runs.estimates["tcaff"]).all()
+
+
+def random_map(rng: np.random.Generator, n: int, d: int | None) -> ObjectMap:
+    """n objects, with d-wide descriptors (None: without)."""
+    descriptors = None
+    if d is not None:
+        descriptors = rng.uniform(0.0, 1.0, (n, d)) + 1e-3
+        descriptors /= np.linalg.norm(descriptors, axis=1, keepdims=True)
+    return ObjectMap(rng.uniform(-5, 5, (n, 3)), rng.uniform(0.1, 2, n), rng.uniform(0.1, 2, n),
+                     rng.uniform(0, 30, n), descriptors)
+
+
+def test_saved_maps_keep_their_descriptors(tmp_path):
+    rng = np.random.default_rng(4)
+    maps = [random_map(rng, 3, 8), EMPTY, random_map(rng, 0, 8), random_map(rng, 4, None),
+            random_map(rng, 5, 8), random_map(rng, 2, 5)]
+    S = len(maps)
+    T = np.broadcast_to(pose(1.0, 2.0, 0.3, 0.4), (S, 4, 4))
+    mapping = RobotMapping("sparkal1", np.arange(S) + 10.0, np.arange(S) + 9.9, T, T, maps,
+                           120, 3.5, "abc", {"segment": 1.0})
+    mapping.save(tmp_path)
+    assert json.loads((tmp_path / "sparkal1.json").read_text())["version"] == MAPS_VERSION
+    loaded = RobotMapping.load(tmp_path, "sparkal1")
+    assert loaded is not None and len(loaded.maps) == S
+    for saved, back in zip(maps, loaded.maps, strict=True):
+        for key in ("centroids", "widths", "heights", "last_seen"):
+            np.testing.assert_array_equal(getattr(back, key), getattr(saved, key))
+        if saved.descriptors is None:
+            assert back.descriptors is None
+        else:
+            np.testing.assert_array_equal(back.descriptors, saved.descriptors)
+
+
+def test_maps_saved_by_another_version_are_mapped_again(tmp_path, caplog):
+    """Maps of version 1 came from another front end (one view per object, no descriptors)."""
+    rng = np.random.default_rng(5)
+    T = np.broadcast_to(np.eye(4), (1, 4, 4))
+    RobotMapping("sparkal1", np.array([1.0]), np.array([1.0]), T, T,
+                 [random_map(rng, 3, 4)], 10, 1.0, "abc").save(tmp_path)
+    meta = json.loads((tmp_path / "sparkal1.json").read_text())
+    (tmp_path / "sparkal1.json").write_text(json.dumps({**meta, "version": 1}))
+    assert MAPS_VERSION != 1
+    assert RobotMapping.load(tmp_path, "sparkal1") is None
+    assert "another version" in caplog.text
 
 
 def test_topics_follow_the_robot_name():

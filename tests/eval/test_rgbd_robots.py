@@ -14,13 +14,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
+from tcaff_gtsam.eval.config import load_methods
 from tcaff_gtsam.eval.datasets import rgbd_robots as rr
 from tcaff_gtsam.eval.datasets.rgbd_sequence import RgbdSequence, read_sequence
-from tcaff_gtsam.eval.recorded import rgbd_name
-from tcaff_gtsam.mapping.camera import PinholeCamera
+from tcaff_gtsam.eval.recorded import evaluate_run, rgbd_name
+from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.geometry import invert, se2_from_params, wrap_angle
+from tcaff_gtsam.geometry import (
+    invert,
+    se2_from_params,
+    se3_from_xyz_yaw,
+    se3_to_se2,
+    wrap_angle,
+)
 from tcaff_gtsam.object_map import ObjectMap
 
 FAST = settings(max_examples=25, deadline=None)
@@ -328,17 +335,56 @@ def test_load_run_refuses_what_cannot_be_a_run():
 
 def test_result_names_say_the_sequences_the_odometry_and_the_seed():
     kitchen, office = sequence(np.arange(60)), sequence(np.arange(60), name="office")
+    assert rr.halves(kitchen.frame_ids) == [(0, 30), (30, 60)]
     halves = [rr.walk(kitchen, 0, 30), rr.walk(kitchen, 30, 60)]
     assert rgbd_name(halves, "exact", None) == "kitchen-exact"
     assert rgbd_name(halves, "vio", 3) == "kitchen-vio-seed3"
-    back = [rr.walk(kitchen, 0, 30, there_and_back=True), rr.walk(kitchen, 30, 60)]
+    back = [rr.walk(kitchen, 0, 30, there_and_back=True),
+            rr.walk(kitchen, 30, 60, there_and_back=True)]
     assert rgbd_name(back, "vio", 0) == "kitchen-back-vio-seed0"
     assert rgbd_name([rr.walk(kitchen), rr.walk(office)], "exact", None) == \
         "kitchen+office-exact"
 
 
-def uniform_folder(folder: Path, frames: int) -> Path:
-    """A 7-Scenes folder of `frames` uniform 64 x 48 frames at the identity pose."""
+def test_runs_of_other_frames_have_other_names():
+    kitchen = sequence(np.arange(0, 300, 5))  # every 5th frame, 6 Hz
+    assert rr.halves(kitchen.frame_ids) == [(0, 150), (150, 296)]
+    default = rgbd_name([rr.walk(kitchen, 0, 150), rr.walk(kitchen, 150, 296)], "exact", None)
+    assert default == "kitchen-exact"
+    others = {
+        "kitchen-0to100+100to200-exact": [rr.walk(kitchen, 0, 100), rr.walk(kitchen, 100, 200)],
+        "kitchen-0to150+100to300-exact": [rr.walk(kitchen, 0, 150), rr.walk(kitchen, 100, 300)],
+        "kitchen-to150+150to-exact": [rr.walk(kitchen, None, 150), rr.walk(kitchen, 150)],
+        "kitchen-all+all-exact": [rr.walk(kitchen), rr.walk(kitchen)],
+        "kitchen-0to100+100to200+200to300-exact": [rr.walk(kitchen, 0, 100),
+                                                   rr.walk(kitchen, 100, 200),
+                                                   rr.walk(kitchen, 200, 300)],
+        "kitchen-3hz-exact": [rr.walk(kitchen, 0, 150, 3.0), rr.walk(kitchen, 150, 296, 3.0)],
+        "kitchen-2.5hz-exact": [rr.walk(kitchen, 0, 150, 2.5),
+                                rr.walk(kitchen, 150, 296, 2.5)],
+        "kitchen-all+3hz-exact": [rr.walk(kitchen, 0, 150), rr.walk(kitchen, 150, 296, 3.0)],
+        "kitchen-0to100+100to200-3hz-back-exact": [
+            rr.walk(kitchen, 0, 100, 3.0, True), rr.walk(kitchen, 100, 200, 3.0, True)],
+        "kitchen-back1-exact": [rr.walk(kitchen, 0, 150),
+                                rr.walk(kitchen, 150, 296, there_and_back=True)],
+        "kitchen+office-all+0to30-exact": [rr.walk(kitchen),
+                                           rr.walk(sequence(np.arange(60), name="office"),
+                                                   0, 30)],
+    }
+    for name, walks in others.items():
+        assert rgbd_name(walks, "exact", None) == name
+    assert len({default, *others}) == len(others) + 1
+    # there and back is what the walk was asked for, not what its label says
+    renamed = rr.walk(kitchen, 0, 150)
+    renamed = rr.Walk(renamed.sequence, renamed.positions, renamed.times,
+                      "kitchen there and back", 0, 150)
+    assert rgbd_name([renamed, rr.walk(kitchen, 150, 296)], "exact", None) == "kitchen-exact"
+
+
+def uniform_folder(folder: Path, frames: int, poses: np.ndarray | None = None,
+                   gravity: np.ndarray = DOWN) -> Path:
+    """A 7-Scenes folder of `frames` uniform 64 x 48 frames at `poses` (k, 4, 4)
+    (T_world_camera; None: the identity), the world's gravity `gravity`."""
     folder.mkdir()
     color = cv2.imencode(".png", np.full((48, 64, 3), 90, np.uint8))[1].tobytes()
     depth = cv2.imencode(".png", np.full((48, 64), 2000, np.uint16))[1].tobytes()
@@ -346,9 +392,11 @@ def uniform_folder(folder: Path, frames: int) -> Path:
         stem = folder / f"frame-{k:06d}"
         Path(f"{stem}.color.png").write_bytes(color)
         Path(f"{stem}.depth.png").write_bytes(depth)
-        Path(f"{stem}.pose.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+        T = np.eye(4) if poses is None else poses[k]
+        Path(f"{stem}.pose.txt").write_text(
+            "".join(" ".join(f"{v:.17g}" for v in row) + "\n" for row in T))
     (folder / "camera-intrinsics.txt").write_text("58.5 0 32\n0 58.5 24\n0 0 1\n")
-    (folder / "gravity-direction.txt").write_text("0 0 -1\n")
+    (folder / "gravity-direction.txt").write_text(" ".join(f"{v:.17g}" for v in gravity))
     return folder
 
 
@@ -375,3 +423,56 @@ def test_load_run_times_only_the_frames_it_maps(unequal_run):
     _, (_, seconds) = unequal_run
     for per_frame in seconds:
         assert np.all(per_frame.sum(axis=1) > 0)
+
+
+#: 7-Scenes kitchen's gravity in its world frame: the world's y axis points mostly down
+KITCHEN_GRAVITY = np.array([-0.00887460355, 0.904425621, 0.426539183])
+
+
+def test_a_camera_walking_ahead_in_a_tilted_world_walks_along_x(tmp_path):
+    """A hand-held camera (1.2 m up, 15 deg down, rolled 8 deg) walks 0.5 m/s straight along
+    the level world's x at y = 0.7 in a world frame turned away from gravity: the paths are
+    of a level body, heading 0 at constant y in the level world and in each odometry frame."""
+    fps, frames = 5.0, 60
+    g = KITCHEN_GRAVITY / np.linalg.norm(KITCHEN_GRAVITY)
+    T_world_level = np.eye(4)
+    T_world_level[:3, :3] = rr.level_rotation(g).T
+    T_world_level[:3, 3] = [1.0, -2.0, 0.5]
+    roll = np.eye(4)
+    roll[:3, :3] = Rotation.from_euler("z", 8.0, degrees=True).as_matrix()  # about the optics
+    poses = np.array([T_world_level @ se3_from_xyz_yaw(0.5 * k / fps, 0.7, 0.0, 0.0)
+                      @ T_body_camera(1.2, 15.0) @ roll for k in range(frames)])
+    seq = read_sequence(uniform_folder(tmp_path / "tilted", frames, poses, g), None, fps)
+    walks = [rr.walk(seq, 0, 30), rr.walk(seq, 30, 60)]
+    methods = load_methods("tcaff_only").model_copy(update={"methods": ["ground_truth"]})
+    paths = {}
+    for kind, seed in (("exact", None), ("vio", 2)):
+        run, _ = rr.load_run(walks, kind, seed, 20.0)
+        job, _ = evaluate_run(run, methods)
+        true, odom = job.arrays["poses_true"], job.arrays["poses_odom"]
+        assert true.shape == odom.shape == (2, 5, 3)
+        paths[kind] = true
+        # the truth of a pair is the odometry frames' relative pose in any one world frame
+        for i, j in ((0, 1), (1, 0)):
+            T_wo = [rr.odometry(seq.T_world_camera[w.positions], w.times, seq.gravity, kind,
+                                None if seed is None else np.random.default_rng([seed, r]))[1]
+                    for r, w in enumerate(walks)]
+            at = [np.searchsorted(w.times, run.times, side="right") - 1 for w in walks]
+            np.testing.assert_allclose(
+                run.T_true(i, j), se3_to_se2(invert(T_wo[i][at[i]]) @ T_wo[j][at[j]]),
+                atol=1e-9)
+        if kind == "exact":
+            np.testing.assert_allclose(odom[..., 2], 0.0, atol=1e-9)
+            np.testing.assert_allclose(odom[..., 1], 0.0, atol=1e-9)
+            assert np.all(np.diff(odom[..., 0], axis=1) > 0.4)
+    # the truth does not depend on the odometry
+    np.testing.assert_allclose(paths["vio"], paths["exact"], atol=1e-9)
+    true = paths["exact"]
+    # the level world keeps the sequence world's origin: the walk is offset by it
+    origin = rr.level_rotation(g) @ T_world_level[:3, 3]
+    np.testing.assert_allclose(true[..., 2], 0.0, atol=1e-9)
+    np.testing.assert_allclose(true[..., 1], 0.7 + origin[1], atol=1e-9)
+    # at the last frame of each whole second: robot 1 started 30 frames (6 s) later
+    s = np.arange(1, 6)
+    np.testing.assert_allclose(true[0, :, 0], origin[0] + 0.5 * s, atol=1e-9)
+    np.testing.assert_allclose(true[1, :, 0], origin[0] + 3.0 + 0.5 * s, atol=1e-9)

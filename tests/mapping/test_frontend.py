@@ -375,6 +375,56 @@ def test_segmenter_returning_bad_masks_raises(frame):
         front.process(0.0, frame.rgb, frame.depth, np.eye(4))
 
 
+def test_a_depth_segmenter_subclass_is_called_through_its_own_segment(frame):
+    """The front end reads `DepthSegmenter`'s label image directly, but a subclass that
+    overrides `segment` (here to drop every mask) is called through it, its masks checked."""
+    from tcaff_gtsam.mapping.segment import DepthSegmenter
+
+    calls = []
+
+    class NoMasks(DepthSegmenter):
+        def segment(self, rgb, depth, up=None):
+            calls.append(up)
+            return super().segment(rgb, depth, up)[:0]
+
+    class NotMasks(DepthSegmenter):
+        def segment(self, rgb, depth, up=None):
+            return np.zeros((1, *CAM.shape), np.uint8)
+
+    plain = RgbdFrontEnd(CAM, T_BC, depth_scale=1.0)
+    assert len(plain.process(0.0, frame.rgb, frame.depth, np.eye(4)).observations) >= 1
+    front = RgbdFrontEnd(CAM, T_BC, depth_scale=1.0,
+                         segmenter=NoMasks(CAM, 1.0, T_body_camera=T_BC))
+    result = front.process(0.0, frame.rgb, frame.depth, np.eye(4))
+    assert len(calls) == 1 and result.n_masks == 0 and len(result.observations) == 0
+    bad = RgbdFrontEnd(CAM, T_BC, depth_scale=1.0,
+                       segmenter=NotMasks(CAM, 1.0, T_body_camera=T_BC))
+    with pytest.raises(DataError, match="masks"):
+        bad.process(0.0, frame.rgb, frame.depth, np.eye(4))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_colour_histograms_from_the_label_image_equal_those_of_the_masks(seed):
+    """The depth segmenter's path counts every mask's colours in one pass over its label
+    image; the counts are those of the masks themselves, a mask thinner than the sampling
+    (every second row and column) included."""
+    rng = np.random.default_rng(seed)
+    H, W = CAM.shape
+    rgb = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    labels = np.zeros((H, W), np.int32)
+    for label in range(1, 9):
+        r, c = rng.integers(0, H - 40), rng.integers(0, W - 40)
+        labels[r:r + rng.integers(5, 40), c:c + rng.integers(5, 40)] = label
+    labels[11, 50:90] = 9  # one odd row: no pixel on the sampling grid
+    ids = np.array([label for label in (2, 5, 9, 7) if (labels == label).any()], dtype=np.int64)
+    masks = labels[None] == ids[:, None, None].astype(np.int32)
+    front = RgbdFrontEnd(CAM, T_BC, depth_scale=1.0)
+    per_mask = front._colours(rgb, masks)
+    np.testing.assert_allclose(front._colours(rgb, masks, (labels, ids)), per_mask, atol=1e-12)
+    np.testing.assert_allclose(per_mask.sum(axis=1), 1.0)
+    assert front._colours(rgb, masks[:0], (labels, ids[:0])).shape == (0, per_mask.shape[1])
+
+
 def test_no_objects_in_view_gives_an_empty_result():
     room = RgbdScene(np.zeros((0, 2)), [], [], walls=room_walls(0, 0, 10, 8))
     front = RgbdFrontEnd(CAM, T_BC, depth_scale=1.0)

@@ -592,6 +592,21 @@ def test_a_fragment_lying_on_a_coarser_cloud_is_merged_into_it():
     assert len(mapper) == 1
 
 
+def test_clouds_far_from_the_origin_are_kept_apart_and_joined_as_near_it():
+    """30 km out along x (a long drive): two cubes 0.1 m apart stay two tracks and a second
+    view of one joins it, as they do at the origin; voxels are not clipped into one cell."""
+    for x0 in (0.0, 30_000.0, -30_000.0):
+        left = voxel_grid((0, 0, 0), (10, 10, 10)) + np.array([x0, 0.0, 0.0])
+        right = left + np.array([0.3, 0.0, 0.0])
+        mapper = ObjectMapper(MapperParams(nu=1))
+        a, b = observe_clouds(mapper, 0.0, [left, right]).tolist()
+        assert a != b
+        assert observe_clouds(mapper, 0.1, [left + 0.005])[0] == a
+        assert observe_clouds(mapper, 0.2, [right])[0] == b
+        assert len(mapper) == 2
+        np.testing.assert_allclose(mapper.object_map().widths, [0.2, 0.2], atol=0.02)
+
+
 def test_neighbouring_objects_03m_apart_stay_two_tracks_with_clouds():
     """Two 0.2 m cubes 0.3 m apart (0.1 m gap), seen alone and together: with their clouds
     they are two tracks throughout. By centroids alone (the old rule) the second cube's
@@ -671,16 +686,36 @@ def test_descriptors_need_colours_and_clouds_for_every_confirmed_track():
     assert both.object_map().descriptors.shape == (2, 40)
 
 
-def test_an_all_zero_colour_histogram_does_not_break_the_map():
+def test_an_all_zero_colour_histogram_is_refused_and_changes_nothing():
     mapper = ObjectMapper(MapperParams(nu=1))
     cloud = voxel_grid((0, 0, 0), (10, 10, 10))
-    try:
+    with pytest.raises(DataError, match=r"colours\[0\] is all zeros"):
         observe_clouds(mapper, 0.0, [cloud], colours=np.zeros((1, 37)))
-    except DataError as exc:  # refusing it, naming it, is fine too
-        assert "colours" in str(exc)
-        return
-    om = mapper.object_map()
-    assert len(om) == 1
+    assert len(mapper) == 0
+    observe_clouds(mapper, 0.0, [cloud], colours=np.ones((1, 37)))
+    assert len(mapper.object_map()) == 1
+
+
+def test_clouds_are_given_in_every_update_or_in_none():
+    """A track without a cloud could never be assigned by overlap: its object, seen again
+    with a cloud, would start a second track. So the first update with observations fixes
+    whether they come with clouds; an empty update may leave them out."""
+    cloud = voxel_grid((0, 0, 0), (10, 10, 10))
+    centroid, size = cloud.mean(axis=0), [0.2]
+    with_clouds = ObjectMapper(MapperParams(nu=1))
+    with_clouds.update(0.0, np.zeros((0, 3)), [], [])
+    observe_clouds(with_clouds, 0.1, [cloud])
+    with_clouds.update(0.2, np.zeros((0, 3)), [], [])
+    with pytest.raises(DataError, match=r"clouds = None, but this mapper's earlier "
+                                        r"observations came with clouds"):
+        with_clouds.update(0.3, [centroid], size, size)
+    observe_clouds(with_clouds, 0.3, [cloud])
+    assert len(with_clouds) == 1 and with_clouds._hits.tolist() == [2]
+    without = ObjectMapper(MapperParams(nu=1))
+    without.update(0.0, [centroid], size, size)
+    with pytest.raises(DataError, match=r"clouds = a list, but .* came without clouds"):
+        observe_clouds(without, 0.1, [cloud])
+    assert len(without) == 1 and without._hits.tolist() == [1]
 
 
 GOOD_CLOUD = voxel_grid((0, 0, 0), (5, 5, 5))  # 125 points, 0.1 m cube
@@ -701,15 +736,17 @@ def with_nan(cloud: np.ndarray) -> np.ndarray:
         ([GOOD_CLOUD[:, :2]], None, r"clouds\[0\] must have shape \(n, 3\) .* \(125, 2\)"),
         ([np.zeros((0, 3))], None, r"clouds\[0\] must have shape \(n, 3\) with n >= 1"),
         ([with_nan(GOOD_CLOUD)], None, r"clouds\[0\] holds non-finite"),
+        ([GOOD_CLOUD + 2e9], None, r"clouds\[0\] holds coordinates beyond 1e\+09 m"),
         ([[*GOOD_CLOUD.tolist(), ["a", "b", "c"]]], None, r"clouds\[0\]"),
         ([GOOD_CLOUD], -np.ones((1, 37)), r"colours must be finite numbers >= 0"),
         ([GOOD_CLOUD], np.full((1, 37), np.nan), r"colours must be finite"),
         ([GOOD_CLOUD], np.ones((2, 37)), r"colours must have shape \(1, B\)"),
         ([GOOD_CLOUD], np.ones(37), r"colours must have shape \(1, B\)"),
-        ([GOOD_CLOUD], np.ones((1, 36)), r"colours has 36 bins, earlier updates 37"),
+        ([GOOD_CLOUD], np.ones((1, 36)), r"colours has 36 bins; the histograms of "
+                                         r"hue_bins = 12 x saturation_bins = 3 have 37"),
         ([GOOD_CLOUD], [["x"] * 37], r"colours"),
     ],
-    ids=["array", "none", "two", "xy", "empty", "nan", "strings", "negative", "nan-colour",
+    ids=["array", "none", "two", "xy", "empty", "nan", "far", "strings", "negative", "nan-colour",
          "rows", "1-d", "bins", "str-colour"],
 )
 def test_bad_clouds_and_colours_are_refused_naming_them_and_change_nothing(clouds, colours,
@@ -735,7 +772,8 @@ def test_bad_clouds_and_colours_are_refused_naming_them_and_change_nothing(cloud
      ("cloud_points", 100.0), ("cloud_span", 0.0), ("hue_bins", 0), ("hue_bins", 65),
      ("saturation_bins", 0), ("colour_weight", -0.1), ("colour_weight", 1.5),
      ("overlap_cell", 0.0), ("overlap_cell", math.inf), ("min_overlap", 0.0),
-     ("min_overlap", 1.01), ("merge_overlap", 0.0), ("merge_overlap", 2.0)],
+     ("min_overlap", 1.01), ("merge_overlap", 0.0), ("merge_overlap", 2.0),
+     ("extent_pad", -0.01), ("extent_pad", math.nan), ("extent_pad", math.inf)],
 )
 def test_bad_cloud_params_raise_config_error_naming_field_and_value(field, value):
     with pytest.raises(ConfigError, match=re.escape(f"MapperParams.{field} = {value!r}")):

@@ -23,6 +23,7 @@ from tcaff_gtsam.mapping.objects import (
     shape_features,
 )
 
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se3_from_xyz_yaw, transform_points
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.params import FrameAlignerParams
@@ -232,6 +233,32 @@ def test_single_point_and_a_line_have_sensible_extents():
     assert line.depth == pytest.approx(0.0, abs=1e-6)
 
 
+@pytest.mark.parametrize(("voxel", "max_points", "name"), [
+    (0.0, 10, "voxel"), (-0.01, 10, "voxel"), (math.nan, 10, "voxel"), (math.inf, 10, "voxel"),
+    ("0.02", 10, "voxel"), (0.02, 0, "max_points"), (0.02, 2.5, "max_points"),
+    (0.02, None, "max_points")])
+def test_bad_cloud_settings_are_config_errors_naming_them(voxel, max_points, name):
+    with pytest.raises(ConfigError, match=rf"^ObjectCloud\.{name} = "):
+        ObjectCloud(voxel, max_points)
+
+
+@pytest.mark.parametrize(("points", "match"), [
+    (np.zeros((0, 3)), r"shape \(n, 3\) with n >= 1, got \(0, 3\)"),
+    (np.zeros((4, 2)), r"shape \(n, 3\) with n >= 1, got \(4, 2\)"),
+    (np.array([[0.0, math.nan, 0.0]]), "non-finite"),
+    ([["a", "b", "c"]], "points")])
+def test_cloud_extent_refuses_what_is_not_a_cloud(points, match):
+    with pytest.raises(DataError, match=r"^cloud_extent: .*" + match):
+        cloud_extent(points)
+
+
+@pytest.mark.parametrize("rgb", [np.zeros((4, 4, 3), np.float32), np.zeros((4, 4), np.uint8),
+                                 np.zeros((4, 4, 4), np.uint8), [[[0, 0, 0]]]])
+def test_colour_bins_refuses_what_is_not_an_rgb_image(rgb):
+    with pytest.raises(DataError, match="rgb"):
+        colour_bins(rgb, 12, 3)
+
+
 def test_a_few_stray_points_above_and_below_do_not_stretch_the_height():
     pts = box_faces(0.6, 0.4, 0.5)  # 671 points: 6 are trimmed at each end
     stray = np.array([[0.0, -0.2, 3.0], [0.3, 0.0, 2.5], [0.1, -0.2, -1.5]])
@@ -320,27 +347,13 @@ def test_colour_bins_are_in_range_and_greys_are_grey(seed, hue_bins, sat_bins):
 # Observations carry their clouds
 
 
-def test_observations_clouds_and_subset_keep_each_cloud_with_its_observation():
+def test_observations_keep_each_cloud_with_its_observation():
     clouds = [np.full((2, 3), 1.0), np.full((3, 3), 2.0), np.full((1, 3), 3.0)]
     obs = Observations(np.arange(9.0).reshape(3, 3), np.array([1.0, 2.0, 3.0]),
                        np.array([0.5, 0.6, 0.7]), np.array([2, 3, 1]), np.array([4, 7, 9]),
                        np.vstack(clouds), np.array([0, 2, 5, 6]))
     for got, want in zip(obs.clouds(), clouds, strict=True):
         np.testing.assert_array_equal(got, want)
-    sub = obs.subset(np.array([0, 2]))
-    assert len(sub) == 2
-    np.testing.assert_array_equal(sub.mask_indices, [4, 9])
-    np.testing.assert_array_equal(sub.widths, [1.0, 3.0])
-    np.testing.assert_array_equal(sub.cloud_starts, [0, 2, 3])
-    assert sub.cloud_starts.dtype == np.int64
-    np.testing.assert_array_equal(sub.clouds()[1], clouds[2])
-    empty = obs.subset(np.zeros(0, dtype=np.int64))
-    assert len(empty) == 0 and empty.points.shape == (0, 3)
-    np.testing.assert_array_equal(empty.cloud_starts, [0])
-    # observations made without clouds give empty ones, one per observation
-    bare = Observations(obs.centroids, obs.widths, obs.heights, obs.point_counts,
-                        obs.mask_indices)
-    assert [c.shape for c in bare.clouds()] == [(0, 3)] * 3
 
 
 # ---------------------------------------------------------------------------------------------

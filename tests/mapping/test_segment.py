@@ -330,9 +330,6 @@ def test_filter_paths_agree(seed):
             np.testing.assert_array_equal(filter_masks(np.asfortranarray(masks), depth, f),
                                           kept)
             np.testing.assert_array_equal(filter_labels(labels, 12, depth, f), kept)
-            np.testing.assert_array_equal(
-                filter_masks(masks, depth, f, border=depth_border(depth > 0, f.invalid_margin)),
-                kept)
 
 
 def test_filter_labels_ignores_labels_past_count_and_refuses_junk():
@@ -352,8 +349,6 @@ def test_filter_labels_ignores_labels_past_count_and_refuses_junk():
             filter_labels(labels, count, depth, MaskFilter())
     with pytest.raises(DataError, match="depth_m"):
         filter_labels(labels, 2, depth.tolist(), MaskFilter())
-    with pytest.raises(DataError, match="border"):
-        filter_labels(labels, 2, depth, MaskFilter(), border=np.zeros((H, W), np.uint8))
     with pytest.raises(DataError, match="depth_m"):
         filter_masks(np.zeros((1, H, W), bool), depth[None], MaskFilter())
 
@@ -513,7 +508,8 @@ def test_segmenter_leaves_the_depth_image_alone(dtype):
     {"plane_distance": -1.0}, {"plane_distance_per_m2": "0.1"}, {"max_planes": -1},
     {"max_planes": 1.5}, {"ransac_iterations": -5}, {"ransac_stride": 0}, {"min_area": -1},
     {"seed": -1}, {"plane_share": 0.0}, {"plane_share": 1.5}, {"max_area_share": 0.0},
-    {"max_area_share": 2.0}, {"depth_max": 0.1}, {"depth_min": 9.0}, {"work_width": -1},
+    {"max_area_share": 2.0}, {"depth_max": 0.1}, {"depth_min": 9.0},
+    {"depth_max": math.inf}, {"depth_min": math.nan}, {"work_width": -1},
     {"work_width": 320.5}, {"work_width": True}, {"level_slice": -1}, {"level_slice": 2.5},
     {"level_slice": True}, {"level_slice": "24"},
 ])
