@@ -270,7 +270,7 @@ def top_view(path: Path, job, pair: int, stream: str = "tcaff") -> None:
         err = step_errors(se2_from_params(a["truth"][pair][s:s + 1]), np.asarray(z)[None])[0]
         ax.set_title(f"{title}: {err[0]:.2f} m, {math.degrees(err[1]):.1f} deg off the truth"
                      if title != "truth" else "under the true alignment", fontsize=10)
-        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_aspect("equal", adjustable="box")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")
         ax.set_xlabel(f"x in o{i} [m]")
