@@ -53,7 +53,9 @@ def _console(stderr: bool = False) -> Console:
 
         console = Console(stderr=stderr)
         if not stderr and not console.is_terminal:
-            console.width = 120  # piped output and CI logs: do not squeeze tables into 80 columns
+            # piped output and CI logs: room for the widest table (the study's, 118 columns)
+            # with a few more digits in its timings on a busy machine, labels unwrapped
+            console.width = 140
         _consoles[stderr] = console
     return _consoles[stderr]
 
@@ -276,6 +278,79 @@ def make_maps(
         {"T_oi_oj": {"x": x, "y": y, "theta": theta}, "now": pair.now}, indent=2))
     _console().print(f"wrote {out_dir}/ego.npz, other.npz and truth.json "
                      f"(true x={x:.2f} m, y={y:.2f} m, theta={math.degrees(theta):.1f} deg)")
+
+
+@app.command("advise-kappa")
+def advise_kappa(
+    heading_rw: Annotated[float, typer.Option(
+        help="Heading random walk of the odometry, deg per sqrt(minute) (VIO: about 1).")
+    ] = 1.0,
+    scale_std: Annotated[float, typer.Option(
+        help="Std of its distance scale error (0.01: 1 % of the distance moved).")] = 0.01,
+    speed: Annotated[float, typer.Option(help="The robot's speed, m/s.")] = 0.5,
+    turn: Annotated[float, typer.Option(
+        help="How much the robot turns: its heading's random walk, deg per sqrt(s).")] = 20.0,
+    landmark_range: Annotated[float, typer.Option(
+        "--range", help="How far ahead objects are seen, m.")] = 2.0,
+    epsilon: Annotated[float, typer.Option(
+        help="CLIPPER's epsilon, m: the maps must stay consistent within it."
+    )] = _ALIGNER.clipper.epsilon,
+    minutes: Annotated[float, typer.Option(help="Length of each simulated drive.")] = 20.0,
+    seeds: Annotated[int, typer.Option(help="Drives (and drifts) to simulate.")] = 3,
+    csv: Annotated[Path | None, typer.Option(
+        help="Also write the table (span, RMS per seed, worst) to this CSV file.")] = None,
+) -> None:
+    """How many seconds of sightings a map may hold (kappa), from the odometry's drift.
+
+    Simulates drives of a robot at --speed with the VIO-like drift given (heading random walk,
+    distance scale error) and prints how far the odometry misplaces, in the robot's current
+    frame, an object seen --range m ahead a span ago (root mean square over the drive), for
+    spans of 5 s to 5 min; the advice is the longest span whose misplacement stays within
+    epsilon / 2 for every seed (two objects of one map then keep their distance within
+    epsilon). The MRCLAM config's spans follow the same rule (docs/datasets.md). In Python:
+    tcaff_gtsam.span.misplacement on your own truth and odometry, then advise_kappa.
+    """
+    import numpy as np
+
+    from tcaff_gtsam.span import SPANS, misplacement, random_drive, vio_like_odometry
+    from tcaff_gtsam.span import advise_kappa as advise
+
+    for option, value in (("--heading-rw", heading_rw), ("--scale-std", scale_std),
+                          ("--speed", speed), ("--turn", turn), ("--range", landmark_range)):
+        if not (math.isfinite(value) and value >= 0):
+            _refuse(option, value, "must be a finite number >= 0")
+    for option, value in (("--epsilon", epsilon), ("--minutes", minutes)):
+        if not (math.isfinite(value) and value > 0):
+            _refuse(option, value, "must be a finite number > 0")
+    if seeds < 1:
+        _refuse("--seeds", seeds, "must be an int >= 1")
+    if csv is not None:
+        _writable_folder(csv.parent, "--csv's folder")
+    rms = []
+    for seed in range(seeds):
+        rng = np.random.default_rng(seed)
+        times, T_true = random_drive(rng, 60.0 * minutes, speed, turn)
+        T_odom = vio_like_odometry(rng, times, T_true, heading_rw, scale_std)
+        rms.append(misplacement(times, T_true, T_odom, SPANS, landmark_range))
+    worst = np.max(rms, axis=0)  # NaN stays NaN: a span longer than the drive
+    advice = advise(worst, SPANS, epsilon)
+    table = _table(f"RMS misplacement (m) of an object seen a span ago, {seeds} drives of "
+                   f"{minutes:g} min at {speed:g} m/s; bound epsilon / 2 = {advice.bound:.3f} m")
+    _add_columns(table, ("span [s]", *(f"seed {s}" for s in range(seeds)), "worst"))
+    for k, span in enumerate(SPANS):
+        table.add_row(f"{span:g}", *(f"{r[k]:.3f}" for r in rms), f"{worst[k]:.3f}")
+    console = _console()
+    console.print(_keep_numbers_whole(table))
+    if csv is not None:
+        header = "span_s," + ",".join(f"rms_seed{s}_m" for s in range(seeds)) + ",worst_m"
+        np.savetxt(csv, np.column_stack([SPANS, *rms, worst]), delimiter=",", header=header,
+                   comments="", fmt="%.6g")
+    if advice.kappa is None:
+        console.print(f"kappa: no span keeps the maps within epsilon / 2 ({worst[0]:.3f} m "
+                      f"at {SPANS[0]:g} s already); keep them short (the paper's 20 s)")
+    else:
+        console.print(f"kappa: {advice.kappa:g} s (FrameAlignerParams(kappa=...) and "
+                      f"MapperParams(kappa=...))")
 
 
 def _bars() -> RichProgress:

@@ -499,6 +499,16 @@ class TCAFFParams(_ByValue):
             better by `switch_margin` nats for this many consecutive steps. None never re-checks
             (released code).
         switch_margin: nats.
+        switch_support: while a main tree exists, also switch to an exploring hypothesis that
+            is inconsistent with it, below tau and cheaper, and whose best path was seen at
+            least this many more times in the window than the main tree's best path, for
+            `switch_after` consecutive steps, whether or not a measurement confirmed the main
+            hypothesis at those steps: an early wrong alignment still seen now and then is
+            outvoted by the truth seen more often, W + `switch_after` steps after the truth's
+            first measurement. A path's measurements count as one while they re-match the same
+            objects (fewer than two distinct pieces of evidence, see `min_distinct`): a
+            look-alike cluster seen at every step outvotes nothing. None: only the
+            `switch_margin` rule.
         min_distinct: a hypothesis is accepted, or replaces the main one, only when its best
             path over the window holds at least this many distinct pieces of evidence: a
             measurement is distinct when it associates an object of each robot that no earlier
@@ -542,6 +552,7 @@ class TCAFFParams(_ByValue):
     drop_after: int = 40
     switch_after: int | None = 3
     switch_margin: float = 5.0
+    switch_support: int | None = None
     min_distinct: int = 1
     switch_stale: bool = False
     withhold_contested: bool = False
@@ -592,6 +603,8 @@ class TCAFFParams(_ByValue):
                  "switch_margin", self.switch_margin, "must be a finite number >= 0 (nats)")
         _require(_int_at_least(self.min_distinct, 1), o, "min_distinct", self.min_distinct,
                  "must be an int >= 1")
+        _require(self.switch_support is None or _int_at_least(self.switch_support, 1), o,
+                 "switch_support", self.switch_support, "must be an int >= 1 or None")
         _require(isinstance(self.switch_stale, bool), o, "switch_stale", self.switch_stale,
                  "must be True or False")
         _require(isinstance(self.withhold_contested, bool), o, "withhold_contested",
@@ -607,20 +620,21 @@ class TCAFFParams(_ByValue):
     @property
     def counts_evidence(self) -> bool:
         """Whether the filter reads the object evidence given to `update`."""
-        return self.min_distinct > 1 or self.switch_stale or self.withhold_contested
+        return (self.min_distinct > 1 or self.switch_stale or self.withhold_contested
+                or self.switch_support is not None)
 
     @classmethod
     def paper(cls) -> TCAFFParams:
         """The paper's equations alone: every measurement counts as evidence, and a main
         hypothesis confirmed at a step is never abandoned at that step."""
-        return cls(min_distinct=1, switch_stale=False)
+        return cls(min_distinct=1, switch_stale=False, switch_support=None)
 
     @classmethod
     def reference(cls) -> TCAFFParams:
         """The authors' released code: its threshold, gate, cost, promotion and deletion."""
         return cls(tau=9.0, gate="box", cost_model="reference", root_in_window=True,
                    promotion="reseed", drop_rule="window", drop_after=40, switch_after=None,
-                   min_distinct=1, switch_stale=False)
+                   switch_support=None, min_distinct=1, switch_stale=False)
 
 
 def _default_odometry_cov(dim: int) -> np.ndarray:

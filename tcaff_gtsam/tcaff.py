@@ -254,9 +254,10 @@ class TCAFF:
                 return
 
     def _consider_switch(self, complete: Leaves) -> None:
-        """Switch to a rival hypothesis: one inconsistent with the main tree's best leaf, below
-        tau and `switch_margin` better, that has held for `switch_after` steps in a row, each
-        a step on which the main tree's best path took no measurement. Steps on which no
+        """Switch to a rival hypothesis: one inconsistent with the main tree's best leaf and
+        below tau that, for `switch_after` steps in a row, is either `switch_margin` better
+        at a step on which the main tree's best path took no measurement, or cheaper and seen
+        `switch_support` more times in the window (`_support`) at any step. Steps on which no
         exploring tree completes neither extend nor break the streak."""
         prm = self.params
         if len(complete) == 0:
@@ -264,15 +265,24 @@ class TCAFF:
         cost = complete.cost
         main_cost = self._main.cost
         m = int(np.argmin(main_cost))
-        rival = (~self._consistent(complete, self._main.take([m])) & (cost < prm.tau)
-                 & (cost + prm.switch_margin < main_cost[m]))
-        # a main hypothesis that a measurement confirmed this step is not abandoned: in a
-        # repetitive world a wrong rival can hold a full window while the truth has gaps. One
-        # that only re-matches objects it already used is confirmed by nothing new, though.
+        inconsistent = ~self._consistent(complete, self._main.take([m])) & (cost < prm.tau)
+        rival = inconsistent & (cost + prm.switch_margin < main_cost[m])
+        # a main hypothesis that a measurement confirmed this step is not abandoned for a
+        # cheaper one: in a repetitive world a wrong rival can hold a full window while the
+        # truth has gaps. One that only re-matches objects it already used is confirmed by
+        # nothing new, though.
         stale = prm.switch_stale and self.step - self._fresh >= prm.window
+        if self._main.since[m] == 0 and not stale:
+            rival[:] = False
         if rival.any() and prm.min_distinct > 1:
             rival[rival] = [self._distinct_enough(complete, r) for r in np.flatnonzero(rival)]
-        if not rival.any() or (self._main.since[m] == 0 and not stale):
+        if prm.switch_support is not None:
+            # ... but one seen less often than a rival is, confirmed or not
+            need = self._support(self._main.choice[m]) + prm.switch_support
+            for r in np.flatnonzero(inconsistent & ~rival & (cost < main_cost[m])):
+                rival[r] = (self._support(complete.choice[r]) >= need
+                            and self._distinct_enough(complete, r))
+        if not rival.any():
             self._switch_streak, self._rival = 0, None
             return
         best = int(np.flatnonzero(rival)[np.argmin(cost[rival])])
@@ -313,6 +323,14 @@ class TCAFF:
             return False
         rivals = rivals[~self._consistent(explore.take(rivals), main.take([m]))]
         return any(self._distinct(explore.choice[r])[0] >= need for r in rivals)
+
+    def _support(self, path: np.ndarray) -> int:
+        """How often a path's hypothesis was seen in the window: its measurements, but one
+        when they re-match the same objects (fewer than two distinct pieces of evidence), as a
+        look-alike cluster seen again and again is."""
+        distinct = self._distinct(path)[0]
+        return distinct if distinct < 2 else int(np.count_nonzero(
+            path[-self.params.window:] >= 0))
 
     def _distinct_enough(self, leaves: Leaves, index: int) -> bool:
         """Whether leaf `index`'s path holds `min_distinct` distinct pieces of evidence."""

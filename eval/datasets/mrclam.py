@@ -41,8 +41,9 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.geometry import se2_from_params, se2_to_se3, wrap_angle
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params, se2_to_se3, wrap_angle
 from tcaff_gtsam.object_map import ObjectMap
+from tcaff_gtsam.span import misplacement, vio_like_odometry
 
 from ..runs import RecordedRun, RunSettings
 
@@ -258,17 +259,8 @@ def vio_like(rng: np.random.Generator, truth: np.ndarray, start: float, end: flo
     # one sample past the end, so that a pose at `end` is interpolated, never clamped
     times = start + _VIO_STEP * np.arange(math.ceil((end - start) / _VIO_STEP) + 2)
     T = se2_from_params(_interpolate(truth[:, 0], truth[:, 1:4], times))
-    step = np.linalg.solve(T[:-1], T[1:])  # body-frame increments
-    scale = 1.0 + scale_std * rng.standard_normal()
-    sigma = math.radians(heading_rw_deg_per_sqrt_min) / math.sqrt(60.0) * math.sqrt(_VIO_STEP)
-    drift = np.cumsum(sigma * rng.standard_normal(len(step)))
-    heading = np.r_[0.0, np.cumsum(np.arctan2(step[:, 1, 0], step[:, 0, 0]))] + np.r_[0.0, drift]
-    moved = scale * step[:, :2, 2]
-    c, s = np.cos(heading[:-1]), np.sin(heading[:-1])
-    xy = np.vstack([np.zeros(2), np.cumsum(np.column_stack([c * moved[:, 0] - s * moved[:, 1],
-                                                            s * moved[:, 0] + c * moved[:, 1]]),
-                                           axis=0)])
-    return times, np.column_stack([xy, wrap_angle(heading)])
+    return times, se2_to_params(vio_like_odometry(rng, times, T, heading_rw_deg_per_sqrt_min,
+                                                  scale_std))
 
 
 def odometry_of(data: MrclamData, robot: int, odometry: str, seed: int | None,
@@ -304,31 +296,26 @@ def map_drift(data: MrclamData, odometry: str, seed: int | None, kappas: np.ndar
     Returns: (len(kappas),) root mean square of that error over robots and times [m] (NaN
     where the data set is shorter than kappa).
     """
+    if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
+        raise DataError(f"every: expected seconds > 0, got {every!r}")
     kappas = np.asarray(kappas, dtype=float)
     if kappas.ndim != 1 or not np.all(np.isfinite(kappas) & (kappas > 0)):
         raise DataError(f"kappas: expected a 1-D array of seconds > 0, got {kappas!r}")
-    if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
-        raise DataError(f"every: expected seconds > 0, got {every!r}")
     start, end = data.span
     sightings = np.concatenate([r.sightings for r in data.robots.values()])
-    landmark = np.array([float(np.median(sightings[:, 2])) if len(sightings) else 0.0, 0.0, 1.0])
-    odometries = {robot: odometry_of(data, robot, odometry, seed, heading_rw_deg_per_sqrt_min,
-                                     scale_std) for robot in data.robots}
-    rms = np.full(kappas.shape, np.nan)
-    for k, kappa in enumerate(kappas):
-        errors = []
-        at = np.arange(start + kappa, end, every)
-        if at.size == 0:
-            continue
-        for robot, record in data.robots.items():
-            odom_t, odom = odometries[robot]
-            seen = []
-            for times, poses in ((odom_t, odom), (record.truth[:, 0], record.truth[:, 1:4])):
-                now = se2_from_params(_interpolate(times, poses, at))
-                then = se2_from_params(_interpolate(times, poses, at - kappa))
-                seen.append(np.linalg.solve(now, then) @ landmark)
-            errors.append(np.hypot(*(seen[0] - seen[1])[:, :2].T))
-        rms[k] = math.sqrt(float(np.mean(np.square(np.concatenate(errors)))))
+    landmark_range = float(np.median(sightings[:, 2])) if len(sightings) else 0.0
+    times, truths, odometries = [], [], []
+    for robot, record in data.robots.items():
+        odom_t, odom = odometry_of(data, robot, odometry, seed, heading_rw_deg_per_sqrt_min,
+                                   scale_std)
+        # both on the odometry's times within the data set's span
+        t = np.unique(odom_t[(odom_t >= start) & (odom_t <= end)])
+        times.append(t)
+        truths.append(se2_from_params(_interpolate(record.truth[:, 0], record.truth[:, 1:4], t)))
+        odometries.append(se2_from_params(_interpolate(odom_t, odom, t)))
+    order = np.argsort(kappas)
+    rms = np.empty(kappas.size)
+    rms[order] = misplacement(times, truths, odometries, kappas[order], landmark_range, every)
     return rms
 
 

@@ -127,7 +127,8 @@ class DecoyStream:
         evidence: n lists of k_t arrays (m, 2) of the (ego id, other id) object pairs each
             measurement associates (`TCAFF.update`'s evidence).
         correct: (n,) index of the correct measurement in zs[t], -1 if none.
-        truth_from: first step with a correct measurement.
+        truth_from: first step at which the truth may be seen after the decoy came (a
+            correct measurement then comes at rate p_truth).
         rejoin: first step with a correct measurement after the jump (-1 for none).
     """
 
@@ -147,7 +148,8 @@ def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 
                  jump_at: int | None = 80, gap: int = 10,
                  jump=(3.0, -2.0, 40.0 * DEG), x0=(3.0, -2.0, 1.0),
                  decoy_offset=(4.0, 3.0, 120.0 * DEG), noise=(0.2, 0.2, 2.0 * DEG),
-                 objects_per_match: int = 6, new_object_every: int = 2) -> DecoyStream:
+                 objects_per_match: int = 6, new_object_every: int = 2,
+                 decoy_moves: bool = False, lead: int = 0, lead_gap: int = 0) -> DecoyStream:
     """The decoy of a repetitive world: a look-alike cluster that matches a wrong alignment
     (the truth composed with `decoy_offset`, so it drifts with the truth and is consistent
     over time) and re-matches the same objects at every sighting, while the true match moves
@@ -156,11 +158,19 @@ def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 
     The decoy alone is seen at every step for `decoy_alone` steps; then the truth at rate
     `p_truth` and the decoy at `p_decoy`. With `jump_at`, the robots part for `gap` steps (no
     correct measurement), the truth jumps by `jump` (a re-initialised odometry frame), and the
-    overlap resumes. Outliers have random object ids.
+    overlap resumes. Outliers have random object ids. With `decoy_moves`, the decoy's
+    sightings move through new objects as the truth's do (a shift of a repetitive world onto
+    itself, which pairs other objects as the robots move): distinct evidence cannot tell
+    them apart, only how often each is seen. With `lead` and `lead_gap`, the truth comes
+    first (at rate `p_truth`) for `lead` steps, then nothing but outliers for `lead_gap`
+    steps, then the decoy alone: a decoy met after the robots parted, while the filter holds
+    the truth.
     """
-    if not (0 < decoy_alone < steps and 0 <= p_truth <= 1 and 0 <= p_decoy <= 1):
-        raise DataError(f"decoy_stream: need 0 < decoy_alone < steps, rates in [0, 1], got "
-                        f"{decoy_alone}, {steps}, {p_truth}, {p_decoy}")
+    start = lead + lead_gap  # the decoy's first step
+    if not (0 < decoy_alone < steps - start and 0 <= p_truth <= 1 and 0 <= p_decoy <= 1):
+        raise DataError(f"decoy_stream: need 0 < decoy_alone < steps - lead - lead_gap, rates "
+                        f"in [0, 1], got {decoy_alone}, {steps}, {lead}, {lead_gap}, "
+                        f"{p_truth}, {p_decoy}")
     truth = drifting_truth(rng, steps, x0, (0.005, 0.005, 0.05 * DEG),
                            None if jump_at is None else {jump_at: jump})
     decoy_T = se2_from_params(np.asarray(decoy_offset, float))
@@ -171,13 +181,16 @@ def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 
     rejoin = -1
     for t in range(steps):
         meas, pairs = [], []
-        decoy_seen = t < decoy_alone or rng.random() < p_decoy
+        decoy_seen = start <= t and (t < start + decoy_alone or rng.random() < p_decoy)
         if decoy_seen:
             z = se2_to_params(se2_from_params(truth[t]) @ decoy_T) + rng.normal(0.0, noise)
             meas.append(z)
-            pairs.append(decoy_pairs)
+            moved = 30_000 + t // new_object_every + np.arange(objects_per_match)
+            pairs.append(np.column_stack([moved, moved + 100_000]) if decoy_moves
+                         else decoy_pairs)
         index = -1
-        if t >= decoy_alone and t not in gap_steps and rng.random() < p_truth:
+        if ((t < lead or t >= start + decoy_alone) and t not in gap_steps
+                and rng.random() < p_truth):
             index = len(meas)
             meas.append(truth[t] + rng.normal(0.0, noise))
             first = t // new_object_every  # objects enter and leave the overlap as robots move
@@ -193,7 +206,8 @@ def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 
         zs.append(arr)
         evidence.append(pairs)
         correct.append(index)
-    return DecoyStream(truth, zs, evidence, np.array(correct, np.int64), decoy_alone, rejoin)
+    return DecoyStream(truth, zs, evidence, np.array(correct, np.int64), start + decoy_alone,
+                       rejoin)
 
 
 @dataclass(frozen=True)

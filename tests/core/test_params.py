@@ -28,7 +28,8 @@ OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inli
             ("FrameAlignerParams", "size_partial"), ("FrameAlignerParams", "height_epsilon"),
             ("TCAFFParams", "report_after"),
             ("TCAFFParams", "gate_box"),
-            ("TCAFFParams", "switch_after"), ("GraphParams", "Q"),
+            ("TCAFFParams", "switch_after"), ("TCAFFParams", "switch_support"),
+            ("GraphParams", "Q"),
             ("GraphParams", "odometry_cov"), ("GraphParams", "horizon")}
 #: fields that are switches
 SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),

@@ -15,7 +15,7 @@ from tcaff_gtsam.eval.sim.streams import alignment_stream, decoy_stream, wrong_a
 from tcaff_gtsam import TCAFF, TCAFFParams
 from tcaff_gtsam.errors import ConfigError, DataError, TcaffError
 from tcaff_gtsam.geometry import wrap_angle
-from tcaff_gtsam.params import constant_alignment_covariance
+from tcaff_gtsam.params import ParameterError, constant_alignment_covariance
 
 R_CONSTANT = constant_alignment_covariance()  # what the frame aligner gives by default
 R_HONEST = np.diag([0.2**2, 0.2**2, np.radians(2.0) ** 2])  # the streams' actual noise
@@ -451,6 +451,71 @@ def test_an_early_decoy_is_replaced_within_W_plus_5_steps():
         assert ok.index(True) + 1 <= W + 5, f"seed {seed}"
         # and no wrong estimate from the decoy before it
         assert all(est is None for est in estimates[:start])
+
+
+def moving_decoy_then_truth(W: int, steps: int = 60):
+    """Measurements and evidence of an early decoy: seen alone (through new objects at every
+    step) for W + 2 steps, then still every other step, while the truth comes in 3 steps of 4
+    (through new objects too); no noise, no outliers. Returns the (x, y, theta) of both, the
+    stream and the truth's first step."""
+    truth, decoy = np.array([4.0, -1.0, 0.7]), np.array([-2.0, 3.0, 2.5])
+    start = W + 2
+    zs, evidence = [], []
+    for t in range(steps):
+        z, ev = [], []
+        if t < start or t % 2 == 0:
+            z.append(decoy)
+            ev.append(np.array([[1000 + t, 2000 + t]]))
+        if t >= start and t % 4 != 3:
+            z.append(truth)
+            ev.append(np.array([[3000 + t, 4000 + t]]))
+        zs.append(np.array(z).reshape(-1, 3))
+        evidence.append(ev)
+    return truth, decoy, zs, evidence, start
+
+
+def test_outvoting_replaces_an_early_decoy_confirmed_every_other_step_within_W_plus_5():
+    """The decoy is accepted first and still confirmed every other step: the margin rule
+    never switches (the main hypothesis is confirmed too often), the truth seen more often
+    takes over within W + 5 steps of its first measurement with `switch_support`."""
+    W = TCAFFParams().window
+    truth, decoy, zs, evidence, start = moving_decoy_then_truth(W)
+    for params, replaced in ((TCAFFParams(switch_support=2), True), (TCAFFParams(), False)):
+        filt = TCAFF(params)
+        estimates = [filt.update(z, np.broadcast_to(R_CONSTANT, (len(z), 3, 3)), ev)
+                     for z, ev in zip(zs, evidence, strict=True)]
+        assert np.allclose(estimates[start - 1].x, decoy, atol=1e-6)
+        on_truth = [k for k in range(start, len(zs))
+                    if estimates[k] is not None and np.allclose(estimates[k].x, truth, atol=0.05)]
+        if replaced:
+            assert on_truth and on_truth[0] - start + 1 <= W + 5
+            assert on_truth == list(range(on_truth[0], len(zs)))  # and kept: no flapping back
+        else:
+            assert not on_truth or on_truth[0] - start + 1 > W + 5
+
+
+def test_a_look_alike_cluster_seen_at_every_step_outvotes_nothing():
+    """The truth is held; a wrong alignment that re-matches the same objects at every step
+    counts as seen once, however often: it does not replace a truth seen in 3 steps of 4."""
+    W = TCAFFParams().window
+    truth, decoy = np.array([4.0, -1.0, 0.7]), np.array([-2.0, 3.0, 2.5])
+    filt = TCAFF(TCAFFParams(switch_support=2))
+    for t in range(60):
+        z, ev = [], []
+        if t >= W + 2:
+            z.append(decoy)
+            ev.append(np.array([[1, 2]]))
+        if t < W + 2 or t % 4 != 3:
+            z.append(truth)
+            ev.append(np.array([[3000 + t, 4000 + t]]))
+        est = filt.update(np.array(z), np.broadcast_to(R_CONSTANT, (len(z), 3, 3)), ev)
+    assert filt.hypothesis == 1 and np.allclose(est.x, truth, atol=0.05)
+
+
+@pytest.mark.parametrize("value", [0, -1, 1.5, "2", True])
+def test_switch_support_is_validated(value):
+    with pytest.raises(ParameterError, match=r"TCAFFParams\.switch_support = "):
+        TCAFFParams(switch_support=value)
 
 
 def wrong_and_recovery(estimates, truth) -> tuple[int, int | None]:

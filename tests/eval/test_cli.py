@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from rich.console import Console
 from tcaff_gtsam.eval import cli
@@ -435,3 +436,32 @@ def test_help_still_works_and_tcaff_alone_shows_it(tcaff_main, capsys):
     assert tcaff_main("--help").returncode == 0
     alone = tcaff_main()
     assert alone.returncode == 2 and "error" not in alone.stderr
+
+
+def test_advise_kappa_prints_the_table_writes_it_and_follows_the_drift(tmp_path):
+    """The advice is the span the table shows within epsilon / 2; faster drift advises a
+    shorter span, and drift past the bound at 5 s advises none."""
+    out = tmp_path / "kappa.csv"
+    result = runner.invoke(app, ["advise-kappa", "--seeds", "2", "--minutes", "6", "--csv",
+                                 str(out)])
+    assert result.exit_code == 0, result.output
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert table.shape == (12, 4)
+    np.testing.assert_allclose(table[:, 3], table[:, 1:3].max(axis=1))
+    within = table[:, 0][np.cumprod(table[:, 3] <= 0.125).astype(bool)]
+    assert f"kappa: {within[-1]:g} s" in result.output
+    slow = runner.invoke(app, ["advise-kappa", "--seeds", "1", "--minutes", "6",
+                               "--heading-rw", "0.1", "--scale-std", "0.001"])
+    assert float(slow.output.split("kappa: ")[1].split()[0]) > within[-1]
+    fast = runner.invoke(app, ["advise-kappa", "--seeds", "1", "--minutes", "6",
+                               "--heading-rw", "60"])
+    assert "kappa: no span keeps the maps within epsilon / 2" in " ".join(fast.output.split())
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["--heading-rw", "nan"], "--heading-rw"), (["--speed", "-1"], "--speed"),
+    (["--epsilon", "0"], "--epsilon"), (["--seeds", "0"], "--seeds"),
+    (["--minutes", "inf"], "--minutes"), (["--range", "-0.5"], "--range")])
+def test_advise_kappa_refuses_bad_values_in_one_line(args, option):
+    one_line_error(subprocess.run([TCAFF, "advise-kappa", *args], capture_output=True,
+                                  text=True, timeout=120), option)
