@@ -120,6 +120,14 @@ def _refuse(option: str, value: object, rule: str, error: type | None = None) ->
     raise (error or ConfigError)(f"{option} {value!r}: {rule}")
 
 
+def _check_seeds(seeds: list[int] | None) -> list[int]:
+    """The --seed values given (default [0]); refused unless each is an int >= 0."""
+    for seed in seeds or []:
+        if seed < 0:
+            _refuse("--seed", seed, "must be an int >= 0")
+    return list(seeds or [0])
+
+
 def _check_duration(duration: float | None) -> None:
     """`--duration`: None, or a finite number of seconds >= 1 (inf, NaN and <= 0 refused)."""
     if duration is not None and not (math.isfinite(duration) and duration >= 1):
@@ -957,7 +965,7 @@ def mrclam(
         from tcaff_gtsam.errors import ConfigError
 
         raise ConfigError(f"--odometry {bad[0]!r}: expected raw or vio")
-    seeds = seed or [0]
+    seeds = _check_seeds(seed)
     _writable_folder(output, "--output")
     console.print(f"MRCLAM [bold]{escape(data.name)}[/]: odometry {', '.join(odometries)}, "
                   f"seeds {seeds}; data {data}")
@@ -1108,6 +1116,9 @@ def rgbd(
     _check_recording(rerun)
     if rate is not None and not (math.isfinite(rate) and rate > 0):
         _refuse("--rate", rate, "must be a finite number > 0 frames per second")
+    if not (math.isfinite(fps) and fps > 0):
+        _refuse("--fps", fps, "must be a finite number > 0 frames per second")
+    seeds = _check_seeds(seed)
     settings = override(load_rgbd(config), "command line",
                         methods=None if methods is None else load_methods(methods))
     odometries = odometry or [settings.odometry]
@@ -1133,7 +1144,7 @@ def rgbd(
     console.print(f"RGB-D [bold]{escape(', '.join(str(d) for d in data))}[/]: robots "
                   f"{', '.join(escape(w.label) for w in walks)} "
                   f"({', '.join(str(w.positions.size) for w in walks)} frames); odometry "
-                  f"{', '.join(odometries)}, seeds {seed or [0]}")
+                  f"{', '.join(odometries)}, seeds {seeds}")
     start_time = time.perf_counter()
     with _bars() as bars:
         tasks: dict[tuple[str, str], int] = {}
@@ -1143,7 +1154,7 @@ def rgbd(
                 tasks[name, stage] = bars.add_task(f"{name}: {stage}", total=1.0)
             bars.update(tasks[name, stage], completed=share)
 
-        outcomes = run_rgbd(settings, walks, output, odometries, seed or [0], resume, figures,
+        outcomes = run_rgbd(settings, walks, output, odometries, seeds, resume, figures,
                             progress)
     for outcome in outcomes:
         recorded = outcome.recorded
@@ -1332,6 +1343,9 @@ def node(
     if sum(x is not None for x in sources) != 1:
         _refuse("--scenario/--kimera/--replay", sources, "give exactly one")
     _check_speed(speed)
+    _check_seeds([seed])
+    if drop_seed < 0:
+        _refuse("--drop-seed", drop_seed, "must be an int >= 0")
     link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
     params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
                         seed=drop_seed, team_consistency=team_consistency)
@@ -1485,6 +1499,7 @@ def team(
     if sum(x is not None for x in sources) != 1:
         _refuse("--scenario/--mrclam/--kimera", sources, "give exactly one")
     _check_speed(speed)
+    _check_seeds([seed])
     tls = _tls(tls_ca, tls_cert, tls_key)
     _writable_folder(output, "--output")
     if scenario is not None:

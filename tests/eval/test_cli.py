@@ -465,3 +465,18 @@ def test_advise_kappa_prints_the_table_writes_it_and_follows_the_drift(tmp_path)
 def test_advise_kappa_refuses_bad_values_in_one_line(args, option):
     one_line_error(subprocess.run([TCAFF, "advise-kappa", *args], capture_output=True,
                                   text=True, timeout=120), option)
+
+
+@pytest.mark.parametrize("args", [
+    ["mrclam", "--data", "missing", "--seed", "-1"],
+    ["rgbd", "--data", "missing", "--seed", "-3"],
+    ["node", "--robot", "r0", "--scenario", "four_robots", "--seed", "-1"],
+    ["node", "--robot", "r0", "--scenario", "four_robots", "--drop-seed", "-2"],
+    ["team", "--scenario", "four_robots", "--seed", "-1"],
+    ["rgbd", "--data", "missing", "--fps", "0"],
+], ids=lambda args: f"{args[0]} {args[-2]}")
+def test_negative_seeds_and_a_zero_frame_rate_are_refused_in_one_line(args):
+    """Before any data is read or process started, naming the option (a negative seed used
+    to end in numpy's ValueError deep inside the random generator)."""
+    one_line_error(subprocess.run([TCAFF, *args], capture_output=True, text=True,
+                                  timeout=120), args[-2])
