@@ -327,9 +327,11 @@ def advise_kappa(
                           ("--speed", speed), ("--turn", turn), ("--range", landmark_range)):
         if not (math.isfinite(value) and value >= 0):
             _refuse(option, value, "must be a finite number >= 0")
-    for option, value in (("--epsilon", epsilon), ("--minutes", minutes)):
-        if not (math.isfinite(value) and value > 0):
-            _refuse(option, value, "must be a finite number > 0")
+    if not (math.isfinite(epsilon) and epsilon > 0):
+        _refuse("--epsilon", epsilon, "must be a finite number > 0")
+    if not (math.isfinite(minutes) and SPANS[-1] / 60.0 <= minutes <= 600.0):
+        _refuse("--minutes", minutes, f"must be between {SPANS[-1] / 60.0:g} (the longest "
+                "span tried) and 600")
     if seeds < 1:
         _refuse("--seeds", seeds, "must be an int >= 1")
     if csv is not None:
@@ -355,7 +357,8 @@ def advise_kappa(
                    comments="", fmt="%.6g")
     if advice.kappa is None:
         console.print(f"kappa: no span keeps the maps within epsilon / 2 ({worst[0]:.3f} m "
-                      f"at {SPANS[0]:g} s already); keep them short (the paper's 20 s)")
+                      f"at {SPANS[0]:g} s already): the maps disagree with themselves; better "
+                      f"odometry or a wider epsilon is needed")
     else:
         console.print(f"kappa: {advice.kappa:g} s (FrameAlignerParams(kappa=...) and "
                       f"MapperParams(kappa=...))")
@@ -1270,6 +1273,7 @@ def _simulated(scenario: str, seed: int, duration: float | None):
     from .config import load_scenario, override
     from .sim.simulate import simulate
 
+    _check_seeds([seed])
     _check_duration(duration)
     config = load_scenario(scenario)
     if duration is not None:
@@ -1447,6 +1451,7 @@ def _named(run, names: tuple[str, ...]) -> str:
 def _mrclam_run(data: Path, seed: int, duration: float | None):
     """The UTIAS MRCLAM data set in `data` as a recorded run (default settings, VIO-like
     odometry drawn with `seed`)."""
+    _check_seeds([seed])
     from .config import load_mrclam
     from .datasets import mrclam
     from .recorded import load_mrclam_run

@@ -298,9 +298,9 @@ class ObjectMapper:
         """(len(rows), B + 3) unit descriptors of the tracks at `rows`: the square roots of
         colour_weight times the colour histogram and of (1 - colour_weight) times the merged
         cloud's `objects.shape_features`, so that two descriptors' dot product weighs the
-        Bhattacharyya coefficients of colour and shape; None unless every one of those
-        tracks has both."""
-        if (np.isnan(self._colours[rows, 0]).any()
+        Bhattacharyya coefficients of colour and shape; None for no rows, or unless every
+        one of those tracks has both."""
+        if (rows.size == 0 or np.isnan(self._colours[rows, 0]).any()
                 or any(self._clouds[r] is None or len(self._clouds[r]) == 0 for r in rows)):
             return None
         w = self.params.colour_weight

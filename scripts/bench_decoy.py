@@ -6,9 +6,11 @@ later the robots part, the truth jumps and the overlap resumes (`eval.sim.stream
 decoy_stream`). For each preset, over the seeds:
 
 - false accepts: share of estimates more than 1 m or 5 deg from the truth;
-- recovery: steps from the truth's first measurement to the first correct estimate;
+- recovery: steps from the truth's arrival after the decoy came (`truth_from`: for the
+  "held" streams, after the decoy alone, not the truth's first 20 steps) to the first
+  correct estimate;
 - jump recovery: the same from the first correct measurement after the jump;
-- available: share of the steps from the truth's first measurement with a correct estimate;
+- available: share of the steps from `truth_from` with a correct estimate;
 - flaps: hypothesis changes after the first correct estimate, not counting the jump's (steps
   without an estimate are skipped).
 

@@ -505,10 +505,11 @@ class TCAFFParams(_ByValue):
             `switch_after` consecutive steps, whether or not a measurement confirmed the main
             hypothesis at those steps: an early wrong alignment still seen now and then is
             outvoted by the truth seen more often, W + `switch_after` steps after the truth's
-            first measurement. A path's measurements count as one while they re-match the same
-            objects (fewer than two distinct pieces of evidence, see `min_distinct`): a
-            look-alike cluster seen at every step outvotes nothing. None: only the
-            `switch_margin` rule.
+            first measurement. The main path's measurements count as they are; a rival's
+            count as one when together they bring fewer than two distinct pieces of evidence
+            (see `min_distinct`): a look-alike cluster re-matched at every step outvotes
+            nothing (one that also matches other objects now and then counts in full). None:
+            only the `switch_margin` rule; it needs `switch_after`.
         min_distinct: a hypothesis is accepted, or replaces the main one, only when its best
             path over the window holds at least this many distinct pieces of evidence: a
             measurement is distinct when it associates an object of each robot that no earlier
@@ -605,6 +606,9 @@ class TCAFFParams(_ByValue):
                  "must be an int >= 1")
         _require(self.switch_support is None or _int_at_least(self.switch_support, 1), o,
                  "switch_support", self.switch_support, "must be an int >= 1 or None")
+        _require(self.switch_support is None or self.switch_after is not None, o,
+                 "switch_support", self.switch_support,
+                 "needs switch_after (None never re-checks, so nothing would be outvoted)")
         _require(isinstance(self.switch_stale, bool), o, "switch_stale", self.switch_stale,
                  "must be True or False")
         _require(isinstance(self.withhold_contested, bool), o, "withhold_contested",

@@ -10,8 +10,8 @@ whose root-mean-square misplacement stays within epsilon / 2 (`advise_kappa`).
 
 `misplacement` measures it on any pair of trajectories (the truth and the odometry of the same
 robot, SE(2) poses of the body in a world and in the odometry frame); `vio_like_odometry` draws
-the VIO-like drift the project uses for recorded data (heading random walk, distance scale
-error) and `random_drive` a path to draw it on, for a user who knows their odometry's drift
+the VIO-like drift of the MRCLAM loader (heading random walk, distance scale error) and
+`random_drive` a path to draw it on, for a user who knows their odometry's drift
 rates but has no recording at hand.
 """
 
@@ -42,8 +42,9 @@ class KappaAdvice:
     Attributes:
         kappa: s, the longest span whose misplacement (and every shorter one's) stays within
             `bound`; None when even the shortest does not (the odometry drifts too fast for
-            any map of these spans to stay consistent: keep the span short and the aligner's
-            epsilon wide).
+            any map of these spans to stay consistent). A span without samples (NaN, longer
+            than the trajectory) ends the run: the advice is then at most the longest span
+            measured.
         spans: (s,) the spans tried, s, increasing.
         rms: (s,) the root-mean-square misplacement at each span, m (NaN: no sample).
         bound: epsilon / 2, m.
@@ -81,6 +82,12 @@ def _times(owner: str, times) -> np.ndarray:
     return arr
 
 
+def _check_rng(owner: str, rng) -> None:
+    if not isinstance(rng, np.random.Generator):
+        raise DataError(f"{owner}: rng must be a numpy Generator (np.random.default_rng(seed)), "
+                        f"got {type(rng).__name__}")
+
+
 def _at(times: np.ndarray, params: np.ndarray, at: np.ndarray) -> np.ndarray:
     """(q, 3, 3) poses at `at`, linear between the samples (angles unwrapped)."""
     heading = np.unwrap(params[:, 2])
@@ -113,9 +120,16 @@ def misplacement(times, T_world_body, T_odom_body, spans=SPANS, landmark_range: 
         DataError: any argument of the wrong shape or out of range.
     """
     o = "misplacement"
-    several = isinstance(times, (list, tuple))
-    runs = (list(zip(times, T_world_body, T_odom_body, strict=True)) if several
-            else [(times, T_world_body, T_odom_body)])
+    # several robots: sequences of arrays (a single robot's times may be a list of numbers)
+    several = isinstance(times, (list, tuple)) and len(times) > 0 and np.ndim(times[0]) == 1
+    if several:
+        if not all(isinstance(v, (list, tuple)) and len(v) == len(times)
+                   for v in (T_world_body, T_odom_body)):
+            raise DataError(f"{o}: with {len(times)} robots' times, T_world_body and "
+                            f"T_odom_body must be lists of {len(times)} pose arrays")
+        runs = list(zip(times, T_world_body, T_odom_body, strict=True))
+    else:
+        runs = [(times, T_world_body, T_odom_body)]
     spans = _spans(o, spans)
     if not (_finite(landmark_range) and landmark_range >= 0):
         raise DataError(f"{o}: landmark_range must be a finite number >= 0 metres, got "
@@ -179,6 +193,7 @@ def random_drive(rng: np.random.Generator, duration: float, speed: float,
             speed and turn).
     """
     o = "random_drive"
+    _check_rng(o, rng)
     for name, value, low in (("duration", duration, 0.0), ("step", step, 0.0)):
         if not (_finite(value) and value > low):
             raise DataError(f"{o}: {name} must be a finite number > 0, got {value!r}")
@@ -209,6 +224,7 @@ def vio_like_odometry(rng: np.random.Generator, times, T_world_body,
         DataError: arrays of the wrong shape, drift rates that are not finite numbers >= 0.
     """
     o = "vio_like_odometry"
+    _check_rng(o, rng)
     times = _times(o, times)
     T = _poses(o, "T_world_body", T_world_body, times.size)
     for name, value in (("heading_rw_deg_per_sqrt_min", heading_rw_deg_per_sqrt_min),

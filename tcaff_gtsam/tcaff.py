@@ -167,8 +167,9 @@ class TCAFF:
             Rs: (k, d, d) their covariances, symmetric positive definite.
             evidence: None, or k entries, one per measurement: None or an (m, 2) int array of
                 the (ego object id, other object id) pairs the measurement associates, ids
-                that persist across steps (`ObjectIdentities`). Used by `min_distinct` and
-                `switch_stale`; without it every measurement is distinct evidence.
+                that persist across steps (`ObjectIdentities`). Used by `min_distinct`,
+                `switch_stale`, `withhold_contested` and `switch_support`; without it every
+                measurement is distinct evidence.
         Returns:
             The estimate from the main tree's best leaf, or None while there is no main tree
             or it is not reported (`withhold_contested`, `report_after`; `held` has it).
@@ -278,7 +279,10 @@ class TCAFF:
             rival[rival] = [self._distinct_enough(complete, r) for r in np.flatnonzero(rival)]
         if prm.switch_support is not None:
             # ... but one seen less often than a rival is, confirmed or not
-            need = self._support(self._main.choice[m]) + prm.switch_support
+            # the main path's measurements count as they are: a true alignment re-matching
+            # the same objects (robots standing still) is not to be outvoted for it
+            need = (int(np.count_nonzero(self._main.choice[m, -prm.window:] >= 0))
+                    + prm.switch_support)
             for r in np.flatnonzero(inconsistent & ~rival & (cost < main_cost[m])):
                 rival[r] = (self._support(complete.choice[r]) >= need
                             and self._distinct_enough(complete, r))
@@ -325,9 +329,10 @@ class TCAFF:
         return any(self._distinct(explore.choice[r])[0] >= need for r in rivals)
 
     def _support(self, path: np.ndarray) -> int:
-        """How often a path's hypothesis was seen in the window: its measurements, but one
-        when they re-match the same objects (fewer than two distinct pieces of evidence), as a
-        look-alike cluster seen again and again is."""
+        """How often a rival's hypothesis was seen in the window: its measurements, or one
+        when together they bring fewer than two distinct pieces of evidence (a look-alike
+        cluster re-matched again and again). A path with two or more counts every
+        measurement, repeats included."""
         distinct = self._distinct(path)[0]
         return distinct if distinct < 2 else int(np.count_nonzero(
             path[-self.params.window:] >= 0))

@@ -313,10 +313,10 @@ def map_drift(data: MrclamData, odometry: str, seed: int | None, kappas: np.ndar
         times.append(t)
         truths.append(se2_from_params(_interpolate(record.truth[:, 0], record.truth[:, 1:4], t)))
         odometries.append(se2_from_params(_interpolate(odom_t, odom, t)))
-    order = np.argsort(kappas)
-    rms = np.empty(kappas.size)
-    rms[order] = misplacement(times, truths, odometries, kappas[order], landmark_range, every)
-    return rms
+    if kappas.size == 0:
+        return np.zeros(0)
+    spans, back = np.unique(kappas, return_inverse=True)  # increasing, as misplacement wants
+    return misplacement(times, truths, odometries, spans, landmark_range, every)[back]
 
 
 # -- maps --------------------------------------------------------------------------------------

@@ -301,8 +301,18 @@ def load_run(walks: list[Walk], kind: str, seed: int | None, kappa: float,
                         "once per second")
     mapper_params = MapperParams(kappa=kappa) if mapper_params is None else mapper_params
     maps, seconds, T_world_odom, T_odom_body = [], [], [], []
+    # sequences of one place share their world frame, and so their gravity
+    down = np.asarray(walks[0].sequence.gravity, float)
+    for w in walks[1:]:
+        other = np.asarray(w.sequence.gravity, float)
+        angle = math.degrees(math.acos(np.clip(down @ other / np.linalg.norm(down)
+                                               / np.linalg.norm(other), -1.0, 1.0)))
+        if angle > 0.5:
+            raise DataError(f"robots: {w.label}'s gravity {other.tolist()} is {angle:.1f} deg "
+                            f"from {walks[0].label}'s {down.tolist()}; sequences of one "
+                            "place share their world frame")
     T_level_world = np.eye(4)
-    T_level_world[:3, :3] = level_rotation(walks[0].sequence.gravity)
+    T_level_world[:3, :3] = level_rotation(down)
     for r, route in enumerate(walks):
         seq = route.sequence
         rng = None if seed is None else np.random.default_rng([seed, r])

@@ -166,6 +166,9 @@ def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 
     steps, then the decoy alone: a decoy met after the robots parted, while the filter holds
     the truth.
     """
+    for name, value in (("lead", lead), ("lead_gap", lead_gap)):
+        if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
+            raise DataError(f"decoy_stream: {name} = {value!r}: must be an int >= 0")
     start = lead + lead_gap  # the decoy's first step
     if not (0 < decoy_alone < steps - start and 0 <= p_truth <= 1 and 0 <= p_decoy <= 1):
         raise DataError(f"decoy_stream: need 0 < decoy_alone < steps - lead - lead_gap, rates "

@@ -44,6 +44,9 @@ def test_a_heading_error_after_the_sighting_misplaces_by_range_times_angle():
     rms = misplacement(times, T_true, T_odom, spans, landmark_range=3.0, every=1.0)
     np.testing.assert_allclose(rms, 2 * 3.0 * np.sin(rate * spans / 2), rtol=1e-9)
     assert np.isnan(misplacement(times, T_true, T_odom, np.array([150.0]))[0])
+    # a single robot's times may be a plain list
+    np.testing.assert_allclose(misplacement(times.tolist(), T_true, T_odom, spans, 3.0, 1.0),
+                               rms)
     # several robots pool their errors: the same robot twice gives the same figure
     np.testing.assert_allclose(misplacement([times, times], [T_true, T_true], [T_odom, T_odom],
                                             spans, 3.0, 1.0), rms)
@@ -103,6 +106,10 @@ def test_vio_like_drift_grows_with_its_rates_and_is_the_truth_without_them():
      "heading_rw_deg_per_sqrt_min"),
     (lambda t, T: random_drive(np.random.default_rng(0), math.inf, 1.0), "duration"),
     (lambda t, T: random_drive(np.random.default_rng(0), 10.0, -1.0), "speed"),
+    (lambda t, T: random_drive(None, 10.0, 1.0), "rng must be a numpy Generator"),
+    (lambda t, T: vio_like_odometry(0, t, T, 1.0, 0.01), "rng must be a numpy Generator"),
+    (lambda t, T: misplacement([t, t], [T], [T, T]), "must be lists of 2 pose arrays"),
+    (lambda t, T: misplacement([t, t], T, T), "must be lists of 2 pose arrays"),
 ])
 def test_bad_arguments_are_data_errors_naming_them(call, match):
     times, T = random_drive(np.random.default_rng(0), 30.0, 0.5, step=0.5)

@@ -512,6 +512,69 @@ def test_a_look_alike_cluster_seen_at_every_step_outvotes_nothing():
     assert filt.hypothesis == 1 and np.allclose(est.x, truth, atol=0.05)
 
 
+def test_a_true_alignment_re_matched_while_standing_still_is_not_outvoted():
+    """The truth re-matches the same objects (the robots stand still) in 7 steps of 8; a
+    wrong alignment moving through new objects is seen at every step: 8 is not 7 + 2, so
+    the truth stays."""
+    W = TCAFFParams().window
+    truth, decoy = np.array([4.0, -1.0, 0.7]), np.array([-2.0, 3.0, 2.5])
+    filt = TCAFF(TCAFFParams(switch_support=2))
+    for t in range(60):
+        z, ev = [], []
+        if t % 8 != 7:
+            z.append(truth)
+            ev.append(np.array([[1, 2]]))
+        if t >= W + 2:
+            z.append(decoy)
+            ev.append(np.array([[3000 + t, 4000 + t]]))
+        est = filt.update(np.array(z).reshape(-1, 3),
+                          np.broadcast_to(R_CONSTANT, (len(z), 3, 3)), ev)
+    assert filt.hypothesis == 1 and np.allclose(est.x, truth, atol=0.05)
+
+
+def test_outvoting_continues_the_same_after_save_and_load(tmp_path):
+    W = TCAFFParams().window
+    _, _, zs, evidence, _ = moving_decoy_then_truth(W)
+    params = TCAFFParams(switch_support=2)
+    for cut in (W + 4, W + 9, W + 14):
+        whole, part = TCAFF(params), TCAFF(params)
+        for k, (z, ev) in enumerate(zip(zs, evidence, strict=True)):
+            Rs = np.broadcast_to(R_CONSTANT, (len(z), 3, 3))
+            a = whole.update(z, Rs, ev)
+            if k == cut:
+                part.save(tmp_path / "filter.npz")
+                part = TCAFF.load(tmp_path / "filter.npz")
+            b = part.update(z, Rs, ev)
+            assert (a is None) == (b is None) and (a is None or (
+                a.hypothesis == b.hypothesis and np.allclose(a.x, b.x))), (cut, k)
+
+
+@pytest.mark.parametrize(("changes", "name"), [({"lead": -1}, "lead"),
+                                               ({"lead_gap": -5, "lead": 5}, "lead_gap"),
+                                               ({"lead": 2.5}, "lead")])
+def test_decoy_stream_refuses_negative_leads_naming_them(changes, name):
+    with pytest.raises(DataError, match=rf"decoy_stream: {name} = "):
+        decoy_stream(np.random.default_rng(0), **changes)
+
+
+def test_a_held_stream_shows_the_truth_then_the_decoy_alone():
+    stream = decoy_stream(np.random.default_rng(2), steps=100, lead=20, lead_gap=10,
+                          decoy_alone=12, p_truth=1.0, p_decoy=0.5, outliers=(0, 0),
+                          jump_at=None, decoy_moves=True)
+    assert stream.truth_from == 42
+    assert all(stream.correct[t] >= 0 for t in range(20))
+    assert all(len(stream.zs[t]) == 0 for t in range(20, 30))
+    assert all(len(stream.zs[t]) == 1 and stream.correct[t] < 0 for t in range(30, 42))
+    assert all(stream.correct[t] >= 0 for t in range(42, 100))
+    decoy_ids = [stream.evidence[t][0][0, 0] for t in range(30, 42)]
+    assert len(set(decoy_ids)) > 1  # the decoy moves through new objects
+
+
+def test_switch_support_needs_switch_after():
+    with pytest.raises(ParameterError, match=r"switch_support = 2: needs switch_after"):
+        TCAFFParams(switch_support=2, switch_after=None)
+
+
 @pytest.mark.parametrize("value", [0, -1, 1.5, "2", True])
 def test_switch_support_is_validated(value):
     with pytest.raises(ParameterError, match=r"TCAFFParams\.switch_support = "):

@@ -166,6 +166,10 @@ def test_map_drift_is_zero_without_drift_and_grows_with_it(dataset):
     assert np.all(mrclam.map_drift(data, "raw", None, kappas, 0.0, 0.0) < 0.05)
     # longer than the data set: nothing to measure
     assert np.isnan(mrclam.map_drift(data, "vio", 0, np.array([1e4]), 1.0, 0.01)[0])
+    # in any order, repeats included, each kappa gets its own figure
+    shuffled = mrclam.map_drift(data, "vio", 0, np.array([30.0, 2.0, 30.0, 8.0]), 1.0, 0.01)
+    np.testing.assert_allclose(shuffled, weak[[2, 0, 2, 1]])
+    assert mrclam.map_drift(data, "vio", 0, np.zeros(0), 1.0, 0.01).shape == (0,)
     for bad in (np.array([0.0]), np.array([np.nan]), np.ones((2, 2))):
         with pytest.raises(DataError, match="kappas"):
             mrclam.map_drift(data, "vio", 0, bad, 1.0, 0.01)

@@ -671,6 +671,7 @@ def test_descriptors_are_unit_and_weigh_colour_and_shape(seed, colour_weight):
 
 
 def test_descriptors_need_colours_and_clouds_for_every_confirmed_track():
+    assert ObjectMapper().object_map().descriptors is None  # an empty map has none
     cloud = voxel_grid((0, 0, 0), (10, 10, 10))
     mapper = ObjectMapper(MapperParams(nu=1))
     observe_clouds(mapper, 0.0, [cloud])
