@@ -9,12 +9,12 @@ from precompiled import signatures_around
 #: tests/core/test_precompile.py checks)
 ENTRY_KERNELS = [("tcaff_gtsam.eval.tracker", "_advance"),
                  ("tcaff_gtsam.mapping.objects", "footprint_rectangles"),
-                 ("tcaff_gtsam.mapping.segment", "_expand"),
-                 ("tcaff_gtsam.mapping.segment", "_ransac_round"),
-                 ("tcaff_gtsam.mapping.segment", "_mask_moments"),
-                 ("tcaff_gtsam.mapping.segment", "_edge_band"),
-                 ("tcaff_gtsam.mapping.segment", "_label_moments"),
-                 ("tcaff_gtsam.mapping.segment", "_restore_slices"),
+                 ("tcaff_gtsam.mapping.depth_grid", "_expand"),
+                 ("tcaff_gtsam.mapping.structure", "_ransac_round"),
+                 ("tcaff_gtsam.mapping.masks", "_mask_moments"),
+                 ("tcaff_gtsam.mapping.masks", "_edge_band"),
+                 ("tcaff_gtsam.mapping.masks", "_label_moments"),
+                 ("tcaff_gtsam.mapping.structure", "_restore_slices"),
                  ("tcaff_gtsam.clipper", "_mno")]
 
 
