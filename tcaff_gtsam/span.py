@@ -27,8 +27,8 @@ from .geometry import _se2_from_params, _se2_to_params, wrap_angle
 from .inputs import real_array
 from .params import ClipperParams, _finite
 
-__all__ = ["SPANS", "KappaAdvice", "advise_kappa", "misplacement", "random_drive",
-           "vio_like_odometry"]
+__all__ = ["SPANS", "KappaAdvice", "advise_kappa", "interpolate_poses", "misplacement",
+           "random_drive", "vio_like_odometry"]
 
 #: the spans tried by default, s: 30 s steps from 30 s, as the MRCLAM config's rule, with 5,
 #: 10 and 20 s (the paper's outdoor and indoor choices) before them
@@ -88,12 +88,19 @@ def _check_rng(owner: str, rng) -> None:
                         f"got {type(rng).__name__}")
 
 
+def interpolate_poses(times: np.ndarray, poses: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """(q, 3) poses (x, y, theta) at the times `at` (q,) s, linear between the samples
+    `poses` (k, 3) at `times` (k,) s, increasing (headings unwrapped, so a turn through
+    +-pi is interpolated the short way); held at the ends."""
+    heading = np.unwrap(poses[:, 2])
+    return np.column_stack([np.interp(at, times, poses[:, 0]),
+                            np.interp(at, times, poses[:, 1]),
+                            wrap_angle(np.interp(at, times, heading))])
+
+
 def _at(times: np.ndarray, params: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """(q, 3, 3) poses at `at`, linear between the samples (angles unwrapped)."""
-    heading = np.unwrap(params[:, 2])
-    return _se2_from_params(np.column_stack([
-        np.interp(at, times, params[:, 0]), np.interp(at, times, params[:, 1]),
-        wrap_angle(np.interp(at, times, heading))]))
+    """(q, 3, 3) SE(2) poses at `at` (`interpolate_poses`)."""
+    return _se2_from_params(interpolate_poses(times, params, at))
 
 
 def misplacement(times, T_world_body, T_odom_body, spans=SPANS, landmark_range: float = 2.0,

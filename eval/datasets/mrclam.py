@@ -41,9 +41,9 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.geometry import se2_from_params, se2_to_params, se2_to_se3, wrap_angle
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params, se2_to_se3
 from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.span import misplacement, vio_like_odometry
+from tcaff_gtsam.span import interpolate_poses, misplacement, vio_like_odometry
 
 from ..runs import RecordedRun, RunSettings
 
@@ -215,13 +215,6 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
 # -- odometry ----------------------------------------------------------------------------------
 
 
-def _interpolate(times: np.ndarray, poses: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """(q, 3) poses (x, y, theta) at `at` [s], linear between the samples (angles unwrapped)."""
-    heading = np.unwrap(poses[:, 2])
-    return np.column_stack([np.interp(at, times, poses[:, 0]), np.interp(at, times, poses[:, 1]),
-                            wrap_angle(np.interp(at, times, heading))])
-
-
 def dead_reckoning(odometry: np.ndarray, start: float) -> tuple[np.ndarray, np.ndarray]:
     """Poses integrated from commanded velocities, the odometry frame at the pose at `start`.
 
@@ -238,7 +231,7 @@ def dead_reckoning(odometry: np.ndarray, start: float) -> tuple[np.ndarray, np.n
     xy = np.vstack([np.zeros(2), np.cumsum(np.column_stack([chord * np.cos(mid),
                                                             chord * np.sin(mid)]), axis=0)])
     poses = np.column_stack([xy, theta])
-    origin = se2_from_params(_interpolate(t, poses, np.array([start]))[0])
+    origin = se2_from_params(interpolate_poses(t, poses, np.array([start]))[0])
     local = np.linalg.solve(origin, se2_from_params(poses))
     return t, np.column_stack([local[:, 0, 2], local[:, 1, 2],
                                np.arctan2(local[:, 1, 0], local[:, 0, 0])])
@@ -258,7 +251,7 @@ def vio_like(rng: np.random.Generator, truth: np.ndarray, start: float, end: flo
     """
     # one sample past the end, so that a pose at `end` is interpolated, never clamped
     times = start + _VIO_STEP * np.arange(math.ceil((end - start) / _VIO_STEP) + 2)
-    T = se2_from_params(_interpolate(truth[:, 0], truth[:, 1:4], times))
+    T = se2_from_params(interpolate_poses(truth[:, 0], truth[:, 1:4], times))
     return times, se2_to_params(vio_like_odometry(rng, times, T, heading_rw_deg_per_sqrt_min,
                                                   scale_std))
 
@@ -311,8 +304,9 @@ def map_drift(data: MrclamData, odometry: str, seed: int | None, kappas: np.ndar
         # both on the odometry's times within the data set's span
         t = np.unique(odom_t[(odom_t >= start) & (odom_t <= end)])
         times.append(t)
-        truths.append(se2_from_params(_interpolate(record.truth[:, 0], record.truth[:, 1:4], t)))
-        odometries.append(se2_from_params(_interpolate(odom_t, odom, t)))
+        truths.append(se2_from_params(interpolate_poses(record.truth[:, 0],
+                                                        record.truth[:, 1:4], t)))
+        odometries.append(se2_from_params(interpolate_poses(odom_t, odom, t)))
     if kappas.size == 0:
         return np.zeros(0)
     spans, back = np.unique(kappas, return_inverse=True)  # increasing, as misplacement wants
@@ -326,7 +320,7 @@ def _maps(sightings: np.ndarray, odom_times: np.ndarray, odom_poses: np.ndarray,
           exchanges: np.ndarray, kappa: float, nu: int) -> tuple[list[ObjectMap], list[np.ndarray]]:
     """The robot's map at each exchange, and the landmark subject of each entry."""
     t = sightings[:, 0]
-    pose = _interpolate(odom_times, odom_poses, t)
+    pose = interpolate_poses(odom_times, odom_poses, t)
     r, b = sightings[:, 2], sightings[:, 3]
     x = pose[:, 0] + r * np.cos(pose[:, 2] + b)
     y = pose[:, 1] + r * np.sin(pose[:, 2] + b)
@@ -389,8 +383,8 @@ def load_run(data: MrclamData, odometry: str, seed: int | None, kappa: float, nu
                                          kappa, nu)
         maps.append(robot_maps)
         labels.append(robot_labels)
-        T_ob = se2_from_params(_interpolate(odom_t, odom, exchanges))
-        T_wb = se2_from_params(_interpolate(record.truth[:, 0], record.truth[:, 1:4],
+        T_ob = se2_from_params(interpolate_poses(odom_t, odom, exchanges))
+        T_wb = se2_from_params(interpolate_poses(record.truth[:, 0], record.truth[:, 1:4],
                                             exchanges))
         T_world_odom.append(se2_to_se3(T_wb @ np.linalg.inv(T_ob)))
         T_odom_body.append(se2_to_se3(T_ob))
