@@ -1,0 +1,211 @@
+"""The shared part of the `tcaff` command line: the typer `app` every command module registers
+on, the stdout and stderr consoles, the tables of numbers (`_table`, `_add_columns`,
+`_keep_numbers_whole`, the pooled study table several commands print), the progress bars, and
+the checks of common options (`_refuse`, `_check_seeds`, `_check_duration`, `_writable_folder`,
+`_check_recording`). Like the rest of the command line it imports only typer when loaded;
+everything else is imported by the function that uses it.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.progress import Progress as RichProgress
+    from rich.table import Table
+
+    from .config import MethodsConfig
+
+# The same folder as config.CONFIG_DIR, found without importing config (pydantic).
+_CONFIG_DIR = Path(__file__).parent / "configs"
+
+
+def _shipped(kind: str) -> str:
+    """The shipped configs of one kind (a folder of `configs/`), as a comma-separated list."""
+    names = sorted(path.stem for path in (_CONFIG_DIR / kind).glob("*.yaml"))
+    return ", ".join(names) if names else "none shipped"
+
+
+app = typer.Typer(
+    help="Align the coordinate frames of robots from their object maps (TCAFF).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _console(stderr: bool = False) -> Console:
+    """The rich console of stdout (or stderr), made on first use."""
+    # The cache is the entry point's `cli._consoles`: tests replace it to make them again.
+    from . import cli
+
+    consoles = cli._consoles
+    if stderr not in consoles:
+        from rich.console import Console
+
+        console = Console(stderr=stderr)
+        if not stderr and not console.is_terminal:
+            # piped output and CI logs: room for the widest table (the study's, 118 columns)
+            # with a few more digits in its timings on a busy machine, labels unwrapped
+            console.width = 140
+        consoles[stderr] = console
+    return consoles[stderr]
+
+
+def _table(title: str) -> Table:
+    """A table of numbers: first column labels, the others values, see `_keep_numbers_whole`."""
+    from rich import box
+    from rich.table import Table
+
+    # Compact padding: the study table then fits 120 columns without wrapping a label.
+    return Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, collapse_padding=True,
+                 pad_edge=False)
+
+
+def _add_columns(table: Table, names: tuple[str, ...], labelled: bool = True) -> None:
+    """Columns named `names`; with `labelled` the first holds labels (left-aligned)."""
+    from rich.markup import escape
+
+    for index, name in enumerate(names):
+        table.add_column(escape(name), justify="left" if labelled and index == 0 else "right",
+                         overflow="fold")
+
+
+def _keep_numbers_whole(table: Table, labelled: bool = True) -> Table:
+    """Give every value column (all but the first when `labelled`) the width of its longest word.
+
+    On a narrow terminal rich squeezes columns and folds or cuts what no longer fits; with these
+    minimum widths it can still wrap a cell at a space ("0.12 ±" over "0.03") and fold headers
+    and labels, but never breaks a number. Call once all rows are added.
+    """
+    from rich.cells import cell_len
+    from rich.text import Text
+
+    for column in table.columns[1 if labelled else 0:]:
+        words = [word for cell in column.cells if isinstance(cell, str)
+                 for word in Text.from_markup(cell).plain.split()]
+        column.min_width = max(map(cell_len, words), default=None)
+    return table
+
+
+def _refuse(option: str, value: object, rule: str, error: type | None = None) -> None:
+    """Raise a one-line `ConfigError` (or `error`) naming a command-line option and its value."""
+    from tcaff_gtsam.errors import ConfigError
+
+    raise (error or ConfigError)(f"{option} {value!r}: {rule}")
+
+
+def _check_seeds(seeds: list[int] | None) -> list[int]:
+    """The --seed values given (default [0]); refused unless each is an int >= 0."""
+    for seed in seeds or []:
+        if seed < 0:
+            _refuse("--seed", seed, "must be an int >= 0")
+    return list(seeds or [0])
+
+
+def _check_duration(duration: float | None) -> None:
+    """`--duration`: None, or a finite number of seconds >= 1 (inf, NaN and <= 0 refused)."""
+    if duration is not None and not (math.isfinite(duration) and duration >= 1):
+        _refuse("--duration", duration, "must be a finite number of seconds >= 1")
+
+
+def _writable_folder(path: Path, option: str) -> None:
+    """Check, before any work starts, that `path` is a folder results can be written to,
+    making it when missing; a `DataError` naming `option` otherwise."""
+    import tempfile
+
+    from tcaff_gtsam.errors import DataError
+
+    if path.exists() and not path.is_dir():
+        _refuse(option, str(path), "exists and is not a folder", DataError)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        _refuse(option, str(path), f"not a writable folder ({exc.strerror or exc})", DataError)
+
+
+_RERUN_HELP = ("Also write a Rerun recording of the runs to this .rrd file (needs the extra viz); "
+               "open it with `rerun FILE.rrd`.")
+
+
+def _check_recording(path: Path | None) -> None:
+    """Before any work: rerun-sdk is there and `path` can become a recording file."""
+    if path is None:
+        return
+    from .recording import check_rerun
+
+    check_rerun()
+    if path.is_dir():
+        _refuse("--rerun", str(path), "is a folder, not a file")
+    _writable_folder(path.parent, "--rerun")
+
+
+def _record(path: Path | None, jobs: list) -> None:
+    """The runs into a Rerun recording, when asked for and there are runs."""
+    if path is None or not jobs:
+        return
+    from .recording import record
+
+    record(path, jobs)
+    _console().print(f"recording: {path} (open it with: rerun {path})", soft_wrap=True)
+
+
+
+def _bars() -> RichProgress:
+    """Progress bars that vanish when done, elapsed time on the right."""
+    from rich.progress import (
+        BarColumn,
+        SpinnerColumn,
+        TaskProgressColumn,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+    from rich.progress import Progress as RichProgress
+
+    return RichProgress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
+                        TaskProgressColumn(), TimeElapsedColumn(), console=_console(),
+                        transient=True)
+
+
+def _cell(report: dict, key: str, scale: float = 1.0, digits: int = 2) -> str:
+    value = report.get(key)
+    return "-" if value is None else f"{scale * value:.{digits}f}"
+
+
+def _summary_table(summary: dict, methods: MethodsConfig) -> Table:
+    """The study table of the methods a method set shows, labelled as in the figures."""
+    from .registry import describe, shown_streams
+
+    return _pooled_table(summary, {m: describe(m).label for m in shown_streams(methods)})
+
+
+def _pooled_table(summary: dict, labels: dict[str, str]) -> Table:
+    """summary: scenario -> method -> report; labels: method -> printed name, in table order."""
+    from rich.markup import escape
+
+    table = _table("Frame alignment, pooled over directed pairs and seeds (mean ± std)")
+    _add_columns(table, ("method", "translation [m]", "heading [deg]", "available",
+                         "false acc.", "1st correct [s]", "APE, RPE [m]", "ms"))
+    for scenario, by_method in summary.items():
+        table.add_row(f"[bold]{escape(scenario)}[/]")
+        for row, (method, label) in enumerate(labels.items()):
+            r = by_method[method]
+            table.add_row(
+                "  " + escape(label),
+                f"{_cell(r, 'translation_error_m_mean')} ± {_cell(r, 'translation_error_m_std')}",
+                f"{_cell(r, 'heading_error_deg_mean')} ± {_cell(r, 'heading_error_deg_std')}",
+                f"{_cell(r, 'availability', 100, 0)} "
+                f"({_cell(r, 'correct_availability', 100, 0)}) %",
+                _cell(r, "false_accept", 100, 1) + " %",
+                _cell(r, "time_to_first_correct_s", digits=0),
+                f"{_cell(r, 'ape_m')}, {_cell(r, 'rpe_m')}",
+                _cell(r, "ms_per_pair_step", digits=2),
+                end_section=row == len(labels) - 1)
+    return _keep_numbers_whole(table)

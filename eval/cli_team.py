@@ -1,0 +1,368 @@
+"""The `tcaff` commands of a live team of robots over Zenoh: node (one robot), team (a node
+process per robot of a simulated or recorded run on this machine, and the table of their
+alignments against the truth) and listen (a live table of a team's alignments), with the runs
+they replay (simulated, MRCLAM, Kimera-Multi) and their TLS options.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from .cli_common import (
+    _add_columns,
+    _bars,
+    _check_duration,
+    _check_seeds,
+    _console,
+    _keep_numbers_whole,
+    _refuse,
+    _shipped,
+    _table,
+    _writable_folder,
+    app,
+)
+from .cli_datasets import _kimera_bars
+
+if TYPE_CHECKING:
+    from rich.table import Table
+
+
+_TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
+             "mutual TLS).")
+_TEAM_HELP = ("Also publish each pair's team-consistent alignment (those failing a cycle of "
+              "three robots left out, missing ones chained through a third) on team/<other> "
+              "keys and in <robot>.team.csv.")
+_KIMERA_HELP = ("Or a folder of Kimera-Multi rosbags and <robot>_gt_odom.csv files to replay, "
+                "mapped through the RGB-D front end (maps saved in OUTPUT/maps/ and reused).")
+_KIMERA_TEST_HELP = (f"With --kimera: the Kimera-Multi test YAML or shipped name "
+                     f"({_shipped('kimera_multi')}) naming the robots, topics and settings.")
+
+
+def _tls(ca: Path | None, cert: Path | None, key: Path | None):
+    """The team's TLS files, all three or none."""
+    from tcaff_gtsam.node.link import TlsFiles
+
+    given = [x is not None for x in (ca, cert, key)]
+    if not any(given):
+        return None
+    if not all(given):
+        _refuse("--tls-ca/--tls-cert/--tls-key", [str(x) for x in (ca, cert, key)],
+                "give all three or none")
+    return TlsFiles(ca, cert, key)
+
+
+def _simulated(scenario: str, seed: int, duration: float | None):
+    """The simulated run of a scenario (capped to `duration` s), the same in every process."""
+    from .config import load_scenario, override
+    from .sim.simulate import simulate
+
+    _check_seeds([seed])
+    _check_duration(duration)
+    config = load_scenario(scenario)
+    if duration is not None:
+        config = override(config, "--duration", duration=min(duration, config.duration))
+    return simulate(config, seed)
+
+
+def _check_speed(speed: float) -> None:
+    if not (math.isfinite(speed) and speed > 0):
+        _refuse("--speed", speed, "must be a finite number > 0 (run seconds per wall second)")
+
+
+@app.command()
+def node(
+    robot: Annotated[str, typer.Option(help="This robot's name: r0, r1, ... of the run.")],
+    scenario: Annotated[str | None, typer.Option(
+        help=f"Replay this robot of a simulated scenario: {_shipped('scenarios')} (or a "
+             f"YAML).")] = None,
+    replay: Annotated[Path | None, typer.Option(
+        help="Replay this robot from a replay file (what `tcaff team` writes to "
+             "<output>/replay/).")] = None,
+    kimera: Annotated[Path | None, typer.Option(help=_KIMERA_HELP)] = None,
+    kimera_test: Annotated[str, typer.Option(help=_KIMERA_TEST_HELP)] = "same_direction",
+    team: Annotated[str, typer.Option(help="Team name: keys are tcaff/<team>/<robot>/...")
+    ] = "team",
+    listen: Annotated[list[str] | None, typer.Option(
+        help="host:port to accept peers on (repeat for more).")] = None,
+    connect: Annotated[list[str] | None, typer.Option(
+        help="host:port of a peer to dial (repeat; retried until it is up).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the simulated run.")] = 0,
+    duration: Annotated[float | None, typer.Option(help="Cap the run (s).")] = None,
+    speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
+    start_at: Annotated[float | None, typer.Option(
+        help="Wall time (epoch s) of the run's first exchange, shared by the team; "
+             "default: 1 s after every robot of the run is up. A node started after it "
+             "joins where the run is.")] = None,
+    output: Annotated[Path, typer.Option(
+        help="Folder for <robot>.csv (every alignment), <robot>.json (counters) and, "
+             "with --kimera, maps/ (each robot's maps, reused by later runs).")
+    ] = Path("results/team"),
+    state: Annotated[Path | None, typer.Option(
+        help="Folder to save each filter after each step and restore them from on start.")
+    ] = None,
+    silence: Annotated[float, typer.Option(
+        help="s without a neighbour's map before its filter steps without measurements.")
+    ] = 3.0,
+    clock_offset: Annotated[float, typer.Option(
+        help="s added to this robot's clock (to try robots whose clocks differ).")] = 0.0,
+    drop_share: Annotated[float, typer.Option(
+        help="Share of neighbours' maps to discard on arrival (to try a lossy link).")] = 0.0,
+    drop_seed: Annotated[int, typer.Option(help="Seed of the discards.")] = 0,
+    team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
+    tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
+    tls_cert: Annotated[Path | None, typer.Option(
+        help="PEM file: this node's certificate, signed by the team's authority.")] = None,
+    tls_key: Annotated[Path | None, typer.Option(help="PEM file: this node's private key.")
+    ] = None,
+) -> None:
+    """One robot of a live team: publishes its maps over Zenoh, aligns to every neighbour.
+
+    The robot's maps are replayed (--scenario, --kimera or --replay) on a wall-clock schedule
+    that the robots of one run share through --start-at. From Python,
+    `tcaff_gtsam.node.RobotNode` takes maps from a live mapping pipeline instead.
+    """
+    from tcaff_gtsam.node.link import Link
+    from tcaff_gtsam.node.node import NodeParams
+    from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
+    from tcaff_gtsam.node.run import replay_node
+
+    sources = [scenario, kimera and str(kimera), replay and str(replay)]
+    if sum(x is not None for x in sources) != 1:
+        _refuse("--scenario/--kimera/--replay", sources, "give exactly one")
+    _check_speed(speed)
+    _check_seeds([seed])  # before the endpoints are checked: the run is made after them
+    if drop_seed < 0:
+        _refuse("--drop-seed", drop_seed, "must be an int >= 0")
+    link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
+    params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
+                        seed=drop_seed, team_consistency=team_consistency)
+    _writable_folder(output, "--output")
+    if replay is not None:
+        source = RobotReplay.load(replay)
+        if robot != source.robots[source.robot]:
+            _refuse("--robot", robot, f"{replay} replays {source.robots[source.robot]}")
+    else:
+        run = (_simulated(scenario, seed, duration) if kimera is None
+               else _kimera_run(kimera, kimera_test, duration, output / "maps"))
+        names = robot_names(run.n_robots)
+        if robot not in names:
+            _refuse("--robot", robot, f"the run's robots are {_named(run, names)}")
+        source = run_replay(run, names.index(robot), names)
+    node_ = replay_node(source, team, link, params, start_at, output, clock_offset, state)
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items()))
+    print(f"{robot}: {counts}")
+
+
+def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -> Table:
+    """Per directed pair: alignments made, accepted share, final and median error (the team
+    alignments of `<robot>.team.csv` when `team`, with the share chained through a robot)."""
+    import json
+
+    import numpy as np
+    from tcaff_gtsam.node.results import COLUMNS, TEAM_COLUMNS, read_alignments
+
+    from tcaff_gtsam.errors import DataError
+    from tcaff_gtsam.geometry import se2_to_params, wrap_angle
+
+    table = _table("Per directed pair: the team-consistent alignments against the truth" if team
+                   else "Per directed pair: the node's alignments against the truth")
+    _add_columns(table, ("pair", "steps", "accepted", *(("chained",) if team else ()),
+                         "median error [m, deg]", "last error [m, deg]"))
+    for i, robot in enumerate(names):
+        try:
+            rows = (read_alignments(output / f"{robot}.team.csv", TEAM_COLUMNS) if team
+                    else read_alignments(output / f"{robot}.csv", COLUMNS))
+        except DataError:
+            continue
+        for j, other in enumerate(names):
+            mine = rows["neighbour"] == other
+            if i == j or not mine.any():
+                continue
+            seq = rows["seq"][mine].astype(int)
+            accepted = rows["accepted"][mine] == 1
+            truth = se2_to_params(run.T_true(i, j)[seq])
+            x = np.column_stack([rows[c][mine] for c in ("x", "y", "theta")])
+            dt = np.linalg.norm(x[:, :2] - truth[:, :2], axis=1)
+            dh = np.degrees(np.abs(wrap_angle(x[:, 2] - truth[:, 2])))
+            scored = accepted & np.isfinite(dt)  # a recorded run may lack the truth
+            med = (f"{np.median(dt[scored]):.2f}, {np.median(dh[scored]):.1f}"
+                   if scored.any() else "-")
+            last = f"{dt[-1]:.2f}, {dh[-1]:.1f}" if scored[-1] else "-"
+            chained = ([f"{100 * (rows['via'][mine][accepted] != '').mean():.0f} %"
+                        if accepted.any() else "-"] if team else [])
+            table.add_row(f"{robot}->{other}", str(mine.sum()),
+                          f"{100 * accepted.mean():.0f} %", *chained, med, last)
+    late = {"dropped_stale": 0, "silent_steps": 0}
+    for robot in names:
+        path = output / f"{robot}.json"
+        counters = json.loads(path.read_text()) if path.exists() else {}
+        for key in late:
+            late[key] += counters.get(key, 0)
+    if any(late.values()) and not team:
+        table.caption = (f"{late['dropped_stale']} maps came too late and "
+                         f"{late['silent_steps']} steps had no neighbour's map: the team fell "
+                         f"behind its schedule (try a lower --speed) or lost maps")
+    return _keep_numbers_whole(table)
+
+
+def _kimera_run(data: Path, test: str, duration: float | None, maps: Path):
+    """The Kimera-Multi test `test` on the bags in `data` as a recorded run: every robot's
+    RGB-D frames through the front end, with progress bars; the maps are saved in `maps` and
+    reused by a later call with the same settings and bags."""
+    _check_duration(duration)
+    if not Path(data).is_dir():
+        _refuse("--kimera", str(data), "must be a folder of Kimera-Multi bags")
+    from .config import load_kimera_multi
+    from .datasets import kimera_multi  # the RGB-D front end: loaded only when needed
+
+    config = load_kimera_multi(test)
+    if duration is not None:
+        config = config.model_copy(update={"duration": duration})
+    with _bars() as bars:
+        run, _, _ = kimera_multi.load_run(config, data, maps, True, _kimera_bars(bars))
+    return run
+
+
+def _named(run, names: tuple[str, ...]) -> str:
+    """"r0, r1" or, for a data set that names its robots, "r0 (acl_jackal2), r1 (...)"."""
+    own = getattr(run, "robot_names", ())
+    if not own or tuple(own) == tuple(str(k) for k in range(len(names))):
+        return ", ".join(names)
+    return ", ".join(f"{n} ({o})" for n, o in zip(names, own, strict=True))
+
+
+def _mrclam_run(data: Path, seed: int, duration: float | None):
+    """The UTIAS MRCLAM data set in `data` as a recorded run (default settings, VIO-like
+    odometry drawn with `seed`)."""
+    _check_seeds([seed])
+    from .config import load_mrclam
+    from .datasets import mrclam
+    from .recorded import load_mrclam_run
+
+    _check_duration(duration)
+    config = load_mrclam("default")
+    return load_mrclam_run(mrclam.read_dataset(data), config, config.odometry, seed,
+                           duration or None)
+
+
+@app.command()
+def team(
+    scenario: Annotated[str | None, typer.Option(
+        help=f"Simulated scenario to replay: {_shipped('scenarios')} (or a YAML).")] = None,
+    mrclam: Annotated[Path | None, typer.Option(
+        help="Or a UTIAS MRCLAM data set folder to replay (one node per robot; the "
+             "'default' MRCLAM settings).")] = None,
+    kimera: Annotated[Path | None, typer.Option(help=_KIMERA_HELP)] = None,
+    kimera_test: Annotated[str, typer.Option(help=_KIMERA_TEST_HELP)] = "same_direction",
+    seed: Annotated[int, typer.Option(
+        help="Seed of the simulated run (MRCLAM: of its VIO-like odometry).")] = 0,
+    speed: Annotated[float, typer.Option(help="Run seconds per wall second.")] = 1.0,
+    duration: Annotated[float | None, typer.Option(help="Cap the run (s).")] = None,
+    team_name: Annotated[str, typer.Option("--team", help="Team name.")] = "team",
+    base_port: Annotated[int, typer.Option(
+        help="Robot k listens on 127.0.0.1:<base-port + k>; 0: free ports.")] = 0,
+    output: Annotated[Path, typer.Option(help="Folder for every node's CSV, counters, log.")
+    ] = Path("results/team"),
+    drop_share: Annotated[float, typer.Option(
+        help="Share of maps each node discards on arrival (a lossy link).")] = 0.0,
+    team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
+    tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
+    tls_cert: Annotated[Path | None, typer.Option(help="PEM file: the nodes' certificate.")
+    ] = None,
+    tls_key: Annotated[Path | None, typer.Option(help="PEM file: the nodes' private key.")
+    ] = None,
+) -> None:
+    """Start one node process per robot of a simulated or recorded run on this machine
+    (Zenoh over loopback), wait for the run to end, and print every pair's alignments against
+    the truth. Robots are named r0, r1, ... in the run's order.
+
+    Kimera-Multi bags (--kimera) go through the RGB-D front end first, once for the team (each
+    robot's maps saved in OUTPUT/maps/ and reused by a later run with the same settings and
+    bags); the nodes then replay the maps at the 1 Hz exchanges every robot shares."""
+
+    from tcaff_gtsam.node.replay import robot_names
+    from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
+
+    sources = [scenario, mrclam and str(mrclam), kimera and str(kimera)]
+    if sum(x is not None for x in sources) != 1:
+        _refuse("--scenario/--mrclam/--kimera", sources, "give exactly one")
+    _check_speed(speed)
+    tls = _tls(tls_ca, tls_cert, tls_key)
+    _writable_folder(output, "--output")
+    if scenario is not None:
+        run = _simulated(scenario, seed, duration)
+    elif mrclam is not None:
+        run = _mrclam_run(mrclam, seed, duration)
+    else:
+        run = _kimera_run(kimera, kimera_test, duration, output / "maps")
+    n = run.n_robots
+    ports = free_ports(n) if base_port == 0 else list(range(base_port, base_port + n))
+    if not all(0 < p < 65536 for p in ports):
+        _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
+    replays = save_replays(run, output / "replay")
+    argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
+                       tls=tls, team_consistency=team_consistency) for k in range(n)]
+    console = _console()
+    console.print(f"robots: {_named(run, robot_names(n))}", soft_wrap=True)
+    console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "
+                  f"{len(run.times)} exchanges at {speed:g}x, about "
+                  f"{len(run.times) / speed:.0f} s once every node is up. Watch with: tcaff "
+                  f"listen --team "
+                  f"{team_name} --connect 127.0.0.1:{ports[0]}")
+    procs = start_team(argvs, output / "logs")
+    codes = wait_team(procs, 180 + len(run.times) / speed)
+    failed = [f"r{k}" for k, c in enumerate(codes) if c != 0]
+    console.print(_team_table(run, output, robot_names(n)))
+    if team_consistency:
+        console.print(_team_table(run, output, robot_names(n), team=True))
+    if failed:
+        from tcaff_gtsam.errors import TcaffError
+
+        raise TcaffError(f"nodes {', '.join(failed)} failed; see {output / 'logs'}")
+    console.print(f"results: {output}")
+
+
+@app.command()
+def listen(
+    team_name: Annotated[str, typer.Option("--team", help="Team name.")] = "team",
+    connect: Annotated[list[str] | None, typer.Option(
+        help="host:port of a team node to dial (repeat).")] = None,
+    listen_on: Annotated[list[str] | None, typer.Option(
+        "--listen", help="host:port to accept nodes on.")] = None,
+    scenario: Annotated[str | None, typer.Option(
+        help="The simulated scenario the team replays: shows each alignment's error.")] = None,
+    seed: Annotated[int, typer.Option(help="Its seed.")] = 0,
+    seconds: Annotated[float | None, typer.Option(help="Stop after this long (s).")] = None,
+    tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
+    tls_cert: Annotated[Path | None, typer.Option(help="PEM file: this listener's certificate.")
+    ] = None,
+    tls_key: Annotated[Path | None, typer.Option(help="PEM file: its private key.")] = None,
+) -> None:
+    """A live table of every pair's latest alignment in a team (Ctrl-C to stop)."""
+    import threading
+
+    from rich.live import Live
+    from tcaff_gtsam.node.link import Link
+    from tcaff_gtsam.node.listener import TeamListener
+
+    link = Link(tuple(listen_on or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        _refuse("--seconds", seconds, "must be a finite number > 0")
+    truth = None
+    if scenario is not None:
+        run = _simulated(scenario, seed, None)
+        truth = run.T_true
+    stop = threading.Event()
+    with TeamListener(team_name, link, truth) as listener, \
+            Live(listener.table(), console=_console(), refresh_per_second=4) as live:
+        try:
+            while not stop.wait(0.25):
+                live.update(listener.table())
+                if seconds is not None and listener.elapsed() >= seconds:
+                    break
+        except KeyboardInterrupt:
+            pass
