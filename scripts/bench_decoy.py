@@ -31,13 +31,13 @@ from tcaff_gtsam.params import TCAFFParams, constant_alignment_covariance
 from tcaff_gtsam.tcaff import TCAFF
 
 PRESETS = {
-    "distinct evidence, withheld": TCAFFParams(min_distinct=2, switch_stale=True,
-                                               withhold_contested=True),
-    "distinct evidence": TCAFFParams(min_distinct=2, switch_stale=True),
-    "outvoting (switch_support=2)": TCAFFParams(switch_support=2),
-    "outvoting, distinct evidence": TCAFFParams(switch_support=2, min_distinct=2,
-                                                switch_stale=True),
-    "default (the paper's)": TCAFFParams(),
+    # the streams carry object ids at every step, as among look-alikes (`lookalike_share`):
+    # the defaults count distinct evidence here
+    "default": TCAFFParams(),
+    "default, no outvoting": TCAFFParams(switch_support=None),
+    "default, not withheld": TCAFFParams(withhold_contested=False),
+    "paper": TCAFFParams.paper(),
+    "paper, outvoting": replace(TCAFFParams.paper(), switch_support=2),
     "reference": TCAFFParams.reference(),
 }
 

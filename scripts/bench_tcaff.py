@@ -14,7 +14,7 @@ Four regimes per measurement count k:
 Prints median, 95th percentile and maximum milliseconds per update (first 20 steps excluded,
 so the compile of the first call does not count).
 
-    python scripts/bench_tcaff.py [--steps 1000] [--counts 0 1 4 10] [--profile]
+    python scripts/bench_tcaff.py [--steps 1000] [--counts 0 1 4 10 32] [--profile]
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ def time_stream(params: TCAFFParams, stream: list[np.ndarray], skip: int = 20):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=1000)
-    parser.add_argument("--counts", type=int, nargs="+", default=[0, 1, 4, 10])
+    parser.add_argument("--counts", type=int, nargs="+", default=[0, 1, 4, 10, 32])
     parser.add_argument("--profile", action="store_true",
                         help="profile the default preset at k = 4 with a main tree")
     args = parser.parse_args()

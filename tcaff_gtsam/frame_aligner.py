@@ -166,6 +166,24 @@ class FrameAligner:
         #: searched in full
         self.guided_misses = 0
 
+    def lookalike_share(self, ego: ObjectMap, other: ObjectMap, now: float) -> float:
+        """The share of the object pairs of two maps (objects seen within kappa of `now`)
+        that pass the size and descriptor gates, in [0, 1]: 1 when every object could be any
+        other (MRCLAM's landmarks carry no size), low in a room of distinct objects. 0 when
+        either map has no recent object.
+
+        Raises:
+            DataError: ego or other not an ObjectMap; now not a finite number.
+        """
+        o = "FrameAligner.lookalike_share"
+        ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
+        now = finite_time(o, "now", now)
+        kappa = self.params.kappa
+        ego_r, other_r = ego.recent(now, kappa), other.recent(now, kappa)
+        if min(len(ego_r), len(other_r)) == 0:
+            return 0.0
+        return float(self._compatible(ego_r, other_r).mean())
+
     def measurements(self, ego: ObjectMap, other: ObjectMap, now: float,
                      ego_past: Sequence[tuple[float, ObjectMap]] = (),
                      other_past: Sequence[tuple[float, ObjectMap]] = (),

@@ -33,7 +33,9 @@ __all__ = [
     "extend",
     "kalman_children",
     "lowest",
+    "mahalanobis_to",
     "measurement_costs",
+    "not_positive_definite",
     "seed",
 ]
 
@@ -152,6 +154,20 @@ def _cholesky(S, C):
 
 
 @numba.njit(cache=True, inline="always")
+def _whitened(C, r):
+    """r <- C^-1 r in place for a lower Cholesky factor C (d, d); returns |r|^2, the squared
+    Mahalanobis distance under C C'."""
+    maha = 0.0
+    for a in range(r.shape[0]):
+        y = r[a]
+        for c in range(a):
+            y -= C[a, c] * r[c]
+        r[a] = y / C[a, a]
+        maha += r[a] * r[a]
+    return maha
+
+
+@numba.njit(cache=True, inline="always")
 def _product(A, B, out, transpose_b):
     """out = A B (or A B' with transpose_b), all (d, d)."""
     d = A.shape[0]
@@ -161,6 +177,60 @@ def _product(A, B, out, transpose_b):
             for e in range(d):
                 s += A[a, e] * (B[b, e] if transpose_b else B[e, b])
             out[a, b] = s
+
+
+@numba.njit(cache=True)
+def _mahalanobis_to(x, P, x0, P0, angular):
+    """(L,) squared Mahalanobis distance of each state x[l] from x0 under P[l] + P0."""
+    L, d = x.shape
+    out = np.empty(L)
+    r = np.empty(d)
+    S = np.empty((d, d))
+    C = np.zeros((d, d))
+    for leaf in range(L):
+        _residual(x[leaf], x0, angular, r)
+        for a in range(d):
+            for b in range(d):
+                S[a, b] = P[leaf, a, b] + P0[a, b]
+        _cholesky(S, C)
+        out[leaf] = _whitened(C, r)
+    return out
+
+
+def mahalanobis_to(x: np.ndarray, P: np.ndarray, x0: np.ndarray, P0: np.ndarray,
+                   angular: np.ndarray) -> np.ndarray:
+    """(L,) squared Mahalanobis distance of states x (L, d) with covariances P (L, d, d) from
+    one state x0 (d,) with covariance P0 (d, d), under P + P0; the components where angular
+    (d,) bool is set are wrapped."""
+    return _mahalanobis_to(np.ascontiguousarray(x), np.ascontiguousarray(P),
+                           np.ascontiguousarray(x0), np.ascontiguousarray(P0), angular)
+
+
+@numba.njit(cache=True)
+def _first_not_positive_definite(P):
+    """Index of the first matrix of P (n, d, d) whose Cholesky factorisation meets a pivot
+    <= 0, or -1."""
+    n, d, _ = P.shape
+    C = np.zeros((d, d))
+    for i in range(n):
+        for a in range(d):
+            for b in range(a + 1):
+                s = P[i, a, b]
+                for e in range(b):
+                    s -= C[a, e] * C[b, e]
+                if a == b:
+                    if not s > 0.0:
+                        return i
+                    C[a, a] = np.sqrt(s)
+                else:
+                    C[a, b] = s / C[b, b]
+    return -1
+
+
+def not_positive_definite(P: np.ndarray) -> int:
+    """Index of the first of the symmetric matrices P (n, d, d) that is not positive definite
+    (its Cholesky factorisation fails), or -1 when all are."""
+    return int(_first_not_positive_definite(np.ascontiguousarray(P, dtype=np.float64)))
 
 
 @numba.njit(cache=True)
@@ -191,19 +261,24 @@ def _measurement_costs(x, P, zs, Rs, Q, angular, reference, use_box, gate_chi2, 
                     logdet += np.log(s)
                 cost = 0.5 * (maha * maha + logdet + d * _LOG_2PI)
             else:
+                # r' S^-1 r >= r_a^2 / S_aa for every a (Cauchy-Schwarz): most pairs leave the
+                # gate on one component, before any factorisation or logarithm
+                if not use_box:
+                    for a in range(d):
+                        if r[a] * r[a] > gate_chi2 * (P[leaf, a, a] + Q[a, a] + Rs[j, a, a]):
+                            gated_out = True
+                            break
+                    if gated_out:
+                        out[leaf, j] = np.inf
+                        continue
                 for a in range(d):
                     for b in range(d):
                         S[a, b] = P[leaf, a, b] + Q[a, b] + Rs[j, a, b]
                 # S = C C', then C y = r gives maha = |y|^2 and log|S| = 2 sum log C_aa
                 _cholesky(S, C)
-                maha = 0.0
+                maha = _whitened(C, r)
                 logdet = 0.0
                 for a in range(d):
-                    y = r[a]
-                    for c in range(a):
-                        y -= C[a, c] * r[c]
-                    r[a] = y / C[a, a]
-                    maha += r[a] * r[a]
                     logdet += 2.0 * np.log(C[a, a])
                 cost = 0.5 * (maha + logdet)
             if not use_box and maha > gate_chi2:

@@ -190,9 +190,13 @@ class PairwiseAligner:
             guided)
         # the identities advance on copies, kept only once the filter has taken the step
         identities = tuple(copy.copy(ids) for ids in self._identities)
+        # object ids only among look-alikes: elsewhere every measurement is distinct evidence
+        # (the identities match objects by position, so they bridge the steps skipped)
+        tcaff_params = self.filter.params
         ids = (tuple(recent_ids(each, objects, t, prm.kappa) for each, objects
                      in zip(identities, (ego_map, other_map), strict=True))
-               if self.filter.params.counts_evidence else None)
+               if tcaff_params.counts_evidence and self.aligner.lookalike_share(
+                   ego_map, other_map, t) >= tcaff_params.lookalike_share else None)
         kept = admitted(measurements, self.filter.held, prm)
         zs = np.array([m.z for m in kept]).reshape(-1, 3)
         Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)

@@ -451,9 +451,12 @@ class FrameAlignerParams(_ByValue):
 @dataclass(frozen=True, eq=False)
 class TCAFFParams(_ByValue):
     """Settings of the TCAFF filter (paper, "Multiple Hypothesis Formulation" and "Frame
-    Alignment Filter"). The defaults are the paper's equations and values (`paper()` names
-    them); `min_distinct` = 2 with `switch_stale` counts distinct evidence, for repetitive
-    worlds; `reference()` is the authors' released code, quirks included.
+    Alignment Filter"). The defaults are the paper's equations and values, and among
+    look-alike objects (`lookalike_share`) they count distinct evidence (`min_distinct` = 2,
+    `switch_stale`, `withhold_contested`): the same look-alikes re-matched at every step are
+    one piece of evidence, not W. Elsewhere they are the paper's filter. `paper()` is the
+    paper's equations alone in every world; `reference()` the authors' released code, quirks
+    included.
 
     The state x has dimension d = Q.shape[0] (3 for (x [m], y [m], theta [rad]) of T_oi_oj);
     motion and measurement models are the identity. Costs are in nats (negative log
@@ -509,7 +512,8 @@ class TCAFFParams(_ByValue):
             count as one when together they bring fewer than two distinct pieces of evidence
             (see `min_distinct`): a look-alike cluster re-matched at every step outvotes
             nothing (one that also matches other objects now and then counts in full). None:
-            only the `switch_margin` rule; it needs `switch_after`.
+            only the `switch_margin` rule. Like it, acts only with `switch_after` (None never
+            re-checks).
         min_distinct: a hypothesis is accepted, or replaces the main one, only when its best
             path over the window holds at least this many distinct pieces of evidence: a
             measurement is distinct when it associates an object of each robot that no earlier
@@ -524,7 +528,20 @@ class TCAFFParams(_ByValue):
             measurement this step and a hypothesis it gates out holds more distinct pieces of
             evidence in the window than that path does (and at least `min_distinct`): the
             robots' frames have likely jumped and the old estimate would be wrong until the
-            switch, W + `switch_after` steps later.
+            switch, W + `switch_after` steps later. With `switch_support`, also while a
+            hypothesis it gates out is seen that many more times in the window (the
+            outvoting streak builds), confirmed this step or not. Only at steps given object
+            ids (`lookalike_share`).
+        lookalike_share: the distinct-evidence rules (`min_distinct`, `switch_stale`,
+            `withhold_contested`, `switch_support`) read object ids only at steps whose two
+            maps are of look-alikes: `PairwiseAligner` gives ids when at least this share of
+            the maps' object pairs pass the aligner's size and descriptor gates
+            (`FrameAligner.lookalike_share`). Landmarks without sizes (MRCLAM) give 1; the
+            simulator's streets and rooms 0.1-0.6, its grid of crates 0.7-1 (median 0.84);
+            a camera's few objects of a small room 0.6-0.92 (median 0.73): the partial-view
+            size gate lets many pairs through. At other steps every measurement is distinct
+            evidence, so the rules change nothing there and a small static scene is accepted
+            as the paper's filter accepts it. 0: ids at every step (and the rules always on).
         report_after: report no estimate once the main tree's best path has held no
             measurement for this many steps, while the tree itself is kept until
             `drop_after`: unreported, it can still be confirmed (`TCAFF.held`), e.g. by the
@@ -553,10 +570,11 @@ class TCAFFParams(_ByValue):
     drop_after: int = 40
     switch_after: int | None = 3
     switch_margin: float = 5.0
-    switch_support: int | None = None
-    min_distinct: int = 1
-    switch_stale: bool = False
-    withhold_contested: bool = False
+    switch_support: int | None = 2
+    min_distinct: int = 2
+    switch_stale: bool = True
+    withhold_contested: bool = True
+    lookalike_share: float = 0.9
     report_after: int | None = None
 
     def __post_init__(self) -> None:
@@ -606,13 +624,12 @@ class TCAFFParams(_ByValue):
                  "must be an int >= 1")
         _require(self.switch_support is None or _int_at_least(self.switch_support, 1), o,
                  "switch_support", self.switch_support, "must be an int >= 1 or None")
-        _require(self.switch_support is None or self.switch_after is not None, o,
-                 "switch_support", self.switch_support,
-                 "needs switch_after (None never re-checks, so nothing would be outvoted)")
         _require(isinstance(self.switch_stale, bool), o, "switch_stale", self.switch_stale,
                  "must be True or False")
         _require(isinstance(self.withhold_contested, bool), o, "withhold_contested",
                  self.withhold_contested, "must be True or False")
+        _require(_real(self.lookalike_share) and 0 <= self.lookalike_share <= 1, o,
+                 "lookalike_share", self.lookalike_share, "must be a number in [0, 1]")
         _require(self.report_after is None or _int_at_least(self.report_after, 1), o,
                  "report_after", self.report_after, "must be an int >= 1 or None")
 
@@ -631,14 +648,16 @@ class TCAFFParams(_ByValue):
     def paper(cls) -> TCAFFParams:
         """The paper's equations alone: every measurement counts as evidence, and a main
         hypothesis confirmed at a step is never abandoned at that step."""
-        return cls(min_distinct=1, switch_stale=False, switch_support=None)
+        return cls(min_distinct=1, switch_stale=False, withhold_contested=False,
+                   switch_support=None)
 
     @classmethod
     def reference(cls) -> TCAFFParams:
         """The authors' released code: its threshold, gate, cost, promotion and deletion."""
         return cls(tau=9.0, gate="box", cost_model="reference", root_in_window=True,
                    promotion="reseed", drop_rule="window", drop_after=40, switch_after=None,
-                   switch_support=None, min_distinct=1, switch_stale=False)
+                   switch_support=None, min_distinct=1, switch_stale=False,
+                   withhold_contested=False)
 
 
 def _default_odometry_cov(dim: int) -> np.ndarray:

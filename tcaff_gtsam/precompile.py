@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from .hypothesis_tree import best_per_tree
+from .hypothesis_tree import best_per_tree, mahalanobis_to, not_positive_definite
 from .object_map import ObjectMap
 from .pairwise import PairwiseAligner
 from .registration import _neighbourhood_pairs
@@ -55,6 +55,10 @@ def compile_kernels() -> float:
         for pair in pairs:
             pair.update(float(step), *maps)
     best_per_tree(rng.uniform(0.0, 1.0, 8), np.zeros(8, np.int64), 2)  # a tree past its bound
+    # a rival weighed against the main hypothesis; covariances checked
+    mahalanobis_to(np.zeros((2, 3)), np.broadcast_to(np.eye(3), (2, 3, 3)), np.zeros(3),
+                   np.eye(3), np.array([False, False, True]))
+    not_positive_definite(np.eye(3)[None])
     # look-alike maps past max_associations: each object's best pairs, cut to a cap
     xy = rng.uniform(0.0, 15.0, (12, 2))
     _neighbourhood_pairs(np.ones((12, 12), bool), xy, xy, np.zeros(12), np.zeros(12), 0.25, 2, 5)

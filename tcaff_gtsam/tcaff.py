@@ -15,7 +15,9 @@ that, the filter has no estimate.
 
 Beyond the paper, acceptance and switching count distinct evidence: a path's measurements that
 re-match only objects its earlier measurements used are one piece of evidence, not several
-(`TCAFFParams.min_distinct`, `switch_stale`; the object ids come with `update`).
+(`TCAFFParams.min_distinct`, `switch_stale`; the object ids come with `update`, and
+`PairwiseAligner` gives them only among look-alike objects), and a rival seen clearly more
+often than the main hypothesis replaces it (`switch_support`).
 """
 
 from __future__ import annotations
@@ -43,7 +45,9 @@ from .hypothesis_tree import (
     extend,
     kalman_children,
     lowest,
+    mahalanobis_to,
     measurement_costs,
+    not_positive_definite,
     seed,
 )
 from .inputs import output_path, read_npz, real_array
@@ -169,7 +173,8 @@ class TCAFF:
                 the (ego object id, other object id) pairs the measurement associates, ids
                 that persist across steps (`ObjectIdentities`). Used by `min_distinct`,
                 `switch_stale`, `withhold_contested` and `switch_support`; without it every
-                measurement is distinct evidence.
+                measurement is distinct evidence (`PairwiseAligner` gives ids only at steps
+                whose maps are of look-alikes, `TCAFFParams.lookalike_share`).
         Returns:
             The estimate from the main tree's best leaf, or None while there is no main tree
             or it is not reported (`withhold_contested`, `report_after`; `held` has it).
@@ -313,12 +318,18 @@ class TCAFF:
         return estimate
 
     def _contested(self) -> bool:
-        """Whether the main tree's best path took no measurement this step while an exploring
-        hypothesis inconsistent with it holds more distinct evidence in the window (and at
-        least `min_distinct` pieces)."""
+        """Whether, at a step given object ids, the main tree's best path is outvoted
+        (`_outvoted`, with `switch_support`), or took no measurement this step while an
+        exploring hypothesis inconsistent with it holds more distinct evidence in the window
+        (and at least `min_distinct` pieces)."""
         main, explore = self._main, self._explore
         m = int(np.argmin(main.cost))
-        if main.since[m] == 0 or len(explore) == 0:
+        # without object ids this step (maps not of look-alikes) nothing is contested
+        if len(explore) == 0 or self._evidence[-1] is None:
+            return False
+        if self.params.switch_support is not None and self._outvoted(m):
+            return True
+        if main.since[m] == 0:
             return False
         need = max(self._distinct(main.choice[m])[0] + 1, self.params.min_distinct)
         taken = np.count_nonzero(explore.choice[:, -self.params.window:] >= 0, axis=1)
@@ -327,6 +338,21 @@ class TCAFF:
             return False
         rivals = rivals[~self._consistent(explore.take(rivals), main.take([m]))]
         return any(self._distinct(explore.choice[r])[0] >= need for r in rivals)
+
+    def _outvoted(self, m: int) -> bool:
+        """Whether an open exploring hypothesis inconsistent with the main tree's best leaf m
+        was seen `switch_support` more times in the window than that leaf's path (`_support`),
+        confirmed this step or not: the estimate is contested while the outvoting streak
+        builds."""
+        main, explore, W = self._main, self._explore, self.params.window
+        seen = int(np.count_nonzero(main.choice[m, -W:] >= 0))
+        taken = np.count_nonzero(explore.choice[:, -W:] >= 0, axis=1)
+        rivals = np.flatnonzero(taken >= seen + self.params.switch_support)
+        if rivals.size == 0:
+            return False
+        rivals = rivals[~self._consistent(explore.take(rivals), main.take([m]))]
+        return any(self._support(explore.choice[r]) >= seen + self.params.switch_support
+                   for r in rivals)
 
     def _support(self, path: np.ndarray) -> int:
         """How often a rival's hypothesis was seen in the window: its measurements, or one
@@ -368,11 +394,7 @@ class TCAFF:
     def _consistent(self, leaves: Leaves, other: Leaves) -> np.ndarray:
         """(L,) whether each leaf's state agrees with the single leaf `other`'s (Mahalanobis
         distance under P_a + P_b within the gate of `gate_probability`)."""
-        r = leaves.x - other.x[0]
-        angular = self._model.angular
-        r[:, angular] = _wrap_angle(r[:, angular])
-        S = leaves.P + other.P[0]
-        maha = np.einsum("li,li->l", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+        maha = mahalanobis_to(leaves.x, leaves.P, other.x[0], other.P[0], self._model.angular)
         return maha <= self._model.gate_chi2
 
     def _accept(self, complete: Leaves, best: int) -> None:
@@ -457,13 +479,11 @@ class TCAFF:
         if Rs.shape != (k, d, d):
             raise DataError(f"TCAFF.update: Rs must have shape ({k}, {d}, {d}) to match zs, "
                             f"got {Rs.shape}")
-        bad = np.argwhere(~np.isfinite(zs))
-        if bad.size:
-            i, a = bad[0]
+        if not np.isfinite(zs).all():
+            i, a = np.argwhere(~np.isfinite(zs))[0]
             raise DataError(f"TCAFF.update: zs[{i}, {a}] = {zs[i, a]} is not finite")
-        bad = np.argwhere(~np.isfinite(Rs))
-        if bad.size:
-            i, a, b = bad[0]
+        if not np.isfinite(Rs).all():
+            i, a, b = np.argwhere(~np.isfinite(Rs))[0]
             raise DataError(f"TCAFF.update: Rs[{i}, {a}, {b}] = {Rs[i, a, b]} is not finite")
         bad = _not_spd(Rs)
         if bad is not None:
@@ -779,8 +799,12 @@ def _not_spd(P: np.ndarray) -> tuple[int, str] | None:
     asym = np.abs(P - P.transpose(0, 2, 1)) > 1e-9 * (1.0 + np.abs(P))
     if asym.any():
         return int(np.argwhere(asym)[0, 0]), "symmetric"
+    first = not_positive_definite(P)
+    if first < 0:
+        return None
+    # the eigenvalue names how far from positive definite it is
     smallest = np.linalg.eigvalsh(P)[:, 0]
     if (smallest <= 0).any():
         i = int(np.flatnonzero(smallest <= 0)[0])
         return i, f"positive definite (smallest eigenvalue {smallest[i]:.3g})"
-    return None
+    return first, f"positive definite (smallest eigenvalue {smallest[first]:.3g})"

@@ -86,7 +86,8 @@ class SharedStages:
         # checks beyond the residual need a search of their own; the residual alone filters
         # the unchecked candidates
         checks_more = replace(self.checked, max_rmse=None) != self.aligner.params
-        self._verifier = FrameAligner(self.checked) if checks_more else None
+        self.checked_aligner = FrameAligner(self.checked)
+        self._verifier = self.checked_aligner if checks_more else None
         self.tcaff_params = methods.tcaff_params(False, settings.window)
         self.seconds = {"candidates": 0.0, "tcaff": 0.0}
         self._filters: list[TCAFF] | None = None
@@ -149,8 +150,12 @@ class SharedStages:
             kept = admitted(found, self._filters[p].held, self.checked)
             zs = np.array([m.z for m in kept]).reshape(-1, 3)
             Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-            ids = (tuple(self.object_ids(r) for r in self.setup.pairs[p])
-                   if self.tcaff_params.counts_evidence else None)
+            # object ids only among look-alikes (`TCAFFParams.lookalike_share`)
+            lookalike = (self.tcaff_params.counts_evidence
+                         and self.checked_aligner.lookalike_share(
+                             *self.setup.maps(p, self.s), self.t)
+                         >= self.tcaff_params.lookalike_share)
+            ids = tuple(self.object_ids(r) for r in self.setup.pairs[p]) if lookalike else None
             self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence_of(kept, ids)), zs, Rs)
             self._steps[p] += [self.s] * len(zs)
             self._z[p] += list(zs)

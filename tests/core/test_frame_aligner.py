@@ -303,3 +303,49 @@ def test_guided_must_be_a_bool(guided):
 def test_guided_search_parameters_refuse_bad_values(field, value):
     with pytest.raises(ConfigError, match=f"FrameAlignerParams.{field} = "):
         FrameAlignerParams(**{field: value})
+
+
+def test_lookalike_share_tells_landmarks_from_distinct_objects():
+    """Objects of one size (MRCLAM's landmarks, a grid of crates) are look-alikes: every pair
+    passes the gates. Objects of the simulator's classes mostly are not."""
+    grid = grid_maps(4, 4)
+    aligner = FrameAligner()
+    assert aligner.lookalike_share(grid.ego, grid.other, grid.now) == 1.0
+    pair = overlapping_maps(np.random.default_rng(0), 30, 0.5, 0.1)
+    distinct = aligner.lookalike_share(pair.ego, pair.other, pair.now)
+    assert 0.0 < distinct < 0.6
+    # only objects seen within kappa count; none: nothing is alike
+    assert FrameAligner(FrameAlignerParams(kappa=1e-3)).lookalike_share(
+        pair.ego, pair.other, pair.now + 1.0) == 0.0
+    assert aligner.lookalike_share(ObjectMap.empty(), grid.other, grid.now) == 0.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 12), st.integers(0, 12))
+def test_lookalike_share_is_the_share_of_gated_pairs(seed, n_ego, n_other):
+    rng = np.random.default_rng(seed)
+
+    def random_map(n):
+        return ObjectMap(rng.uniform(-10, 10, (n, 3)), rng.uniform(0.2, 2.0, n),
+                         rng.uniform(0.2, 2.0, n), np.full(n, 50.0))
+
+    ego, other = random_map(n_ego), random_map(n_other)
+    share = FrameAligner().lookalike_share(ego, other, 50.0)
+    assert 0.0 <= share <= 1.0
+    assert FrameAligner().lookalike_share(other, ego, 50.0) == pytest.approx(share)
+    if n_ego and n_other:
+        # sizes copied from ego into other: each ego object has at least its twin
+        twins = ObjectMap(ego.centroids, ego.widths, ego.heights, ego.last_seen)
+        assert FrameAligner().lookalike_share(ego, twins, 50.0) >= 1.0 / n_ego - 1e-12
+
+
+@pytest.mark.parametrize("now", [float("nan"), "1", None])
+def test_lookalike_share_needs_a_finite_now(now):
+    pair = a_pair()
+    with pytest.raises(DataError, match="lookalike_share: now"):
+        FrameAligner().lookalike_share(pair.ego, pair.other, now)
+
+
+def test_lookalike_share_needs_object_maps():
+    with pytest.raises(DataError, match="lookalike_share: ego"):
+        FrameAligner().lookalike_share(np.zeros((3, 3)), a_pair().other, 1.0)

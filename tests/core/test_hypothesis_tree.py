@@ -19,7 +19,9 @@ from tcaff_gtsam.hypothesis_tree import (
     best_per_tree,
     branch,
     extend,
+    mahalanobis_to,
     measurement_costs,
+    not_positive_definite,
     seed,
 )
 
@@ -156,3 +158,53 @@ def test_extend_shifts_the_window_and_counts_steps_without_measurement():
     # the window cost sums the edges below the root
     np.testing.assert_allclose(step2.cost, step2.edge[:, -2] + 3.0)
     assert Leaves.concat([step1, step2]).x.shape == (6, 1)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 4), st.integers(0, 2**32 - 1), st.floats(0.01, 100.0))
+def test_the_gate_is_the_chi_square_test_on_the_full_covariance(d, seed_value, spread):
+    """Costs are finite exactly where r' S^-1 r is within the gate (the one-component test
+    that skips most pairs only ever rejects what the full test rejects)."""
+    rng = np.random.default_rng(seed_value)
+    P, Q = spd(rng, d, 0.1), spd(rng, d, 0.01)
+    Rs = np.array([spd(rng, d, 0.1) for _ in range(6)])
+    x = rng.normal(size=d)
+    zs = x + spread * rng.normal(size=(6, d)) * rng.uniform(0.0, 1.0, (6, 1))
+    m = model(d, Q=Q)
+    costs = measurement_costs(one_leaf(x, P), zs, Rs, m)[0]
+    for j in range(6):
+        r = zs[j] - x
+        maha = r @ np.linalg.solve(P + Q + Rs[j], r)
+        if abs(maha - m.gate_chi2) > 1e-9 * m.gate_chi2:
+            assert np.isfinite(costs[j]) == (maha <= m.gate_chi2)
+        if np.isfinite(costs[j]):
+            full = 0.5 * (maha + np.linalg.slogdet(P + Q + Rs[j])[1])
+            assert costs[j] == pytest.approx(full, abs=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 4), st.integers(1, 6), st.integers(0, 2**32 - 1))
+def test_mahalanobis_to_one_state(d, n, seed_value):
+    rng = np.random.default_rng(seed_value)
+    x, x0 = rng.normal(size=(n, d)) * 4.0, rng.normal(size=d)
+    P, P0 = np.array([spd(rng, d, 0.1) for _ in range(n)]), spd(rng, d, 0.1)
+    angular = np.zeros(d, bool)
+    angular[-1] = True
+    got = mahalanobis_to(x, P, x0, P0, angular)
+    for i in range(n):
+        r = x[i] - x0
+        r[-1] = (r[-1] + np.pi) % (2 * np.pi) - np.pi
+        assert got[i] == pytest.approx(r @ np.linalg.solve(P[i] + P0, r), rel=1e-9, abs=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 4), st.integers(1, 5), st.integers(0, 2**32 - 1), st.booleans())
+def test_not_positive_definite_finds_the_first_indefinite_matrix(d, n, seed_value, spoil):
+    rng = np.random.default_rng(seed_value)
+    P = np.array([spd(rng, d) for _ in range(n)])
+    first = -1
+    if spoil:
+        first = int(rng.integers(n))
+        v = rng.normal(size=d)
+        P[first] -= (np.linalg.eigvalsh(P[first])[-1] + 1.0) * np.outer(v, v) / (v @ v)
+    assert not_positive_definite(P) == first

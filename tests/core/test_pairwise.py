@@ -253,3 +253,57 @@ def test_guided_search_refuses_bad_parameters_and_filters():
         guided_search(TCAFFParams(), PairwiseAligner().filter, 0)
     with pytest.raises(DataError, match="tcaff"):
         guided_search(FrameAlignerParams(), PairwiseAligner(), 0)
+
+
+# a small room seen by both robots standing still: six objects, irregularly placed
+ROOM = np.array([[0.0, 0.0], [2.5, 0.4], [1.2, 3.1], [4.0, 2.2], [-1.5, 2.0], [3.1, -1.8]])
+ROOM_T = se2_from_params([1.5, -0.8, 0.7])
+
+
+def still_room(t: float, widths: np.ndarray) -> tuple[ObjectMap, ObjectMap]:
+    """Both robots' maps of ROOM at time t, every object just seen, nothing new."""
+    other = (ROOM - ROOM_T[:2, 2]) @ ROOM_T[:2, :2]
+    return tuple(ObjectMap(np.column_stack([xy, widths / 2]), widths, widths, np.full(6, t))
+                 for xy in (ROOM, other))
+
+
+def test_a_small_still_scene_of_distinct_objects_is_accepted_with_the_defaults():
+    """Nothing new is ever seen, so every measurement re-matches the same objects; the
+    objects differ in size, so the maps are not of look-alikes and each one counts."""
+    distinct = np.array([0.3, 0.8, 1.6, 0.5, 2.4, 1.1])
+    pa = PairwiseAligner()
+    assert pa.aligner.lookalike_share(*still_room(0.0, distinct), 0.0) < 0.7
+    estimates = [pa.update(float(t), *still_room(float(t), distinct)) for t in range(12)]
+    assert estimates[-1] is not None
+    dt, dtheta = se2_error(ROOM_T, estimates[-1].T)
+    assert dt < 0.05 and np.degrees(dtheta) < 0.5
+
+
+def test_a_still_scene_of_look_alikes_is_recognised_and_not_accepted_on_repeats():
+    """Six objects of one size: any object could be any other (the share of gated pairs is
+    1), so the same objects re-matched at every step are one piece of evidence and the
+    defaults wait for a second; the paper's filter takes each repeat as new evidence."""
+    alike = np.full(6, 0.5)
+    pa = PairwiseAligner()
+    assert pa.aligner.lookalike_share(*still_room(0.0, alike), 0.0) == 1.0
+    assert all(pa.update(float(t), *still_room(float(t), alike)) is None for t in range(30))
+    paper = PairwiseAligner(tcaff_params=TCAFFParams.paper())
+    assert [paper.update(float(t), *still_room(float(t), alike)) for t in range(12)][-1]
+
+
+def test_look_alikes_seen_anew_are_accepted_with_the_defaults():
+    """Maps of one-size objects that change from step to step (robots driving past new
+    landmarks) bring distinct evidence: accepted, correctly."""
+    T_true = se2_from_params([4.0, -7.0, 2.5])
+    rng = np.random.default_rng(3)
+    pa = PairwiseAligner()
+    estimates = []
+    for t in range(16):
+        pair = overlapping_maps(rng, 20, 0.5, 0.05, T_oi_oj=T_true, now=float(t))
+        ego, other = (ObjectMap(m.centroids, np.full(len(m), 0.5), np.full(len(m), 0.5),
+                                m.last_seen) for m in (pair.ego, pair.other))
+        estimates.append(pa.update(float(t), ego, other))
+    assert pa.aligner.lookalike_share(ego, other, 15.0) == 1.0
+    assert estimates[-1] is not None
+    dt, dtheta = se2_error(T_true, estimates[-1].T)
+    assert dt < 0.3 and np.degrees(dtheta) < 2.0

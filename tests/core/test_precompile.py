@@ -12,7 +12,10 @@ from precompiled import signatures_around
 ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_measurement_costs"),
                  ("hypothesis_tree", "_kalman_children"), ("hypothesis_tree", "_children"),
-                 ("hypothesis_tree", "_best_per_group"), ("registration", "_mutual_nearest"),
+                 ("hypothesis_tree", "_best_per_group"),
+                 ("hypothesis_tree", "_mahalanobis_to"),
+                 ("hypothesis_tree", "_first_not_positive_definite"),
+                 ("registration", "_mutual_nearest"),
                  ("registration", "_best_per_object")]
 
 

@@ -380,7 +380,8 @@ def test_switch_needs_the_same_rival_for_switch_after_steps():
 
 def test_a_main_hypothesis_confirmed_every_other_step_is_not_abandoned():
     """A rival with a full window beats a main tree with gaps on cost; while measurements keep
-    confirming the main tree it stays (a repetitive world makes such rivals)."""
+    confirming the main tree it stays under the margin rule alone (a repetitive world makes
+    such rivals). Outvoting, the default, lets a rival seen twice as often take over."""
     rng = np.random.default_rng(3)
     truth, rival = np.array([0.0, 0.0, 0.0]), np.array([5.0, 0.0, 2.0])
 
@@ -393,11 +394,14 @@ def test_a_main_hypothesis_confirmed_every_other_step_is_not_abandoned():
         if t >= 20:
             z.append(noisy(rival))
         zs.append(np.array(z).reshape(-1, 3))
-    estimates = run(TCAFF(), zs)
+    margin_only = TCAFFParams(switch_support=None)
+    estimates = run(TCAFF(margin_only), zs)
     assert all(e.hypothesis == 1 and np.hypot(*e.x[:2]) < 0.3 for e in estimates[20:])
+    outvoted = run(TCAFF(), zs)
+    assert outvoted[-1].hypothesis == 2 and np.hypot(*(outvoted[-1].x - rival)[:2]) < 0.3
     # the same rival does win once the truth stops appearing
     zs[60:] = [np.array([noisy(rival)]) for _ in range(40)]
-    estimates = run(TCAFF(), zs)
+    estimates = run(TCAFF(margin_only), zs)
     assert estimates[-1].hypothesis == 2 and np.hypot(*(estimates[-1].x - rival)[:2]) < 0.3
 
 
@@ -412,7 +416,7 @@ def test_save_writes_exactly_the_path_given(tmp_path):
 
 # -- distinct evidence ------------------------------------------------------------------------
 
-DISTINCT = TCAFFParams(min_distinct=2, switch_stale=True)
+DISTINCT = TCAFFParams(min_distinct=2, switch_stale=True, withhold_contested=False)
 
 
 def run_with_evidence(filt: TCAFF, stream, R=R_CONSTANT):
@@ -477,10 +481,10 @@ def moving_decoy_then_truth(W: int, steps: int = 60):
 def test_outvoting_replaces_an_early_decoy_confirmed_every_other_step_within_W_plus_5():
     """The decoy is accepted first and still confirmed every other step: the margin rule
     never switches (the main hypothesis is confirmed too often), the truth seen more often
-    takes over within W + 5 steps of its first measurement with `switch_support`."""
+    takes over within W + 5 steps of its first measurement with `switch_support` (default)."""
     W = TCAFFParams().window
     truth, decoy, zs, evidence, start = moving_decoy_then_truth(W)
-    for params, replaced in ((TCAFFParams(switch_support=2), True), (TCAFFParams(), False)):
+    for params, replaced in ((TCAFFParams(), True), (TCAFFParams(switch_support=None), False)):
         filt = TCAFF(params)
         estimates = [filt.update(z, np.broadcast_to(R_CONSTANT, (len(z), 3, 3)), ev)
                      for z, ev in zip(zs, evidence, strict=True)]
@@ -515,10 +519,11 @@ def test_a_look_alike_cluster_seen_at_every_step_outvotes_nothing():
 def test_a_true_alignment_re_matched_while_standing_still_is_not_outvoted():
     """The truth re-matches the same objects (the robots stand still) in 7 steps of 8; a
     wrong alignment moving through new objects is seen at every step: 8 is not 7 + 2, so
-    the truth stays."""
+    the truth stays. (The paper's filter with outvoting: `min_distinct` = 2 would not accept
+    a truth that never brings new objects, and `switch_stale` would let it go.)"""
     W = TCAFFParams().window
     truth, decoy = np.array([4.0, -1.0, 0.7]), np.array([-2.0, 3.0, 2.5])
-    filt = TCAFF(TCAFFParams(switch_support=2))
+    filt = TCAFF(replace(TCAFFParams.paper(), switch_support=2))
     for t in range(60):
         z, ev = [], []
         if t % 8 != 7:
@@ -570,9 +575,41 @@ def test_a_held_stream_shows_the_truth_then_the_decoy_alone():
     assert len(set(decoy_ids)) > 1  # the decoy moves through new objects
 
 
-def test_switch_support_needs_switch_after():
-    with pytest.raises(ParameterError, match=r"switch_support = 2: needs switch_after"):
-        TCAFFParams(switch_support=2, switch_after=None)
+def test_an_outvoted_decoy_is_withheld_while_the_switch_is_confirmed():
+    """Once the truth is seen switch_support more times in the window than the decoy, the
+    decoy is no longer reported, even at steps that confirm it; without withholding it is
+    reported until the switch."""
+    W = TCAFFParams().window
+    truth, decoy, zs, evidence, start = moving_decoy_then_truth(W)
+    runs = {}
+    for withhold in (True, False):
+        filt = TCAFF(TCAFFParams(withhold_contested=withhold))
+        runs[withhold] = [filt.update(z, np.broadcast_to(R_CONSTANT, (len(z), 3, 3)), ev)
+                          for z, ev in zip(zs, evidence, strict=True)]
+    first_true = min(k for k, e in enumerate(runs[True])
+                     if e is not None and np.allclose(e.x, truth, atol=0.05))
+    decoy_steps = {w: [k for k in range(start, first_true) if run[k] is not None
+                       and np.allclose(run[k].x, decoy, atol=1e-6)]
+                   for w, run in runs.items()}
+    withheld = sorted(set(decoy_steps[False]) - set(decoy_steps[True]))
+    assert set(decoy_steps[True]) < set(decoy_steps[False]) and withheld
+    # withheld at steps whose measurements confirmed the decoy too
+    assert any(k % 2 == 0 for k in withheld)
+    # the same switch either way
+    assert runs[False][first_true] is not None
+    assert np.allclose(runs[False][first_true].x, truth, atol=0.05)
+
+
+def test_without_re_checking_nothing_is_outvoted():
+    """switch_after = None (the released code) never re-checks, whatever switch_support says:
+    the early decoy stays."""
+    W = TCAFFParams().window
+    _, decoy, zs, evidence, start = moving_decoy_then_truth(W)
+    filt = TCAFF(TCAFFParams(switch_support=2, switch_after=None))
+    estimates = [filt.update(z, np.broadcast_to(R_CONSTANT, (len(z), 3, 3)), ev)
+                 for z, ev in zip(zs, evidence, strict=True)]
+    assert filt.hypothesis == 1
+    assert all(e is None or np.allclose(e.x, decoy, atol=0.3) for e in estimates[start:])
 
 
 @pytest.mark.parametrize("value", [0, -1, 1.5, "2", True])
@@ -743,7 +780,8 @@ def _set(key, index, value):
     (lambda s: s.__setitem__("step", np.array(-3)), "step = -3 must be >= 0"),
     (lambda s: s.__setitem__("_next_tree", np.array(-1)), "_next_tree = -1 must be >= 0"),
     (lambda s: s.__setitem__("_fresh", s["step"] + 1), "_fresh = .* is after step"),
-    (lambda s: s.__setitem__("step", np.array(9)), "evidence of 10 steps, expected 9"),
+    (lambda s: s.update(step=np.array(9), _fresh=np.array(0)),
+     "evidence of 10 steps, expected 9"),
     (_set("explore.tree", 0, 10**6), r"explore.tree ids must lie in \[0, _next_tree"),
     (_set("explore.tree", 0, -4), r"explore.tree ids must lie in \[0, _next_tree"),
     (_set("main.tree", 0, 99), "main.tree ids must all be the hypothesis counter"),
