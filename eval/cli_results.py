@@ -24,8 +24,10 @@ def view(
     method: Annotated[str | None, typer.Option(
         help="The method whose alignments are shown as accepted (default: tcaff).")] = None,
 ) -> None:
-    """Make a Rerun recording of saved runs: the world, each robot's map over time, the paths,
-    the candidates, the accepted alignment and the truth on one timeline, errors over time.
+    """Make a Rerun recording of saved runs: maps, paths, alignments and errors over time.
+
+    The world, each robot's map over time, the paths, the candidates, the accepted alignment
+    and the truth on one timeline, and the errors over time.
 
     Needs the optional extra viz (pip install 'tcaff-gtsam[viz]'); open the file with
     `rerun FILE.rrd`. Runs saved before the maps were kept show no maps.

@@ -175,7 +175,8 @@ alignment, and the tracking is scored with MOTA. Ctrl-C keeps the runs already f
 
 _SchedulerOption = Annotated[str | None, typer.Option(
     help="Run the jobs on the Dask cluster of this scheduler (tcp://host:8786); its workers "
-         "need tcaff-gtsam installed (see the README).", rich_help_panel="Where jobs run")]
+         "need tcaff-gtsam installed (docs/sweeps.md#running-on-a-real-cluster).",
+    rich_help_panel="Where jobs run")]
 _LocalClusterOption = Annotated[int | None, typer.Option(
     help="Start a Dask cluster of N worker processes on this machine for the jobs.", min=1,
     rich_help_panel="Where jobs run")]

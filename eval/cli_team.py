@@ -276,9 +276,11 @@ def team(
     tls_key: Annotated[Path | None, typer.Option(help="PEM file: the nodes' private key.")
     ] = None,
 ) -> None:
-    """Start one node process per robot of a simulated or recorded run on this machine
-    (Zenoh over loopback), wait for the run to end, and print every pair's alignments against
-    the truth. Robots are named r0, r1, ... in the run's order.
+    """A live team on this machine: one node process per robot, scored against the truth.
+
+    Starts one node process per robot of a simulated or recorded run (Zenoh over loopback),
+    waits for the run to end, and prints every pair's alignments against the truth. Robots are
+    named r0, r1, ... in the run's order.
 
     Kimera-Multi bags (--kimera) go through the RGB-D front end first, once for the team (each
     robot's maps saved in OUTPUT/maps/ and reused by a later run with the same settings and

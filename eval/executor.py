@@ -382,7 +382,8 @@ def _check_workers(client: Client) -> None:
         what = (f"has tcaff-gtsam {answer}" if isinstance(answer, str)
                 else f"cannot import tcaff_gtsam ({type(answer).__name__}: {answer})")
         raise ConfigError(f"scheduler {client.scheduler.address}: worker {worker} {what}; every "
-                          f"worker needs tcaff-gtsam {mine} (see the README's cluster section)")
+                          f"worker needs tcaff-gtsam {mine} (see "
+                          f"docs/sweeps.md#running-on-a-real-cluster)")
 
 
 def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done: Done,
