@@ -48,6 +48,8 @@ def _study_bars(bars: RichProgress, n_jobs: int, title: str = "study"):
             self.tasks: dict[int, int] = {}
             self.labels: dict[int, str] = {}
             self.shares: dict[int, float] = {}
+            self.lost_workers: list[str] = []
+            self.run_again: set[int] = set()
 
         def start(self, key: int, label: str) -> None:
             self.labels[key] = label
@@ -66,6 +68,20 @@ def _study_bars(bars: RichProgress, n_jobs: int, title: str = "study"):
                 bars.remove_task(self.tasks[key])
             _console().print(f"{'done' if ok else '[red]failed[/]'}: "
                              f"{escape(self.labels[key])}")
+
+        def lost(self, worker: str, keys: list[int]) -> None:
+            self.lost_workers.append(worker)
+            self.run_again.update(keys)
+            held = ", ".join(escape(self.labels.get(k, f"job {k}")) for k in keys) or "no job"
+            _console().print(f"[yellow]worker lost[/]: {escape(worker)} (held {held}); the "
+                             f"cluster runs its jobs again", soft_wrap=True)
+
+        def summary(self) -> str | None:
+            """What the cluster lost, for the end of the output; None when nothing."""
+            if not self.lost_workers:
+                return None
+            return (f"{len(self.lost_workers)} Dask worker(s) lost during the run; "
+                    f"{len(self.run_again)} job(s) run again on other workers")
 
     return _Bars()
 
@@ -135,8 +151,8 @@ def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None,
                   f"scenarios x {len(study_config.seeds)} seeds on {executor.describe()}")
     start = time.perf_counter()
     with _bars() as bars:
-        outcome = run_study(study_config, _study_bars(bars, n_jobs), figures=figures,
-                            executor=executor)
+        progress = _study_bars(bars, n_jobs)
+        outcome = run_study(study_config, progress, figures=figures, executor=executor)
     if outcome.summary:
         console.print(_summary_table(outcome.summary, study_config.methods))
         console.print("CLIPPER's whole sweep, every pair and seed: metrics.csv and "
@@ -149,6 +165,8 @@ def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None,
         console.print(_mot_table(outcome.mot_summary))
         console.print("Per robot and seed: mot.csv; over time: figures/mot_<scenario>.png; "
                       "against CLIPPER's k: figures/mot_sweep.png.")
+    if progress.summary():
+        console.print(progress.summary())
     console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
     _record(rerun, outcome.jobs)
     if outcome.interrupted:
@@ -341,12 +359,14 @@ def _run_sweep(sweep_config: SweepConfig, study_config: StudyConfig, executor: E
                   f"{executor.describe()}; results in {escape(str(folder))}", soft_wrap=True)
     start = time.perf_counter()
     with _bars() as bars:
-        outcome = run_sweep(sweep_config, study_config, executor,
-                            _study_bars(bars, len(jobs_to_run(plan, folder)), "sweep"),
-                            figures, source, plan=plan)
+        progress = _study_bars(bars, len(jobs_to_run(plan, folder)), "sweep")
+        outcome = run_sweep(sweep_config, study_config, executor, progress, figures, source,
+                            plan=plan)
     if outcome.reused:
         console.print(f"{outcome.reused} of {len(plan.jobs)} jobs done by an earlier run: "
                       f"reused")
+    if progress.summary():
+        console.print(progress.summary())
     console.print(_sweep_table(outcome.rows, sweep_config))
     console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s); "
                   f"sweep.csv has every method, figures/ the trade-off and responses")

@@ -13,6 +13,7 @@ scheduler (up to its `distributed.scheduler.allowed-failures`, 3 by default, the
 from __future__ import annotations
 
 import logging
+import math
 import os
 import queue
 import signal
@@ -51,6 +52,10 @@ class Progress:
     def start(self, key: int, label: str) -> None: ...
     def advance(self, key: int, share: float) -> None: ...
     def finish(self, key: int, ok: bool) -> None: ...
+
+    def lost(self, worker: str, keys: list[int]) -> None:
+        """A Dask worker left the cluster holding the jobs `keys` (running or waiting there;
+        maybe none); the scheduler runs them again on other workers."""
 
 
 @dataclass(frozen=True)
@@ -398,6 +403,7 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
     futures = {client.submit(_job_on_dask, spec, key, topic,
                              key=f"{spec.label.replace(' ', '-')}-{uuid.uuid4().hex[:8]}"): key
                for key, spec in enumerate(specs)}
+    watch = _WorkerWatch(client, {future.key: key for future, key in futures.items()})
     remaining = as_completed(futures)
     try:
         while not remaining.is_empty():
@@ -415,11 +421,39 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
                 finally:
                     future.release()  # its result leaves the cluster's memory
                 done(key, job)
+            watch.check(progress, set(futures.values()))
     except BaseException:
         client.cancel(list(futures))
         raise
     finally:
         client.unsubscribe_topic(topic)
+
+
+class _WorkerWatch:
+    """Which workers hold which jobs, asked of the scheduler every `every` seconds: a worker
+    gone since the last look is reported lost with the jobs it held (`Progress.lost`), which
+    the scheduler runs again on other workers."""
+
+    def __init__(self, client: Client, jobs: dict[str, int], every: float = 0.5) -> None:
+        self.client, self.jobs, self.every = client, jobs, every
+        self.running: dict[str, list[int]] = {}
+        self.last = -math.inf
+
+    def check(self, progress: Progress, pending: set[int]) -> None:
+        """Report the workers gone since the last look, with those of their jobs still
+        `pending` (not yet handed to done or fail)."""
+        now = time.monotonic()
+        if now - self.last < self.every:
+            return
+        self.last = now
+        try:
+            processing = self.client.processing()
+        except OSError:  # the scheduler is unreachable: the futures will say so
+            return
+        for worker in sorted(self.running.keys() - processing.keys()):
+            progress.lost(worker, [key for key in self.running[worker] if key in pending])
+        self.running = {worker: [self.jobs[k] for k in keys if k in self.jobs]
+                        for worker, keys in processing.items()}
 
 
 def _drain_events(updates: queue.SimpleQueue, progress: Progress) -> None:

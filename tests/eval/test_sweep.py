@@ -83,8 +83,10 @@ def test_dask_gives_the_local_arrays_bit_for_bit(cluster):
 
 
 def test_a_killed_worker_has_its_job_run_again(cluster):
+    """... and the run says so: the worker lost, with the jobs it held."""
     specs = [JobSpec(short("indoor_return", 20.0), METHODS, seed) for seed in range(4)]
-    killed: list[int] = []
+    killed: list[str] = []
+    lost: list[tuple[str, list[int]]] = []
 
     class KillOnce(Progress):
         def advance(self, key: int, share: float) -> None:
@@ -96,13 +98,18 @@ def test_a_killed_worker_has_its_job_run_again(cluster):
                     return
                 pid = client.run(os.getpid, workers=busy[:1])[busy[0]]
             os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
+            killed.append(busy[0])
+
+        def lost(self, worker: str, keys: list[int]) -> None:
+            lost.append((worker, keys))
 
     done, failed = run_all(Executor(scheduler=cluster.scheduler_address), specs, KillOnce())
     assert killed, "no worker was busy when the jobs reported progress"
     assert not failed
     assert sorted(done) == [0, 1, 2, 3]
     assert [done[k].seed for k in range(4)] == [0, 1, 2, 3]
+    assert [worker for worker, _ in lost] == killed
+    assert lost[0][1] and set(lost[0][1]) <= {0, 1, 2, 3}  # running or waiting there
 
 
 def test_an_interrupted_sweep_resumes_without_redoing_finished_jobs(tmp_path):
@@ -283,3 +290,24 @@ def test_sweep_figures_of_points_without_figures_draw_without_warnings(tmp_path)
         written = draw_sweep(tmp_path, points, reports, ["methods.tcaff.tau"], "TCAFF")
     assert [p.name for p in written] == ["tradeoff.png", "response_tau.png"]
     assert all(p.stat().st_size > 0 for p in written)
+
+
+def test_the_command_line_reports_lost_workers_and_the_jobs_run_again(capsys, monkeypatch):
+    from tcaff_gtsam.eval import cli
+    from tcaff_gtsam.eval.cli_common import _bars
+    from tcaff_gtsam.eval.cli_studies import _study_bars
+
+    monkeypatch.setattr(cli, "_consoles", {})  # consoles on this test's captured stdout
+    with _bars() as bars:
+        progress = _study_bars(bars, 3)
+        for key, seed in enumerate((0, 1, 2)):
+            progress.start(key, f"indoor_return seed {seed}")
+        assert progress.summary() is None
+        progress.lost("tcp://127.0.0.1:40001", [0, 2])
+        progress.lost("tcp://127.0.0.1:40002", [])
+    out = " ".join(capsys.readouterr().out.split())
+    assert ("worker lost: tcp://127.0.0.1:40001 (held indoor_return seed 0, indoor_return "
+            "seed 2)") in out
+    assert "worker lost: tcp://127.0.0.1:40002 (held no job)" in out
+    assert progress.summary() == ("2 Dask worker(s) lost during the run; 2 job(s) run again "
+                                  "on other workers")
