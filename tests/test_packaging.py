@@ -196,7 +196,7 @@ class TestWheelInstall:
             names = set(zf.namelist())
         for required in ("tcaff_gtsam/__init__.py", "tcaff_gtsam/geometry.py",
                          "tcaff_gtsam/mapping/__init__.py", "tcaff_gtsam/eval/__init__.py",
-                         "tcaff_gtsam/eval/cli.py", "tcaff_gtsam/eval/sim/__init__.py",
+                         "tcaff_gtsam/eval/cli/__init__.py", "tcaff_gtsam/eval/sim/__init__.py",
                          "tcaff_gtsam/eval/sim/maps.py"):
             assert required in names, sorted(names)
         top_level = {name.split("/", 1)[0] for name in names}

@@ -294,8 +294,8 @@ def test_sweep_figures_of_points_without_figures_draw_without_warnings(tmp_path)
 
 def test_the_command_line_reports_lost_workers_and_the_jobs_run_again(capsys, monkeypatch):
     from tcaff_gtsam.eval import cli
-    from tcaff_gtsam.eval.cli_common import _bars
-    from tcaff_gtsam.eval.cli_studies import _study_bars
+    from tcaff_gtsam.eval.cli.common import _bars
+    from tcaff_gtsam.eval.cli.studies import _study_bars
 
     monkeypatch.setattr(cli, "_consoles", {})  # consoles on this test's captured stdout
     with _bars() as bars:

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from .cli_common import (
+from .common import (
     _RERUN_HELP,
     _add_columns,
     _bars,
@@ -31,15 +31,15 @@ if TYPE_CHECKING:
     from rich.progress import Progress as RichProgress
     from rich.table import Table
 
-    from .config import StudyConfig, SweepConfig
-    from .executor import Executor
+    from ..config import StudyConfig, SweepConfig
+    from ..executor import Executor
 
 
 def _study_bars(bars: RichProgress, n_jobs: int, title: str = "study"):
     """The progress of jobs as rich bars: one for them all, one per running job."""
     from rich.markup import escape
 
-    from .study import Progress
+    from ..study import Progress
 
     # Defined here: the base class lives in the study module, which loads the whole stack.
     class _Bars(Progress):
@@ -89,7 +89,7 @@ def _study_bars(bars: RichProgress, n_jobs: int, title: str = "study"):
 def _mot_table(mot_summary: dict) -> Table:
     from rich.markup import escape
 
-    from . import plots
+    from .. import plots
 
     table = _table("Tracking people together: MOTA averaged over the robots, mean ± std over "
                    "seeds; errors as shares of the people to track, pooled over robots and "
@@ -141,8 +141,8 @@ def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None,
 
     from rich.markup import escape
 
-    from .executor import Executor
-    from .study import run_study
+    from ..executor import Executor
+    from ..study import run_study
 
     console, err_console = _console(), _console(stderr=True)
     executor = executor or Executor(workers=study_config.workers)
@@ -204,7 +204,7 @@ def _executor(workers: int, scheduler: str | None, local_cluster: int | None):
     """Where the jobs run: local processes, or Dask by --scheduler or --local-cluster."""
     from tcaff_gtsam.errors import ConfigError
 
-    from .executor import Executor
+    from ..executor import Executor
 
     if scheduler is not None and local_cluster is not None:
         raise ConfigError(f"--scheduler {scheduler!r} and --local-cluster {local_cluster}: "
@@ -244,7 +244,7 @@ def study(
     scheduler: _SchedulerOption = None,
     local_cluster: _LocalClusterOption = None,
 ) -> None:
-    from .config import load_study
+    from ..config import load_study
 
     _check_duration(duration)
     _check_recording(rerun)
@@ -275,7 +275,7 @@ def demo(
         help="Cap every scenario's duration (seconds), for a quick look.")] = None,
 ) -> None:
     """The study on every scenario with one seed (about a minute): table, metrics, figures."""
-    from .config import load_study
+    from ..config import load_study
 
     _check_duration(duration)
     study_config = load_study("demo", {"output": str(output), "workers": workers})
@@ -319,7 +319,7 @@ def sweep(
     scheduler: _SchedulerOption = None,
     local_cluster: _LocalClusterOption = None,
 ) -> None:
-    from .config import load_sweep, resolve_study
+    from ..config import load_sweep, resolve_study
 
     _check_duration(duration)
     sweep_config, study_config = load_sweep(config)
@@ -348,7 +348,7 @@ def _run_sweep(sweep_config: SweepConfig, study_config: StudyConfig, executor: E
 
     from rich.markup import escape
 
-    from .sweep import jobs_to_run, plan_sweep, run_sweep
+    from ..sweep import jobs_to_run, plan_sweep, run_sweep
 
     console, err_console = _console(), _console(stderr=True)
     plan = plan_sweep(sweep_config, study_config, source)
@@ -389,7 +389,7 @@ def _sweep_table(rows: list[dict], sweep_config: SweepConfig) -> Table:
     """One row per point: the shown method's metrics pooled over scenarios, seeds, pairs."""
     from rich.markup import escape
 
-    from . import plots
+    from .. import plots
 
     table = _table(f"{plots.label(sweep_config.method)} at each point, pooled over scenarios, "
                    f"seeds and directed pairs (* the default)")

@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from .cli_common import _console, app
+from .common import _console, app
 
 
 @app.command()
@@ -32,8 +32,8 @@ def view(
     Needs the optional extra viz (pip install 'tcaff-gtsam[viz]'); open the file with
     `rerun FILE.rrd`. Runs saved before the maps were kept show no maps.
     """
-    from .recording import record
-    from .results import load_saved
+    from ..recording import record
+    from ..results import load_saved
 
     path = output or results / "recording.rrd"
     jobs = load_saved(results)
@@ -60,7 +60,7 @@ def export(
     with evo, e.g. `evo_ape tum truth/1.tum tcaff/1.tum` in a frame_<reference>/ folder: the
     APE column of the table is that figure for the pair reference -> 1.
     """
-    from .trajectories import export as export_trajectories
+    from ..trajectories import export as export_trajectories
 
     folders = export_trajectories(results, fmt, reference)
     for folder in folders:

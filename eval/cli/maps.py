@@ -15,7 +15,7 @@ import typer
 # The align-maps defaults are the library's own; params needs numpy only.
 from tcaff_gtsam.params import FrameAlignerParams
 
-from .cli_common import (
+from .common import (
     _add_columns,
     _console,
     _keep_numbers_whole,
@@ -140,7 +140,7 @@ def make_maps(
 
     from tcaff_gtsam.geometry import se2_to_params
 
-    from .sim.maps import overlapping_maps
+    from ..sim.maps import overlapping_maps
 
     for option, count in (("--objects", objects), ("--clutter", clutter), ("--seed", seed)):
         if count < 0:

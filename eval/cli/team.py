@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from .cli_common import (
+from .common import (
     _add_columns,
     _bars,
     _check_duration,
@@ -25,7 +25,7 @@ from .cli_common import (
     _writable_folder,
     app,
 )
-from .cli_datasets import _kimera_bars
+from .data import _kimera_bars
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -57,8 +57,8 @@ def _tls(ca: Path | None, cert: Path | None, key: Path | None):
 
 def _simulated(scenario: str, seed: int, duration: float | None):
     """The simulated run of a scenario (capped to `duration` s), the same in every process."""
-    from .config import load_scenario, override
-    from .sim.simulate import simulate
+    from ..config import load_scenario, override
+    from ..sim.simulate import simulate
 
     _check_seeds([seed])
     _check_duration(duration)
@@ -216,8 +216,8 @@ def _kimera_run(data: Path, test: str, duration: float | None, maps: Path):
     _check_duration(duration)
     if not Path(data).is_dir():
         _refuse("--kimera", str(data), "must be a folder of Kimera-Multi bags")
-    from .config import load_kimera_multi
-    from .datasets import kimera_multi  # the RGB-D front end: loaded only when needed
+    from ..config import load_kimera_multi
+    from ..datasets import kimera_multi  # the RGB-D front end: loaded only when needed
 
     config = load_kimera_multi(test)
     if duration is not None:
@@ -239,9 +239,9 @@ def _mrclam_run(data: Path, seed: int, duration: float | None):
     """The UTIAS MRCLAM data set in `data` as a recorded run (default settings, VIO-like
     odometry drawn with `seed`)."""
     _check_seeds([seed])
-    from .config import load_mrclam
-    from .datasets import mrclam
-    from .recorded import load_mrclam_run
+    from ..config import load_mrclam
+    from ..datasets import mrclam
+    from ..recorded import load_mrclam_run
 
     _check_duration(duration)
     config = load_mrclam("default")

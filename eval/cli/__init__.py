@@ -2,9 +2,9 @@
 
 Building the app loads typer and the aligner's parameter defaults (numpy) only; every command
 imports what it uses (gtsam, Open3D, numba, matplotlib, the study), so `tcaff --help` is instant.
-The `app` and the helpers the commands share are in cli_common; the commands, by subject, in
-cli_maps (align-maps, make-maps, advise-kappa), cli_studies (study, demo, sweep), cli_datasets
-(kimera-multi, mrclam, rgbd), cli_results (view, export) and cli_team (node, team, listen).
+The `app` and the helpers the commands share are in common; the commands, by subject, in
+maps (align-maps, make-maps, advise-kappa), studies (study, demo, sweep), data
+(kimera-multi, mrclam, rgbd), results (view, export) and team (node, team, listen).
 """
 
 from __future__ import annotations
@@ -16,13 +16,13 @@ import typer
 # isort: off
 # Importing a command module registers its commands on `app`; this order is the order of
 # `tcaff --help`.
-from . import cli_maps, cli_studies, cli_datasets, cli_results, cli_team  # noqa: F401
+from . import maps, studies, data, results, team  # noqa: F401
 # isort: on
 
 # Re-exported: the names tests and other callers use as `cli.<name>`.
-from .cli_common import _CONFIG_DIR, _console, _pooled_table, app  # noqa: F401
-from .cli_datasets import _parse_pairs, _parse_ranges  # noqa: F401
-from .cli_maps import _aligner_params  # noqa: F401
+from .common import _CONFIG_DIR, _console, _pooled_table, app  # noqa: F401
+from .data import _parse_pairs, _parse_ranges  # noqa: F401
+from .maps import _aligner_params  # noqa: F401
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -76,7 +76,3 @@ def main() -> None:
         _console(stderr=True).print("interrupted", soft_wrap=True)
         raise SystemExit(130) from None
     raise SystemExit(code if isinstance(code, int) else 0)
-
-
-if __name__ == "__main__":
-    main()

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from .cli_common import (
+from .common import (
     _RERUN_HELP,
     _add_columns,
     _bars,
@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 def _kimera_bars(bars: RichProgress):
     from rich.markup import escape
 
-    from .recorded import KimeraProgress
+    from ..recorded import KimeraProgress
 
     # Defined here: the base class lives in the recorded module, which loads the whole stack.
     class _KimeraBars(KimeraProgress):
@@ -99,8 +99,8 @@ def kimera_multi(
 
     from tcaff_gtsam.errors import TcaffError
 
-    from .config import load_kimera_multi, load_methods
-    from .recorded import run_kimera_multi
+    from ..config import load_kimera_multi, load_methods
+    from ..recorded import run_kimera_multi
 
     console, err_console = _console(), _console(stderr=True)
     _check_duration(duration)
@@ -162,7 +162,7 @@ def _parse_pairs(text: str | None) -> list[tuple[int, int]] | None:
 
 def _pairs_table(recorded, shown: list[str]) -> Table:
     """Per directed pair: each shown method's false accepts and availability."""
-    from .registry import describe
+    from ..registry import describe
 
     table = _table("Per directed pair (robot names as in the data set): false accepts / "
                    "availability")
@@ -221,8 +221,8 @@ def mrclam(
 
     from rich.markup import escape
 
-    from .config import load_methods, load_mrclam, override
-    from .recorded import run_mrclam
+    from ..config import load_methods, load_mrclam, override
+    from ..recorded import run_mrclam
 
     console = _console()
     _check_duration(duration)
@@ -260,7 +260,7 @@ def mrclam(
         if recorded.summary:
             console.print(_summary_table({recorded.job.name: recorded.summary},
                                          recorded.methods))
-            from .registry import describe, shown_streams
+            from ..registry import describe, shown_streams
 
             shown = [m for m in shown_streams(recorded.methods)
                      if describe(m).causal and m != "ground_truth"]
@@ -376,11 +376,11 @@ def rgbd(
 
     from tcaff_gtsam.errors import ConfigError
 
-    from .config import load_methods, load_rgbd, override
-    from .datasets.rgbd_robots import halves, walk
-    from .datasets.rgbd_sequence import read_sequence
-    from .recorded import run_rgbd
-    from .registry import describe
+    from ..config import load_methods, load_rgbd, override
+    from ..datasets.rgbd_robots import halves, walk
+    from ..datasets.rgbd_sequence import read_sequence
+    from ..recorded import run_rgbd
+    from ..registry import describe
 
     console = _console()
     _check_recording(rerun)

@@ -19,10 +19,10 @@ if TYPE_CHECKING:
     from rich.progress import Progress as RichProgress
     from rich.table import Table
 
-    from .config import MethodsConfig
+    from ..config import MethodsConfig
 
 # The same folder as config.CONFIG_DIR, found without importing config (pydantic).
-_CONFIG_DIR = Path(__file__).parent / "configs"
+_CONFIG_DIR = Path(__file__).parents[1] / "configs"
 
 
 def _shipped(kind: str) -> str:
@@ -42,7 +42,7 @@ app = typer.Typer(
 def _console(stderr: bool = False) -> Console:
     """The rich console of stdout (or stderr), made on first use."""
     # The cache is the entry point's `cli._consoles`: tests replace it to make them again.
-    from . import cli
+    from .. import cli
 
     consoles = cli._consoles
     if stderr not in consoles:
@@ -139,7 +139,7 @@ def _check_recording(path: Path | None) -> None:
     """Before any work: rerun-sdk is there and `path` can become a recording file."""
     if path is None:
         return
-    from .recording import check_rerun
+    from ..recording import check_rerun
 
     check_rerun()
     if path.is_dir():
@@ -151,7 +151,7 @@ def _record(path: Path | None, jobs: list) -> None:
     """The runs into a Rerun recording, when asked for and there are runs."""
     if path is None or not jobs:
         return
-    from .recording import record
+    from ..recording import record
 
     record(path, jobs)
     _console().print(f"recording: {path} (open it with: rerun {path})", soft_wrap=True)
@@ -181,7 +181,7 @@ def _cell(report: dict, key: str, scale: float = 1.0, digits: int = 2) -> str:
 
 def _summary_table(summary: dict, methods: MethodsConfig) -> Table:
     """The study table of the methods a method set shows, labelled as in the figures."""
-    from .registry import describe, shown_streams
+    from ..registry import describe, shown_streams
 
     return _pooled_table(summary, {m: describe(m).label for m in shown_streams(methods)})
 
