@@ -20,7 +20,7 @@ import signal
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -421,7 +421,7 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
                 finally:
                     future.release()  # its result leaves the cluster's memory
                 done(key, job)
-            watch.check(progress, set(futures.values()))
+            watch.check(progress, futures.values())
     except BaseException:
         client.cancel(list(futures))
         raise
@@ -439,7 +439,7 @@ class _WorkerWatch:
         self.running: dict[str, list[int]] = {}
         self.last = -math.inf
 
-    def check(self, progress: Progress, pending: set[int]) -> None:
+    def check(self, progress: Progress, pending: Collection[int]) -> None:
         """Report the workers gone since the last look, with those of their jobs still
         `pending` (not yet handed to done or fail)."""
         now = time.monotonic()
@@ -450,7 +450,10 @@ class _WorkerWatch:
             processing = self.client.processing()
         except OSError:  # the scheduler is unreachable: the futures will say so
             return
-        for worker in sorted(self.running.keys() - processing.keys()):
+        gone = sorted(self.running.keys() - processing.keys())
+        if gone:
+            pending = set(pending)
+        for worker in gone:
             progress.lost(worker, [key for key in self.running[worker] if key in pending])
         self.running = {worker: [self.jobs[k] for k in keys if k in self.jobs]
                         for worker, keys in processing.items()}

@@ -188,15 +188,16 @@ class PairwiseAligner:
         measurements = self.aligner.measurements(
             ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held,
             guided)
-        # the identities advance on copies, kept only once the filter has taken the step
-        identities = tuple(copy.copy(ids) for ids in self._identities)
         # object ids only among look-alikes: elsewhere every measurement is distinct evidence
         # (the identities match objects by position, so they bridge the steps skipped)
         tcaff_params = self.filter.params
-        ids = (tuple(recent_ids(each, objects, t, prm.kappa) for each, objects
-                     in zip(identities, (ego_map, other_map), strict=True))
-               if tcaff_params.counts_evidence and self.aligner.lookalike_share(
-                   ego_map, other_map, t) >= tcaff_params.lookalike_share else None)
+        identities, ids = self._identities, None
+        if tcaff_params.counts_evidence and self.aligner.lookalike_share(
+                ego_map, other_map, t) >= tcaff_params.lookalike_share:
+            # the identities advance on copies, kept only once the filter has taken the step
+            identities = tuple(copy.copy(each) for each in self._identities)
+            ids = tuple(recent_ids(each, objects, t, prm.kappa) for each, objects
+                        in zip(identities, (ego_map, other_map), strict=True))
         kept = admitted(measurements, self.filter.held, prm)
         zs = np.array([m.z for m in kept]).reshape(-1, 3)
         Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)

@@ -284,10 +284,7 @@ class TCAFF:
             rival[rival] = [self._distinct_enough(complete, r) for r in np.flatnonzero(rival)]
         if prm.switch_support is not None:
             # ... but one seen less often than a rival is, confirmed or not
-            # the main path's measurements count as they are: a true alignment re-matching
-            # the same objects (robots standing still) is not to be outvoted for it
-            need = (int(np.count_nonzero(self._main.choice[m, -prm.window:] >= 0))
-                    + prm.switch_support)
+            need = self._outvote_need(m)
             for r in np.flatnonzero(inconsistent & ~rival & (cost < main_cost[m])):
                 rival[r] = (self._support(complete.choice[r]) >= need
                             and self._distinct_enough(complete, r))
@@ -318,41 +315,43 @@ class TCAFF:
         return estimate
 
     def _contested(self) -> bool:
-        """Whether, at a step given object ids, the main tree's best path is outvoted
-        (`_outvoted`, with `switch_support`), or took no measurement this step while an
-        exploring hypothesis inconsistent with it holds more distinct evidence in the window
-        (and at least `min_distinct` pieces)."""
+        """Whether, at a step given object ids, an exploring hypothesis inconsistent with the
+        main tree's best path outvotes it (seen `_outvote_need` times by `_support`, with
+        `switch_support`: the outvoting streak builds), or that path took no measurement this
+        step while the rival holds more distinct evidence in the window (and at least
+        `min_distinct` pieces)."""
         main, explore = self._main, self._explore
         m = int(np.argmin(main.cost))
         # without object ids this step (maps not of look-alikes) nothing is contested
         if len(explore) == 0 or self._evidence[-1] is None:
             return False
-        if self.params.switch_support is not None and self._outvoted(m):
-            return True
+        taken = np.count_nonzero(explore.choice[:, -self.params.window:] >= 0, axis=1)
+        if self.params.switch_support is not None:
+            need = self._outvote_need(m)
+            if any(self._support(explore.choice[r]) >= need
+                   for r in self._rivals_of(m, taken >= need)):
+                return True
         if main.since[m] == 0:
             return False
         need = max(self._distinct(main.choice[m])[0] + 1, self.params.min_distinct)
-        taken = np.count_nonzero(explore.choice[:, -self.params.window:] >= 0, axis=1)
-        rivals = np.flatnonzero(taken >= need)
-        if rivals.size == 0:
-            return False
-        rivals = rivals[~self._consistent(explore.take(rivals), main.take([m]))]
-        return any(self._distinct(explore.choice[r])[0] >= need for r in rivals)
+        return any(self._distinct(explore.choice[r])[0] >= need
+                   for r in self._rivals_of(m, taken >= need))
 
-    def _outvoted(self, m: int) -> bool:
-        """Whether an open exploring hypothesis inconsistent with the main tree's best leaf m
-        was seen `switch_support` more times in the window than that leaf's path (`_support`),
-        confirmed this step or not: the estimate is contested while the outvoting streak
-        builds."""
-        main, explore, W = self._main, self._explore, self.params.window
-        seen = int(np.count_nonzero(main.choice[m, -W:] >= 0))
-        taken = np.count_nonzero(explore.choice[:, -W:] >= 0, axis=1)
-        rivals = np.flatnonzero(taken >= seen + self.params.switch_support)
+    def _rivals_of(self, m: int, candidates: np.ndarray) -> np.ndarray:
+        """Indices of the open exploring leaves among `candidates` ((L,) bool) that are
+        inconsistent with the main tree's leaf m."""
+        rivals = np.flatnonzero(candidates)
         if rivals.size == 0:
-            return False
-        rivals = rivals[~self._consistent(explore.take(rivals), main.take([m]))]
-        return any(self._support(explore.choice[r]) >= seen + self.params.switch_support
-                   for r in rivals)
+            return rivals
+        return rivals[~self._consistent(self._explore.take(rivals), self._main.take([m]))]
+
+    def _outvote_need(self, m: int) -> int:
+        """How often a rival must be seen in the window (`_support`) to outvote the main
+        tree's leaf m: `switch_support` more times than m's path took a measurement (the main
+        path's measurements count as they are: a true alignment re-matching the same objects
+        while the robots stand still is not to be outvoted for it)."""
+        seen = int(np.count_nonzero(self._main.choice[m, -self.params.window:] >= 0))
+        return seen + self.params.switch_support
 
     def _support(self, path: np.ndarray) -> int:
         """How often a rival's hypothesis was seen in the window: its measurements, or one
@@ -802,9 +801,6 @@ def _not_spd(P: np.ndarray) -> tuple[int, str] | None:
     first = not_positive_definite(P)
     if first < 0:
         return None
-    # the eigenvalue names how far from positive definite it is
-    smallest = np.linalg.eigvalsh(P)[:, 0]
-    if (smallest <= 0).any():
-        i = int(np.flatnonzero(smallest <= 0)[0])
-        return i, f"positive definite (smallest eigenvalue {smallest[i]:.3g})"
-    return first, f"positive definite (smallest eigenvalue {smallest[first]:.3g})"
+    # the eigenvalue says how far from positive definite it is
+    smallest = np.linalg.eigvalsh(P[first])[0]
+    return first, f"positive definite (smallest eigenvalue {smallest:.3g})"

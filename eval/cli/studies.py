@@ -165,8 +165,8 @@ def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None,
         console.print(_mot_table(outcome.mot_summary))
         console.print("Per robot and seed: mot.csv; over time: figures/mot_<scenario>.png; "
                       "against CLIPPER's k: figures/mot_sweep.png.")
-    if progress.summary():
-        console.print(progress.summary())
+    if lost := progress.summary():
+        console.print(lost)
     console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
     _record(rerun, outcome.jobs)
     if outcome.interrupted:
@@ -365,8 +365,8 @@ def _run_sweep(sweep_config: SweepConfig, study_config: StudyConfig, executor: E
     if outcome.reused:
         console.print(f"{outcome.reused} of {len(plan.jobs)} jobs done by an earlier run: "
                       f"reused")
-    if progress.summary():
-        console.print(progress.summary())
+    if lost := progress.summary():
+        console.print(lost)
     console.print(_sweep_table(outcome.rows, sweep_config))
     console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s); "
                   f"sweep.csv has every method, figures/ the trade-off and responses")
