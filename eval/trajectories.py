@@ -26,9 +26,9 @@ from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params, se2_to_
 from .results import JobResult, load_saved
 
 __all__ = ["FORMATS", "TRUTH", "export", "frame_alignment", "robot_names", "robot_paths",
-           "write_g2o", "write_tum"]
+           "write_g2o", "write_rosbag2", "write_tum"]
 
-FORMATS = ("tum", "g2o")
+FORMATS = ("tum", "g2o", "rosbag2")
 TRUTH = "truth"  # the folder of the ground truth, beside the methods'
 
 
@@ -200,10 +200,63 @@ def write_g2o(root: Path, job: JobResult, reference: int = 0) -> Path:
     return folder
 
 
+def _ros_token(name: str, prefix: str) -> str:
+    """`name` as a ROS 2 name token: other characters as `_`, `prefix` before a leading
+    non-letter, doubled `_` single."""
+    token = re.sub(r"_+", "_", re.sub(r"\W", "_", name))
+    return token if token[:1].isalpha() else prefix + token.lstrip("_")
+
+
+def write_rosbag2(root: Path, job: JobResult, reference: int = 0) -> Path:
+    """Every pair's alignments of a job, each method's and the truth, as a ROS 2 bag (rosbag2,
+    MCAP storage) in `trajectories/<job stem>/rosbag2/` (replaced if there); returns it.
+
+    Topics (see `tcaff_gtsam.node.ros2`; robots named as ROS 2 name tokens, `r<k>` for a
+    number): `/<robot_i>/tcaff/<method>/alignment/<robot_j>` at the steps the method has an
+    estimate and `/<robot_i>/tcaff/truth/<robot_j>` where the truth is known, each a
+    geometry_msgs/msg/PoseWithCovarianceStamped in `<robot_i>/odom` stamped and logged at its
+    exchange's time; saved runs keep no covariances, so they are zero. `reference` is unused:
+    every pair is written.
+    """
+    import shutil
+
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from tcaff_gtsam.node.ros2 import ALIGNMENT_TYPE, _store, pose_message, serialize
+
+    names = [_ros_token(name, "r") for name in robot_names(job)]
+    folder = root / "trajectories" / job.stem / "rosbag2"
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    times = _times(job)
+    if len(times) and times.min() < 0:
+        raise DataError(f"{job.stem}: times before 0 s cannot be bag time stamps")
+    streams = [("truth", "truth")] + [(s, f"est_{s}") for s in estimate_streams(job)]
+    messages = []
+    for stream, key in streams:
+        label = "truth" if stream == "truth" else f"{_ros_token(stream, 'm')}/alignment"
+        for p, (i, j) in enumerate(job.pairs):
+            topic = f"/{names[i]}/tcaff/{label}/{names[j]}"
+            values = job.arrays[key][p]
+            for s in np.flatnonzero(np.all(np.isfinite(values), axis=1)):
+                t = float(times[s])
+                messages.append((round(t * 1e9), topic, pose_message(
+                    t, f"{names[i]}/odom", values[s], np.zeros((3, 3)))))
+    messages.sort(key=lambda m: m[0])
+    with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = {}
+        for stamp, topic, message in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, ALIGNMENT_TYPE,
+                                                           typestore=_store())
+            writer.write(connections[topic], stamp, serialize(message, ALIGNMENT_TYPE))
+    return folder
+
+
 def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
     """Write the trajectories of every job saved in a results folder (see
-    `results.load_saved`) as TUM or g2o files under `results/trajectories/`; returns the folders
-    written.
+    `results.load_saved`) as TUM or g2o files, or its alignments as a ROS 2 bag, under
+    `results/trajectories/`; returns the folders written.
 
     Raises:
         ConfigError: an unknown format or reference robot.
@@ -211,5 +264,5 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
     """
     if fmt not in FORMATS:
         raise ConfigError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
-    write = write_tum if fmt == "tum" else write_g2o
+    write = {"tum": write_tum, "g2o": write_g2o, "rosbag2": write_rosbag2}[fmt]
     return [write(Path(results), job, reference) for job in load_saved(results)]

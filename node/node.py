@@ -63,6 +63,13 @@ class NodeParams:
             left out, pairs without one chained through a third robot) on
             `tcaff/<team>/<robot>/team/<neighbour>`. Another robot's alignment counts for
             `silence` s (ego clock) after it arrives.
+        ros2: also publish the shared map and every accepted (and team) alignment as ROS 2
+            topics with standard messages, as ROS 2's Zenoh middleware would (`node.ros2`);
+            robot names must then be ROS 2 name tokens.
+        domain_id: the ROS 2 domain (ROS_DOMAIN_ID) of those topics, 0 to 232.
+        ros2_objects: with `ros2`, also take the robot's map from the ROS 2 topic
+            /<robot>/tcaff/objects (a MarkerArray as `node.ros2` describes); each message is
+            published as by `publish`.
     """
 
     kappa: float = 20.0
@@ -73,6 +80,9 @@ class NodeParams:
     drop_share: float = 0.0
     seed: int = 0
     team_consistency: bool = False
+    ros2: bool = False
+    domain_id: int = 0
+    ros2_objects: bool = False
 
     def __post_init__(self) -> None:
         o = "NodeParams"
@@ -83,9 +93,13 @@ class NodeParams:
                  self.drop_share, "must be a number in [0, 1)")
         _require(_int_at_least(self.queue, 1), o, "queue", self.queue, "must be an int >= 1")
         _require(_int_at_least(self.seed, 0), o, "seed", self.seed, "must be an int >= 0")
-        for name in ("lockstep", "team_consistency"):
+        for name in ("lockstep", "team_consistency", "ros2", "ros2_objects"):
             value = getattr(self, name)
             _require(isinstance(value, bool), o, name, value, "must be True or False")
+        _require(_int_at_least(self.domain_id, 0) and self.domain_id <= 232, o, "domain_id",
+                 self.domain_id, "must be an int in 0..232")
+        _require(self.ros2 or not self.ros2_objects, o, "ros2_objects", self.ros2_objects,
+                 "needs ros2=True")
 
 
 class _Neighbour:
@@ -156,6 +170,11 @@ class RobotNode:
             raise ConfigError(f"--members {members!r}: the team needs another robot besides "
                               f"{robot!r}")
         self.params = params or NodeParams()
+        if self.params.ros2:  # before anything is opened
+            from .ros2 import check_ros_name
+
+            for name in (robot, *self.members):
+                check_ros_name("--robot" if name == robot else "--members", name)
         self._aligner_params = aligner_params or FrameAlignerParams(kappa=self.params.kappa)
         self._tcaff_params = tcaff_params
         self._on_alignment = on_alignment
@@ -181,14 +200,23 @@ class RobotNode:
         self._inbox: queue.Queue = queue.Queue(self.params.queue)
         self._idle = threading.Event()
         self._session = link.open()
-        self._map_pub = self._session.declare_publisher(map_key(team, robot))
-        self._align_pubs: dict[str, object] = {}
-        self._team_pubs: dict[str, object] = {}
-        self._subscribers = [self._session.declare_subscriber(team_keys(team)[0], self._arrived)]
-        if self._team is not None:
-            self._subscribers.append(self._session.declare_subscriber(team_keys(team)[1],
-                                                                      self._arrived))
-        self._alive = self._session.liveliness().declare_token(alive_key(team, robot))
+        try:
+            self._map_pub = self._session.declare_publisher(map_key(team, robot))
+            self._align_pubs: dict[str, object] = {}
+            self._team_pubs: dict[str, object] = {}
+            self._subscribers = [self._session.declare_subscriber(key, self._arrived)
+                                 for key in team_keys(team)[:1 + (self._team is not None)]]
+            self._alive = self._session.liveliness().declare_token(alive_key(team, robot))
+            self._ros2 = None
+            if self.params.ros2:
+                from .ros2 import Ros2Bridge
+
+                self._ros2 = Ros2Bridge(self._session, robot, self.params.domain_id,
+                                        self._ros2_map if self.params.ros2_objects else None,
+                                        self._drop)
+        except BaseException:  # nothing left open by a node that could not start
+            self._session.close()
+            raise
         self._worker = threading.Thread(target=self._work, name=f"tcaff-node-{robot}",
                                         daemon=True)
         self._worker.start()
@@ -214,6 +242,8 @@ class RobotNode:
                             f"{self._seq - 1}")
         recent = object_map.recent(t, self.params.kappa)
         self._map_pub.put(encode(MapMessage.of(self.robot, self.boot, seq, t, recent)))
+        if self._ros2 is not None:
+            self._ros2.object_map(t, recent)
         self.counters["maps_sent"] += 1
         self._seq = seq + 1
         self._inbox.put(("ego", seq, t, recent, time.monotonic()))
@@ -232,6 +262,8 @@ class RobotNode:
 
     def close(self) -> None:
         """Stop the worker (after what is queued) and close the session."""
+        if self._ros2 is not None:
+            self._ros2.close()
         self._inbox.put(None)
         self._worker.join(timeout=30)
         self._session.close()
@@ -252,6 +284,14 @@ class RobotNode:
             self._inbox.put_nowait((kind, key, sample.payload.to_bytes(), time.perf_counter()))
         except queue.Full:
             self._drop("overflow", "queue full")
+
+    def _ros2_map(self, t: float, object_map: ObjectMap) -> None:
+        """A map from the ROS 2 objects topic (on Zenoh's thread): published as `publish`
+        would; one that cannot be (a time not after the last) is dropped and counted."""
+        try:
+            self.publish(t, object_map)
+        except DataError as exc:
+            self._drop("malformed", f"on the ROS 2 objects topic: {exc}")
 
     def _drop(self, reason: str, detail: str) -> None:
         self.counters[f"dropped_{reason}"] += 1
@@ -362,6 +402,8 @@ class RobotNode:
             self._align_pubs[name] = self._session.declare_publisher(
                 alignment_key(self.team, self.robot, name))
         self._align_pubs[name].put(encode(out))
+        if self._ros2 is not None:
+            self._ros2.alignment(out)
         if arrived is not None:
             self.latencies.append(time.perf_counter() - arrived)
         self.latest[name] = out
@@ -412,6 +454,8 @@ class RobotNode:
             self._team_pubs[name] = self._session.declare_publisher(
                 team_key(self.team, self.robot, name))
         self._team_pubs[name].put(encode(out))
+        if self._ros2 is not None:
+            self._ros2.alignment(out)
         self.team_latest[name] = out
         if self._on_team is not None:
             self._on_team(out)

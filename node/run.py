@@ -23,7 +23,7 @@ from .node import NodeParams, RobotNode
 from .replay import RobotReplay, replay, robot_names, run_replay
 from .results import TEAM_COLUMNS, AlignmentCsv, write_counters
 
-__all__ = ["free_ports", "node_argv", "replay_node", "save_replays", "start_team",
+__all__ = ["free_ports", "live_node", "node_argv", "replay_node", "save_replays", "start_team",
            "wait_team"]
 
 log = logging.getLogger(__name__)
@@ -84,6 +84,37 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
     return node
 
 
+def live_node(robot: str, team: str, members: list[str], link: Link, params: NodeParams,
+              output: Path, state_dir: Path | None = None, duration: float | None = None
+              ) -> RobotNode:
+    """Run a node that takes its robot's maps from the ROS 2 topic /<robot>/tcaff/objects
+    (`params.ros2_objects`) until SIGTERM / SIGINT or `duration` s; writes what `replay_node`
+    writes. Returns the closed node."""
+    output.mkdir(parents=True, exist_ok=True)
+    rows = AlignmentCsv(output / f"{robot}.csv")
+    team_rows = (AlignmentCsv(output / f"{robot}.team.csv", TEAM_COLUMNS)
+                 if params.team_consistency else None)
+    stop = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: stop.set())
+    compile_kernels()
+    node = RobotNode(robot, team, members, link, params, on_alignment=rows.write,
+                     state_dir=state_dir, on_team=team_rows and team_rows.write)
+    start = time.time()
+    try:
+        write_counters(output / f"{robot}.json", {"start": start})
+        stop.wait(duration)
+        node.wait_idle(60.0)
+    finally:
+        node.close()
+        rows.close()
+        if team_rows is not None:
+            team_rows.close()
+        write_counters(output / f"{robot}.json", {"start": start, **node.counters})
+    return node
+
+
 #: s a node waits for its team before it starts its run anyway
 TEAM_WAIT = 120.0
 
@@ -115,10 +146,10 @@ def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int]
               start: float | None, output: Path, speed: float = 1.0, drop_share: float = 0.0,
               clock_offset: float = 0.0, state: Path | None = None,
               tls: TlsFiles | None = None, silence: float | None = None,
-              team_consistency: bool = False) -> list[str]:
+              team_consistency: bool = False, domain_id: int | None = None) -> list[str]:
     """The command line of robot `robot` of a team of n on loopback, replaying its
     `RobotReplay` file: it listens on ports[robot] and dials every robot before it, so every
-    pair is linked once."""
+    pair is linked once. `domain_id`: also publish ROS 2 topics in that domain (--ros2)."""
     argv = [sys.executable, "-m", "tcaff_gtsam.eval.cli", "node", "--robot", f"r{robot}",
             "--team", team, "--replay", str(replay_file), "--speed", str(speed),
             "--output", str(output),
@@ -137,6 +168,8 @@ def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int]
         argv += ["--silence", str(silence)]
     if team_consistency:
         argv.append("--team-consistency")
+    if domain_id is not None:
+        argv += ["--ros2", "--domain-id", str(domain_id)]
     if tls is not None:
         argv += ["--tls-ca", str(tls.ca), "--tls-cert", str(tls.certificate),
                  "--tls-key", str(tls.key)]

@@ -16,8 +16,13 @@
              the team's bandwidth at --robots robots from the maps of the team run.
   consistency  the time of one team-consistency step of a node (TeamConsistency.update over
              every directed pair's alignment, one pair wrong) at 3, 4, 6 and 8 robots.
+  ros2       what `NodeParams(ros2=True)` adds: one accepted alignment published as a ROS 2
+             PoseWithCovarianceStamped (message, CDR, attachment, Zenoh put) against the
+             team's own message, the map as a MarkerArray at --objects objects, and the
+             memory Python holds after --exchanges x 100 more alignments than after the first
+             ones (tracemalloc; growth per step would show there).
 
-    python scripts/bench_node.py [--parts latency team bytes consistency] [--objects 100]
+    python scripts/bench_node.py [--parts latency team bytes consistency ros2] [--objects 100]
                                  [--robots 8] [--seconds 60] [--rate 5] [--exchanges 80]
                                  [--team-consistency] [--guide-radius METRES|none]
 
@@ -220,10 +225,55 @@ def team(robots: int, seconds: float, team_consistency: bool = False):
     return stats, run
 
 
+def ros2_costs(objects: int, messages: int) -> tuple[dict[str, np.ndarray], int, int]:
+    """Seconds per publication of each ROS 2 message kind and of the team's own alignment
+    message, and (bytes held after `messages` alignments, bytes held after 2x as many)."""
+    import tracemalloc
+
+    from tcaff_gtsam.node.ros2 import Ros2Bridge
+
+    session = Link(listen=(f"127.0.0.1:{free_ports(1)[0]}",)).open()
+    bridge = Ros2Bridge(session, "r0")
+    rng = np.random.default_rng(0)
+    P = np.diag([0.01, 0.02, 0.003])
+
+    def alignment(k: int) -> AlignmentMessage:
+        x = TRUE + rng.normal(0, 0.01, 3)
+        return AlignmentMessage("r0", 1, k, float(k), "r1", k, float(k), k + 1, 0, True, x, P)
+
+    plain = session.declare_publisher("tcaff/bench/r0/alignment/r1")
+    times: dict[str, list[float]] = {"ROS 2 alignment": [], "team alignment (encode + put)": [],
+                                     f"ROS 2 map, {objects} objects": []}
+    mine, _, widths, heights = scene(objects)
+    object_map = ObjectMap(mine, widths, heights, np.zeros(objects))
+    for k in range(messages):
+        message = alignment(k)
+        start = time.perf_counter()
+        bridge.alignment(message)
+        times["ROS 2 alignment"].append(time.perf_counter() - start)
+        start = time.perf_counter()
+        plain.put(encode(message))
+        times["team alignment (encode + put)"].append(time.perf_counter() - start)
+        if k % 20 == 0:
+            start = time.perf_counter()
+            bridge.object_map(float(k), object_map)
+            times[f"ROS 2 map, {objects} objects"].append(time.perf_counter() - start)
+    tracemalloc.start()
+    held = []
+    for _ in range(2):
+        for k in range(messages):
+            bridge.alignment(alignment(k))
+        held.append(tracemalloc.get_traced_memory()[0])
+    tracemalloc.stop()
+    bridge.close()
+    session.close()
+    return {name: np.array(v) for name, v in times.items()}, held[0], held[1]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--parts", nargs="+", default=["latency", "team", "bytes"],
-                        choices=["latency", "team", "bytes", "consistency"])
+                        choices=["latency", "team", "bytes", "consistency", "ros2"])
     parser.add_argument("--team-consistency", action="store_true",
                         help="team: every node also runs the team consistency")
     parser.add_argument("--objects", type=int, default=100)
@@ -302,6 +352,18 @@ def main() -> None:
                 cells += [f"{np.median(ms):.2f}", f"{np.percentile(ms, 95):.2f}"]
             table.add_row(str(robots), *cells)
         console.print(table)
+    if "ros2" in args.parts:
+        times, first, second = ros2_costs(args.objects, 100 * args.exchanges)
+        table = Table(title="ROS 2 topics: one publication [ms]")
+        for column in ("message", "n", "median", "p95", "max"):
+            table.add_column(column, justify="right")
+        for name, values in times.items():
+            ms = 1e3 * values
+            table.add_row(name, str(len(ms)), f"{np.median(ms):.3f}",
+                          f"{np.percentile(ms, 95):.3f}", f"{ms.max():.3f}")
+        console.print(table)
+        console.print(f"Python memory held after {100 * args.exchanges} ROS 2 alignments: "
+                      f"{first / 1e3:.1f} kB; after {200 * args.exchanges}: {second / 1e3:.1f} kB")
 
 
 if __name__ == "__main__":

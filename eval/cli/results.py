@@ -48,8 +48,9 @@ def export(
         help="A results folder: a study's (results/latest) or a data set's "
              "(results/mrclam/<name>).")],
     fmt: Annotated[str, typer.Option(
-        "--format", help="tum (one file per robot and method) or g2o (one pose graph per "
-                         "method).")] = "tum",
+        "--format", help="tum (one file per robot and method), g2o (one pose graph per "
+                         "method) or rosbag2 (every pair's alignments and the truth as a ROS 2 "
+                         "bag, MCAP; see docs/team.md#ros-2).")] = "tum",
     reference: Annotated[int, typer.Option(
         help="The robot (index) whose odometry frame the paths are expressed in.")] = 0,
 ) -> None:

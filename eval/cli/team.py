@@ -31,6 +31,10 @@ if TYPE_CHECKING:
     from rich.table import Table
 
 
+_ROS2_HELP = ("Also publish the map and the accepted alignments as ROS 2 topics with standard "
+              "messages (/<robot>/tcaff/...), as ROS 2's Zenoh middleware (rmw_zenoh) does; "
+              "see docs/team.md#ros-2.")
+_DOMAIN_HELP = "The ROS 2 domain (ROS_DOMAIN_ID) of those topics, 0 to 232."
 _TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
              "mutual TLS).")
 _TEAM_HELP = ("Also publish each pair's team-consistent alignment (those failing a cycle of "
@@ -57,11 +61,11 @@ def _tls(ca: Path | None, cert: Path | None, key: Path | None):
 
 def _simulated(scenario: str, seed: int, duration: float | None):
     """The simulated run of a scenario (capped to `duration` s), the same in every process."""
+    _check_seeds([seed])
+    _check_duration(duration)
     from ..config import load_scenario, override
     from ..sim.simulate import simulate
 
-    _check_seeds([seed])
-    _check_duration(duration)
     config = load_scenario(scenario)
     if duration is not None:
         config = override(config, "--duration", duration=min(duration, config.duration))
@@ -118,29 +122,55 @@ def node(
         help="PEM file: this node's certificate, signed by the team's authority.")] = None,
     tls_key: Annotated[Path | None, typer.Option(help="PEM file: this node's private key.")
     ] = None,
+    ros2: Annotated[bool, typer.Option("--ros2", help=_ROS2_HELP)] = False,
+    domain_id: Annotated[int, typer.Option(help=_DOMAIN_HELP)] = 0,
+    ros2_objects: Annotated[bool, typer.Option(
+        "--ros2-objects", help="Take the robot's maps from the ROS 2 topic "
+        "/<robot>/tcaff/objects (visualization_msgs/MarkerArray; implies --ros2) instead of "
+        "replaying them; needs --members. Runs until Ctrl-C or --duration.")] = False,
+    members: Annotated[str | None, typer.Option(
+        help="With --ros2-objects: every robot of the team, like r0,r1,r2.")] = None,
 ) -> None:
     """One robot of a live team: publishes its maps over Zenoh, aligns to every neighbour.
 
     The robot's maps are replayed (--scenario, --kimera or --replay) on a wall-clock schedule
-    that the robots of one run share through --start-at. From Python,
-    `tcaff_gtsam.node.RobotNode` takes maps from a live mapping pipeline instead.
+    that the robots of one run share through --start-at, or taken live from a ROS 2 topic
+    (--ros2-objects). From Python, `tcaff_gtsam.node.RobotNode` takes maps from a live
+    mapping pipeline.
     """
-    from tcaff_gtsam.node.link import Link
-    from tcaff_gtsam.node.node import NodeParams
-    from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
-    from tcaff_gtsam.node.run import replay_node
-
     sources = [scenario, kimera and str(kimera), replay and str(replay)]
-    if sum(x is not None for x in sources) != 1:
+    if ros2_objects:
+        if any(x is not None for x in sources):
+            _refuse("--ros2-objects", sources, "takes the maps from ROS 2: no --scenario, "
+                    "--kimera or --replay")
+        if not members:
+            _refuse("--members", members, "--ros2-objects needs the team's robots, like r0,r1")
+        if duration is not None and not (math.isfinite(duration) and duration > 0):
+            _refuse("--duration", duration, "must be a finite number of seconds > 0")
+    elif sum(x is not None for x in sources) != 1:
         _refuse("--scenario/--kimera/--replay", sources, "give exactly one")
     _check_speed(speed)
     _check_seeds([seed])  # before the endpoints are checked: the run is made after them
     if drop_seed < 0:
         _refuse("--drop-seed", drop_seed, "must be an int >= 0")
+    from tcaff_gtsam.node.link import Link
+    from tcaff_gtsam.node.node import NodeParams
+    from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
+    from tcaff_gtsam.node.run import live_node, replay_node
+
     link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
     params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
-                        seed=drop_seed, team_consistency=team_consistency)
+                        seed=drop_seed, team_consistency=team_consistency,
+                        ros2=ros2 or ros2_objects, domain_id=domain_id,
+                        ros2_objects=ros2_objects)
     _writable_folder(output, "--output")
+    if ros2_objects:
+        from dataclasses import replace
+
+        node_ = live_node(robot, team, [m.strip() for m in members.split(",")], link,
+                          replace(params, lockstep=False), output, state, duration)
+        print(f"{robot}: " + ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items())))
+        return
     if replay is not None:
         source = RobotReplay.load(replay)
         if robot != source.robots[source.robot]:
@@ -275,6 +305,11 @@ def team(
     ] = None,
     tls_key: Annotated[Path | None, typer.Option(help="PEM file: the nodes' private key.")
     ] = None,
+    ros2: Annotated[bool, typer.Option("--ros2", help=_ROS2_HELP)] = False,
+    domain_id: Annotated[int, typer.Option(help=_DOMAIN_HELP)] = 0,
+    bag: Annotated[Path | None, typer.Option(
+        help="Also write the run (maps, accepted alignments, truth) as a ROS 2 bag (rosbag2, "
+             "MCAP) in this new folder, for ros2 bag play, Foxglove or RViz.")] = None,
 ) -> None:
     """A live team on this machine: one node process per robot, scored against the truth.
 
@@ -286,15 +321,21 @@ def team(
     robot's maps saved in OUTPUT/maps/ and reused by a later run with the same settings and
     bags); the nodes then replay the maps at the 1 Hz exchanges every robot shares."""
 
-    from tcaff_gtsam.node.replay import robot_names
-    from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
-
     sources = [scenario, mrclam and str(mrclam), kimera and str(kimera)]
     if sum(x is not None for x in sources) != 1:
         _refuse("--scenario/--mrclam/--kimera", sources, "give exactly one")
     _check_speed(speed)
+    _check_seeds([seed])
+    _check_duration(duration)
+    if not 0 <= domain_id <= 232:
+        _refuse("--domain-id", domain_id, "must be an int in 0..232")
+    if bag is not None and bag.exists():
+        _refuse("--bag", str(bag), "exists; a bag is written to a new folder")
     tls = _tls(tls_ca, tls_cert, tls_key)
     _writable_folder(output, "--output")
+    from tcaff_gtsam.node.replay import robot_names
+    from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
+
     if scenario is not None:
         run = _simulated(scenario, seed, duration)
     elif mrclam is not None:
@@ -307,7 +348,8 @@ def team(
         _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
     replays = save_replays(run, output / "replay")
     argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
-                       tls=tls, team_consistency=team_consistency) for k in range(n)]
+                       tls=tls, team_consistency=team_consistency,
+                       domain_id=domain_id if ros2 else None) for k in range(n)]
     console = _console()
     console.print(f"robots: {_named(run, robot_names(n))}", soft_wrap=True)
     console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "
@@ -321,6 +363,12 @@ def team(
     console.print(_team_table(run, output, robot_names(n)))
     if team_consistency:
         console.print(_team_table(run, output, robot_names(n), team=True))
+    if bag is not None:  # what the nodes wrote, failed ones included
+        from tcaff_gtsam.node.bag import write_team_bag
+
+        counts = write_team_bag(bag, run, robot_names(n), output)
+        console.print(f"bag: {bag} ({sum(counts.values())} messages on {len(counts)} topics; "
+                      f"ros2 bag play {bag})", soft_wrap=True)
     if failed:
         from tcaff_gtsam.errors import TcaffError
 

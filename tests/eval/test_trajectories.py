@@ -142,6 +142,37 @@ def test_g2o_pose_graph_reads_back_in_gtsam(tmp_path):
     assert graph.error(values) < 1e-6 * graph.size()
 
 
+def test_rosbag2_export_holds_every_pairs_alignments_for_mcap_readers(tmp_path):
+    """Read back with mcap's reader and mcap-ros2-support's decoder (not the writer's
+    library): one topic per pair and stream, a message per step with a value, on the run's
+    clock; a second export replaces the bag."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    job = make_job(6)
+    job.save(tmp_path / "runs")
+    for _ in range(2):
+        (folder,) = export(tmp_path, "rosbag2")
+    assert folder == tmp_path / "trajectories" / "walk-seed6" / "rosbag2"
+    with open(next(folder.glob("*.mcap")), "rb") as file:
+        decoded = [(c.topic, m) for _, c, _, m in make_reader(
+            file, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+    for stream, key in (("truth", "truth"), ("noisy/alignment", "est_noisy")):
+        for p, (i, j) in enumerate(PAIRS):
+            got = [m for topic, m in decoded if topic == f"/r{i}/tcaff/{stream}/r{j}"]
+            values = job.arrays[key][p]
+            steps = np.flatnonzero(np.all(np.isfinite(values), axis=1))
+            assert len(got) == len(steps)
+            for m, s in zip(got, steps, strict=True):
+                assert m.header.frame_id == f"r{i}/odom"
+                stamp = m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+                assert stamp == pytest.approx(1000.0 + s, abs=1e-6)
+                pose = m.pose.pose
+                assert (pose.position.x, pose.position.y) == tuple(values[s, :2])
+                assert 2 * np.arctan2(pose.orientation.z, pose.orientation.w) == \
+                    pytest.approx(values[s, 2], abs=1e-12)
+
+
 def test_export_of_a_recorded_folder_and_bad_input(tmp_path):
     job = make_job(5)
     job.seed = None  # a recorded run is saved as <name>.npz beside its tables

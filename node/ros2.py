@@ -1,0 +1,348 @@
+"""The team in ROS 2 terms, on the node's own Zenoh session, laid out as ROS 2's Zenoh middleware
+(rmw_zenoh, Jazzy and later) lays out a ROS 2 graph; no ROS 2 installation is needed.
+
+Topics a node with `NodeParams.ros2` publishes (robot names are ROS 2 name tokens there):
+    /<robot>/tcaff/map                         visualization_msgs/msg/MarkerArray: the map it
+                                               shares, one cylinder per object in <robot>/odom
+    /<robot>/tcaff/alignment/<neighbour>       geometry_msgs/msg/PoseWithCovarianceStamped:
+                                               each accepted alignment T_oi_oj
+    /<robot>/tcaff/team_alignment/<other>      the same type: each accepted team-consistent
+                                               alignment (chained through a third robot or not)
+and, with `NodeParams.ros2_objects`, the node takes its robot's map from
+    /<robot>/tcaff/objects                     visualization_msgs/msg/MarkerArray, as above.
+
+An alignment's header.frame_id is `<robot>/odom`; its pose is the pose of `<neighbour>/odom` in
+it (x, y, yaw; z = 0), the message type having no child frame. Its covariance is ROS's 6 x 6
+(x, y, z, roll, pitch, yaw), row-major, holding the 3 x 3 one of (x, y, yaw) at rows and columns
+0, 1 and 5, zero elsewhere (as ROS's 2-D localisation publishes a planar pose).
+
+A map's markers carry each object's centroid (pose.position), width (scale.x = scale.y, m) and
+height (scale.z, m), and in header.stamp the time the object was last seen; the array opens with
+a DELETEALL marker stamped with the map's time, so that a viewer shows only the current map.
+
+On the wire (rmw_zenoh's design document): a message of topic T and type P/msg/N goes on the key
+`<domain_id>/<T without its leading slash>/P::msg::dds_::N_/<RIHS01 type hash>` as CDR (rosbags'
+serialiser, little-endian), with a 33-byte attachment: sequence number (int64), source time
+(int64 ns since the epoch), 16 and the publisher's 16-byte GID. Each publisher and subscriber,
+and the ROS node they belong to (`/<robot>/tcaff`), hold a liveliness token under `@ros2_lv`,
+which is how `ros2 topic list` finds them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import struct
+import time
+from functools import cache
+
+import numpy as np
+
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.object_map import ObjectMap
+
+from .messages import AlignmentMessage, MessageError, TeamMessage
+
+__all__ = ["ALIGNMENT_TYPE", "MAP_TYPE", "Ros2Bridge", "alignment_topic", "attachment",
+           "check_ros_name", "decode_attachment", "entity_token", "map_message", "map_topic",
+           "object_map_of", "objects_topic", "pose_message", "read_message", "serialize",
+           "team_topic", "topic_key", "type_hash"]
+
+ALIGNMENT_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
+MAP_TYPE = "visualization_msgs/msg/MarkerArray"
+#: the QoS of every entity, in rmw_zenoh's key form: reliable, volatile, keep the last 10
+#: (defaults left empty)
+QOS = "::,10:,:,:,,"
+#: a ROS 2 name token (topic names and namespaces are made of them)
+_TOKEN = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_ATTACHMENT = struct.Struct("<qqB16s")
+_MARKER_ADD, _MARKER_DELETEALL, _CYLINDER = 0, 3, 3
+#: yaw's row and column in ROS's 6 x 6 pose covariance, after x and y
+_XY_YAW = np.array([0, 1, 5])
+
+
+@cache
+def _store():
+    """rosbags' typestore of ROS 2 Jazzy's message definitions (the first with type hashes)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+@cache
+def type_hash(msgtype: str) -> str:
+    """The RIHS01 hash of a message type (`RIHS01_<64 hex digits>`), as rosidl computes it."""
+    return _store().hash_rihs01(msgtype)
+
+
+def _dds_type(msgtype: str) -> str:
+    package, kind, name = msgtype.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def check_ros_name(option: str, name: str) -> str:
+    """`name` if it can be a token of a ROS 2 topic name (a letter, then letters, digits and
+    `_`, no `__`); else ConfigError naming `option`."""
+    if not isinstance(name, str) or not _TOKEN.match(name) or "__" in name:
+        raise ConfigError(f"{option} {name!r}: with ROS 2 a robot name must be a letter, then "
+                          f"letters, digits or single '_' (a ROS 2 name token)")
+    return name
+
+
+def map_topic(robot: str) -> str:
+    return f"/{robot}/tcaff/map"
+
+
+def objects_topic(robot: str) -> str:
+    """Where a node with `ros2_objects` takes its robot's map from."""
+    return f"/{robot}/tcaff/objects"
+
+
+def alignment_topic(robot: str, neighbour: str) -> str:
+    return f"/{robot}/tcaff/alignment/{neighbour}"
+
+
+def team_topic(robot: str, other: str) -> str:
+    return f"/{robot}/tcaff/team_alignment/{other}"
+
+
+def topic_key(domain_id: int, topic: str, msgtype: str) -> str:
+    """The Zenoh key expression rmw_zenoh publishes a fully qualified topic of `msgtype` on."""
+    return f"{domain_id}/{topic.lstrip('/')}/{_dds_type(msgtype)}/{type_hash(msgtype)}"
+
+
+def _mangle(name: str) -> str:
+    return name.replace("/", "%") or "%"
+
+
+def entity_token(domain_id: int, session_id: str, node_id: int, entity_id: int, kind: str,
+                 namespace: str, node: str, topic: str | None = None,
+                 msgtype: str | None = None) -> str:
+    """The liveliness token of a ROS 2 node (`kind` NN, `topic` None), publisher (MP) or
+    subscriber (MS), as rmw_zenoh declares it (enclave unset)."""
+    head = (f"@ros2_lv/{domain_id}/{session_id}/{node_id}/{entity_id}/{kind}/%/"
+            f"{_mangle(namespace)}/{node}")
+    if topic is None:
+        return head
+    return f"{head}/{_mangle(topic)}/{_dds_type(msgtype)}/{type_hash(msgtype)}/{QOS}"
+
+
+def attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
+    """rmw_zenoh's attachment of a published message."""
+    return _ATTACHMENT.pack(seq, stamp_ns, 16, gid)
+
+
+def decode_attachment(data: bytes) -> tuple[int, int, bytes]:
+    """(sequence number, source time in ns, publisher GID) of an attachment.
+
+    Raises:
+        MessageError: not 33 bytes, or a GID length other than 16.
+    """
+    if len(data) != _ATTACHMENT.size:
+        raise MessageError("malformed", f"a ROS 2 attachment is {_ATTACHMENT.size} bytes, "
+                                        f"got {len(data)}")
+    seq, stamp_ns, size, gid = _ATTACHMENT.unpack(data)
+    if size != 16:
+        raise MessageError("malformed", f"a ROS 2 attachment's GID is 16 bytes, says {size}")
+    return seq, stamp_ns, gid
+
+
+def _time(t: float):
+    """builtin_interfaces/msg/Time of `t` s (whole seconds floored, so nanosec is in range)."""
+    sec = int(np.floor(t))
+    nanosec = min(round((float(t) - sec) * 1e9), 999_999_999)
+    return _store().types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+
+
+def _header(t: float, frame_id: str):
+    return _store().types["std_msgs/msg/Header"](stamp=_time(t), frame_id=frame_id)
+
+
+def pose_message(t: float, frame_id: str, x: np.ndarray, P: np.ndarray):
+    """A PoseWithCovarianceStamped of the planar pose x = (x [m], y [m], yaw [rad]) with the
+    3 x 3 covariance P, in `frame_id` at `t` s."""
+    types = _store().types
+    covariance = np.zeros((6, 6))
+    covariance[np.ix_(_XY_YAW, _XY_YAW)] = P
+    half = 0.5 * float(x[2])
+    pose = types["geometry_msgs/msg/Pose"](
+        position=types["geometry_msgs/msg/Point"](x=float(x[0]), y=float(x[1]), z=0.0),
+        orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(half),
+                                                          w=np.cos(half)))
+    return types[ALIGNMENT_TYPE](
+        header=_header(t, frame_id),
+        pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose,
+                                                           covariance=covariance.ravel()))
+
+
+def _marker(types, t: float, frame_id: str, marker_id: int, action: int, centroid=(0, 0, 0),
+            scale=(0.0, 0.0, 0.0), rgba=(0.0, 0.0, 0.0, 0.0)):
+    g = types
+    return g["visualization_msgs/msg/Marker"](
+        header=_header(t, frame_id), ns="tcaff_objects", id=marker_id, type=_CYLINDER,
+        action=action,
+        pose=g["geometry_msgs/msg/Pose"](
+            position=g["geometry_msgs/msg/Point"](x=float(centroid[0]), y=float(centroid[1]),
+                                                  z=float(centroid[2])),
+            orientation=g["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)),
+        scale=g["geometry_msgs/msg/Vector3"](x=float(scale[0]), y=float(scale[1]),
+                                             z=float(scale[2])),
+        color=g["std_msgs/msg/ColorRGBA"](r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+        lifetime=g["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False,
+        points=[], colors=[], texture_resource="",
+        texture=g["sensor_msgs/msg/CompressedImage"](header=_header(0.0, ""), format="",
+                                                     data=np.zeros(0, np.uint8)),
+        uv_coordinates=[], text="", mesh_resource="",
+        mesh_file=g["visualization_msgs/msg/MeshFile"](filename="",
+                                                       data=np.zeros(0, np.uint8)),
+        mesh_use_embedded_materials=False)
+
+
+def map_message(t: float, frame_id: str, object_map: ObjectMap,
+                rgba: tuple[float, float, float, float] = (0.2, 0.6, 1.0, 0.7)):
+    """A MarkerArray of `object_map` at `t` s: a DELETEALL marker stamped t, then one cylinder
+    per object (centroid, width as diameter, height; stamped with its last sighting)."""
+    types = _store().types
+    markers = [_marker(types, t, frame_id, 0, _MARKER_DELETEALL)]
+    for k in range(len(object_map)):
+        w = float(object_map.widths[k])
+        markers.append(_marker(types, float(object_map.last_seen[k]), frame_id, k + 1,
+                               _MARKER_ADD, object_map.centroids[k],
+                               (w, w, float(object_map.heights[k])), rgba))
+    return types[MAP_TYPE](markers=markers)
+
+
+def object_map_of(message) -> tuple[float, ObjectMap]:
+    """(t, map) of a MarkerArray written as `map_message` writes it: the objects are its ADD
+    markers (pose.position, scale.x as width, scale.z as height, header.stamp as last seen);
+    t is the DELETEALL marker's stamp, or the latest object's without one.
+
+    Raises:
+        DataError: no marker to take a time from, or sizes or positions that no ObjectMap
+            holds (NaN, negative sizes).
+    """
+    def seconds(stamp) -> float:
+        return stamp.sec + 1e-9 * stamp.nanosec
+
+    objects = [m for m in message.markers if m.action == _MARKER_ADD]
+    cleared = [seconds(m.header.stamp) for m in message.markers if m.action == _MARKER_DELETEALL]
+    if not objects and not cleared:
+        raise DataError("a MarkerArray without markers: no map time")
+    centroids = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z]
+                          for m in objects], dtype=float).reshape(-1, 3)
+    widths = np.array([m.scale.x for m in objects], dtype=float)
+    heights = np.array([m.scale.z for m in objects], dtype=float)
+    last_seen = np.array([seconds(m.header.stamp) for m in objects], dtype=float)
+    t = cleared[-1] if cleared else float(last_seen.max())
+    return t, ObjectMap(centroids, widths, heights, last_seen)
+
+
+def serialize(message, msgtype: str) -> bytes:
+    """The CDR bytes of a message (rosbags' serialiser; little-endian, with its header)."""
+    return bytes(_store().serialize_cdr(message, msgtype))
+
+
+def read_message(data: bytes, msgtype: str):
+    """The message of CDR bytes.
+
+    Raises:
+        MessageError: bytes that are not a `msgtype`.
+    """
+    try:
+        return _store().deserialize_cdr(data, msgtype)
+    except Exception as exc:  # rosbags raises assorted errors on foreign bytes
+        raise MessageError("malformed", f"not a {msgtype} ({type(exc).__name__}: {exc})"
+                           ) from None
+
+
+class _Publisher:
+    """One ROS 2 publisher: a Zenoh publisher on the topic's key, its liveliness token, its
+    GID and sequence numbers."""
+
+    def __init__(self, bridge: Ros2Bridge, topic: str, msgtype: str) -> None:
+        self.msgtype = msgtype
+        session = bridge.session
+        self._pub = session.declare_publisher(topic_key(bridge.domain_id, topic, msgtype))
+        self._token = session.liveliness().declare_token(bridge.token("MP", topic, msgtype))
+        self._gid = os.urandom(16)
+        self._seq = 0
+
+    def put(self, message) -> None:
+        self._seq += 1
+        self._pub.put(serialize(message, self.msgtype),
+                      attachment=attachment(self._seq, time.time_ns(), self._gid))
+
+
+class Ros2Bridge:
+    """A node's ROS 2 side on its Zenoh session: the ROS node `/<robot>/tcaff`, its publishers
+    (declared on first use) and, when given `on_objects`, its subscriber of
+    `/<robot>/tcaff/objects`.
+
+    `on_objects(t, object_map)` is called on Zenoh's thread with each map that arrives; a
+    message that is not a MarkerArray of objects is counted in `refused` and logged by the
+    caller's `on_refused(reason, detail)`.
+    """
+
+    def __init__(self, session, robot: str, domain_id: int = 0, on_objects=None,
+                 on_refused=None) -> None:
+        self.session = session
+        self.robot = check_ros_name("--robot", robot)
+        self.domain_id = domain_id
+        self._session_id = str(session.info.zid())
+        self._entities = 0
+        self._publishers: dict[str, _Publisher] = {}
+        self._tokens = [session.liveliness().declare_token(self.token("NN"))]
+        self._subscriber = None
+        if on_objects is not None:
+            self._on_objects, self._on_refused = on_objects, on_refused
+            topic = objects_topic(robot)
+            self._subscriber = session.declare_subscriber(
+                topic_key(domain_id, topic, MAP_TYPE), self._objects)
+            self._tokens.append(session.liveliness().declare_token(
+                self.token("MS", topic, MAP_TYPE)))
+
+    def token(self, kind: str, topic: str | None = None, msgtype: str | None = None) -> str:
+        """The liveliness token of the next entity of this node (the node itself: NN)."""
+        entity = 0 if kind == "NN" else self._entities + 1
+        self._entities = max(self._entities, entity)
+        return entity_token(self.domain_id, self._session_id, 0, entity, kind,
+                            f"/{self.robot}", "tcaff", topic, msgtype)
+
+    def _publish(self, topic: str, msgtype: str, message) -> None:
+        if topic not in self._publishers:
+            self._publishers[topic] = _Publisher(self, topic, msgtype)
+        self._publishers[topic].put(message)
+
+    def object_map(self, t: float, object_map: ObjectMap) -> None:
+        """Publish the robot's shared map at `t` s."""
+        self._publish(map_topic(self.robot), MAP_TYPE,
+                      map_message(t, f"{self.robot}/odom", object_map))
+
+    def alignment(self, message: AlignmentMessage | TeamMessage) -> None:
+        """Publish an accepted alignment (a TeamMessage on the team topic); others are not
+        published."""
+        if not message.accepted:
+            return
+        topic = (team_topic if isinstance(message, TeamMessage) else alignment_topic)(
+            self.robot, check_ros_name("neighbour", message.neighbour))
+        self._publish(topic, ALIGNMENT_TYPE,
+                      pose_message(message.stamp, f"{self.robot}/odom", message.x, message.P))
+
+    def _objects(self, sample) -> None:
+        try:
+            message = read_message(sample.payload.to_bytes(), MAP_TYPE)
+            t, object_map = object_map_of(message)
+        except (MessageError, DataError) as exc:
+            if self._on_refused is not None:
+                self._on_refused("malformed", f"on {objects_topic(self.robot)}: {exc}")
+            return
+        self._on_objects(t, object_map)
+
+    def close(self) -> None:
+        """Withdraw the tokens and undeclare the subscriber (the session stays open)."""
+        if self._subscriber is not None:
+            self._subscriber.undeclare()
+        for publisher in self._publishers.values():
+            publisher._token.undeclare()
+        for token in self._tokens:
+            token.undeclare()
