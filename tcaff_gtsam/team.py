@@ -307,9 +307,11 @@ class TeamConsistency:
         # reach); every chain with the fewest links visits no robot twice
         hops = np.where(linked, 1, longest + 1)
         np.fill_diagonal(hops, 0)
-        reach = linked.astype(np.int64)
+        # 0/1 products in floating point: BLAS, and counts up to n are exact
+        step = linked.astype(np.float64)
+        reach = step
         for d in range(2, longest + 1):
-            reach = ((reach @ linked.astype(np.int64)) > 0).astype(np.int64)
+            reach = ((reach @ step) > 0).astype(np.float64)
             hops[(hops > d) & (reach > 0)] = d
         paths: list[tuple[int, ...]] = []
         for i, j in zip(*np.nonzero((hops >= 2) & (hops <= longest) & want), strict=True):

@@ -16,7 +16,7 @@ import typer
 # isort: off
 # Importing a command module registers its commands on `app`; this order is the order of
 # `tcaff --help`.
-from . import maps, studies, data, results, team  # noqa: F401
+from . import common, maps, studies, data, results, team  # noqa: F401
 # isort: on
 
 # Re-exported: the names tests and other callers use as `cli.<name>`.
@@ -46,6 +46,7 @@ def main() -> None:
     """Console entry point: library errors and bad options or arguments become a one-line
     message and exit status 2."""
     import logging
+    import time
 
     from rich.markup import escape
 
@@ -60,6 +61,7 @@ def main() -> None:
         _console(stderr=True).print(f"[red]error:[/] {escape(message)}", soft_wrap=True)
         raise SystemExit(code) from None
 
+    common._command_started = time.perf_counter()
     try:
         code = app(standalone_mode=False)
     except TcaffError as exc:
@@ -75,4 +77,6 @@ def main() -> None:
     except typer.Abort:  # Ctrl-C outside the commands that handle it themselves
         _console(stderr=True).print("interrupted", soft_wrap=True)
         raise SystemExit(130) from None
+    finally:
+        common._command_started = None
     raise SystemExit(code if isinstance(code, int) else 0)

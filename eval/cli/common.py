@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
+from typer.core import TyperCommand, TyperGroup
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -31,7 +32,51 @@ def _shipped(kind: str) -> str:
     return ", ".join(names) if names else "none shipped"
 
 
-app = typer.Typer(
+#: perf_counter() when the entry point `main` took the command line; None outside a `main` call
+_command_started: float | None = None
+
+
+def _since_start(fallback: float) -> float:
+    """Seconds since the entry point took the command line: the command's imports, data
+    loading and workers' start-up included (the interpreter's own start, a few tenths of a
+    second, is not). `fallback`, a perf_counter() reading, is the start when the command was
+    called without the entry point."""
+    import time
+
+    started = fallback if _command_started is None else _command_started
+    return time.perf_counter() - started
+
+
+class _Untyped:
+    """On/off flags (`--figures/--no-figures`, `--help`) drawn without a type in the help:
+    typer 0.29 prints `<bool>` beside each, which reads as if the flag took a value."""
+
+    def get_params(self, ctx):
+        params = super().get_params(ctx)
+        for param in params:
+            if getattr(param, "is_flag", False) and param.metavar is None:
+                param.metavar = ""
+        return params
+
+
+class _Command(_Untyped, TyperCommand):
+    pass
+
+
+class _Group(_Untyped, TyperGroup):
+    pass
+
+
+class _App(typer.Typer):
+    """The typer app whose commands are `_Command`s."""
+
+    def command(self, *args, **kwargs):
+        kwargs.setdefault("cls", _Command)
+        return super().command(*args, **kwargs)
+
+
+app = _App(
+    cls=_Group,
     help="Align the coordinate frames of robots from their object maps (TCAFF).",
     no_args_is_help=True,
     add_completion=False,

@@ -25,6 +25,7 @@ from .common import (
     _record,
     _refuse,
     _shipped,
+    _since_start,
     _summary_table,
     _table,
     _writable_folder,
@@ -97,20 +98,20 @@ def kimera_multi(
 
     from rich.markup import escape
 
+    _check_duration(duration)
+    _check_recording(rerun)
+    _writable_folder(output, "--output")
     from tcaff_gtsam.errors import TcaffError
 
     from ..config import load_kimera_multi, load_methods
     from ..recorded import run_kimera_multi
 
     console, err_console = _console(), _console(stderr=True)
-    _check_duration(duration)
-    _check_recording(rerun)
     test = load_kimera_multi(config)
     if duration is not None:
         test = test.model_copy(update={"duration": duration})
     if methods is not None:
         test = test.model_copy(update={"methods": load_methods(methods)})
-    _writable_folder(output, "--output")
     console.print(f"Kimera-Multi test [bold]{escape(test.name)}[/]: robots "
                   f"{', '.join(test.robots)}; data {data}")
     start = time.perf_counter()
@@ -140,7 +141,7 @@ def kimera_multi(
         console.print(_summary_table({test.name: recorded.summary}, recorded.methods))
     else:
         console.print("no ground truth for every robot: alignments written, not scored")
-    console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
+    console.print(f"results: {outcome.folder} ({_since_start(start):.0f} s)")
     _record(rerun, [recorded.job])
 
 
@@ -221,12 +222,14 @@ def mrclam(
 
     from rich.markup import escape
 
+    _check_duration(duration)
+    _check_recording(rerun)
+    seeds = _check_seeds(seed)
+    _writable_folder(output, "--output")
     from ..config import load_methods, load_mrclam, override
     from ..recorded import run_mrclam
 
     console = _console()
-    _check_duration(duration)
-    _check_recording(rerun)
     settings = override(load_mrclam(config), "command line", duration=duration, kappa=kappa,
                         methods=None if methods is None else load_methods(methods))
     odometries = odometry or [settings.odometry]
@@ -235,8 +238,6 @@ def mrclam(
         from tcaff_gtsam.errors import ConfigError
 
         raise ConfigError(f"--odometry {bad[0]!r}: expected raw or vio")
-    seeds = _check_seeds(seed)
-    _writable_folder(output, "--output")
     console.print(f"MRCLAM [bold]{escape(data.name)}[/]: odometry {', '.join(odometries)}, "
                   f"seeds {seeds}; data {data}")
     start = time.perf_counter()
@@ -267,7 +268,7 @@ def mrclam(
             if shown:
                 console.print(_pairs_table(recorded, shown))
         console.print(f"results: {recorded.folder}")
-    console.print(f"({time.perf_counter() - start:.0f} s)")
+    console.print(f"({_since_start(start):.0f} s)")
     _record(rerun, [outcome.recorded.job for outcome in outcomes])
 
 
@@ -371,6 +372,12 @@ def rgbd(
     """
     import time
 
+    _check_recording(rerun)
+    if rate is not None and not (math.isfinite(rate) and rate > 0):
+        _refuse("--rate", rate, "must be a finite number > 0 frames per second")
+    if not (math.isfinite(fps) and fps > 0):
+        _refuse("--fps", fps, "must be a finite number > 0 frames per second")
+    seeds = _check_seeds(seed)
     import numpy as np
     from rich.markup import escape
 
@@ -383,12 +390,6 @@ def rgbd(
     from ..registry import describe
 
     console = _console()
-    _check_recording(rerun)
-    if rate is not None and not (math.isfinite(rate) and rate > 0):
-        _refuse("--rate", rate, "must be a finite number > 0 frames per second")
-    if not (math.isfinite(fps) and fps > 0):
-        _refuse("--fps", fps, "must be a finite number > 0 frames per second")
-    seeds = _check_seeds(seed)
     settings = override(load_rgbd(config), "command line",
                         methods=None if methods is None else load_methods(methods))
     odometries = odometry or [settings.odometry]
@@ -445,5 +446,5 @@ def rgbd(
             labels = {m: describe(m).label for m in outcome.report}
             console.print(_walk_table(outcome, labels))
         console.print(f"results: {recorded.folder}")
-    console.print(f"({time.perf_counter() - start_time:.0f} s)")
+    console.print(f"({_since_start(start_time):.0f} s)")
     _record(rerun, [outcome.recorded.job for outcome in outcomes])

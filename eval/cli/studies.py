@@ -21,6 +21,7 @@ from .common import (
     _keep_numbers_whole,
     _record,
     _shipped,
+    _since_start,
     _summary_table,
     _table,
     _writable_folder,
@@ -167,7 +168,7 @@ def _run_study(study_config: StudyConfig, figures: bool, rerun: Path | None,
                       "against CLIPPER's k: figures/mot_sweep.png.")
     if lost := progress.summary():
         console.print(lost)
-    console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s)")
+    console.print(f"results: {outcome.folder} ({_since_start(start):.0f} s)")
     _record(rerun, outcome.jobs)
     if outcome.interrupted:
         err_console.print(f"interrupted: {len(outcome.jobs)} of {n_jobs} runs finished, kept "
@@ -244,10 +245,12 @@ def study(
     scheduler: _SchedulerOption = None,
     local_cluster: _LocalClusterOption = None,
 ) -> None:
-    from ..config import load_study
-
     _check_duration(duration)
     _check_recording(rerun)
+    if output is not None:  # checked before the configs' imports: a mistake is told at once
+        _writable_folder(output, "--output")
+    from ..config import load_study
+
     overrides = {"scenarios": scenario or None, "methods": methods,
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
@@ -275,11 +278,11 @@ def demo(
         help="Cap every scenario's duration (seconds), for a quick look.")] = None,
 ) -> None:
     """The study on every scenario with one seed (about a minute): table, metrics, figures."""
+    _check_duration(duration)
+    _writable_folder(output, "--output")
     from ..config import load_study
 
-    _check_duration(duration)
     study_config = load_study("demo", {"output": str(output), "workers": workers})
-    _writable_folder(output, "--output")
     _run(_capped(study_config, duration), True)
 
 
@@ -319,9 +322,11 @@ def sweep(
     scheduler: _SchedulerOption = None,
     local_cluster: _LocalClusterOption = None,
 ) -> None:
+    _check_duration(duration)
+    if output is not None:
+        _writable_folder(output, "--output")
     from ..config import load_sweep, resolve_study
 
-    _check_duration(duration)
     sweep_config, study_config = load_sweep(config)
     if scenario:
         study_config = resolve_study(study_config.model_copy(update={"scenarios": scenario}))
@@ -368,7 +373,7 @@ def _run_sweep(sweep_config: SweepConfig, study_config: StudyConfig, executor: E
     if lost := progress.summary():
         console.print(lost)
     console.print(_sweep_table(outcome.rows, sweep_config))
-    console.print(f"results: {outcome.folder} ({time.perf_counter() - start:.0f} s); "
+    console.print(f"results: {outcome.folder} ({_since_start(start):.0f} s); "
                   f"sweep.csv has every method, figures/ the trade-off and responses")
     if outcome.interrupted:
         done = outcome.reused + outcome.ran

@@ -58,7 +58,7 @@ def test_no_estimate_before_the_window_has_passed(params):
 ], ids=["default", "tuned"])
 def test_accuracy_after_acceptance(Q, R, max_t, max_deg):
     params = TCAFFParams() if Q is None else TCAFFParams(Q=Q)
-    for seed in range(5):
+    for seed in range(3):  # seeds 0-4 pass alike; the smallest margins are among these
         stream = alignment_stream(np.random.default_rng(seed), 300)
         estimates = run(TCAFF(params), stream.zs, R)
         err = errors(estimates, stream.truth)
@@ -91,7 +91,7 @@ def test_recovers_after_a_jump_within_25_steps():
     """W (8) steps to judge the new hypothesis and 3 to confirm the switch: 11 steps when no
     step is empty; empty steps (20 % here) delay it (22 at most over 40 seeds)."""
     jump = (3.0, -2.0, np.radians(40.0))
-    for seed in range(10):
+    for seed in range(5, 10):  # of seeds 0-9, those whose empty steps delay the switch
         stream = alignment_stream(np.random.default_rng(seed), 300, jumps={150: jump})
         filt = TCAFF()
         estimates = run(filt, stream.zs)
@@ -103,7 +103,7 @@ def test_recovers_after_a_jump_within_25_steps():
 
 def test_reference_preset_keeps_a_wrong_hypothesis_for_40_steps_after_a_jump():
     jump = (3.0, -2.0, np.radians(40.0))
-    for seed in range(5):
+    for seed in range(3):  # the quickest of seeds 0-4 to recover among them
         stream = alignment_stream(np.random.default_rng(seed), 300, jumps={150: jump})
         estimates = run(TCAFF(TCAFFParams.reference()), stream.zs)
         steps = steps_to_recover(estimates, stream.truth, 150)
@@ -445,7 +445,7 @@ def test_a_match_that_moves_through_new_objects_is_accepted():
 
 def test_an_early_decoy_is_replaced_within_W_plus_5_steps():
     W = DISTINCT.window
-    for seed in range(10):
+    for seed in range(5):
         stream = decoy_stream(np.random.default_rng(seed))
         estimates = run_with_evidence(TCAFF(DISTINCT), stream)
         start = stream.truth_from
@@ -635,7 +635,7 @@ def wrong_and_recovery(estimates, truth) -> tuple[int, int | None]:
 def test_after_a_jump_the_old_estimate_is_withheld_once_the_new_frame_has_more_evidence():
     W = DISTINCT.window
     withheld = replace(DISTINCT, withhold_contested=True)
-    for seed in range(10):
+    for seed in range(5):  # seed 4 is the slowest of seeds 0-9 to recover (W + 5)
         stream = decoy_stream(np.random.default_rng(seed))
         start = stream.rejoin
         wrong, first = wrong_and_recovery(run_with_evidence(TCAFF(withheld), stream)[start:],

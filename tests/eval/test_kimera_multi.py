@@ -234,11 +234,24 @@ ROBOTS = ("acl_jackal2", "sparkal2")
 
 @pytest.fixture(scope="module")
 def sequence(tmp_path_factory):
-    """30 s of two robots at 320 x 240, 5 Hz, and the simulation's truth."""
+    """30 s of two robots at 240 x 180, 5 Hz, and the simulation's truth."""
     data = tmp_path_factory.mktemp("kimera_like")
-    truth = kimera_bags.write_sequence(data, ROBOTS, 30.0, 5.0, 320, 240, seed=1,
-                                             scenario=str(SCENARIO))
+    # the robots first share objects after 9 s, so TCAFF answers only from about 17 s: the
+    # 30 s stay, the images are small (rendering and mapping cost by the pixel)
+    truth = kimera_bags.write_sequence(data, ROBOTS, 30.0, 5.0, 240, 180, seed=1,
+                                       scenario=str(SCENARIO))
     return data, truth
+
+
+@pytest.fixture(scope="module")
+def command(sequence, tmp_path_factory):
+    """`tcaff kimera-multi` run once on the sequence with the tcaff_only methods and figures:
+    the output folder and the runner's result."""
+    data, _ = sequence
+    output = tmp_path_factory.mktemp("command")
+    result = CliRunner().invoke(app, ["kimera-multi", "--data", str(data), "--output",
+                                      str(output), "--methods", "tcaff_only"])
+    return output, result
 
 
 def copy_of(data: Path, target: Path, skip: tuple[str, ...] = ()) -> Path:
@@ -264,13 +277,12 @@ def true_alignment(truth, i: int, j: int, t: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_command_aligns_the_robots_as_the_simulation_did(sequence, tmp_path):
+def test_command_aligns_the_robots_as_the_simulation_did(sequence, command):
     data, truth = sequence
-    result = CliRunner().invoke(app, ["kimera-multi", "--data", str(data), "--output",
-                                      str(tmp_path), "--methods", "tcaff_only"])
+    output, result = command
     assert result.exit_code == 0, result.output
     assert "Mapping" in result.output and "TCAFF" in result.output
-    folder = tmp_path / "same_direction"
+    folder = output / "same_direction"
     for name in ("maps/acl_jackal2.npz", "maps/sparkal2.json", "metrics.json", "metrics.csv",
                  "table.md", "figures/errors_0_1.png", "same_direction.npz"):
         assert (folder / name).is_file(), name
@@ -296,7 +308,7 @@ def test_command_aligns_the_robots_as_the_simulation_did(sequence, tmp_path):
 
     # a second run reuses both robots' maps and gives the same estimates
     again = CliRunner().invoke(app, ["kimera-multi", "--data", str(data), "--output",
-                                     str(tmp_path), "--methods", "tcaff_only", "--no-figures"])
+                                     str(output), "--methods", "tcaff_only", "--no-figures"])
     assert again.exit_code == 0, again.output
     assert again.output.count("reused") == 2
     with np.load(folder / "same_direction.npz") as b:
@@ -326,8 +338,10 @@ def test_damaged_bag_keeps_the_robots_already_mapped(sequence, tmp_path, damage)
         middle = len(raw) // 2
         raw = raw[:middle] + bytes(100_000) + raw[middle + 100_000:]
     (broken / "sparkal2.bag").write_bytes(raw)
+    # 8 s of acl_jackal2 are mapped (and kept) before sparkal2's bag is opened and read
     result = CliRunner().invoke(app, ["kimera-multi", "--data", str(broken), "--output",
-                                      str(tmp_path / "out"), "--methods", "tcaff_only"])
+                                      str(tmp_path / "out"), "--methods", "tcaff_only",
+                                      "--duration", "8"])
     assert result.exit_code != 0
     assert isinstance(result.exception, DataError)
     assert "sparkal2" in str(result.exception)
@@ -338,14 +352,17 @@ def test_damaged_bag_keeps_the_robots_already_mapped(sequence, tmp_path, damage)
 
 
 @pytest.fixture(scope="module")
-def mapped(sequence, tmp_path_factory):
-    """The sequence mapped and aligned once with the tcaff_only methods, no figures: the
-    config and the outcome, whose saved maps later runs start from."""
+def mapped(sequence, command, tmp_path_factory):
+    """The sequence aligned once with the tcaff_only methods, no figures, from the maps the
+    command saved: the config and the outcome, whose saved maps later runs start from."""
     data, _ = sequence
     config = load_kimera_multi("same_direction").model_copy(
         update={"methods": load_methods("tcaff_only")})
-    return config, run_kimera_multi(config, data, tmp_path_factory.mktemp("mapped"),
-                                    figures=False)
+    output = tmp_path_factory.mktemp("mapped")
+    shutil.copytree(command[0] / config.name / "maps", output / config.name / "maps")
+    outcome = run_kimera_multi(config, data, output, figures=False)
+    assert outcome.reused == list(ROBOTS)  # the same settings and bags as the command's
+    return config, outcome
 
 
 def copy_saved_maps(mapped, output: Path, robots: tuple[str, ...]) -> None:

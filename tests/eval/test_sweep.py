@@ -7,8 +7,6 @@ import json
 import os
 import re
 import signal
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +33,6 @@ from tcaff_gtsam.errors import ConfigError
 distributed = pytest.importorskip("distributed")
 
 METHODS = MethodsConfig(methods=["tcaff", "ground_truth"])
-TCAFF = str(Path(sys.executable).with_name("tcaff"))
 
 
 def short(name: str, duration: float = 15.0):
@@ -251,7 +248,8 @@ def test_an_unreachable_scheduler_is_a_config_error(tmp_path, monkeypatch):
 def test_cli_sweep_on_a_local_cluster_writes_the_report(tmp_path, tcaff_main):
     path = write_sweep(tmp_path, {"grid": {"scenario.window": [4, 12]},
                                   "output": str(tmp_path / "out")})
-    command = ["sweep", str(path), "--local-cluster", "2", "--duration", "12", "--seeds", "1"]
+    # one worker process: the cluster fixture's two workers cover the spreading of jobs
+    command = ["sweep", str(path), "--local-cluster", "1", "--duration", "12", "--seeds", "1"]
     done = tcaff_main(*command)
     assert done.returncode == 0, done.stderr
     assert "3 points (scenario.window) x 1 scenarios x 1 seeds = 3 jobs" in done.stdout
@@ -265,10 +263,9 @@ def test_cli_sweep_on_a_local_cluster_writes_the_report(tmp_path, tcaff_main):
     assert again.returncode == 0 and "3 of 3 jobs done by an earlier run" in again.stdout
 
 
-def test_cli_bad_sweep_is_one_line_and_status_2(tmp_path):
+def test_cli_bad_sweep_is_one_line_and_status_2(tmp_path, tcaff_main):
     path = write_sweep(tmp_path, {"grid": {"methods.tcaff.tau": []}})
-    done = subprocess.run([TCAFF, "sweep", str(path)], capture_output=True, text=True,
-                          timeout=120)
+    done = tcaff_main("sweep", str(path))
     assert done.returncode == 2
     assert done.stderr.strip().count("\n") == 0 and "methods.tcaff.tau" in done.stderr
 

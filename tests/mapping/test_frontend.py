@@ -170,7 +170,9 @@ def check_map(run: Run, min_clear_views: int = 10) -> None:
 
 @pytest.fixture(scope="module")
 def loop_run() -> Run:
-    return drive(ring_room(), loop_poses(150))
+    """A loop and a quarter (1.2 m/s, 4.5 deg a frame): the last quarter sees again the
+    objects of the first."""
+    return drive(ring_room(), loop_poses(100, period=8.0))
 
 
 def test_loop_maps_each_object_once(loop_run):
@@ -199,7 +201,7 @@ def test_spinning_in_a_random_room_maps_each_object_once(seed):
     rng = np.random.default_rng(seed)
     scene = random_room(rng, 7, heights=(0.7, 1.4))
     x, y, yaw = free_pose(rng, scene, clearance=1.0)
-    check_map(drive(scene, spin_poses(120, x, y, yaw)))
+    check_map(drive(scene, spin_poses(80, x, y, yaw)))  # 9 deg a frame
 
 
 def test_ground_truth_segmenter_plugs_in():

@@ -18,7 +18,7 @@ from rgbd_scenes import (
     cylinder_visible_centroid,
     touches_border,
 )
-from tcaff_gtsam.eval.sim.render import RgbdScene, render
+from tcaff_gtsam.eval.sim.render import RgbdFrame, RgbdScene, render
 from tcaff_gtsam.eval.sim.world import room_walls
 from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 from tcaff_gtsam.mapping.lift import (
@@ -74,10 +74,14 @@ def one_object(rng: np.random.Generator, distance: float, cylinder: bool,
 
 
 def lift_gt(setup: Setup, noise: float = 0.0, seed: int = 0,
-            T_odom_world: np.ndarray | None = None) -> tuple[Observations, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    frame = render(setup.scene, setup.T_world_camera, CAMERA, depth_noise=noise,
-                   rng=rng if noise else None)
+            T_odom_world: np.ndarray | None = None, frame: RgbdFrame | None = None
+            ) -> tuple[Observations, np.ndarray]:
+    """The observation of the object's ground-truth mask in `frame` (default: rendered with
+    depth noise `noise`), and the mask."""
+    if frame is None:
+        rng = np.random.default_rng(seed)
+        frame = render(setup.scene, setup.T_world_camera, CAMERA, depth_noise=noise,
+                       rng=rng if noise else None)
     gt = frame.instance == 1
     assert gt.sum() > 100 and not touches_border(gt), "the object must be fully in view"
     T = setup.T_world_camera if T_odom_world is None else T_odom_world @ setup.T_world_camera
@@ -97,7 +101,7 @@ def check(obs: Observations, setup: Setup, tol_m: float, tol_rel: float) -> None
 RANGES = [0.5, 0.8, 1.2, 2.0, 3.0, 4.0]
 
 
-@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("seed", range(2))
 @pytest.mark.parametrize("cylinder", [False, True], ids=["box", "cylinder"])
 @pytest.mark.parametrize("distance", RANGES)
 def test_noise_free_observation_matches_the_truth(distance, cylinder, seed):
@@ -107,7 +111,7 @@ def test_noise_free_observation_matches_the_truth(distance, cylinder, seed):
     assert obs.point_counts[0] >= LiftParams().min_points
 
 
-@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("seed", range(2))
 @pytest.mark.parametrize("cylinder", [False, True], ids=["box", "cylinder"])
 @pytest.mark.parametrize("distance", RANGES)
 def test_noisy_observation_matches_the_truth(distance, cylinder, seed):
@@ -142,8 +146,9 @@ def test_observation_is_in_the_odometry_frame(ox, oy, oz, oyaw, seed, cylinder):
     and leaves the (gravity-aligned) sizes alone."""
     setup = one_object(np.random.default_rng(seed), 2.5, cylinder)
     T_odom_world = se3_from_xyz_yaw(ox, oy, oz, oyaw)
-    in_world, _ = lift_gt(setup)
-    in_odom, _ = lift_gt(setup, T_odom_world=T_odom_world)
+    frame = render(setup.scene, setup.T_world_camera, CAMERA)
+    in_world, _ = lift_gt(setup, frame=frame)
+    in_odom, _ = lift_gt(setup, T_odom_world=T_odom_world, frame=frame)
     assert len(in_world) == len(in_odom) == 1
     # (the accuracy itself is checked above; here a wrong frame would be off by metres)
     expected = transform_points(T_odom_world, setup.truth[None])[0]

@@ -95,7 +95,7 @@ def check_frame(scene: RgbdScene, T: np.ndarray, segmenter: DepthSegmenter,
 # acceptance on rendered rooms
 
 
-@pytest.mark.parametrize("seed", range(16))
+@pytest.mark.parametrize("seed", range(8))
 def test_masks_match_unoccluded_objects(seed):
     """Random rooms of six boxes and cylinders; one random pose and two facing an object."""
     rng = np.random.default_rng(seed)
@@ -372,7 +372,7 @@ def labelled_depth_border(valid: np.ndarray, margin: int) -> np.ndarray:
     return edge | (band[labels] & near)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 60), st.integers(1, 60),
        st.floats(0.0, 1.0), st.integers(0, 25), st.booleans())
 def test_depth_border_matches_labelling_every_region(seed, rows, cols, holes, margin, blobs):
@@ -421,11 +421,14 @@ def test_coarse_grid_masks_match_objects_as_well_as_full_resolution(seed):
     for p in range(2):
         T = camera_pose(*(free_pose(rng, scene) if p == 0 else
                           pose_facing(rng, scene, int(rng.integers(len(scene))), (1.0, 5.0))))
+        objects = None
         for noise in (0.0, 0.0025):
             frame = render(scene, T, CAMERA, depth_noise=noise, rng=rng)
             at_full = full.segment(None, frame.depth)
             at_coarse = coarse.segment(None, frame.depth)
-            for k in unoccluded_objects(scene, T, frame):
+            if objects is None:  # the noise changes no pixel's instance, nor which have depth
+                objects = unoccluded_objects(scene, T, frame)
+            for k in objects:
                 gt = frame.instance == k + 1
                 best_full = max((iou(m, gt) for m in at_full), default=0.0)
                 best_coarse = max((iou(m, gt) for m in at_coarse), default=0.0)
@@ -566,7 +569,7 @@ def test_pitched_camera_and_different_height_still_work():
     assert not failures, "\n".join(failures)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.integers(0, 30), st.integers(1, 30), st.integers(0, 30), st.integers(1, 30),
        st.floats(0.3, 6.0), st.lists(st.floats(-1.0, 2.0), min_size=3, max_size=3),
        st.integers(1, 4), st.integers(0, 4))
