@@ -201,10 +201,10 @@ def write_g2o(root: Path, job: JobResult, reference: int = 0) -> Path:
 
 
 def _ros_token(name: str, prefix: str) -> str:
-    """`name` as a ROS 2 name token: other characters as `_`, `prefix` before a leading
-    non-letter, doubled `_` single."""
-    token = re.sub(r"_+", "_", re.sub(r"\W", "_", name))
-    return token if token[:1].isalpha() else prefix + token.lstrip("_")
+    """`name` as a ROS 2 name token: other characters (ASCII letters, digits and `_` only)
+    as `_`, `prefix` before a leading non-letter, doubled `_` single."""
+    token = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "_", name))
+    return token if token[:1].isalpha() and token[:1].isascii() else prefix + token.lstrip("_")
 
 
 def write_rosbag2(root: Path, job: JobResult, reference: int = 0) -> Path:
@@ -217,39 +217,36 @@ def write_rosbag2(root: Path, job: JobResult, reference: int = 0) -> Path:
     geometry_msgs/msg/PoseWithCovarianceStamped in `<robot_i>/odom` stamped and logged at its
     exchange's time; saved runs keep no covariances, so they are zero. `reference` is unused:
     every pair is written.
+
+    Raises:
+        DataError: robot or method names that become the same topic name, or times before 0.
     """
     import shutil
 
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from tcaff_gtsam.node.ros2 import ALIGNMENT_TYPE, _store, pose_message, serialize
+    from tcaff_gtsam.node.bag import ns, write_bag
+    from tcaff_gtsam.node.ros2 import ALIGNMENT_TYPE, pose_message
 
     names = [_ros_token(name, "r") for name in robot_names(job)]
-    folder = root / "trajectories" / job.stem / "rosbag2"
-    if folder.exists():
-        shutil.rmtree(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    times = _times(job)
-    if len(times) and times.min() < 0:
-        raise DataError(f"{job.stem}: times before 0 s cannot be bag time stamps")
     streams = [("truth", "truth")] + [(s, f"est_{s}") for s in estimate_streams(job)]
+    labels = ["truth"] + [f"{_ros_token(s, 'm')}/alignment" for s, _ in streams[1:]]
+    if len(set(names)) < len(names) or len(set(labels)) < len(labels):
+        raise DataError(f"{job.stem}: robots {robot_names(job)} or methods "
+                        f"{[s for s, _ in streams]} share a ROS 2 name")
+    times = _times(job)
     messages = []
-    for stream, key in streams:
-        label = "truth" if stream == "truth" else f"{_ros_token(stream, 'm')}/alignment"
+    for (_, key), label in zip(streams, labels, strict=True):
         for p, (i, j) in enumerate(job.pairs):
             topic = f"/{names[i]}/tcaff/{label}/{names[j]}"
             values = job.arrays[key][p]
             for s in np.flatnonzero(np.all(np.isfinite(values), axis=1)):
                 t = float(times[s])
-                messages.append((round(t * 1e9), topic, pose_message(
+                messages.append((ns(t), topic, ALIGNMENT_TYPE, pose_message(
                     t, f"{names[i]}/odom", values[s], np.zeros((3, 3)))))
-    messages.sort(key=lambda m: m[0])
-    with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        connections = {}
-        for stamp, topic, message in messages:
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, ALIGNMENT_TYPE,
-                                                           typestore=_store())
-            writer.write(connections[topic], stamp, serialize(message, ALIGNMENT_TYPE))
+    folder = root / "trajectories" / job.stem / "rosbag2"
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    write_bag(folder, messages)
     return folder
 
 

@@ -67,9 +67,9 @@ class NodeParams:
             topics with standard messages, as ROS 2's Zenoh middleware would (`node.ros2`);
             robot names must then be ROS 2 name tokens.
         domain_id: the ROS 2 domain (ROS_DOMAIN_ID) of those topics, 0 to 232.
-        ros2_objects: with `ros2`, also take the robot's map from the ROS 2 topic
-            /<robot>/tcaff/objects (a MarkerArray as `node.ros2` describes); each message is
-            published as by `publish`.
+        ros2_objects: with `ros2` (and not `lockstep`), take the robot's map from the ROS 2
+            topic /<robot>/tcaff/objects (a MarkerArray as `node.ros2` describes) instead of
+            from `publish`: each message newer than the last is published as `publish` would.
     """
 
     kappa: float = 20.0
@@ -100,6 +100,8 @@ class NodeParams:
                  self.domain_id, "must be an int in 0..232")
         _require(self.ros2 or not self.ros2_objects, o, "ros2_objects", self.ros2_objects,
                  "needs ros2=True")
+        _require(not (self.ros2_objects and self.lockstep), o, "ros2_objects",
+                 self.ros2_objects, "takes live maps: needs lockstep=False")
 
 
 class _Neighbour:
@@ -135,7 +137,8 @@ class RobotNode:
             failed, logged with its traceback; the node goes on); with team consistency also
             "alignments_heard" (other robots'), "team_rejected" (steps whose own accepted
             alignment failed the team's cycles) and "team_chained" (steps whose team alignment
-            is chained through another robot).
+            is chained through another robot); with ROS 2, "ros2_sent" (maps and alignments
+            published there) and "ros2_errors" (ones that could not be, logged).
         latest: neighbour -> the latest AlignmentMessage of that pair.
         team_latest: with team consistency, neighbour -> the latest TeamMessage of that pair.
         latencies: s from each of the latest 10 000 neighbours' maps arriving to its
@@ -194,6 +197,9 @@ class RobotNode:
         self._restore()
         self.boot = random.SystemRandom().randrange(2**32)
         self._seq = 0
+        self._publishing = threading.Lock()
+        self._ros2_last: float | None = None  # the latest ROS 2 map's time
+        self._closed = False
         self._ego: dict[int, tuple[float, ObjectMap]] = {}
         self._ego_latest: tuple[int, float, float] | None = None  # seq, stamp, wall time
         self._lose = np.random.default_rng(self.params.seed)
@@ -234,19 +240,41 @@ class RobotNode:
         Raises:
             DataError: t not finite, not an ObjectMap, seq not after the previous one.
         """
+        self._publish(t, object_map, seq, block=True)
+
+    def _publish(self, t: float, object_map: ObjectMap, seq: int | None, block: bool) -> None:
         object_map = as_object_map("RobotNode.publish", "object_map", object_map)
         t = finite_time("RobotNode.publish", "t", t)
-        seq = self._seq if seq is None else int(seq)
-        if seq < self._seq:
-            raise DataError(f"RobotNode.publish: seq {seq} is not after the previous "
-                            f"{self._seq - 1}")
-        recent = object_map.recent(t, self.params.kappa)
-        self._map_pub.put(encode(MapMessage.of(self.robot, self.boot, seq, t, recent)))
-        if self._ros2 is not None:
-            self._ros2.object_map(t, recent)
-        self.counters["maps_sent"] += 1
-        self._seq = seq + 1
-        self._inbox.put(("ego", seq, t, recent, time.monotonic()))
+        with self._publishing:  # the pipeline's thread, or Zenoh's with ros2_objects
+            seq = self._seq if seq is None else int(seq)
+            if seq < self._seq:
+                raise DataError(f"RobotNode.publish: seq {seq} is not after the previous "
+                                f"{self._seq - 1}")
+            recent = object_map.recent(t, self.params.kappa)
+            self._map_pub.put(encode(MapMessage.of(self.robot, self.boot, seq, t, recent)))
+            self.counters["maps_sent"] += 1
+            self._seq = seq + 1
+            item = ("ego", seq, t, recent, time.monotonic())
+            if block:
+                self._inbox.put(item)
+            else:  # never block Zenoh's thread
+                try:
+                    self._inbox.put_nowait(item)
+                except queue.Full:
+                    self._drop("overflow", "queue full (own map)")
+            self._to_ros2("object_map", t, recent)
+
+    def _to_ros2(self, what: str, *args) -> None:
+        """Publish on the ROS 2 side, after the node's own work: a failure there (a time ROS
+        cannot stamp, a closed session) is logged and counted, never lost to the team."""
+        if self._ros2 is None:
+            return
+        try:
+            getattr(self._ros2, what)(*args)
+            self.counters["ros2_sent"] += 1
+        except Exception as exc:  # the team's own messages are out already
+            self.counters["ros2_errors"] += 1
+            log.warning("%s: ROS 2 %s not published: %s", self.robot, what, exc)
 
     def present(self, timeout: float = 1.0) -> set[str]:
         """The team members whose nodes are up and linked to this one (Zenoh liveliness)."""
@@ -261,11 +289,14 @@ class RobotNode:
         return self._idle.wait(timeout)
 
     def close(self) -> None:
-        """Stop the worker (after what is queued) and close the session."""
-        if self._ros2 is not None:
-            self._ros2.close()
+        """Stop the worker (after what is queued) and close the session; again: nothing."""
+        if self._closed:
+            return
+        self._closed = True
         self._inbox.put(None)
         self._worker.join(timeout=30)
+        if self._ros2 is not None:
+            self._ros2.close()
         self._session.close()
 
     def __enter__(self) -> RobotNode:
@@ -287,9 +318,14 @@ class RobotNode:
 
     def _ros2_map(self, t: float, object_map: ObjectMap) -> None:
         """A map from the ROS 2 objects topic (on Zenoh's thread): published as `publish`
-        would; one that cannot be (a time not after the last) is dropped and counted."""
+        would; one not newer than the last is dropped as stale, one that cannot be published
+        as malformed."""
+        if self._ros2_last is not None and not t > self._ros2_last:
+            self._drop("stale", f"ROS 2 map at {t!r} s, the last at {self._ros2_last!r} s")
+            return
+        self._ros2_last = t
         try:
-            self.publish(t, object_map)
+            self._publish(t, object_map, None, block=False)
         except DataError as exc:
             self._drop("malformed", f"on the ROS 2 objects topic: {exc}")
 
@@ -402,12 +438,12 @@ class RobotNode:
             self._align_pubs[name] = self._session.declare_publisher(
                 alignment_key(self.team, self.robot, name))
         self._align_pubs[name].put(encode(out))
-        if self._ros2 is not None:
-            self._ros2.alignment(out)
         if arrived is not None:
             self.latencies.append(time.perf_counter() - arrived)
         self.latest[name] = out
         self._save(name, nb.aligner.filter)
+        if accepted:
+            self._to_ros2("alignment", out)
         if self._on_alignment is not None:
             self._on_alignment(out)
         if self._team is not None:
@@ -454,9 +490,9 @@ class RobotNode:
             self._team_pubs[name] = self._session.declare_publisher(
                 team_key(self.team, self.robot, name))
         self._team_pubs[name].put(encode(out))
-        if self._ros2 is not None:
-            self._ros2.alignment(out)
         self.team_latest[name] = out
+        if out.accepted:
+            self._to_ros2("alignment", out)
         if self._on_team is not None:
             self._on_team(out)
 

@@ -30,6 +30,7 @@ which is how `ros2 topic list` finds them.
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import struct
@@ -55,6 +56,7 @@ MAP_TYPE = "visualization_msgs/msg/MarkerArray"
 QOS = "::,10:,:,:,,"
 #: a ROS 2 name token (topic names and namespaces are made of them)
 _TOKEN = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+log = logging.getLogger(__name__)
 _ATTACHMENT = struct.Struct("<qqB16s")
 _MARKER_ADD, _MARKER_DELETEALL, _CYLINDER = 0, 3, 3
 #: yaw's row and column in ROS's 6 x 6 pose covariance, after x and y
@@ -148,7 +150,13 @@ def decode_attachment(data: bytes) -> tuple[int, int, bytes]:
 
 
 def _time(t: float):
-    """builtin_interfaces/msg/Time of `t` s (whole seconds floored, so nanosec is in range)."""
+    """builtin_interfaces/msg/Time of `t` s (whole seconds floored, so nanosec is in range).
+
+    Raises:
+        DataError: t not finite or outside ROS's int32 seconds.
+    """
+    if not np.isfinite(t) or not -2**31 <= np.floor(t) < 2**31:
+        raise DataError(f"time {t!r} s: a ROS 2 stamp holds int32 seconds")
     sec = int(np.floor(t))
     nanosec = min(round((float(t) - sec) * 1e9), 999_999_999)
     return _store().types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
@@ -263,7 +271,7 @@ class _Publisher:
         self.msgtype = msgtype
         session = bridge.session
         self._pub = session.declare_publisher(topic_key(bridge.domain_id, topic, msgtype))
-        self._token = session.liveliness().declare_token(bridge.token("MP", topic, msgtype))
+        self.token = session.liveliness().declare_token(bridge.token("MP", topic, msgtype))
         self._gid = os.urandom(16)
         self._seq = 0
 
@@ -279,8 +287,8 @@ class Ros2Bridge:
     `/<robot>/tcaff/objects`.
 
     `on_objects(t, object_map)` is called on Zenoh's thread with each map that arrives; a
-    message that is not a MarkerArray of objects is counted in `refused` and logged by the
-    caller's `on_refused(reason, detail)`.
+    message that is not a MarkerArray of objects, or that `on_objects` fails on, is handed to
+    `on_refused(reason, detail)` (the node counts and logs it) or, without one, logged.
     """
 
     def __init__(self, session, robot: str, domain_id: int = 0, on_objects=None,
@@ -332,17 +340,23 @@ class Ros2Bridge:
         try:
             message = read_message(sample.payload.to_bytes(), MAP_TYPE)
             t, object_map = object_map_of(message)
-        except (MessageError, DataError) as exc:
+            self._on_objects(t, object_map)
+        except Exception as exc:  # nothing may escape into Zenoh's thread
+            detail = f"on {objects_topic(self.robot)}: {exc}"
             if self._on_refused is not None:
-                self._on_refused("malformed", f"on {objects_topic(self.robot)}: {exc}")
-            return
-        self._on_objects(t, object_map)
+                self._on_refused("malformed", detail)
+            else:
+                log.warning("dropped a ROS 2 map %s", detail)
 
     def close(self) -> None:
-        """Withdraw the tokens and undeclare the subscriber (the session stays open)."""
+        """Withdraw the tokens and undeclare the subscriber (the session stays open); again:
+        nothing."""
         if self._subscriber is not None:
             self._subscriber.undeclare()
+            self._subscriber = None
         for publisher in self._publishers.values():
-            publisher._token.undeclare()
+            self._tokens.append(publisher.token)
+        self._publishers = {}
         for token in self._tokens:
             token.undeclare()
+        self._tokens = []

@@ -140,15 +140,25 @@ def node(
     """
     sources = [scenario, kimera and str(kimera), replay and str(replay)]
     if ros2_objects:
+        from tcaff_gtsam.node.ros2 import check_ros_name
+
         if any(x is not None for x in sources):
             _refuse("--ros2-objects", sources, "takes the maps from ROS 2: no --scenario, "
                     "--kimera or --replay")
         if not members:
             _refuse("--members", members, "--ros2-objects needs the team's robots, like r0,r1")
+        for name in (robot, *members.split(",")):
+            check_ros_name("--robot" if name == robot else "--members", name.strip())
         if duration is not None and not (math.isfinite(duration) and duration > 0):
             _refuse("--duration", duration, "must be a finite number of seconds > 0")
+        if speed != 1.0:
+            _refuse("--speed", speed, "live maps from ROS 2 run on the wall clock")
     elif sum(x is not None for x in sources) != 1:
         _refuse("--scenario/--kimera/--replay", sources, "give exactly one")
+    elif members is not None:
+        _refuse("--members", members, "only with --ros2-objects (a replay knows its team)")
+    if not 0 <= domain_id <= 232:
+        _refuse("--domain-id", domain_id, "must be an int in 0..232")
     _check_speed(speed)
     _check_seeds([seed])  # before the endpoints are checked: the run is made after them
     if drop_seed < 0:
@@ -329,8 +339,10 @@ def team(
     _check_duration(duration)
     if not 0 <= domain_id <= 232:
         _refuse("--domain-id", domain_id, "must be an int in 0..232")
-    if bag is not None and bag.exists():
-        _refuse("--bag", str(bag), "exists; a bag is written to a new folder")
+    if bag is not None:  # checked now, not after the run
+        if bag.exists():
+            _refuse("--bag", str(bag), "exists; a bag is written to a new folder")
+        _writable_folder(bag.parent, "--bag")
     tls = _tls(tls_ca, tls_cert, tls_key)
     _writable_folder(output, "--output")
     from tcaff_gtsam.node.replay import robot_names

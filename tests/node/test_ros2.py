@@ -57,7 +57,7 @@ def mcap_decoder(msgtype: str):
 def test_type_hashes_are_the_ones_rosidl_publishes():
     for msgtype, published in PUBLISHED_HASHES.items():
         assert ros2.type_hash(msgtype) == published
-        assert pamoja.type_hash_digest(published) == bytes.fromhex(published[7:])
+        assert pamoja.type_hash_digest(ros2.type_hash(msgtype)) == bytes.fromhex(published[7:])
 
 
 @PROPS
@@ -97,7 +97,8 @@ def test_a_name_that_is_no_ros2_token_is_refused(name):
 @pytest.mark.parametrize(("kwargs", "field"), [
     ({"ros2": True, "domain_id": 233}, "domain_id"), ({"ros2": True, "domain_id": -1},
                                                       "domain_id"),
-    ({"ros2_objects": True}, "ros2_objects"), ({"ros2": 1}, "ros2")])
+    ({"ros2_objects": True}, "ros2_objects"), ({"ros2": 1}, "ros2"),
+    ({"ros2": True, "ros2_objects": True, "lockstep": True}, "lockstep=False")])
 def test_node_params_refuse_bad_ros2_settings(kwargs, field):
     with pytest.raises(ParameterError, match=field):
         NodeParams(**kwargs)
@@ -167,6 +168,12 @@ def test_a_map_decodes_with_both_and_reads_back_as_the_same_object_map(n, seed, 
     np.testing.assert_array_equal(got.widths, sent.widths)
     np.testing.assert_array_equal(got.heights, sent.heights)
     np.testing.assert_allclose(got.last_seen, sent.last_seen, atol=1e-9 * t)
+
+
+@pytest.mark.parametrize("t", [-2.0**31 - 1, 2.0**31, 3e9, float("nan"), float("inf")])
+def test_a_time_no_ros2_stamp_holds_is_a_data_error(t):
+    with pytest.raises(DataError, match="int32 seconds"):
+        ros2.pose_message(t, "r0/odom", np.zeros(3), np.eye(3))
 
 
 def test_bytes_that_are_no_marker_array_are_refused():
@@ -256,25 +263,42 @@ class Ros2Team:
         self.node.close()
 
 
-def test_a_plain_zenoh_subscriber_in_another_process_decodes_a_live_nodes_alignments():
+def test_a_plain_zenoh_subscriber_in_another_process_decodes_a_live_nodes_alignments(
+        tmp_path):
     team = Ros2Team(NodeParams(silence=2.0, ros2=True, domain_id=7))
+    listener, errors = None, open(tmp_path / "stderr.txt", "w+")
+
+    def errors_text() -> str:
+        return (tmp_path / "stderr.txt").read_text()
+
     try:
         key = ros2.topic_key(7, ros2.alignment_topic("r0", "r1"), ros2.ALIGNMENT_TYPE)
         listener = subprocess.Popen(
             [sys.executable, "-c", SUBSCRIBER, str(team.port), key, "@ros2_lv/7",
              ros2.ALIGNMENT_TYPE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, text=True)
-        assert listener.stdout.readline().strip() == "ready", listener.stderr.read()
+            stderr=errors, text=True)
+        assert listener.stdout.readline().strip() == "ready", errors_text()
         time.sleep(1.0)  # the subscriber's declaration reaches the node
         for k in range(14):
             team.node.publish(10.0 + k, team.ego_map(10.0 + k))
             team.node.wait_idle()
             team.send(k, 10.0 + k)
-        out, err = listener.communicate("stop\n", timeout=90)
+        # a time ROS cannot stamp: the team's map goes out, the ROS 2 messages are counted
+        team.node.publish(3e9, team.ego_map(3e9))
+        team.node.wait_idle()
+        out, _ = listener.communicate("stop\n", timeout=90)
         report = json.loads(out.strip().splitlines()[-1])
     finally:
+        if listener is not None:
+            listener.kill()
+        errors.close()
         team.close()
-    accepted = [m for m in team.got if m.accepted]  # only these go out on ROS 2
+        team.close()  # closing twice is harmless
+    err = errors_text()
+    # the map at 3e9 s and the alignment the silent neighbour's filter then held
+    assert team.node.counters["maps_sent"] == 15 and team.node.counters["ros2_errors"] == 2
+    # only accepted alignments go out on ROS 2, and none at a time it cannot stamp
+    accepted = [m for m in team.got if m.accepted and m.stamp < 2**31]
     got = report["got"]
     # ROS 2 sequence numbers count the publisher's messages from 1; the subscriber may have
     # come up after the first ones, never miss one after that
@@ -333,7 +357,7 @@ def test_a_team_bag_reads_back_with_rosbags_mcap_and_mcap_ros2_support(tmp_path)
     names = ("r0", "r1", "r2", "r3")
     results = tmp_path / "team"
     results.mkdir()
-    P = np.diag([0.01, 0.02, 0.003])
+    P = np.array([[0.01, 0.004, -0.001], [0.004, 0.02, 0.002], [-0.001, 0.002, 0.003]])
     for i, robot in enumerate(names):  # r0's node accepted its alignment to r1 from step 2
         rows = AlignmentCsv(results / f"{robot}.csv")
         for k, t in enumerate(run.times):
@@ -373,7 +397,9 @@ def test_a_team_bag_reads_back_with_rosbags_mcap_and_mcap_ros2_support(tmp_path)
             topics=["/r0/tcaff/alignment/r1", "/r1/tcaff/team_alignment/r3"])]
     first = next(m for topic, m in decoded if topic == "/r0/tcaff/alignment/r1")
     assert (first.pose.pose.position.x, first.header.frame_id) == (3.0, "r0/odom")
-    assert np.reshape(first.pose.covariance, (6, 6))[5, 5] == 0.003
+    covariance = np.reshape(first.pose.covariance, (6, 6))
+    np.testing.assert_array_equal(covariance[np.ix_([0, 1, 5], [0, 1, 5])], P)
+    assert np.count_nonzero(covariance) == np.count_nonzero(P)
     with pytest.raises(ConfigError, match="exists"):
         write_team_bag(bag, run, names, results)
 
@@ -397,6 +423,9 @@ def test_tcaff_team_with_ros2_writes_a_bag_of_what_its_nodes_wrote(tmp_path, tca
     for i, robot in enumerate(("r0", "r1")):
         rows = read_alignments(out / f"{robot}.csv")
         accepted = int((rows["accepted"] == 1).sum())
+        # the node published its 20 maps and its accepted alignments on ROS 2 too
+        counters = json.loads((out / f"{robot}.json").read_text())
+        assert counters["ros2_sent"] == 20 + accepted and "ros2_errors" not in counters
         assert counts.get(ros2.alignment_topic(robot, f"r{1 - i}"), 0) == accepted
         assert counts[ros2.map_topic(robot)] == 20
     assert sum(counts.get(ros2.alignment_topic(r, o), 0) for r, o in (("r0", "r1"),
@@ -410,7 +439,9 @@ def test_tcaff_team_with_ros2_writes_a_bag_of_what_its_nodes_wrote(tmp_path, tca
     (["--ros2-objects", "--scenario", "four_robots"], "no --scenario, --kimera or --replay"),
     (["--ros2-objects"], "--members None: --ros2-objects needs the team's robots"),
     (["--ros2-objects", "--members", "r0,r-1"], "ROS 2 name token"),
-    (["--scenario", "four_robots", "--ros2", "--domain-id", "300"], "domain_id"),
+    (["--scenario", "four_robots", "--ros2", "--domain-id", "300"], "--domain-id 300"),
+    (["--scenario", "four_robots", "--members", "r0,r1"], "only with --ros2-objects"),
+    (["--ros2-objects", "--members", "r0,r1", "--speed", "2"], "--speed 2.0"),
 ])
 def test_node_refuses_bad_ros2_options_in_one_line(tmp_path, tcaff_main, args, words):
     done = tcaff_main("node", "--robot", "r0", "--listen", f"127.0.0.1:{free_ports(1)[0]}",
