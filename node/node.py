@@ -27,7 +27,7 @@ from tcaff_gtsam.params import (
     _int_at_least,
     _require,
 )
-from tcaff_gtsam.tcaff import TCAFF
+from tcaff_gtsam.tcaff import TCAFF, write_snapshot
 from tcaff_gtsam.team import TeamConsistency, TeamParams
 
 from .link import Link, alignment_key, alive_key, check_name, map_key, team_key, team_keys
@@ -116,6 +116,7 @@ class _Neighbour:
         # first ego map)
         self.last_seen: float | None = None
         self.pending: dict[int, tuple[MapMessage, float]] = {}  # seq -> (map, arrival)
+        self.clock: float | None = None  # ego-clock time of the pair's latest step
 
 
 class RobotNode:
@@ -157,7 +158,8 @@ class RobotNode:
         Args:
             members: every robot of the team (this one included or not); maps of others are
                 dropped.
-            state_dir: each pair's filter is saved there after each step (`TCAFF.save`) and
+            state_dir: each pair's filter is saved there after each step (`TCAFF.snapshot`,
+                written on a thread of its own; counters "states_saved", "save_errors") and
                 restored from there on start; None: nothing saved.
             team_params, on_team: with `NodeParams.team_consistency`, the settings of the
                 team consistency, and a callback given every TeamMessage the node publishes
@@ -201,7 +203,8 @@ class RobotNode:
         self._ros2_last: float | None = None  # the latest ROS 2 map's time
         self._closed = False
         self._ego: dict[int, tuple[float, ObjectMap]] = {}
-        self._ego_latest: tuple[int, float, float] | None = None  # seq, stamp, wall time
+        # seq, stamp, perf_counter() when it was published
+        self._ego_latest: tuple[int, float, float] | None = None
         self._lose = np.random.default_rng(self.params.seed)
         self._inbox: queue.Queue = queue.Queue(self.params.queue)
         self._idle = threading.Event()
@@ -223,6 +226,7 @@ class RobotNode:
         except BaseException:  # nothing left open by a node that could not start
             self._session.close()
             raise
+        self._saver = None if self._state_dir is None else _Saver(self.robot, self.counters)
         self._worker = threading.Thread(target=self._work, name=f"tcaff-node-{robot}",
                                         daemon=True)
         self._worker.start()
@@ -254,7 +258,7 @@ class RobotNode:
             self._map_pub.put(encode(MapMessage.of(self.robot, self.boot, seq, t, recent)))
             self.counters["maps_sent"] += 1
             self._seq = seq + 1
-            item = ("ego", seq, t, recent, time.monotonic())
+            item = ("ego", seq, t, recent, time.perf_counter())
             if block:
                 self._inbox.put(item)
             else:  # never block Zenoh's thread
@@ -295,6 +299,8 @@ class RobotNode:
         self._closed = True
         self._inbox.put(None)
         self._worker.join(timeout=30)
+        if self._saver is not None:
+            self._saver.close()
         if self._ros2 is not None:
             self._ros2.close()
         self._session.close()
@@ -375,8 +381,10 @@ class RobotNode:
             if self._ego_latest is None:
                 self.counters["early"] += 1  # nothing of ours to align it with yet
                 return
+            # the ego clock when the map arrived (not when the worker got to it), never before
+            # the pair's last step: a late ego map must not turn the clock back
             seq, stamp, wall = self._ego_latest
-            now = stamp + self.params.speed * (time.monotonic() - wall)
+            now = max(stamp + self.params.speed * (arrived - wall), _after(nb.clock))
             self._align(message.sender, nb, message, seq, now, self._ego[seq][1], arrived)
         elif message.seq in self._ego:
             stamp, ego_map = self._ego[message.seq]
@@ -405,7 +413,7 @@ class RobotNode:
             elif nb.last_seen is None:
                 nb.last_seen = t
             elif t - nb.last_seen > self.params.silence:
-                self._align(name, nb, None, seq, t, ego_map)
+                self._align(name, nb, None, seq, max(t, _after(nb.clock)), ego_map)
 
     def _neighbour(self, name: str) -> _Neighbour:
         if name not in self._neighbours:
@@ -423,6 +431,7 @@ class RobotNode:
         except DataError as exc:  # t not after the pair's last step: nothing was changed
             self._drop("stale", f"{name}: {exc}")
             return
+        nb.clock = t
         if message is None:
             self.counters["silent_steps"] += 1
         else:
@@ -502,12 +511,8 @@ class RobotNode:
         return self._state_dir / f"{self.robot}-{name}.npz"
 
     def _save(self, name: str, tcaff: TCAFF) -> None:
-        if self._state_dir is None:
-            return
-        path = self._state_path(name)
-        partial = path.with_suffix(".partial")
-        tcaff.save(partial)
-        os.replace(partial, path)  # a node killed mid-write keeps the previous state
+        if self._saver is not None:
+            self._saver.offer(self._state_path(name), tcaff.snapshot())
 
     def _restore(self) -> None:
         if self._state_dir is None:
@@ -518,6 +523,57 @@ class RobotNode:
             if path.exists():
                 self._neighbour(name).aligner.filter = TCAFF.load(path)
                 log.info("%s: restored the filter of %s from %s", self.robot, name, path)
+
+
+class _Saver:
+    """Writes the pairs' filters on its own thread, so that a step pays for a copy of the
+    state only: each file written aside and renamed (a node killed mid-write keeps the
+    previous state), a pair stepped again before its file was written written once, with the
+    newest state."""
+
+    def __init__(self, robot: str, counters: Counter) -> None:
+        self._robot, self._counters = robot, counters
+        self._pending: dict[Path, dict[str, np.ndarray]] = {}
+        self._wake = threading.Condition()
+        self._stopping = False
+        self._thread = threading.Thread(target=self._run, name=f"tcaff-save-{robot}",
+                                        daemon=True)
+        self._thread.start()
+
+    def offer(self, path: Path, snapshot: dict[str, np.ndarray]) -> None:
+        with self._wake:
+            self._pending[path] = snapshot
+            self._wake.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._wake:
+                while not self._pending and not self._stopping:
+                    self._wake.wait()
+                if not self._pending:
+                    return
+                batch, self._pending = self._pending, {}
+            for path, snapshot in batch.items():
+                partial = path.with_suffix(".partial")
+                try:
+                    write_snapshot(partial, snapshot)
+                    os.replace(partial, path)
+                    self._counters["states_saved"] += 1
+                except (DataError, OSError) as exc:
+                    self._counters["save_errors"] += 1
+                    log.warning("%s: could not save %s: %s", self._robot, path, exc)
+
+    def close(self) -> None:
+        """Write what is pending, then stop."""
+        with self._wake:
+            self._stopping = True
+            self._wake.notify()
+        self._thread.join(timeout=60)
+
+
+def _after(t: float | None) -> float:
+    """The first time after `t` (-inf for None)."""
+    return -np.inf if t is None else float(np.nextafter(t, np.inf))
 
 
 def _sent_on(key: str, payload: bytes, kind: type, what: str):

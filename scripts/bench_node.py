@@ -16,13 +16,17 @@
              the team's bandwidth at --robots robots from the maps of the team run.
   consistency  the time of one team-consistency step of a node (TeamConsistency.update over
              every directed pair's alignment, one pair wrong) at 3, 4, 6 and 8 robots.
+  state      saving a pair's filter (W = 8, after 40 steps of a 30-object pair): what a
+             node's step pays (`TCAFF.snapshot`, the state copied; the file is written on
+             another thread) against writing the file on the step (`TCAFF.save`).
   ros2       what `NodeParams(ros2=True)` adds: one accepted alignment published as a ROS 2
              PoseWithCovarianceStamped (message, CDR, attachment, Zenoh put) against the
              team's own message, the map as a MarkerArray at --objects objects, and the
              memory Python holds after --exchanges x 100 more alignments than after the first
              ones (tracemalloc; growth per step would show there).
 
-    python scripts/bench_node.py [--parts latency team bytes consistency ros2] [--objects 100]
+    python scripts/bench_node.py [--parts latency team bytes consistency state ros2]
+                                 [--objects 100]
                                  [--robots 8] [--seconds 60] [--rate 5] [--exchanges 80]
                                  [--team-consistency] [--guide-radius METRES|none]
 
@@ -225,6 +229,31 @@ def team(robots: int, seconds: float, team_consistency: bool = False):
     return stats, run
 
 
+def state_costs(repeats: int = 500) -> dict[str, np.ndarray]:
+    """Seconds per save of one pair's filter: the snapshot a node's step takes, and the
+    whole file written."""
+    from tcaff_gtsam import PairwiseAligner, TCAFFParams
+
+    mine, theirs, widths, heights = scene(30)
+    aligner = PairwiseAligner(tcaff_params=TCAFFParams(window=8))
+    for k in range(40):
+        t = float(k)
+        aligner.update(t, ObjectMap(mine, widths, heights, np.full(30, t)),
+                       ObjectMap(theirs, widths, heights, np.full(30, t)))
+    out: dict[str, list[float]] = {"TCAFF.snapshot (a node's step)": [],
+                                   "TCAFF.save (the file written)": []}
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "pair.npz"
+        for _ in range(repeats):
+            start = time.perf_counter()
+            aligner.filter.snapshot()
+            out["TCAFF.snapshot (a node's step)"].append(time.perf_counter() - start)
+            start = time.perf_counter()
+            aligner.filter.save(path)
+            out["TCAFF.save (the file written)"].append(time.perf_counter() - start)
+    return {name: np.array(v) for name, v in out.items()}
+
+
 def ros2_costs(objects: int, messages: int) -> tuple[dict[str, np.ndarray], int, int]:
     """Seconds per publication of each ROS 2 message kind and of the team's own alignment
     message, and (bytes held after `messages` alignments, bytes held after 2x as many)."""
@@ -273,7 +302,7 @@ def ros2_costs(objects: int, messages: int) -> tuple[dict[str, np.ndarray], int,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--parts", nargs="+", default=["latency", "team", "bytes"],
-                        choices=["latency", "team", "bytes", "consistency", "ros2"])
+                        choices=["latency", "team", "bytes", "consistency", "state", "ros2"])
     parser.add_argument("--team-consistency", action="store_true",
                         help="team: every node also runs the team consistency")
     parser.add_argument("--objects", type=int, default=100)
@@ -351,6 +380,15 @@ def main() -> None:
                 ms = 1e3 * consistency_step(robots, wanted)
                 cells += [f"{np.median(ms):.2f}", f"{np.percentile(ms, 95):.2f}"]
             table.add_row(str(robots), *cells)
+        console.print(table)
+    if "state" in args.parts:
+        table = Table(title="Saving a pair's filter, W = 8 [ms]")
+        for column in ("what", "n", "median", "p95"):
+            table.add_column(column, justify="right")
+        for name, values in state_costs().items():
+            ms = 1e3 * values
+            table.add_row(name, str(len(ms)), f"{np.median(ms):.3f}",
+                          f"{np.percentile(ms, 95):.3f}")
         console.print(table)
     if "ros2" in args.parts:
         times, first, second = ros2_costs(args.objects, 100 * args.exchanges)

@@ -256,6 +256,32 @@ def test_state_save_and_restore_continue_identically(tmp_path):
         assert changed, "the jump after the restore must be handled by the restored filters"
 
 
+def test_a_snapshot_written_later_is_the_state_when_it_was_taken(tmp_path):
+    """What a node hands its saving thread: the filter goes on stepping, the file written
+    afterwards restores the filter as it was at the snapshot."""
+    from tcaff_gtsam.tcaff import write_snapshot
+
+    stream = alignment_stream(np.random.default_rng(4), 120, jumps={60: (2.0, 0.0, 0.5)})
+    Rs = [np.broadcast_to(R_CONSTANT, (len(z), 3, 3)) for z in stream.zs]
+    a = TCAFF()
+    for zs, R in zip(stream.zs[:50], Rs[:50], strict=True):
+        a.update(zs, R)
+    b = TCAFF()
+    b.load_state_dict(a.state_dict())
+    snapshot = a.snapshot()
+    for zs, R in zip(stream.zs[50:90], Rs[50:90], strict=True):
+        a.update(zs, R)  # the filter goes on
+    write_snapshot(tmp_path / "pair.npz", snapshot)
+    c = TCAFF.load(tmp_path / "pair.npz")
+    assert c.step == b.step == 50
+    for zs, R in zip(stream.zs[50:], Rs[50:], strict=True):
+        eb, ec = b.update(zs, R), c.update(zs, R)
+        assert (eb is None) == (ec is None)
+        if eb is not None:
+            np.testing.assert_array_equal(eb.x, ec.x)
+            assert eb.hypothesis == ec.hypothesis
+
+
 def test_corrupt_state_is_a_data_error(tmp_path):
     filt = TCAFF()
     state = filt.state_dict()

@@ -180,3 +180,72 @@ def test_publish_refuses_bad_maps(team: Team) -> None:
 def test_bad_node_parameters_are_config_errors_naming_the_field(field, value):
     with pytest.raises(ConfigError, match=field):
         NodeParams(**{field: value})
+
+
+def test_a_late_ego_map_never_turns_a_pairs_clock_back(tmp_path: Path) -> None:
+    """Live (not lockstep), a neighbour's map is stamped on the ego clock; an ego map that
+    comes late (its stamp behind the clock the node has been running) must not give the next
+    map an earlier time than the last, which the filter would refuse as stale."""
+    team = Team(tmp_path)
+    try:
+        team.ego(10.0)
+        time.sleep(1.0)
+        team.send(0, 100.0)   # the ego clock has run to about 11 s
+        team.ego(10.5)        # late: 10.5 s, though the node's clock said about 11
+        team.send(1, 101.0)
+    finally:
+        team.close()
+    stamps = [m.stamp for m in team.got]
+    assert len(stamps) == 2 and stamps[1] > stamps[0] >= 10.9, stamps
+    c = team.node.counters
+    assert c["aligned"] == 2 and not c["dropped_stale"], c
+
+
+def test_a_map_is_stamped_when_it_arrives_not_when_the_worker_gets_to_it(tmp_path: Path
+                                                                         ) -> None:
+    """The worker is held up by the first alignment's callback while the second map
+    arrives: that map's time is the ego clock at its arrival, not a second later."""
+    team = Team(tmp_path)
+    got: list = []
+
+    def slow(message) -> None:
+        got.append(message)
+        if len(got) == 1:
+            time.sleep(1.0)
+
+    team.node._on_alignment = slow
+    n = len(team.sizes)
+    try:
+        team.ego(10.0)
+        for seq in range(2):
+            team.sender.put("tcaff/faults/r1/map", encode(MapMessage(
+                "r1", 1, seq, 100.0 + seq, team.theirs, team.sizes, team.sizes, np.zeros(n))))
+            time.sleep(0.05)
+        assert team.node.wait_idle(20)
+    finally:
+        team.close()
+    assert len(got) == 2
+    # both arrived within a few tenths of a second of the ego map, the second was handled
+    # a second after that
+    assert 10.0 <= got[0].stamp < got[1].stamp < 10.6, [m.stamp for m in got]
+
+
+def test_the_saved_filter_is_the_pairs_latest(tmp_path: Path) -> None:
+    """Filters are written on a thread of their own: after close, the file holds the pair's
+    last step (a step taken while an older state waited is written once, with the newest),
+    and no partial file is left."""
+    from tcaff_gtsam import TCAFF
+
+    state = tmp_path / "state"
+    team = Team(tmp_path, state)
+    try:
+        for k in range(12):
+            team.ego(10.0 + k)
+            team.send(k, 10.0 + k)
+    finally:
+        team.close()
+    saved = TCAFF.load(state / "r0-r1.npz")
+    assert saved.step == team.got[-1].step and saved.hypothesis == team.got[-1].hypothesis
+    assert not list(state.glob("*.partial"))
+    assert 1 <= team.node.counters["states_saved"] <= len(team.got)
+    assert not team.node.counters["save_errors"]
