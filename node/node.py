@@ -134,6 +134,8 @@ class RobotNode:
     Attributes:
         counters: Counter of "maps_sent", "maps_received", "aligned", "silent_steps",
             "dropped_<reason>", "lost" (discarded on purpose, `NodeParams.drop_share`),
+            "skipped" (live, a neighbour's map with a newer one of it already waiting: a
+            node that falls behind aligns the newest maps),
             "early" (a neighbour's map before this robot's first) and "errors" (a step that
             failed, logged with its traceback; the node goes on); with team consistency also
             "alignments_heard" (other robots'), "team_rejected" (steps whose own accepted
@@ -200,6 +202,9 @@ class RobotNode:
         self.boot = random.SystemRandom().randrange(2**32)
         self._seq = 0
         self._publishing = threading.Lock()
+        # maps queued per key, to skip all but the newest of a robot when the node is behind
+        self._waiting: Counter[str] = Counter()
+        self._waiting_lock = threading.Lock()
         self._ros2_last: float | None = None  # the latest ROS 2 map's time
         self._closed = False
         self._ego: dict[int, tuple[float, ObjectMap]] = {}
@@ -317,9 +322,15 @@ class RobotNode:
         """Zenoh's callback: queue the payload (never block the network thread)."""
         key = str(sample.key_expr)
         kind = "map" if key.endswith("/map") else "alignment"
+        if kind == "map":  # counted before the worker can see it
+            with self._waiting_lock:
+                self._waiting[key] += 1
         try:
             self._inbox.put_nowait((kind, key, sample.payload.to_bytes(), time.perf_counter()))
         except queue.Full:
+            if kind == "map":
+                with self._waiting_lock:
+                    self._waiting[key] -= 1
             self._drop("overflow", "queue full")
 
     def _ros2_map(self, t: float, object_map: ObjectMap) -> None:
@@ -355,9 +366,16 @@ class RobotNode:
                 self.counters["errors"] += 1
 
     def _take(self, key: str, payload: bytes, arrived: float) -> None:
-        """Check a neighbour's map message and align it, now or when its ego map comes."""
+        """Check a neighbour's map message and align it, now or when its ego map comes; live
+        (not lockstep), a map with a newer one of its robot already queued is skipped."""
+        with self._waiting_lock:
+            self._waiting[key] -= 1
+            newer = self._waiting[key] > 0
         if key.split("/")[2] == self.robot:
             return  # our own map, delivered back by the local session
+        if newer and not self.params.lockstep:  # behind: the newest map of the robot counts
+            self.counters["skipped"] += 1
+            return
         try:
             message = _sent_on(key, payload, MapMessage, "a map")
             if message.sender not in self.members:

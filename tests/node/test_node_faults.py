@@ -249,3 +249,29 @@ def test_the_saved_filter_is_the_pairs_latest(tmp_path: Path) -> None:
     assert not list(state.glob("*.partial"))
     assert 1 <= team.node.counters["states_saved"] <= len(team.got)
     assert not team.node.counters["save_errors"]
+
+
+def test_a_node_behind_aligns_the_newest_map_and_counts_the_skipped(tmp_path: Path) -> None:
+    """The worker is held up while five maps of r1 arrive: it aligns the newest and counts
+    the four older ones as skipped, instead of aligning each in turn ever later."""
+    team = Team(tmp_path)
+    got: list = []
+
+    def slow(message) -> None:
+        got.append(message)
+        if len(got) == 1:
+            time.sleep(1.0)
+
+    team.node._on_alignment = slow
+    n = len(team.sizes)
+    try:
+        team.ego(10.0)
+        for seq in range(6):
+            team.sender.put("tcaff/faults/r1/map", encode(MapMessage(
+                "r1", 1, seq, 100.0 + seq, team.theirs, team.sizes, team.sizes, np.zeros(n))))
+            time.sleep(0.05)
+        assert team.node.wait_idle(20)
+    finally:
+        team.close()
+    assert [m.neighbour_seq for m in got] == [0, 5], [m.neighbour_seq for m in got]
+    assert team.node.counters["skipped"] == 4 and team.node.counters["aligned"] == 2
