@@ -11,7 +11,8 @@
              Prints per node: alignments made and expected, latency (median, max) and its
              share of one core over the run. It keeps up when every alignment is made and the
              maximum latency stays under the 1 s exchange period.
-             With --team-consistency every node also runs the team consistency.
+             With --team-consistency every node also runs the team consistency; with
+             --load N, N processes that spin on the CPU run beside the team (a busy robot).
   bytes      the size of a map message at --objects objects and of an alignment message, and
              the team's bandwidth at --robots robots from the maps of the team run.
   consistency  the time of one team-consistency step of a node (TeamConsistency.update over
@@ -28,7 +29,7 @@
     python scripts/bench_node.py [--parts latency team bytes consistency state ros2]
                                  [--objects 100]
                                  [--robots 8] [--seconds 60] [--rate 5] [--exchanges 80]
-                                 [--team-consistency] [--guide-radius METRES|none]
+                                 [--team-consistency] [--load 2] [--guide-radius METRES|none]
 
 Timings are wall-clock on a shared machine: run it twice and compare.
 """
@@ -209,24 +210,32 @@ def consistency_step(robots: int, wanted: bool, repeats: int = 30) -> np.ndarray
     return np.array(times)
 
 
-def team(robots: int, seconds: float, team_consistency: bool = False):
+def team(robots: int, seconds: float, team_consistency: bool = False, load: int = 0):
     """(each node's JSON, the simulated run)."""
     config = load_scenario("four_robots")
     config = override(config, "bench", duration=seconds,
                       layout=config.layout.model_copy(update={"robots": robots}))
     run = simulate(config, 0)
-    with tempfile.TemporaryDirectory() as folder:
-        out = Path(folder)
-        replays = save_replays(run, out / "replay")
-        ports = free_ports(robots)
-        procs = start_team([node_argv(replays[k], k, robots, "bench8", ports, None, out,
-                                      team_consistency=team_consistency)
-                            for k in range(robots)], out / "logs")
-        codes = wait_team(procs, seconds + 300)
-        if any(codes):
-            raise SystemExit(f"nodes failed: {codes}; logs in {out / 'logs'}")
-        stats = [json.loads((out / f"r{k}.json").read_text()) for k in range(robots)]
-    return stats, run
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                for _ in range(load)]
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            return _team(run, robots, seconds, team_consistency, Path(folder)), run
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+
+
+def _team(run, robots: int, seconds: float, team_consistency: bool, out: Path) -> list[dict]:
+    replays = save_replays(run, out / "replay")
+    ports = free_ports(robots)
+    procs = start_team([node_argv(replays[k], k, robots, "bench8", ports, None, out,
+                                  team_consistency=team_consistency)
+                        for k in range(robots)], out / "logs")
+    codes = wait_team(procs, seconds + 300)
+    if any(codes):
+        raise SystemExit(f"nodes failed: {codes}; logs in {out / 'logs'}")
+    return [json.loads((out / f"r{k}.json").read_text()) for k in range(robots)]
 
 
 def state_costs(repeats: int = 500) -> dict[str, np.ndarray]:
@@ -305,6 +314,8 @@ def main() -> None:
                         choices=["latency", "team", "bytes", "consistency", "state", "ros2"])
     parser.add_argument("--team-consistency", action="store_true",
                         help="team: every node also runs the team consistency")
+    parser.add_argument("--load", type=int, default=0,
+                        help="team: processes that spin on the CPU beside the team")
     parser.add_argument("--objects", type=int, default=100)
     parser.add_argument("--robots", type=int, default=8)
     parser.add_argument("--seconds", type=float, default=60.0)
@@ -332,17 +343,19 @@ def main() -> None:
                           f"{np.percentile(ms, 95):.2f}", f"{ms.max():.2f}")
         console.print(table)
     if "team" in args.parts or "bytes" in args.parts:
-        stats, run = team(args.robots, args.seconds, args.team_consistency)
+        stats, run = team(args.robots, args.seconds, args.team_consistency, args.load)
         S = len(run.times)
         table = Table(title=f"{args.robots} robots at 1 Hz for {S} exchanges, each aligning "
                             f"to {args.robots - 1} neighbours"
-                            + (", with team consistency" if args.team_consistency else ""))
-        for column in ("node", "aligned", "expected", "latency median [ms]",
+                            + (", with team consistency" if args.team_consistency else "")
+                            + (f", {args.load} busy processes beside" if args.load else ""))
+        for column in ("node", "aligned", "expected", "dropped", "latency median [ms]",
                        "latency max [ms]", "CPU [% of a core]"):
             table.add_column(column, justify="right")
         for k, s in enumerate(stats):
+            dropped = sum(v for key, v in s.items() if key.startswith("dropped_"))
             table.add_row(f"r{k}", str(s.get("aligned", 0)), str((args.robots - 1) * S),
-                          f"{s.get('latency_median_ms', float('nan')):.1f}",
+                          str(dropped), f"{s.get('latency_median_ms', float('nan')):.1f}",
                           f"{s.get('latency_max_ms', float('nan')):.1f}",
                           f"{100 * s['cpu_share']:.1f}")
         console.print(table)

@@ -201,10 +201,9 @@ def test_a_late_ego_map_never_turns_a_pairs_clock_back(tmp_path: Path) -> None:
     assert c["aligned"] == 2 and not c["dropped_stale"], c
 
 
-def test_a_map_is_stamped_when_it_arrives_not_when_the_worker_gets_to_it(tmp_path: Path
-                                                                         ) -> None:
-    """The worker is held up by the first alignment's callback while the second map
-    arrives: that map's time is the ego clock at its arrival, not a second later."""
+def held_up_while_maps_arrive(tmp_path: Path, n_maps: int) -> tuple[Team, list]:
+    """A node whose worker the first alignment's callback holds up for a second, sent the
+    ego map at 10 s, then `n_maps` maps of r1 50 ms apart; its alignments, once idle."""
     team = Team(tmp_path)
     got: list = []
 
@@ -217,13 +216,21 @@ def test_a_map_is_stamped_when_it_arrives_not_when_the_worker_gets_to_it(tmp_pat
     n = len(team.sizes)
     try:
         team.ego(10.0)
-        for seq in range(2):
+        for seq in range(n_maps):
             team.sender.put("tcaff/faults/r1/map", encode(MapMessage(
                 "r1", 1, seq, 100.0 + seq, team.theirs, team.sizes, team.sizes, np.zeros(n))))
             time.sleep(0.05)
         assert team.node.wait_idle(20)
     finally:
         team.close()
+    return team, got
+
+
+def test_a_map_is_stamped_when_it_arrives_not_when_the_worker_gets_to_it(tmp_path: Path
+                                                                         ) -> None:
+    """The worker is held up by the first alignment's callback while the second map
+    arrives: that map's time is the ego clock at its arrival, not a second later."""
+    _, got = held_up_while_maps_arrive(tmp_path, 2)
     assert len(got) == 2
     # both arrived within a few tenths of a second of the ego map, the second was handled
     # a second after that
@@ -254,24 +261,6 @@ def test_the_saved_filter_is_the_pairs_latest(tmp_path: Path) -> None:
 def test_a_node_behind_aligns_the_newest_map_and_counts_the_skipped(tmp_path: Path) -> None:
     """The worker is held up while five maps of r1 arrive: it aligns the newest and counts
     the four older ones as skipped, instead of aligning each in turn ever later."""
-    team = Team(tmp_path)
-    got: list = []
-
-    def slow(message) -> None:
-        got.append(message)
-        if len(got) == 1:
-            time.sleep(1.0)
-
-    team.node._on_alignment = slow
-    n = len(team.sizes)
-    try:
-        team.ego(10.0)
-        for seq in range(6):
-            team.sender.put("tcaff/faults/r1/map", encode(MapMessage(
-                "r1", 1, seq, 100.0 + seq, team.theirs, team.sizes, team.sizes, np.zeros(n))))
-            time.sleep(0.05)
-        assert team.node.wait_idle(20)
-    finally:
-        team.close()
+    team, got = held_up_while_maps_arrive(tmp_path, 6)
     assert [m.neighbour_seq for m in got] == [0, 5], [m.neighbour_seq for m in got]
     assert team.node.counters["skipped"] == 4 and team.node.counters["aligned"] == 2
