@@ -117,6 +117,8 @@ class _Neighbour:
         self.last_seen: float | None = None
         self.pending: dict[int, tuple[MapMessage, float]] = {}  # seq -> (map, arrival)
         self.clock: float | None = None  # ego-clock time of the pair's latest step
+        # restored from a saved filter, not yet confirmed by a measurement of the neighbour
+        self.unconfirmed = False
 
 
 class RobotNode:
@@ -140,7 +142,9 @@ class RobotNode:
             failed, logged with its traceback; the node goes on); with team consistency also
             "alignments_heard" (other robots'), "team_rejected" (steps whose own accepted
             alignment failed the team's cycles) and "team_chained" (steps whose team alignment
-            is chained through another robot); with ROS 2, "ros2_sent" (maps and alignments
+            is chained through another robot); "withheld_restored" (steps of a filter restored
+            from `state_dir` whose hypothesis no new map had confirmed yet: reported as none);
+            with ROS 2, "ros2_sent" (maps and alignments
             published there) and "ros2_errors" (ones that could not be, logged).
         latest: neighbour -> the latest AlignmentMessage of that pair.
         team_latest: with team consistency, neighbour -> the latest TeamMessage of that pair.
@@ -450,6 +454,14 @@ class RobotNode:
             self._drop("stale", f"{name}: {exc}")
             return
         nb.clock = t
+        if nb.unconfirmed and estimate is not None:
+            # a restarted node vouches for a saved hypothesis only once a new map of the
+            # neighbour lands on it: until then it reports none
+            if message is not None and estimate.measurement >= 0:
+                nb.unconfirmed = False
+            else:
+                self.counters["withheld_restored"] += 1
+                estimate = None
         if message is None:
             self.counters["silent_steps"] += 1
         else:
@@ -539,7 +551,9 @@ class RobotNode:
         for name in sorted(self.members):
             path = self._state_path(name)
             if path.exists():
-                self._neighbour(name).aligner.filter = TCAFF.load(path)
+                nb = self._neighbour(name)
+                nb.aligner.filter = TCAFF.load(path)
+                nb.unconfirmed = True
                 log.info("%s: restored the filter of %s from %s", self.robot, name, path)
 
 

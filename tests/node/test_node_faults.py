@@ -264,3 +264,32 @@ def test_a_node_behind_aligns_the_newest_map_and_counts_the_skipped(tmp_path: Pa
     team, got = held_up_while_maps_arrive(tmp_path, 6)
     assert [m.neighbour_seq for m in got] == [0, 5], [m.neighbour_seq for m in got]
     assert team.node.counters["skipped"] == 4 and team.node.counters["aligned"] == 2
+
+
+def test_a_restarted_node_reports_no_hypothesis_it_has_not_reconfirmed(tmp_path: Path) -> None:
+    """Restored from its saved filters, a node whose neighbour stays silent steps the filter
+    without measurements: it reports no alignment (the saved one may have drifted), until a
+    new map of the neighbour lands on the saved hypothesis."""
+    state = tmp_path / "state"
+    first = Team(tmp_path, state)
+    try:
+        for k in range(12):
+            first.ego(10.0 + k)
+            first.send(k, 10.0 + k)
+        held = first.got[-1]
+        assert held.accepted
+    finally:
+        first.close()
+    again = Team(tmp_path, state)
+    try:
+        for k in range(5):  # r1 silent for more than the 2 s of silence
+            again.ego(30.0 + k)
+        silent = list(again.got)
+        again.send(0, 40.0, boot=2)
+        again.ego(35.0)
+    finally:
+        again.close()
+    assert silent and not any(m.accepted for m in silent)
+    assert again.node.counters["withheld_restored"] == len(silent)
+    confirmed = [m for m in again.got if m.neighbour_seq == 0 and m.accepted]
+    assert confirmed and confirmed[0].hypothesis == held.hypothesis
