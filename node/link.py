@@ -16,8 +16,8 @@ from pathlib import Path
 
 from tcaff_gtsam.errors import ConfigError
 
-__all__ = ["Link", "TlsFiles", "alignment_key", "alive_key", "check_name", "map_key", "team_key",
-           "team_keys"]
+__all__ = ["Link", "TlsFiles", "alignment_key", "alive_key", "check_name", "identity_rules",
+           "map_key", "team_key", "team_keys"]
 
 _NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _ENDPOINT = re.compile(r"^[A-Za-z0-9_.-]+:\d{1,5}$")
@@ -80,11 +80,18 @@ class Link:
         connect: "host:port" endpoints of peers it dials (it retries until they are up).
         tls: the team's certificates; None: plain TCP. With TLS every link is mutual TLS and
             a peer without a certificate of the team's authority is refused.
+        identities: with TLS, each robot's certificate names its robot (its common name is
+            the robot's name): a node takes a message on `tcaff/<team>/<robot>/...` (and on
+            the robot's ROS 2 topics) only from the certificate of that robot, so a holder of
+            another robot's certificate cannot speak for it. Zenoh's access control refuses
+            the others at the link, before the node sees them (Zenoh logs them; the node
+            cannot count them).
     """
 
     listen: tuple[str, ...] = ()
     connect: tuple[str, ...] = ()
     tls: TlsFiles | None = None
+    identities: bool = False
 
     def __post_init__(self) -> None:
         for option, endpoints in (("--listen", self.listen), ("--connect", self.connect)):
@@ -94,9 +101,13 @@ class Link:
                                       f"1..65535")
         if not self.listen and not self.connect:
             raise ConfigError("a node needs --listen or --connect endpoints (or both)")
+        if self.identities and self.tls is None:
+            raise ConfigError("--tls-identities needs the team's certificates (--tls-ca, "
+                              "--tls-cert, --tls-key)")
 
-    def config(self):
-        """The zenoh.Config of a peer with exactly these endpoints, multicast scouting off."""
+    def config(self, team: str | None = None, robots: tuple[str, ...] = ()):
+        """The zenoh.Config of a peer with exactly these endpoints, multicast scouting off;
+        with `identities`, the access control of `team`'s `robots` (see `identity_rules`)."""
         import zenoh
 
         protocol = "tcp" if self.tls is None else "tls"
@@ -118,10 +129,37 @@ class Link:
             for name, path in files.items():
                 config.insert_json5(f"transport/link/tls/{name}", json.dumps(str(path)))
             config.insert_json5("transport/link/tls/enable_mtls", "true")
+        if self.identities and team is not None:
+            config.insert_json5("access_control", json.dumps(identity_rules(team, robots)))
         return config
 
-    def open(self):
-        """An open zenoh.Session."""
+    def open(self, team: str | None = None, robots: tuple[str, ...] = ()):
+        """An open zenoh.Session (with `identities`, of `team`'s `robots`)."""
         import zenoh
 
-        return zenoh.open(self.config())
+        return zenoh.open(self.config(team, robots))
+
+
+def identity_rules(team: str, robots: tuple[str, ...]) -> dict:
+    """Zenoh access control (its `access_control` configuration) by which a session takes a
+    put or delete on `tcaff/<team>/<robot>/**` or on the robot's ROS 2 topics
+    (`<domain>/<robot>/tcaff/**`) only from a peer whose certificate's common name is that
+    robot; everything else (subscribing, liveliness, queries, its own puts) is allowed to
+    the certificates that name a robot of `robots`, and nothing to others (a certificate of
+    the team's authority that names no robot links, but is refused every message)."""
+    everything = ["declare_subscriber", "query", "declare_queryable", "reply",
+                  "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
+    rules = [{"id": "declarations", "permission": "allow", "flows": ["ingress", "egress"],
+              "messages": everything, "key_exprs": ["**", "@ros2_lv/**"]},
+             {"id": "own puts", "permission": "allow", "flows": ["egress"],
+              "messages": ["put", "delete"], "key_exprs": ["**"]}]
+    subjects = [{"id": "team", "cert_common_names": list(robots)}]
+    policies = [{"rules": ["declarations", "own puts"], "subjects": ["team"]}]
+    for robot in robots:
+        rules.append({"id": f"puts of {robot}", "permission": "allow", "flows": ["ingress"],
+                      "messages": ["put", "delete"],
+                      "key_exprs": [f"tcaff/{team}/{robot}/**", f"*/{robot}/tcaff/**"]})
+        subjects.append({"id": f"is {robot}", "cert_common_names": [robot]})
+        policies.append({"rules": [f"puts of {robot}"], "subjects": [f"is {robot}"]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules,
+            "subjects": subjects, "policies": policies}

@@ -217,7 +217,7 @@ class RobotNode:
         self._lose = np.random.default_rng(self.params.seed)
         self._inbox: queue.Queue = queue.Queue(self.params.queue)
         self._idle = threading.Event()
-        self._session = link.open()
+        self._session = link.open(team, tuple(sorted(self.members | {self.robot})))
         try:
             self._map_pub = self._session.declare_publisher(map_key(team, robot))
             self._align_pubs: dict[str, object] = {}

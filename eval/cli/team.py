@@ -122,6 +122,10 @@ def node(
         help="PEM file: this node's certificate, signed by the team's authority.")] = None,
     tls_key: Annotated[Path | None, typer.Option(help="PEM file: this node's private key.")
     ] = None,
+    tls_identities: Annotated[bool, typer.Option(
+        "--tls-identities", help="Each robot's certificate names its robot (common name = "
+        "robot name): take a robot's maps and alignments only from its own certificate.")
+    ] = False,
     ros2: Annotated[bool, typer.Option("--ros2", help=_ROS2_HELP)] = False,
     domain_id: Annotated[int, typer.Option(help=_DOMAIN_HELP)] = 0,
     ros2_objects: Annotated[bool, typer.Option(
@@ -168,7 +172,8 @@ def node(
     from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
     from tcaff_gtsam.node.run import live_node, replay_node
 
-    link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
+    link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key),
+                identities=tls_identities)
     params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
                         seed=drop_seed, team_consistency=team_consistency,
                         ros2=ros2 or ros2_objects, domain_id=domain_id,
