@@ -118,8 +118,8 @@ def test_a_silent_neighbour_holds_then_is_stepped_without_measurements(team: Tea
     assert all(m.neighbour_seq == 11 for m in silent)
 
 
-def test_a_restarted_node_resumes_from_its_saved_filters(tmp_path: Path) -> None:
-    state = tmp_path / "state"
+def aligned_and_closed(tmp_path: Path, state: Path):
+    """A node with `state` run for 12 exchanges and closed; its last alignment (accepted)."""
     first = Team(tmp_path, state)
     try:
         for k in range(12):
@@ -129,6 +129,12 @@ def test_a_restarted_node_resumes_from_its_saved_filters(tmp_path: Path) -> None
         assert held.accepted
     finally:
         first.close()
+    return held
+
+
+def test_a_restarted_node_resumes_from_its_saved_filters(tmp_path: Path) -> None:
+    state = tmp_path / "state"
+    held = aligned_and_closed(tmp_path, state)
     again = Team(tmp_path, state)
     try:
         again.ego(30.0)
@@ -271,15 +277,7 @@ def test_a_restarted_node_reports_no_hypothesis_it_has_not_reconfirmed(tmp_path:
     without measurements: it reports no alignment (the saved one may have drifted), until a
     new map of the neighbour lands on the saved hypothesis."""
     state = tmp_path / "state"
-    first = Team(tmp_path, state)
-    try:
-        for k in range(12):
-            first.ego(10.0 + k)
-            first.send(k, 10.0 + k)
-        held = first.got[-1]
-        assert held.accepted
-    finally:
-        first.close()
+    held = aligned_and_closed(tmp_path, state)
     again = Team(tmp_path, state)
     try:
         for k in range(5):  # r1 silent for more than the 2 s of silence
