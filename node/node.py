@@ -144,8 +144,8 @@ class RobotNode:
             alignment failed the team's cycles) and "team_chained" (steps whose team alignment
             is chained through another robot); "withheld_restored" (steps of a filter restored
             from `state_dir` whose hypothesis no new map had confirmed yet: reported as none);
-            with ROS 2, "ros2_sent" (maps and alignments
-            published there) and "ros2_errors" (ones that could not be, logged).
+            with ROS 2, "ros2_sent" (maps and alignments published there) and "ros2_errors"
+            (ones that could not be, logged).
         latest: neighbour -> the latest AlignmentMessage of that pair.
         team_latest: with team consistency, neighbour -> the latest TeamMessage of that pair.
         latencies: s from each of the latest 10 000 neighbours' maps arriving to its
@@ -333,9 +333,17 @@ class RobotNode:
             self._inbox.put_nowait((kind, key, sample.payload.to_bytes(), time.perf_counter()))
         except queue.Full:
             if kind == "map":
-                with self._waiting_lock:
-                    self._waiting[key] -= 1
+                self._unqueue(key)
             self._drop("overflow", "queue full")
+
+    def _unqueue(self, key: str) -> int:
+        """One map of `key` less waiting; the number still waiting."""
+        with self._waiting_lock:
+            self._waiting[key] -= 1
+            left = self._waiting[key]
+            if not left:
+                del self._waiting[key]  # bounded by the keys waiting, not every key seen
+        return left
 
     def _ros2_map(self, t: float, object_map: ObjectMap) -> None:
         """A map from the ROS 2 objects topic (on Zenoh's thread): published as `publish`
@@ -372,9 +380,7 @@ class RobotNode:
     def _take(self, key: str, payload: bytes, arrived: float) -> None:
         """Check a neighbour's map message and align it, now or when its ego map comes; live
         (not lockstep), a map with a newer one of its robot already queued is skipped."""
-        with self._waiting_lock:
-            self._waiting[key] -= 1
-            newer = self._waiting[key] > 0
+        newer = self._unqueue(key) > 0
         if key.split("/")[2] == self.robot:
             return  # our own map, delivered back by the local session
         if newer and not self.params.lockstep:  # behind: the newest map of the robot counts
