@@ -147,10 +147,10 @@ def identity_rules(team: str, robots: tuple[str, ...]) -> dict:
     robot; everything else (subscribing, liveliness, queries, its own puts) is allowed to
     the certificates that name a robot of `robots`, and nothing to others (a certificate of
     the team's authority that names no robot links, but is refused every message)."""
-    everything = ["declare_subscriber", "query", "declare_queryable", "reply",
+    not_puts = ["declare_subscriber", "query", "declare_queryable", "reply",
                   "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
     rules = [{"id": "declarations", "permission": "allow", "flows": ["ingress", "egress"],
-              "messages": everything, "key_exprs": ["**", "@ros2_lv/**"]},
+              "messages": not_puts, "key_exprs": ["**", "@ros2_lv/**"]},
              {"id": "own puts", "permission": "allow", "flows": ["egress"],
               "messages": ["put", "delete"], "key_exprs": ["**"]}]
     subjects = [{"id": "team", "cert_common_names": list(robots)}]

@@ -9,7 +9,8 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -45,42 +46,28 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
     node.
     """
     robot = source.robots[source.robot]
-    output.mkdir(parents=True, exist_ok=True)
-    rows = AlignmentCsv(output / f"{robot}.csv")
-    team_rows = (AlignmentCsv(output / f"{robot}.team.csv", TEAM_COLUMNS)
-                 if params.team_consistency else None)
-    timing: dict[str, float] = {}
-    stop = threading.Event()
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: stop.set())
     params = replace(params, kappa=source.kappa)
     tcaff = None if source.window is None else TCAFFParams(window=source.window)
     aligner = FrameAlignerParams(kappa=source.kappa)
-    compile_kernels()  # so that the first exchanges are not late
-    node = RobotNode(robot, team, list(source.robots), link, params, aligner, tcaff,
-                     rows.write, state_dir, on_team=team_rows and team_rows.write)
-    try:
-        if start is None:
-            start = _team_start(node, stop)
-        write_counters(output / f"{robot}.json", {"start": start})
-        cpu, began = time.process_time(), time.time()
-        replay(source, node.publish, start, params.speed, clock_offset, stop, progress)
-        if not stop.is_set():
-            # the neighbours' last maps are still on their way
-            stop.wait(min(2.0, 2.0 / params.speed) + 0.2)
-        node.wait_idle(60.0)
-        timing = {"cpu_share": (time.process_time() - cpu) / max(time.time() - began, 1e-9)}
-    finally:
-        node.close()
-        rows.close()
-        if team_rows is not None:
-            team_rows.close()
-        latency = np.array(node.latencies)
-        if latency.size:
-            timing |= {"latency_median_ms": 1e3 * float(np.median(latency)),
-                       "latency_max_ms": 1e3 * float(latency.max())}
-        write_counters(output / f"{robot}.json", {"start": start, **node.counters, **timing})
+    with _node_files(robot, output, params.team_consistency) as (stop, rows, team_rows):
+        compile_kernels()  # so that the first exchanges are not late
+        node = RobotNode(robot, team, list(source.robots), link, params, aligner, tcaff,
+                         rows.write, state_dir, on_team=team_rows and team_rows.write)
+        timing: dict[str, float] = {}
+        try:
+            if start is None:
+                start = _team_start(node, stop)
+            write_counters(output / f"{robot}.json", {"start": start})
+            cpu, began = time.process_time(), time.time()
+            replay(source, node.publish, start, params.speed, clock_offset, stop, progress)
+            if not stop.is_set():
+                # the neighbours' last maps are still on their way
+                stop.wait(min(2.0, 2.0 / params.speed) + 0.2)
+            node.wait_idle(60.0)
+            timing = {"cpu_share": (time.process_time() - cpu) / max(time.time() - began, 1e-9)}
+        finally:
+            node.close()
+            _write_outcome(output / f"{robot}.json", node, start, timing)
     return node
 
 
@@ -89,30 +76,55 @@ def live_node(robot: str, team: str, members: list[str], link: Link, params: Nod
               ) -> RobotNode:
     """Run a node that takes its robot's maps from the ROS 2 topic /<robot>/tcaff/objects
     (`params.ros2_objects`) until SIGTERM / SIGINT or `duration` s; writes what `replay_node`
-    writes. Returns the closed node."""
+    writes (without the share of a core). Returns the closed node."""
+    with _node_files(robot, output, params.team_consistency) as (stop, rows, team_rows):
+        compile_kernels()
+        node = RobotNode(robot, team, members, link, params, on_alignment=rows.write,
+                         state_dir=state_dir, on_team=team_rows and team_rows.write)
+        start = time.time()
+        try:
+            write_counters(output / f"{robot}.json", {"start": start})
+            stop.wait(duration)
+            node.wait_idle(60.0)
+        finally:
+            node.close()
+            _write_outcome(output / f"{robot}.json", node, start, {})
+    return node
+
+
+@contextmanager
+def _node_files(robot: str, output: Path, team_consistency: bool
+                ) -> Iterator[tuple[threading.Event, AlignmentCsv, AlignmentCsv | None]]:
+    """A node process's stop event, set by SIGTERM / SIGINT while inside (the previous
+    handlers are restored after), and the CSV writers of its alignments (and team
+    alignments), closed after."""
     output.mkdir(parents=True, exist_ok=True)
     rows = AlignmentCsv(output / f"{robot}.csv")
     team_rows = (AlignmentCsv(output / f"{robot}.team.csv", TEAM_COLUMNS)
-                 if params.team_consistency else None)
+                 if team_consistency else None)
     stop = threading.Event()
+    previous = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: stop.set())
-    compile_kernels()
-    node = RobotNode(robot, team, members, link, params, on_alignment=rows.write,
-                     state_dir=state_dir, on_team=team_rows and team_rows.write)
-    start = time.time()
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
     try:
-        write_counters(output / f"{robot}.json", {"start": start})
-        stop.wait(duration)
-        node.wait_idle(60.0)
+        yield stop, rows, team_rows
     finally:
-        node.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         rows.close()
         if team_rows is not None:
             team_rows.close()
-        write_counters(output / f"{robot}.json", {"start": start, **node.counters})
-    return node
+
+
+def _write_outcome(path: Path, node: RobotNode, start: float | None,
+                   timing: dict[str, float]) -> None:
+    """A closed node's JSON: its start, counters, `timing` and its latency figures."""
+    latency = np.array(node.latencies)
+    if latency.size:
+        timing = timing | {"latency_median_ms": 1e3 * float(np.median(latency)),
+                           "latency_max_ms": 1e3 * float(latency.max())}
+    write_counters(path, {"start": start, **node.counters, **timing})
 
 
 #: s a node waits for its team before it starts its run anyway

@@ -165,6 +165,8 @@ class FrameAligner:
         #: guided steps on which nothing guided confirmed the held alignment, so that they
         #: searched in full
         self.guided_misses = 0
+        # (ego, other, now, what `_recent_pair` made of them): the last maps gated
+        self._last_pair: tuple | None = None
 
     def lookalike_share(self, ego: ObjectMap, other: ObjectMap, now: float) -> float:
         """The share of the object pairs of two maps (objects seen within kappa of `now`)
@@ -177,12 +179,23 @@ class FrameAligner:
         """
         o = "FrameAligner.lookalike_share"
         ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
-        now = finite_time(o, "now", now)
+        compatible = self._recent_pair(ego, other, finite_time(o, "now", now))[4]
+        return float(compatible.mean()) if compatible.size else 0.0
+
+    def _recent_pair(self, ego: ObjectMap, other: ObjectMap, now: float) -> tuple:
+        """(ego_idx, other_idx, ego_r, other_r, compatible): the indices and maps of the
+        objects seen within kappa of `now`, and the (n_ego, n_other) pairs of them the gates
+        pass. The last maps' are kept, so that a step asking `lookalike_share` and
+        `measurements` of the same maps gates them once."""
+        last = self._last_pair
+        if last is not None and last[0] is ego and last[1] is other and last[2] == now:
+            return last[3]
         kappa = self.params.kappa
-        ego_r, other_r = ego.recent(now, kappa), other.recent(now, kappa)
-        if min(len(ego_r), len(other_r)) == 0:
-            return 0.0
-        return float(self._compatible(ego_r, other_r).mean())
+        ego_idx, other_idx = ego.recent_indices(now, kappa), other.recent_indices(now, kappa)
+        ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
+        pair = (ego_idx, other_idx, ego_r, other_r, self._compatible(ego_r, other_r))
+        self._last_pair = (ego, other, now, pair)
+        return pair
 
     def measurements(self, ego: ObjectMap, other: ObjectMap, now: float,
                      ego_past: Sequence[tuple[float, ObjectMap]] = (),
@@ -227,16 +240,14 @@ class FrameAligner:
         if not isinstance(guided, (bool, np.bool_)):
             raise DataError(f"{o}: guided must be True or False, got {shown(guided)}")
         prm = self.params
-        ego_idx = ego.recent_indices(now, prm.kappa)
-        other_idx = other.recent_indices(now, prm.kappa)
-        ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
+        ego_idx, other_idx, ego_r, other_r, compatible = self._recent_pair(ego, other, now)
         kept: list[_Solution] = []
         if guided and held is not None and prm.guide_radius is not None:
-            found = self._registered(ego_r, other_r, now, held)
+            found = self._registered(ego_r, other_r, now, held, compatible)
             kept = [f for f in self._passing(found) if _confirms(f.z, held, prm)]
             self.guided_misses += not kept
         if not kept:
-            found = self._registered(ego_r, other_r, now)
+            found = self._registered(ego_r, other_r, now, compatible=compatible)
             kept = self._passing(found)
         ambiguous = [False] * len(kept)
         if kept and prm.check_ambiguity:
@@ -265,7 +276,7 @@ class FrameAligner:
         out.sort(key=lambda meas: -meas.score)
         if (held is not None and prm.track_min is not None
                 and not any(_confirms(m.z, held, prm) for m in out)):
-            tracked = self._tracked(ego_r, other_r, now, held)
+            tracked = self._tracked(ego_r, other_r, now, held, compatible)
             if tracked is not None:
                 a = tracked.associations
                 out.append(replace(tracked, associations=np.column_stack(
@@ -279,18 +290,18 @@ class FrameAligner:
                 and (prm.min_inliers is None or f.inliers >= prm.min_inliers)
                 and (prm.min_spread == 0 or _spread(f.p[:, :2]) >= prm.min_spread)]
 
-    def _tracked(self, ego_r: ObjectMap, other_r: ObjectMap, now: float, held: np.ndarray
-                 ) -> AlignmentMeasurement | None:
+    def _tracked(self, ego_r: ObjectMap, other_r: ObjectMap, now: float, held: np.ndarray,
+                 compatible: np.ndarray) -> AlignmentMeasurement | None:
         """The held alignment re-registered on the objects it pairs (`track_min`), or None
         when too few pair, they fail the spread or residual checks, or the result leaves the
-        confirmation bounds. Associations index the maps of recent objects."""
+        confirmation bounds. Associations index the maps of recent objects; `compatible` is
+        their gate (`_compatible`)."""
         # The spread check matters most here: on MRCLAM, correctly paired landmarks of a
         # tight cluster gave headings 3-7 deg off, the same bias second after second, and
         # tracking on them walked the estimate out of the 5 deg bound.
         prm = self.params
         if min(len(ego_r), len(other_r)) < prm.track_min:
             return None
-        compatible = self._compatible(ego_r, other_r)
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
         pairs = _mutual_inliers(_se2_from_params(held), p_all[:, :2], q_all[:, :2], compatible,
@@ -331,16 +342,19 @@ class FrameAligner:
         return _residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor)
 
     def _registered(self, ego_r: ObjectMap, other_r: ObjectMap, now: float,
-                    guide: np.ndarray | None = None) -> list[_Solution]:
+                    guide: np.ndarray | None = None, compatible: np.ndarray | None = None
+                    ) -> list[_Solution]:
         """Every registrable MNO-CLIPPER solution between two maps of recent objects, with
         whether it passes the size, score and residual checks and (when the aligner counts
         them) the objects it explains. Those that do not pass are still rivals of the others.
-        With guide (3,), a held alignment, only the pairs agreeing under it are searched."""
+        With guide (3,), a held alignment, only the pairs agreeing under it are searched.
+        `compatible`: the maps' gate when already made (`_recent_pair`)."""
         prm = self.params
         if min(len(ego_r), len(other_r)) < prm.min_associations:
             return []
         # the gate of the putative associations, kept whole for counting the inliers
-        compatible = self._compatible(ego_r, other_r)
+        if compatible is None:
+            compatible = self._compatible(ego_r, other_r)
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
         searched = compatible if guide is None else compatible & self._agree(p_all, q_all,

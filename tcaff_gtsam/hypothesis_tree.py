@@ -141,16 +141,20 @@ def _residual(z, x, angular, r):
 
 @numba.njit(cache=True, inline="always")
 def _cholesky(S, C):
-    """Lower Cholesky factor of S (d, d) into C, in place (S = C C')."""
+    """Lower Cholesky factor of S (d, d) into C, in place (S = C C'); whether every pivot was
+    positive (S positive definite). A pivot <= 0 is clamped to a tiny positive value."""
+    positive = True
     for a in range(S.shape[0]):
         for b in range(a + 1):
             s = S[a, b]
             for e in range(b):
                 s -= C[a, e] * C[b, e]
             if a == b:
+                positive = positive and s > 0.0
                 C[a, a] = np.sqrt(max(s, 1e-300))
             else:
                 C[a, b] = s / C[b, b]
+    return positive
 
 
 @numba.njit(cache=True, inline="always")
@@ -213,17 +217,8 @@ def _first_not_positive_definite(P):
     n, d, _ = P.shape
     C = np.zeros((d, d))
     for i in range(n):
-        for a in range(d):
-            for b in range(a + 1):
-                s = P[i, a, b]
-                for e in range(b):
-                    s -= C[a, e] * C[b, e]
-                if a == b:
-                    if not s > 0.0:
-                        return i
-                    C[a, a] = np.sqrt(s)
-                else:
-                    C[a, b] = s / C[b, b]
+        if not _cholesky(P[i], C):
+            return i
     return -1
 
 

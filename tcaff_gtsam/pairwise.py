@@ -15,7 +15,8 @@ from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
-__all__ = ["PairwiseAligner", "admitted", "evidence_of", "guided_search", "unchecked"]
+__all__ = ["PairwiseAligner", "admitted", "evidence_of", "gives_ids", "guided_search",
+           "unchecked"]
 
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
@@ -79,6 +80,24 @@ def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.nda
                             f"refers to index {reach}")
     return [np.column_stack([ego_ids[m.associations[:, 0]], other_ids[m.associations[:, 1]]])
             for m in found]
+
+
+def gives_ids(aligner: FrameAligner, params: TCAFFParams, ego: ObjectMap, other: ObjectMap,
+              now: float) -> bool:
+    """Whether the filter is given object ids at this step: it counts distinct evidence and
+    the maps are of look-alikes (`FrameAligner.lookalike_share` at least
+    `TCAFFParams.lookalike_share`). Elsewhere every measurement is distinct evidence.
+
+    Raises:
+        ConfigError: params not a TCAFFParams; DataError: aligner not a FrameAligner, or maps
+            and time `FrameAligner.lookalike_share` refuses.
+    """
+    _require(isinstance(params, TCAFFParams), "gives_ids", "params", params,
+             "must be a TCAFFParams")
+    if not isinstance(aligner, FrameAligner):
+        raise DataError(f"gives_ids: aligner must be a FrameAligner, got {shown(aligner)}")
+    return params.counts_evidence and aligner.lookalike_share(
+        ego, other, now) >= params.lookalike_share
 
 
 def guided_search(params: FrameAlignerParams, tcaff: TCAFF, since_full: int) -> bool:
@@ -188,12 +207,9 @@ class PairwiseAligner:
         measurements = self.aligner.measurements(
             ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held,
             guided)
-        # object ids only among look-alikes: elsewhere every measurement is distinct evidence
-        # (the identities match objects by position, so they bridge the steps skipped)
-        tcaff_params = self.filter.params
+        # (the identities match objects by position, so they bridge the steps without ids)
         identities, ids = self._identities, None
-        if tcaff_params.counts_evidence and self.aligner.lookalike_share(
-                ego_map, other_map, t) >= tcaff_params.lookalike_share:
+        if gives_ids(self.aligner, self.filter.params, ego_map, other_map, t):
             # the identities advance on copies, kept only once the filter has taken the step
             identities = tuple(copy.copy(each) for each in self._identities)
             ids = tuple(recent_ids(each, objects, t, prm.kappa) for each, objects

@@ -59,6 +59,12 @@ def _tls(ca: Path | None, cert: Path | None, key: Path | None):
     return TlsFiles(ca, cert, key)
 
 
+def _check_domain(domain_id: int) -> None:
+    """`--domain-id`: a ROS 2 domain, 0 to 232 (as `NodeParams.domain_id`)."""
+    if not 0 <= domain_id <= 232:
+        _refuse("--domain-id", domain_id, "must be an int in 0..232")
+
+
 def _simulated(scenario: str, seed: int, duration: float | None):
     """The simulated run of a scenario (capped to `duration` s), the same in every process."""
     _check_seeds([seed])
@@ -151,18 +157,17 @@ def node(
                     "--kimera or --replay")
         if not members:
             _refuse("--members", members, "--ros2-objects needs the team's robots, like r0,r1")
-        for name in (robot, *members.split(",")):
-            check_ros_name("--robot" if name == robot else "--members", name.strip())
-        if duration is not None and not (math.isfinite(duration) and duration > 0):
-            _refuse("--duration", duration, "must be a finite number of seconds > 0")
+        team_robots = [name.strip() for name in members.split(",")]
+        for name in (robot, *team_robots):  # before the kernels are loaded
+            check_ros_name("--robot" if name == robot else "--members", name)
+        _check_duration(duration)
         if speed != 1.0:
             _refuse("--speed", speed, "live maps from ROS 2 run on the wall clock")
     elif sum(x is not None for x in sources) != 1:
         _refuse("--scenario/--kimera/--replay", sources, "give exactly one")
     elif members is not None:
         _refuse("--members", members, "only with --ros2-objects (a replay knows its team)")
-    if not 0 <= domain_id <= 232:
-        _refuse("--domain-id", domain_id, "must be an int in 0..232")
+    _check_domain(domain_id)
     _check_speed(speed)
     _check_seeds([seed])  # before the endpoints are checked: the run is made after them
     if drop_seed < 0:
@@ -174,16 +179,14 @@ def node(
 
     link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key),
                 identities=tls_identities)
-    params = NodeParams(silence=silence, lockstep=True, speed=speed, drop_share=drop_share,
-                        seed=drop_seed, team_consistency=team_consistency,
-                        ros2=ros2 or ros2_objects, domain_id=domain_id,
-                        ros2_objects=ros2_objects)
+    # a replay's maps of exchange k go with the ego map of exchange k; live ones on arrival
+    params = NodeParams(silence=silence, lockstep=not ros2_objects, speed=speed,
+                        drop_share=drop_share, seed=drop_seed,
+                        team_consistency=team_consistency, ros2=ros2 or ros2_objects,
+                        domain_id=domain_id, ros2_objects=ros2_objects)
     _writable_folder(output, "--output")
     if ros2_objects:
-        from dataclasses import replace
-
-        node_ = live_node(robot, team, [m.strip() for m in members.split(",")], link,
-                          replace(params, lockstep=False), output, state, duration)
+        node_ = live_node(robot, team, team_robots, link, params, output, state, duration)
         print(f"{robot}: " + ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items())))
         return
     if replay is not None:
@@ -342,8 +345,7 @@ def team(
     _check_speed(speed)
     _check_seeds([seed])
     _check_duration(duration)
-    if not 0 <= domain_id <= 232:
-        _refuse("--domain-id", domain_id, "must be an int in 0..232")
+    _check_domain(domain_id)
     if bag is not None:  # checked now, not after the run
         if bag.exists():
             _refuse("--bag", str(bag), "exists; a bag is written to a new folder")

@@ -12,7 +12,7 @@ from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner, MapMem
 from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.identities import ObjectIdentities, recent_ids
 from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.pairwise import admitted, evidence_of, guided_search, unchecked
+from tcaff_gtsam.pairwise import admitted, evidence_of, gives_ids, guided_search, unchecked
 from tcaff_gtsam.precompile import compile_kernels
 from tcaff_gtsam.tcaff import TCAFF, AlignmentEstimate
 
@@ -150,11 +150,8 @@ class SharedStages:
             kept = admitted(found, self._filters[p].held, self.checked)
             zs = np.array([m.z for m in kept]).reshape(-1, 3)
             Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-            # object ids only among look-alikes (`TCAFFParams.lookalike_share`)
-            lookalike = (self.tcaff_params.counts_evidence
-                         and self.checked_aligner.lookalike_share(
-                             *self.setup.maps(p, self.s), self.t)
-                         >= self.tcaff_params.lookalike_share)
+            lookalike = gives_ids(self.checked_aligner, self.tcaff_params,
+                                  *self.setup.maps(p, self.s), self.t)
             ids = tuple(self.object_ids(r) for r in self.setup.pairs[p]) if lookalike else None
             self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence_of(kept, ids)), zs, Rs)
             self._steps[p] += [self.s] * len(zs)
