@@ -3,6 +3,7 @@ PairwiseAligner per neighbour turns them into alignments it publishes and hands 
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import queue
@@ -55,7 +56,9 @@ class NodeParams:
             ego map, on the ego clock at arrival (robots with their own counters).
         speed: the ego clock's rate against the wall clock (a replay's speed-up; 1 live).
         queue: incoming messages waiting to be aligned; beyond it the newest are dropped.
-        drop_share: share of neighbours' maps discarded on arrival, to try a lossy link.
+        drop_share: share of neighbours' maps discarded on arrival, to try a lossy link; whether
+            a map is lost depends only on (seed, sender, seq), not on the order maps arrive in,
+            so that a lossy replay loses the same maps every run.
         seed: draws of `drop_share`.
         team_consistency: also take the alignments the other robots publish and, after each
             step of a pair, publish the pair's team-consistent alignment
@@ -214,7 +217,6 @@ class RobotNode:
         self._ego: dict[int, tuple[float, ObjectMap]] = {}
         # seq, stamp, perf_counter() when it was published
         self._ego_latest: tuple[int, float, float] | None = None
-        self._lose = np.random.default_rng(self.params.seed)
         self._inbox: queue.Queue = queue.Queue(self.params.queue)
         self._idle = threading.Event()
         self._session = link.open(team, tuple(sorted(self.members | {self.robot})))
@@ -394,7 +396,8 @@ class RobotNode:
             self._drop(exc.reason, f"on {key}: {exc}")
             return
         self.counters["maps_received"] += 1
-        if self.params.drop_share and self._lose.random() < self.params.drop_share:
+        if self.params.drop_share and _draw(self.params.seed, message.sender, message.seq) < \
+                self.params.drop_share:
             self.counters["lost"] += 1
             return
         nb = self._neighbour(message.sender)
@@ -612,6 +615,12 @@ class _Saver:
 def _after(t: float | None) -> float:
     """The first time after `t` (-inf for None)."""
     return -np.inf if t is None else float(np.nextafter(t, np.inf))
+
+
+def _draw(seed: int, sender: str, seq: int) -> float:
+    """A number in [0, 1) fixed by (seed, sender, seq): the same in every process and run."""
+    digest = hashlib.blake2b(f"{seed}/{sender}/{seq}".encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "little") / 2.0**64
 
 
 def _sent_on(key: str, payload: bytes, kind: type, what: str):

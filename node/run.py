@@ -123,6 +123,7 @@ def _write_outcome(path: Path, node: RobotNode, start: float | None,
     latency = np.array(node.latencies)
     if latency.size:
         timing = timing | {"latency_median_ms": 1e3 * float(np.median(latency)),
+                           "latency_p95_ms": 1e3 * float(np.percentile(latency, 95)),
                            "latency_max_ms": 1e3 * float(latency.max())}
     write_counters(path, {"start": start, **node.counters, **timing})
 
@@ -158,10 +159,12 @@ def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int]
               start: float | None, output: Path, speed: float = 1.0, drop_share: float = 0.0,
               clock_offset: float = 0.0, state: Path | None = None,
               tls: TlsFiles | None = None, silence: float | None = None,
-              team_consistency: bool = False, domain_id: int | None = None) -> list[str]:
+              team_consistency: bool = False, domain_id: int | None = None,
+              on_arrival: bool = False) -> list[str]:
     """The command line of robot `robot` of a team of n on loopback, replaying its
     `RobotReplay` file: it listens on ports[robot] and dials every robot before it, so every
-    pair is linked once. `domain_id`: also publish ROS 2 topics in that domain (--ros2)."""
+    pair is linked once. `domain_id`: also publish ROS 2 topics in that domain (--ros2);
+    `on_arrival`: align maps as they arrive (--on-arrival), not exchange by exchange."""
     argv = [sys.executable, "-m", "tcaff_gtsam.eval.cli", "node", "--robot", f"r{robot}",
             "--team", team, "--replay", str(replay_file), "--speed", str(speed),
             "--output", str(output),
@@ -180,6 +183,8 @@ def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int]
         argv += ["--silence", str(silence)]
     if team_consistency:
         argv.append("--team-consistency")
+    if on_arrival:
+        argv.append("--on-arrival")
     if domain_id is not None:
         argv += ["--ros2", "--domain-id", str(domain_id)]
     if tls is not None:

@@ -20,16 +20,27 @@
   state      saving a pair's filter (W = 8, after 40 steps of a 30-object pair): what a
              node's step pays (`TCAFF.snapshot`, the state copied; the file is written on
              another thread) against writing the file on the step (`TCAFF.save`).
+  load       five recorded robots (UTIAS MRCLAM, --mrclam) live: each node aligns its
+             neighbours' maps as they arrive (--on-arrival), --rate exchanges per second of
+             wall time, --load busy processes beside, and robot r2 killed (SIGKILL) at 40 % of
+             the run and started again from its saved filters 3 s later. Prints per node:
+             maps aligned, skipped (behind: an older map with a newer one waiting), dropped
+             as stale, latency median, p95 and max; the restarted node's time to come back
+             (start to its presence seen); and the team's availability and false accepts
+             against the same aligner offline on the same maps, an alignment standing for
+             its pair for 1 s of wall time or until the next (a node behind skips exchanges;
+             --seconds caps the run, in run seconds).
   ros2       what `NodeParams(ros2=True)` adds: one accepted alignment published as a ROS 2
              PoseWithCovarianceStamped (message, CDR, attachment, Zenoh put) against the
              team's own message, the map as a MarkerArray at --objects objects, and the
              memory Python holds after --exchanges x 100 more alignments than after the first
              ones (tracemalloc; growth per step would show there).
 
-    python scripts/bench_node.py [--parts latency team bytes consistency state ros2]
+    python scripts/bench_node.py [--parts latency team bytes consistency state load ros2]
                                  [--objects 100]
                                  [--robots 8] [--seconds 60] [--rate 5] [--exchanges 80]
                                  [--team-consistency] [--load 2] [--guide-radius METRES|none]
+                                 [--mrclam ../shared/data/mrclam/MRCLAM_Dataset6]
 
 Timings are wall-clock on a shared machine: run it twice and compare.
 """
@@ -38,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 import tempfile
@@ -216,8 +228,7 @@ def team(robots: int, seconds: float, team_consistency: bool = False, load: int 
     config = override(config, "bench", duration=seconds,
                       layout=config.layout.model_copy(update={"robots": robots}))
     run = simulate(config, 0)
-    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
-                for _ in range(load)]
+    spinners = spinning(load)
     try:
         with tempfile.TemporaryDirectory() as folder:
             return _team(run, robots, seconds, team_consistency, Path(folder)), run
@@ -236,6 +247,105 @@ def _team(run, robots: int, seconds: float, team_consistency: bool, out: Path) -
     if any(codes):
         raise SystemExit(f"nodes failed: {codes}; logs in {out / 'logs'}")
     return [json.loads((out / f"r{k}.json").read_text()) for k in range(robots)]
+
+
+def spinning(load: int) -> list[subprocess.Popen]:
+    """`load` processes that keep a core busy each (a robot's other work)."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load)]
+
+
+#: s of wall time an alignment stands for the pair, until the next one
+HOLD = 1.0
+
+
+def held(rows: dict[str, np.ndarray], neighbour: str, steps: int, hold: int) -> np.ndarray:
+    """(steps, 3) what a node's alignments of `neighbour` (its CSV `rows`) tell a user at each
+    exchange: the latest one made at or before it, within `hold` exchanges; NaN where that one
+    was not accepted, or there is none (a node down, a neighbour silent). Live nodes skip
+    exchanges when behind, and a held alignment is what a user has then."""
+    mine = rows["neighbour"] == neighbour
+    seq = rows["seq"][mine].astype(int)
+    x = np.column_stack([rows[c][mine] for c in ("x", "y", "theta")])
+    x[rows["accepted"][mine] != 1] = np.nan
+    latest = np.full(steps, -1)
+    latest[seq] = np.arange(len(seq))  # the last row made at each exchange
+    made_at = np.maximum.accumulate(np.where(latest >= 0, np.arange(steps), -1))
+    out = np.full((steps, 3), np.nan)
+    valid = (made_at >= 0) & (np.arange(steps) - made_at <= hold)
+    out[valid] = x[latest[made_at[valid]]]
+    return out
+
+
+def recorded_team(data: Path, rate: float, busy: int, seconds: float | None,
+                  victim: int = 2, kill_share: float = 0.4, down: float = 3.0) -> dict:
+    """Five MRCLAM robots live (on arrival) at `rate` exchanges per wall second beside `busy`
+    spinning processes, robot `victim` killed at `kill_share` of the run and restarted from
+    its state `down` s later: each node's JSON, the restarted node's time to be present
+    again, and the offline and live scores of the same run."""
+    from tcaff_gtsam.eval.config import MethodsConfig, load_mrclam
+    from tcaff_gtsam.eval.datasets import mrclam
+    from tcaff_gtsam.eval.metrics import pooled_metrics
+    from tcaff_gtsam.eval.recorded import evaluate_run, load_mrclam_run
+    from tcaff_gtsam.eval.results import thresholds_of
+    from tcaff_gtsam.node.link import alive_key
+    from tcaff_gtsam.node.results import read_alignments
+
+    config = load_mrclam("default")
+    run = load_mrclam_run(mrclam.read_dataset(data), config, config.odometry, 0, seconds)
+    methods = MethodsConfig(methods=["tcaff"])
+    job, methods = evaluate_run(run, methods)
+    n, S = run.n_robots, len(run.times)
+    spinners = spinning(busy)
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            out = Path(folder)
+            replays = save_replays(run, out / "replay")
+            ports = free_ports(n)
+
+            def argv(k: int, start: float | None) -> list[str]:
+                return node_argv(replays[k], k, n, "load", ports, start, out, speed=rate,
+                                 state=out / "state", on_arrival=True)
+
+            procs = start_team([argv(k, None) for k in range(n)], out / "logs")
+            link = Link(connect=(f"127.0.0.1:{ports[0]}",))
+            with link.open() as session:
+                victim_json = out / f"r{victim}.json"
+                while not victim_json.exists():
+                    time.sleep(0.05)
+                start = json.loads(victim_json.read_text())["start"]
+                time.sleep(max(start + kill_share * S / rate - time.time(), 0.0))
+                procs[victim].kill()
+                procs[victim].wait()
+                time.sleep(down)
+                spawned = time.monotonic()
+                with open(out / "logs" / "restarted.log", "wb") as log:
+                    procs[victim] = subprocess.Popen(argv(victim, start), stdout=log,
+                                                     stderr=subprocess.STDOUT)
+                key = alive_key("load", f"r{victim}")
+                while not any(r.ok is not None for r in session.liveliness().get(key,
+                                                                                  timeout=0.5)):
+                    time.sleep(0.02)
+                back_in = time.monotonic() - spawned
+            codes = wait_team(procs, S / rate + 300)
+            if any(codes):
+                raise SystemExit(f"nodes failed: {codes}; logs in {out / 'logs'}")
+            stats = [json.loads((out / f"r{k}.json").read_text()) for k in range(n)]
+            live = np.stack([held(read_alignments(out / f"r{i}.csv"), f"r{j}", S,
+                                  math.ceil(rate * HOLD))
+                             for i, j in job.pairs])
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+    job.arrays["est_live"] = live
+    thresholds = thresholds_of(methods)
+    others = [p for p, pair in enumerate(job.pairs) if victim not in pair]
+    scores = {}
+    for name, method in (("offline", "tcaff"), ("live", "live")):
+        traces = job.traces(method)
+        scores[name] = pooled_metrics(traces, thresholds)
+        scores[f"{name}, pairs without r{victim}"] = pooled_metrics(
+            [traces[p] for p in others], thresholds)
+    return {"stats": stats, "back_in": back_in, "steps": S, "robots": n, "scores": scores}
 
 
 def state_costs(repeats: int = 500) -> dict[str, np.ndarray]:
@@ -311,20 +421,25 @@ def ros2_costs(objects: int, messages: int) -> tuple[dict[str, np.ndarray], int,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--parts", nargs="+", default=["latency", "team", "bytes"],
-                        choices=["latency", "team", "bytes", "consistency", "state", "ros2"])
+                        choices=["latency", "team", "bytes", "consistency", "state", "load",
+                                 "ros2"])
     parser.add_argument("--team-consistency", action="store_true",
                         help="team: every node also runs the team consistency")
     parser.add_argument("--load", type=int, default=0,
                         help="team: processes that spin on the CPU beside the team")
     parser.add_argument("--objects", type=int, default=100)
     parser.add_argument("--robots", type=int, default=8)
-    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--seconds", type=float,
+                        help="team: run seconds (default 60); load: cap the run (default all)")
     parser.add_argument("--rate", type=float, default=5.0, help="latency: exchanges per s")
     parser.add_argument("--exchanges", type=int, default=80, help="latency: maps sent")
     parser.add_argument("--warm", type=int, default=10, help="latency: exchanges left out")
     parser.add_argument("--guide-radius", type=radius, default=default_radius(),
                         help="latency: FrameAlignerParams.guide_radius of the node's aligner, "
                              "metres or 'none' (every search full); default: the library's")
+    parser.add_argument("--mrclam", type=Path,
+                        default=Path("../shared/data/mrclam/MRCLAM_Dataset6"),
+                        help="load: the MRCLAM data set folder")
     parser.add_argument("--serve", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve is not None:
@@ -343,7 +458,7 @@ def main() -> None:
                           f"{np.percentile(ms, 95):.2f}", f"{ms.max():.2f}")
         console.print(table)
     if "team" in args.parts or "bytes" in args.parts:
-        stats, run = team(args.robots, args.seconds, args.team_consistency, args.load)
+        stats, run = team(args.robots, args.seconds or 60.0, args.team_consistency, args.load)
         S = len(run.times)
         table = Table(title=f"{args.robots} robots at 1 Hz for {S} exchanges, each aligning "
                             f"to {args.robots - 1} neighbours"
@@ -403,6 +518,35 @@ def main() -> None:
             table.add_row(name, str(len(ms)), f"{np.median(ms):.3f}",
                           f"{np.percentile(ms, 95):.3f}")
         console.print(table)
+    if "load" in args.parts:
+        got = recorded_team(args.mrclam, args.rate, args.load, args.seconds)
+        S = got["steps"]
+        table = Table(title=f"{got['robots']} MRCLAM robots on arrival, {S} exchanges at "
+                            f"{args.rate:g} per s, {args.load} busy processes beside; r2 "
+                            f"killed at 40 % and restarted 3 s later")
+        for column in ("node", "aligned", "skipped", "stale", "lost by the queue",
+                       "latency median [ms]", "p95 [ms]", "max [ms]", "CPU [% of a core]"):
+            table.add_column(column, justify="right")
+        for k, s in enumerate(got["stats"]):
+            table.add_row(f"r{k}", str(s.get("aligned", 0)), str(s.get("skipped", 0)),
+                          str(s.get("dropped_stale", 0)), str(s.get("dropped_overflow", 0)),
+                          *(f"{s.get(f'latency_{q}_ms', float('nan')):.1f}"
+                            for q in ("median", "p95", "max")),
+                          f"{100 * s.get('cpu_share', float('nan')):.1f}")
+        console.print(table)
+        console.print(f"r2 restarted: present again {got['back_in']:.2f} s after its start "
+                      f"(r2's counters are those of its second run)")
+        table = Table(title="The team against the same aligner offline (every directed pair)")
+        for column in ("run", "availability", "false accepts [%]", "estimates"):
+            table.add_column(column, justify="right")
+        for name, m in got["scores"].items():
+            table.add_row(name, f"{m.availability:.3f}", f"{100 * m.false_accept:.2f}",
+                          str(m.n_estimates))
+        console.print(table)
+        live, offline = got["scores"]["live"], got["scores"]["offline"]
+        console.print(f"live availability / offline: {live.availability / offline.availability:.3f}"
+                      f"; false accepts live - offline: "
+                      f"{100 * (live.false_accept - offline.false_accept):+.2f} points")
     if "ros2" in args.parts:
         times, first, second = ros2_costs(args.objects, 100 * args.exchanges)
         table = Table(title="ROS 2 topics: one publication [ms]")

@@ -37,6 +37,10 @@ _ROS2_HELP = ("Also publish the map and the accepted alignments as ROS 2 topics 
 _DOMAIN_HELP = "The ROS 2 domain (ROS_DOMAIN_ID) of those topics, 0 to 232."
 _TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
              "mutual TLS).")
+_ON_ARRIVAL_HELP = ("Align each neighbour's map as it arrives, with the robot's latest map, on "
+                    "its clock at arrival (as robots with their own exchange counters do; "
+                    "behind, a node skips to the newest map) instead of with the map of the "
+                    "same exchange.")
 _TEAM_HELP = ("Also publish each pair's team-consistent alignment (those failing a cycle of "
               "three robots left out, missing ones chained through a third) on team/<other> "
               "keys and in <robot>.team.csv.")
@@ -122,6 +126,7 @@ def node(
     drop_share: Annotated[float, typer.Option(
         help="Share of neighbours' maps to discard on arrival (to try a lossy link).")] = 0.0,
     drop_seed: Annotated[int, typer.Option(help="Seed of the discards.")] = 0,
+    on_arrival: Annotated[bool, typer.Option("--on-arrival", help=_ON_ARRIVAL_HELP)] = False,
     team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
     tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
     tls_cert: Annotated[Path | None, typer.Option(
@@ -180,7 +185,7 @@ def node(
     link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key),
                 identities=tls_identities)
     # a replay's maps of exchange k go with the ego map of exchange k; live ones on arrival
-    params = NodeParams(silence=silence, lockstep=not ros2_objects, speed=speed,
+    params = NodeParams(silence=silence, lockstep=not (ros2_objects or on_arrival), speed=speed,
                         drop_share=drop_share, seed=drop_seed,
                         team_consistency=team_consistency, ros2=ros2 or ros2_objects,
                         domain_id=domain_id, ros2_objects=ros2_objects)
@@ -317,6 +322,7 @@ def team(
     ] = Path("results/team"),
     drop_share: Annotated[float, typer.Option(
         help="Share of maps each node discards on arrival (a lossy link).")] = 0.0,
+    on_arrival: Annotated[bool, typer.Option("--on-arrival", help=_ON_ARRIVAL_HELP)] = False,
     team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
     tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
     tls_cert: Annotated[Path | None, typer.Option(help="PEM file: the nodes' certificate.")
@@ -368,7 +374,8 @@ def team(
     replays = save_replays(run, output / "replay")
     argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
                        tls=tls, team_consistency=team_consistency,
-                       domain_id=domain_id if ros2 else None) for k in range(n)]
+                       domain_id=domain_id if ros2 else None, on_arrival=on_arrival)
+             for k in range(n)]
     console = _console()
     console.print(f"robots: {_named(run, robot_names(n))}", soft_wrap=True)
     console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "

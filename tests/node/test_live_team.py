@@ -214,6 +214,8 @@ def test_a_lossy_team_keeps_its_bounds_and_a_killed_node_rejoins(tmp_path: Path)
     # availability of the pairs r3 is not in: at least 35 % of the pair-steps the lossless
     # offline study accepts (a filter accepts after W steps of evidence, and a pair that
     # loses 30 % of its maps takes its steps that much more slowly: in a one-minute run the
-    # share accepted falls by more than the share lost)
+    # share accepted falls by more than the share lost). The maps lost are the same every run
+    # (fixed by sender and exchange): 96-98 of 208 here; lost in the order maps came in, they
+    # gave 59-85.
     others = [p for p, pair in enumerate(offline_pairs) if 3 not in pair]
     assert accepted_steps >= 0.35 * np.isfinite(lossless[others, :, 0]).sum()
