@@ -406,8 +406,9 @@ def test_a_team_bag_reads_back_with_rosbags_mcap_and_mcap_ros2_support(tmp_path)
 
 @pytest.mark.slow
 def test_tcaff_team_with_ros2_writes_a_bag_of_what_its_nodes_wrote(tmp_path, tcaff_main):
-    """`tcaff team --ros2 --bag`: the nodes run with ROS 2 topics on, and the bag holds every
-    accepted alignment of their CSVs and every exchange's maps."""
+    """`tcaff team --ros2 --bag --on-arrival`: the nodes run with ROS 2 topics on, aligning
+    maps as they arrive (stamped on the ego clock at arrival, between the exchanges), and the
+    bag holds every accepted alignment of their CSVs and every exchange's maps."""
     from rosbags.rosbag2 import Reader
     from tcaff_gtsam.node.results import read_alignments
 
@@ -415,7 +416,7 @@ def test_tcaff_team_with_ros2_writes_a_bag_of_what_its_nodes_wrote(tmp_path, tca
     # indoor_return: the robots' filters accept from about the 15th exchange
     done = tcaff_main("team", "--scenario", "indoor_return", "--duration", "20", "--speed",
                       "5", "--ros2", "--domain-id", "3", "--bag", str(bag), "--output",
-                      str(out))
+                      str(out), "--on-arrival")
     assert done.returncode == 0, done.stdout + done.stderr
     assert f"ros2 bag play {bag}" in " ".join(done.stdout.split())
     with Reader(bag) as reader:
@@ -428,6 +429,8 @@ def test_tcaff_team_with_ros2_writes_a_bag_of_what_its_nodes_wrote(tmp_path, tca
         assert counters["ros2_sent"] == 20 + accepted and "ros2_errors" not in counters
         assert counts.get(ros2.alignment_topic(robot, f"r{1 - i}"), 0) == accepted
         assert counts[ros2.map_topic(robot)] == 20
+        # exchanges are whole seconds; a map aligned on arrival is stamped after its exchange
+        assert (rows["stamp"] != np.round(rows["stamp"])).any()
     assert sum(counts.get(ros2.alignment_topic(r, o), 0) for r, o in (("r0", "r1"),
                                                                       ("r1", "r0"))) > 0
     refused = tcaff_main("team", "--scenario", "indoor_return", "--bag", str(bag),
