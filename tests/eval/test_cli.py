@@ -201,7 +201,27 @@ def test_study_runs_each_shipped_method_set(tmp_path, methods):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("study", ["paper"])  # demo: tests/test_packaging.py runs `tcaff demo`
+def test_demo_prints_every_table_and_draws_every_figure(tmp_path):
+    """`make demo`'s job, every scenario shortened to 12 s (every table row and figure is
+    there by then), in one process."""
+    result = runner.invoke(app, ["demo", "--duration", "12", "--workers", "1", "--output",
+                                 str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    for name in SCENARIOS:
+        assert name in result.output
+    for row in ("TCAFF+iSAM2 smoothed", "CLIPPER k>=10", "Tracking people together",
+                "no sharing"):
+        assert row in result.output
+    latest = tmp_path / "latest"
+    assert (latest / "metrics.csv").is_file()
+    figures = {p.name for p in (latest / "figures").glob("*.png")}
+    assert figures == {"leave_and_return.png", "clipper_sweep.png", "scenarios.png",
+                       "mot_mot.png", "mot_sweep.png",
+                       *(f"errors_{name}.png" for name in SCENARIOS)}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("study", ["paper"])  # demo: the test above
 def test_study_runs_each_shipped_study(tmp_path, study):
     result = runner.invoke(app, ["study", study, "--seeds", "1", "--duration", "4",
                                  "--workers", "1", "--output", str(tmp_path), "--no-figures"])
