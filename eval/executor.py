@@ -184,11 +184,15 @@ def _job_in_worker(spec: JobSpec, key: int, updates) -> JobResult:
 _ANNOUNCE_WAIT = 3.0  # seconds a stopped study waits for workers still starting
 
 
-def _announce(updates) -> None:
+def _announce(updates, threads: int) -> None:
     """Each worker process ignores Ctrl-C (the study's process handles it and ends the workers)
-    and says who it is, so a stopped study can end its workers."""
+    and says who it is, so a stopped study can end its workers. It renders on `threads`
+    threads, its share of the cores (`render.cast_threads`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # already so when started by the study
     updates.put(("pid", os.getpid()))
+    from .sim.render import cast_threads
+
+    cast_threads(threads)
 
 
 @contextmanager
@@ -238,8 +242,10 @@ def _run_pool(specs: Sequence[JobSpec], workers: int, progress: Progress, done: 
         manager = context.Manager()  # started
     with manager:
         updates = manager.Queue()
+        # each worker's share of the cores: threads beyond it only wait for a core
+        share = max(1, (os.cpu_count() or 1) // workers)
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                                   initializer=_announce, initargs=(updates,))
+                                   initializer=_announce, initargs=(updates, share))
         workers_seen: set[int] = set()
         futures: dict[Future, int] = {}
         handled: set[Future] = set()

@@ -12,7 +12,8 @@ seconds without one.
 
 All tracks live in arrays (state (n, 4), covariance (n, 4, 4), counters (n,)), and a frame is
 one compiled pass over them: the tracker runs once per frame, robot and method in a study,
-where numpy's per-call overhead on a handful of tracks was most of its time.
+where numpy's per-call overhead on a handful of tracks was most of its time. `run` steps
+through a whole run's frames in one compiled call (the same tracks as a `step` per frame).
 """
 
 from __future__ import annotations
@@ -130,6 +131,96 @@ class MultiObjectTracker:
             int(prm.tentative_misses), float(prm.max_coast))
         self.time = t
         return self.ids[self.confirmed], self.x[self.confirmed, :2]
+
+    def run(self, times: np.ndarray, detections: np.ndarray, bounds: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`step` at each of F frames, in one compiled call: the same tracks, ids and states as
+        F calls of `step` with the same sets.
+
+        Args:
+            times: (F,) seconds, non-decreasing and not before the previous step's.
+            detections: (D, 2) metres in the tracking frame, every frame's sets one after
+                another, frame after frame.
+            bounds: (F, S + 1) int; set s of frame f is detections[bounds[f, s]:bounds[f, s + 1]]
+                (empty sets allowed), and frame f + 1 starts where frame f ends.
+        Returns:
+            ids (T,) and positions (T, 2) of the confirmed tracks after each frame, frame after
+            frame, and starts (F + 1,): frame f's are rows starts[f]:starts[f + 1].
+        Raises:
+            DataError: times not finite or going backwards, detections not (D, 2) finite, or
+                bounds not (F, S + 1) consecutive ranges covering the D detections.
+        """
+        times = np.ascontiguousarray(times, dtype=float)
+        z = np.ascontiguousarray(detections, dtype=float)
+        bounds = np.ascontiguousarray(bounds, dtype=np.int64)
+        n_frames = times.shape[0]
+        if times.ndim != 1 or not np.all(np.isfinite(times)) or np.any(np.diff(times) < 0) or (
+                n_frames and self.time is not None and times[0] < self.time):
+            raise DataError(f"tracker run: times must be (F,) finite, non-decreasing and not "
+                            f"before {self.time} s")
+        if z.ndim != 2 or z.shape[1] != 2 or not np.all(np.isfinite(z)):
+            raise DataError(f"tracker run: detections must be (D, 2) finite, got {z.shape}")
+        if (bounds.ndim != 2 or bounds.shape[0] != n_frames or bounds.shape[1] < 1
+                or np.any(np.diff(bounds, axis=1) < 0)
+                or not np.array_equal(bounds[1:, 0], bounds[:-1, -1])
+                or (n_frames and (bounds[0, 0] != 0 or bounds[-1, -1] != z.shape[0]))):
+            raise DataError(f"tracker run: bounds must be ({n_frames}, S + 1) consecutive "
+                            f"ranges over the {z.shape[0]} detections, got {bounds.shape}")
+        if n_frames == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 2)), np.zeros(1, dtype=np.int64)
+        prm = self.params
+        (self.x, self.P, self.ids, self.hits, self.misses, self.last_hit, self.confirmed,
+         self._next_id, ids, xy, starts) = _run(
+            self.x, self.P, self.ids, self.hits, self.misses, self.last_hit, self.confirmed,
+            self._next_id, np.nan if self.time is None else self.time, times, z, bounds,
+            float(prm.accel_noise) ** 2, float(prm.detection_noise) ** 2,
+            float(prm.initial_speed) ** 2, float(prm.gate), int(prm.confirm_hits),
+            int(prm.tentative_misses), float(prm.max_coast))
+        self.time = float(times[-1])
+        return ids, xy, starts
+
+
+@numba.njit(cache=True)
+def _run(x, P, ids, hits, misses, last_hit, confirmed, next_id, previous, times, z, bounds,
+         q, r, v0, gate, confirm_hits, tentative_misses, max_coast):  # pragma: no cover
+    """`MultiObjectTracker.run`: `_advance` at each frame f of times (F,) with the sets
+    z[bounds[f, s]:bounds[f, s + 1]], from the tracks given (the previous step at `previous`
+    seconds, NaN for none).
+
+    Returns:
+        the track arrays and next_id after the last frame (as `_advance`), then the ids (T,)
+        and xy (T, 2) metres of the confirmed tracks after each frame and starts (F + 1,).
+    """
+    n_frames = times.shape[0]
+    capacity = 16 * n_frames + 16
+    out_ids = np.empty(capacity, np.int64)
+    out_xy = np.empty((capacity, 2))
+    starts = np.zeros(n_frames + 1, np.int64)
+    count = 0
+    for f in range(n_frames):
+        t = times[f]
+        dt = 0.0 if np.isnan(previous) else t - previous
+        first, last = bounds[f, 0], bounds[f, bounds.shape[1] - 1]
+        (x, P, ids, hits, misses, last_hit, confirmed, next_id) = _advance(
+            x, P, ids, hits, misses, last_hit, confirmed, next_id, dt, t, z[first:last],
+            bounds[f] - first, q, r, v0, gate, confirm_hits, tentative_misses, max_coast)
+        previous = t
+        if count + ids.shape[0] > capacity:
+            capacity = 2 * (count + ids.shape[0])
+            grown_ids = np.empty(capacity, np.int64)
+            grown_xy = np.empty((capacity, 2))
+            for k in range(count):
+                grown_ids[k] = out_ids[k]
+                grown_xy[k, 0], grown_xy[k, 1] = out_xy[k, 0], out_xy[k, 1]
+            out_ids, out_xy = grown_ids, grown_xy
+        for i in range(ids.shape[0]):
+            if confirmed[i]:
+                out_ids[count] = ids[i]
+                out_xy[count, 0], out_xy[count, 1] = x[i, 0], x[i, 1]
+                count += 1
+        starts[f + 1] = count
+    return (x, P, ids, hits, misses, last_hit, confirmed, next_id, out_ids[:count],
+            out_xy[:count], starts)
 
 
 @numba.njit(cache=True)

@@ -456,11 +456,13 @@ def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touc
     Every other node has Mu = Cu = 0. Returns (number touched, sum of u).
     """
     # The first-touch block is written out twice on purpose: moving it into a helper (even an
-    # inlined one) made this loop about 9 times slower under numba.
+    # inlined one) made this loop about 9 times slower under numba. Node indices are read as
+    # unsigned: numba then skips the negative-index wraparound of every access (a fifth of
+    # MNO-CLIPPER's time, with the same arithmetic), here and in the helpers below.
     n_touched = 0
     total = 0.0
     for s in range(n_support):
-        q = support[s]
+        q = np.uint64(support[s])
         uq = u[q]
         total += uq
         if mark[q] != stamp:
@@ -471,8 +473,8 @@ def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touc
             n_touched += 1
         Mu[q] += diag[q] * uq
         Cu[q] += uq
-        for e in range(indptr[q], indptr[q + 1]):
-            p = indices[e]
+        for e in range(np.uint64(indptr[q]), np.uint64(indptr[q + np.uint64(1)])):
+            p = np.uint64(indices[e])
             if mark[p] != stamp:
                 mark[p] = stamp
                 Mu[p] = 0.0
@@ -488,7 +490,7 @@ def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touc
 def _gradient(Mu, Cu, total, d, touched, n_touched, g):
     """g = M_d u on the touched nodes, M_d = M - d (1 - C): (1 - C) u = sum(u) - C u."""
     for t in range(n_touched):
-        p = touched[t]
+        p = np.uint64(touched[t])
         g[p] = Mu[p] - d * (total - Cu[p])
 
 
@@ -496,7 +498,8 @@ def _gradient(Mu, Cu, total, d, touched, n_touched, g):
 def _objective(u, support, n_support, g):
     F = 0.0
     for s in range(n_support):
-        F += u[support[s]] * g[support[s]]
+        p = np.uint64(support[s])
+        F += u[p] * g[p]
     return F
 
 
@@ -510,7 +513,7 @@ def _project(u, g, alpha, touched, n_touched, active, out, out_support):
     norm_sq = 0.0
     n = 0
     for t in range(n_touched):
-        p = touched[t]
+        p = np.uint64(touched[t])
         if not active[p]:
             continue
         v = u[p] + alpha * g[p]
@@ -522,7 +525,7 @@ def _project(u, g, alpha, touched, n_touched, active, out, out_support):
     if n:
         scale = 1.0 / np.sqrt(norm_sq)
         for s in range(n):
-            out[out_support[s]] *= scale
+            out[np.uint64(out_support[s])] *= scale
     return n
 
 

@@ -21,7 +21,7 @@ from tcaff_gtsam.errors import DataError
 
 from .world import World
 
-__all__ = ["CYLINDER_KINDS", "RgbdFrame", "RgbdScene", "render"]
+__all__ = ["CYLINDER_KINDS", "RgbdFrame", "RgbdScene", "cast_threads", "render"]
 
 #: World object classes drawn as upright cylinders; every other class is drawn as a box.
 CYLINDER_KINDS = frozenset({"pole", "tree", "bin"})
@@ -33,6 +33,22 @@ _LIGHT = np.array([0.3, 0.5, 0.81])  # unit vector towards the light, world fram
 _FLOOR_RGB = (150, 150, 150)
 _WALL_RGB = (205, 195, 170)
 _CEILING_RGB = (235, 235, 228)
+#: threads each ray cast uses; 0: Open3D's choice, every core (see `cast_threads`)
+_cast_threads = 0
+
+
+def cast_threads(count: int) -> None:
+    """Cast every later frame's rays on `count` threads (0: on every core, the default).
+
+    A process that shares the machine with others busy on the other cores (a study's pool of
+    workers) casts on its share: the threads of one cast otherwise wait on each other while
+    the other processes hold the cores, which costs CPU time and no pixel changes (each ray is
+    cast alone).
+    """
+    global _cast_threads
+    if isinstance(count, bool) or not (isinstance(count, int) and count >= 0):
+        raise DataError(f"cast_threads: count must be an int >= 0, got {count!r}")
+    _cast_threads = count
 
 
 @dataclass(frozen=True)
@@ -146,6 +162,8 @@ class RgbdScene:
         # one extra row for rays that hit nothing (Open3D reports an invalid id)
         self._instance_of = np.asarray([*instance_of, 0], dtype=np.int32)
         self._colour_of = np.asarray([*colour_of, (0, 0, 0)], dtype=float)
+        # camera -> (H, W, 3) every pixel's ray direction in the optical frame (`cast`)
+        self._directions: dict[PinholeCamera, np.ndarray] = {}
 
     def __len__(self) -> int:
         return self.xy.shape[0]
@@ -162,12 +180,17 @@ class RgbdScene:
         """Raw ray-cast results for every pixel: `depth` (H, W) metres along the optical axis
         (inf for a miss), `geometry` (H, W) index into the scene's solids, `normal` (H, W, 3)."""
         T = rigid_transform("T_world_camera", T_world_camera)
-        x_over_z, y_over_z = camera.rays()
-        # Directions with unit optical-z component make the hit distance the depth itself.
-        d_cam = np.stack([x_over_z, y_over_z, np.ones(camera.shape)], axis=-1)
-        d_world = d_cam @ T[:3, :3].T
-        rays = np.concatenate([np.broadcast_to(T[:3, 3], d_world.shape), d_world], axis=-1)
-        hit = self._scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
+        if camera not in self._directions:
+            # Directions with unit optical-z component make the hit distance the depth itself.
+            x_over_z, y_over_z = camera.rays()
+            self._directions[camera] = np.stack([x_over_z, y_over_z, np.ones(camera.shape)],
+                                                axis=-1)
+        # (H, W, 6) float32 rays, origin and direction in the world frame, each rounded once
+        # from float64
+        rays = np.empty((*camera.shape, 6), dtype=np.float32)
+        rays[..., :3] = T[:3, 3]
+        rays[..., 3:] = self._directions[camera] @ T[:3, :3].T
+        hit = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=_cast_threads)
         depth = hit["t_hit"].numpy()
         geometry = hit["geometry_ids"].numpy().astype(np.int64)
         missed = ~np.isfinite(depth)
@@ -216,8 +239,9 @@ def render(scene: RgbdScene, T_world_camera: np.ndarray, camera: PinholeCamera,
     instance = scene.instance_of(hit["geometry"])
     # Lambertian shading with some ambient light; the floor and walls are shaded the same way.
     lambert = np.abs(hit["normal"] @ _LIGHT)
-    base = scene.colour_of(hit["geometry"])
-    rgb = np.clip(base * (0.35 + 0.65 * lambert)[..., None], 0, 255).astype(np.uint8)
+    shaded = scene.colour_of(hit["geometry"])  # (H, W, 3) base colours, a fresh array
+    shaded *= (0.35 + 0.65 * lambert)[..., None]
+    rgb = np.clip(shaded, 0, 255, out=shaded).astype(np.uint8)
     return RgbdFrame(rgb, depth, instance)
 
 

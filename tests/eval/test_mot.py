@@ -12,6 +12,7 @@ from tcaff_gtsam.eval.jobs import simulated_job
 from tcaff_gtsam.eval.methods import estimate_names
 from tcaff_gtsam.eval.mot import (
     NO_SHARING,
+    Tracks,
     collaborative_mot,
     held_alignment,
     mot_methods,
@@ -92,6 +93,19 @@ def test_without_people_to_track_mota_is_none():
     counts, report = score_tracks(np.zeros((2, 1, 2)), np.zeros((2, 1), bool),
                                   tracks_of({}, {}), match_distance=1.0)
     assert counts.sum() == 0 and report["mota"] is None and report["motp"] is None
+
+
+def test_tracks_in_flat_arrays_are_the_frames_and_score_alike():
+    tracks = Tracks.of(TRACKS)
+    assert len(tracks) == 5 and tracks.starts.tolist() == [0, 2, 3, 6, 8, 10]
+    for (ids, xy), (want_ids, want_xy) in zip(tracks, TRACKS, strict=True):
+        assert np.array_equal(ids, want_ids) and np.array_equal(xy, want_xy)
+    assert Tracks.of(tracks) is tracks and Tracks.of([]).starts.tolist() == [0]
+    counts, report = score_tracks(TRUTH, IN_VIEW, tracks, match_distance=1.0)
+    want_counts, want_report = score_tracks(TRUTH, IN_VIEW, TRACKS, match_distance=1.0)
+    assert np.array_equal(counts, want_counts) and report == want_report
+    with pytest.raises(DataError, match="as many positions"):
+        Tracks.of([(np.array([1, 2]), np.zeros((1, 2)))])
 
 
 def test_rolling_mota_by_hand():
@@ -197,6 +211,21 @@ def test_a_wrong_alignment_costs_tracking_accuracy(mot_run):
         for robot, report in enumerate(s.robots):
             assert totals[robot].tolist() == [report["objects"], report["false_positives"],
                                               report["misses"], report["switches"]]
+
+
+def test_a_method_that_never_shares_tracks_as_no_sharing(mot_run):
+    """A method without an estimate at any exchange gives every robot its own detections
+    only: the counts and reports of no sharing, each its own copy."""
+    pairs = [(i, j) for i in range(4) for j in range(4) if i != j]
+    never = np.full((len(pairs), len(mot_run.times), 3), np.nan)
+    scores = collaborative_mot(mot_run.people, mot_run.times, pairs,
+                               {"icp": never, "ground_truth": true_estimates(mot_run, pairs)},
+                               mot_run.scenario.pedestrians)
+    alone, never_shared = scores[NO_SHARING], scores["icp"]
+    assert np.array_equal(never_shared.counts, alone.counts)
+    assert never_shared.robots == alone.robots
+    assert all(a is not b for a, b in zip(never_shared.robots, alone.robots, strict=True))
+    assert not np.array_equal(scores["ground_truth"].counts, alone.counts)
 
 
 QUICK_METHODS = MethodsConfig(clipper_k=[3, 5], clipper_k_shown=5)

@@ -8,6 +8,7 @@ from precompiled import signatures_around
 #: the kernels called from Python outside the core, and one of the core's (all of which
 #: tests/core/test_precompile.py checks)
 ENTRY_KERNELS = [("tcaff_gtsam.eval.tracker", "_advance"),
+                 ("tcaff_gtsam.eval.tracker", "_run"),
                  ("tcaff_gtsam.mapping.objects", "footprint_rectangles"),
                  ("tcaff_gtsam.mapping.depth_grid", "_expand"),
                  ("tcaff_gtsam.mapping.structure", "_ransac_round"),

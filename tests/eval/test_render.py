@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from rgbd_scenes import camera_pose
-from tcaff_gtsam.eval.sim.render import RgbdFrame, RgbdScene, render
+from tcaff_gtsam.eval.sim.render import RgbdFrame, RgbdScene, cast_threads, render
 from tcaff_gtsam.eval.sim.world import room_walls
 from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 
@@ -199,6 +199,25 @@ def test_noise_is_zero_mean_and_grows_with_the_square_of_range():
         stds.append(e.std())
     assert all(a < b for a, b in itertools.pairwise(stds))
     assert np.all(noisy.depth[z == 0] == 0)  # no return stays no return
+
+
+def test_one_thread_casts_the_same_frame():
+    """A process given one core (a study's pool worker) renders every pixel as on all cores,
+    again and again with the camera's rays kept."""
+    scene, cam = room_scene(), PinholeCamera.from_fov(160, 120, 87)
+    T = camera_pose(1.0, 2.0, 0.3)
+    every_core = render(scene, T, cam, depth_noise=0.01, rng=np.random.default_rng(1))
+    try:
+        cast_threads(1)
+        for _ in range(2):
+            one = render(scene, T, cam, depth_noise=0.01, rng=np.random.default_rng(1))
+            for name in ("rgb", "depth", "instance"):
+                np.testing.assert_array_equal(getattr(one, name), getattr(every_core, name))
+    finally:
+        cast_threads(0)
+    for bad in (-1, 1.5, None, True):
+        with pytest.raises(DataError, match="cast_threads: count must be an int >= 0"):
+            cast_threads(bad)
 
 
 def test_noise_free_by_default():

@@ -446,6 +446,72 @@ def test_frames_match_the_plain_reference(seed):
     assert crowded > 10  # the scenes had rivals for the detections
 
 
+def stacked(frames: list[list[np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, S sets (k, 2) -> (detections (D, 2), bounds (F, S + 1)) for `run`."""
+    sizes = np.array([[len(z) for z in sets] for sets in frames]).reshape(len(frames), -1)
+    edges = np.concatenate([[0], np.cumsum(sizes)])
+    n_sets = sizes.shape[1]
+    bounds = edges[np.arange(len(frames))[:, None] * n_sets + np.arange(n_sets + 1)]
+    return np.concatenate([z for sets in frames for z in sets]).reshape(-1, 2), bounds
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_whole_run_in_one_call_is_every_frame_stepped(seed):
+    """`run` over 200 frames of three sets each (often empty, people and clutter) gives the
+    confirmed tracks `step` gives at every frame, to the bit, and leaves the same tracker;
+    a run continues where the previous step or run stopped."""
+    rng = np.random.default_rng(seed)
+    times = DT * np.arange(200)
+    people = rng.uniform(-4.0, 4.0, (5, 2)) + np.cumsum(rng.normal(0, 0.1, (200, 5, 2)), axis=0)
+    frames = [[np.vstack([people[f][rng.uniform(size=5) < 0.6] + rng.normal(0, 0.2, (1, 2)),
+                          rng.uniform(-6.0, 6.0, (rng.poisson(0.4), 2))])
+               for _ in range(3)] for f in range(200)]
+    stepped = tracker()
+    expected = [stepped.step(t, sets) for t, sets in zip(times, frames, strict=True)]
+    ran = tracker()
+    ids, xy, starts = ran.run(times[:80], *stacked(frames[:80]))
+    more_ids, more_xy, more_starts = ran.run(times[80:], *stacked(frames[80:]))
+    ids, xy = np.concatenate([ids, more_ids]), np.concatenate([xy, more_xy])
+    starts = np.concatenate([starts, more_starts[1:] + starts[-1]])
+    assert starts[-1] == sum(len(i) for i, _ in expected) > 100
+    for f, (want_ids, want_xy) in enumerate(expected):
+        rows = slice(starts[f], starts[f + 1])
+        assert np.array_equal(ids[rows], want_ids), f"frame {f}"
+        assert np.array_equal(xy[rows], want_xy), f"frame {f}"
+    for name in ("x", "P", "ids", "hits", "misses", "last_hit", "confirmed", "time", "_next_id"):
+        assert np.array_equal(getattr(ran, name), getattr(stepped, name)), name
+
+
+def test_a_run_without_frames_changes_nothing():
+    mot = tracker()
+    mot.step(0.0, [np.array([[1.0, 1.0]])])
+    ids, xy, starts = mot.run(np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2), np.int64))
+    assert ids.shape == (0,) and xy.shape == (0, 2) and starts.tolist() == [0]
+    assert len(mot) == 1 and mot.time == 0.0
+
+
+@pytest.mark.parametrize(("times", "detections", "bounds", "match"), [
+    ([0.0, float("nan")], np.zeros((0, 2)), [[0, 0], [0, 0]], "times must be"),
+    ([0.2, 0.0], np.zeros((0, 2)), [[0, 0], [0, 0]], "times must be"),
+    ([0.0], np.zeros((1, 3)), [[0, 1]], r"detections must be \(D, 2\)"),
+    ([0.0], np.array([[0.0, np.inf]]), [[0, 1]], r"detections must be \(D, 2\) finite"),
+    ([0.0], np.zeros((2, 2)), [[0, 1]], "bounds must be"),        # a detection left over
+    ([0.0, 0.2], np.zeros((2, 2)), [[0, 1], [0, 2]], "bounds must be"),  # frames overlap
+    ([0.0], np.zeros((2, 2)), [[0, 2, 1]], "bounds must be"),     # a set ends before it starts
+    ([0.0, 0.2], np.zeros((1, 2)), [[0, 1]], "bounds must be"),   # a frame without bounds
+])
+def test_a_run_refuses_bad_input(times, detections, bounds, match):
+    with pytest.raises(DataError, match=match):
+        tracker().run(np.array(times), detections, np.array(bounds))
+
+
+def test_a_run_does_not_go_back_before_the_last_step():
+    mot = tracker()
+    mot.step(1.0, [])
+    with pytest.raises(DataError, match=r"not before 1\.0 s"):
+        mot.run(np.array([0.8]), np.zeros((0, 2)), np.zeros((1, 2), np.int64))
+
+
 # -- bad input -------------------------------------------------------------------------------
 
 
