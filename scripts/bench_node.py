@@ -426,12 +426,12 @@ def main() -> None:
     parser.add_argument("--team-consistency", action="store_true",
                         help="team: every node also runs the team consistency")
     parser.add_argument("--load", type=int, default=0,
-                        help="team: processes that spin on the CPU beside the team")
+                        help="team, load: processes that spin on the CPU beside the team")
     parser.add_argument("--objects", type=int, default=100)
     parser.add_argument("--robots", type=int, default=8)
     parser.add_argument("--seconds", type=float,
                         help="team: run seconds (default 60); load: cap the run (default all)")
-    parser.add_argument("--rate", type=float, default=5.0, help="latency: exchanges per s")
+    parser.add_argument("--rate", type=float, default=5.0, help="latency, load: exchanges per s")
     parser.add_argument("--exchanges", type=int, default=80, help="latency: maps sent")
     parser.add_argument("--warm", type=int, default=10, help="latency: exchanges left out")
     parser.add_argument("--guide-radius", type=radius, default=default_radius(),
