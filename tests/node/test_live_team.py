@@ -156,8 +156,11 @@ def test_a_lossy_team_keeps_its_bounds_and_a_killed_node_rejoins(tmp_path: Path)
     state = tmp_path / "state"
     run = simulated(duration)
     replays = save_replays(run, tmp_path / "replay")
+    # silence: as in the test above, a map late on a loaded machine is not a silent robot (3 s
+    # of run at 4x are 0.75 s of wall time: beside the suite, the team then accepted 59 of the
+    # 208 pair-steps it accepts alone)
     argvs = [node_argv(replays[k], k, N, team, ports, None, tmp_path, speed=speed,
-                       drop_share=0.3, state=state) for k in range(N)]
+                       drop_share=0.3, state=state, silence=10.0) for k in range(N)]
     procs = start_team(argvs, tmp_path / "logs")
     try:
         # while the nodes start: how much the offline study accepts with nothing lost
@@ -175,7 +178,7 @@ def test_a_lossy_team_keeps_its_bounds_and_a_killed_node_rejoins(tmp_path: Path)
         killed_at = int(rows_of(tmp_path, "r3")["seq"].max())
         start = counters_of(tmp_path, "r3")["start"]
         argv = node_argv(replays[3], 3, N, team, ports, start, tmp_path, speed=speed,
-                         drop_share=0.3, state=state)
+                         drop_share=0.3, state=state, silence=10.0)
         with open(tmp_path / "logs" / "node3-restart.log", "wb") as log:
             restarted = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
         codes = wait_team([*procs[:3], restarted], 150)
@@ -215,7 +218,7 @@ def test_a_lossy_team_keeps_its_bounds_and_a_killed_node_rejoins(tmp_path: Path)
     # offline study accepts (a filter accepts after W steps of evidence, and a pair that
     # loses 30 % of its maps takes its steps that much more slowly: in a one-minute run the
     # share accepted falls by more than the share lost). The maps lost are the same every run
-    # (fixed by sender and exchange): 96-98 of 208 here; lost in the order maps came in, they
-    # gave 59-85.
+    # (fixed by sender and exchange): 131 of 208 here, quiet or beside two busy processes;
+    # lost in the order maps came in, with a 3 s silence, they gave 59-85.
     others = [p for p, pair in enumerate(offline_pairs) if 3 not in pair]
     assert accepted_steps >= 0.35 * np.isfinite(lossless[others, :, 0]).sum()
