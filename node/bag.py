@@ -18,7 +18,7 @@ import numpy as np
 
 from tcaff_gtsam.errors import ConfigError, DataError
 
-from .results import COLUMNS, TEAM_COLUMNS, read_alignments
+from .results import COLUMNS, TEAM_COLUMNS, read_alignments, row_covariance
 from .ros2 import (
     ALIGNMENT_TYPE,
     MAP_TYPE,
@@ -36,17 +36,10 @@ __all__ = ["truth_topic", "write_bag", "write_team_bag"]
 
 log = logging.getLogger(__name__)
 
-_UPPER = np.triu_indices(3)
 
 
 def truth_topic(robot: str, neighbour: str) -> str:
     return f"/{robot}/tcaff/truth/{neighbour}"
-
-
-def _covariance(rows: dict[str, np.ndarray], k: int) -> np.ndarray:
-    P = np.zeros((3, 3))
-    P[_UPPER] = [rows[c][k] for c in ("P_xx", "P_xy", "P_xt", "P_yy", "P_yt", "P_tt")]
-    return P + np.triu(P, 1).T
 
 
 def ns(t: float) -> int:
@@ -117,7 +110,7 @@ def write_team_bag(bag: str | Path, run, names: tuple[str, ...], results: str | 
                 except ConfigError as exc:
                     raise DataError(f"{path}: {exc}") from None
                 messages.append((ns(t), topic(robot, neighbour), ALIGNMENT_TYPE,
-                                 pose_message(t, frame, x, _covariance(rows, k))))
+                                 pose_message(t, frame, x, row_covariance(rows, k))))
     return write_bag(bag, messages)
 
 

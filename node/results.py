@@ -12,7 +12,8 @@ from tcaff_gtsam.errors import DataError
 
 from .messages import AlignmentMessage, TeamMessage
 
-__all__ = ["COLUMNS", "TEAM_COLUMNS", "AlignmentCsv", "read_alignments", "write_counters"]
+__all__ = ["COLUMNS", "TEAM_COLUMNS", "AlignmentCsv", "read_alignments", "row_covariance",
+           "write_counters"]
 
 _ESTIMATE = ("accepted", "x", "y", "theta", "P_xx", "P_xy", "P_xt", "P_yy", "P_yt", "P_tt")
 COLUMNS = ("robot", "neighbour", "seq", "stamp", "neighbour_seq", "neighbour_stamp", "step",
@@ -21,6 +22,7 @@ COLUMNS = ("robot", "neighbour", "seq", "stamp", "neighbour_seq", "neighbour_sta
 TEAM_COLUMNS = ("robot", "neighbour", "seq", "stamp", "via", *_ESTIMATE)
 _TEXT = ("robot", "neighbour", "via")
 _UPPER = np.triu_indices(3)
+_COVARIANCE = _ESTIMATE[4:]  # the upper triangle's columns, row by row
 
 
 class AlignmentCsv:
@@ -75,3 +77,10 @@ def read_alignments(path: str | Path, columns: tuple[str, ...] = COLUMNS
 def write_counters(path: str | Path, counters: dict[str, float]) -> None:
     """The node's counters (and timings) as JSON."""
     Path(path).write_text(json.dumps(dict(sorted(counters.items())), indent=1) + "\n")
+
+
+def row_covariance(rows: dict[str, np.ndarray], k: int) -> np.ndarray:
+    """(3, 3) the covariance of row k of `read_alignments`' columns (x, y in m, theta in rad)."""
+    P = np.zeros((3, 3))
+    P[_UPPER] = [rows[c][k] for c in _COVARIANCE]
+    return P + np.triu(P, 1).T
