@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -49,13 +50,23 @@ def test_each_scenario_produces_every_output(name):
     assert job.arrays["overlap"].shape == (len(job.pairs), steps)
 
 
+@pytest.fixture(scope="module")
+def serial_study(tmp_path_factory):
+    """A two-scenario study run in this process, with its figures, and its configuration:
+    written once for the tests that read its folder or compare their own runs with its
+    jobs."""
+    cfg = quick_study(tmp_path_factory.mktemp("serial"),
+                      [short("indoor_return", 20), short("ambiguous_grid", 20)])
+    return cfg, run_study(cfg)
+
+
 @pytest.mark.slow
-def test_study_writes_tables_figures_runs_and_the_latest_link(tmp_path):
-    cfg = quick_study(tmp_path, [short("indoor_return", 20), short("ambiguous_grid", 20)])
-    outcome = run_study(cfg)
+def test_study_writes_tables_figures_runs_and_the_latest_link(serial_study):
+    cfg, outcome = serial_study
+    root = Path(cfg.output)
     folder = outcome.folder
     assert not outcome.interrupted and not outcome.failed
-    assert (tmp_path / "results" / "latest").resolve() == folder.resolve()
+    assert (root / "latest").resolve() == folder.resolve()
     metrics = json.loads((folder / "metrics.json").read_text())
     assert set(metrics["summary"]) == {"indoor_return", "ambiguous_grid"}
     assert metrics["summary"]["indoor_return"]["ground_truth"]["false_accept"] == 0.0
@@ -133,13 +144,18 @@ def test_a_failing_run_does_not_lose_the_others(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_parallel_workers_give_the_serial_results(tmp_path):
-    scenarios = [short("indoor_return", 20), short("opposite_directions", 20)]
-    serial = run_study(quick_study(tmp_path / "a", scenarios), figures=False)
-    parallel = run_study(quick_study(tmp_path / "b", scenarios, workers=2), figures=False)
+def test_parallel_workers_give_the_serial_results(tmp_path, serial_study):
+    """The serial study's jobs again on two worker processes, one job each: every array and
+    metric the same, in the serial order."""
+    cfg, serial = serial_study
+    parallel = run_study(quick_study(tmp_path, cfg.scenarios, workers=2), figures=False)
+    assert not parallel.interrupted and not parallel.failed
     assert [j.stem for j in parallel.jobs] == [j.stem for j in serial.jobs]
     for a, b in zip(serial.jobs, parallel.jobs, strict=True):
-        assert np.array_equal(a.arrays["est_tcaff"], b.arrays["est_tcaff"], equal_nan=True)
+        assert a.arrays.keys() == b.arrays.keys()
+        for name, array in a.arrays.items():
+            assert np.array_equal(array, b.arrays[name], equal_nan=True), (a.stem, name)
+        assert a.metrics == b.metrics
 
 
 # -- the acceptance figures of the comparison, on the shipped scenarios at full length ---------
@@ -181,18 +197,23 @@ def test_ambiguous_grid_fools_single_shot_clipper_but_not_tcaff():
 
 @pytest.mark.slow
 def test_interrupting_a_parallel_study_keeps_the_finished_runs(tmp_path):
-    cfg = quick_study(tmp_path, [short("indoor_return", 15), short("ambiguous_grid", 15),
-                                 short("opposite_directions", 15)], workers=2)
+    """Stopped when the first job is done: the long run (started first, longest first) is
+    then mid-run on the other worker, a short one queued or just started; both are ended,
+    and only the finished runs are kept."""
+    cfg = quick_study(tmp_path, [short("indoor_return", 10), short("ambiguous_grid", 10),
+                                 load_scenario("opposite_directions")], workers=2)
 
     def stop(job):
         raise KeyboardInterrupt
 
     outcome = run_study(cfg, on_job_done=stop, figures=False)
     assert outcome.interrupted and outcome.jobs
+    finished = {job.stem for job in outcome.jobs}
+    assert "opposite_directions-seed0" not in finished and len(finished) < 3
     metrics = json.loads((outcome.folder / "metrics.json").read_text())
     assert metrics["interrupted"] is True
-    for job in outcome.jobs:
-        assert (outcome.folder / "runs" / f"{job.stem}.npz").is_file()
+    assert sorted(p.name for p in (outcome.folder / "runs").glob("*.npz")) == sorted(
+        f"{stem}.npz" for stem in finished)
 
 
 @pytest.mark.slow

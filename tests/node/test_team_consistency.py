@@ -1,13 +1,15 @@
 """Team consistency inside the node: a pairwise alignment that fails the team's cycles is left
 out, and a pair with no shared objects gets an alignment chained through a third robot.
 
-The chain runs three `tcaff node` processes over Zenoh on 127.0.0.1; the rejection runs one
-RobotNode and a second Zenoh session that speaks for its neighbours.
+The chain runs three replaying nodes (`replay_node`, what `tcaff node --replay` runs), each
+with its own Zenoh session on 127.0.0.1, side by side in the test process; the rejection runs
+one RobotNode and a second Zenoh session that speaks for its neighbours.
 """
 
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +18,9 @@ from tcaff_gtsam.eval.runs import RecordedRun
 from tcaff_gtsam.eval.sim.simulate import simulate
 from tcaff_gtsam.node import AlignmentMessage, Link, MapMessage, NodeParams, RobotNode, encode
 from tcaff_gtsam.node.link import alignment_key, map_key
+from tcaff_gtsam.node.replay import robot_names, run_replay
 from tcaff_gtsam.node.results import TEAM_COLUMNS, read_alignments
-from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
+from tcaff_gtsam.node.run import free_ports, replay_node
 
 from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.geometry import se2_from_params, se2_to_params, wrap_angle
@@ -57,17 +60,21 @@ def test_three_nodes_chain_the_pair_that_shares_no_objects(tmp_path: Path) -> No
     """r0 and r2 never align on their own; with team consistency each publishes the other's
     alignment chained through r1, within 0.5 m and 2 deg of the truth."""
     run, team, n = bridged_team(26.0), "chain", 3
-    ports = free_ports(n)
-    replays = save_replays(run, tmp_path / "replay")
-    argvs = [node_argv(replays[k], k, n, team, ports, None, tmp_path, speed=8.0, silence=10.0,
-                       team_consistency=True) for k in range(n)]
-    procs = start_team(argvs, tmp_path / "logs")
-    try:
-        codes = wait_team(procs, 120)
-    finally:
-        for proc in procs:
-            proc.kill()
-    assert codes == [0] * n, [p.read_text() for p in sorted((tmp_path / "logs").iterdir())]
+    ports, names = free_ports(n), robot_names(n)
+    # the settings `tcaff node --replay R --speed 8 --silence 10 --team-consistency` runs
+    # with; in threads of this process, which has the imports and kernels a node process
+    # would spend seconds of CPU on loading
+    params = NodeParams(silence=10.0, lockstep=True, speed=8.0, team_consistency=True)
+
+    def node(k: int) -> RobotNode:
+        link = Link(listen=(f"127.0.0.1:{ports[k]}",),
+                    connect=tuple(f"127.0.0.1:{p}" for p in ports[:k]))
+        return replay_node(run_replay(run, k, names), team, link, params, None, tmp_path)
+
+    with ThreadPoolExecutor(n) as pool:
+        nodes = [done.result(timeout=120) for done in [pool.submit(node, k) for k in range(n)]]
+    for robot in nodes:  # no step of any node failed
+        assert not robot.counters["errors"], robot.counters
     for i, j in ((0, 2), (2, 0)):
         own = read_alignments(tmp_path / f"r{i}.csv")
         assert not own["accepted"][own["neighbour"] == f"r{j}"].any()

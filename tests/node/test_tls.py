@@ -1,17 +1,18 @@
-"""Who may join: with the team's certificates every link is mutual TLS, and a process without
+"""Who may join: with the team's certificates every link is mutual TLS, and a session without
 a certificate of the team's authority (another authority's, or none) receives nothing."""
 
 from __future__ import annotations
 
 import shutil
 import subprocess
-import sys
 import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pytest
-from tcaff_gtsam.node import Link, RobotNode, TlsFiles
+from tcaff_gtsam.node import Link, MapMessage, RobotNode, TlsFiles, encode
 from tcaff_gtsam.node.run import free_ports
 
 from tcaff_gtsam import ObjectMap
@@ -37,57 +38,6 @@ def make_authority(folder: Path, name: str) -> TlsFiles:
     return TlsFiles(folder / "ca.pem", folder / "node.pem", folder / "node.key")
 
 
-_LISTENER = """
-import sys, time
-from pathlib import Path
-from tcaff_gtsam.node.link import Link, TlsFiles
-port, files = sys.argv[1], sys.argv[2:]
-tls = TlsFiles(*map(Path, files)) if files else None
-received = []
-with Link(connect=(f"127.0.0.1:{port}",), tls=tls).open() as session:
-    session.declare_subscriber("tcaff/tls/*/map", received.append)
-    time.sleep(4.0)
-print(len(received))
-"""
-
-
-def test_only_holders_of_the_teams_certificate_receive_its_maps(tmp_path: Path) -> None:
-    team = make_authority(tmp_path / "team", "team")
-    rogue = make_authority(tmp_path / "rogue", "rogue")
-    port = free_ports(1)[0]
-    node = RobotNode("r0", "tls", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",), tls=team))
-    stop = threading.Event()
-
-    def publish() -> None:
-        t = 0.0
-        while not stop.wait(0.1):
-            t += 0.1
-            node.publish(t, ObjectMap(np.zeros((3, 3)), np.ones(3), np.ones(3), np.full(3, t)))
-
-    sender = threading.Thread(target=publish)
-    sender.start()
-    try:
-        listeners = {
-            name: subprocess.Popen([sys.executable, "-c", _LISTENER, str(port),
-                                    *(map(str, (files.ca, files.certificate, files.key))
-                                      if files else ())],
-                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-            for name, files in (("team", team), ("rogue", rogue), ("plain", None))}
-        received = {name: int(p.communicate(timeout=60)[0].split()[-1])
-                    for name, p in listeners.items()}
-    finally:
-        stop.set()
-        sender.join()
-        node.close()
-    assert received["team"] > 5
-    assert received["rogue"] == 0 and received["plain"] == 0
-
-
-def test_missing_certificate_files_are_refused(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"--tls-ca .*no such file"):
-        TlsFiles(tmp_path / "ca.pem", tmp_path / "node.pem", tmp_path / "node.key")
-
-
 def robot_certificates(folder: Path, robots: list[str]) -> dict[str, TlsFiles]:
     """One team authority and a certificate per robot whose common name is the robot."""
     folder.mkdir(parents=True)
@@ -108,34 +58,110 @@ def robot_certificates(folder: Path, robots: list[str]) -> dict[str, TlsFiles]:
     return out
 
 
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory) -> dict[str, TlsFiles]:
+    """The team authority's certificates of r0, r1, r3 and of "stranger" (a name of no
+    robot), and "rogue": another authority's; made once, as no test changes them."""
+    folder = tmp_path_factory.mktemp("certs")
+    return robot_certificates(folder / "team", ["r0", "r1", "r3", "stranger"]) | {
+        "rogue": make_authority(folder / "rogue", "rogue")}
+
+
+def wait_for(condition, timeout: float) -> None:
+    """Until `condition()` holds; `timeout` s at most (the assertions after tell)."""
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
+def test_only_holders_of_the_teams_certificate_receive_its_maps(certs) -> None:
+    port = free_ports(1)[0]
+    node = RobotNode("r0", "tls", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",),
+                                                      tls=certs["r0"]))
+    stop = threading.Event()
+
+    def publish() -> None:
+        t = 0.0
+        while not stop.wait(0.1):
+            t += 0.1
+            node.publish(t, ObjectMap(np.zeros((3, 3)), np.ones(3), np.ones(3), np.full(3, t)))
+
+    sender = threading.Thread(target=publish)
+    sender.start()
+    listeners = {"team": certs["r1"], "rogue": certs["rogue"], "plain": None}
+    received: dict[str, list] = {name: [] for name in listeners}
+    sessions = []
+    try:
+        # opened side by side: a session that cannot link tries for half a second first
+        with ThreadPoolExecutor(len(listeners)) as pool:
+            sessions = list(pool.map(
+                lambda files: Link(connect=(f"127.0.0.1:{port}",), tls=files).open(),
+                listeners.values()))
+        for name, session in zip(listeners, sessions, strict=True):
+            session.declare_subscriber("tcaff/tls/*/map", received[name].append)
+        # every listener is up (the rogue and plain ones dialling again every second at
+        # most) while the team's listener is sent ten maps, a second of the node's
+        first = len(received["team"])
+        wait_for(lambda: len(received["team"]) >= first + 10, 60)
+    finally:
+        for session in sessions:
+            session.close()
+        stop.set()
+        sender.join()
+        node.close()
+    assert len(received["team"]) > 5
+    assert len(received["rogue"]) == 0 and len(received["plain"]) == 0
+
+
+def test_missing_certificate_files_are_refused(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"--tls-ca .*no such file"):
+        TlsFiles(tmp_path / "ca.pem", tmp_path / "node.pem", tmp_path / "node.key")
+
+
 @pytest.mark.parametrize("identities", [True, False])
-def test_a_team_certificate_of_r3_cannot_publish_r1s_map(tmp_path: Path, identities) -> None:
+def test_a_team_certificate_of_r3_cannot_publish_r1s_map(certs, identities) -> None:
     """With identities, r0 takes r1's map only from r1's certificate: r3's certificate, of the
     same authority, cannot speak for r1 (without them it can: the control)."""
-    import time
-
-    from tcaff_gtsam.node import MapMessage, encode
-
-    certs = robot_certificates(tmp_path / "certs", ["r0", "r1", "r3", "stranger"])
-    port = free_ports(1)[0]
-    node = RobotNode("r0", "ids", ["r0", "r1", "r3"],
-                     Link(listen=(f"127.0.0.1:{port}",), tls=certs["r0"],
-                          identities=identities))
-    received = {}
+    holders = ("r3", "stranger", "r1")  # each speaking for r1
+    # a node r0 per holder, side by side: a node that has a newer map of r1 waiting skips
+    # the older, so that one node would take one of maps arriving together
+    ports = dict(zip(holders, free_ports(len(holders)), strict=True))
+    nodes, sessions = {}, []
     try:
-        node.publish(1.0, ObjectMap(np.zeros((3, 3)), np.ones(3), np.ones(3), np.ones(3)))
-        for holder in ("r3", "stranger", "r1"):  # each speaking for r1
-            before = node.counters["maps_received"]
-            with Link(connect=(f"127.0.0.1:{port}",), tls=certs[holder]).open() as session:
-                time.sleep(1.0)  # linked
-                session.put("tcaff/ids/r1/map", encode(MapMessage(
-                    "r1", 1, len(received), 1.0, np.zeros((3, 3)), np.ones(3), np.ones(3),
-                    np.zeros(3))))
-                time.sleep(1.0)
+        for holder, port in ports.items():
+            nodes[holder] = RobotNode("r0", "ids", ["r0", "r1", "r3"],
+                                      Link(listen=(f"127.0.0.1:{port}",), tls=certs["r0"],
+                                           identities=identities))
+            nodes[holder].publish(1.0, ObjectMap(np.zeros((3, 3)), np.ones(3), np.ones(3),
+                                                 np.ones(3)))
+        # a session opens linked, at times half a second after it dials: side by side
+        with ThreadPoolExecutor(len(holders)) as pool:
+            sessions = list(pool.map(
+                lambda h: Link(connect=(f"127.0.0.1:{ports[h]}",), tls=certs[h]).open(),
+                holders))
+        publishers = [s.declare_publisher("tcaff/ids/r1/map") for s in sessions]
+        # each node's subscription reaches the sessions it is declared to (with identities,
+        # not the stranger's): a second at most
+        wait_for(lambda: all(p.matching_status.matching for p in publishers), 1.0)
+        for publisher in publishers:
+            publisher.put(encode(MapMessage("r1", 1, 0, 1.0, np.zeros((3, 3)), np.ones(3),
+                                            np.ones(3), np.zeros(3))))
+        sent = time.monotonic()
+
+        def taken(holder: str) -> bool:
+            return nodes[holder].counters["maps_received"] > 0
+
+        # every map taken, or r1's own taken and a second more for the others'
+        wait_for(lambda: all(map(taken, holders)) or (
+            taken("r1") and time.monotonic() > sent + 1.0), 20)
+        for node in nodes.values():
             node.wait_idle()
-            received[holder] = node.counters["maps_received"] - before
     finally:
-        node.close()
+        for session in sessions:
+            session.close()
+        for node in nodes.values():
+            node.close()
+    received = {holder: node.counters["maps_received"] for holder, node in nodes.items()}
     assert received["r1"] == 1
     assert received["r3"] == received["stranger"] == (0 if identities else 1)
 
