@@ -82,6 +82,10 @@ def _simulated(scenario: str, seed: int, duration: float | None):
     return simulate(config, seed)
 
 
+_SILENCE_HELP = ("s of run without a neighbour's map before its filter steps without "
+                 "measurements (at --speed S, silence / S s of wall time).")
+
+
 def _check_speed(speed: float) -> None:
     if not (math.isfinite(speed) and speed > 0):
         _refuse("--speed", speed, "must be a finite number > 0 (run seconds per wall second)")
@@ -118,9 +122,7 @@ def node(
     state: Annotated[Path | None, typer.Option(
         help="Folder to save each filter after each step and restore them from on start.")
     ] = None,
-    silence: Annotated[float, typer.Option(
-        help="s without a neighbour's map before its filter steps without measurements.")
-    ] = 3.0,
+    silence: Annotated[float, typer.Option(help=_SILENCE_HELP)] = 3.0,
     clock_offset: Annotated[float, typer.Option(
         help="s added to this robot's clock (to try robots whose clocks differ).")] = 0.0,
     drop_share: Annotated[float, typer.Option(
@@ -324,6 +326,7 @@ def team(
         help="Share of maps each node discards on arrival (a lossy link).")] = 0.0,
     on_arrival: Annotated[bool, typer.Option("--on-arrival", help=_ON_ARRIVAL_HELP)] = False,
     team_consistency: Annotated[bool, typer.Option(help=_TEAM_HELP)] = False,
+    silence: Annotated[float, typer.Option(help=_SILENCE_HELP)] = 3.0,
     tls_ca: Annotated[Path | None, typer.Option(help=_TLS_HELP)] = None,
     tls_cert: Annotated[Path | None, typer.Option(help="PEM file: the nodes' certificate.")
     ] = None,
@@ -352,6 +355,8 @@ def team(
     _check_seeds([seed])
     _check_duration(duration)
     _check_domain(domain_id)
+    if not (math.isfinite(silence) and silence > 0):
+        _refuse("--silence", silence, "must be a finite number > 0 (s of run)")
     if bag is not None:  # checked now, not after the run
         if bag.exists():
             _refuse("--bag", str(bag), "exists; a bag is written to a new folder")
@@ -373,7 +378,7 @@ def team(
         _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
     replays = save_replays(run, output / "replay")
     argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
-                       tls=tls, team_consistency=team_consistency,
+                       tls=tls, silence=silence, team_consistency=team_consistency,
                        domain_id=domain_id if ros2 else None, on_arrival=on_arrival)
              for k in range(n)]
     console = _console()

@@ -413,10 +413,12 @@ def test_tcaff_team_with_ros2_writes_a_bag_of_what_its_nodes_wrote(tmp_path, tca
     from tcaff_gtsam.node.results import read_alignments
 
     out, bag = tmp_path / "team", tmp_path / "bag"
-    # indoor_return: the robots' filters accept from about the 15th exchange
+    # indoor_return: the robots' filters accept from about the 15th exchange. A neighbour is
+    # silent after 10 s of run (2 s of wall time at 5x), not the default 3 s: on a loaded
+    # machine late maps would otherwise step the filters without measurements
     done = tcaff_main("team", "--scenario", "indoor_return", "--duration", "20", "--speed",
                       "5", "--ros2", "--domain-id", "3", "--bag", str(bag), "--output",
-                      str(out), "--on-arrival")
+                      str(out), "--on-arrival", "--silence", "10")
     assert done.returncode == 0, done.stdout + done.stderr
     assert f"ros2 bag play {bag}" in " ".join(done.stdout.split())
     with Reader(bag) as reader:
