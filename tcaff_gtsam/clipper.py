@@ -15,7 +15,7 @@ import numpy as np
 from scipy import sparse
 
 from .errors import DataError
-from .inputs import index_pairs, real_array, shown
+from .inputs import index_pairs, kernel_array, real_array, shown
 from .params import ClipperParams, _finite, _given_or_default, _int_at_least, _real, _require
 
 __all__ = ["ClipperSolution", "ConsistencyGraph", "clipper_solve", "consistency_graph",
@@ -437,12 +437,9 @@ def _graph(ego_points: np.ndarray, other_points: np.ndarray, associations: np.nd
     else:
         ego_z, other_z, cut = z[0], z[1], float(height_epsilon)
     indptr, indices, weights = _graph_csr(
-        np.ascontiguousarray(ego_points, np.float64),
-        np.ascontiguousarray(other_points, np.float64),
-        np.ascontiguousarray(ego_z, np.float64), np.ascontiguousarray(other_z, np.float64),
-        np.zeros(m) if slack is None else np.ascontiguousarray(slack, np.float64),
-        np.ascontiguousarray(associations, np.int64), 1.0 / (2.0 * sigma * sigma),
-        float(epsilon), cut)
+        kernel_array(ego_points), kernel_array(other_points), kernel_array(ego_z),
+        kernel_array(other_z), np.zeros(m) if slack is None else kernel_array(slack),
+        kernel_array(associations, np.int64), 1.0 / (2.0 * sigma * sigma), float(epsilon), cut)
     return ConsistencyGraph._built(associations, indptr, indices, weights, diag)
 
 

@@ -23,6 +23,8 @@ from functools import cached_property
 import numba
 import numpy as np
 
+from .inputs import kernel_array
+
 __all__ = [
     "BEFORE_ROOT",
     "NO_MEASUREMENT",
@@ -225,7 +227,7 @@ def _first_not_positive_definite(P):
 def not_positive_definite(P: np.ndarray) -> int:
     """Index of the first of the symmetric matrices P (n, d, d) that is not positive definite
     (its Cholesky factorisation fails), or -1 when all are."""
-    return int(_first_not_positive_definite(np.ascontiguousarray(P, dtype=np.float64)))
+    return int(_first_not_positive_definite(kernel_array(P)))
 
 
 @numba.njit(cache=True)
@@ -453,8 +455,9 @@ def measurement_costs(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: Cos
     """(L, k) edge cost of giving each leaf each measurement; inf where the gate rejects it."""
     if zs.shape[0] == 0 or len(leaves) == 0:
         return np.empty((len(leaves), zs.shape[0]))
-    return _measurement_costs(leaves.x, leaves.P, zs, Rs, model.Q, model.angular,
-                              model.reference, model.use_box, model.gate_chi2, model.gate_box)
+    return _measurement_costs(leaves.x, leaves.P, kernel_array(zs), kernel_array(Rs), model.Q,
+                              model.angular, model.reference, model.use_box, model.gate_chi2,
+                              model.gate_box)
 
 
 def kalman_children(leaves: Leaves, parents: np.ndarray, meas: np.ndarray, zs: np.ndarray,
@@ -462,8 +465,8 @@ def kalman_children(leaves: Leaves, parents: np.ndarray, meas: np.ndarray, zs: n
     """States (n, d) and covariances (n, d, d) of the children (leaf parents[c] updated with
     measurement meas[c], or only predicted where meas[c] < 0)."""
     return _kalman_children(leaves.x, leaves.P, np.asarray(parents, np.int64),
-                            np.asarray(meas, np.int64), zs, Rs, model.Q, model.angular,
-                            model.reference)
+                            np.asarray(meas, np.int64), kernel_array(zs), kernel_array(Rs),
+                            model.Q, model.angular, model.reference)
 
 
 def extend(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: CostModel,

@@ -18,7 +18,8 @@ import numpy as np
 from .errors import DataError
 from .params import _real
 
-__all__ = ["finite_time", "index_pairs", "output_path", "read_npz", "real_array", "shown"]
+__all__ = ["finite_time", "index_pairs", "kernel_array", "output_path", "read_npz", "real_array",
+           "shown"]
 
 
 def shown(value, limit: int = 60) -> str:
@@ -33,6 +34,15 @@ def shown(value, limit: int = 60) -> str:
     except Exception:  # a broken __repr__ must not hide the error being reported
         text = f"<{type(value).__name__}>"
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def kernel_array(value: np.ndarray, dtype: type = np.float64) -> np.ndarray:
+    """`value` as a C-contiguous, writeable array of `dtype`, for a numba kernel: the array
+    itself where it is one, else a copy. numba compiles a kernel again for read-only arrays (an
+    ObjectMap's, np.broadcast_to's), seconds on a process's first use, as the cache that
+    `compile_kernels` fills holds the writeable ones."""
+    array = np.ascontiguousarray(value, dtype)
+    return array if array.flags.writeable else array.copy()
 
 
 def finite_time(owner: str, name: str, value) -> float:

@@ -18,7 +18,7 @@ import numpy as np
 from .hypothesis_tree import best_per_tree, mahalanobis_to, not_positive_definite
 from .object_map import ObjectMap
 from .pairwise import PairwiseAligner
-from .registration import _neighbourhood_pairs
+from .registration import _neighbourhood_pairs, neighbourhood_agreement
 
 __all__ = ["compile_kernels"]
 
@@ -40,9 +40,10 @@ def _maps(rng: np.random.Generator, t: float) -> tuple[ObjectMap, ObjectMap]:
 
 def compile_kernels() -> float:
     """Run the default and the reference pair aligner through a few steps (every kernel of the
-    alignment path: graph, MNO-CLIPPER, the TCAFF filter), prune a large hypothesis tree and
-    rank the pairs of look-alike maps past the association cap, so that each kernel is
-    compiled, or loaded from the cache.
+    alignment path: graph, MNO-CLIPPER, the TCAFF filter), prune a large hypothesis tree, rank
+    the pairs of look-alike maps past the association cap and score their neighbourhoods'
+    agreement, so that each kernel is compiled, or loaded from the cache. The kernels are
+    given writeable arrays only (`inputs.kernel_array`), the ones compiled here.
 
     Returns:
         seconds taken.
@@ -62,6 +63,7 @@ def compile_kernels() -> float:
     # look-alike maps past max_associations: each object's best pairs, cut to a cap
     xy = rng.uniform(0.0, 15.0, (12, 2))
     _neighbourhood_pairs(np.ones((12, 12), bool), xy, xy, np.zeros(12), np.zeros(12), 0.25, 2, 5)
+    neighbourhood_agreement(xy, xy, np.array([[0, 0], [1, 1], [2, 2]]), 0.25, 2)
     return time.perf_counter() - start
 
 

@@ -6,7 +6,12 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
 from precompiled import signatures_around
+
+from tcaff_gtsam.inputs import kernel_array
 
 #: the kernels the alignment path calls from Python (the others are called only by these)
 ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
@@ -34,3 +39,53 @@ def test_the_module_runs_and_says_what_it_did():
                           text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert "numba kernels compiled and cached" in done.stderr
+
+
+READ_ONLY_INPUTS = """
+import numpy as np
+from tcaff_gtsam import TCAFF, clipper, hypothesis_tree, registration
+from tcaff_gtsam.frame_aligner import FrameAligner
+from tcaff_gtsam.params import FrameAlignerParams
+from tcaff_gtsam.precompile import _maps, compile_kernels
+kernels = [clipper._graph_csr, hypothesis_tree._measurement_costs,
+           hypothesis_tree._kalman_children, hypothesis_tree._first_not_positive_definite,
+           registration._agreement]
+compile_kernels()
+print([len(k.signatures) for k in kernels])
+ego, other = _maps(np.random.default_rng(3), 0.0)
+FrameAligner(FrameAlignerParams(dim=3)).measurements(ego, other, 0.0)  # the maps' own arrays
+zs, Rs = np.zeros((2, 3)), np.stack([np.eye(3) * 0.1] * 2)
+zs.setflags(write=False)
+Rs.setflags(write=False)
+filter = TCAFF()
+for _ in range(6):
+    filter.update(zs, Rs)
+hypothesis_tree.not_positive_definite(np.broadcast_to(np.eye(3), (2, 3, 3)))
+print([len(k.signatures) for k in kernels])
+"""
+
+
+def test_read_only_inputs_use_the_kernels_compile_kernels_compiled():
+    """ObjectMaps' arrays and a caller's read-only measurements reach the kernels as the
+    writeable arrays `compile_kernels` compiled them for: no process compiles them again."""
+    done = subprocess.run([sys.executable, "-c", READ_ONLY_INPUTS], capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    after_compile, after_read_only = done.stdout.strip().splitlines()[-2:]
+    assert after_compile == after_read_only
+    assert "0" not in after_compile.strip("[]").split(", ")
+
+
+@given(st.sampled_from([np.float64, np.float32, np.int64]), st.booleans(), st.booleans(),
+       st.integers(1, 5), st.integers(1, 4))
+def test_kernel_array_is_writeable_contiguous_and_copies_only_when_it_must(
+        dtype, read_only, transposed, rows, cols):
+    value = np.arange(rows * cols, dtype=dtype).reshape(rows, cols)
+    if transposed:
+        value = value.T
+    value.setflags(write=not read_only)
+    array = kernel_array(value)
+    assert array.dtype == np.float64 and array.flags.c_contiguous and array.flags.writeable
+    assert np.array_equal(array, value)
+    reused = dtype is np.float64 and not read_only and value.flags.c_contiguous
+    assert np.shares_memory(array, value) == reused
