@@ -18,8 +18,7 @@ import numpy as np
 from .errors import DataError
 from .params import _real
 
-__all__ = ["finite_time", "index_pairs", "kernel_array", "output_path", "read_npz", "real_array",
-           "shown"]
+__all__ = ["finite_time", "index_pairs", "output_path", "read_npz", "real_array", "shown"]
 
 
 def shown(value, limit: int = 60) -> str:
@@ -37,8 +36,9 @@ def shown(value, limit: int = 60) -> str:
 
 
 def kernel_array(value: np.ndarray, dtype: type = np.float64) -> np.ndarray:
-    """`value` as a C-contiguous, writeable array of `dtype`, for a numba kernel: the array
-    itself where it is one, else a copy. numba compiles a kernel again for read-only arrays (an
+    """`value`, an array the caller has checked, as a C-contiguous, writeable array of
+    `dtype`, for a numba kernel (not public: no checks of its own): the array itself where it
+    is one, else a copy. numba compiles a kernel again for read-only arrays (an
     ObjectMap's, np.broadcast_to's), seconds on a process's first use, as the cache that
     `compile_kernels` fills holds the writeable ones."""
     array = np.ascontiguousarray(value, dtype)
