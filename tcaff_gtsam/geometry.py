@@ -186,7 +186,8 @@ def se3_from_xyz_yaw(x: float, y: float, z: float, yaw: float) -> np.ndarray:
         if not _finite(value):
             raise DataError(f"se3_from_xyz_yaw: {name} must be a finite number, got "
                             f"{shown(value)}")
-    return _se3_from_xyz_yaw(x, y, z, yaw)
+    # as floats: numpy takes a Python int beyond int64 as an object, which has no cos
+    return _se3_from_xyz_yaw(float(x), float(y), float(z), float(yaw))
 
 
 def _se3_from_xyz_yaw(x: float, y: float, z: float, yaw: float) -> np.ndarray:

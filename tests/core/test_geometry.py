@@ -260,6 +260,13 @@ def test_se3_from_xyz_quat_normalises():
                                se3_from_xyz_quat([0, 0, 0], [h, 0.0, 0.0, h]), atol=1e-12)
 
 
+@pytest.mark.parametrize("big", [-2**63 - 1, 2**64, 10**300])
+def test_se3_from_xyz_yaw_takes_python_ints_beyond_int64(big):
+    """As the floats they are (numpy made them objects without a cos)."""
+    T = se3_from_xyz_yaw(big, 0, 0, big)
+    np.testing.assert_array_equal(T, se3_from_xyz_yaw(float(big), 0.0, 0.0, float(big)))
+
+
 def test_se3_to_xyz_quat_known_value_and_sign():
     h = math.sqrt(0.5)
     T = se3_from_xyz_yaw(1.0, 2.0, 3.0, -np.pi / 2)
