@@ -128,7 +128,8 @@ def errors_over_time(path: Path, job, methods: list[str], pair: int = 0) -> None
     for ax in axes:
         ax.set_yscale("symlog", linthresh=0.1)
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8, ncol=2)
+    if methods:  # none when the study ran only the ground truth, which is not drawn
+        axes[0].legend(loc="upper right", fontsize=8, ncol=2)
     axes[0].set_title(f"{_title(job)}: error of T_o{i}_o{j}; gaps = no "
                       f"estimate; grey = maps overlap")
     axes[-1].set_xlabel("time [s]")

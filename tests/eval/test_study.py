@@ -143,6 +143,19 @@ def test_a_failing_run_does_not_lose_the_others(tmp_path, monkeypatch):
     assert metrics["failed"][0]["error"] == "sensor exploded"
 
 
+def test_a_study_of_the_ground_truth_alone_draws_its_figures_without_warnings(tmp_path):
+    """The error figures then hold no method's line (the truth is not drawn), and no legend."""
+    import warnings
+
+    cfg = quick_study(tmp_path, [short("indoor_return", 6)]).model_copy(
+        update={"methods": MethodsConfig(methods=["ground_truth"])})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        outcome = run_study(cfg)
+    assert not outcome.failed
+    assert (outcome.folder / "figures" / "errors_indoor_return.png").is_file()
+
+
 @pytest.mark.slow
 def test_parallel_workers_give_the_serial_results(tmp_path, serial_study):
     """The serial study's jobs again on two worker processes, one job each: every array and
