@@ -208,8 +208,8 @@ def mahalanobis_to(x: np.ndarray, P: np.ndarray, x0: np.ndarray, P0: np.ndarray,
     """(L,) squared Mahalanobis distance of states x (L, d) with covariances P (L, d, d) from
     one state x0 (d,) with covariance P0 (d, d), under P + P0; the components where angular
     (d,) bool is set are wrapped."""
-    return _mahalanobis_to(np.ascontiguousarray(x), np.ascontiguousarray(P),
-                           np.ascontiguousarray(x0), np.ascontiguousarray(P0), angular)
+    return _mahalanobis_to(kernel_array(x), kernel_array(P), kernel_array(x0), kernel_array(P0),
+                           angular)
 
 
 @numba.njit(cache=True)

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from .errors import DataError
 from .geometry import _transform_points
-from .inputs import index_pairs, real_array, shown
+from .inputs import index_pairs, kernel_array, real_array, shown
 from .object_map import ObjectMap, as_object_map
 from .params import _finite, _int_at_least, _require
 
@@ -196,7 +196,7 @@ def neighbourhood_agreement(ego_points: np.ndarray, other_points: np.ndarray,
         raise DataError(f"{o}: pair indices out of range for maps of {len(p)} and {len(q)} "
                         f"points, got {shown(pairs)}")
     return _agreement(_neighbour_distances(p, neighbours), _neighbour_distances(q, neighbours),
-                      np.ascontiguousarray(pairs), float(epsilon))
+                      kernel_array(pairs, np.int64), float(epsilon))
 
 
 def _neighbourhood_pairs(compatible: np.ndarray, ego_points: np.ndarray,
@@ -228,10 +228,9 @@ def _neighbourhood_pairs(compatible: np.ndarray, ego_points: np.ndarray,
     per_object = min(per_object, max(compatible.shape))  # more than a map holds adds nothing
     d_ego = _neighbour_distances(ego_points, neighbours)
     d_other = _neighbour_distances(other_points, neighbours)
-    ages_ego = np.ascontiguousarray(ages_ego, np.float64)
-    ages_other = np.ascontiguousarray(ages_other, np.float64)
-    scored = _best_per_object(np.ascontiguousarray(compatible), d_ego, d_other, ages_ego,
-                              ages_other, float(epsilon), int(per_object))
+    scored = _best_per_object(kernel_array(compatible, bool), d_ego, d_other,
+                              kernel_array(ages_ego), kernel_array(ages_other), float(epsilon),
+                              int(per_object))
     kept = np.argwhere(scored)
     if kept.shape[0] > cap:
         score = scored[kept[:, 0], kept[:, 1]]  # the score + 1, which ranks alike

@@ -24,19 +24,12 @@ def _build_each_command_line_once() -> None:
     (about 0.1 s: typer reads every annotation again); a `tcaff` process builds it once, but
     the tests run the command line hundreds of times in one process. An app does not change
     once its modules are imported, so each is built once here, for `app()` and `CliRunner`."""
+    import functools
+
     import typer.main
     import typer.testing
 
-    build = typer.main.get_command
-    built: dict[int, tuple[object, object]] = {}  # id -> (the app, kept alive; its command)
-
-    def get_command(typer_instance):
-        if id(typer_instance) not in built:
-            built[id(typer_instance)] = (typer_instance, build(typer_instance))
-        return built[id(typer_instance)][1]
-
-    typer.main.get_command = get_command
-    typer.testing._get_command = get_command
+    typer.main.get_command = typer.testing._get_command = functools.cache(typer.main.get_command)
 
 
 _build_each_command_line_once()

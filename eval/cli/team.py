@@ -44,6 +44,8 @@ _ON_ARRIVAL_HELP = ("Align each neighbour's map as it arrives, with the robot's 
 _TEAM_HELP = ("Also publish each pair's team-consistent alignment (those failing a cycle of "
               "three robots left out, missing ones chained through a third) on team/<other> "
               "keys and in <robot>.team.csv.")
+_SILENCE_HELP = ("s of run without a neighbour's map before its filter steps without "
+                 "measurements (at --speed S, silence / S s of wall time).")
 _KIMERA_HELP = ("Or a folder of Kimera-Multi rosbags and <robot>_gt_odom.csv files to replay, "
                 "mapped through the RGB-D front end (maps saved in OUTPUT/maps/ and reused).")
 _KIMERA_TEST_HELP = (f"With --kimera: the Kimera-Multi test YAML or shipped name "
@@ -80,10 +82,6 @@ def _simulated(scenario: str, seed: int, duration: float | None):
     if duration is not None:
         config = override(config, "--duration", duration=min(duration, config.duration))
     return simulate(config, seed)
-
-
-_SILENCE_HELP = ("s of run without a neighbour's map before its filter steps without "
-                 "measurements (at --speed S, silence / S s of wall time).")
 
 
 def _check_speed(speed: float) -> None:
