@@ -173,7 +173,18 @@ def load_study(ref: str | Path, overrides: dict[str, Any] | None = None) -> Stud
     data = _read_yaml(path)
     if overrides and isinstance(data, dict):
         data = {**data, **overrides}
-    return resolve_study(_validate(StudyConfig, data, path.name), path.parent)
+    study = resolve_study(_validate(StudyConfig, data, path.name), path.parent)
+    if not (overrides and "scenarios" in overrides):  # a study cut to a few keeps its caps
+        _check_durations(study, path.name)
+    return study
+
+
+def _check_durations(study: StudyConfig, source: str) -> None:
+    """ConfigError when `durations` names a scenario the study does not run (a typo)."""
+    unknown = sorted(set(study.durations) - {s.name for s in study.scenarios})
+    if unknown:
+        raise ConfigError(f"{source}: durations names {unknown}, which are not scenarios of "
+                          f"study {study.name} ({[s.name for s in study.scenarios]})")
 
 
 def load_sweep(ref: str | Path) -> tuple[SweepConfig, StudyConfig]:
@@ -183,6 +194,7 @@ def load_sweep(ref: str | Path) -> tuple[SweepConfig, StudyConfig]:
     sweep = _validate(SweepConfig, _read_yaml(path), path.name)
     if isinstance(sweep.study, StudyConfig):
         study = resolve_study(sweep.study, path.parent)
+        _check_durations(study, path.name)
     else:
         study = load_study(_near(sweep.study, path.parent))
     if sweep.seeds is not None:
@@ -221,13 +233,16 @@ def apply_settings(config: ScenarioConfig | MethodsConfig, settings: dict[str, A
 
 
 def resolve_study(study: StudyConfig, folder: Path | None = None) -> StudyConfig:
-    """The same study with every scenario and the method set inline; relative YAML paths are
-    taken from `folder` (the study file's) when the file is there."""
+    """The same study with every scenario and the method set inline, each scenario no longer
+    than the study's `durations` give for its name; relative YAML paths are taken from `folder`
+    (the study file's) when the file is there."""
     scenarios = [s if isinstance(s, ScenarioConfig) else load_scenario(_near(s, folder))
                  for s in study.scenarios]
     names = [s.name for s in scenarios]
     if len(set(names)) != len(names):
         raise ConfigError(f"study {study.name}: scenario names must be distinct, got {names}")
+    scenarios = [s.model_copy(update={"duration": min(s.duration, study.durations[s.name])})
+                 if s.name in study.durations else s for s in scenarios]
     methods = (study.methods if isinstance(study.methods, MethodsConfig)
                else load_methods(_near(study.methods, folder)))
     return study.model_copy(update={"scenarios": scenarios, "methods": methods})

@@ -277,7 +277,7 @@ def demo(
     duration: Annotated[float | None, typer.Option(
         help="Cap every scenario's duration (seconds), for a quick look.")] = None,
 ) -> None:
-    """The study on every scenario with one seed (1.5-2 min on 2 cores): table, metrics, figures."""
+    """Every scenario with one seed, the costliest cut short (about 1 min on 2 cores)."""
     _check_duration(duration)
     _writable_folder(output, "--output")
     from ..config import load_study

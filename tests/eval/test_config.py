@@ -58,6 +58,24 @@ def test_outdoor_scenarios_use_the_papers_outdoor_settings():
         assert cfg.mapping.kappa == 15.0 and cfg.window == 5
 
 
+def test_a_studys_durations_cap_the_scenarios_they_name(tmp_path):
+    """A cap shortens its scenario, never lengthens it, and leaves the others; a study cut to a
+    few scenarios (`tcaff study demo -s mot`) keeps the caps of those it runs."""
+    study = load_study(_write(tmp_path, {
+        "scenarios": ["indoor_return", "opposite_directions", "same_direction"],
+        "durations": {"indoor_return": 100, "opposite_directions": 500}}))
+    assert [s.duration for s in study.scenarios] == [
+        100, load_scenario("opposite_directions").duration,
+        load_scenario("same_direction").duration]
+    demo = load_study("demo")
+    assert demo.durations and all(
+        s.duration == min(load_scenario(s.name).duration, demo.durations.get(s.name, np.inf))
+        for s in demo.scenarios)
+    only_mot = load_study("demo", {"scenarios": ["mot", "indoor_return"]})
+    assert [s.duration for s in only_mot.scenarios] == [demo.durations["mot"],
+                                                        load_scenario("indoor_return").duration]
+
+
 def test_effective_config_loads_again(tmp_path):
     study = load_study("demo", {"seeds": [3, 4], "workers": 1})
     path = tmp_path / "config.yaml"
@@ -102,6 +120,15 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
     ({"scenarios": ["indoor_return"], "methods": {"clipper_k": [3, 4], "clipper_k_shown": 10}},
      "clipper_k_shown (10) must be one of clipper_k [3, 4]"),
     ({"scenarios": ["indoor_return", "indoor_return"]}, "scenario names must be distinct"),
+    ({"scenarios": ["indoor_return"], "durations": {"indoor_retrun": 60}},
+     "durations names ['indoor_retrun'], which are not scenarios of study study "
+     "(['indoor_return'])"),
+    ({"scenarios": ["indoor_return"], "durations": {"indoor_return": 0}},
+     "durations: must be 1-7200 s (one map exchange or more), got {'indoor_return': 0.0}"),
+    ({"scenarios": ["indoor_return"], "durations": {"indoor_return": float("nan")}},
+     "durations: must be 1-7200 s"),
+    ({"scenarios": ["indoor_return"], "durations": {"indoor_return": "short"}},
+     "durations.indoor_return: Input should be a valid number"),
     ({"scenarios": ["atlantis"]}, "no scenario config named 'atlantis'; shipped: "),
     # values the core parameter objects refuse, with the key's path
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"n_solutions": 0}}},
