@@ -18,7 +18,6 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import cache
 
-import motmetrics as mm
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -214,6 +213,8 @@ def score_tracks(truth: np.ndarray, in_view: np.ndarray,
     # beyond the match distance a person and a track cannot be paired (NaN for motmetrics)
     pairable = np.where(d2 > match_distance**2, np.nan, distance)
     near = distance <= match_distance
+    import motmetrics as mm  # with pandas, 0.3 s of every worker's start that scores no people
+
     acc = mm.MOTAccumulator(auto_id=False)
     person_ids = np.arange(truth.shape[1])
     for f in range(n_frames):
@@ -261,9 +262,11 @@ def _frame_counts(events, n_frames: int) -> np.ndarray:
 
 
 @cache
-def _metrics_host() -> mm.metrics.MetricsHost:
-    """motmetrics' metrics, registered once per process (5 ms a time, twice per robot and
-    method otherwise)."""
+def _metrics_host():
+    """motmetrics' metrics (a `motmetrics.metrics.MetricsHost`), registered once per process
+    (5 ms a time, twice per robot and method otherwise)."""
+    import motmetrics as mm
+
     return mm.metrics.create()
 
 

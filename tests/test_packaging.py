@@ -256,9 +256,9 @@ class TestWheelInstall:
 def test_fresh_venv_pip_install_aligns_two_maps(tmp_path):
     """A new user's first steps: a fresh virtual environment, `pip install .` (not editable),
     then `tcaff make-maps` and `tcaff align-maps`, `tcaff study --help` and `python -m
-    tcaff_gtsam --help`, run from a folder outside the repository. The aligner's kernels are
-    compiled into the installed package (numba's cache beside its modules), which the user's
-    later processes load.
+    tcaff_gtsam --help`, run from a folder outside the repository; and numba compiles the
+    installed package's kernels into a cache beside its modules, which the user's later
+    processes load.
 
     The new environment borrows the dependencies this one installed from pyproject.toml (a
     .pth file puts this environment's site-packages after its own), so that pip installs the
@@ -266,12 +266,14 @@ def test_fresh_venv_pip_install_aligns_two_maps(tmp_path):
     install` resolves them from the package index in every fresh clone); `pip check` then
     proves that the package's declared dependencies are what it is given.
 
-    Two maps rather than a study: a study compiles some 25 kernels into the new package (a
-    minute of the suite) where aligning two maps compiles 17 of them (about 20 s), and what
-    the study adds is tested elsewhere: `make install` compiles every kernel in every clean
-    clone, the wheel tests above check that every config ships, and `tcaff demo`'s every table
-    and figure is checked in tests/eval/test_cli.py. `tcaff study --help` listing the shipped
-    studies shows that the installed package finds its configs."""
+    The two commands run their kernels as plain Python (`NUMBA_DISABLE_JIT`), and one small
+    kernel is compiled to show where the cache goes: compiling the 17 kernels that aligning two
+    maps calls into the new package took 20 s of the suite, and compilation is tested
+    elsewhere (`make install` compiles every kernel in every clean clone, and
+    tests/core/test_precompile.py checks what it compiles). What a study adds is tested
+    elsewhere too: the wheel tests above check that every config ships, and `tcaff demo`'s
+    every table and figure is checked in tests/eval/test_cli.py. `tcaff study --help` listing
+    the shipped studies shows that the installed package finds its configs."""
     src = tmp_path / "src"
     shutil.copytree(REPO, src, ignore=_IGNORE)
     venv = tmp_path / "venv"
@@ -290,7 +292,8 @@ def test_fresh_venv_pip_install_aligns_two_maps(tmp_path):
 
     def tcaff(*args: str) -> subprocess.CompletedProcess:
         done = subprocess.run([str(venv / "bin" / "tcaff"), *args], cwd=work,
-                              capture_output=True, text=True, timeout=600, env=clean_env())
+                              capture_output=True, text=True, timeout=600,
+                              env=clean_env(NUMBA_DISABLE_JIT="1"))
         assert done.returncode == 0, done.stdout + done.stderr
         return done
 
@@ -309,8 +312,15 @@ def test_fresh_venv_pip_install_aligns_two_maps(tmp_path):
     truth = json.loads((work / "maps" / "truth.json").read_text())["T_oi_oj"]
     best = json.loads(tcaff("align-maps", "maps/ego.npz", "maps/other.npz", "--json").stdout)[0]
     assert abs(best["x"] - truth["x"]) < 0.5 and abs(best["y"] - truth["y"]) < 0.5
-    # the kernels went into the installed package's cache, not the source tree's
-    assert list(installed.rglob("__pycache__/*.nbi"))
+    assert not list(installed.rglob("*.nbi"))  # nothing compiled without the JIT
+    compiled = subprocess.run(
+        [str(python), "-c", "import numpy as np; from tcaff_gtsam.clipper import _gathered; "
+                            "print(_gathered(np.arange(3.0), np.array([2, 0])))"],
+        cwd=work, capture_output=True, text=True, timeout=300, env=clean_env())
+    assert compiled.stdout.split() == ["[2.", "0.]"], compiled.stdout + compiled.stderr
+    # the kernel went into the installed package's cache, not the source tree's
+    assert [p.name.split("-")[0] for p in installed.rglob("__pycache__/*.nbi")] == [
+        "clipper._gathered"]
     for study in ("demo", "limits", "paper"):
         assert study in tcaff("study", "--help").stdout
     helped = subprocess.run([str(python), "-m", "tcaff_gtsam", "--help"], cwd=work,

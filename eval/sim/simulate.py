@@ -24,8 +24,6 @@ from ..config import ScenarioConfig
 from ..runs import RunSettings
 from .motion import drifting_odometry, odometry_frame, poses_along
 from .people import PeopleRun, simulate_people
-from .render import RgbdScene
-from .rgbd import RenderedCamera, clear_paths
 from .scenarios import build_scene
 from .sensor import observe
 from .world import World
@@ -111,6 +109,10 @@ def simulate(config: ScenarioConfig, seed: int,
     world = scene.world
     rendered = None
     if config.camera is not None:
+        # Open3D, the renderer and the front end: 0.8 s of a worker's start that renders none
+        from .render import RgbdScene
+        from .rgbd import RenderedCamera, clear_paths
+
         paths = [poses_along(*knots, frame_times) for knots in scene.knots]
         world = clear_paths(rng, world, paths, config.camera.clearance)
         rendered = RgbdScene.from_world(world)
