@@ -234,7 +234,8 @@ def test_study_runs_each_shipped_study(tmp_path, study):
 def test_bad_study_config_is_one_line_and_exit_2(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("scenarios: [indoor_return]\nworkers: 0\n")
-    # the console script itself, once: the others call its entry point in this process
+    # the console script itself, once: the other one-line errors call its entry point in this
+    # process
     done = subprocess.run([TCAFF, "study", str(bad)], capture_output=True, text=True)
     assert done.returncode == 2
     assert done.stderr.strip() == ("error: bad.yaml: workers: Input should be greater than or "
@@ -242,10 +243,6 @@ def test_bad_study_config_is_one_line_and_exit_2(tmp_path):
 
 
 # -- bad input ends in one line on stderr and exit status 2 -------------------------------------
-
-
-def tcaff(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([TCAFF, *args], capture_output=True, text=True, timeout=120)
 
 
 def one_line_error(done: subprocess.CompletedProcess, *named: str) -> str:
@@ -271,8 +268,7 @@ def test_a_binary_yaml_is_named_in_one_line(tmp_path, tcaff_main, where):
             "methods": ["study", "demo", "--methods", str(bad), "--output", str(tmp_path)],
             "kimera-config": ["kimera-multi", "--data", str(tmp_path), "--config", str(bad),
                               "--output", str(tmp_path)]}[where]
-    run = tcaff if where == "study" else tcaff_main
-    line = one_line_error(run(*args), str(bad), "not a UTF-8 text file")
+    line = one_line_error(tcaff_main(*args), str(bad), "not a UTF-8 text file")
     assert line == f"error: {bad}: not a UTF-8 text file (byte 0xff at offset 11)"
 
 
@@ -289,8 +285,7 @@ def test_a_duplicate_yaml_key_is_named_in_one_line(tmp_path, tcaff_main, where):
     else:
         bad.write_text("methods: [tcaff]\nmethods: [ground_truth]\n")
         args = ["study", "demo", "--methods", str(bad), "--output", str(tmp_path)]
-    line = one_line_error((tcaff if where == "study" else tcaff_main)(*args), str(bad),
-                          "duplicate key")
+    line = one_line_error(tcaff_main(*args), str(bad), "duplicate key")
     key = {"study": "workers", "scenario": "duration", "methods": "methods"}[where]
     assert f"duplicate key {key!r}" in line
 
@@ -343,8 +338,7 @@ def test_an_output_that_cannot_be_a_folder_is_refused_first(tmp_path, tcaff_main
             "mrclam": ["mrclam", "--data", str(tmp_path), "--output", str(out)],
             "make-maps": ["make-maps", str(out)]}[command]
     option = "OUT_DIR" if command == "make-maps" else "--output"
-    run = tcaff if command == "study" else tcaff_main
-    line = one_line_error(run(*args), option, str(out))
+    line = one_line_error(tcaff_main(*args), option, str(out))
     assert line.endswith("exists and is not a folder" if kind == "file"
                          else "not a writable folder (Not a directory)")
     assert taken.read_text() == "keep me"
@@ -355,8 +349,7 @@ def test_an_output_that_cannot_be_a_folder_is_refused_first(tmp_path, tcaff_main
     (["--overlap", "1.5"], "--overlap"), (["--objects", "-1"], "--objects"),
     (["--clutter", "-2"], "--clutter"), (["--seed", "-1"], "--seed")])
 def test_make_maps_options_are_checked(tmp_path, tcaff_main, args, option):
-    run = tcaff if option == "--noise" else tcaff_main
-    line = one_line_error(run("make-maps", str(tmp_path / "maps"), *args), option)
+    line = one_line_error(tcaff_main("make-maps", str(tmp_path / "maps"), *args), option)
     assert line.startswith(f"error: {option} ")
     assert not (tmp_path / "maps").exists()
 
@@ -373,8 +366,7 @@ def maps(tmp_path_factory):
     (["--solutions", "0"], "--solutions"), (["--min-associations", "0"], "--min-associations"),
     (["--covariance", "bogus"], "--covariance"), (["--now", "inf"], "--now")])
 def test_align_maps_options_are_named(maps, tcaff_main, args, option):
-    run = tcaff if option == "--seed" else tcaff_main
-    line = one_line_error(run("align-maps", *maps, *args), option)
+    line = one_line_error(tcaff_main("align-maps", *maps, *args), option)
     assert line.startswith(f"error: {option} ")
 
 
@@ -392,9 +384,8 @@ def test_duration_must_be_finite_and_positive(tmp_path, tcaff_main, command, val
     args = {"study": ["study", "demo"], "demo": ["demo"],
             "kimera-multi": ["kimera-multi", "--data", str(tmp_path)],
             "mrclam": ["mrclam", "--data", str(tmp_path)]}[command]
-    run = tcaff if value == "inf" else tcaff_main
-    line = one_line_error(run(*args, "--duration", value, "--output", str(tmp_path / "out")),
-                          "--duration")
+    line = one_line_error(tcaff_main(*args, "--duration", value, "--output",
+                                     str(tmp_path / "out")), "--duration")
     assert line.endswith("must be a finite number of seconds >= 1")
     assert not (tmp_path / "out").exists()
 
