@@ -171,20 +171,12 @@ def load_study(ref: str | Path, overrides: dict[str, Any] | None = None) -> Stud
     """
     path = _resolve(str(ref), "studies")
     data = _read_yaml(path)
+    study = resolve_study(_validate(StudyConfig, data, path.name), path.parent)  # as written
     if overrides and isinstance(data, dict):
-        data = {**data, **overrides}
-    study = resolve_study(_validate(StudyConfig, data, path.name), path.parent)
-    if not (overrides and "scenarios" in overrides):  # a study cut to a few keeps its caps
-        _check_durations(study, path.name)
+        # scenarios picked from the file's keep their caps; its other caps are dropped
+        study = resolve_study(_validate(StudyConfig, {**data, **overrides}, path.name),
+                              path.parent, strict="scenarios" not in overrides)
     return study
-
-
-def _check_durations(study: StudyConfig, source: str) -> None:
-    """ConfigError when `durations` names a scenario the study does not run (a typo)."""
-    unknown = sorted(set(study.durations) - {s.name for s in study.scenarios})
-    if unknown:
-        raise ConfigError(f"{source}: durations names {unknown}, which are not scenarios of "
-                          f"study {study.name} ({[s.name for s in study.scenarios]})")
 
 
 def load_sweep(ref: str | Path) -> tuple[SweepConfig, StudyConfig]:
@@ -194,7 +186,6 @@ def load_sweep(ref: str | Path) -> tuple[SweepConfig, StudyConfig]:
     sweep = _validate(SweepConfig, _read_yaml(path), path.name)
     if isinstance(sweep.study, StudyConfig):
         study = resolve_study(sweep.study, path.parent)
-        _check_durations(study, path.name)
     else:
         study = load_study(_near(sweep.study, path.parent))
     if sweep.seeds is not None:
@@ -232,20 +223,32 @@ def apply_settings(config: ScenarioConfig | MethodsConfig, settings: dict[str, A
     return _validate(type(config), data, f"{source}: {label}")
 
 
-def resolve_study(study: StudyConfig, folder: Path | None = None) -> StudyConfig:
+def resolve_study(study: StudyConfig, folder: Path | None = None, strict: bool = True
+                  ) -> StudyConfig:
     """The same study with every scenario and the method set inline, each scenario no longer
-    than the study's `durations` give for its name; relative YAML paths are taken from `folder`
-    (the study file's) when the file is there."""
+    than the study's `durations` give for its name (which keeps the entries of the scenarios it
+    runs); relative YAML paths are taken from `folder` (the study file's) when the file is there.
+
+    Args:
+        strict: a `durations` entry naming none of the scenarios is a ConfigError (a typo);
+            False where the command line picked some of a study's scenarios (`-s`).
+    """
     scenarios = [s if isinstance(s, ScenarioConfig) else load_scenario(_near(s, folder))
                  for s in study.scenarios]
     names = [s.name for s in scenarios]
     if len(set(names)) != len(names):
         raise ConfigError(f"study {study.name}: scenario names must be distinct, got {names}")
+    unknown = sorted(set(study.durations) - set(names))
+    if strict and unknown:
+        raise ConfigError(f"study {study.name}: durations names {unknown}, which are not among "
+                          f"its scenarios {names}")
     scenarios = [s.model_copy(update={"duration": min(s.duration, study.durations[s.name])})
                  if s.name in study.durations else s for s in scenarios]
     methods = (study.methods if isinstance(study.methods, MethodsConfig)
                else load_methods(_near(study.methods, folder)))
-    return study.model_copy(update={"scenarios": scenarios, "methods": methods})
+    durations = {name: study.durations[name] for name in names if name in study.durations}
+    return study.model_copy(update={"scenarios": scenarios, "methods": methods,
+                                    "durations": durations})
 
 
 def _load_with_methods(model: type[_Model], ref: str | Path, folder: str) -> Any:

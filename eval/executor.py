@@ -187,10 +187,10 @@ _ANNOUNCE_WAIT = 3.0  # seconds a stopped study waits for workers still starting
 def _announce(updates, threads: int) -> None:
     """Each worker process ignores Ctrl-C (the study's process handles it and ends the workers)
     and says who it is, so a stopped study can end its workers. It renders on `threads`
-    threads, its share of the cores (`render.cast_threads`)."""
+    threads, its share of the cores (`sim.threads.cast_threads`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # already so when started by the study
     updates.put(("pid", os.getpid()))
-    from .sim.render import cast_threads
+    from .sim.threads import cast_threads
 
     cast_threads(threads)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -28,6 +29,9 @@ from .config import PedestriansConfig
 from .registry import describe
 from .sim.people import PeopleRun
 from .tracker import MultiObjectTracker
+
+if TYPE_CHECKING:
+    import motmetrics as mm
 
 __all__ = ["COUNTS", "NO_SHARING", "MotScore", "Tracks", "collaborative_mot", "held_alignment",
            "mot_methods", "robot_alignments", "rolling_mota", "score_tracks", "track_robot"]
@@ -262,9 +266,9 @@ def _frame_counts(events, n_frames: int) -> np.ndarray:
 
 
 @cache
-def _metrics_host():
-    """motmetrics' metrics (a `motmetrics.metrics.MetricsHost`), registered once per process
-    (5 ms a time, twice per robot and method otherwise)."""
+def _metrics_host() -> mm.metrics.MetricsHost:
+    """motmetrics' metrics, registered once per process (5 ms a time, twice per robot and
+    method otherwise)."""
     import motmetrics as mm
 
     return mm.metrics.create()

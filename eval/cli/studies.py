@@ -277,7 +277,7 @@ def demo(
     duration: Annotated[float | None, typer.Option(
         help="Cap every scenario's duration (seconds), for a quick look.")] = None,
 ) -> None:
-    """Every scenario with one seed, the costliest cut short (about 1 min on 2 cores)."""
+    """Every scenario with one seed, the costliest cut short (about a minute on 2 cores)."""
     _check_duration(duration)
     _writable_folder(output, "--output")
     from ..config import load_study
@@ -329,7 +329,8 @@ def sweep(
 
     sweep_config, study_config = load_sweep(config)
     if scenario:
-        study_config = resolve_study(study_config.model_copy(update={"scenarios": scenario}))
+        study_config = resolve_study(study_config.model_copy(update={"scenarios": scenario}),
+                                     strict=False)
     updates = {"seeds": None if seeds is None else list(range(seeds)), "workers": workers}
     study_config = _capped(study_config.model_copy(
         update={k: v for k, v in updates.items() if v is not None}), duration)

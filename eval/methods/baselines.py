@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-import open3d as o3d
 
 from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner
 from tcaff_gtsam.geometry import se2_to_params, se2_to_se3, se3_to_se2
@@ -51,6 +50,11 @@ class CentroidICP:
         self.kappa = kappa
         self.max_distance = max_correspondence_distance
         self.min_correspondences = min_correspondences
+        # here, not at the top: the ground truth's and CLIPPER's runners share this module, and
+        # a study without ICP spares its workers Open3D's import (1 s with the Dash it imports)
+        import open3d as o3d
+
+        self._o3d = o3d
         self.criteria = o3d.pipelines.registration.ICPConvergenceCriteria(
             max_iteration=max_iterations)
         self.estimation = o3d.pipelines.registration.TransformationEstimationPointToPoint()
@@ -61,17 +65,18 @@ class CentroidICP:
         target = ego.recent(t, self.kappa).centroids
         source = other.recent(t, self.kappa).centroids
         if min(len(target), len(source)) >= self.min_correspondences:
-            result = o3d.pipelines.registration.registration_icp(
-                _cloud(source), _cloud(target), self.max_distance, se2_to_se3(self.T),
-                self.estimation, self.criteria)
+            result = self._o3d.pipelines.registration.registration_icp(
+                self._cloud(source), self._cloud(target), self.max_distance,
+                se2_to_se3(self.T), self.estimation, self.criteria)
             if len(result.correspondence_set) >= self.min_correspondences:
                 self.T = se3_to_se2(np.asarray(result.transformation))
                 self.registered = True
         return se2_to_params(self.T) if self.registered else np.full(3, np.nan)
 
-
-def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
-    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(points, dtype=np.float64)))
+    def _cloud(self, points: np.ndarray):
+        """An Open3D point cloud of (n, 3) points."""
+        o3d = self._o3d
+        return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(points, float)))
 
 
 class ClipperRunner:

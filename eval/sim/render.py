@@ -19,6 +19,8 @@ from tcaff_gtsam.mapping.camera import PinholeCamera, rigid_transform
 
 from tcaff_gtsam.errors import DataError
 
+from . import threads
+from .threads import cast_threads
 from .world import World
 
 __all__ = ["CYLINDER_KINDS", "RgbdFrame", "RgbdScene", "cast_threads", "render"]
@@ -33,22 +35,6 @@ _LIGHT = np.array([0.3, 0.5, 0.81])  # unit vector towards the light, world fram
 _FLOOR_RGB = (150, 150, 150)
 _WALL_RGB = (205, 195, 170)
 _CEILING_RGB = (235, 235, 228)
-#: threads each ray cast uses; 0: Open3D's choice, every core (see `cast_threads`)
-_cast_threads = 0
-
-
-def cast_threads(count: int) -> None:
-    """Cast every later frame's rays on `count` threads (0: on every core, the default).
-
-    A process that shares the machine with others busy on the other cores (a study's pool of
-    workers) casts on its share: the threads of one cast otherwise wait on each other while
-    the other processes hold the cores, which costs CPU time and no pixel changes (each ray is
-    cast alone).
-    """
-    global _cast_threads
-    if isinstance(count, bool) or not (isinstance(count, int) and count >= 0):
-        raise DataError(f"cast_threads: count must be an int >= 0, got {count!r}")
-    _cast_threads = count
 
 
 @dataclass(frozen=True)
@@ -190,7 +176,7 @@ class RgbdScene:
         rays = np.empty((*camera.shape, 6), dtype=np.float32)
         rays[..., :3] = T[:3, 3]
         rays[..., 3:] = self._directions[camera] @ T[:3, :3].T
-        hit = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=_cast_threads)
+        hit = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=threads.count)
         depth = hit["t_hit"].numpy()
         geometry = hit["geometry_ids"].numpy().astype(np.int64)
         missed = ~np.isfinite(depth)

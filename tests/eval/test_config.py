@@ -18,6 +18,7 @@ from tcaff_gtsam.eval.config import (
     load_methods,
     load_scenario,
     load_study,
+    load_sweep,
 )
 from tcaff_gtsam.eval.tracker import TrackerParams as TrackerParamsOfTheTracker
 from tcaff_gtsam.mapping.mapper import MapperParams
@@ -74,6 +75,19 @@ def test_a_studys_durations_cap_the_scenarios_they_name(tmp_path):
     only_mot = load_study("demo", {"scenarios": ["mot", "indoor_return"]})
     assert [s.duration for s in only_mot.scenarios] == [demo.durations["mot"],
                                                         load_scenario("indoor_return").duration]
+    # the caps of the scenarios left out are dropped, so the effective config loads again
+    assert only_mot.durations == {"mot": demo.durations["mot"]}
+    path = tmp_path / "config.yaml"
+    path.write_text(dump_study(only_mot))
+    assert load_study(path) == only_mot
+
+
+def test_a_sweeps_inline_study_with_a_durations_typo_is_refused(tmp_path):
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump({"name": "s", "grid": {"methods.tcaff.tau": [4.0]}, "study": {
+        "scenarios": ["indoor_return"], "durations": {"indoor_retrun": 60}}}))
+    with pytest.raises(ConfigError, match=r"durations names \['indoor_retrun'\]"):
+        load_sweep(path)
 
 
 def test_effective_config_loads_again(tmp_path):
@@ -121,12 +135,12 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
      "clipper_k_shown (10) must be one of clipper_k [3, 4]"),
     ({"scenarios": ["indoor_return", "indoor_return"]}, "scenario names must be distinct"),
     ({"scenarios": ["indoor_return"], "durations": {"indoor_retrun": 60}},
-     "durations names ['indoor_retrun'], which are not scenarios of study study "
-     "(['indoor_return'])"),
+     "study study: durations names ['indoor_retrun'], which are not among its scenarios "
+     "['indoor_return']"),
     ({"scenarios": ["indoor_return"], "durations": {"indoor_return": 0}},
-     "durations: must be 1-7200 s (one map exchange or more), got {'indoor_return': 0.0}"),
+     "durations.indoor_return: Input should be greater than or equal to 1 (got 0)"),
     ({"scenarios": ["indoor_return"], "durations": {"indoor_return": float("nan")}},
-     "durations: must be 1-7200 s"),
+     "durations.indoor_return: Input should be less than or equal to 7200 (got nan)"),
     ({"scenarios": ["indoor_return"], "durations": {"indoor_return": "short"}},
      "durations.indoor_return: Input should be a valid number"),
     ({"scenarios": ["atlantis"]}, "no scenario config named 'atlantis'; shipped: "),

@@ -116,3 +116,22 @@ def test_command_line_and_config_modules_stay_readable(module):
     stays small enough to take in at once."""
     lines = len(module.read_text().splitlines())
     assert lines <= 500, f"{module.name}: {lines} lines"
+
+
+def test_a_study_worker_without_a_camera_or_people_loads_neither_open3d_nor_motmetrics():
+    """A study's worker process starts (`executor._announce`, then the job's imports) and runs
+    an object-level job of TCAFF and the ground truth: Open3D (1 s with the Dash it imports)
+    and motmetrics (with pandas) are for rendered scenarios, ICP and people, and every worker
+    would otherwise pay their imports at start."""
+    code = ("import queue, sys\n"
+            "from tcaff_gtsam.eval import executor\n"
+            "from tcaff_gtsam.eval.config import load_methods, load_scenario\n"
+            "executor._announce(queue.Queue(), 1)\n"
+            "scenario = load_scenario('opposite_directions').model_copy(update={'duration': 8})\n"
+            "job = executor.simulated_job(scenario, load_methods('tcaff_only'), 0)\n"
+            "print(sorted(m for m in ('open3d', 'motmetrics', 'pandas') if m in sys.modules), "
+            "len(job.metrics))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["[]", "4"], out.stdout  # 4: TCAFF, causal, smoothed, truth
