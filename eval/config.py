@@ -171,12 +171,13 @@ def load_study(ref: str | Path, overrides: dict[str, Any] | None = None) -> Stud
     """
     path = _resolve(str(ref), "studies")
     data = _read_yaml(path)
-    study = resolve_study(_validate(StudyConfig, data, path.name), path.parent)  # as written
+    picked = bool(overrides) and isinstance(data, dict) and "scenarios" in overrides
+    if picked:  # the file's durations checked against its own scenarios
+        resolve_study(_validate(StudyConfig, data, path.name), path.parent)
     if overrides and isinstance(data, dict):
-        # scenarios picked from the file's keep their caps; its other caps are dropped
-        study = resolve_study(_validate(StudyConfig, {**data, **overrides}, path.name),
-                              path.parent, strict="scenarios" not in overrides)
-    return study
+        data = {**data, **overrides}
+    # scenarios picked from the file's keep their caps; its other caps are dropped
+    return resolve_study(_validate(StudyConfig, data, path.name), path.parent, strict=not picked)
 
 
 def load_sweep(ref: str | Path) -> tuple[SweepConfig, StudyConfig]:

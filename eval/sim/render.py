@@ -176,7 +176,7 @@ class RgbdScene:
         rays = np.empty((*camera.shape, 6), dtype=np.float32)
         rays[..., :3] = T[:3, 3]
         rays[..., 3:] = self._directions[camera] @ T[:3, :3].T
-        hit = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=threads.count)
+        hit = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=threads.per_cast)
         depth = hit["t_hit"].numpy()
         geometry = hit["geometry_ids"].numpy().astype(np.int64)
         missed = ~np.isfinite(depth)
