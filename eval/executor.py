@@ -17,20 +17,19 @@ import math
 import os
 import queue
 import signal
-import threading
 import time
 import uuid
 from collections.abc import Callable, Collection, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass
-from multiprocessing.context import SpawnContext, SpawnProcess
 from typing import TYPE_CHECKING
 
 from tcaff_gtsam.errors import ConfigError
 
 from .config import MethodsConfig, ScenarioConfig
 from .jobs import simulated_job
+from .quiet_spawn import QuietSpawnContext, sigint
 from .registry import describe, estimate_names
 from .results import JobResult
 
@@ -195,50 +194,10 @@ def _announce(updates, threads: int) -> None:
     cast_threads(threads)
 
 
-@contextmanager
-def _sigint(deferred: bool) -> Iterator[None]:
-    """Ctrl-C in this process during the block: ignored (`deferred` False), or held back and
-    raised once the block is done (True). Only the main thread can do either.
-
-    Ignored, for the moment this process starts a process (a few ms): an ignored SIGINT stays
-    ignored in the new process, which then never raises KeyboardInterrupt, not even while it
-    starts (imports the stack, before `_announce`). Deferred, while the manager starts: cut
-    short, its process, left without a reader, prints a traceback."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    previous = signal.getsignal(signal.SIGINT)
-    try:
-        signal.signal(signal.SIGINT, (lambda signum, frame: caught.append(signum)) if deferred
-                      else signal.SIG_IGN)
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if caught:
-        raise KeyboardInterrupt
-
-
-class _QuietSpawnProcess(SpawnProcess):
-    """A spawned process that ignores Ctrl-C from its very start (see `_sigint`)."""
-
-    @staticmethod
-    def _Popen(process_obj):
-        with _sigint(deferred=False):
-            return SpawnProcess._Popen(process_obj)
-
-
-class _QuietSpawnContext(SpawnContext):
-    """The spawn context, its processes (the pool's workers, the manager) ignoring Ctrl-C: the
-    study's process handles it and ends them."""
-
-    Process = _QuietSpawnProcess
-
-
 def _run_pool(specs: Sequence[JobSpec], workers: int, progress: Progress, done: Done,
               fail: Fail) -> None:
-    context = _QuietSpawnContext()  # spawn: fork would copy numba and gtsam state
-    with _sigint(deferred=True):
+    context = QuietSpawnContext()  # spawn: fork would copy numba and gtsam state
+    with sigint(deferred=True):
         manager = context.Manager()  # started
     with manager:
         updates = manager.Queue()
@@ -358,7 +317,7 @@ def dask_client(executor: Executor) -> Iterator[Client]:
         if executor.local_cluster is not None:
             # worker processes started with Ctrl-C ignored: this process handles it and stops
             # the cluster (a Ctrl-C while the cluster starts is dropped)
-            with _sigint(deferred=False):
+            with sigint(deferred=False):
                 cluster = LocalCluster(n_workers=executor.local_cluster, threads_per_worker=1,
                                        processes=True, host="127.0.0.1", scheduler_port=0,
                                        dashboard_address=None, silence_logs=logging.ERROR)

@@ -420,19 +420,24 @@ def test_ctrl_c_while_the_workers_start_is_one_line_and_exit_130(tmp_path):
 
 
 def test_the_study_workers_ignore_ctrl_c_from_their_start():
+    """... and a process of their context loads no more than it runs: the study's queue
+    manager (which runs no job) starts without importing the stack."""
     import signal
 
-    from tcaff_gtsam.eval import executor
+    from tcaff_gtsam.eval.quiet_spawn import QuietSpawnContext
 
     # as in a terminal, whatever the test runner was started with (a background job ignores it)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        context = executor._QuietSpawnContext()
+        context = QuietSpawnContext()
         with context.Pool(1) as pool:
             assert pool.apply(signal.getsignal, (signal.SIGINT,)) == signal.SIG_IGN
+            loaded = pool.apply(eval, ("sorted(__import__('sys').modules)",))
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         signal.signal(signal.SIGINT, previous)
+    assert "tcaff_gtsam.eval.quiet_spawn" in loaded
+    assert not {"numpy", "tcaff_gtsam.eval.jobs", "tcaff_gtsam.eval.executor"} & set(loaded)
 
 
 @pytest.mark.parametrize(("args", "named"), [
