@@ -188,7 +188,13 @@ def _announce(updates, threads: int) -> None:
     and says who it is, so a stopped study can end its workers. It renders on `threads`
     threads, its share of the cores (`sim.threads.cast_threads`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # already so when started by the study
-    updates.put(("pid", os.getpid()))
+    try:
+        updates.put(("pid", os.getpid()))
+    except (OSError, EOFError):
+        # The study was stopped while this worker started, gave up waiting for it and closed
+        # its queue: end before taking a job, and without the pool's traceback of a failed
+        # initializer under the study's one-line message.
+        os._exit(0)
     from .sim.threads import cast_threads
 
     cast_threads(threads)

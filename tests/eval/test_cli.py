@@ -440,6 +440,25 @@ def test_the_study_workers_ignore_ctrl_c_from_their_start():
     assert not {"numpy", "tcaff_gtsam.eval.jobs", "tcaff_gtsam.eval.executor"} & set(loaded)
 
 
+def test_a_worker_that_starts_after_its_study_stopped_ends_quietly(capfd):
+    """Ctrl-C while the workers start: a worker still importing once the study has given up
+    waiting for it finds the study's queue closed, and ends without a traceback (which would
+    follow the study's one-line message) and without taking a job."""
+    from tcaff_gtsam.eval import executor
+    from tcaff_gtsam.eval.quiet_spawn import QuietSpawnContext
+
+    context = QuietSpawnContext()
+    manager = context.Manager()
+    updates = manager.Queue()
+    manager.shutdown()  # the stopped study closed its queue
+    worker = context.Process(target=executor._announce, args=(updates, 1))
+    capfd.readouterr()
+    worker.start()
+    worker.join(120)
+    assert worker.exitcode == 0
+    assert capfd.readouterr().err == ""
+
+
 @pytest.mark.parametrize(("args", "named"), [
     (["study", "--seeds", "0"], ["--seeds", "tcaff study --help"]),
     (["study", "--workers", "x"], ["--workers"]),
