@@ -1,10 +1,9 @@
 """Processes that leave Ctrl-C to the process that started them (a study's pool workers, its
 queue's manager, a local Dask cluster's workers).
 
-Apart from the executor, and importing nothing but the standard library: a spawned process
-imports the module that defines its class before it runs anything, so a process of this
-context that needs no more (the manager) starts in a fraction of a second instead of loading
-the whole stack first.
+A module of its own that imports only the standard library: a spawned process imports the
+module defining its class before it runs anything, so the manager, which runs no job, starts
+in a fraction of a second instead of importing the whole stack with the executor.
 """
 
 from __future__ import annotations
