@@ -395,14 +395,16 @@ def test_duration_must_be_finite_and_positive(tmp_path, tcaff_main, command, val
 
 def test_ctrl_c_while_the_workers_start_is_one_line_and_exit_130(tmp_path):
     """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while the workers
-    are still importing the stack: one line, exit status 130, the results folder written."""
+    are still importing the stack: one line, exit status 130, the results folder written.
+    The runs are whole (300 s, seconds each), so that on a fast machine they are not all
+    done before the signal."""
     import os
     import signal
     import time
 
     out = tmp_path / "out"
     proc = subprocess.Popen([TCAFF, "study", "demo", "-s", "indoor_return", "--seeds", "3",
-                             "--workers", "2", "--duration", "5", "--output", str(out),
+                             "--workers", "2", "--output", str(out),
                              "--no-figures"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True)
     deadline = time.monotonic() + 60

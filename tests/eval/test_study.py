@@ -212,9 +212,11 @@ def test_ambiguous_grid_fools_single_shot_clipper_but_not_tcaff():
 def test_interrupting_a_parallel_study_keeps_the_finished_runs(tmp_path):
     """Stopped when the first job is done: the long run (started first, longest first) is
     then mid-run on the other worker, a short one queued or just started; both are ended,
-    and only the finished runs are kept."""
+    and only the finished runs are kept. The long run is four robots over 600 s (half a
+    minute of work on a quiet core), so that it cannot end before the other worker has
+    started and finished a 10 s run even on a loaded machine."""
     cfg = quick_study(tmp_path, [short("indoor_return", 10), short("ambiguous_grid", 10),
-                                 load_scenario("opposite_directions")], workers=2)
+                                 short("four_robots", 600)], workers=2)
 
     def stop(job):
         raise KeyboardInterrupt
@@ -222,7 +224,7 @@ def test_interrupting_a_parallel_study_keeps_the_finished_runs(tmp_path):
     outcome = run_study(cfg, on_job_done=stop, figures=False)
     assert outcome.interrupted and outcome.jobs
     finished = {job.stem for job in outcome.jobs}
-    assert "opposite_directions-seed0" not in finished and len(finished) < 3
+    assert "four_robots-seed0" not in finished and len(finished) < 3
     metrics = json.loads((outcome.folder / "metrics.json").read_text())
     assert metrics["interrupted"] is True
     assert sorted(p.name for p in (outcome.folder / "runs").glob("*.npz")) == sorted(
