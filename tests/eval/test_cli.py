@@ -403,10 +403,14 @@ def test_ctrl_c_while_the_workers_start_is_one_line_and_exit_130(tmp_path):
     import time
 
     out = tmp_path / "out"
-    proc = subprocess.Popen([TCAFF, "study", "demo", "-s", "indoor_return", "--seeds", "3",
-                             "--workers", "2", "--output", str(out),
-                             "--no-figures"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+    command = [TCAFF, "study", "demo", "-s", "indoor_return", "--seeds", "3", "--workers", "2",
+               "--output", str(out), "--no-figures"]
+    # Ctrl-C as in a terminal, whatever the suite was started with: a shell's background job
+    # (CI's, say) starts with it ignored, and a process that starts so never sees it
+    terminal = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+                "os.execv(sys.argv[1], sys.argv[1:])")
+    proc = subprocess.Popen([sys.executable, "-c", terminal, *command], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 60
     while not (out.is_dir() and any(out.iterdir())) and time.monotonic() < deadline:
         time.sleep(0.02)
