@@ -173,11 +173,12 @@ def load_study(ref: str | Path, overrides: dict[str, Any] | None = None) -> Stud
     data = _read_yaml(path)
     picked = bool(overrides) and isinstance(data, dict) and "scenarios" in overrides
     if picked:  # the file's durations checked against its own scenarios
-        resolve_study(_validate(StudyConfig, data, path.name), path.parent)
+        resolve_study(_validate(StudyConfig, data, path.name), path.parent, source=path.name)
     if overrides and isinstance(data, dict):
         data = {**data, **overrides}
     # scenarios picked from the file's keep their caps; its other caps are dropped
-    return resolve_study(_validate(StudyConfig, data, path.name), path.parent, strict=not picked)
+    return resolve_study(_validate(StudyConfig, data, path.name), path.parent, strict=not picked,
+                         source=path.name)
 
 
 def load_sweep(ref: str | Path) -> tuple[SweepConfig, StudyConfig]:
@@ -186,7 +187,7 @@ def load_sweep(ref: str | Path) -> tuple[SweepConfig, StudyConfig]:
     path = _resolve(str(ref), "sweeps")
     sweep = _validate(SweepConfig, _read_yaml(path), path.name)
     if isinstance(sweep.study, StudyConfig):
-        study = resolve_study(sweep.study, path.parent)
+        study = resolve_study(sweep.study, path.parent, source=f"{path.name}: study")
     else:
         study = load_study(_near(sweep.study, path.parent))
     if sweep.seeds is not None:
@@ -224,8 +225,8 @@ def apply_settings(config: ScenarioConfig | MethodsConfig, settings: dict[str, A
     return _validate(type(config), data, f"{source}: {label}")
 
 
-def resolve_study(study: StudyConfig, folder: Path | None = None, strict: bool = True
-                  ) -> StudyConfig:
+def resolve_study(study: StudyConfig, folder: Path | None = None, strict: bool = True,
+                  source: str | None = None) -> StudyConfig:
     """The same study with every scenario and the method set inline, each scenario no longer
     than the study's `durations` give for its name (which keeps the entries of the scenarios it
     runs); relative YAML paths are taken from `folder` (the study file's) when the file is there.
@@ -233,15 +234,17 @@ def resolve_study(study: StudyConfig, folder: Path | None = None, strict: bool =
     Args:
         strict: a `durations` entry naming none of the scenarios is a ConfigError (a typo);
             False where the command line picked some of a study's scenarios (`-s`).
+        source: names the study in errors (its file); by default "study NAME".
     """
+    source = source or f"study {study.name!r}"
     scenarios = [s if isinstance(s, ScenarioConfig) else load_scenario(_near(s, folder))
                  for s in study.scenarios]
     names = [s.name for s in scenarios]
     if len(set(names)) != len(names):
-        raise ConfigError(f"study {study.name}: scenario names must be distinct, got {names}")
+        raise ConfigError(f"{source}: scenario names must be distinct, got {names}")
     unknown = sorted(set(study.durations) - set(names))
     if strict and unknown:
-        raise ConfigError(f"study {study.name}: durations names {unknown}, which are not among "
+        raise ConfigError(f"{source}: durations names {unknown}, which are not among "
                           f"its scenarios {names}")
     scenarios = [s.model_copy(update={"duration": min(s.duration, study.durations[s.name])})
                  if s.name in study.durations else s for s in scenarios]

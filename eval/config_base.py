@@ -8,10 +8,11 @@ pydantic's errors into one-line `ConfigError`s that name each key's path.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import typing
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
@@ -22,6 +23,7 @@ from pydantic import (
     PlainSerializer,
     PlainValidator,
     ValidationError,
+    model_validator,
 )
 
 from tcaff_gtsam.errors import ConfigError
@@ -38,8 +40,66 @@ def _check_drift(value: tuple[float, float] | None) -> tuple[float, float] | Non
 GraphDrift = Annotated[tuple[float, float] | None, AfterValidator(_check_drift)]
 
 
+def _number_not_bool(annotation: Any) -> bool:
+    """Whether a field of this type takes numbers (int or float) but no bool anywhere inside.
+    Config models and parameter dataclasses inside check their own fields."""
+    if annotation in (int, float):
+        return True
+    if annotation is bool or annotation is Any or isinstance(annotation, type):
+        return False
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) is Literal:
+        return False
+    if typing.get_origin(annotation) is Annotated:
+        return _number_not_bool(args[0])
+    inner = [_number_not_bool(a) for a in args]
+    return any(inner) and not any(_admits_bool(a) for a in args)
+
+
+def _admits_bool(annotation: Any) -> bool:
+    if annotation is bool or annotation is Any:
+        return True
+    if isinstance(annotation, type):
+        return False
+    if typing.get_origin(annotation) is Literal:
+        return any(isinstance(a, bool) for a in typing.get_args(annotation))
+    return any(_admits_bool(a) for a in typing.get_args(annotation))
+
+
+def _bool_inside(value: Any) -> tuple[tuple[str, ...], bool] | None:
+    """The first bool in `value` (a YAML value) and its key path there, or None."""
+    if isinstance(value, bool):
+        return (), value
+    items = (value.items() if isinstance(value, dict)
+             else enumerate(value) if isinstance(value, (list, tuple)) else ())
+    for key, item in items:
+        inner = _bool_inside(item)
+        if inner is not None:
+            return (str(key), *inner[0]), inner[1]
+    return None
+
+
+@functools.cache
+def _numeric_fields(model: type[BaseModel]) -> frozenset[str]:
+    return frozenset(name for name, field in model.model_fields.items()
+                     if _number_not_bool(field.annotation))
+
+
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_bool_for_a_number(cls, data: Any) -> Any:
+        """pydantic takes `true` for 1 where a number is expected (`duration: yes` would be a
+        one-second run): a bool is refused in a field of numbers."""
+        if isinstance(data, dict):
+            for name in _numeric_fields(cls) & data.keys():
+                found = _bool_inside(data[name])
+                if found is not None:
+                    path, value = found
+                    raise _EntryError((name, *path), "must be a number, not true/false", value)
+        return data
 
 
 # -- parameter dataclasses as config values ----------------------------------------------------

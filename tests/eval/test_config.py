@@ -135,8 +135,17 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
      "clipper_k_shown (10) must be one of clipper_k [3, 4]"),
     ({"scenarios": ["indoor_return", "indoor_return"]}, "scenario names must be distinct"),
     ({"scenarios": ["indoor_return"], "durations": {"indoor_retrun": 60}},
-     "study study: durations names ['indoor_retrun'], which are not among its scenarios "
+     "study.yaml: durations names ['indoor_retrun'], which are not among its scenarios "
      "['indoor_return']"),
+    # pydantic would take true for 1 (a one-second run, one worker, seed 1)
+    ({"scenarios": ["indoor_return"], "durations": {"indoor_return": True}},
+     "durations.indoor_return: must be a number, not true/false (got True)"),
+    ({"scenarios": [{**SCENARIO, "duration": True}]},
+     "scenarios.0.duration: must be a number, not true/false (got True)"),
+    ({"scenarios": ["indoor_return"], "seeds": [0, True]},
+     "seeds.1: must be a number, not true/false (got True)"),
+    ({"scenarios": [{**SCENARIO, "sensor": {"fov_deg": False}}]},
+     "scenarios.0.sensor.fov_deg: must be a number, not true/false (got False)"),
     ({"scenarios": ["indoor_return"], "durations": {"indoor_return": 0}},
      "durations.indoor_return: Input should be greater than or equal to 1 (got 0)"),
     ({"scenarios": ["indoor_return"], "durations": {"indoor_return": float("nan")}},
