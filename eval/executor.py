@@ -13,7 +13,6 @@ scheduler (up to its `distributed.scheduler.allowed-failures`, 3 by default, the
 from __future__ import annotations
 
 import logging
-import math
 import os
 import queue
 import signal
@@ -132,6 +131,11 @@ def expected_seconds(spec: JobSpec) -> float:
 
 #: run(specs, progress, done, fail): every job of `specs`, keys being indices into it
 Run = Callable[[Sequence[JobSpec], Progress, Done, Fail], None]
+
+
+#: the scheduler's HTTP server (no dashboard, but metrics) on a free port of 127.0.0.1: its default
+#: is 8787, which another cluster's may hold (distributed then warns and takes another)
+QUIET_HTTP = {"dashboard_address": "127.0.0.1:0"}
 
 
 @contextmanager
@@ -326,7 +330,8 @@ def dask_client(executor: Executor) -> Iterator[Client]:
             with sigint(deferred=False):
                 cluster = LocalCluster(n_workers=executor.local_cluster, threads_per_worker=1,
                                        processes=True, host="127.0.0.1", scheduler_port=0,
-                                       dashboard_address=None, silence_logs=logging.ERROR)
+                                       dashboard_address=None, silence_logs=logging.ERROR,
+                                       scheduler_kwargs=QUIET_HTTP)
             client = Client(cluster)
         else:
             try:
@@ -370,16 +375,20 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
         return
     topic = f"tcaff-progress-{uuid.uuid4().hex}"
     updates: queue.SimpleQueue = queue.SimpleQueue()
+    removals: queue.SimpleQueue = queue.SimpleQueue()
     client.subscribe_topic(topic, lambda event: updates.put(event[1]))
+    # the scheduler's own events: a worker removed, with the tasks it was processing then
+    client.subscribe_topic(SCHEDULER_EVENTS, lambda event: removals.put(event[1]))
     futures = {client.submit(_job_on_dask, spec, key, topic,
                              key=f"{spec.label.replace(' ', '-')}-{uuid.uuid4().hex[:8]}"): key
                for key, spec in enumerate(specs)}
-    watch = _WorkerWatch(client, {future.key: key for future, key in futures.items()})
+    jobs = {future.key: key for future, key in futures.items()}
     remaining = as_completed(futures)
     try:
         while not remaining.is_empty():
             finished = remaining.next_batch(block=False)
             _drain_events(updates, progress)
+            _report_lost_workers(removals, jobs, set(futures.values()), progress)
             if not finished:
                 time.sleep(0.05)
             for future in finished:
@@ -392,42 +401,35 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
                 finally:
                     future.release()  # its result leaves the cluster's memory
                 done(key, job)
-            watch.check(progress, futures.values())
     except BaseException:
         client.cancel(list(futures))
         raise
     finally:
         client.unsubscribe_topic(topic)
+        client.unsubscribe_topic(SCHEDULER_EVENTS)
 
 
-class _WorkerWatch:
-    """Which workers hold which jobs, asked of the scheduler every `every` seconds: a worker
-    gone since the last look is reported lost with the jobs it held (`Progress.lost`), which
-    the scheduler runs again on other workers."""
+#: the topic the Dask scheduler logs its cluster events to (workers added and removed, ...)
+SCHEDULER_EVENTS = "all"
 
-    def __init__(self, client: Client, jobs: dict[str, int], every: float = 0.5) -> None:
-        self.client, self.jobs, self.every = client, jobs, every
-        self.running: dict[str, list[int]] = {}
-        self.last = -math.inf
 
-    def check(self, progress: Progress, pending: Collection[int]) -> None:
-        """Report the workers gone since the last look, with those of their jobs still
-        `pending` (not yet handed to done or fail)."""
-        now = time.monotonic()
-        if now - self.last < self.every:
-            return
-        self.last = now
+def _report_lost_workers(removals: queue.SimpleQueue, jobs: dict[str, int],
+                         pending: Collection[int], progress: Progress) -> None:
+    """Report the workers the scheduler removed, on purpose or not, with those of their jobs
+    (Dask key -> job key in `jobs`) still `pending` (not yet handed to done or fail), which the
+    scheduler runs again elsewhere. A worker retired on purpose holding none of them is not a
+    loss."""
+    while True:
         try:
-            processing = self.client.processing()
-        except OSError:  # the scheduler is unreachable: the futures will say so
+            event = removals.get_nowait()
+        except queue.Empty:
             return
-        gone = sorted(self.running.keys() - processing.keys())
-        if gone:
-            pending = set(pending)
-        for worker in gone:
-            progress.lost(worker, [key for key in self.running[worker] if key in pending])
-        self.running = {worker: [self.jobs[k] for k in keys if k in self.jobs]
-                        for worker, keys in processing.items()}
+        if not (isinstance(event, dict) and event.get("action") == "remove-worker"):
+            continue
+        held = sorted(jobs[k] for k in event.get("processing-tasks", ()) if k in jobs
+                      and jobs[k] in pending)
+        if held or not event.get("expected", False):
+            progress.lost(str(event.get("worker")), held)
 
 
 def _drain_events(updates: queue.SimpleQueue, progress: Progress) -> None:

@@ -24,7 +24,7 @@ from tcaff_gtsam.eval.config import (
     load_scenario,
     load_sweep,
 )
-from tcaff_gtsam.eval.executor import Executor, JobSpec, Progress, job_runner
+from tcaff_gtsam.eval.executor import QUIET_HTTP, Executor, JobSpec, Progress, job_runner
 from tcaff_gtsam.eval.methods import estimate_names
 from tcaff_gtsam.eval.sweep import job_hash, plan_sweep, run_sweep
 
@@ -53,8 +53,8 @@ def tau_sweep(tmp_path: Path, taus=(4.0, 12.0)) -> SweepConfig:
 def cluster():
     """Two worker processes on 127.0.0.1, one thread each."""
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  host="127.0.0.1", scheduler_port=0, dashboard_address=None
-                                  ) as local:
+                                  host="127.0.0.1", scheduler_port=0, dashboard_address=None,
+                                  scheduler_kwargs=QUIET_HTTP) as local:
         yield local
 
 
@@ -246,11 +246,23 @@ def test_an_unreachable_scheduler_is_a_config_error(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_cli_sweep_on_a_local_cluster_writes_the_report(tmp_path, tcaff_main):
+    """... and leaves port 8787 (Dask's dashboard port) to whoever holds it, quietly."""
+    import socket
+    import warnings
+
     path = write_sweep(tmp_path, {"grid": {"scenario.window": [4, 12]},
                                   "output": str(tmp_path / "out")})
     # one worker process: the cluster fixture's two workers cover the spreading of jobs
     command = ["sweep", str(path), "--local-cluster", "1", "--duration", "12", "--seeds", "1"]
-    done = tcaff_main(*command)
+    with socket.socket() as held, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            held.bind(("", 8787))
+            held.listen()
+        except OSError:  # held already (by another process's cluster)
+            pass
+        done = tcaff_main(*command)
+    assert [str(w.message) for w in caught if "8787" in str(w.message)] == []
     assert done.returncode == 0, done.stderr
     assert "3 points (scenario.window) x 1 scenarios x 1 seeds = 3 jobs" in done.stdout
     folder = tmp_path / "out" / "s"
