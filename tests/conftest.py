@@ -48,6 +48,24 @@ def repo() -> Path:
     return REPO
 
 
+@pytest.fixture(scope="session")
+def kimera_like_sequence(tmp_path_factory):
+    """Kimera-Multi-like bags of the two robots of the shipped test same_direction, rendered
+    from the simulator: 30 s at 240 x 180 and 5 Hz. The folder (no test writes into it) and
+    the simulation's truth. The robots first share objects after 9 s, so TCAFF answers only
+    from about 17 s: the 30 s stay, the images are small (rendering and mapping cost by the
+    pixel; at 160 x 120 TCAFF accepts nothing in 30 s)."""
+    from tcaff_gtsam.eval.config import load_kimera_multi
+    from tcaff_gtsam.eval.sim import kimera_bags
+
+    data = tmp_path_factory.mktemp("kimera_like")
+    robots = tuple(load_kimera_multi("same_direction").robots)
+    truth = kimera_bags.write_sequence(
+        data, robots, 30.0, 5.0, 240, 180, seed=1,
+        scenario=str(REPO / "tests" / "eval" / "data" / "small_room_rgbd.yaml"))
+    return data, truth
+
+
 #: seconds an in-process command may take before the test process is stopped with every
 #: thread's traceback (as a subprocess's timeout would stop the subprocess)
 COMMAND_TIMEOUT = 300.0

@@ -31,7 +31,6 @@ from tcaff_gtsam.eval.datasets.kimera_multi import (
 from tcaff_gtsam.eval.methods import run_methods
 from tcaff_gtsam.eval.recorded import run_kimera_multi
 from tcaff_gtsam.eval.runs import RecordedRun, RunSettings
-from tcaff_gtsam.eval.sim import kimera_bags
 from tcaff_gtsam.mapping.camera import T_body_camera
 from typer.testing import CliRunner
 
@@ -228,19 +227,13 @@ def test_shipped_tests_are_the_papers():
 # ---------------------------------------------------------------------------------------------
 # end to end: Kimera-like bags written from the simulator -> `tcaff kimera-multi`
 
-SCENARIO = Path(__file__).parent / "data" / "small_room_rgbd.yaml"
 ROBOTS = ("acl_jackal2", "sparkal2")
 
 
 @pytest.fixture(scope="module")
-def sequence(tmp_path_factory):
+def sequence(kimera_like_sequence):
     """30 s of two robots at 240 x 180, 5 Hz, and the simulation's truth."""
-    data = tmp_path_factory.mktemp("kimera_like")
-    # the robots first share objects after 9 s, so TCAFF answers only from about 17 s: the
-    # 30 s stay, the images are small (rendering and mapping cost by the pixel)
-    truth = kimera_bags.write_sequence(data, ROBOTS, 30.0, 5.0, 240, 180, seed=1,
-                                       scenario=str(SCENARIO))
-    return data, truth
+    return kimera_like_sequence
 
 
 @pytest.fixture(scope="module")

@@ -11,22 +11,15 @@ import pytest
 from tcaff_gtsam.eval.config import MethodsConfig, load_kimera_multi
 from tcaff_gtsam.eval.datasets import kimera_multi
 from tcaff_gtsam.eval.methods import run_methods
-from tcaff_gtsam.eval.sim import kimera_bags
 from tcaff_gtsam.node.results import read_alignments
 
-SCENARIO = Path(__file__).resolve().parents[1] / "eval" / "data" / "small_room_rgbd.yaml"
 ROBOTS = ("acl_jackal2", "sparkal2")  # the robots of the shipped test same_direction
 
 
 @pytest.fixture(scope="module")
-def bags(tmp_path_factory) -> Path:
-    """12 s of two robots at 160 x 120, 5 Hz."""
-    data = tmp_path_factory.mktemp("kimera_like")
-    # small images: rendering and mapping cost by the pixel; of this scene seed 8 gives both
-    # robots objects from the first exchanges on
-    kimera_bags.write_sequence(data, ROBOTS, 12.0, 5.0, 160, 120, seed=8,
-                               scenario=str(SCENARIO))
-    return data
+def bags(kimera_like_sequence) -> Path:
+    """30 s of two robots at 240 x 180, 5 Hz (TCAFF accepts from about 17 s on)."""
+    return kimera_like_sequence[0]
 
 
 def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path,
@@ -54,6 +47,7 @@ def test_a_team_replays_the_robots_of_kimera_bags(bags: Path, tmp_path: Path,
         x = np.column_stack([rows[c] for c in ("x", "y", "theta")])
         expected = offline.estimates["tcaff"][offline.pairs.index((i, 1 - i))]
         np.testing.assert_array_equal(rows["accepted"] == 1, np.isfinite(expected[:, 0]))
+        assert (rows["accepted"] == 1).sum() >= 5  # estimates compared, not only refusals
         np.testing.assert_allclose(x[rows["accepted"] == 1],
                                    expected[np.isfinite(expected[:, 0])], atol=1e-4)
     # a node of the same bags (their maps reused) for a robot they do not have
