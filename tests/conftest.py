@@ -48,6 +48,27 @@ def repo() -> Path:
     return REPO
 
 
+def made_once(tmp_path_factory, name: str, make):
+    """`make(folder)` run once per test session, its return value pickled beside its files:
+    the folder and the value. Under xdist the test processes share one run (the first to ask
+    makes it, under a file lock; the others wait and read it), so a costly data set is not
+    made once per process."""
+    import fcntl
+    import os
+    import pickle
+
+    base = tmp_path_factory.getbasetemp()
+    if "PYTEST_XDIST_WORKER" in os.environ:
+        base = base.parent  # the session's, shared by its processes
+    folder, saved = base / name, base / f"{name}.pickle"
+    with open(base / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not saved.exists():
+            value = make(folder)
+            saved.write_bytes(pickle.dumps(value))
+        return folder, pickle.loads(saved.read_bytes())
+
+
 @pytest.fixture(scope="session")
 def kimera_like_sequence(tmp_path_factory):
     """Kimera-Multi-like bags of the two robots of the shipped test same_direction, rendered
@@ -58,12 +79,10 @@ def kimera_like_sequence(tmp_path_factory):
     from tcaff_gtsam.eval.config import load_kimera_multi
     from tcaff_gtsam.eval.sim import kimera_bags
 
-    data = tmp_path_factory.mktemp("kimera_like")
     robots = tuple(load_kimera_multi("same_direction").robots)
-    truth = kimera_bags.write_sequence(
-        data, robots, 30.0, 5.0, 240, 180, seed=1,
-        scenario=str(REPO / "tests" / "eval" / "data" / "small_room_rgbd.yaml"))
-    return data, truth
+    return made_once(tmp_path_factory, "kimera_like", lambda folder: kimera_bags.write_sequence(
+        folder, robots, 30.0, 5.0, 240, 180, seed=1,
+        scenario=str(REPO / "tests" / "eval" / "data" / "small_room_rgbd.yaml")))
 
 
 #: seconds an in-process command may take before the test process is stopped with every
