@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 #: the repository's root folder
 REPO = Path(__file__).resolve().parents[1]
@@ -33,6 +34,11 @@ def _build_each_command_line_once() -> None:
 
 
 _build_each_command_line_once()
+
+# no timing thresholds inside tests: hypothesis' default fails an example slower than 200 ms,
+# which a loaded machine (or a kernel's first call in a fresh process) can make any example
+settings.register_profile("suite", deadline=None)
+settings.load_profile("suite")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
