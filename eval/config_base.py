@@ -57,6 +57,7 @@ def _number_not_bool(annotation: Any) -> bool:
 
 
 def _admits_bool(annotation: Any) -> bool:
+    """Whether a bool is a value of this type (bool, Any, a union or literal with one)."""
     if annotation is bool or annotation is Any:
         return True
     if isinstance(annotation, type):

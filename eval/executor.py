@@ -133,9 +133,12 @@ def expected_seconds(spec: JobSpec) -> float:
 Run = Callable[[Sequence[JobSpec], Progress, Done, Fail], None]
 
 
-#: the scheduler's HTTP server (no dashboard, but metrics) on a free port of 127.0.0.1: its default
-#: is 8787, which another cluster's may hold (distributed then warns and takes another)
-QUIET_HTTP = {"dashboard_address": "127.0.0.1:0"}
+#: a local Dask scheduler's HTTP server (no dashboard, but metrics) on a free port of 127.0.0.1:
+#: its default is 8787, which another cluster's may hold (distributed then warns and takes another)
+FREE_HTTP_PORT = {"dashboard_address": "127.0.0.1:0"}
+
+#: the topic the Dask scheduler logs its cluster events to (workers added and removed, ...)
+SCHEDULER_EVENTS = "all"
 
 
 @contextmanager
@@ -331,7 +334,7 @@ def dask_client(executor: Executor) -> Iterator[Client]:
                 cluster = LocalCluster(n_workers=executor.local_cluster, threads_per_worker=1,
                                        processes=True, host="127.0.0.1", scheduler_port=0,
                                        dashboard_address=None, silence_logs=logging.ERROR,
-                                       scheduler_kwargs=QUIET_HTTP)
+                                       scheduler_kwargs=FREE_HTTP_PORT)
             client = Client(cluster)
         else:
             try:
@@ -407,10 +410,6 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
     finally:
         client.unsubscribe_topic(topic)
         client.unsubscribe_topic(SCHEDULER_EVENTS)
-
-
-#: the topic the Dask scheduler logs its cluster events to (workers added and removed, ...)
-SCHEDULER_EVENTS = "all"
 
 
 def _report_lost_workers(removals: queue.SimpleQueue, jobs: dict[str, int],

@@ -24,7 +24,7 @@ from tcaff_gtsam.eval.config import (
     load_scenario,
     load_sweep,
 )
-from tcaff_gtsam.eval.executor import QUIET_HTTP, Executor, JobSpec, Progress, job_runner
+from tcaff_gtsam.eval.executor import FREE_HTTP_PORT, Executor, JobSpec, Progress, job_runner
 from tcaff_gtsam.eval.methods import estimate_names
 from tcaff_gtsam.eval.sweep import job_hash, plan_sweep, run_sweep
 
@@ -54,7 +54,7 @@ def cluster():
     """Two worker processes on 127.0.0.1, one thread each."""
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   host="127.0.0.1", scheduler_port=0, dashboard_address=None,
-                                  scheduler_kwargs=QUIET_HTTP) as local:
+                                  scheduler_kwargs=FREE_HTTP_PORT) as local:
         yield local
 
 
