@@ -40,31 +40,16 @@ def _check_drift(value: tuple[float, float] | None) -> tuple[float, float] | Non
 GraphDrift = Annotated[tuple[float, float] | None, AfterValidator(_check_drift)]
 
 
-def _number_not_bool(annotation: Any) -> bool:
-    """Whether a field of this type takes numbers (int or float) but no bool anywhere inside.
-    Config models and parameter dataclasses inside check their own fields."""
-    if annotation in (int, float):
-        return True
-    if annotation is bool or annotation is Any or isinstance(annotation, type):
-        return False
+def _leaf_types(annotation: Any) -> set:
+    """The plain types a field's type is made of, through unions, containers, `Annotated` and
+    `Literal` (its values' types); config models and parameter dataclasses are leaves, which
+    check their own fields."""
     args = typing.get_args(annotation)
     if typing.get_origin(annotation) is Literal:
-        return False
+        return {type(a) for a in args}
     if typing.get_origin(annotation) is Annotated:
-        return _number_not_bool(args[0])
-    inner = [_number_not_bool(a) for a in args]
-    return any(inner) and not any(_admits_bool(a) for a in args)
-
-
-def _admits_bool(annotation: Any) -> bool:
-    """Whether a bool is a value of this type (bool, Any, a union or literal with one)."""
-    if annotation is bool or annotation is Any:
-        return True
-    if isinstance(annotation, type):
-        return False
-    if typing.get_origin(annotation) is Literal:
-        return any(isinstance(a, bool) for a in typing.get_args(annotation))
-    return any(_admits_bool(a) for a in typing.get_args(annotation))
+        args = args[:1]
+    return set().union(*map(_leaf_types, args)) if args else {annotation}
 
 
 def _bool_inside(value: Any) -> tuple[tuple[str, ...], bool] | None:
@@ -82,8 +67,10 @@ def _bool_inside(value: Any) -> tuple[tuple[str, ...], bool] | None:
 
 @functools.cache
 def _numeric_fields(model: type[BaseModel]) -> frozenset[str]:
+    """The fields of `model` whose type takes numbers (int or float) and no bool."""
     return frozenset(name for name, field in model.model_fields.items()
-                     if _number_not_bool(field.annotation))
+                     if (leaves := _leaf_types(field.annotation)) & {int, float}
+                     and not leaves & {bool, Any})
 
 
 class _Model(BaseModel):

@@ -391,7 +391,7 @@ def _run_dask(client: Client, specs: Sequence[JobSpec], progress: Progress, done
         while not remaining.is_empty():
             finished = remaining.next_batch(block=False)
             _drain_events(updates, progress)
-            _report_lost_workers(removals, jobs, set(futures.values()), progress)
+            _report_lost_workers(removals, jobs, futures.values(), progress)
             if not finished:
                 time.sleep(0.05)
             for future in finished:
@@ -418,6 +418,7 @@ def _report_lost_workers(removals: queue.SimpleQueue, jobs: dict[str, int],
     (Dask key -> job key in `jobs`) still `pending` (not yet handed to done or fail), which the
     scheduler runs again elsewhere. A worker retired on purpose holding none of them is not a
     loss."""
+    waiting: set[int] | None = None  # `pending` as a set, made when a worker was removed
     while True:
         try:
             event = removals.get_nowait()
@@ -425,8 +426,9 @@ def _report_lost_workers(removals: queue.SimpleQueue, jobs: dict[str, int],
             return
         if not (isinstance(event, dict) and event.get("action") == "remove-worker"):
             continue
+        waiting = set(pending) if waiting is None else waiting
         held = sorted(jobs[k] for k in event.get("processing-tasks", ()) if k in jobs
-                      and jobs[k] in pending)
+                      and jobs[k] in waiting)
         if held or not event.get("expected", False):
             progress.lost(str(event.get("worker")), held)
 
