@@ -34,6 +34,7 @@ PRESETS = {
     # the streams carry object ids at every step, as among look-alikes (`lookalike_share`):
     # the defaults count distinct evidence here
     "default": TCAFFParams(),
+    "default, judged at W": TCAFFParams(sequential=False, recall_for=None),
     "default, no outvoting": TCAFFParams(switch_support=None),
     "default, not withheld": TCAFFParams(withhold_contested=False),
     "paper": TCAFFParams.paper(),

@@ -15,8 +15,8 @@ from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
-__all__ = ["PairwiseAligner", "admitted", "evidence_of", "gives_ids", "guided_search",
-           "unchecked"]
+__all__ = ["PairwiseAligner", "admitted", "evidence_of", "explained", "gives_ids",
+           "guided_search", "unchecked"]
 
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
@@ -80,6 +80,18 @@ def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.nda
                             f"refers to index {reach}")
     return [np.column_stack([ego_ids[m.associations[:, 0]], other_ids[m.associations[:, 1]]])
             for m in found]
+
+
+def explained(found: list[AlignmentMeasurement]) -> np.ndarray:
+    """(k,) how many objects each candidate explains: its inliers where the aligner counted
+    them, else its associations (the `objects` of `TCAFF.update`).
+
+    Raises:
+        DataError: found not a list of AlignmentMeasurement.
+    """
+    found = _measurements("explained", found)
+    return np.array([m.inliers if m.inliers > 0 else len(m.associations) for m in found],
+                    dtype=np.int64)
 
 
 def gives_ids(aligner: FrameAligner, params: TCAFFParams, ego: ObjectMap, other: ObjectMap,
@@ -217,7 +229,7 @@ class PairwiseAligner:
         kept = admitted(measurements, self.filter.held, prm)
         zs = np.array([m.z for m in kept]).reshape(-1, 3)
         Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-        estimate = self.filter.update(zs, Rs, evidence_of(kept, ids))
+        estimate = self.filter.update(zs, Rs, evidence_of(kept, ids), explained(kept))
         # the step succeeded: only now does it count as taken
         self.measurements = measurements
         self.taken = kept

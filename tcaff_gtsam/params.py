@@ -454,9 +454,11 @@ class TCAFFParams(_ByValue):
     Alignment Filter"). The defaults are the paper's equations and values, and among
     look-alike objects (`lookalike_share`) they count distinct evidence (`min_distinct` = 2,
     `switch_stale`, `withhold_contested`): the same look-alikes re-matched at every step are
-    one piece of evidence, not W. Elsewhere they are the paper's filter. `paper()` is the
-    paper's equations alone in every world; `reference()` the authors' released code, quirks
-    included.
+    one piece of evidence, not W. They accept a hypothesis as soon as its evidence makes the
+    paper's decision certain (`sequential`), weigh a measurement by the objects it explains
+    (`object_nats`) and recall a dropped hypothesis on its first confirming measurement
+    (`recall_for`). `paper()` is the paper's equations alone in every world; `reference()` the
+    authors' released code, quirks included.
 
     The state x has dimension d = Q.shape[0] (3 for (x [m], y [m], theta [rad]) of T_oi_oj);
     motion and measurement models are the identity. Costs are in nats (negative log
@@ -547,6 +549,34 @@ class TCAFFParams(_ByValue):
             `drop_after`: unreported, it can still be confirmed (`TCAFF.held`), e.g. by the
             aligner's tracking when the robots see shared objects again. None: reported
             until dropped.
+        sequential: accept a hypothesis as soon as its evidence makes acceptance certain,
+            not only when its exploring tree is W steps old (docs/tcaff.md, "Sequential
+            acceptance"). A hypothesis's score is its path cost less its object support
+            (`object_nats`); it is accepted once the score plus the cost of W - a further
+            steps without a measurement (a its tree's age) is below tau, so that no outcome
+            of the remaining steps could keep the paper's rule from accepting it, when its
+            path holds `early_measurements` measurements, `min_distinct` distinct pieces of
+            evidence and every open hypothesis inconsistent with it scores at least
+            `switch_margin` worse. False: only complete trees are judged (the paper).
+        object_nats: nats of evidence per object a measurement explains beyond
+            `object_base` (negative below it), given by the `objects` of `TCAFF.update`; a
+            path's support is that of its best-supported measurement in the window (a
+            maximum, not a sum: the same objects matched again a second later add nothing).
+            The odds that one more object lands by chance within the aligner's inlier radius
+            (0.3 m) of a compatible object under a wrong alignment are about
+            density * pi * 0.3^2: e^-2 for 1.5 compatible objects per square metre, more
+            than any map of ours holds. Only with `sequential`.
+        object_base: objects a measurement must explain to count as plain evidence: the
+            paper's minimum number of associations.
+        early_measurements: measurements (at different steps, the seed's included) a path
+            needs before it is accepted early: at least two, so the hypothesis has been
+            seen consistent over time.
+        recall_for: steps after a main tree is dropped during which its last estimate
+            stays dormant: a measurement within its gate (its covariance grown by Q each
+            step) recalls it as the main hypothesis at once, with its id and history,
+            unless an open hypothesis inconsistent with it holds more evidence. With the
+            default Q, 100 steps grow its standard deviation by 1 m and 5 degrees, the
+            bounds of a correct alignment. None: a dropped hypothesis is forgotten.
     """
 
     window: int = 8
@@ -576,6 +606,11 @@ class TCAFFParams(_ByValue):
     withhold_contested: bool = True
     lookalike_share: float = 0.9
     report_after: int | None = None
+    sequential: bool = True
+    object_nats: float = 2.0
+    object_base: int = 5
+    early_measurements: int = 2
+    recall_for: int | None = 100
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
@@ -632,6 +667,16 @@ class TCAFFParams(_ByValue):
                  "lookalike_share", self.lookalike_share, "must be a number in [0, 1]")
         _require(self.report_after is None or _int_at_least(self.report_after, 1), o,
                  "report_after", self.report_after, "must be an int >= 1 or None")
+        _require(isinstance(self.sequential, bool), o, "sequential", self.sequential,
+                 "must be True or False")
+        _require(_finite(self.object_nats) and self.object_nats >= 0, o, "object_nats",
+                 self.object_nats, "must be a finite number >= 0 (nats)")
+        _require(_int_at_least(self.object_base, 0), o, "object_base", self.object_base,
+                 "must be an int >= 0")
+        _require(_int_at_least(self.early_measurements, 2), o, "early_measurements",
+                 self.early_measurements, "must be an int >= 2")
+        _require(self.recall_for is None or _int_at_least(self.recall_for, 1), o,
+                 "recall_for", self.recall_for, "must be an int >= 1 or None")
 
     @property
     def dim(self) -> int:
@@ -649,7 +694,7 @@ class TCAFFParams(_ByValue):
         """The paper's equations alone: every measurement counts as evidence, and a main
         hypothesis confirmed at a step is never abandoned at that step."""
         return cls(min_distinct=1, switch_stale=False, withhold_contested=False,
-                   switch_support=None)
+                   switch_support=None, sequential=False, recall_for=None)
 
     @classmethod
     def reference(cls) -> TCAFFParams:
@@ -657,7 +702,7 @@ class TCAFFParams(_ByValue):
         return cls(tau=9.0, gate="box", cost_model="reference", root_in_window=True,
                    promotion="reseed", drop_rule="window", drop_after=40, switch_after=None,
                    switch_support=None, min_distinct=1, switch_stale=False,
-                   withhold_contested=False)
+                   withhold_contested=False, sequential=False, recall_for=None)
 
 
 def _default_odometry_cov(dim: int) -> np.ndarray:

@@ -50,7 +50,7 @@ from .hypothesis_tree import (
     not_positive_definite,
     seed,
 )
-from .inputs import output_path, read_npz, real_array
+from .inputs import output_path, read_npz, real_array, shown
 from .params import TCAFFParams, _given_or_default
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
@@ -139,6 +139,11 @@ class TCAFF:
         # per step of the columns: its number of measurements (bounds the paths' choices)
         self._sizes: deque[int] = deque(maxlen=self._columns)
         self._fresh = 0  # last step at which the main's best path brought distinct evidence
+        # per step of the columns: the objects each measurement explains, or None
+        self._objects: deque[np.ndarray | None] = deque(maxlen=self._columns)
+        # the last dropped main tree's best leaf, and the steps since it was dropped
+        self._dormant: Leaves | None = None
+        self._dormant_age = 0
         self._estimate: AlignmentEstimate | None = None
         self._held: AlignmentEstimate | None = None
 
@@ -163,7 +168,7 @@ class TCAFF:
             return False
         return not bool(self._consistent(self._explore, self._main_best()).all())
 
-    def update(self, zs, Rs, evidence=None) -> AlignmentEstimate | None:
+    def update(self, zs, Rs, evidence=None, objects=None) -> AlignmentEstimate | None:
         """One step.
 
         Args:
@@ -175,34 +180,51 @@ class TCAFF:
                 `switch_stale`, `withhold_contested` and `switch_support`; without it every
                 measurement is distinct evidence (`PairwiseAligner` gives ids only at steps
                 whose maps are of look-alikes, `TCAFFParams.lookalike_share`).
+            objects: None, or (k,) ints >= 0: how many objects each measurement explains
+                (`AlignmentMeasurement.inliers`). Each is worth `object_nats` per object
+                beyond `object_base` to a sequential acceptance (`TCAFFParams.sequential`);
+                None counts every measurement as `object_base` objects.
         Returns:
             The estimate from the main tree's best leaf, or None while there is no main tree
             or it is not reported (`withhold_contested`, `report_after`; `held` has it).
         Raises:
             DataError: wrong shapes, non-finite values, R not symmetric positive definite,
-                evidence of the wrong length or shape.
+                evidence or objects of the wrong length, shape or kind.
         """
         zs, Rs = self._validated(zs, Rs)
         evidence = self._validated_evidence(evidence, zs.shape[0])
+        objects = self._validated_objects(objects, zs.shape[0])
         prm = self.params
         if zs.shape[0] > prm.max_measurements:
-            zs, Rs, evidence = self._capped(zs, Rs, evidence)
+            zs, Rs, evidence, objects = self._capped(zs, Rs, evidence, objects)
         self.step += 1
         self._evidence.append(evidence if prm.counts_evidence else None)
         self._sizes.append(zs.shape[0])
+        self._objects.append(objects)
         if prm.promotion == "reseed":  # only the released code's promotion replays steps
             self._bank.append((zs, Rs))
         if self._main is not None and self._main_is_stale():
             log.debug("step %d: main tree %d dropped", self.step, self.hypothesis)
+            if prm.recall_for is not None:
+                self._dormant, self._dormant_age = self._main_best(), 0
             self._main = None
+        elif self._dormant is not None:
+            self._age_dormant()
         if self._main is not None:
             self._main = extend(self._main, zs, Rs, self._model, prm.max_children,
                                 lambda cost, choice, _: self._main_keep(cost, choice))
         complete = self._advance_exploring(zs, Rs)
-        if self._main is None:
+        if self._main is not None:
+            if prm.switch_after is not None:
+                self._consider_switch(complete)
+        else:
             self._accept_best(complete)
-        elif prm.switch_after is not None:
-            self._consider_switch(complete)
+            if self._main is None and self._dormant is not None:
+                self._recall()
+            if self._main is None and prm.sequential:
+                self._accept_early()
+            if self._main is not None:
+                self._dormant = None
         self._estimate = self._main_estimate()
         if prm.switch_stale and self._estimate is not None and self._estimate.measurement >= 0:
             best = int(np.argmin(self._main.cost))
@@ -215,7 +237,8 @@ class TCAFF:
         self._estimate = self._reported(self._estimate)
         return self._estimate
 
-    def _capped(self, zs: np.ndarray, Rs: np.ndarray, evidence: list | None) -> tuple:
+    def _capped(self, zs: np.ndarray, Rs: np.ndarray, evidence: list | None,
+                objects: np.ndarray | None) -> tuple:
         """The first `max_measurements` of a step's measurements, logged: a warning the first
         time, then at debug level."""
         keep = self.params.max_measurements
@@ -225,7 +248,8 @@ class TCAFF:
                 self.step + 1, zs.shape[0], keep,
                 " (repeats are logged at debug level; TCAFF.capped_steps counts them)"
                 if self.capped_steps == 1 else "")
-        return zs[:keep], Rs[:keep], None if evidence is None else evidence[:keep]
+        return (zs[:keep], Rs[:keep], None if evidence is None else evidence[:keep],
+                None if objects is None else objects[:keep])
 
     # -- exploring trees -----------------------------------------------------------------------
 
@@ -252,12 +276,108 @@ class TCAFF:
         return explore.take(done)
 
     def _accept_best(self, complete: Leaves) -> None:
-        """With no main tree: accept the best complete exploring tree if it beats tau."""
-        below = np.flatnonzero(complete.cost < self.params.tau)
-        for best in below[np.argsort(complete.cost[below], kind="stable")]:
+        """With no main tree: accept the best complete exploring tree if its score (its path
+        cost less its object support, `_object_support`) beats tau."""
+        score = complete.cost - self._object_support(complete.choice)
+        below = np.flatnonzero(score < self.params.tau)
+        for best in below[np.argsort(score[below], kind="stable")]:
             if self._distinct_enough(complete, best):
                 self._accept(complete, int(best))
                 return
+
+    def _accept_early(self) -> None:
+        """With no main tree: accept the open exploring hypothesis whose acceptance is
+        certain (`TCAFFParams.sequential`): its score (path cost less object support) plus
+        the cost of a missed measurement at each of its remaining W - a steps is below tau,
+        its path holds `early_measurements` measurements and `min_distinct` distinct pieces of
+        evidence, and every open hypothesis inconsistent with it scores `switch_margin`
+        worse. The lowest bound is tried first."""
+        prm = self.params
+        explore = self._explore
+        if len(explore) == 0:
+            return
+        window = explore.choice[:, -prm.window:]
+        age = np.count_nonzero(explore.choice >= NO_MEASUREMENT, axis=1) - 1
+        score = explore.cost - self._object_support(explore.choice)
+        bound = score + (prm.window - age) * self._model.no_measurement_cost
+        ready = ((bound < prm.tau)
+                 & (np.count_nonzero(window >= 0, axis=1) >= prm.early_measurements))
+        for best in np.flatnonzero(ready)[np.argsort(bound[ready], kind="stable")]:
+            rivals = ~self._consistent(explore, explore.take([best]))
+            if np.any(score[rivals] < score[best] + prm.switch_margin):
+                continue
+            if not self._distinct_enough(explore, best):
+                continue
+            log.debug("step %d: tree %d accepted early, %d steps old (bound %.2f)",
+                      self.step, explore.tree[best], age[best], bound[best])
+            tree = explore.tree[best]
+            self._accept(explore, int(best))
+            self._explore = explore.take(explore.tree != tree)
+            return
+
+    def _object_support(self, choice: np.ndarray) -> np.ndarray:
+        """(L,) nats of object support of paths (L, W + 2): `object_nats` times the objects
+        explained by the path's best-supported measurement in the window, less `object_base`;
+        0 for a path without measurements, or with sequential acceptance off."""
+        prm = self.params
+        support = np.zeros(choice.shape[0])
+        if not prm.sequential or choice.shape[0] == 0:
+            return support
+        steps = list(self._objects)
+        offset = self._columns - len(steps)  # columns before the first step seen
+        first = max(self._columns - prm.window, offset)
+        best = np.full(choice.shape[0], -1, np.int64)
+        for c in range(first, self._columns):
+            taken = choice[:, c]
+            measured = taken >= 0
+            if not measured.any():
+                continue
+            counts = steps[c - offset]
+            n = (np.full(measured.sum(), prm.object_base) if counts is None
+                 else counts[taken[measured]])
+            best[measured] = np.maximum(best[measured], n)
+        has = best >= 0
+        support[has] = prm.object_nats * (best[has] - prm.object_base)
+        return support
+
+    def _age_dormant(self) -> None:
+        """One more step of the dormant hypothesis: its covariance grows by Q, and it is
+        forgotten after `recall_for` steps."""
+        self._dormant_age += 1
+        if self._dormant_age > self.params.recall_for:
+            self._dormant = None
+            return
+        d = self._dormant
+        self._dormant = Leaves(d.x, d.P + self.params.Q, d.choice, d.edge, d.since + 1, d.tree)
+
+    def _recall(self) -> None:
+        """With no main tree: make the dormant hypothesis the main tree again once an open
+        exploring hypothesis consistent with it has taken `early_measurements` measurements,
+        the latest this step, and none inconsistent with it has taken more (a rival that
+        appeared in the gap must win by the acceptance rules). The dormant state is fused
+        with that hypothesis's, which goes on as the main tree's leaf under the dormant id."""
+        prm, dormant, explore = self.params, self._dormant, self._explore
+        if len(explore) == 0:
+            return
+        taken = np.count_nonzero(explore.choice[:, -prm.window:] >= 0, axis=1)
+        agree = self._consistent(explore, dormant)
+        fresh = np.flatnonzero(agree & (explore.choice[:, -1] >= 0)
+                               & (taken >= prm.early_measurements))
+        if fresh.size == 0:
+            return
+        best = int(fresh[np.lexsort((explore.cost[fresh], -taken[fresh]))[0]])
+        if np.any(taken[~agree] > taken[best]):
+            return
+        x, P = kalman_children(dormant, [0], [0], explore.x[[best]], explore.P[[best]],
+                               self._model)
+        leaf = explore.take([best])
+        log.debug("step %d: main tree %d recalled, %d steps after it was dropped",
+                  self.step, self.hypothesis, self._dormant_age)
+        self._explore = explore.take(explore.tree != leaf.tree[0])
+        self._switch_streak, self._rival, self._empty_windows = 0, None, 0
+        self._fresh = self.step
+        self._main = Leaves(x, P, leaf.choice, leaf.edge, leaf.since,
+                            np.full(1, self.hypothesis, np.int64))
 
     def _consider_switch(self, complete: Leaves) -> None:
         """Switch to a rival hypothesis: one inconsistent with the main tree's best leaf and
@@ -518,6 +638,20 @@ class TCAFF:
             out.append([(int(a), int(b)) for a, b in arr])
         return out
 
+    @staticmethod
+    def _validated_objects(objects, k: int) -> np.ndarray | None:
+        if objects is None:
+            return None
+        arr = real_array("TCAFF.update", "objects", objects)
+        if arr.shape != (k,):
+            raise DataError(f"TCAFF.update: objects must have shape ({k},), one count per "
+                            f"measurement, got shape {arr.shape}")
+        if (np.asarray(objects).dtype == bool or not np.all(np.isfinite(arr))
+                or np.any(arr != np.round(arr)) or np.any(arr < 0) or np.any(arr >= 2**31)):
+            raise DataError(f"TCAFF.update: objects must be whole counts in [0, 2**31), got "
+                            f"{shown(objects)}")
+        return arr.astype(np.int64)
+
     _COUNTERS = ("step", "hypothesis", "_next_tree", "_switch_streak", "_empty_windows",
                  "_fresh")
     _TREES = ("main", "explore", "rival")
@@ -546,6 +680,15 @@ class TCAFF:
                                             dtype=np.int64)
         state["evidence.pairs"] = np.array([ab for p in per if p is not None for ab in p],
                                            dtype=np.int64).reshape(-1, 2)
+        # objects per step: -1 for a step without, else its measurements' counts
+        state["objects.sizes"] = np.array([-1 if o is None else o.size for o in self._objects],
+                                          dtype=np.int64)
+        state["objects.counts"] = np.concatenate(
+            [o for o in self._objects if o is not None] or [np.empty(0, np.int64)])
+        if self._dormant is not None:
+            state["dormant.x"] = self._dormant.x.copy()
+            state["dormant.P"] = self._dormant.P.copy()
+            state["dormant.age"] = np.array(self._dormant_age, dtype=np.int64)
         return state
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
@@ -578,6 +721,8 @@ class TCAFF:
                      if "steps.sizes" in state else None)
             bank_zs = _state_array(state["bank.zs"], "bank.zs", np.float64)
             bank_Rs = _state_array(state["bank.Rs"], "bank.Rs", np.float64)
+            objects = self._objects_from(state, steps)  # absent from earlier states
+            dormant = self._dormant_from(state)
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
         except (TypeError, ValueError, OverflowError) as exc:
@@ -613,6 +758,9 @@ class TCAFF:
         self._evidence = deque(evidence, maxlen=self._columns)
         self._sizes = deque([-1] * len(evidence) if steps is None else steps.tolist(),
                             maxlen=self._columns)
+        self._objects = deque(objects if objects is not None else [None] * len(evidence),
+                              maxlen=self._columns)
+        self._dormant, self._dormant_age = dormant
         self._held = self._main_estimate()
         self._estimate = self._reported(self._held)
 
@@ -711,6 +859,46 @@ class TCAFF:
             m += int(size)
             steps.append(step)
         return steps
+
+    def _objects_from(self, state: Mapping, steps: np.ndarray | None
+                      ) -> list[np.ndarray | None] | None:
+        """The objects of a `state_dict`'s steps (None when the state has none); DataError
+        when they disagree with each other or with the steps' sizes."""
+        if "objects.sizes" not in state:
+            return None
+        sizes = _state_array(state["objects.sizes"], "objects.sizes", np.int64)
+        counts = _state_array(state["objects.counts"], "objects.counts", np.int64)
+        if (sizes.ndim != 1 or sizes.size > self._columns or np.any(sizes < -1)
+                or counts.shape != (sizes[sizes > 0].sum(),) or np.any(counts < 0)
+                or (steps is not None and (steps.shape != sizes.shape or np.any(
+                    (sizes >= 0) & (steps >= 0) & (sizes != steps))))):
+            raise DataError("TCAFF state: the stored objects do not match objects.sizes and "
+                            "steps.sizes")
+        out, start = [], 0
+        for size in sizes.tolist():
+            out.append(None if size < 0 else counts[start:start + size])
+            start += max(size, 0)
+        return out
+
+    def _dormant_from(self, state: Mapping) -> tuple[Leaves | None, int]:
+        """The dormant hypothesis of a `state_dict` and its age, (None, 0) when it has none;
+        DataError when its arrays are not a state and covariance or its age is out of range."""
+        if "dormant.x" not in state:
+            return None, 0
+        d = self.params.dim
+        x = _state_array(state["dormant.x"], "dormant.x", np.float64)
+        P = _state_array(state["dormant.P"], "dormant.P", np.float64)
+        age = _counter(state["dormant.age"], "dormant.age")
+        if x.shape != (1, d) or P.shape != (1, d, d):
+            raise DataError(f"TCAFF state: dormant.x and dormant.P must have shapes (1, {d}) "
+                            f"and (1, {d}, {d}), got {x.shape} and {P.shape}")
+        recall_for = self.params.recall_for
+        if recall_for is None or not 0 <= age <= recall_for:
+            raise DataError(f"TCAFF state: dormant.age = {age} is not within recall_for = "
+                            f"{recall_for}")
+        _check_covariances("dormant.x", x, "dormant.P", P)
+        leaf = seed(x, P[0], np.zeros(1, np.int64), np.full(1, NO_MEASUREMENT), self._columns)
+        return leaf, age
 
     def save(self, path: str | Path) -> None:
         """Write parameters and state to an npz archive at exactly `path`.

@@ -12,16 +12,22 @@ from tcaff_gtsam.geometry import se2_error, se2_from_params
 from tcaff_gtsam.pairwise import guided_search
 
 
-def test_maps_over_time_give_the_true_alignment_after_the_window():
+@pytest.mark.parametrize("params", [TCAFFParams(), TCAFFParams.paper()],
+                         ids=["default", "paper"])
+def test_maps_over_time_give_the_true_alignment(params):
+    """The maps first overlap at exchange 1. The paper's filter answers W steps later; the
+    default, whose candidates explain 15 objects each, 2 steps later."""
     T_true = se2_from_params([4.0, -7.0, 2.5])
     rng = np.random.default_rng(0)
-    pair_aligner = PairwiseAligner()
+    pair_aligner = PairwiseAligner(tcaff_params=params)
     estimates = []
     for t in range(15):
         overlap = 0.5 if t % 5 else 0.0  # every fifth exchange shares no objects
         pair = overlapping_maps(rng, 30, overlap, 0.1, clutter=5, T_oi_oj=T_true, now=100.0 + t)
         estimates.append(pair_aligner.update(pair.now, pair.ego, pair.other))
-    assert all(e is None for e in estimates[:8])
+    first = next(t for t, e in enumerate(estimates) if e is not None)
+    assert first == (3 if params.sequential else 9)
+    assert all(se2_error(T_true, e.T)[0] < 0.3 for e in estimates[first:])
     assert estimates[-1] is not None
     dt, dtheta = se2_error(T_true, estimates[-1].T)
     assert dt < 0.3 and np.degrees(dtheta) < 2.0

@@ -26,14 +26,14 @@ CLASSES = [ClipperParams, FrameAlignerParams, TCAFFParams, GraphParams]
 OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inliers"),
             ("FrameAlignerParams", "track_min"), ("FrameAlignerParams", "guide_radius"),
             ("FrameAlignerParams", "size_partial"), ("FrameAlignerParams", "height_epsilon"),
-            ("TCAFFParams", "report_after"),
+            ("TCAFFParams", "report_after"), ("TCAFFParams", "recall_for"),
             ("TCAFFParams", "gate_box"),
             ("TCAFFParams", "switch_after"), ("TCAFFParams", "switch_support"),
             ("GraphParams", "Q"),
             ("GraphParams", "odometry_cov"), ("GraphParams", "horizon")}
 #: fields that are switches
 SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),
-            ("TCAFFParams", "withhold_contested"),
+            ("TCAFFParams", "withhold_contested"), ("TCAFFParams", "sequential"),
             ("FrameAlignerParams", "check_ambiguity"),
             ("FrameAlignerParams", "descriptor_prior"), ("FrameAlignerParams", "refit")}
 #: values of the wrong kind for a number, a choice, a matrix or a nested parameter object

@@ -1,0 +1,236 @@
+"""TCAFF's sequential acceptance, object support, recall of a dropped hypothesis, and the
+honesty of its covariance."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from tcaff_gtsam.eval.sim.streams import alignment_stream, wrong_alignments
+
+from tcaff_gtsam import TCAFF, TCAFFParams
+from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.geometry import wrap_angle
+from tcaff_gtsam.params import constant_alignment_covariance
+
+R = constant_alignment_covariance()
+TRUTH = np.array([4.0, -1.0, 0.7])
+W = TCAFFParams().window
+
+
+def feed(filt: TCAFF, zs_per_step, objects=None, evidence=None):
+    """Estimates per step; objects: one count for every measurement of every step, or None;
+    evidence: per step, its measurements' id pairs, or None."""
+    out = []
+    for t, zs in enumerate(zs_per_step):
+        zs = np.asarray(zs, float).reshape(-1, 3)
+        k = zs.shape[0]
+        out.append(filt.update(zs, np.broadcast_to(R, (k, 3, 3)),
+                               None if evidence is None else evidence[t],
+                               None if objects is None else np.full(k, objects)))
+    return out
+
+
+def first(estimates) -> int | None:
+    """0-based step of the first estimate."""
+    return next((t for t, est in enumerate(estimates) if est is not None), None)
+
+
+def clean_stream(seed: int, steps: int = 30):
+    return alignment_stream(np.random.default_rng(seed), steps, p_empty=0.0, outliers=(0, 2))
+
+
+# -- acceptance as soon as the evidence suffices ---------------------------------------------
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_hypothesis_explained_by_many_objects_is_accepted_before_W(seed):
+    stream = clean_stream(seed)
+    many = feed(TCAFF(), stream.zs, objects=20)
+    plain = feed(TCAFF(), stream.zs)  # no object counts: the bound alone
+    paper = feed(TCAFF(TCAFFParams.paper()), stream.zs, objects=20)
+    assert first(many) <= 2 < first(plain) < W == first(paper)
+    for estimates in (many, plain):
+        est = estimates[first(estimates)]
+        e = est.x - stream.truth[first(estimates)]
+        assert np.hypot(e[0], e[1]) < 0.5 and abs(wrap_angle(e[2])) < np.radians(3)
+
+
+def test_the_bound_never_accepts_what_the_window_would_not():
+    """Early acceptance needs the score plus a missed measurement at every remaining step to
+    beat tau: a path that misses every other step is accepted no earlier than the paper's
+    filter, which accepts it."""
+    zs = [[TRUTH] if t % 2 == 0 else [] for t in range(30)]
+    sequential = feed(TCAFF(), zs)
+    paper = feed(TCAFF(TCAFFParams.paper()), zs)
+    assert first(paper) == W
+    assert first(sequential) == first(paper)
+
+
+def test_a_rival_as_strong_holds_off_early_acceptance():
+    """Two self-consistent alignments seen at every step, each explained by many objects:
+    neither is certain before the window is full."""
+    rival = TRUTH + np.array([6.0, 2.0, 1.0])
+    zs = [[TRUTH, rival]] * 20
+    estimates = feed(TCAFF(), zs, objects=20)
+    assert first(estimates) == W
+    alone = feed(TCAFF(), [[TRUTH]] * 20, objects=20)
+    assert first(alone) == 1
+
+
+def test_few_objects_are_weak_evidence_not_none():
+    """A measurement explained by fewer objects than `object_base` still counts: its path is
+    accepted, later than one of plain measurements."""
+    weak = feed(TCAFF(), [[TRUTH]] * 20, objects=2)
+    strong = feed(TCAFF(), [[TRUTH]] * 20, objects=10)
+    assert first(strong) < first(weak) <= W
+
+
+def test_look_alike_evidence_is_not_accepted_before_W():
+    """The same look-alike objects re-matched at every step, however many, are one piece of
+    distinct evidence: not accepted early, nor at all (`min_distinct`); a match that moves
+    through new objects is accepted early."""
+    cluster = [[np.array([[a, 100 + a] for a in range(20)])] for _ in range(30)]
+    same = feed(TCAFF(), [[TRUTH]] * 30, objects=20, evidence=cluster)
+    assert first(same) is None
+    moving = [[np.array([[t, 100 + t], [t + 1, 101 + t]])] for t in range(30)]
+    new = feed(TCAFF(), [[TRUTH]] * 30, objects=20, evidence=moving)
+    assert first(new) == 1
+
+
+def test_object_support_needs_sequential_acceptance():
+    """With `sequential` off the object counts change nothing: the paper's filter."""
+    stream = clean_stream(7)
+    off = replace(TCAFFParams(), sequential=False)
+    with_counts = feed(TCAFF(off), stream.zs, objects=30)
+    without = feed(TCAFF(off), stream.zs)
+    assert [e is None for e in with_counts] == [e is None for e in without]
+    assert first(with_counts) == W
+
+
+# -- recall of a dropped hypothesis ----------------------------------------------------------
+
+def gap_stream(seed: int, gap: int, during_gap=lambda t: np.empty((0, 3))):
+    """The truth for 30 steps, `gap` steps of `during_gap(t)`, the truth again for 30."""
+    stream = alignment_stream(np.random.default_rng(seed), 60 + gap, p_empty=0.0,
+                              outliers=(0, 0))
+    zs = [z if not 30 <= t < 30 + gap else during_gap(t) for t, z in enumerate(stream.zs)]
+    return stream, zs
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_dropped_hypothesis_is_recalled_within_two_steps_of_its_return(seed):
+    gap = 60  # longer than drop_after: the main tree is dropped
+    stream, zs = gap_stream(seed, gap, lambda t: wrong_alignments(np.random.default_rng(t), 2))
+    estimates = feed(TCAFF(), zs)
+    back = 30 + gap
+    assert estimates[back - 1] is None  # dropped
+    assert estimates[back + 1] is not None and estimates[back + 1].hypothesis == 1
+    e = estimates[back + 1].x - stream.truth[back + 1]
+    assert np.hypot(e[0], e[1]) < 0.5
+    paper = feed(TCAFF(TCAFFParams.paper()), zs)
+    assert first(paper[back:]) == W
+
+
+def test_a_hypothesis_held_through_a_short_gap_is_reported_at_its_return():
+    """Unreported after `report_after` steps of no measurement, confirmed at once when the
+    truth returns."""
+    _, zs = gap_stream(1, 20)
+    estimates = feed(TCAFF(replace(TCAFFParams(), report_after=5)), zs)
+    assert estimates[45] is None
+    assert estimates[50] is not None and estimates[50].hypothesis == 1
+
+
+def test_the_dormant_hypothesis_is_forgotten_after_recall_for_steps():
+    _, zs = gap_stream(2, 60)
+    short = replace(TCAFFParams(), recall_for=10)
+    estimates = feed(TCAFF(short), zs)
+    assert first(estimates[90:]) > 1 and estimates[-1].hypothesis == 2
+    assert feed(TCAFF(), zs)[-1].hypothesis == 1
+
+
+def test_a_rival_with_more_measurements_blocks_the_recall():
+    """A wrong alignment seen from two steps before the truth returns has more measurements
+    in the window than the returning truth: the dormant hypothesis is not recalled while it
+    does (nor is the rival accepted: the truth's hypothesis is almost as strong)."""
+    wrong = TRUTH + np.array([5.0, -3.0, 2.0])
+    _, zs = gap_stream(3, 60, lambda t: wrong[None] if t >= 88 else np.empty((0, 3)))
+    zs[90:] = [np.vstack([z, wrong]) for z in zs[90:]]
+    filt = TCAFF()
+    estimates = feed(filt, zs[:92], objects=5)
+    assert all(est is None for est in estimates[88:92])
+    assert filt._dormant is not None  # kept, not recalled
+    unrivalled = feed(TCAFF(), gap_stream(3, 60)[1][:92], objects=5)
+    assert unrivalled[91] is not None and unrivalled[91].hypothesis == 1
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_dormant_hypothesis_survives_save_and_load(seed, tmp_path):
+    _, zs = gap_stream(seed, 60)
+    a = TCAFF()
+    feed(a, zs[:80], objects=7)
+    a.save(tmp_path / "f.npz")
+    b = TCAFF.load(tmp_path / "f.npz")
+    for est_a, est_b in zip(feed(a, zs[80:], objects=7), feed(b, zs[80:], objects=7),
+                            strict=True):
+        assert (est_a is None) == (est_b is None)
+        if est_a is not None:
+            np.testing.assert_array_equal(est_a.x, est_b.x)
+            np.testing.assert_array_equal(est_a.P, est_b.P)
+            assert est_a.hypothesis == est_b.hypothesis
+
+
+def test_a_tampered_dormant_state_is_refused():
+    _, zs = gap_stream(0, 60)
+    filt = TCAFF()
+    feed(filt, zs[:80])
+    state = filt.state_dict()
+    assert "dormant.x" in state
+    for key, value, message in [
+            ("dormant.age", np.array(10**4), "dormant.age = 10000 is not within recall_for"),
+            ("dormant.P", -state["dormant.P"], r"dormant.P\[0\] is not positive definite"),
+            ("dormant.x", np.zeros((2, 3)), "dormant.x and dormant.P must have shapes"),
+            ("objects.counts", np.array([-1]), "the stored objects do not match")]:
+        bad = dict(state, **{key: value})
+        with pytest.raises(DataError, match=message):
+            TCAFF().load_state_dict(bad)
+
+
+@pytest.mark.parametrize("objects", [[1, 2], [-1], [1.5], [np.nan], [True], ["a"], [[3]]])
+def test_bad_object_counts_are_data_errors(objects):
+    filt = TCAFF()
+    with pytest.raises(DataError, match=r"TCAFF\.update: objects"):
+        filt.update(TRUTH[None], R[None], None, objects)
+    assert filt.step == 0  # the refused step did not count
+    filt.update(TRUTH[None], R[None], None, [4])
+
+
+# -- the covariance is a claim ----------------------------------------------------------------
+
+@settings(max_examples=3)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_the_nees_of_a_stream_with_known_noise_is_chi_square(seed):
+    """The truth walks with exactly the filter's Q, measurements have exactly their R: the
+    NEES (e' P^-1 e) of the estimates is chi-square with 3 degrees of freedom, mean 3 and 95 %
+    under 7.815, within sampling error. One independent sample per stream (its last step)."""
+    rng = np.random.default_rng(seed)
+    params = replace(TCAFFParams(), P0=R)
+    streams, steps = 150, 15
+    start = rng.uniform([-5, -5, -np.pi], [5, 5, np.pi], (streams, 3))
+    walk = start[:, None] + np.cumsum(
+        rng.standard_normal((streams, steps, 3)) @ np.linalg.cholesky(params.Q).T, axis=1)
+    zs = walk + rng.standard_normal((streams, steps, 3)) @ np.linalg.cholesky(R).T
+    nees = []
+    for truth, measured in zip(walk, zs, strict=True):
+        filt = TCAFF(params)
+        for z in measured:
+            est = filt.update(z[None], R[None])
+        e = est.x - truth[-1]
+        e[2] = wrap_angle(e[2])
+        nees.append(e @ np.linalg.solve(est.P, e))
+    nees = np.array(nees)
+    # 150 samples of chi-square(3): the mean's standard error is sqrt(6 / 150) = 0.2
+    assert abs(nees.mean() - 3.0) < 0.8
+    assert 0.88 <= np.mean(nees < 7.815) <= 1.0
