@@ -67,6 +67,7 @@ from .config_methods import (  # noqa: F401  (re-exported)
     _PER_RUN,
     IcpConfig,
     MethodsConfig,
+    ScoringConfig,
     ThresholdConfig,
     _Aligner,
     _Graph,

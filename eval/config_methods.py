@@ -1,6 +1,7 @@
 """Method-set configuration (`config`): which registered methods a study compares and their
 settings — the FrameAligner, TCAFF and iSAM2 graph parameter dataclasses (minus what each run
-sets), ICP, and the false-accept thresholds.
+sets), ICP, and the false-accept thresholds (with how overlaps and the perfect judge are
+delimited).
 """
 
 from __future__ import annotations
@@ -31,6 +32,15 @@ class ThresholdConfig(_Model):
     heading_deg: float = Field(5.0, gt=0, le=180)
 
 
+class ScoringConfig(ThresholdConfig):
+    """The false-accept thresholds, and how overlaps and the perfect judge are delimited
+    (`metrics.Thresholds`)."""
+
+    overlap_gap_steps: int = Field(5, ge=1, description="fewer steps without overlap between "
+                                   "two overlap steps do not end an overlap")
+    judge_hold: float = Field(40.0, ge=0, description="s the perfect judge holds a candidate")
+
+
 _PER_RUN = "is set per scenario/data set ({}), not per method set"
 _Aligner = _params(FrameAlignerParams, kappa=_PER_RUN.format("mapping.kappa"))
 _Tcaff = _params(TCAFFParams, window="the TCAFF window W " + _PER_RUN.format("window"))
@@ -57,7 +67,7 @@ class MethodsConfig(_Model):
     tcaff: _Tcaff = TCAFFParams()
     icp: IcpConfig = IcpConfig()
     graph: _Graph = GraphParams()
-    thresholds: ThresholdConfig = ThresholdConfig()
+    thresholds: ScoringConfig = ScoringConfig()
 
     def aligner_params(self, kappa: float) -> FrameAlignerParams:
         """The FrameAligner of the TCAFF methods, objects seen within `kappa` s (the run's)."""

@@ -65,6 +65,8 @@ def evaluate(run: AlignmentRun, methods: MethodsConfig, name: str, seed: int | N
         arrays["overlap"] = np.array(overlap, dtype=bool).reshape(len(runs.pairs), -1)
     for stream, est in runs.estimates.items():
         arrays[f"est_{stream}"] = est
+    for stream, cov in runs.covariances.items():
+        arrays[f"cov_{stream}"] = cov
     for p, (steps, z) in enumerate(runs.candidates):
         arrays[f"cand_steps_{p}"], arrays[f"cand_z_{p}"] = steps, z
     job = JobResult(name, seed, runs.pairs, arrays, seconds=runs.seconds)

@@ -30,7 +30,7 @@ from tcaff_gtsam.geometry import se2_from_params
 from .config import KimeraMultiConfig, MethodsConfig, MrclamConfig, RgbdConfig
 from .datasets import kimera_multi, mrclam, rgbd_robots
 from .jobs import evaluate
-from .metrics import Thresholds, step_errors
+from .metrics import NEES_95, NEES_997, Thresholds, step_errors, step_nees
 from .registry import METHODS, describe, estimate_names, shown_streams
 from .results import JobResult, summarize, thresholds_of, write_tables
 from .runs import RecordedRun, planar_poses
@@ -350,8 +350,9 @@ def walk_report(job: JobResult, streams: list[str], thresholds: Thresholds, tigh
                 first: int) -> dict[str, dict]:
     """Per estimate stream, pooled over the job's pairs: false accepts at `thresholds` and at
     `tight` (shares of the estimates), availability from exchange `first` + 1 on (the share of
-    those exchanges with an estimate: the first TCAFF can answer at is W + 1), and the median
-    translation [m] and heading [deg] errors."""
+    those exchanges with an estimate: the first TCAFF can answer at is W + 1), the median
+    translation [m] and heading [deg] errors, and the NEES figures of `metrics.Metrics` at
+    `thresholds` (None for a stream without covariances or estimates)."""
     report = {}
     T_true = [se2_from_params(job.arrays["truth"][p]) for p in range(len(job.pairs))]
     for stream in streams:
@@ -366,17 +367,30 @@ def walk_report(job: JobResult, streams: list[str], thresholds: Thresholds, tigh
             bad = (got[:, 0] > limit.translation) | (got[:, 1] > limit.heading)
             return None if n == 0 else float(bad.mean())
 
+        covariance = job.arrays.get(f"cov_{stream}")
+        nees = None
+        if covariance is not None and n:
+            nees = np.concatenate([step_nees(T, job.arrays[f"est_{stream}"][p], covariance[p])
+                                   for p, T in enumerate(T_true)])
+            nees = nees[~np.isnan(nees)]  # the estimate steps, in the order of `got`
+            false = (got[:, 0] > thresholds.translation) | (got[:, 1] > thresholds.heading)
+
         report[stream] = {
             "estimates": n, "false_accept": wrong(thresholds), "false_accept_tight": wrong(tight),
             "availability_from_first": float(late.mean()) if late.size else None,
             "first_exchange": first + 1,
             "median_translation_m": float(np.median(got[:, 0])) if n else None,
-            "median_heading_deg": float(np.degrees(np.median(got[:, 1]))) if n else None}
+            "median_heading_deg": float(np.degrees(np.median(got[:, 1]))) if n else None,
+            "nees_mean": None if nees is None else float(nees.mean()),
+            "nees_under_95": None if nees is None else float(np.mean(nees < NEES_95)),
+            "confident_false_accept": (None if nees is None
+                                       else float(np.mean(false & (nees > NEES_997))))}
     return report
 
 
-#: bump when what a saved RGB-D run holds changes (2: paths of level bodies in a level world)
-RGBD_RESULTS_VERSION = 2
+#: bump when what a saved RGB-D run holds changes (2: paths of level bodies in a level world;
+#: 3: each estimate's covariance)
+RGBD_RESULTS_VERSION = 3
 
 
 def _walk_fingerprint(config: RgbdConfig, walks: list[rgbd_robots.Walk], odometry: str,

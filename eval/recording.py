@@ -18,7 +18,8 @@ frame of the truth; without truth, the reference robot's odometry frame):
                                       alignment (MNO-CLIPPER) of the pair (reference, <name>)
 
 and under `<stem>/errors/<i>_to_<j>/translation/<method>` and `.../heading/<method>` each
-method's error (m, deg) of each directed pair at the steps it has an estimate.
+method's error (m, deg) of each directed pair at the steps it has an estimate, and under
+`.../nees/<method>` its NEES (`metrics.step_nees`) when the job kept the method's covariances.
 
 rerun-sdk is the optional extra `viz`, pinned to the release these calls are written for.
 """
@@ -33,7 +34,7 @@ import numpy as np
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se2_from_params
 
-from .metrics import step_errors
+from .metrics import step_errors, step_nees
 from .results import JobResult
 from .trajectories import check_reference, estimate_streams, frame_alignment, robot_names
 
@@ -188,6 +189,10 @@ class _Writer:
                           self.rr.Scalars.columns(scalars=err[:, 0]))
                 self.send(f"errors/{pair}/heading/{stream}", steps,
                           self.rr.Scalars.columns(scalars=np.degrees(err[:, 1])))
+                if f"cov_{stream}" in a:
+                    nees = step_nees(T_true[p], estimate, a[f"cov_{stream}"][p])[steps]
+                    self.send(f"errors/{pair}/nees/{stream}", steps,
+                              self.rr.Scalars.columns(scalars=nees))
 
 
 def record(path: Path, jobs: Iterable[JobResult], reference: int = 0,

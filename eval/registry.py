@@ -25,12 +25,16 @@ class Estimate:
         label: printed name; `{k}` is the swept value of a swept stream.
         color, line: matplotlib colour and line style.
         causal: built only from what was known at each step (usable online, e.g. for tracking).
+        judged: built from the candidates the default TCAFF filter is offered (a job's
+            cand_z_<p>): its reports carry the perfect judge of those candidates
+            (`metrics.perfect_judge`), the availability any filter of them could reach.
     """
 
     label: str
     color: str
     line: str = "-"
     causal: bool = True
+    judged: bool = False
 
 
 @dataclass(frozen=True)
@@ -54,13 +58,16 @@ class Method:
 
 
 METHODS: dict[str, Method] = {
-    "tcaff": Method("tcaff:TcaffRunner", {"": Estimate("TCAFF", "tab:red")}),
+    "tcaff": Method("tcaff:TcaffRunner", {"": Estimate("TCAFF", "tab:red", judged=True)}),
+    # the released preset takes every candidate, unchecked: not those the judge sees
     "tcaff_reference": Method("tcaff:ReferenceRunner", {
         "": Estimate("TCAFF reference", "tab:orange", "--")}),
-    "tcaff_team": Method("tcaff:TeamRunner", {"": Estimate("TCAFF+team", "tab:olive")}),
+    "tcaff_team": Method("tcaff:TeamRunner", {
+        "": Estimate("TCAFF+team", "tab:olive", judged=True)}),
     "tcaff_isam2": Method("tcaff:GraphRunner", {
-        "_causal": Estimate("TCAFF+iSAM2 causal", "tab:purple"),
-        "_smoothed": Estimate("TCAFF+iSAM2 smoothed", "tab:pink", ":", causal=False)}),
+        "_causal": Estimate("TCAFF+iSAM2 causal", "tab:purple", judged=True),
+        "_smoothed": Estimate("TCAFF+iSAM2 smoothed", "tab:pink", ":", causal=False,
+                              judged=True)}),
     "clipper": Method("baselines:ClipperRunner", {
         "_k{k}": Estimate("CLIPPER k>={k}", "tab:blue")}, swept="clipper_k",
         shown="clipper_k_shown"),
@@ -117,6 +124,6 @@ def describe(stream: str) -> Estimate:
             match = re.fullmatch(re.escape(head) + r"(-?\d+)" + re.escape(tail), stream)
             if match:
                 return Estimate(estimate.label.format(k=match.group(1)), estimate.color,
-                                estimate.line, estimate.causal)
+                                estimate.line, estimate.causal, estimate.judged)
     raise ConfigError(f"no method produces an estimate named {stream!r}; methods: "
                       f"{', '.join(METHODS)}")

@@ -16,12 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params
 
 from .config import MethodsConfig
 from .metrics import PairTrace, Thresholds, pair_metrics, pooled_metrics
 from .mot import COUNTS
+from .registry import describe
 
 __all__ = [
     "JobResult",
@@ -46,8 +47,11 @@ class JobResult:
         arrays: as saved in `<stem>.npz`: times (S,) s; poses_true and poses_odom (n, S, 3)
             (x, y, theta of each body in the world and in its odometry frame; NaN rows where
             there is no truth); truth (P, S, 3) the true T_oi_oj; est_<method> (P, S, 3), NaN
-            rows where the method had no estimate; cand_steps_<p> (M,) and cand_z_<p> (M, 3)
-            the candidates the TCAFF filter saw; overlap (P, S) bool when the run knows it;
+            rows where the method had no estimate; cov_<method> (P, S, 3, 3) the covariance
+            of (x, y, theta) it reported with each estimate, NaN where it had none (only for
+            the methods that report one; jobs saved before covariances were kept have none);
+            cand_steps_<p> (M,) and cand_z_<p> (M, 3) the candidates the TCAFF filter saw;
+            overlap (P, S) bool when the run knows it;
             map_xy_<r>, map_widths_<r> and map_counts_<r>: what robot r shared at each
             exchange (see `jobs.shared_maps`).
             A simulated run adds world_xy (m, 2), world_widths (m,) and walls (w, 2, 2); with
@@ -86,12 +90,19 @@ class JobResult:
         return np.ones((len(self.pairs), self.n_steps), dtype=bool)
 
     def traces(self, method: str) -> list[PairTrace]:
-        """The method's PairTrace of every pair."""
+        """The method's PairTrace of every pair, with its covariances when the job kept them
+        and, for a stream built from the default TCAFF's candidates (`Estimate.judged`), those
+        candidates."""
         a = self.arrays
         T_odom = se2_from_params(a["poses_odom"])
         overlap = self.overlap()
+        covariance = a.get(f"cov_{method}")
+        judged = _judged(method)
         return [PairTrace(a["times"], se2_from_params(a["truth"][p]), a[f"est_{method}"][p],
-                          overlap[p], T_odom[i], T_odom[j])
+                          overlap[p], T_odom[i], T_odom[j],
+                          None if covariance is None else covariance[p],
+                          (a[f"cand_steps_{p}"], a[f"cand_z_{p}"])
+                          if judged and f"cand_z_{p}" in a else None)
                 for p, (i, j) in enumerate(self.pairs)]
 
     def save(self, folder: Path) -> None:
@@ -122,6 +133,15 @@ class JobResult:
                             f"{exc})") from exc
 
 
+def _judged(stream: str) -> bool:
+    """Whether a stream is built from the default TCAFF's candidates (`Estimate.judged`);
+    False for a stream no registered method produces (one a tool or test made)."""
+    try:
+        return describe(stream).judged
+    except ConfigError:
+        return False
+
+
 def load_saved(results: Path) -> list[JobResult]:
     """Every job saved in a results folder: a study's (`runs/<stem>.npz`) or a recorded data
     set's (`<stem>.npz`), each beside its `<stem>.json`.
@@ -140,9 +160,10 @@ def load_saved(results: Path) -> list[JobResult]:
 
 
 def thresholds_of(methods: MethodsConfig) -> Thresholds:
-    """The false-accept thresholds of a method set."""
-    return Thresholds(methods.thresholds.translation,
-                      np.radians(methods.thresholds.heading_deg))
+    """The false-accept thresholds of a method set, with its overlap gap and judge's hold."""
+    t = methods.thresholds
+    return Thresholds(t.translation, float(np.radians(t.heading_deg)), t.overlap_gap_steps,
+                      t.judge_hold)
 
 
 def score(job: JobResult, names: list[str], thresholds: Thresholds) -> None:

@@ -164,9 +164,10 @@ def write_g2o(root: Path, job: JobResult, reference: int = 0) -> Path:
 
     Vertices (VERTEX_SE2) are every robot's poses in the reference robot's frame; edges
     (EDGE_SE2) join each robot's consecutive poses (its odometry between them) and, at each step
-    with an estimate, the reference robot's pose to the other robot's (the alignment). Saved runs
-    keep no covariances, so every edge carries the identity information matrix. Robot r's pose
-    at step s is vertex r * S + s (S steps).
+    with an estimate, the reference robot's pose to the other robot's (the alignment). Every edge
+    carries the identity information matrix: odometry has no covariance in a saved run, and a
+    method's alignment covariance is over T_oi_oj's parameters, not over this body-to-body
+    edge. Robot r's pose at step s is vertex r * S + s (S steps).
     """
     import gtsam
 
@@ -215,8 +216,9 @@ def write_rosbag2(root: Path, job: JobResult, reference: int = 0) -> Path:
     number): `/<robot_i>/tcaff/<method>/alignment/<robot_j>` at the steps the method has an
     estimate and `/<robot_i>/tcaff/truth/<robot_j>` where the truth is known, each a
     geometry_msgs/msg/PoseWithCovarianceStamped in `<robot_i>/odom` stamped and logged at its
-    exchange's time; saved runs keep no covariances, so they are zero. `reference` is unused:
-    every pair is written.
+    exchange's time, with the covariance of (x, y, yaw) the method reported (`cov_<method>`;
+    zero for the truth, for a method that reports none and in jobs saved before covariances
+    were kept). `reference` is unused: every pair is written.
 
     Raises:
         DataError: robot or method names that become the same topic name, or times before 0.
@@ -234,14 +236,16 @@ def write_rosbag2(root: Path, job: JobResult, reference: int = 0) -> Path:
                         f"{[s for s, _ in streams]} share a ROS 2 name")
     times = _times(job)
     messages = []
-    for (_, key), label in zip(streams, labels, strict=True):
+    for (stream, key), label in zip(streams, labels, strict=True):
+        covariances = job.arrays.get(f"cov_{stream}")
         for p, (i, j) in enumerate(job.pairs):
             topic = f"/{names[i]}/tcaff/{label}/{names[j]}"
             values = job.arrays[key][p]
             for s in np.flatnonzero(np.all(np.isfinite(values), axis=1)):
                 t = float(times[s])
+                P = np.zeros((3, 3)) if covariances is None else covariances[p, s]
                 messages.append((ns(t), topic, ALIGNMENT_TYPE, pose_message(
-                    t, f"{names[i]}/odom", values[s], np.zeros((3, 3)))))
+                    t, f"{names[i]}/odom", values[s], P)))
     folder = root / "trajectories" / job.stem / "rosbag2"
     if folder.exists():
         shutil.rmtree(folder)

@@ -20,7 +20,14 @@ from . import common, maps, studies, data, results, team  # noqa: F401
 # isort: on
 
 # Re-exported: the names tests and other callers use as `cli.<name>`.
-from .common import _CONFIG_DIR, _console, _pooled_table, app  # noqa: F401
+from .common import (  # noqa: F401
+    _CONFIG_DIR,
+    _console,
+    _nees_cell,
+    _pooled_table,
+    _summary_table,
+    app,
+)
 from .data import _parse_pairs, _parse_ranges  # noqa: F401
 from .maps import _aligner_params  # noqa: F401
 

@@ -21,7 +21,10 @@ from .common import (
     _check_recording,
     _check_seeds,
     _console,
+    _false_accept_cell,
+    _judge_availability,
     _keep_numbers_whole,
+    _nees_cell,
     _record,
     _refuse,
     _shipped,
@@ -162,22 +165,26 @@ def _parse_pairs(text: str | None) -> list[tuple[int, int]] | None:
 
 
 def _pairs_table(recorded, shown: list[str]) -> Table:
-    """Per directed pair: each shown method's false accepts and availability."""
+    """Per directed pair: each shown method's false accepts and availability, and the perfect
+    judge's availability (of TCAFF's candidates) when a shown method was judged."""
     from ..registry import describe
 
     table = _table("Per directed pair (robot names as in the data set): false accepts / "
                    "availability")
-    _add_columns(table, ("pair", "overlap [s]", *(describe(m).label for m in shown)))
+    judged = any(_judge_availability([r]) is not None
+                 for m in shown for r in recorded.job.metrics[m].values())
+    _add_columns(table, ("pair", "overlap [s]", *(describe(m).label for m in shown),
+                         *(["perfect judge"] if judged else [])))
     names = recorded.job.info.get("robots") or []
     for i, j in recorded.job.pairs:
         label = f"{i}->{j}" if not names else f"{names[i]}->{names[j]}"
-        cells = []
-        for method in shown:
-            r = recorded.job.metrics[method][f"{i}->{j}"]
-            cells.append(f"{_cell(r, 'false_accept', 100, 0)} % / "
-                         f"{_cell(r, 'availability', 100, 0)} %")
-        overlap = recorded.job.metrics[shown[0]][f"{i}->{j}"]["n_overlap"]
-        table.add_row(label, str(overlap), *cells)
+        reports = [recorded.job.metrics[method][f"{i}->{j}"] for method in shown]
+        cells = [f"{_cell(r, 'false_accept', 100, 0)} % / {_cell(r, 'availability', 100, 0)} %"
+                 for r in reports]
+        if judged:
+            judge = _judge_availability(reports)
+            cells.append("-" if judge is None else f"{100 * judge:.0f} %")
+        table.add_row(label, str(reports[0]["n_overlap"]), *cells)
     return _keep_numbers_whole(table)
 
 
@@ -303,8 +310,8 @@ def _walk_table(outcome, labels: dict[str, str]) -> Table:
     """The numbers of an RGB-D evaluation per estimate stream (pooled over pairs)."""
     table = _table(f"{outcome.recorded.job.name}: false accepts, availability from the "
                    f"first exchange TCAFF can answer at, median errors")
-    _add_columns(table, ("method", "estimates", "false acc.", "false acc. (tight)",
-                         "available", "median [m]", "median [deg]"))
+    _add_columns(table, ("method", "estimates", "false acc.\n(conf.)", "false acc.\n(tight)",
+                         "NEES\n(<95 %)", "available", "median\n[m]", "median\n[deg]"))
     for stream, r in outcome.report.items():
         def share(key: str, r=r) -> str:
             return "-" if r[key] is None else f"{100 * r[key]:.1f} %"
@@ -312,9 +319,10 @@ def _walk_table(outcome, labels: dict[str, str]) -> Table:
         def number(key: str, digits: int, r=r) -> str:
             return "-" if r[key] is None else f"{r[key]:.{digits}f}"
 
-        table.add_row(labels.get(stream, stream), str(r["estimates"]), share("false_accept"),
-                      share("false_accept_tight"), share("availability_from_first"),
-                      number("median_translation_m", 3), number("median_heading_deg", 2))
+        table.add_row(labels.get(stream, stream), str(r["estimates"]), _false_accept_cell(r),
+                      share("false_accept_tight"), _nees_cell(r),
+                      share("availability_from_first"), number("median_translation_m", 3),
+                      number("median_heading_deg", 2))
     return _keep_numbers_whole(table)
 
 

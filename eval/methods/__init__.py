@@ -50,12 +50,15 @@ class MethodRunner(Protocol):
 
     Built as `Runner(setup, stages, methods)` (`stages.RunSetup`, `stages.SharedStages`, the
     method set). `estimates` maps each of its streams to a (P, S, 3) array of (x, y, theta) of
-    T_oi_oj, NaN rows where it has no estimate, filled by `step` (and `finish`). The run charges
-    the time of `step` to the streams in `step_streams` and that of `finish` to
-    `finish_streams`, less the shared stages' time.
+    T_oi_oj, NaN rows where it has no estimate, filled by `step` (and `finish`);
+    `covariances` maps each of its streams that reports one to the (P, S, 3, 3) covariance of
+    those three numbers, NaN where there is no estimate (a stream left out has none: its NEES
+    is undefined). The run charges the time of `step` to the streams in `step_streams` and
+    that of `finish` to `finish_streams`, less the shared stages' time.
     """
 
     estimates: dict[str, np.ndarray]
+    covariances: dict[str, np.ndarray]
     step_streams: list[str]
     finish_streams: list[str]
 
@@ -79,6 +82,8 @@ class MethodRuns:
             method had no estimate.
         candidates: per pair, (steps (M,), z (M, 3)): every candidate the TCAFF filter saw.
         seconds: stream name (and shared stage, "candidates") -> compute time over the run.
+        covariances: stream name -> (P, S, 3, 3) covariance of each estimate's (x, y, theta),
+            NaN where there is none; only the streams whose method reports one.
     """
 
     pairs: list[tuple[int, int]]
@@ -86,6 +91,7 @@ class MethodRuns:
     estimates: dict[str, np.ndarray]
     candidates: list[tuple[np.ndarray, np.ndarray]]
     seconds: dict[str, float] = field(default_factory=dict)
+    covariances: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _runner_class(name: str) -> type:
@@ -140,4 +146,6 @@ def run_methods(run: AlignmentRun, methods: MethodsConfig,
             seconds[stream] += stages.seconds["tcaff"]
             break
     estimates = {stream: est for r in runners for stream, est in r.estimates.items()}
-    return MethodRuns(setup.pairs, setup.truth, estimates, stages.candidate_history(), seconds)
+    covariances = {stream: cov for r in runners for stream, cov in r.covariances.items()}
+    return MethodRuns(setup.pairs, setup.truth, estimates, stages.candidate_history(), seconds,
+                      covariances)

@@ -2,7 +2,8 @@
 centroids, and the ground truth.
 
 - Single-shot CLIPPER (the paper's baseline): one standard CLIPPER solution per step, accepted
-  as the alignment when it holds at least k associations, otherwise no alignment that step.
+  as the alignment when it holds at least k associations, otherwise no alignment that step; its
+  covariance is the aligner's R of that solution.
 - ICP (Open3D, point to point) on the two maps' recent centroids, given the true alignment at
   the start and then started from its own previous estimate, as a local method must be. It
   reports nothing until its first registration with enough correspondences; after that, a step
@@ -89,6 +90,7 @@ class ClipperRunner:
         self.aligner = FrameAligner(replace(stages.aligner.params, n_solutions=1,
                                             min_associations=min(self.ks), max_rmse=None))
         self.estimates = {f"clipper_k{k}": setup.empty() for k in self.ks}
+        self.covariances = {f"clipper_k{k}": setup.empty_covariance() for k in self.ks}
         self.step_streams, self.finish_streams = list(self.estimates), []
 
     def step(self, s: int, t: float) -> None:
@@ -96,7 +98,10 @@ class ClipperRunner:
             found = self.aligner.measurements(*self.setup.maps(p, s), t)
             best = found[0] if found else None
             for k in self.ks:
-                self.estimates[f"clipper_k{k}"][p, s] = single_shot(best, k)
+                stream = f"clipper_k{k}"
+                self.estimates[stream][p, s] = single_shot(best, k)
+                if best is not None and len(best.associations) >= k:
+                    self.covariances[stream][p, s] = best.R
 
     def finish(self) -> None:
         pass
@@ -112,6 +117,7 @@ class IcpRunner:
                                  icp.min_correspondences, icp.max_iterations)
                      for p in range(len(setup.pairs))]
         self.estimates = {"icp": setup.empty()}
+        self.covariances: dict[str, np.ndarray] = {}  # ICP's fit reports none
         self.step_streams, self.finish_streams = ["icp"], []
 
     def step(self, s: int, t: float) -> None:
@@ -128,6 +134,7 @@ class TruthRunner:
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
         self.truth = setup.truth
         self.estimates = {"ground_truth": setup.empty()}
+        self.covariances: dict[str, np.ndarray] = {}  # exact: no covariance to check
         self.step_streams, self.finish_streams = ["ground_truth"], []
 
     def step(self, s: int, t: float) -> None:

@@ -12,7 +12,14 @@ from tcaff_gtsam.frame_aligner import AlignmentMeasurement, FrameAligner, MapMem
 from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.identities import ObjectIdentities, recent_ids
 from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.pairwise import admitted, evidence_of, gives_ids, guided_search, unchecked
+from tcaff_gtsam.pairwise import (
+    admitted,
+    evidence_of,
+    explained,
+    gives_ids,
+    guided_search,
+    unchecked,
+)
 from tcaff_gtsam.precompile import compile_kernels
 from tcaff_gtsam.tcaff import TCAFF, AlignmentEstimate
 
@@ -58,6 +65,10 @@ class RunSetup:
     def empty(self) -> np.ndarray:
         """(P, S, 3) NaN: an estimate array with no estimate yet."""
         return np.full((len(self.pairs), self.n_steps, 3), np.nan)
+
+    def empty_covariance(self) -> np.ndarray:
+        """(P, S, 3, 3) NaN: the covariances of an estimate array with no estimate yet."""
+        return np.full((len(self.pairs), self.n_steps, 3, 3), np.nan)
 
     def maps(self, p: int, s: int) -> tuple[ObjectMap, ObjectMap]:
         """The ego's and the other robot's map of pair p at exchange s."""
@@ -153,7 +164,8 @@ class SharedStages:
             lookalike = gives_ids(self.checked_aligner, self.tcaff_params,
                                   *self.setup.maps(p, self.s), self.t)
             ids = tuple(self.object_ids(r) for r in self.setup.pairs[p]) if lookalike else None
-            self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence_of(kept, ids)), zs, Rs)
+            self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence_of(kept, ids),
+                                                       explained(kept)), zs, Rs)
             self._steps[p] += [self.s] * len(zs)
             self._z[p] += list(zs)
             self.seconds["tcaff"] += time.perf_counter() - start

@@ -23,6 +23,7 @@ class TcaffRunner:
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
         self.n_pairs, self.stages = len(setup.pairs), stages
         self.estimates = {"tcaff": setup.empty()}
+        self.covariances = {"tcaff": setup.empty_covariance()}
         self.step_streams, self.finish_streams = ["tcaff"], []
 
     def step(self, s: int, t: float) -> None:
@@ -30,6 +31,7 @@ class TcaffRunner:
             est = self.stages.tcaff(p)[0]
             if est is not None:
                 self.estimates["tcaff"][p, s] = est.x
+                self.covariances["tcaff"][p, s] = est.P
 
     def finish(self) -> None:
         pass
@@ -45,6 +47,7 @@ class ReferenceRunner:
         self.stages = stages
         self.R = constant_alignment_covariance()
         self.estimates = {"tcaff_reference": setup.empty()}
+        self.covariances = {"tcaff_reference": setup.empty_covariance()}
         self.step_streams, self.finish_streams = ["tcaff_reference"], []
 
     def step(self, s: int, t: float) -> None:
@@ -54,6 +57,7 @@ class ReferenceRunner:
             est = tcaff.update(zs, np.broadcast_to(self.R, (len(found), 3, 3)))
             if est is not None:
                 self.estimates["tcaff_reference"][p, s] = est.x
+                self.covariances["tcaff_reference"][p, s] = est.P
 
     def finish(self) -> None:
         pass
@@ -68,6 +72,7 @@ class TeamRunner:
         self.team = TeamConsistency(setup.run.n_robots)
         self.pairs, self.stages = setup.pairs, stages
         self.estimates = {"tcaff_team": setup.empty()}
+        self.covariances = {"tcaff_team": setup.empty_covariance()}
         self.step_streams, self.finish_streams = ["tcaff_team"], []
 
     def step(self, s: int, t: float) -> None:
@@ -76,6 +81,7 @@ class TeamRunner:
         for p, pair in enumerate(self.pairs):
             if pair in kept:
                 self.estimates["tcaff_team"][p, s] = kept[pair].x
+                self.covariances["tcaff_team"][p, s] = kept[pair].P
 
     def finish(self) -> None:
         pass
@@ -88,7 +94,9 @@ class GraphRunner:
     the pair's TCAFF has an estimate, factors link the two robots and no abandoned hypothesis
     of the pair waits for removal. Smoothed: once more at the end, when factors still link the
     two robots, the graph's alignment at every step from the pair's first TCAFF estimate to its
-    last, gaps included (outside that span the graph would only extrapolate the drift)."""
+    last, gaps included (outside that span the graph would only extrapolate the drift). Each
+    with the graph's marginal covariance of the pair's (x, y, theta) at that step, from the
+    same solution."""
 
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
         settings = setup.run.settings
@@ -101,6 +109,8 @@ class GraphRunner:
         self.filtered = np.zeros((len(setup.pairs), setup.n_steps), dtype=bool)
         self.estimates = {"tcaff_isam2_causal": setup.empty(),
                           "tcaff_isam2_smoothed": setup.empty()}
+        self.covariances = {"tcaff_isam2_causal": setup.empty_covariance(),
+                            "tcaff_isam2_smoothed": setup.empty_covariance()}
         self.step_streams, self.finish_streams = ["tcaff_isam2_causal"], ["tcaff_isam2_smoothed"]
 
     def step(self, s: int, t: float) -> None:
@@ -116,7 +126,9 @@ class GraphRunner:
             # an abandoned hypothesis waits for removal it is a mixture of two.
             if (est is not None and self.graph.connected(*self.pairs[p])
                     and self.graph.settled(*self.pairs[p])):
-                causal[p, s] = self.graph.alignment_params(*self.pairs[p], s)
+                T, cov = self.graph.alignment(*self.pairs[p], s)
+                causal[p, s] = se2_to_params(T)
+                self.covariances["tcaff_isam2_causal"][p, s] = cov
 
     def finish(self) -> None:
         smoothed = self.estimates["tcaff_isam2_smoothed"]
@@ -124,5 +136,7 @@ class GraphRunner:
             held = np.flatnonzero(self.filtered[p])
             if held.size and self.graph.connected(*pair):
                 steps, T = self.graph.alignment_history(*pair)
-                inside = (steps >= held[0]) & (steps <= held[-1])
-                smoothed[p, steps[inside]] = se2_to_params(T[inside])
+                inside = steps[(steps >= held[0]) & (steps <= held[-1])]
+                smoothed[p, inside] = se2_to_params(T[np.isin(steps, inside)])
+                cov = self.covariances["tcaff_isam2_smoothed"]
+                cov[p, inside] = [self.graph.alignment(*pair, k)[1] for k in inside]

@@ -15,7 +15,7 @@ import pytest
 from rich.console import Console
 from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.cli import app
-from tcaff_gtsam.eval.config import CONFIG_DIR
+from tcaff_gtsam.eval.config import CONFIG_DIR, MethodsConfig
 from typer.main import get_command
 from typer.testing import CliRunner
 
@@ -104,22 +104,64 @@ def test_align_maps_defaults_come_from_the_aligner_params():
 
 REPORT = {"translation_error_m_mean": 0.12, "translation_error_m_std": 0.03,
           "heading_error_deg_mean": 1.25, "heading_error_deg_std": 10.5, "availability": 1.0,
-          "false_accept": 0.125, "time_to_first_correct_s": 14.0, "ape_m": 0.05,
-          "rpe_m": 0.04,
+          "correct_availability": 0.875, "false_accept": 0.125, "confident_false_accept": 0.0625,
+          "nees_mean": 123456.0, "nees_under_95": 0.5,
+          "time_to_first_correct_per_overlap_s_median": 14.0, "overlaps_found": 0.75,
+          "judge_availability": 0.92, "ape_m": 0.05, "rpe_m": 0.04,
           "ms_per_pair_step": 12345.67}
+#: a method without covariance or candidates, which no overlap found
+BARE = {**REPORT, "nees_mean": None, "nees_under_95": None, "confident_false_accept": None,
+        "judge_availability": None, "time_to_first_correct_per_overlap_s_median": None,
+        "overlaps_found": 0.0}
 
 
-@pytest.mark.parametrize("width", [60, 80, 120])
-def test_study_table_never_cuts_a_number(width):
-    labels = {"tcaff": "TCAFF", "smoothed": "TCAFF+iSAM2 smoothed", "truth": "ground truth"}
-    summary = {"ambiguous_grid_opposite": dict.fromkeys(labels, REPORT)}
+def table_text(summary: dict, labels: dict, width: int) -> str:
     console = Console(width=width, record=True)
     console.print(cli._pooled_table(summary, labels))
-    text = console.export_text()
+    return console.export_text()
+
+
+@pytest.mark.parametrize("width", [66, 80, 120])
+def test_study_table_never_cuts_a_number(width):
+    """Down to 66 columns (nine columns of numbers and the labels need that much)."""
+    labels = {"tcaff": "TCAFF", "smoothed": "TCAFF+iSAM2 smoothed", "truth": "ground truth"}
+    summary = {"ambiguous_grid_opposite": {"tcaff": REPORT, "smoothed": REPORT, "truth": BARE}}
+    text = table_text(summary, labels, width)
     assert max(map(len, text.splitlines())) <= width
-    for number in ("12345.67", "0.12", "0.03", "1.25", "10.50", "100", "12.5", "14", "0.05",
-                   "0.04"):
-        assert re.search(rf"(?<![\d.]){re.escape(number)}(?![\d.])", text), (number, text)
+    for number in ("12345.67", "0.12", "0.03", "1.25", "10.50", "100", "88", "12.5", "6.2",
+                   "1e+05", "50", "14", "75", "92", "0.05", "0.04"):
+        assert re.search(rf"(?<![\d.]){re.escape(number)}(?![\d.e+])", text), (number, text)
+
+
+def test_study_table_shows_the_new_figures_and_the_perfect_judge_once():
+    labels = {"tcaff": "TCAFF", "smoothed": "TCAFF+iSAM2 smoothed", "truth": "ground truth"}
+    summary = {"indoor": {"tcaff": REPORT, "smoothed": REPORT, "truth": BARE},
+               "bare": dict.fromkeys(labels, BARE)}
+    text = table_text(summary, labels, 140)
+    lines = text.splitlines()
+    row = next(line for line in lines if line.strip().startswith("TCAFF "))
+    assert "12.5 (6.2) %" in row and "1e+05 (50 %)" in row and "14 (75 %)" in row
+    truth = next(line for line in lines if line.strip().startswith("ground truth"))
+    # no covariance: NEES "-", not 0; no overlap found: "-" seconds of 0 %
+    assert "12.5 (-) %" in truth and "- (0 %)" in truth and " - " in truth
+    judges = [line for line in lines if line.strip().startswith("perfect judge")]
+    assert len(judges) == 1 and "92 (92) %" in judges[0]  # once, under indoor, not under bare
+    assert lines.index(judges[0]) < next(k for k, line in enumerate(lines)
+                                         if line.strip() == "bare")
+    for header in ("false acc.", "(conf.)", "NEES", "(<95 %)", "1st correct", "per overlap"):
+        assert header in text, header
+    console = Console(width=100, record=True)
+    console.print(cli._summary_table(summary, MethodsConfig(methods=["tcaff"])))
+    key = " ".join(console.export_text().split())  # the key under the table, wrapped whole
+    assert "NEES > 14.16" in key and "95 % bound 7.81" in key and "perfect judge" in key
+
+
+def test_nees_cells_stay_short_however_large():
+    cell = cli._nees_cell
+    assert cell({"nees_mean": 2.987, "nees_under_95": 0.951}) == "2.99 (95 %)"
+    assert cell({"nees_mean": 123.4, "nees_under_95": 0.0}) == "123 (0 %)"
+    assert cell({"nees_mean": 4.2e7, "nees_under_95": 0.0}) == "4e+07 (0 %)"
+    assert cell({"nees_mean": None, "nees_under_95": None}) == "-"
 
 
 def test_make_maps_then_align_maps_finds_the_truth(tmp_path):

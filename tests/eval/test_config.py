@@ -186,6 +186,12 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
      "scenarios.0.pedestrians.tracker.gate: must be a finite number > 0 (got -1)"),
     ({"scenarios": [{**SCENARIO, "pedestrians": {"tracker": {"confirm_hits": "3"}}}]},
      "scenarios.0.pedestrians.tracker.confirm_hits: must be an int >= 1 (got '3')"),
+    ({"scenarios": ["indoor_return"], "methods": {"thresholds": {"overlap_gap_steps": 0}}},
+     "methods.thresholds.overlap_gap_steps: Input should be greater than or equal to 1"),
+    ({"scenarios": ["indoor_return"], "methods": {"thresholds": {"judge_hold": -5}}},
+     "methods.thresholds.judge_hold: Input should be greater than or equal to 0"),
+    ({"scenarios": ["indoor_return"], "methods": {"thresholds": {"overlap_gap_steps": True}}},
+     "methods.thresholds.overlap_gap_steps: must be a number, not true/false"),
     ("scenarios: [\n", "not valid YAML"),
     ("- just\n- a list\n", "expected a mapping of keys, got list"),
 ])
@@ -272,3 +278,18 @@ def test_effective_config_with_changed_parameters_loads_again(tmp_path):
     assert m.tcaff_params(False, again.scenarios[0].window) == replace(
         TCAFFParams(tau=7.5, Q=np.diag([0.02, 0.02, 1e-4]), gate_box=(1, 1, 0.5)), window=4)
     assert again.scenarios[0].pedestrians.tracker == TrackerParams(gate=5.99, max_coast=2)
+
+
+def test_the_scoring_thresholds_reach_the_metrics(tmp_path):
+    """A method set's thresholds, its overlap gap and the judge's hold included, become the
+    `metrics.Thresholds` every score uses; the defaults are the documented 5 steps and 40 s."""
+    from tcaff_gtsam.eval.metrics import Thresholds
+    from tcaff_gtsam.eval.results import thresholds_of
+
+    assert thresholds_of(MethodsConfig()) == Thresholds()
+    assert thresholds_of(load_methods("default")) == Thresholds()
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump({"thresholds": {"translation": 0.5, "heading_deg": 2.0,
+                                                   "overlap_gap_steps": 3,
+                                                   "judge_hold": 12.5}}))
+    assert thresholds_of(load_methods(str(path))) == Thresholds(0.5, np.radians(2.0), 3, 12.5)

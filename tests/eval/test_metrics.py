@@ -206,7 +206,12 @@ def test_as_report_keys_units_and_json():
         "heading_error_deg_mean", "heading_error_deg_std", "availability",
         "correct_availability", "false_accept", "time_to_first_correct_s",
         "rpe_translation_m", "rpe_heading_deg", "ape_m", "rpe_m", "n_steps",
-        "n_estimates", "n_overlap"}
+        "n_estimates", "n_overlap", "nees_mean", "nees_under_95", "confident_false_accept",
+        "time_to_first_correct_per_overlap_s_median", "overlaps_found", "judge_availability",
+        "n_overlaps"}
+    # the trace has no covariance and no candidates: those figures are None, not 0
+    assert report["nees_mean"] is None and report["judge_availability"] is None
+    assert report["n_overlaps"] == 1 and report["overlaps_found"] == 1.0
     assert report["heading_error_deg_mean"] == pytest.approx(math.degrees(np.mean(HEAD)))
     assert report["heading_error_deg_std"] == pytest.approx(math.degrees(np.std(HEAD)))
     assert report["rpe_heading_deg"] == pytest.approx(math.degrees(np.mean(HEAD)))

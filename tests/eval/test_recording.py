@@ -196,3 +196,26 @@ def test_the_dataframe_api_reads_every_error_series_at_its_times(job, tmp_path):
             order = np.argsort(seconds_at[logged])
             got = np.concatenate([cells[k] for k in np.array(logged)[order]])
             np.testing.assert_allclose(got, expected, atol=1e-9)
+
+
+def test_nees_series_where_the_job_kept_covariances(job, tmp_path):
+    """Each pair's NEES over time for the methods whose covariances the job kept (TCAFF), at
+    their estimate steps; none for the truth, which reports no covariance, nor for a job saved
+    before covariances were kept."""
+    entities = read_back(record(tmp_path / "run.rrd", [job]))
+    root = f"/{job.stem}"
+    for q, (i, j) in enumerate(job.pairs):
+        est, cov = job.arrays["est_tcaff"][q], job.arrays["cov_tcaff"][q]
+        steps = np.flatnonzero(np.all(np.isfinite(est), axis=1))
+        batches = entities[f"{root}/errors/{i}_to_{j}/nees/tcaff"]
+        np.testing.assert_allclose(seconds(batches), job.arrays["times"][steps])
+        # e' P^-1 e of the parameters' error, heading wrapped
+        e = est[steps] - job.arrays["truth"][q, steps]
+        e[:, 2] = np.angle(np.exp(1j * e[:, 2]))
+        expected = np.einsum("ni,nij,nj->n", e, np.linalg.inv(cov[steps]), e)
+        np.testing.assert_allclose(np.concatenate(column(batches, "Scalars:scalars")), expected,
+                                   rtol=1e-6)
+        assert f"{root}/errors/{i}_to_{j}/nees/ground_truth" not in entities
+    old = JobResult("old", None, job.pairs,
+                    {k: v for k, v in job.arrays.items() if not k.startswith("cov_")})
+    assert not any("/nees/" in e for e in read_back(record(tmp_path / "old.rrd", [old])))

@@ -359,7 +359,19 @@ def test_walk_report_counts_false_accepts_at_both_thresholds():
     assert report["none"] == {
         "estimates": 0, "false_accept": None, "false_accept_tight": None,
         "availability_from_first": 0.0, "first_exchange": 9, "median_translation_m": None,
-        "median_heading_deg": None}
+        "median_heading_deg": None, "nees_mean": None, "nees_under_95": None,
+        "confident_false_accept": None}
+    assert r["nees_mean"] is None  # no covariance kept: undefined, not 0
+    # with a covariance of 0.1 m and 1 deg sigmas: the estimates 2 m (NEES 400) and 6 deg
+    # (NEES 36) off are confident false accepts; 0.5 m (25) is beyond 95 % but right
+    sigmas = np.array([0.1, 0.1, math.radians(1.0)])
+    job.arrays["cov_a"] = np.where(np.isnan(a[..., :1, None]), np.nan, np.diag(sigmas**2))
+    r = walk_report(job, ["a"], Thresholds(1.0, math.radians(5.0)),
+                    Thresholds(0.3, math.radians(3.0)), first)["a"]
+    nees = [400.0, 1.0, 25.0, 16.0, 36.0, 0.25]  # steps 3, 8, 9, 11 of pair 0; 9, 11 of pair 1
+    assert r["nees_mean"] == pytest.approx(np.mean(nees))
+    assert r["nees_under_95"] == pytest.approx(2 / 6)
+    assert r["confident_false_accept"] == pytest.approx(2 / 6)
     late = walk_report(job, ["a"], Thresholds(), Thresholds(0.3, math.radians(3.0)), S)
     assert late["a"]["availability_from_first"] is None  # no exchange from W + 1 on
     assert late["a"]["estimates"] == 6

@@ -277,3 +277,90 @@ def test_expected_seconds_grow_with_the_work_and_rank_the_demo_longest_first():
     assert guess(rgbd) > guess(rgbd, camera=None)
     ranked = sorted(demo.scenarios, key=lambda s: -guess(s))
     assert [s.name for s in ranked[:3]] == ["indoor_rgbd", "mot", "four_robots"]
+
+
+def test_every_method_that_reports_a_covariance_keeps_it_and_a_reread_job_scores_the_same(
+        tmp_path):
+    """The TCAFF filters (the team's too), the graph's read-outs and single-shot CLIPPER keep a
+    covariance beside each estimate (NaN exactly where there is none); ICP and the truth keep
+    none and score no NEES. The judge rides on the TCAFF streams only. A job saved without
+    covariances (before they were kept) still loads and scores, with NEES None."""
+    from tcaff_gtsam.params import constant_alignment_covariance
+
+    job = simulated_job(short("indoor_return", 40), QUICK_METHODS, seed=0)
+    kept = {k.removeprefix("cov_") for k in job.arrays if k.startswith("cov_")}
+    assert kept == {"tcaff", "tcaff_reference", "tcaff_team", "tcaff_isam2_causal",
+                    "tcaff_isam2_smoothed", "clipper_k3", "clipper_k5"}
+    for stream in kept:
+        est, cov = job.arrays[f"est_{stream}"], job.arrays[f"cov_{stream}"]
+        assert cov.shape == (*est.shape, 3)
+        has = ~np.isnan(est[..., 0])
+        assert has.any(), stream
+        assert np.all(np.isfinite(cov[has])) and np.all(np.isnan(cov[~has])), stream
+        assert np.all(np.linalg.eigvalsh(cov[has]) > 0), stream
+    # single-shot CLIPPER's covariance is the aligner's R of its solution: the constant one
+    has = ~np.isnan(job.arrays["est_clipper_k3"][..., 0])
+    np.testing.assert_array_equal(job.arrays["cov_clipper_k3"][has],
+                                  np.broadcast_to(constant_alignment_covariance(),
+                                                  (has.sum(), 3, 3)))
+    for stream in ("icp", "ground_truth"):
+        report = job.metrics[stream]["all"]
+        assert report["nees_mean"] is None and report["confident_false_accept"] is None
+    for stream in kept:
+        report = job.metrics[stream]["all"]
+        assert report["nees_mean"] is not None and 0 <= report["nees_under_95"] <= 1, stream
+    judged = {s for s, by_pair in job.metrics.items() if by_pair["all"]["judge_availability"]
+              is not None}
+    assert judged == {"tcaff", "tcaff_team", "tcaff_isam2_causal", "tcaff_isam2_smoothed"}
+    assert len({job.metrics[s]["all"]["judge_availability"] for s in judged}) == 1
+
+    job.save(tmp_path / "new")
+    again = JobResult.load(tmp_path / "new", job.stem)
+    score(again, estimate_names(QUICK_METHODS), thresholds_of(QUICK_METHODS))
+    assert again.metrics == json.loads(json.dumps(job.metrics))
+
+    old = JobResult(job.name, job.seed, job.pairs,
+                    {k: v for k, v in job.arrays.items() if not k.startswith("cov_")})
+    old.save(tmp_path / "old")
+    loaded = JobResult.load(tmp_path / "old", job.stem)
+    score(loaded, estimate_names(QUICK_METHODS), thresholds_of(QUICK_METHODS))
+    for stream, by_pair in loaded.metrics.items():
+        for pair, report in by_pair.items():
+            assert report["nees_mean"] is None and report["nees_under_95"] is None
+            fresh = {k: v for k, v in job.metrics[stream][pair].items()
+                     if k not in ("nees_mean", "nees_under_95", "confident_false_accept")}
+            assert {k: v for k, v in report.items() if k in fresh} == pytest.approx(fresh)
+
+
+def test_the_graphs_covariances_are_its_marginals_at_each_step():
+    """The causal read-out's covariance at a step is the graph's marginal of the pair's
+    alignment then (checked by replaying the graph through that step), the smoothed one the
+    marginal from the final graph."""
+    from tcaff_gtsam.eval.methods import run_methods
+    from tcaff_gtsam.eval.methods.stages import RunSetup, SharedStages
+    from tcaff_gtsam.eval.methods.tcaff import GraphRunner
+    from tcaff_gtsam.eval.sim.simulate import simulate
+
+    methods = QUICK_METHODS.model_copy(update={"methods": ["tcaff_isam2"]})
+    run = simulate(short("indoor_return", 30), 0)
+    runs = run_methods(run, methods)
+    causal = runs.covariances["tcaff_isam2_causal"]
+    has = ~np.isnan(runs.estimates["tcaff_isam2_causal"][..., 0])
+    p, s = np.argwhere(has)[len(np.argwhere(has)) // 2]
+    setup = RunSetup.of(run)
+    stages = SharedStages(setup, methods)
+    graph = GraphRunner(setup, stages, methods)
+    for k in range(s + 1):
+        stages.begin(k, float(run.times[k]))
+        graph.step(k, float(run.times[k]))
+    np.testing.assert_allclose(causal[p, s], graph.graph.alignment(*setup.pairs[p], s)[1],
+                               rtol=1e-9, atol=1e-15)
+    for k in range(s + 1, len(run.times)):
+        stages.begin(k, float(run.times[k]))
+        graph.step(k, float(run.times[k]))
+    graph.finish()
+    smoothed = runs.covariances["tcaff_isam2_smoothed"]
+    steps = np.flatnonzero(~np.isnan(runs.estimates["tcaff_isam2_smoothed"][p, :, 0]))
+    for k in steps[:: max(1, len(steps) // 5)]:
+        np.testing.assert_allclose(smoothed[p, k], graph.graph.alignment(*setup.pairs[p], k)[1],
+                                   rtol=1e-9, atol=1e-15)

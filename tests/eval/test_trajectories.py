@@ -43,8 +43,13 @@ def make_job(seed: int = 0, S: int = 25, t0: float = 1000.0) -> JobResult:
     noisy = se2_to_params(se2_from_params(truth)
                           @ se2_from_params(rng.normal(0, [0.05, 0.05, 0.02], (len(PAIRS), S, 3))))
     noisy[:, rng.random(S) < 0.3] = np.nan
+    # its covariance: sigmas of a few cm and degrees, x and y correlated, NaN without estimate
+    cov = np.einsum("psi,psj->psij", *[rng.normal(0, 0.05, (len(PAIRS), S, 3))] * 2)
+    cov += np.diag([0.05**2, 0.05**2, 0.02**2])
+    cov[np.isnan(noisy[..., 0])] = np.nan
     arrays = {"times": steps, "t0": np.array(t0), "poses_true": true, "poses_odom": odom,
-              "truth": truth, "est_noisy": noisy, "est_ground_truth": truth.copy()}
+              "truth": truth, "est_noisy": noisy, "cov_noisy": cov,
+              "est_ground_truth": truth.copy()}
     job = JobResult("walk", seed, PAIRS, arrays)
     score(job, ["noisy", "ground_truth"], Thresholds())
     return job
@@ -171,6 +176,11 @@ def test_rosbag2_export_holds_every_pairs_alignments_for_mcap_readers(tmp_path):
                 assert (pose.position.x, pose.position.y) == tuple(values[s, :2])
                 assert 2 * np.arctan2(pose.orientation.z, pose.orientation.w) == \
                     pytest.approx(values[s, 2], abs=1e-12)
+                # the method's covariance of (x, y, yaw) in ROS's (x, y, z, roll, pitch, yaw)
+                covariance = np.reshape(m.pose.covariance, (6, 6))[np.ix_([0, 1, 5], [0, 1, 5])]
+                expected = (job.arrays["cov_noisy"][p, s] if stream.startswith("noisy")
+                            else np.zeros((3, 3)))
+                np.testing.assert_array_equal(covariance, expected)
 
 
 def test_export_of_a_recorded_folder_and_bad_input(tmp_path):
