@@ -15,13 +15,14 @@ from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
-__all__ = ["PairwiseAligner", "admitted", "evidence_of", "explained", "gives_ids",
+__all__ = ["PairwiseAligner", "admitted", "counted", "evidence_of", "explained", "gives_ids",
            "guided_search", "unchecked"]
 
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
     """`params` without the checks beyond MNO-CLIPPER's (residual, objects explained, spread,
-    ambiguity) and with the paper's size gate: the candidates the released code sees.
+    ambiguity) and with the paper's size gate: the candidates the released code sees, down to
+    `min_associations` associations (the released code's is 5).
 
     Raises:
         ConfigError: params not a FrameAlignerParams.
@@ -52,11 +53,12 @@ def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | No
     return [m for m in found if not (m.ambiguous or m.tracked) or _confirms(m.z, held, params)]
 
 
-def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.ndarray] | None
-                ) -> list[np.ndarray] | None:
+def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.ndarray] | None,
+                only: np.ndarray | None = None) -> list[np.ndarray | None] | None:
     """Per candidate, the (ego object id, other object id) pairs it associates (k, 2), from
     the two maps' persistent ids (`identities.recent_ids`, indexed like the maps); None without
-    ids (a filter that does not count evidence needs none).
+    ids (a filter that does not count evidence needs none). With `only` ((k,) bool), the
+    candidates it leaves out get None: distinct evidence whatever objects they use.
 
     Raises:
         DataError: found not a list of AlignmentMeasurement; ids neither None nor two 1-D
@@ -78,8 +80,29 @@ def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.nda
         if reach >= len(each):
             raise DataError(f"evidence_of: ids[{side}] has {len(each)} ids, an association "
                             f"refers to index {reach}")
-    return [np.column_stack([ego_ids[m.associations[:, 0]], other_ids[m.associations[:, 1]]])
-            for m in found]
+    pairs = [np.column_stack([ego_ids[m.associations[:, 0]], other_ids[m.associations[:, 1]]])
+             for m in found]
+    if only is None:
+        return pairs
+    return [each if keep else None for each, keep in zip(pairs, only, strict=True)]
+
+
+def counted(params: TCAFFParams, lookalike: bool, objects: np.ndarray) -> np.ndarray | None:
+    """Which candidates' objects the filter counts as distinct evidence (`evidence_of`'s
+    `only`), from the number of objects each explains (`explained`): all of them among
+    look-alikes (`gives_ids`), elsewhere those explaining fewer than `object_base` objects,
+    whose agreement a few look-alike objects re-matched at every step could make; None when
+    none are counted (the filter does not count evidence, or nothing qualifies).
+
+    Raises:
+        ConfigError: params not a TCAFFParams.
+    """
+    _require(isinstance(params, TCAFFParams), "counted", "params", params,
+             "must be a TCAFFParams")
+    if not params.counts_evidence:
+        return None
+    only = np.full(objects.shape, True) if lookalike else objects < params.object_base
+    return only if only.any() else None
 
 
 def explained(found: list[AlignmentMeasurement]) -> np.ndarray:
@@ -219,17 +242,20 @@ class PairwiseAligner:
         measurements = self.aligner.measurements(
             ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held,
             guided)
+        kept = admitted(measurements, self.filter.held, prm)
+        zs = np.array([m.z for m in kept]).reshape(-1, 3)
+        Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
+        objects = explained(kept)
+        only = counted(self.filter.params, gives_ids(self.aligner, self.filter.params, ego_map,
+                                                     other_map, t), objects)
         # (the identities match objects by position, so they bridge the steps without ids)
         identities, ids = self._identities, None
-        if gives_ids(self.aligner, self.filter.params, ego_map, other_map, t):
+        if only is not None:
             # the identities advance on copies, kept only once the filter has taken the step
             identities = tuple(copy.copy(each) for each in self._identities)
             ids = tuple(recent_ids(each, objects, t, prm.kappa) for each, objects
                         in zip(identities, (ego_map, other_map), strict=True))
-        kept = admitted(measurements, self.filter.held, prm)
-        zs = np.array([m.z for m in kept]).reshape(-1, 3)
-        Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-        estimate = self.filter.update(zs, Rs, evidence_of(kept, ids), explained(kept))
+        estimate = self.filter.update(zs, Rs, evidence_of(kept, ids, only), objects)
         # the step succeeded: only now does it count as taken
         self.measurements = measurements
         self.taken = kept

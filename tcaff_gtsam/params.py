@@ -434,8 +434,10 @@ class FrameAlignerParams(_ByValue):
         """For maps of cameras on gravity-aligned odometry (VIO), as the RGB-D front end
         makes them (objects' clouds merged over views, with descriptors): the gravity prior
         (`height_epsilon` = CLIPPER's epsilon), covariances from the registration residuals,
-        and descriptors as a gate (similarity >= 0.5) and CLIPPER's prior. `changes` are any
-        other fields.
+        descriptors as a gate (similarity >= 0.5) and CLIPPER's prior, and candidates of as
+        few as 3 associations: with descriptors and heights to agree on, a clique of three is
+        rarely a coincidence, and the filter weighs it as weak evidence
+        (`TCAFFParams.object_nats`). `changes` are any other fields.
 
         On the 7-Scenes kitchen (two hand-held halves, VIO-like drift) these take false
         accepts from about 1 in 4 to none and heading errors from 4 to about 1 degree
@@ -445,7 +447,8 @@ class FrameAlignerParams(_ByValue):
         clipper = changes.get("clipper", ClipperParams())
         epsilon = clipper.epsilon if isinstance(clipper, ClipperParams) else None
         return cls(**{"height_epsilon": epsilon, "covariance": "residual",
-                      "descriptor_min": 0.5, "descriptor_prior": True, **changes})
+                      "descriptor_min": 0.5, "descriptor_prior": True, "min_associations": 3,
+                      **changes})
 
 
 @dataclass(frozen=True, eq=False)

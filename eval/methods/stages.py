@@ -14,6 +14,7 @@ from tcaff_gtsam.identities import ObjectIdentities, recent_ids
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.pairwise import (
     admitted,
+    counted,
     evidence_of,
     explained,
     gives_ids,
@@ -161,11 +162,14 @@ class SharedStages:
             kept = admitted(found, self._filters[p].held, self.checked)
             zs = np.array([m.z for m in kept]).reshape(-1, 3)
             Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
-            lookalike = gives_ids(self.checked_aligner, self.tcaff_params,
-                                  *self.setup.maps(p, self.s), self.t)
-            ids = tuple(self.object_ids(r) for r in self.setup.pairs[p]) if lookalike else None
-            self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence_of(kept, ids),
-                                                       explained(kept)), zs, Rs)
+            objects = explained(kept)
+            only = counted(self.tcaff_params,
+                           gives_ids(self.checked_aligner, self.tcaff_params,
+                                     *self.setup.maps(p, self.s), self.t), objects)
+            ids = None if only is None else tuple(self.object_ids(r)
+                                                  for r in self.setup.pairs[p])
+            self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence_of(kept, ids, only),
+                                                       objects), zs, Rs)
             self._steps[p] += [self.s] * len(zs)
             self._z[p] += list(zs)
             self.seconds["tcaff"] += time.perf_counter() - start

@@ -7,7 +7,7 @@ import numpy as np
 
 from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.graph import InterRobotGraph
-from tcaff_gtsam.params import constant_alignment_covariance
+from tcaff_gtsam.params import FrameAlignerParams, constant_alignment_covariance
 from tcaff_gtsam.tcaff import TCAFF
 from tcaff_gtsam.team import TeamConsistency
 
@@ -38,21 +38,23 @@ class TcaffRunner:
 
 
 class ReferenceRunner:
-    """`tcaff_reference`: the released code's preset on every candidate (no residual check),
-    each with the original's constant R."""
+    """`tcaff_reference`: the released code's preset on every candidate (no residual check) of
+    its minimum number of associations, each with the original's constant R."""
 
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
         params = methods.tcaff_params(True, setup.run.settings.window)
         self.filters = [TCAFF(params) for _ in setup.pairs]
         self.stages = stages
         self.R = constant_alignment_covariance()
+        self.min_associations = FrameAlignerParams.reference().min_associations
         self.estimates = {"tcaff_reference": setup.empty()}
         self.covariances = {"tcaff_reference": setup.empty_covariance()}
         self.step_streams, self.finish_streams = ["tcaff_reference"], []
 
     def step(self, s: int, t: float) -> None:
         for p, tcaff in enumerate(self.filters):
-            found = self.stages.candidates(p)
+            found = [m for m in self.stages.candidates(p)
+                     if len(m.associations) >= self.min_associations]
             zs = np.array([m.z for m in found]).reshape(-1, 3)
             est = tcaff.update(zs, np.broadcast_to(self.R, (len(found), 3, 3)))
             if est is not None:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from tcaff_gtsam.eval.sim.streams import robot_team_streams
 
-from tcaff_gtsam import TCAFF, InterRobotGraph
+from tcaff_gtsam import TCAFF, InterRobotGraph, TCAFFParams
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import (
     se2_error,
@@ -407,12 +407,14 @@ def test_bad_keys_poses_and_estimates_are_data_errors():
         InterRobotGraph(2, GraphParams(dim=3)).add_tcaff_estimate(0, 0, 1, est, zs, R[None])
 
 
-def leave_and_return(seed: int, first, second) -> tuple[InterRobotGraph, set[int]]:
+def leave_and_return(seed: int, first, second, recall: bool = False
+                     ) -> tuple[InterRobotGraph, set[int]]:
     """TCAFF sees `first` for 30 steps, nothing for 60 (its tree is dropped), then `second`;
-    returns the graph and the hypotheses its alignment factors carry."""
+    returns the graph and the hypotheses its alignment factors carry. Without `recall` the
+    filter forgets the dropped hypothesis, so an agreeing one comes back under a new id."""
     rng = np.random.default_rng(seed)
     graph = InterRobotGraph(2)
-    filt = TCAFF()
+    filt = TCAFF(TCAFFParams() if recall else TCAFFParams(recall_for=None))
     for k in range(160):
         x = first if k < 30 else second
         zs = (x + rng.normal(0, [0.05, 0.05, 0.005]))[None] if not 30 <= k < 90 else np.zeros(
@@ -428,6 +430,8 @@ def test_reacquired_agreeing_hypothesis_keeps_the_dropped_ones_factors():
     x = np.array([1.0, 2.0, 0.3])
     _, hypotheses = leave_and_return(5, x, x)
     assert hypotheses == {1, 2}  # the first visit's factors survived the drop
+    _, hypotheses = leave_and_return(5, x, x, recall=True)
+    assert hypotheses == {1}  # recalled under its id, its factors never in question
 
 
 def test_reacquired_disagreeing_hypothesis_removes_the_dropped_ones_factors():

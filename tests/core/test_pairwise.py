@@ -58,7 +58,9 @@ def test_tracking_holds_an_alignment_through_steps_too_sparse_for_candidates():
     tcaff = TCAFFParams(drop_after=10, report_after=5)
     runs = {}
     for track_min in (None, 3):
-        pa = PairwiseAligner(FrameAlignerParams(track_min=track_min), tcaff)
+        # three objects make weak candidates by default: here they make none
+        pa = PairwiseAligner(FrameAlignerParams(track_min=track_min, min_associations=5),
+                             tcaff)
         rng = np.random.default_rng(0)
         out = []
         for t in range(60):

@@ -291,7 +291,7 @@ def test_the_aligner_pairs_objects_cut_by_a_partial_view():
     assert dt < 0.5 and math.degrees(dtheta) < 2.0
     assert FrameAlignerParams.reference().size_partial is None
     tall = [i for i in range(len(other)) if pair.other.heights[i] > 0.3]  # beyond abs_diff
-    paper = FrameAligner(FrameAlignerParams(size_partial=None))
+    paper = FrameAligner(FrameAlignerParams.reference())
     assert paper.measurements(pair.ego, other.subset(tall), pair.now) == []
 
 
@@ -572,12 +572,15 @@ def test_the_defaults_and_the_camera_preset():
     assert wider.height_epsilon == wider.clipper.epsilon == 0.4
     assert camera.covariance == "residual"
     assert camera.descriptor_min == 0.5 and camera.descriptor_prior is True
-    changed = {"height_epsilon", "covariance", "descriptor_min", "descriptor_prior"}
+    assert camera.min_associations == 3 < default.min_associations
+    changed = {"height_epsilon", "covariance", "descriptor_min", "descriptor_prior",
+               "min_associations"}
     for f in fields(FrameAlignerParams):
         if f.name not in changed:
             assert np.all(getattr(camera, f.name) == getattr(default, f.name)), f.name
     assert camera == FrameAlignerParams(height_epsilon=0.25, covariance="residual",
-                                        descriptor_min=0.5, descriptor_prior=True)
+                                        descriptor_min=0.5, descriptor_prior=True,
+                                        min_associations=3)
     # changes override the preset's own values and add any other field
     assert FrameAlignerParams.camera(height_epsilon=None).height_epsilon is None
     more = FrameAlignerParams.camera(refit=True, kappa=7.0, descriptor_min=0.8)

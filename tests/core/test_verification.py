@@ -228,7 +228,8 @@ def test_only_objects_seen_within_kappa_get_ids():
     np.testing.assert_array_equal(recent_ids(identities, objects, 11.0, 20.0), first)
 
 
-TRACKING = FrameAlignerParams(track_min=3)
+# candidates need 5 associations here, so that three shared objects are only tracked
+TRACKING = FrameAlignerParams(track_min=3, min_associations=5)
 
 
 def three_shared(T: np.ndarray, noise: float = 0.0, seed: int = 0):
@@ -265,7 +266,8 @@ def test_nothing_is_tracked_when_the_held_alignment_pairs_too_few_or_is_off():
     T = se2_from_params([2.0, -1.0, 0.7])
     ego, other = three_shared(T)
     z = np.array([2.0, -1.0, 0.7])
-    assert FrameAligner(FrameAlignerParams()).measurements(ego, other, 10.0, held=z) == []
+    assert FrameAligner(FrameAlignerParams(min_associations=5)).measurements(
+        ego, other, 10.0, held=z) == []
     assert FrameAligner(replace(TRACKING, track_min=4)).measurements(ego, other, 10.0,
                                                                      held=z) == []
     # one metre off pairs nothing within confirm_translation
