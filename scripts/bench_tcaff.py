@@ -70,7 +70,9 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true",
                         help="profile the default preset at k = 4 with a main tree")
     args = parser.parse_args()
-    presets = {"default": TCAFFParams(), "reference": TCAFFParams.reference()}
+    presets = {"default": TCAFFParams(),
+               "at W": TCAFFParams(sequential=False, recall_for=None),
+               "reference": TCAFFParams.reference()}
     time_stream(presets["default"], make_stream(50, 4, "in gate"))  # compile (cached afterwards)
     print(f"{'preset':10} {'regime':10} {'k':>3} {'median ms':>10} {'p95 ms':>8} {'max ms':>8} "
           f"{'estimates':>9}")
