@@ -3,6 +3,12 @@
 Pipeline (paper, "Map Alignment" and Algorithm 1): keep objects seen within kappa seconds, gate
 putative associations by size, build the consistency graph, draw N near-optimal CLIPPER
 solutions, register each by weighted Arun, keep the good ones.
+
+Each candidate's covariance R (`FrameAlignerParams.covariance`): "constant" (the original's),
+"residual" (the registration's sandwich covariance, `residual_covariance`) or "calibrated"
+(`calibrated_covariance`: the sandwich with the point noise pooled with a prior, the drift of
+the odometries over the map's span, and the inflation that keeps a filter re-registering the
+same objects every step from averaging their shared error away).
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .clipper import _graph, _height_slack, _solutions
-from .errors import DataError
+from .errors import ConfigError, DataError
 from .geometry import (
     _se2_from_params,
     _se2_to_params,
@@ -27,7 +33,14 @@ from .geometry import (
 )
 from .inputs import finite_time, real_array, shown
 from .object_map import ObjectMap, as_object_map
-from .params import FrameAlignerParams, _finite, _given_or_default, _real, _require
+from .params import (
+    FrameAlignerParams,
+    _alignment_process_noise,
+    _finite,
+    _given_or_default,
+    _real,
+    _require,
+)
 from .registration import (
     MAX_COORDINATE,
     MAX_WEIGHT,
@@ -47,6 +60,7 @@ __all__ = [
     "AlignmentMeasurement",
     "FrameAligner",
     "MapMemory",
+    "calibrated_covariance",
     "confirms",
     "residual_covariance",
 ]
@@ -107,9 +121,19 @@ def residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights
         weights: (k,) Arun weights >= 0; floor: metres, >= 0.
     Raises:
         DataError: an argument not real, not finite, or of the wrong shape; negative weights
-            or floor.
+            or floor; coordinates beyond `registration.MAX_COORDINATE` or weights beyond
+            `registration.MAX_WEIGHT`.
     """
     o = "residual_covariance"
+    T_i_j, p, q, weights = _registration_arrays(o, T_i_j, p, q, weights)
+    if not (_finite(floor) and floor >= 0):
+        raise DataError(f"{o}: floor must be a finite number >= 0 metres, got {shown(floor)}")
+    return _residual_covariance(T_i_j, p, q, weights, float(floor))
+
+
+def _registration_arrays(o: str, T_i_j, p, q, weights) -> tuple[np.ndarray, ...]:
+    """T_i_j (3, 3), p and q (k, 2), weights (k,) >= 0 as checked float arrays; DataError
+    naming `o` and the argument otherwise."""
     T_i_j = real_array(o, "T_i_j", T_i_j)
     p, q = real_array(o, "p", p), real_array(o, "q", q)
     weights = real_array(o, "weights", weights)
@@ -123,13 +147,20 @@ def residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights
             raise DataError(f"{o}: {name} holds non-finite values")
     if (weights < 0).any():
         raise DataError(f"{o}: weights must be >= 0, got {shown(weights)}")
-    if not (_finite(floor) and floor >= 0):
-        raise DataError(f"{o}: floor must be a finite number >= 0 metres, got {shown(floor)}")
-    return _residual_covariance(T_i_j, p, q, weights, float(floor))
+    # beyond these the squared sums overflow into a covariance of inf and nan
+    for name, arr in (("T_i_j", T_i_j[:2, 2]), ("p", p), ("q", q)):
+        if arr.size and np.abs(arr).max() > MAX_COORDINATE:
+            raise DataError(f"{o}: {name} holds coordinates beyond {MAX_COORDINATE:g} m")
+    if weights.size and weights.max() > MAX_WEIGHT:
+        raise DataError(f"{o}: weights must be <= {MAX_WEIGHT:g}, got {shown(weights)}")
+    return T_i_j, p, q, weights
 
 
-def _residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
-                         floor: float) -> np.ndarray:
+def _sandwich(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray
+              ) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """The parts of the registration's sandwich covariance (`residual_covariance`): the
+    residual sum of squares [m^2], its expectation factor (degrees of freedom), G = B (A'W^2A)
+    B (3, 3), the covariance for unit point noise, and the rotated other points R q (k, 2)."""
     k = p.shape[0]
     Rq = q @ T_i_j[:2, :2].T
     residual = p - (Rq + T_i_j[:2, 2])
@@ -140,10 +171,133 @@ def _residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weight
     w = np.repeat(weights, 2)
     bread = np.linalg.pinv((A * w[:, None]).T @ A)
     meat = (A * (w**2)[:, None]).T @ A
-    dof = 2 * k - 6 + np.trace(bread @ meat @ bread @ (A.T @ A))
-    s_sq = max(float(np.sum(residual**2)) / max(dof, 1e-9), floor**2)
-    cov = s_sq * bread @ meat @ bread
+    G = bread @ meat @ bread
+    dof = 2 * k - 6 + float(np.trace(G @ (A.T @ A)))
+    return float(np.sum(residual**2)), dof, G, Rq
+
+
+def _residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
+                         floor: float) -> np.ndarray:
+    rss, dof, G, _ = _sandwich(T_i_j, p, q, weights)
+    s_sq = max(rss / max(dof, 1e-9), floor**2)
+    cov = s_sq * G
     return 0.5 * (cov + cov.T)
+
+
+def calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
+                          kappa: float, noise_prior: float = 0.05, prior_dof: float = 4.0,
+                          map_drift: tuple[float, float] = (0.01, math.radians(0.25)),
+                          repeat_inflation: float = 0.5, Q: np.ndarray | None = None
+                          ) -> np.ndarray:
+    """Covariance (3, 3) of (x [m], y [m], theta [rad]) of T_oi_oj registered from two maps,
+    for a filter that takes a registration of (mostly) the same objects every step.
+
+    Three parts, in the frame of the ego map (i):
+
+    1. Point noise: the sandwich covariance of the weighted registration (see
+       `residual_covariance`), s~^2 G, G = B (A'W^2A) B, with the residual's noise estimate
+       pooled with a prior, s~^2 = (RSS + nu0 s0^2) / (dof + nu0): a handful of points
+       can fit by chance, and 1 / s^2 from few degrees of freedom has a heavy tail.
+    2. Map drift: each map holds objects placed through its robot's drifting odometry over the
+       last kappa seconds, a shared error that no residual shows. Modelled as a random walk
+       of the two odometries relative to each other at (d_t [m / sqrt(s)], d_theta
+       [rad / sqrt(s)]) over half the span:
+           R_map = kappa / 2 (d_t^2 diag(1, 1, 0) + d_theta^2 J J'),  J = (c_y, -c_x, 1),
+       with c the weighted centroid of R q: the heading error turns the other map about its
+       objects, where the registration pins it, which moves t by -theta perp(c).
+       R_s = s~^2 G + R_map is one registration's covariance.
+    3. Re-registration: the next steps register the same objects again, so their errors are
+       shared and a filter averaging them would shrink its covariance below R_s. The
+       measurement is inflated to
+           R = R_s + rho R_s Q^-1 R_s,
+       with which an identity-motion Kalman filter adding Q per step settles at P = R_s for
+       rho = 1 (the error of one registration, which averaging does not reduce; lower rho
+       lets consecutive registrations share part of their error). R = R_s for rho = 0.
+
+    Few, clustered, distant or old (low-weight) associations, a large residual, a long span
+    kappa and a small Q all give a larger R.
+
+    Args:
+        T_i_j: (3, 3) estimated SE(2) transform; p: (k, 2) ego points; q: (k, 2) other points
+            (metres, each robot's odometry frame); weights: (k,) Arun weights >= 0.
+        kappa: seconds (> 0), the span of the maps.
+        noise_prior: s0, metres > 0, the prior per-point noise.
+        prior_dof: nu0 >= 0, the prior's weight in degrees of freedom; 0 takes the residual
+            alone, floored at noise_prior (`residual_covariance`).
+        map_drift: (d_t, d_theta) >= 0.
+        repeat_inflation: rho >= 0.
+        Q: (3, 3) symmetric positive definite, the filter's drift per step (None: TCAFF's
+            default, diag(0.1 m, 0.1 m, 0.5 deg)^2).
+    Raises:
+        DataError: an array not real, not finite, or of the wrong shape; negative weights;
+            coordinates beyond `registration.MAX_COORDINATE` or weights beyond
+            `registration.MAX_WEIGHT`.
+        ConfigError: a setting out of range (naming it).
+    """
+    o = "calibrated_covariance"
+    T_i_j, p, q, weights = _registration_arrays(o, T_i_j, p, q, weights)
+    for name, value, low in (("kappa", kappa, None), ("noise_prior", noise_prior, None),
+                             ("prior_dof", prior_dof, 0.0),
+                             ("repeat_inflation", repeat_inflation, 0.0)):
+        if not (_finite(value) and (value > 0 if low is None else value >= low)):
+            rule = "> 0" if low is None else f">= {low:g}"
+            raise ConfigError(f"{o}: {name} must be a finite number {rule}, got {shown(value)}")
+    drift = _drift(o, map_drift)
+    Q_inv = _inverse_Q(o, Q)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+        R = _calibrated_covariance(T_i_j, p, q, weights, float(kappa), float(noise_prior),
+                                   float(prior_dof), drift, float(repeat_inflation), Q_inv)
+    if not np.isfinite(R).all():
+        raise ConfigError(f"{o}: kappa = {shown(kappa)}, map_drift = {shown(map_drift)}, "
+                          f"noise_prior = {shown(noise_prior)} and repeat_inflation = "
+                          f"{shown(repeat_inflation)} overflow the covariance")
+    return R
+
+
+def _drift(owner: str, value) -> tuple[float, float]:
+    """`value` as (d_t, d_theta), two finite numbers >= 0; ConfigError otherwise."""
+    ok = (isinstance(value, (tuple, list, np.ndarray)) and len(value) == 2
+          and all(_finite(v) and v >= 0 for v in value))
+    if not ok:
+        raise ConfigError(f"{owner}: map_drift must be (metres, radians) per square root of a "
+                          f"second, two finite numbers >= 0, got {shown(value)}")
+    return float(value[0]), float(value[1])
+
+
+def _inverse_Q(owner: str, Q) -> np.ndarray:
+    """Q^-1 (3, 3) of the filter's drift per step (None: TCAFF's default); ConfigError when Q
+    is not a symmetric positive definite (3, 3) matrix."""
+    if Q is None:
+        Q = _alignment_process_noise()
+    try:
+        Q = np.asarray(Q, dtype=float)
+        ok = (Q.shape == (3, 3) and bool(np.isfinite(Q).all()) and np.allclose(Q, Q.T)
+              and bool(np.all(np.linalg.eigvalsh(Q) > 0)))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ConfigError(f"{owner}: Q must be a symmetric positive definite (3, 3) matrix, "
+                          f"got {shown(Q)}")
+    return np.linalg.inv(Q)
+
+
+def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
+                           kappa: float, noise_prior: float, prior_dof: float,
+                           drift: tuple[float, float], repeat_inflation: float,
+                           Q_inv: np.ndarray) -> np.ndarray:
+    rss, dof, G, Rq = _sandwich(T_i_j, p, q, weights)
+    if prior_dof > 0:
+        s_sq = (rss + prior_dof * noise_prior**2) / (max(dof, 0.0) + prior_dof)
+    else:
+        s_sq = max(rss / max(dof, 1e-9), noise_prior**2)
+    total = float(weights.sum())
+    c = (weights @ Rq) / total if total > 0 else Rq.mean(axis=0)
+    J = np.array([c[1], -c[0], 1.0])
+    d_t, d_theta = drift
+    R_s = s_sq * G + 0.5 * kappa * (d_t**2 * np.diag([1.0, 1.0, 0.0])
+                                    + d_theta**2 * np.outer(J, J))
+    R = R_s + repeat_inflation * (R_s @ Q_inv @ R_s)
+    return 0.5 * (R + R.T)
 
 
 class FrameAligner:
@@ -167,6 +321,8 @@ class FrameAligner:
         self.guided_misses = 0
         # (ego, other, now, what `_recent_pair` made of them): the last maps gated
         self._last_pair: tuple | None = None
+        # `_calibrated_settings`, made on first use
+        self._calibrated: tuple | None = None
 
     def lookalike_share(self, ego: ObjectMap, other: ObjectMap, now: float) -> float:
         """The share of the object pairs of two maps (objects seen within kappa of `now`)
@@ -339,7 +495,24 @@ class FrameAligner:
         prm = self.params
         if prm.covariance == "constant":
             return prm.R_constant.copy()
+        if prm.covariance == "calibrated":
+            span = prm.kappa
+            if not math.isfinite(span):
+                # maps that keep every object: the span is the oldest association's, its age
+                # the geometric mean of its two objects' (w = 1 / (offset + age_i age_j))
+                span = float(np.sqrt(np.maximum(1.0 / w - prm.weight_offset, 0.0)).max())
+            return _calibrated_covariance(T2, p[:, :2], q[:, :2], w, span, prm.residual_floor,
+                                          *self._calibrated_settings())
         return _residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor)
+
+    def _calibrated_settings(self) -> tuple:
+        """(prior_dof, map_drift, repeat_inflation, Q^-1) of covariance="calibrated" (the
+        parameters checked them); Q^-1 computed once."""
+        prm = self.params
+        if self._calibrated is None:
+            self._calibrated = (prm.residual_prior_dof, prm.map_drift, prm.repeat_inflation,
+                                _inverse_Q("FrameAlignerParams.repeat_Q", prm.repeat_Q))
+        return self._calibrated
 
     def _registered(self, ego_r: ObjectMap, other_r: ObjectMap, now: float,
                     guide: np.ndarray | None = None, compatible: np.ndarray | None = None

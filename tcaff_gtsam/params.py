@@ -251,10 +251,29 @@ class FrameAlignerParams(_ByValue):
         weight_offset: Arun weights are 1 / (weight_offset + age_i * age_j), ages in seconds.
         max_rmse: metres; solutions whose registration residual RMS exceeds it are discarded
             (mirror-image cliques pass the distance test but are not rigid). None disables it.
-        covariance: "constant" gives every measurement `R_constant` (the original's choice);
-            "residual" derives R from the registration residual and the associations' geometry.
+        covariance: how each candidate's covariance R is made. "calibrated" (the default):
+            the registration's sandwich covariance with the point noise pooled with a prior
+            (`residual_floor`, `residual_prior_dof`), plus the odometries' drift over the
+            map's span (`map_drift`), inflated so that a filter re-registering the same
+            objects every step does not average their shared error away
+            (`repeat_inflation`); see `frame_aligner.calibrated_covariance`. "residual": the
+            sandwich covariance alone, its noise floored at `residual_floor`. "constant":
+            `R_constant` for every candidate (the original's choice).
         R_constant: (3, 3) covariance of (x [m], y [m], theta [rad]) for covariance="constant".
-        residual_floor: metres, lower bound of the per-point noise used by covariance="residual".
+        residual_floor: metres, the per-point noise: the lower bound of covariance="residual"'s,
+            the prior of "calibrated"'s.
+        residual_prior_dof: covariance="calibrated": the weight of `residual_floor` as a prior
+            on the point noise, in degrees of freedom (0: the residual alone, floored).
+        map_drift: covariance="calibrated": (metres, radians) per square root of a second,
+            the random walk of the two robots' odometries relative to each other, which
+            distorts each map over its span kappa (half of it on average).
+        repeat_inflation: covariance="calibrated": rho of R = R_s + rho R_s Q^-1 R_s, where
+            R_s is one registration's covariance and Q the filter's drift per step. With rho
+            = 1 an identity-motion Kalman filter fed the same registration every step settles
+            at P = R_s; lower values let consecutive registrations share only part of their
+            error. 0: no inflation.
+        repeat_Q: covariance="calibrated": the (3, 3) Q of that inflation, the drift per step
+            of the filter the candidates feed; None: TCAFF's default Q.
         min_inliers: a candidate must explain at least this many objects: pairs of recent
             objects, one from each map, that are mutual nearest neighbours under the candidate
             within `inlier_radius` and pass the size gate, counted over every recent object of
@@ -333,9 +352,13 @@ class FrameAlignerParams(_ByValue):
     min_score_ratio: float = 0.75
     weight_offset: float = 0.01
     max_rmse: float | None = 0.5
-    covariance: Literal["constant", "residual"] = "constant"
+    covariance: Literal["constant", "residual", "calibrated"] = "calibrated"
     R_constant: np.ndarray = field(default_factory=constant_alignment_covariance)
     residual_floor: float = 0.05
+    residual_prior_dof: float = 4.0
+    map_drift: tuple[float, float] = (0.01, math.radians(0.25))
+    repeat_inflation: float = 0.5
+    repeat_Q: np.ndarray | None = None
     min_inliers: int | None = None
     inlier_radius: float = 0.3
     min_spread: float = 0.25
@@ -385,11 +408,24 @@ class FrameAlignerParams(_ByValue):
                  self.weight_offset, "must be a number > 0 seconds^2")
         _require(self.max_rmse is None or (_real(self.max_rmse) and self.max_rmse > 0), o,
                  "max_rmse", self.max_rmse, "must be a number > 0 metres or None")
-        _require(_one_of(self.covariance, ("constant", "residual")), o, "covariance",
-                 self.covariance, "must be 'constant' or 'residual'")
+        _require(_one_of(self.covariance, ("constant", "residual", "calibrated")), o,
+                 "covariance", self.covariance,
+                 "must be 'constant', 'residual' or 'calibrated'")
         object.__setattr__(self, "R_constant", _spd(self.R_constant, 3, o, "R_constant"))
         _require(_finite(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
                  self.residual_floor, "must be a finite number > 0 metres")
+        for name in ("residual_prior_dof", "repeat_inflation"):
+            value = getattr(self, name)
+            _require(_finite(value) and value >= 0, o, name, value,
+                     "must be a finite number >= 0")
+        drift = _reals(self.map_drift)
+        _require(drift is not None and len(drift) == 2
+                 and all(math.isfinite(v) and v >= 0 for v in drift), o, "map_drift",
+                 self.map_drift, "must be (metres, radians) per square root of a second, two "
+                 "finite numbers >= 0")
+        object.__setattr__(self, "map_drift", drift)
+        if self.repeat_Q is not None:
+            object.__setattr__(self, "repeat_Q", _spd(self.repeat_Q, 3, o, "repeat_Q"))
         _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,
                  "min_inliers", self.min_inliers, "must be an int >= 2 or None")
         _require(self.track_min is None or _int_at_least(self.track_min, 2), o,
@@ -427,13 +463,13 @@ class FrameAlignerParams(_ByValue):
         """The authors' released settings, without this project's residual, spread and
         ambiguity checks, with the paper's size gate and with every search full."""
         return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False,
-                   guide_radius=None, size_partial=None)
+                   guide_radius=None, size_partial=None, covariance="constant")
 
     @classmethod
     def camera(cls, **changes) -> FrameAlignerParams:
         """For maps of cameras on gravity-aligned odometry (VIO), as the RGB-D front end
         makes them (objects' clouds merged over views, with descriptors): the gravity prior
-        (`height_epsilon` = CLIPPER's epsilon), covariances from the registration residuals,
+        (`height_epsilon` = CLIPPER's epsilon), the calibrated covariances (as the default),
         descriptors as a gate (similarity >= 0.5) and CLIPPER's prior, and candidates of as
         few as 3 associations: with descriptors and heights to agree on, a clique of three is
         rarely a coincidence, and the filter weighs it as weak evidence
@@ -446,7 +482,7 @@ class FrameAlignerParams(_ByValue):
         default."""
         clipper = changes.get("clipper", ClipperParams())
         epsilon = clipper.epsilon if isinstance(clipper, ClipperParams) else None
-        return cls(**{"height_epsilon": epsilon, "covariance": "residual",
+        return cls(**{"height_epsilon": epsilon, "covariance": "calibrated",
                       "descriptor_min": 0.5, "descriptor_prior": True, "min_associations": 3,
                       **changes})
 

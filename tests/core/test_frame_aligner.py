@@ -38,7 +38,7 @@ def test_best_candidate_recovers_the_alignment():
 
 
 def test_candidates_obey_the_filters():
-    params = FrameAlignerParams()
+    params = FrameAlignerParams(covariance="constant")
     for seed in range(5):
         pair = overlapping_maps(np.random.default_rng(100 + seed), 60, 0.3, 0.15, clutter=20)
         candidates = FrameAligner(params).measurements(pair.ego, pair.other, pair.now)

@@ -570,22 +570,21 @@ def test_the_defaults_and_the_camera_preset():
     assert camera.height_epsilon == ClipperParams().epsilon == 0.25
     wider = FrameAlignerParams.camera(clipper=ClipperParams(epsilon=0.4))
     assert wider.height_epsilon == wider.clipper.epsilon == 0.4
-    assert camera.covariance == "residual"
+    assert camera.covariance == "calibrated"
     assert camera.descriptor_min == 0.5 and camera.descriptor_prior is True
     assert camera.min_associations == 3 < default.min_associations
-    changed = {"height_epsilon", "covariance", "descriptor_min", "descriptor_prior",
-               "min_associations"}
+    changed = {"height_epsilon", "descriptor_min", "descriptor_prior", "min_associations"}
     for f in fields(FrameAlignerParams):
         if f.name not in changed:
             assert np.all(getattr(camera, f.name) == getattr(default, f.name)), f.name
-    assert camera == FrameAlignerParams(height_epsilon=0.25, covariance="residual",
+    assert camera == FrameAlignerParams(height_epsilon=0.25, covariance="calibrated",
                                         descriptor_min=0.5, descriptor_prior=True,
                                         min_associations=3)
     # changes override the preset's own values and add any other field
     assert FrameAlignerParams.camera(height_epsilon=None).height_epsilon is None
     more = FrameAlignerParams.camera(refit=True, kappa=7.0, descriptor_min=0.8)
     assert (more.refit, more.kappa, more.descriptor_min) == (True, 7.0, 0.8)
-    assert more.covariance == "residual" and more.height_epsilon == 0.25
+    assert more.covariance == "calibrated" and more.height_epsilon == 0.25
     assert FrameAlignerParams.camera() == FrameAlignerParams.camera()  # a fresh, equal object
 
 

@@ -285,9 +285,12 @@ def test_every_method_that_reports_a_covariance_keeps_it_and_a_reread_job_scores
     covariance beside each estimate (NaN exactly where there is none); ICP and the truth keep
     none and score no NEES. The judge rides on the TCAFF streams only. A job saved without
     covariances (before they were kept) still loads and scores, with NEES None."""
-    from tcaff_gtsam.params import constant_alignment_covariance
+    from tcaff_gtsam.params import FrameAlignerParams, constant_alignment_covariance
 
-    job = simulated_job(short("indoor_return", 40), QUICK_METHODS, seed=0)
+    # the original's constant R, so that CLIPPER's covariance can be checked below
+    methods = QUICK_METHODS.model_copy(
+        update={"aligner": FrameAlignerParams(covariance="constant")})
+    job = simulated_job(short("indoor_return", 40), methods, seed=0)
     kept = {k.removeprefix("cov_") for k in job.arrays if k.startswith("cov_")}
     assert kept == {"tcaff", "tcaff_reference", "tcaff_team", "tcaff_isam2_causal",
                     "tcaff_isam2_smoothed", "clipper_k3", "clipper_k5"}
@@ -316,7 +319,7 @@ def test_every_method_that_reports_a_covariance_keeps_it_and_a_reread_job_scores
 
     job.save(tmp_path / "new")
     again = JobResult.load(tmp_path / "new", job.stem)
-    score(again, estimate_names(QUICK_METHODS), thresholds_of(QUICK_METHODS))
+    score(again, estimate_names(methods), thresholds_of(methods))
     assert again.metrics == json.loads(json.dumps(job.metrics))
 
     old = JobResult(job.name, job.seed, job.pairs,

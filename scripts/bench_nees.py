@@ -1,0 +1,363 @@
+"""NEES of the alignment covariance: whether `AlignmentEstimate.P` describes the error.
+
+Runs `PairwiseAligner` (the library's defaults with each data set's map span kappa and window
+W, or with --methods dataset the method set the project's command runs there) over every
+directed pair of:
+
+- UTIAS MRCLAM data set 6 (`mrclam.load_run` with the shipped evaluation's nu, overlap and
+  drift settings): VIO-like odometry (seeds 0 .. --seeds - 1) and raw dead reckoning, each
+  with 20 s and with 150 s maps (--spans);
+- the 7-Scenes kitchen as two robots (its two halves, as `tcaff rgbd` walks it): VIO-like
+  odometry (--seeds) and exact odometry;
+- the simulator's scenarios of `tcaff study paper` (--sim-seeds each);
+
+for each covariance model of --models:
+
+  today         the covariance the parameters give (library: constant; camera preset: residual)
+  constant      the original's R = diag(0.5 m, 0.5 m, 5 deg)^2 for every candidate
+  residual      the registration's sandwich covariance (`frame_aligner.residual_covariance`)
+  calibrated    `frame_aligner.calibrated_covariance` with FrameAlignerParams' settings
+  calibrated+Q  the same with the filter's Q set to the run's own drift (an oracle: the mean
+                square per-step change of the true T_oi_oj)
+
+and prints one row per data set (seeds pooled) and model:
+
+  est       estimates: steps with an estimate, over pairs and seeds
+  mean, median, <7.81
+            NEES = e' P^-1 e of every estimate, e = estimate - truth (x [m], y [m], theta
+            [rad], theta wrapped), and the share under 7.815 (chi-square, 3 dof, 95 %);
+            honest: mean 3, 95 % under
+  ok mean   mean NEES of the correct estimates (within 1 m and 5 deg), which the false
+            accepts' huge NEES do not swamp
+  held      mean NEES of the correct estimates at steps whose best path took no measurement:
+            whether P grows with the drift while nothing is measured
+  wrong     share of the estimates off by more than 1 m or 5 deg (false accepts)
+  outside   share of those with NEES > 14.16 (outside their 99.7 % ellipse)
+  x, y, th  RMS of e_k / sigma_k over the correct estimates (sigma_k = sqrt(P_kk)); 1: honest
+  sig m, sig deg
+            RMS reported sigma: translation (x and y together) and heading
+  avail, correct
+            share of the overlap steps (the maps share enough objects) with an estimate, and
+            with a correct one
+
+Runs are built once and cached as pickles in --cache (delete it after changing the loaders or
+the simulator); the kitchen's maps take the mapping front end about 7 s a run. The default
+(all data sets, today and calibrated) takes about 3 minutes on 2 cores, most of it MRCLAM with
+150 s maps.
+
+    python scripts/bench_nees.py [--data mrclam kitchen sim] [--models today calibrated]
+        [--seeds 3] [--sim-seeds 2] [--spans 20 150] [--workers 2] [--methods library]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import pickle
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from tcaff_gtsam import FrameAlignerParams, PairwiseAligner, TCAFFParams
+from tcaff_gtsam.geometry import se2_to_params, wrap_angle
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+MRCLAM = SHARED / "mrclam" / "MRCLAM_Dataset6"
+KITCHEN = SHARED / "rgbd" / "7scenes_redkitchen"
+#: the scenarios of `tcaff study paper`
+SCENARIOS = ("indoor_return", "same_direction", "opposite_directions", "four_robots",
+             "ambiguous_grid", "indoor_rgbd", "mot")
+NEES_95, NEES_997 = 7.815, 14.16  # chi-square quantiles, 3 dof
+WRONG_M, WRONG_RAD = 1.0, math.radians(5.0)
+
+
+@dataclass(frozen=True)
+class Source:
+    """One run: `group` names its row of the table (seeds pooled), `kind` its loader."""
+
+    group: str
+    name: str
+    kind: str  # "mrclam", "kitchen" or "sim"
+    odometry: str = ""
+    kappa: float = 0.0
+    seed: int | None = None
+    scenario: str = ""
+
+
+def sources(data: list[str], seeds: int, sim_seeds: int, scenarios: list[str],
+            spans: list[float]) -> list[Source]:
+    """The runs of the data sets asked for, MRCLAM with each map span of `spans` (s)."""
+    out = []
+    if "mrclam" in data:
+        for kappa in spans:
+            out += [Source(f"mrclam vio {kappa:g} s", f"mrclam-vio{kappa:g}-s{s}", "mrclam",
+                           "vio", kappa, s) for s in range(seeds)]
+            out.append(Source(f"mrclam raw {kappa:g} s", f"mrclam-raw{kappa:g}", "mrclam", "raw",
+                              kappa))
+    if "kitchen" in data:
+        out += [Source("kitchen vio", f"kitchen-vio-s{s}", "kitchen", "vio", seed=s)
+                for s in range(seeds)]
+        out.append(Source("kitchen exact", "kitchen-exact", "kitchen", "exact"))
+    if "sim" in data:
+        out += [Source(f"sim {sc}", f"sim-{sc}-s{s}", "sim", seed=s, scenario=sc)
+                for sc in scenarios for s in range(sim_seeds)]
+    return out
+
+
+def load(source: Source, cache: Path):
+    """The source's run (an `AlignmentRun`), from the cache when it is there."""
+    path = cache / f"{source.name}.pkl"
+    if path.is_file():
+        with path.open("rb") as f:
+            return pickle.load(f)
+    if source.kind == "mrclam":
+        from tcaff_gtsam.eval.config import load_mrclam
+        from tcaff_gtsam.eval.datasets import mrclam
+
+        config = load_mrclam("default")
+        data = mrclam.read_dataset(MRCLAM)
+        run, _ = mrclam.load_run(data, source.odometry, source.seed, source.kappa, config.nu,
+                                 config.min_shared, config.vio.heading_rw_deg_per_sqrt_min,
+                                 config.vio.scale_std, name=source.name)
+    elif source.kind == "kitchen":
+        from tcaff_gtsam.eval.config import load_rgbd
+        from tcaff_gtsam.eval.datasets.rgbd_robots import halves, load_run, walk
+        from tcaff_gtsam.eval.datasets.rgbd_sequence import read_sequence
+        from tcaff_gtsam.mapping.mapper import MapperParams
+
+        config = load_rgbd("default")
+        sequence = read_sequence(KITCHEN)
+        walks = [walk(sequence, a, b) for a, b in halves(sequence.frame_ids)]
+        run, _ = load_run(walks, source.odometry, source.seed, config.kappa,
+                          MapperParams(nu=config.nu, kappa=config.kappa), config.min_shared,
+                          config.match_radius, config.vio.heading_rw_deg_per_sqrt_min,
+                          config.vio.scale_std, config.window, config.graph_drift, source.name)
+    else:
+        from tcaff_gtsam.eval.config import load_scenario
+        from tcaff_gtsam.eval.sim.simulate import simulate
+
+        run = simulate(load_scenario(source.scenario), source.seed)
+    cache.mkdir(parents=True, exist_ok=True)
+    with path.open("wb") as f:
+        pickle.dump(run, f)
+    return run
+
+
+def dataset_methods(source: Source):
+    """The method set the project's own command runs on this source."""
+    from tcaff_gtsam.eval.config import load_methods, load_mrclam, load_rgbd
+
+    if source.kind == "mrclam":
+        methods = load_mrclam("default").methods
+    elif source.kind == "kitchen":
+        methods = load_rgbd("default").methods
+    else:
+        methods = "default"
+    return load_methods(methods) if isinstance(methods, str) else methods
+
+
+# -- covariance models -------------------------------------------------------------------------
+# Each takes the aligner's and the filter's parameters and the run, and returns the parameters
+# changed.
+
+Model = Callable[[FrameAlignerParams, TCAFFParams, object],
+                 tuple[FrameAlignerParams, TCAFFParams]]
+
+
+def _mode(params: FrameAlignerParams, covariance: str) -> FrameAlignerParams:
+    """`params` with covariance set to `covariance`."""
+    return replace(params, covariance=covariance)
+
+
+def truth_drift(run) -> np.ndarray:
+    """(3, 3) Q of the run's own drift: the mean square per-step change of every pair's true
+    T_oi_oj (x and y pooled; theta wrapped), an oracle of the odometries' relative drift."""
+    n = run.n_robots
+    pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
+    steps = []
+    for i, j in pairs:
+        truth = se2_to_params(run.T_true(i, j))
+        d = np.diff(truth, axis=0)
+        d[:, 2] = wrap_angle(d[:, 2])
+        steps.append(d[np.all(np.isfinite(d), axis=1)])
+    d = np.concatenate(steps)
+    # floored at 5 mm and 0.05 deg: exact odometry does not drift at all
+    translation = max(float(np.mean(d[:, :2] ** 2)), 0.005**2)
+    return np.diag([translation, translation,
+                    max(float(np.mean(d[:, 2] ** 2)), math.radians(0.05) ** 2)])
+
+
+MODELS: dict[str, Model] = {
+    # the covariance the parameters give (the library's and the camera preset's: calibrated)
+    "today": lambda a, f, run: (a, f),
+    # the original's constant R = diag(0.5 m, 0.5 m, 5 deg)^2
+    "constant": lambda a, f, run: (_mode(a, "constant"), f),
+    # the registration's sandwich covariance, as `residual_covariance` computes it
+    "residual": lambda a, f, run: (_mode(a, "residual"), f),
+    # `calibrated_covariance` with the parameters' settings
+    "calibrated": lambda a, f, run: (_mode(a, "calibrated"), f),
+    # the same with the filter's Q (and the aligner's repeat_Q) set to the run's true drift
+    "calibrated+Q": lambda a, f, run: (_with_repeat_Q(_mode(a, "calibrated"), truth_drift(run)),
+                                       replace(f, Q=truth_drift(run))),
+}
+
+
+def _with_repeat_Q(params: FrameAlignerParams, Q: np.ndarray) -> FrameAlignerParams:
+    """`params` whose calibrated covariance inflates for a filter of drift Q (3, 3)."""
+    return replace(params, repeat_Q=Q)
+
+
+# -- one run -----------------------------------------------------------------------------------
+
+
+def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
+    """Every directed pair of one run under one model: per estimate the error (n, 3), its P
+    (n, 3, 3); counts of overlap steps, of those with an estimate and with a correct one."""
+    from tcaff_gtsam.precompile import compile_kernels
+
+    compile_kernels()
+    run = load(source, cache)
+    settings = run.settings
+    if methods == "dataset":
+        m = dataset_methods(source)
+        aligner, tcaff = m.aligner_params(settings.kappa), m.tcaff_params(False,
+                                                                          settings.window)
+    else:
+        aligner = FrameAlignerParams(kappa=settings.kappa)
+        tcaff = TCAFFParams() if settings.window is None else TCAFFParams(
+            window=settings.window)
+    aligner, tcaff = MODELS[model](aligner, tcaff, run)
+    n = run.n_robots
+    pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
+    errors, covariances, held = [], [], []
+    overlap = available = correct = 0
+    start = time.perf_counter()
+    for i, j in pairs:
+        pair = PairwiseAligner(aligner, tcaff)
+        truth = se2_to_params(run.T_true(i, j))
+        shared = run.overlap(i, j)
+        for s, t in enumerate(run.times):
+            est = pair.update(float(t), run.maps[i][s], run.maps[j][s])
+            on = bool(shared is None or shared[s])
+            overlap += on
+            if est is None or not np.all(np.isfinite(truth[s])):
+                continue
+            e = est.x - truth[s]
+            e[2] = wrap_angle(e[2])
+            errors.append(e)
+            covariances.append(est.P)
+            held.append(est.measurement < 0)
+            ok = math.hypot(e[0], e[1]) <= WRONG_M and abs(e[2]) <= WRONG_RAD
+            available += on
+            correct += on and ok
+    return {"group": source.group, "model": model,
+            "errors": np.array(errors).reshape(-1, 3),
+            "P": np.array(covariances).reshape(-1, 3, 3), "held": np.array(held, dtype=bool),
+            "overlap": overlap, "available": available, "correct": correct,
+            "seconds": time.perf_counter() - start}
+
+
+# -- the table ---------------------------------------------------------------------------------
+
+
+def summary(parts: list[dict]) -> dict:
+    """The table's numbers of one data set and model from its runs' `run_source` results."""
+    e = np.concatenate([p["errors"] for p in parts])
+    P = np.concatenate([p["P"] for p in parts])
+    held = np.concatenate([p["held"] for p in parts])
+    overlap = sum(p["overlap"] for p in parts)
+    out = {"est": len(e), "available": sum(p["available"] for p in parts) / max(overlap, 1),
+           "correct": sum(p["correct"] for p in parts) / max(overlap, 1)}
+    if not len(e):
+        return out
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
+    wrong = (np.hypot(e[:, 0], e[:, 1]) > WRONG_M) | (np.abs(e[:, 2]) > WRONG_RAD)
+    sigma = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
+    out.update(
+        nees_mean=float(nees.mean()), nees_median=float(np.median(nees)),
+        under=float(np.mean(nees < NEES_95)),
+        nees_ok=float(nees[~wrong].mean()) if (~wrong).any() else math.nan,
+        nees_held=float(nees[held & ~wrong].mean()) if (held & ~wrong).any() else math.nan,
+        wrong=float(wrong.mean()),
+        outside=float(np.mean(nees[wrong] > NEES_997)) if wrong.any() else math.nan,
+        ratio=(np.sqrt(np.mean((e[~wrong] / sigma[~wrong]) ** 2, axis=0)) if (~wrong).any()
+               else np.full(3, math.nan)),
+        sigma=np.sqrt(np.mean(sigma**2, axis=0)))
+    return out
+
+
+def print_table(results: list[dict], models: list[str]) -> None:
+    """One row per data set and model (see the module's notes for the columns)."""
+    groups = list(dict.fromkeys(r["group"] for r in results))
+    print(f"{'data set':26} {'model':12} {'est':>6} {'mean':>7} {'median':>6} {'<7.81':>6} "
+          f"{'ok mean':>7} {'held':>6} {'wrong':>6} {'outside':>7} {'x':>5} {'y':>5} {'th':>5} "
+          f"{'sig m':>6} {'sig deg':>7} {'avail':>6} {'correct':>7}")
+    for group in groups:
+        for model in models:
+            parts = [r for r in results if r["group"] == group and r["model"] == model]
+            if not parts:
+                continue
+            r = summary(parts)
+            head = f"{group:26} {model:12} {r['est']:6d}"
+            tail = f"{r['available']:6.3f} {r['correct']:7.3f}"
+            if not r["est"]:
+                print(f"{head} {'-':>7} {'':>6} {'':>6} {'':>7} {'':>6} {'':>6} {'':>7} {'':>5} "
+                      f"{'':>5} "
+                      f"{'':>5} {'':>6} {'':>7} {tail}")
+                continue
+            outside = "-" if math.isnan(r["outside"]) else f"{r['outside']:.2f}"
+            held = "-" if math.isnan(r["nees_held"]) else f"{r['nees_held']:.2f}"
+            x, y, th = r["ratio"]
+            print(f"{head} {r['nees_mean']:7.2f} {r['nees_median']:6.2f} {r['under']:6.3f} "
+                  f"{r['nees_ok']:7.2f} {held:>6} {r['wrong']:6.3f} {outside:>7} {x:5.2f} {y:5.2f} "
+                  f"{th:5.2f} {math.hypot(*r['sigma'][:2]):6.3f} "
+                  f"{math.degrees(r['sigma'][2]):7.2f} {tail}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", nargs="+", default=["mrclam", "kitchen", "sim"],
+                        choices=["mrclam", "kitchen", "sim"], help="data sets to run")
+    parser.add_argument("--models", nargs="+", default=["today", "calibrated"],
+                        choices=list(MODELS), help="covariance models to compare")
+    parser.add_argument("--methods", default="library", choices=["library", "dataset"],
+                        help="library: PairwiseAligner's defaults (with the run's kappa and "
+                        "W); dataset: the method set the project's command runs (mrclam: "
+                        "repetitive, kitchen: camera, sim: default)")
+    parser.add_argument("--seeds", type=int, default=3,
+                        help="seeds of the VIO-like odometry (MRCLAM and kitchen)")
+    parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per sim scenario")
+    parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS,
+                        help="simulator scenarios")
+    parser.add_argument("--spans", nargs="+", type=float, default=[20.0, 150.0],
+                        help="MRCLAM map spans kappa, s")
+    parser.add_argument("--workers", type=int, default=2, help="processes")
+    parser.add_argument("--cache", type=Path, default=Path("results/bench_nees"),
+                        help="folder of the cached runs")
+    args = parser.parse_args()
+    todo = [(s, m) for s in sources(args.data, args.seeds, args.sim_seeds, args.scenarios,
+                                    args.spans)
+            for m in args.models]
+    # build each run once before the pool races to cache it
+    for s in dict.fromkeys(s for s, _ in todo):
+        load(s, args.cache)
+    start = time.perf_counter()
+    with ProcessPoolExecutor(args.workers) as pool:
+        results = list(pool.map(run_source, *zip(*todo, strict=True),
+                                [args.methods] * len(todo), [args.cache] * len(todo)))
+    print(f"{len(todo)} runs in {time.perf_counter() - start:.0f} s ({args.methods} methods)")
+    print_table(results, args.models)
+    seconds: dict[str, float] = {}
+    for r in results:
+        seconds[r["group"]] = seconds.get(r["group"], 0.0) + r["seconds"]
+    print("seconds per data set (all models): " + ", ".join(f"{g} {s:.0f}"
+                                                         for g, s in seconds.items()))
+
+
+if __name__ == "__main__":
+    main()
