@@ -281,6 +281,10 @@ def _inverse_Q(owner: str, Q) -> np.ndarray:
     return np.linalg.inv(Q)
 
 
+#: the smallest eigenvalue of a calibrated R relative to its largest (`_calibrated_covariance`)
+_MAX_CONDITION_INVERSE = 1e-9
+
+
 def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
                            kappa: float, noise_prior: float, prior_dof: float,
                            drift: tuple[float, float], repeat_inflation: float,
@@ -297,7 +301,16 @@ def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weig
     R_s = s_sq * G + 0.5 * kappa * (d_t**2 * np.diag([1.0, 1.0, 0.0])
                                     + d_theta**2 * np.outer(J, J))
     R = R_s + repeat_inflation * (R_s @ Q_inv @ R_s)
-    return 0.5 * (R + R.T)
+    R = 0.5 * (R + R.T)
+    # Far from the odometry origin the heading's lever couples it to the translation, and the
+    # inflation squares that: R can near a singular matrix that a factor graph refuses as a
+    # factor. Lifting its smallest eigenvalues to 1e-9 of its largest claims only less.
+    if np.isfinite(R).all():  # (an overflow is the caller's to report)
+        eig = np.linalg.eigvalsh(R)
+        least = _MAX_CONDITION_INVERSE * eig[-1]
+        if eig[0] < least:
+            R = R + (least - eig[0]) * np.eye(3)
+    return R
 
 
 class FrameAligner:
