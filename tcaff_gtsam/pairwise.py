@@ -15,8 +15,8 @@ from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
-__all__ = ["PairwiseAligner", "admitted", "counted", "evidence_of", "explained", "gives_ids",
-           "guided_search", "unchecked"]
+__all__ = ["PairwiseAligner", "admitted", "counted", "evidence_of", "explained", "feeding",
+           "gives_ids", "guided_search", "unchecked"]
 
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
@@ -31,6 +31,21 @@ def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
              "must be a FrameAlignerParams")
     return replace(params, max_rmse=None, min_inliers=None, min_spread=0.0,
                    check_ambiguity=False, size_partial=None)
+
+
+def feeding(aligner: FrameAlignerParams, tcaff: TCAFFParams) -> FrameAlignerParams:
+    """`aligner` for candidates that feed a filter with `tcaff`'s parameters: a calibrated
+    covariance inflated for that filter's Q (`repeat_Q`) unless it names its own.
+
+    Raises:
+        ConfigError: aligner not a FrameAlignerParams or tcaff not a TCAFFParams.
+    """
+    _require(isinstance(aligner, FrameAlignerParams), "feeding", "aligner", aligner,
+             "must be a FrameAlignerParams")
+    _require(isinstance(tcaff, TCAFFParams), "feeding", "tcaff", tcaff, "must be a TCAFFParams")
+    if aligner.repeat_Q is not None or tcaff.dim != 3:
+        return aligner
+    return replace(aligner, repeat_Q=tcaff.Q)
 
 
 def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | None,
@@ -197,7 +212,9 @@ class PairwiseAligner:
             raise ConfigError(f"PairwiseAligner needs TCAFFParams for (x, y, theta) states "
                               f"(d = 3, angle_indices = (2,)), got d = {tcaff_params.dim}, "
                               f"angle_indices = {tcaff_params.angle_indices}")
-        self.aligner = FrameAligner(aligner_params)
+        self.aligner = FrameAligner(feeding(_given_or_default(
+            FrameAlignerParams, aligner_params, "PairwiseAligner", "aligner_params"),
+            tcaff_params))
         self.filter = TCAFF(tcaff_params)
         self.measurements: list[AlignmentMeasurement] = []
         self.taken: list[AlignmentMeasurement] = []

@@ -273,7 +273,8 @@ class FrameAlignerParams(_ByValue):
             at P = R_s; lower values let consecutive registrations share only part of their
             error. 0: no inflation.
         repeat_Q: covariance="calibrated": the (3, 3) Q of that inflation, the drift per step
-            of the filter the candidates feed; None: TCAFF's default Q.
+            of the filter the candidates feed; None: that filter's Q where the aligner knows
+            it (`PairwiseAligner`, `pairwise.feeding`), else TCAFF's default Q.
         min_inliers: a candidate must explain at least this many objects: pairs of recent
             objects, one from each map, that are mutual nearest neighbours under the candidate
             within `inlier_radius` and pass the size gate, counted over every recent object of

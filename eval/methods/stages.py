@@ -17,6 +17,7 @@ from tcaff_gtsam.pairwise import (
     counted,
     evidence_of,
     explained,
+    feeding,
     gives_ids,
     guided_search,
     unchecked,
@@ -93,14 +94,14 @@ class SharedStages:
     def __init__(self, setup: RunSetup, methods: MethodsConfig) -> None:
         settings = setup.run.settings
         self.setup = setup
-        self.checked = methods.aligner_params(settings.kappa)
+        self.tcaff_params = methods.tcaff_params(False, settings.window)
+        self.checked = feeding(methods.aligner_params(settings.kappa), self.tcaff_params)
         self.aligner = FrameAligner(unchecked(self.checked))
         # checks beyond the residual need a search of their own; the residual alone filters
         # the unchecked candidates
         checks_more = replace(self.checked, max_rmse=None) != self.aligner.params
         self.checked_aligner = FrameAligner(self.checked)
         self._verifier = self.checked_aligner if checks_more else None
-        self.tcaff_params = methods.tcaff_params(False, settings.window)
         self.seconds = {"candidates": 0.0, "tcaff": 0.0}
         self._filters: list[TCAFF] | None = None
         self._steps: list[list[int]] = [[] for _ in setup.pairs]

@@ -173,7 +173,7 @@ def test_t_must_be_a_finite_number(t):
 
 
 @pytest.mark.parametrize(("kwargs", "field"), [
-    ({"aligner_params": "reference"}, "FrameAligner.params"),
+    ({"aligner_params": "reference"}, "PairwiseAligner.aligner_params"),
     ({"tcaff_params": {"window": 8}}, "PairwiseAligner.tcaff_params"),
 ])
 def test_parameters_of_the_wrong_type_are_config_errors(kwargs, field):
@@ -315,3 +315,21 @@ def test_look_alikes_seen_anew_are_accepted_with_the_defaults():
     assert estimates[-1] is not None
     dt, dtheta = se2_error(T_true, estimates[-1].T)
     assert dt < 0.3 and np.degrees(dtheta) < 2.0
+
+
+def test_the_calibrated_covariance_is_inflated_for_the_filter_it_feeds():
+    """repeat_Q unset: the pair's aligner inflates R for its filter's Q, so a filter that
+    assumes less drift gets larger R (R_s Q^-1 R_s grows as Q shrinks); a repeat_Q given is
+    kept."""
+    slow = TCAFFParams(Q=np.diag([0.02**2, 0.02**2, np.radians(0.1) ** 2]))
+    assert PairwiseAligner(tcaff_params=slow).aligner.params.repeat_Q.tolist() == slow.Q.tolist()
+    own = np.diag([1.0, 1.0, 0.1])
+    given = PairwiseAligner(FrameAlignerParams(repeat_Q=own), slow)
+    assert given.aligner.params.repeat_Q.tolist() == own.tolist()
+    pair = overlapping_maps(np.random.default_rng(2), 30, 0.5, 0.1)
+    R = {}
+    for name, params in (("default", TCAFFParams()), ("slow", slow)):
+        pa = PairwiseAligner(tcaff_params=params)
+        pa.update(pair.now, pair.ego, pair.other)
+        R[name] = pa.measurements[0].R
+    assert np.linalg.eigvalsh(R["slow"] - R["default"]).min() > 0
