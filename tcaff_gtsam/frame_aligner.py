@@ -236,6 +236,9 @@ def calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weigh
     """
     o = "calibrated_covariance"
     T_i_j, p, q, weights = _registration_arrays(o, T_i_j, p, q, weights)
+    if not weights.sum() > 0:
+        raise DataError(f"{o}: needs at least one association of weight > 0, got "
+                        f"{shown(weights)}")
     for name, value, low in (("kappa", kappa, None), ("noise_prior", noise_prior, None),
                              ("prior_dof", prior_dof, 0.0),
                              ("repeat_inflation", repeat_inflation, 0.0)):
@@ -307,7 +310,8 @@ def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weig
     # factor. Lifting its smallest eigenvalues to 1e-9 of its largest claims only less.
     if np.isfinite(R).all():  # (an overflow is the caller's to report)
         eig = np.linalg.eigvalsh(R)
-        least = _MAX_CONDITION_INVERSE * eig[-1]
+        # and a direction the registration does not observe at all is not known exactly
+        least = max(_MAX_CONDITION_INVERSE * eig[-1], 1e-6 * noise_prior**2)
         if eig[0] < least:
             R = R + (least - eig[0]) * np.eye(3)
     return R

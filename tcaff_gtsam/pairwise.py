@@ -77,7 +77,8 @@ def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.nda
 
     Raises:
         DataError: found not a list of AlignmentMeasurement; ids neither None nor two 1-D
-            integer arrays long enough for the associations' indices.
+            integer arrays long enough for the associations' indices; only not one bool per
+            candidate.
     """
     found = _measurements("evidence_of", found)
     if ids is None:
@@ -99,6 +100,10 @@ def evidence_of(found: list[AlignmentMeasurement], ids: tuple[np.ndarray, np.nda
              for m in found]
     if only is None:
         return pairs
+    only = np.asarray(only)
+    if only.shape != (len(found),) or only.dtype != bool:
+        raise DataError(f"evidence_of: only must be {len(found)} booleans, one per candidate, "
+                        f"got {shown(only)}")
     return [each if keep else None for each, keep in zip(pairs, only, strict=True)]
 
 
@@ -110,10 +115,13 @@ def counted(params: TCAFFParams, lookalike: bool, objects: np.ndarray) -> np.nda
     none are counted (the filter does not count evidence, or nothing qualifies).
 
     Raises:
-        ConfigError: params not a TCAFFParams.
+        ConfigError: params not a TCAFFParams; DataError: objects not a 1-D array of counts.
     """
     _require(isinstance(params, TCAFFParams), "counted", "params", params,
              "must be a TCAFFParams")
+    objects = np.asarray(objects)
+    if objects.ndim != 1 or objects.dtype.kind not in "iu":
+        raise DataError(f"counted: objects must be a 1-D array of counts, got {shown(objects)}")
     if not params.counts_evidence:
         return None
     only = np.full(objects.shape, True) if lookalike else objects < params.object_base

@@ -709,6 +709,9 @@ class TCAFFParams(_ByValue):
                  "report_after", self.report_after, "must be an int >= 1 or None")
         _require(isinstance(self.sequential, bool), o, "sequential", self.sequential,
                  "must be True or False")
+        # the released code's promotion replays a full window, which a young tree has not
+        _require(not (self.sequential and self.promotion == "reseed"), o, "sequential",
+                 self.sequential, "must be False with promotion='reseed'")
         _require(_finite(self.object_nats) and self.object_nats >= 0, o, "object_nats",
                  self.object_nats, "must be a finite number >= 0 (nats)")
         _require(_int_at_least(self.object_base, 0), o, "object_base", self.object_base,

@@ -206,8 +206,12 @@ class TCAFF:
         if self._main is not None and self._main_is_stale():
             log.debug("step %d: main tree %d dropped", self.step, self.hypothesis)
             if prm.recall_for is not None:
-                self._dormant, self._dormant_age = self._main_best(), 0
-            self._main = None
+                # the best leaf before this step's prediction, as the dormant state of this step
+                best = self._main_best()
+                self._dormant = Leaves(best.x, best.P + prm.Q, best.choice, best.edge,
+                                       best.since, best.tree)
+                self._dormant_age = 0
+            self._main, self._rival, self._switch_streak = None, None, 0
         elif self._dormant is not None:
             self._age_dormant()
         if self._main is not None:
@@ -318,7 +322,9 @@ class TCAFF:
     def _object_support(self, choice: np.ndarray) -> np.ndarray:
         """(L,) nats of object support of paths (L, W + 2): `object_nats` times the objects
         explained by the path's best-supported measurement in the window, less `object_base`;
-        0 for a path without measurements, or with sequential acceptance off."""
+        0 for a path without measurements, or with sequential acceptance off. A path's root
+        (its seed) does not count: it leaves the window when its tree is W steps old, and the
+        support of an early acceptance must be the support the complete path would have."""
         prm = self.params
         support = np.zeros(choice.shape[0])
         if not prm.sequential or choice.shape[0] == 0:
@@ -327,9 +333,10 @@ class TCAFF:
         offset = self._columns - len(steps)  # columns before the first step seen
         first = max(self._columns - prm.window, offset)
         best = np.full(choice.shape[0], -1, np.int64)
+        root = np.argmax(choice >= NO_MEASUREMENT, axis=1)
         for c in range(first, self._columns):
             taken = choice[:, c]
-            measured = taken >= 0
+            measured = (taken >= 0) & (root != c)
             if not measured.any():
                 continue
             counts = steps[c - offset]
@@ -749,6 +756,17 @@ class TCAFF:
                 or bank_zs.shape != (sizes.sum(), d) or bank_Rs.shape != (sizes.sum(), d, d)):
             raise DataError("TCAFF state: the stored measurements do not match bank.sizes")
         self._check_values(counters, trees, sizes, bank_zs, bank_Rs, evidence, steps)
+        if objects is not None:
+            known = self._sizes_of(evidence, steps)
+            offset = self._columns - len(objects)
+            if len(objects) != len(evidence) or any(
+                    o is not None and (
+                        (n >= 0 and o.size != n)
+                        or any(int(t.choice[:, offset + c].max(initial=-1)) >= o.size
+                               for name, t in trees.items() if name != "rival"))
+                    for c, (o, n) in enumerate(zip(objects, known, strict=True))):
+                raise DataError("TCAFF state: the stored objects do not match the steps' "
+                                "measurements")
         for c, value in counters.items():
             setattr(self, c, value)
         self._main, self._explore, self._rival = (trees.get(n) for n in self._TREES)
@@ -860,6 +878,13 @@ class TCAFF:
             steps.append(step)
         return steps
 
+    @staticmethod
+    def _sizes_of(evidence: list, steps: np.ndarray | None) -> list[int]:
+        """Per stored step, its number of measurements (-1 where the state does not say)."""
+        if steps is not None:
+            return steps.tolist()
+        return [-1 if e is None else len(e) for e in evidence]
+
     def _objects_from(self, state: Mapping, steps: np.ndarray | None
                       ) -> list[np.ndarray | None] | None:
         """The objects of a `state_dict`'s steps (None when the state has none); DataError
@@ -892,6 +917,9 @@ class TCAFF:
         if x.shape != (1, d) or P.shape != (1, d, d):
             raise DataError(f"TCAFF state: dormant.x and dormant.P must have shapes (1, {d}) "
                             f"and (1, {d}, {d}), got {x.shape} and {P.shape}")
+        if "main.x" in state or int(np.asarray(state["hypothesis"]).item()) < 1:
+            raise DataError("TCAFF state: a dormant hypothesis needs a dropped one: no main "
+                            "tree and a hypothesis counter >= 1")
         recall_for = self.params.recall_for
         if recall_for is None or not 0 <= age <= recall_for:
             raise DataError(f"TCAFF state: dormant.age = {age} is not within recall_for = "

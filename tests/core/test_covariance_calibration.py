@@ -319,3 +319,14 @@ def test_objects_far_from_the_origin_give_a_covariance_a_graph_takes(seed, offse
     bare = calibrated_covariance(T, p, q, w, kappa=15.0, repeat_inflation=0.0)
     assert np.linalg.eigvalsh(R - bare).min() > -1e-9 * eig[-1]  # never more confident
     InterRobotGraph(2).add_alignment(0, 0, 1, T, R)  # accepted
+
+
+def test_a_registration_of_no_weight_is_a_data_error_and_no_direction_is_known_exactly():
+    T, p, q, w = base_case()
+    with pytest.raises(DataError, match="at least one association of weight > 0"):
+        calibrated_covariance(T, p, q, np.zeros_like(w), kappa=20.0)
+    with pytest.raises(DataError, match="at least one association"):
+        calibrated_covariance(T, p[:0], q[:0], w[:0], kappa=20.0)
+    # one point fixes no heading: without drift that direction still gets a variance
+    R = calibrated_covariance(T, p[:1], q[:1], w[:1], kappa=20.0, map_drift=(0.0, 0.0))
+    assert np.linalg.eigvalsh(R).min() >= 1e-6 * 0.05**2 * 0.999

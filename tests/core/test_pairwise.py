@@ -333,3 +333,16 @@ def test_the_calibrated_covariance_is_inflated_for_the_filter_it_feeds():
         pa.update(pair.now, pair.ego, pair.other)
         R[name] = pa.measurements[0].R
     assert np.linalg.eigvalsh(R["slow"] - R["default"]).min() > 0
+
+
+def test_counted_and_evidence_of_refuse_malformed_arguments():
+    from tcaff_gtsam.pairwise import counted, evidence_of
+    with pytest.raises(DataError, match="counted: objects"):
+        counted(TCAFFParams(), False, [1.5, 7.0])
+    np.testing.assert_array_equal(counted(TCAFFParams(), False, np.array([1, 7])), [True, False])
+    assert counted(TCAFFParams(), False, np.array([6, 7])) is None
+    pair = overlapping_maps(np.random.default_rng(1), 30, 0.5, 0.1)
+    found = PairwiseAligner().aligner.measurements(pair.ego, pair.other, pair.now)
+    ids = (np.arange(len(pair.ego)), np.arange(len(pair.other)))
+    with pytest.raises(DataError, match="evidence_of: only"):
+        evidence_of(found, ids, np.ones(len(found) + 1, bool))

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from tcaff_gtsam.eval.sim.streams import alignment_stream, wrong_alignments
 
 from tcaff_gtsam import TCAFF, TCAFFParams
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import wrap_angle
 from tcaff_gtsam.params import constant_alignment_covariance
 
@@ -234,3 +234,42 @@ def test_the_nees_of_a_stream_with_known_noise_is_chi_square(seed):
     # 150 samples of chi-square(3): the mean's standard error is sqrt(6 / 150) = 0.2
     assert abs(nees.mean() - 3.0) < 0.8
     assert 0.88 <= np.mean(nees < 7.815) <= 1.0
+
+
+def test_states_whose_objects_or_dormant_hypothesis_no_filter_reaches_are_refused():
+    _, zs = gap_stream(1, 60)
+    filt = TCAFF()
+    feed(filt, zs[:80], objects=6)
+    dormant = filt.state_dict()
+    with pytest.raises(DataError, match="a dormant hypothesis needs a dropped one"):
+        TCAFF().load_state_dict(dict(dormant, hypothesis=np.array(0)))
+    feed(filt, zs[80:95], objects=6)  # recalled, measured again
+    state = filt.state_dict()
+    for change, message in [
+            ({"objects.sizes": state["objects.sizes"][1:],
+              "objects.counts": state["objects.counts"][1:]}, "stored objects do not match"),
+    ]:
+        with pytest.raises(DataError, match=message):
+            TCAFF().load_state_dict(dict(state, **change))
+    unsized = {k: v for k, v in state.items() if k != "steps.sizes"}
+    unsized["objects.counts"] = np.zeros_like(state["objects.counts"][:0])
+    unsized["objects.sizes"] = np.zeros_like(state["objects.sizes"])  # steps of 0 measurements
+    with pytest.raises(DataError, match="stored objects do not match"):
+        TCAFF().load_state_dict(unsized)  # the trees took measurements of those steps
+
+
+def test_sequential_acceptance_is_refused_with_the_reseeding_promotion():
+    with pytest.raises(ConfigError, match="sequential"):
+        TCAFFParams(promotion="reseed")
+    TCAFFParams(promotion="reseed", sequential=False)
+
+
+def test_the_support_of_an_early_acceptance_is_that_of_the_complete_path():
+    """A seed explaining 20 objects, confirmed once by a plain measurement: the seed leaves the
+    window when the tree is W steps old, so it does not count towards accepting it early."""
+    zs = [[TRUTH], [TRUTH]] + [[]] * 12
+    filt = TCAFF()
+    estimates = [filt.update(np.asarray(z, float).reshape(-1, 3),
+                             np.broadcast_to(R, (len(z), 3, 3)), None,
+                             [20] if t == 0 else [5] * len(z)) for t, z in enumerate(zs)]
+    assert first(estimates) is None
