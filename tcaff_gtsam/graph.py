@@ -30,177 +30,46 @@ import logging
 import math
 from bisect import bisect_left
 from collections import Counter, defaultdict
-from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
 
 import gtsam
 import numpy as np
 
 from .errors import DataError
 from .geometry import (
-    _chi2_quantile,
     _se2_from_params,
     _se2_to_params,
     _se3_from_xyz_yaw,
     _se3_to_se2,
 )
+from .graph_inputs import (
+    _KIND_SHIFT,
+    _ROBOT_SHIFT,
+    _a_key,
+    _chain,
+    _check_cov,
+    _check_finite,
+    _check_index,
+    _check_translation,
+    _components,
+    _Factor,
+    _key_list,
+    _keyframe_of,
+    _step_of,
+    _x_key,
+    alignment_key,
+    keyframe_key,
+)
+from .graph_keyframes import KeyframeFactors
+from .graph_tcaff import HypothesisFactors, _Abandoned
 from .inputs import output_path, real_array, shown
 from .params import GraphParams, _given_or_default, _int_at_least
-from .tcaff import AlignmentEstimate
 
 __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 
 log = logging.getLogger(__name__)
 
-_AGREE_CHI2 = _chi2_quantile(0.999, 3)
-# what the solver can take: beyond these, gtsam's elimination fails ("indeterminate linear
-# system") and, without the roll-back, the graph stayed broken
-_MAX_CONDITION = 1e10  # of a factor's covariance
-_MAX_TRANSLATION = 1e4  # metres, of an alignment: far beyond any map two robots share
-
-# One symbol character; kind, robot and index share the symbol's index, which is all that g2o
-# files keep, so exported vertex ids stay unique. gtsam.symbol(c, index) is ord(c) << 56 | index,
-# so keys are made and taken apart with integer arithmetic (no gtsam call in the update's loops).
-_ROBOT_SHIFT, _KIND_SHIFT = 36, 52
-_INDEX_MASK = (1 << _ROBOT_SHIFT) - 1
-_SYMBOL = ord("r") << 56
-_SYMBOL_INDEX = (1 << 56) - 1
-_KEYFRAME = _SYMBOL | 1 << _KIND_SHIFT
-
-
-def _check_index(name: str, value, bits: int) -> int:
-    if (not isinstance(value, (int, np.integer)) or isinstance(value, bool)
-            or not 0 <= value < 1 << bits):
-        raise DataError(f"{name} = {shown(value)} must be an int in [0, 2^{bits})")
-    return int(value)
-
-
-def _key_list(keys) -> gtsam.KeyList:
-    out = gtsam.KeyList()
-    for key in keys:
-        out.push_back(key)
-    return out
-
-
-def _components(nodes, links):
-    """Union-find over `nodes` joined by the links, pairs (a, b); returns the function mapping
-    a node to its group's root. Links to other nodes are ignored."""
-    parent = {n: n for n in nodes}
-
-    def root(n):
-        while parent[n] != n:
-            parent[n] = parent[parent[n]]
-            n = parent[n]
-        return n
-
-    for a, b in links:
-        if a in parent and b in parent:
-            parent[root(a)] = root(b)
-    return root
-
-
-def _a_key(robot: int, step: int) -> int:
-    """gtsam key of A_robot(step) for a robot and step already checked."""
-    return _SYMBOL | robot << _ROBOT_SHIFT | step
-
-
-def _x_key(robot: int, index: int) -> int:
-    """gtsam key of X_robot(index) for a robot and index already checked."""
-    return _KEYFRAME | robot << _ROBOT_SHIFT | index
-
-
-def alignment_key(robot: int, step: int) -> int:
-    """gtsam key of A_robot(step); robot < 2^16, step < 2^36."""
-    robot = _check_index("robot", robot, _KIND_SHIFT - _ROBOT_SHIFT)
-    return _a_key(robot, _check_index("step", step, _ROBOT_SHIFT))
-
-
-def keyframe_key(robot: int, index: int) -> int:
-    """gtsam key of X_robot(index); robot < 2^16, index < 2^36."""
-    robot = _check_index("robot", robot, _KIND_SHIFT - _ROBOT_SHIFT)
-    return _x_key(robot, _check_index("keyframe index", index, _ROBOT_SHIFT))
-
-
-def _step_of(key: int) -> int | None:
-    """The alignment step of an A key; None for a keyframe key."""
-    index = key & _SYMBOL_INDEX
-    return None if index >> _KIND_SHIFT else index & _INDEX_MASK
-
-
-def _keyframe_of(key: int) -> tuple[int, int]:
-    """(robot, index) of a keyframe key."""
-    return (key >> _ROBOT_SHIFT) & 0xFFFF, key & _INDEX_MASK
-
-
-def _chain(key: int) -> tuple[str, int]:
-    """("A", robot) or ("X", robot): the chain a key belongs to."""
-    return ("X" if key >> _KIND_SHIFT & 1 else "A", (key >> _ROBOT_SHIFT) & 0xFFFF)
-
-
-class _Factor(NamedTuple):
-    """A factor and what the graph needs to know about it (a tuple: one is made for every
-    factor, 16 per step for 4 robots).
-
-    Attributes:
-        keys: the factor's variables.
-        tag: ("alignment" | "keyframe", i, j, hypothesis), ("free", chain) or None.
-        step: the alignment step an alignment factor refers to.
-        link: (chain, chain) when the factor connects two chains.
-    """
-
-    factor: gtsam.NonlinearFactor
-    keys: tuple[int, ...]
-    tag: tuple | None = None
-    step: int | None = None
-    link: tuple | None = None
-
-
-@dataclass
-class _Abandoned:
-    """A hypothesis TCAFF switched away from, whose factors wait for the new one to hold.
-
-    Attributes:
-        hypothesis: its tag; x (3,), P (3, 3): the graph's alignment of the pair when it was
-            abandoned; held: steps the hypotheses after it have been reported.
-    """
-
-    hypothesis: int
-    x: np.ndarray
-    P: np.ndarray
-    held: int = 0
-
-
-def _check_finite(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
-    arr = real_array("InterRobotGraph", name, value)
-    if arr.shape != shape:
-        raise DataError(f"{name} must have shape {shape}, got {arr.shape}")
-    if not math.isfinite(arr.sum()):  # one reduction: this runs for every factor
-        raise DataError(f"{name} has non-finite values: {arr.tolist()}")
-    return arr
-
-
-def _check_translation(name: str, t: np.ndarray) -> None:
-    if np.abs(t).max() > _MAX_TRANSLATION:
-        raise DataError(f"{name}: translation {t.tolist()} m is beyond {_MAX_TRANSLATION:.0e} m")
-
-
-def _check_cov(name: str, cov, n: int) -> np.ndarray:
-    C = _check_finite(name, cov, (n, n))
-    if np.abs(C - C.T).max() > 1e-9 * (1.0 + np.abs(C).max()):
-        raise DataError(f"{name} must be symmetric positive definite, got {C.tolist()}")
-    C = 0.5 * (C + C.T)
-    eig = np.linalg.eigvalsh(C)
-    if eig[0] <= 0:
-        raise DataError(f"{name} must be symmetric positive definite, got {C.tolist()}")
-    if eig[-1] > _MAX_CONDITION * eig[0]:
-        raise DataError(f"{name} is too ill-conditioned for the solver (eigenvalues "
-                        f"{eig[0]:.3g} to {eig[-1]:.3g}, condition number above "
-                        f"{_MAX_CONDITION:.0e}): {C.tolist()}")
-    return C
-
-
-class InterRobotGraph:
+class InterRobotGraph(HypothesisFactors, KeyframeFactors):
     """iSAM2 smoothing of the frame alignments of `n_robots` robots (and their keyframes).
 
     Per step: add that step's alignments (`add_alignment` or `add_tcaff_estimate`), then call
@@ -820,245 +689,6 @@ class InterRobotGraph:
     def alignment_params(self, i: int, j: int, step: int | None = None) -> np.ndarray:
         """(x, y, theta) or (x, y, z, yaw) of T_oi_oj(step), without covariance."""
         return self._params(self.alignment(i, j, step, covariance=False)[0])
-
-    # -- hypotheses ----------------------------------------------------------------------------
-
-    def remove_hypothesis(self, i: int, j: int, hypothesis: int) -> int:
-        """Queue the removal of every factor tagged with (i, j, hypothesis); returns how many.
-
-        Raises:
-            DataError: unknown robot.
-        """
-        self._check_robot("i", i)
-        self._check_robot("j", j)
-
-        def tagged(f: _Factor) -> bool:
-            return f.tag is not None and f.tag[0] != "free" and f.tag[1:] == (i, j, hypothesis)
-
-        found = [index for index, f in self._active.items()
-                 if tagged(f) and index not in self._to_remove]
-        self._to_remove.extend(found)
-        queued = len(self._queued)  # factors still waiting are dropped from the queue
-        self._queued = [q for q in self._queued if not tagged(q)]
-        return len(found) + queued - len(self._queued)
-
-    def add_tcaff_estimate(self, step: int, i: int, j: int,
-                           estimate: AlignmentEstimate | None, zs, Rs) -> None:
-        """Feed one step of a TCAFF filter for the pair (i, j).
-
-        The factor is the candidate TCAFF's best path took at this step (zs[m], Rs[m] with
-        m = estimate.measurement), not the filtered estimate: consecutive filtered estimates
-        share their past measurements and would count them many times over.
-
-        A main tree dropped for want of measurements is no evidence against it, so its factors
-        stay. When the filter next reports a different hypothesis (after a drop, or by
-        switching), the earlier hypothesis's factors are kept if the new estimate agrees with
-        the graph's current alignment of the pair (squared Mahalanobis distance under the sum
-        of both covariances within the chi-square 0.999 quantile). Otherwise they are removed
-        once the new hypothesis has been reported at `switch_hold` steps; a switch back before
-        then removes the short-lived hypothesis's factors instead, and a switch to a third one
-        removes the one in between.
-
-        Args:
-            estimate: what `TCAFF.update(zs, Rs)` returned for this step.
-            zs: (k, 3) the candidates given to TCAFF; Rs: (k, 3, 3) their covariances.
-        """
-        if not self._planar:
-            raise DataError("add_tcaff_estimate: TCAFF estimates are (x, y, theta); use a "
-                            "planar graph (GraphParams(dim=2))")
-        self._check_robot("i", i)
-        self._check_robot("j", j)
-        if estimate is None:
-            return
-        if not isinstance(estimate, AlignmentEstimate):
-            raise DataError(f"add_tcaff_estimate: estimate must be an AlignmentEstimate or "
-                            f"None, got {shown(estimate)}")
-        if estimate.measurement >= 0:
-            zs = real_array("add_tcaff_estimate", "zs", zs)
-            Rs = real_array("add_tcaff_estimate", "Rs", Rs)
-            if not (zs.ndim == 2 and zs.shape[1:] == (3,) and Rs.shape == (len(zs), 3, 3)
-                    and estimate.measurement < len(zs)):
-                raise DataError(f"add_tcaff_estimate: estimate.measurement = "
-                                f"{estimate.measurement} must index zs (k, 3) and Rs (k, 3, 3), "
-                                f"got shapes {zs.shape} and {Rs.shape}")
-        pair = (i, j)
-        previous = self._hypothesis.get(pair)
-        current = estimate.hypothesis
-        waiting = self._abandoned.get(pair)
-        if previous is not None and previous != current:
-            if waiting is not None and self._agrees(estimate, waiting.x, waiting.P):
-                # back to the abandoned alignment before the hold ended: the short-lived
-                # hypothesis goes, and TCAFF's new id for the old alignment continues it
-                self.remove_hypothesis(i, j, previous)
-                del self._abandoned[pair]
-                waiting = None
-            elif self._steps and self._agrees(estimate, *self._latest(i, j)):
-                log.debug("pair (%d, %d): hypothesis %s agrees with %s, factors kept", i, j,
-                          current, previous)
-            elif waiting is not None:  # a third alignment: the one in between goes now
-                self.remove_hypothesis(i, j, previous)
-                waiting.held = 0
-            elif self._steps:
-                waiting = self._abandoned[pair] = _Abandoned(previous,
-                                                              *self._latest(i, j))
-        self._hypothesis[pair] = current
-        if waiting is not None:
-            waiting.held += 1
-            if waiting.held >= self.params.switch_hold:
-                removed = self.remove_hypothesis(i, j, waiting.hypothesis)
-                log.debug("pair (%d, %d): hypothesis %s abandoned, %d factors removed", i, j,
-                          waiting.hypothesis, removed)
-                del self._abandoned[pair]
-        if estimate.measurement >= 0:
-            m = estimate.measurement
-            self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
-
-    def settled(self, i: int, j: int) -> bool:
-        """False while the pair (i, j) or (j, i) has an abandoned hypothesis whose factors wait
-        for the new one to hold (`GraphParams.switch_hold`): the graph then still weighs both.
-
-        Raises:
-            DataError: i or j not a robot of this graph.
-        """
-        self._check_robot("i", i)
-        self._check_robot("j", j)
-        return (i, j) not in self._abandoned and (j, i) not in self._abandoned
-
-    def _latest(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
-        """(x, y, theta) of the graph's latest T_oi_oj and its covariance."""
-        T, cov = self.alignment(i, j)
-        return self._params(T), cov
-
-    @staticmethod
-    def _agrees(estimate: AlignmentEstimate, x: np.ndarray, P: np.ndarray) -> bool:
-        """Whether a TCAFF estimate is consistent with the alignment x (3,), covariance P."""
-        residual = np.asarray(estimate.x, dtype=float) - x
-        residual[2] = math.remainder(residual[2], 2 * math.pi)
-        S = P + np.asarray(estimate.P, dtype=float)
-        return float(residual @ np.linalg.solve(S, residual)) <= _AGREE_CHI2
-
-    # -- keyframes -----------------------------------------------------------------------------
-
-    def add_keyframe(self, robot: int, index: int, T_o_b, odometry_cov=None) -> None:
-        """Queue keyframe X_robot(index) at odometry pose T_o_b (body in robot's odometry frame).
-
-        The first keyframe of robot 0 is anchored at T_o_b; other robots' first keyframes get
-        the weak prior, placed through the current alignment estimate when there is one. Later
-        keyframes are linked to the previous one by the odometry between them.
-
-        With `GraphParams.horizon`, a keyframe leaves the graph with the step of the first
-        `update(step)` after it was added. A keyframe whose predecessor has left starts its
-        robot's chain again, as a first keyframe does: nothing in the graph would still hold
-        the odometry between them.
-
-        Args:
-            T_o_b: (3, 3) SE(2) or (4, 4) SE(3) matrix.
-            odometry_cov: covariance of the odometry from the previous keyframe in gtsam's
-                tangent order, (3, 3) or (6, 6); `GraphParams.odometry_cov` when None.
-        Raises:
-            DataError: unknown robot, index not increasing, non-finite pose.
-        """
-        self._check_robot("robot", robot)
-        T = self._rigid("add_keyframe: T_o_b", T_o_b)
-        key = keyframe_key(robot, index)
-        last = self._last_keyframe.get(robot)
-        if last is not None and index <= last:
-            raise DataError(f"add_keyframe: robot {robot} index {index} is not after {last}")
-        frames = self._keyframes[robot]
-        if last not in frames:  # the first, or its predecessor left the graph
-            for link in [link for link in self._links if ("X", robot) in link]:
-                del self._links[link]  # what linked the chain that left went with it
-            if robot == 0:  # robot 0's odometry frame is the common frame
-                self._insert(key, T)
-                self._queue_prior(key, T, (self.params.anchor_sigma,) * 2)
-            else:
-                A = (self._value(alignment_key(robot, self._steps[-1])) if self._steps
-                     else np.eye(T.shape[0]))
-                self._insert(key, A @ T)
-        else:
-            delta = np.linalg.inv(frames[last]) @ T
-            cov = (self.params.odometry_cov if odometry_cov is None
-                   else _check_cov("add_keyframe: odometry_cov", odometry_cov,
-                                   3 if self._planar else 6))
-            prev_key = keyframe_key(robot, last)
-            self._insert(key, self._value(prev_key) @ delta)
-            self._queue_between(prev_key, key, delta, self._noise(cov, False))
-        frames[index] = T
-        self._last_keyframe[robot] = index
-        rank = len(self._steps)  # the step the next update adds
-        self._keyframe_rank[key] = rank
-        self._keyframes_at[rank].append(key)
-
-    def _keyframe(self, name: str, robot, index) -> int:
-        """The index of a keyframe in the graph, else DataError."""
-        self._check_robot("robot", robot)
-        index = _check_index(f"{name}: keyframe index", index, _ROBOT_SHIFT)
-        if index in self._left_keyframes[robot]:
-            raise DataError(f"{name}: keyframe {index} of robot {robot} has left the graph "
-                            f"(horizon {self.params.horizon} steps, latest {self._steps[-1]})")
-        if index not in self._keyframes[robot]:
-            raise DataError(f"{name}: robot {robot} has no keyframe {index}")
-        return index
-
-    def add_keyframe_alignment(self, i: int, m_i: int, j: int, m_j: int, T_oi_oj, cov,
-                               hypothesis: int | None = None) -> None:
-        """Queue an inter-robot factor between keyframes X_i(m_i) and X_j(m_j) from an alignment
-        T_oi_oj: X_i^-1 X_j = T_oi_bi^-1 T_oi_oj T_oj_bj.
-
-        Raises:
-            DataError: unknown robot or keyframe, a keyframe that left the graph, bad values.
-        """
-        m_i = self._keyframe("add_keyframe_alignment", i, m_i)
-        m_j = self._keyframe("add_keyframe_alignment", j, m_j)
-        T = self._matrix(T_oi_oj)
-        C = self._tangent_cov(T, _check_cov("add_keyframe_alignment: cov", cov, self._n_param))
-        T_oj_bj = self._keyframes[j][m_j]
-        T_bi_bj = np.linalg.inv(self._keyframes[i][m_i]) @ T @ T_oj_bj
-        Ad = self._pose(np.linalg.inv(T_oj_bj)).AdjointMap()
-        noise = self._noise(Ad @ C @ Ad.T, True)
-        i, j = int(i), int(j)
-        self._queue_between(_x_key(i, m_i), _x_key(j, m_j), T_bi_bj, noise,
-                            ("keyframe", i, j, hypothesis), link=(("X", i), ("X", j)))
-
-    def add_between(self, key_a: int, key_b: int, T_a_b, cov_tangent, robust: bool = True
-                    ) -> None:
-        """Queue any between-factor on existing keys (a user's own loop closure, say).
-
-        Args:
-            key_a, key_b: keys from `keyframe_key` / `alignment_key`.
-            T_a_b: relative pose matrix; cov_tangent: its covariance in gtsam's tangent order.
-        """
-        if not isinstance(robust, (bool, np.bool_)):
-            raise DataError(f"add_between: robust must be True or False, got {shown(robust)}")
-        T = self._rigid("add_between: T_a_b", T_a_b)
-        C = _check_cov("add_between: cov_tangent", cov_tangent, 3 if self._planar else 6)
-        for name, key in (("key_a", key_a), ("key_b", key_b)):
-            if not _int_at_least(key, 0) or key >= 1 << 64:
-                raise DataError(f"add_between: {name} = {key!r} is not a gtsam key (an int "
-                                f"from keyframe_key or alignment_key)")
-        if key_a == key_b:
-            raise DataError("add_between: key_a and key_b are the same variable")
-        for key in (key_a, key_b):
-            if not self._exists(key):
-                gone = "has left the graph" if self._has_left(key) else "does not exist"
-                raise DataError(f"add_between: key {gtsam.Symbol(key).string()} {gone}")
-        link = (_chain(key_a), _chain(key_b))
-        self._queue_between(key_a, key_b, T, self._noise(C, robust),
-                            link=link if link[0] != link[1] else None)
-
-    def trajectory(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
-        """Committed keyframes of `robot`: indices (m,) and poses (m, 3, 3) / (m, 4, 4) in the
-        common frame. Keyframes that left the graph (with a horizon) keep the pose they had
-        when they left."""
-        self._check_robot("robot", robot)
-        estimate = self._isam.calculateEstimate()
-        get = estimate.atPose2 if self._planar else estimate.atPose3
-        left = self._left_keyframes[robot]
-        inside = [i for i in self._keyframes[robot] if estimate.exists(keyframe_key(robot, i))]
-        poses = [*left.values(), *(get(keyframe_key(robot, i)).matrix() for i in inside)]
-        size = self._side
-        return (np.array([*left, *inside], np.int64),
-                np.array(poses, dtype=float).reshape(-1, size, size))
 
     def write_g2o(self, path: str | Path) -> None:
         """Write the active factors and the current solution in g2o format (with a horizon:

@@ -1,0 +1,366 @@
+"""Settings of the frame aligner: CLIPPER's consistency graph and solver (`ClipperParams`) and
+the candidates made from two maps (`FrameAlignerParams`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from .param_checks import (
+    _INT64_MAX,
+    _ByValue,
+    _finite,
+    _int_at_least,
+    _one_of,
+    _real,
+    _reals,
+    _require,
+    _spd,
+)
+
+
+def constant_alignment_covariance() -> np.ndarray:
+    """The original code's fixed measurement covariance diag(0.5 m, 0.5 m, 5 deg)^2, (3, 3)."""
+    return np.diag([0.5**2, 0.5**2, math.radians(5.0) ** 2])
+
+
+def _alignment_process_noise() -> np.ndarray:
+    """Drift of T_oi_oj per step, diag(0.1 m, 0.1 m, 0.5 deg)^2, (3, 3) (the original's Q)."""
+    return np.diag([0.1**2, 0.1**2, math.radians(0.5) ** 2])
+
+
+@dataclass(frozen=True)
+class ClipperParams:
+    """CLIPPER consistency graph and solver settings.
+
+    Attributes:
+        sigma: metres, width of the affinity kernel exp(-c^2 / (2 sigma^2)).
+        epsilon: metres, two associations are consistent when their distance difference c < epsilon.
+        rounding: "size" keeps the round(F) largest entries of u (CLIPPER's rule, F the final
+            objective); "threshold" keeps entries above `threshold` * max(u).
+        threshold: relative threshold for rounding = "threshold", in (0, 1).
+        tol_u: stop an inner ascent when the objective changes by less than this. 1e-6 rather
+            than CLIPPER's 1e-8: the same solutions on our benchmarks, 25 % less time.
+        eps: entries of u (and penalties) below this count as zero.
+        beta: backtracking factor of the line search, in (0, 1).
+        max_outer, max_inner, max_line_search: iteration caps of homotopy, ascent and line search.
+        power_iterations: power-method steps that shape the seeded random start vector (each
+            costs a full pass over the graph; more than 5 changed no solution we measured).
+            These four counts are ints below 2**63 (the compiled solver's int64).
+        seed: seed (an int >= 0, any size: numpy's generator takes them all) of the start
+            vector; same seed, same graph -> same solution.
+
+    Raises:
+        ConfigError (a `ParameterError` naming the field) for values out of range.
+    """
+
+    sigma: float = 0.15
+    epsilon: float = 0.25
+    rounding: Literal["size", "threshold"] = "size"
+    threshold: float = 0.5
+    tol_u: float = 1e-6
+    eps: float = 1e-9
+    beta: float = 0.25
+    max_outer: int = 1000
+    max_inner: int = 200
+    max_line_search: int = 99
+    power_iterations: int = 5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        o = "ClipperParams"
+        for name in ("sigma", "epsilon"):
+            value = getattr(self, name)
+            _require(_finite(value) and value > 0, o, name, value,
+                     "must be a finite number > 0 metres")
+        _require(_one_of(self.rounding, ("size", "threshold")), o, "rounding", self.rounding,
+                 "must be 'size' or 'threshold'")
+        for name in ("threshold", "beta"):
+            value = getattr(self, name)
+            _require(_real(value) and 0 < value < 1, o, name, value, "must be in (0, 1)")
+        for name in ("tol_u", "eps"):
+            value = getattr(self, name)
+            _require(_real(value) and value > 0, o, name, value, "must be a number > 0")
+        # the compiled solver counts in int64; the seed goes to numpy's generator, which takes
+        # any int >= 0 (a negative one fails there, at solve time)
+        for name, low in (("max_outer", 1), ("max_inner", 1), ("max_line_search", 1),
+                          ("power_iterations", 0)):
+            value = getattr(self, name)
+            _require(_int_at_least(value, low) and value <= _INT64_MAX, o, name, value,
+                     f"must be an int in [{low}, 2**63 - 1]")
+        _require(_int_at_least(self.seed, 0), o, "seed", self.seed, "must be an int >= 0")
+
+
+@dataclass(frozen=True, eq=False)
+class FrameAlignerParams(_ByValue):
+    """Settings of `FrameAligner` (two object maps -> candidate alignments of T_oi_oj).
+
+    Attributes:
+        kappa: seconds, only objects seen less than kappa ago take part (paper: 20 s).
+        size_ratio, size_abs_diff: the size gate; a pair of objects may be associated when, for
+            width and for height alike, the larger over the smaller is <= size_ratio or the
+            absolute difference is <= size_abs_diff metres.
+        size_partial: None, or a ratio (above size_ratio to matter) by which one of width
+            and height may differ when the other is within the gate: a partial view cuts one
+            extent (a chair behind a table loses its height, a box seen on one face its width)
+            and leaves the other. None: both must be within size_ratio (the paper's gate,
+            and the released code's).
+        dim: 2 matches (x, y) centroids (the original's choice), 3 matches full 3D centroids
+            (the alignment is then projected onto the gravity-aligned plane).
+        clipper: consistency graph and solver settings.
+        n_solutions: N of MNO-CLIPPER (Algorithm 1).
+        mno_downweight: factor applied to affinities among an earlier solution's associations;
+            0 removes those associations, as in the paper.
+        min_associations: solutions with fewer associations are discarded.
+        max_associations: the most putative associations (nodes of the consistency graph)
+            per map pair. When the size gate passes more (large maps of look-alike objects),
+            each object of either map keeps only its `pairs_per_object` best pairs, at most
+            max_associations of them, and it is logged. It bounds the step's time and memory
+            in large maps: the graph costs about m^2 / 2 distance checks.
+        pairs_per_object: with more pairs than `max_associations`, the pairs each object of
+            either map keeps: those whose objects' surroundings agree best, each within its
+            own map (`registration.neighbourhood_agreement`: the distances to their nearest
+            neighbours that match within `clipper.epsilon`; then the most recently seen, as
+            a tie-break). 2 keeps at most 2 (n_ego + n_other) pairs. Not used below the cap.
+        min_score_ratio: solutions scoring below this fraction of the best are discarded.
+        weight_offset: Arun weights are 1 / (weight_offset + age_i * age_j), ages in seconds.
+        max_rmse: metres; solutions whose registration residual RMS exceeds it are discarded
+            (mirror-image cliques pass the distance test but are not rigid). None disables it.
+        covariance: how each candidate's covariance R is made. "calibrated" (the default):
+            the registration's sandwich covariance with the point noise pooled with a prior
+            (`residual_floor`, `residual_prior_dof`), plus the odometries' drift over the
+            map's span (`map_drift`), inflated so that a filter re-registering the same
+            objects every step does not average their shared error away
+            (`repeat_inflation`); see `frame_aligner.calibrated_covariance`. "residual": the
+            sandwich covariance alone, its noise floored at `residual_floor`. "constant":
+            `R_constant` for every candidate (the original's choice).
+        R_constant: (3, 3) covariance of (x [m], y [m], theta [rad]) for covariance="constant".
+        residual_floor: metres, the per-point noise: the lower bound of covariance="residual"'s,
+            the prior of "calibrated"'s.
+        residual_prior_dof: covariance="calibrated": the weight of `residual_floor` as a prior
+            on the point noise, in degrees of freedom (0: the residual alone, floored).
+        map_drift: covariance="calibrated": (metres, radians) per square root of a second,
+            the random walk of the two robots' odometries relative to each other, which
+            distorts each map over its span kappa (half of it on average).
+        repeat_inflation: covariance="calibrated": rho of R = R_s + rho R_s Q^-1 R_s, where
+            R_s is one registration's covariance and Q the filter's drift per step. With rho
+            = 1 an identity-motion Kalman filter fed the same registration every step settles
+            at P = R_s; lower values let consecutive registrations share only part of their
+            error. 0: no inflation.
+        repeat_Q: covariance="calibrated": the (3, 3) Q of that inflation, the drift per step
+            of the filter the candidates feed; None: that filter's Q where the aligner knows
+            it (`PairwiseAligner`, `pairwise.feeding`), else TCAFF's default Q.
+        min_inliers: a candidate must explain at least this many objects: pairs of recent
+            objects, one from each map, that are mutual nearest neighbours under the candidate
+            within `inlier_radius` and pass the size gate, counted over every recent object of
+            the two maps, not only the associated ones. None: no such check.
+        inlier_radius: metres.
+        min_spread: metres; the associated ego centroids must spread at least this far across
+            their least spread direction (`registration.spread`): a line of objects, or two
+            tight clusters, fixes no rotation about its own axis.
+        check_ambiguity: flag a candidate ambiguous when another alignment, distinct from it
+            (more than `distinct_translation` metres or `distinct_heading` radians away),
+            explains as many objects: another solution of the same maps, or a solution
+            between one robot's current map and the other's earlier maps (`memory_span`).
+            The maps then admit several alignments and the best score is no evidence for one
+            of them; an ambiguous candidate may confirm the estimate a filter holds, within
+            `confirm_translation` and `confirm_heading`, but never start or move one.
+        distinct_translation, distinct_heading: metres and radians.
+        memory_span: seconds of each robot's earlier maps searched for look-alikes, one map
+            every kappa seconds; 0 searches only the current maps.
+        memory_searches: the most earlier maps searched in one step, both robots together
+            (each search costs one to three times the step's own alignment); those sharing
+            the most objects with the robot's current map go first.
+        confirm_translation, confirm_heading: metres and radians.
+        track_min: with an alignment held by the caller's filter and no candidate confirming
+            it, the objects it pairs (mutual nearest neighbours within `confirm_translation`
+            that pass the size gate) re-register it when there are at least this many: a
+            tracked measurement, which like an ambiguous one may confirm the held alignment
+            but never start or move one. None: no tracking.
+        guide_radius: metres; with an alignment held by the caller's filter and nothing
+            contesting it, a guided search (`FrameAligner.measurements`, guided=True) puts into
+            the consistency graph only the size-compatible pairs whose centroids agree under
+            the held alignment: the other's centroid q, moved by it, within guide_radius +
+            confirm_heading * |q| of the ego's (|q| its distance from its frame's origin, the
+            lever of a heading error). The graph then holds little more than the held
+            alignment's own pairs and MNO-CLIPPER costs a fraction of a full search. A guided
+            step yields only candidates confirming the held alignment; when none does, the
+            step searches in full. The radius must cover `confirm_translation`, the map noise
+            and the drift between steps: 2 m is four times `confirm_translation`. None: every
+            search is full (the paper's and the released code's way).
+        full_search_every: with guide_radius set, at least every this many steps of a pair
+            search in full (`PairwiseAligner`), so that an alignment elsewhere is still seen;
+            while the filter has a rival hypothesis open every step does (1: always).
+        height_epsilon: metres, or None; the gravity prior: two associations (i, j) and
+            (k, l) are consistent only when their objects' height differences agree,
+            |(z_i - z_k) - (z_j - z_l)| < height_epsilon + s_ij + s_kl, besides their
+            distances in the plane. Both robots' odometry frames are gravity aligned (VIO
+            gives them so), so heights differ between the maps by a constant, which cancels.
+            The slack s_ij = |h_i - h_j| / 2 of an association allows for a partial view,
+            which cuts an object's height h by some d and moves its centre by d / 2: objects
+            whose heights agree are held to height_epsilon. A shift along a row of objects
+            that pairs each with its neighbour keeps the distances in the plane and breaks
+            the heights of objects on shelves, a counter and the floor. None: heights are not
+            compared (the paper's planar test).
+        descriptor_min: in [0, 1]; when both maps carry descriptors (`ObjectMap.descriptors`),
+            a pair whose similarity (their dot product) is below this is not associated, as
+            a pair of different sizes is not. 0: descriptors gate nothing. Maps without
+            descriptors (landmarks that all look alike) are gated by size alone.
+        descriptor_prior: when both maps carry descriptors, each putative association's
+            similarity is its prior weight in the consistency graph (the affinity's
+            diagonal; 1 otherwise), so that CLIPPER prefers sets of look-alike pairs.
+        refit: register each candidate again on every pair it explains (the mutual inliers
+            within `inlier_radius`) instead of MNO-CLIPPER's clique alone, and take its
+            residual and covariance from those pairs.
+    """
+
+    kappa: float = 20.0
+    size_ratio: float = 1.35
+    size_abs_diff: float = 0.1
+    size_partial: float | None = 2.0
+    dim: Literal[2, 3] = 2
+    clipper: ClipperParams = field(default_factory=ClipperParams)
+    n_solutions: int = 4
+    mno_downweight: float = 0.0
+    min_associations: int = 5
+    max_associations: int = 10000
+    pairs_per_object: int = 2
+    min_score_ratio: float = 0.75
+    weight_offset: float = 0.01
+    max_rmse: float | None = 0.5
+    covariance: Literal["constant", "residual", "calibrated"] = "calibrated"
+    R_constant: np.ndarray = field(default_factory=constant_alignment_covariance)
+    residual_floor: float = 0.05
+    residual_prior_dof: float = 4.0
+    map_drift: tuple[float, float] = (0.01, math.radians(0.25))
+    repeat_inflation: float = 0.5
+    repeat_Q: np.ndarray | None = None
+    min_inliers: int | None = None
+    inlier_radius: float = 0.3
+    min_spread: float = 0.25
+    check_ambiguity: bool = True
+    distinct_translation: float = 1.0
+    distinct_heading: float = math.radians(5.0)
+    memory_span: float = 200.0
+    memory_searches: int = 8
+    confirm_translation: float = 0.5
+    confirm_heading: float = math.radians(2.5)
+    track_min: int | None = None
+    guide_radius: float | None = 2.0
+    full_search_every: int = 5
+    height_epsilon: float | None = None
+    descriptor_min: float = 0.0
+    descriptor_prior: bool = False
+    refit: bool = False
+
+    def __post_init__(self) -> None:
+        o = "FrameAlignerParams"
+        _require(_real(self.kappa) and self.kappa > 0, o, "kappa", self.kappa,
+                 "must be a number > 0 seconds")
+        _require(_real(self.size_ratio) and self.size_ratio >= 1, o, "size_ratio",
+                 self.size_ratio, "must be a number >= 1")
+        _require(_real(self.size_abs_diff) and self.size_abs_diff >= 0, o, "size_abs_diff",
+                 self.size_abs_diff, "must be a number >= 0 metres")
+        _require(self.size_partial is None or (_finite(self.size_partial)
+                                                and self.size_partial >= 1),
+                 o, "size_partial", self.size_partial, "must be None or a finite number >= 1")
+        _require(_one_of(self.dim, (2, 3)), o, "dim", self.dim, "must be 2 or 3")
+        _require(isinstance(self.clipper, ClipperParams), o, "clipper", self.clipper,
+                 "must be a ClipperParams")
+        _require(_int_at_least(self.n_solutions, 1), o, "n_solutions",
+                 self.n_solutions, "must be an int >= 1")
+        _require(_real(self.mno_downweight) and 0 <= self.mno_downweight < 1, o,
+                 "mno_downweight", self.mno_downweight, "must be in [0, 1)")
+        _require(_int_at_least(self.min_associations, 2), o,
+                 "min_associations", self.min_associations, "must be an int >= 2")
+        _require(_int_at_least(self.max_associations, self.min_associations), o,
+                 "max_associations", self.max_associations,
+                 f"must be an int >= min_associations ({self.min_associations})")
+        _require(_int_at_least(self.pairs_per_object, 1), o, "pairs_per_object",
+                 self.pairs_per_object, "must be an int >= 1")
+        _require(_real(self.min_score_ratio) and 0 <= self.min_score_ratio <= 1, o,
+                 "min_score_ratio", self.min_score_ratio, "must be in [0, 1]")
+        _require(_real(self.weight_offset) and self.weight_offset > 0, o, "weight_offset",
+                 self.weight_offset, "must be a number > 0 seconds^2")
+        _require(self.max_rmse is None or (_real(self.max_rmse) and self.max_rmse > 0), o,
+                 "max_rmse", self.max_rmse, "must be a number > 0 metres or None")
+        _require(_one_of(self.covariance, ("constant", "residual", "calibrated")), o,
+                 "covariance", self.covariance,
+                 "must be 'constant', 'residual' or 'calibrated'")
+        object.__setattr__(self, "R_constant", _spd(self.R_constant, 3, o, "R_constant"))
+        _require(_finite(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
+                 self.residual_floor, "must be a finite number > 0 metres")
+        for name in ("residual_prior_dof", "repeat_inflation"):
+            value = getattr(self, name)
+            _require(_finite(value) and value >= 0, o, name, value,
+                     "must be a finite number >= 0")
+        drift = _reals(self.map_drift)
+        _require(drift is not None and len(drift) == 2
+                 and all(math.isfinite(v) and v >= 0 for v in drift), o, "map_drift",
+                 self.map_drift, "must be (metres, radians) per square root of a second, two "
+                 "finite numbers >= 0")
+        object.__setattr__(self, "map_drift", drift)
+        if self.repeat_Q is not None:
+            object.__setattr__(self, "repeat_Q", _spd(self.repeat_Q, 3, o, "repeat_Q"))
+        _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,
+                 "min_inliers", self.min_inliers, "must be an int >= 2 or None")
+        _require(self.track_min is None or _int_at_least(self.track_min, 2), o,
+                 "track_min", self.track_min, "must be an int >= 2 or None")
+        _require(isinstance(self.check_ambiguity, bool), o, "check_ambiguity",
+                 self.check_ambiguity, "must be True or False")
+        for name in ("inlier_radius", "distinct_translation", "distinct_heading",
+                     "confirm_translation", "confirm_heading"):
+            value = getattr(self, name)
+            _require(_finite(value) and value > 0, o, name, value,
+                     "must be a finite number > 0")
+        _require(_finite(self.min_spread) and self.min_spread >= 0, o, "min_spread",
+                 self.min_spread, "must be a finite number >= 0 metres")
+        _require(_finite(self.memory_span) and self.memory_span >= 0, o,
+                 "memory_span", self.memory_span, "must be a finite number >= 0 seconds")
+        _require(_int_at_least(self.memory_searches, 0), o, "memory_searches",
+                 self.memory_searches, "must be an int >= 0")
+        _require(self.guide_radius is None
+                 or (_finite(self.guide_radius) and self.guide_radius > 0), o, "guide_radius",
+                 self.guide_radius, "must be a finite number > 0 metres or None")
+        _require(_int_at_least(self.full_search_every, 1), o, "full_search_every",
+                 self.full_search_every, "must be an int >= 1")
+        _require(self.height_epsilon is None
+                 or (_finite(self.height_epsilon) and self.height_epsilon > 0), o,
+                 "height_epsilon", self.height_epsilon,
+                 "must be a finite number > 0 metres or None")
+        _require(_finite(self.descriptor_min) and 0 <= self.descriptor_min <= 1, o,
+                 "descriptor_min", self.descriptor_min, "must be in [0, 1]")
+        for name in ("descriptor_prior", "refit"):
+            _require(isinstance(getattr(self, name), bool), o, name, getattr(self, name),
+                     "must be True or False")
+
+    @classmethod
+    def reference(cls) -> FrameAlignerParams:
+        """The authors' released settings, without this project's residual, spread and
+        ambiguity checks, with the paper's size gate and with every search full."""
+        return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False,
+                   guide_radius=None, size_partial=None, covariance="constant")
+
+    @classmethod
+    def camera(cls, **changes) -> FrameAlignerParams:
+        """For maps of cameras on gravity-aligned odometry (VIO), as the RGB-D front end
+        makes them (objects' clouds merged over views, with descriptors): the gravity prior
+        (`height_epsilon` = CLIPPER's epsilon), the calibrated covariances (as the default),
+        descriptors as a gate (similarity >= 0.5) and CLIPPER's prior, and candidates of as
+        few as 3 associations: with descriptors and heights to agree on, a clique of three is
+        rarely a coincidence, and the filter weighs it as weak evidence
+        (`TCAFFParams.object_nats`). `changes` are any other fields.
+
+        On the 7-Scenes kitchen (two hand-held halves, VIO-like drift) these take false
+        accepts from about 1 in 4 to none and heading errors from 4 to about 1 degree
+        (docs/mapping.md); outdoors, where the simulator's partial views move tall objects'
+        centres by metres in height, the gravity prior costs availability, so it is not the
+        default."""
+        clipper = changes.get("clipper", ClipperParams())
+        epsilon = clipper.epsilon if isinstance(clipper, ClipperParams) else None
+        return cls(**{"height_epsilon": epsilon, "covariance": "calibrated",
+                      "descriptor_min": 0.5, "descriptor_prior": True, "min_associations": 3,
+                      **changes})

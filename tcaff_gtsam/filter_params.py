@@ -1,0 +1,382 @@
+"""Settings of the TCAFF filter (`TCAFFParams`) and of the iSAM2 graph of accepted alignments
+(`GraphParams`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from .aligner_params import _alignment_process_noise, constant_alignment_covariance
+from .param_checks import (
+    _ByValue,
+    _finite,
+    _int_at_least,
+    _one_of,
+    _real,
+    _reals,
+    _require,
+    _spd,
+)
+
+
+@dataclass(frozen=True, eq=False)
+class TCAFFParams(_ByValue):
+    """Settings of the TCAFF filter (paper, "Multiple Hypothesis Formulation" and "Frame
+    Alignment Filter"). The defaults are the paper's equations and values, and among
+    look-alike objects (`lookalike_share`) they count distinct evidence (`min_distinct` = 2,
+    `switch_stale`, `withhold_contested`): the same look-alikes re-matched at every step are
+    one piece of evidence, not W. They accept a hypothesis as soon as its evidence makes the
+    paper's decision certain (`sequential`), weigh a measurement by the objects it explains
+    (`object_nats`) and recall a dropped hypothesis on its first confirming measurement
+    (`recall_for`). `paper()` is the paper's equations alone in every world; `reference()` the
+    authors' released code, quirks included.
+
+    The state x has dimension d = Q.shape[0] (3 for (x [m], y [m], theta [rad]) of T_oi_oj);
+    motion and measurement models are the identity. Costs are in nats (negative log
+    likelihoods); lower is better.
+
+    Attributes:
+        window: W, steps a hypothesis is judged over. Each measurement seeds an exploring tree
+            that sees the next W steps; the main tree keeps W steps below its root (see
+            `root_in_window`).
+        max_leaves: B, leaves kept in the main tree.
+        max_children: measurement children per main-tree leaf (the best gated ones), besides the
+            one no-measurement child every leaf gets.
+        explore_max_leaves, explore_max_children: the same for each exploring tree.
+        max_measurements: the most measurements taken in one step; beyond it the first ones
+            given are kept (`FrameAligner` lists the best score first) and it is logged. Each
+            measurement seeds an exploring tree, so the step's cost grows with their number.
+        p_no_measurement: p_NM; a no-measurement child costs -log p_NM - d/2 log 2 pi.
+        tau: an exploring tree whose best path cost over W steps is below tau becomes the main
+            tree when there is none.
+        Q: (d, d) process noise per step (random-walk drift of the alignment).
+        P0: (d, d) covariance of an exploring tree's root, which is the seeding measurement.
+        angle_indices: state components that are angles (residuals and states are wrapped).
+        gate: "mahalanobis" admits a measurement when its squared Mahalanobis distance under
+            S = P + Q + R is within the chi-square quantile `gate_probability`; "box" when
+            every |z_a - x_a| <= gate_box[a] (the original's rule; None is 2.0 for every
+            component, as there, radians included).
+        cost_model: "paper" is the cost of the paper's final equation with S = P + Q + R;
+            "reference" reproduces the released code: squared Mahalanobis distance squared
+            again, S = P + R, diagonal-only inverses and determinants, + d/2 log 2 pi on
+            measurement children and -log p_NM on no-measurement children.
+        root_in_window: False (paper): the main tree's root is the single node W steps back
+            and all W steps after it stay open. True (released code): the root is the first
+            step of the window, so W - 1 steps stay open.
+        promotion: "branch" makes the accepted exploring tree the main tree as it is;
+            "reseed" (released code) starts a fresh tree at the accepted tree's first state
+            with covariance P0 and replays the window's measurements (one step twice).
+        drop_rule, drop_after: the main tree is dropped when its best path has held no
+            measurement for `drop_after` steps ("best_path"), or (released code, "window")
+            when the best path's whole window has been empty for more than `drop_after`
+            consecutive steps.
+        switch_after: while a main tree exists, switch to an exploring hypothesis that is
+            inconsistent with it (Mahalanobis test at `gate_probability`), below tau, and
+            better by `switch_margin` nats for this many consecutive steps. None never re-checks
+            (released code).
+        switch_margin: nats.
+        switch_support: while a main tree exists, also switch to an exploring hypothesis that
+            is inconsistent with it, below tau and cheaper, and whose best path was seen at
+            least this many more times in the window than the main tree's best path, for
+            `switch_after` consecutive steps, whether or not a measurement confirmed the main
+            hypothesis at those steps: an early wrong alignment still seen now and then is
+            outvoted by the truth seen more often, W + `switch_after` steps after the truth's
+            first measurement. The main path's measurements count as they are; a rival's
+            count as one when together they bring fewer than two distinct pieces of evidence
+            (see `min_distinct`): a look-alike cluster re-matched at every step outvotes
+            nothing (one that also matches other objects now and then counts in full). None:
+            only the `switch_margin` rule. Like it, acts only with `switch_after` (None never
+            re-checks).
+        min_distinct: a hypothesis is accepted, or replaces the main one, only when its best
+            path over the window holds at least this many distinct pieces of evidence: a
+            measurement is distinct when it associates an object of each robot that no earlier
+            measurement of the path used (objects named by the `evidence` ids given to
+            `TCAFF.update`; a measurement without ids always counts). The same objects matched
+            again a second later are one piece of evidence, not W. 1 counts every measurement.
+        switch_stale: a main hypothesis confirmed by a measurement this step is not abandoned
+            (in a repetitive world a wrong rival can hold a full window while the truth has
+            gaps), unless (True) its best path has brought no distinct evidence for W steps:
+            then it only re-matches objects it already used.
+        withhold_contested: report no estimate while the main tree's best path took no
+            measurement this step and a hypothesis it gates out holds more distinct pieces of
+            evidence in the window than that path does (and at least `min_distinct`): the
+            robots' frames have likely jumped and the old estimate would be wrong until the
+            switch, W + `switch_after` steps later. With `switch_support`, also while a
+            hypothesis it gates out is seen that many more times in the window (the
+            outvoting streak builds), confirmed this step or not. Only at steps given object
+            ids (`lookalike_share`).
+        lookalike_share: the distinct-evidence rules (`min_distinct`, `switch_stale`,
+            `withhold_contested`, `switch_support`) read object ids only at steps whose two
+            maps are of look-alikes: `PairwiseAligner` gives ids when at least this share of
+            the maps' object pairs pass the aligner's size and descriptor gates
+            (`FrameAligner.lookalike_share`). Landmarks without sizes (MRCLAM) give 1; the
+            simulator's streets and rooms 0.1-0.6, its grid of crates 0.7-1 (median 0.84);
+            a camera's few objects of a small room 0.6-0.92 (median 0.73): the partial-view
+            size gate lets many pairs through. At other steps every measurement is distinct
+            evidence, so the rules change nothing there and a small static scene is accepted
+            as the paper's filter accepts it. 0: ids at every step (and the rules always on).
+        report_after: report no estimate once the main tree's best path has held no
+            measurement for this many steps, while the tree itself is kept until
+            `drop_after`: unreported, it can still be confirmed (`TCAFF.held`), e.g. by the
+            aligner's tracking when the robots see shared objects again. None: reported
+            until dropped.
+        sequential: accept a hypothesis as soon as its evidence makes acceptance certain,
+            not only when its exploring tree is W steps old (docs/tcaff.md, "Sequential
+            acceptance"). A hypothesis's score is its path cost less its object support
+            (`object_nats`); it is accepted once the score plus the cost of W - a further
+            steps without a measurement (a its tree's age) is below tau, so that no outcome
+            of the remaining steps could keep the paper's rule from accepting it, when its
+            path holds `early_measurements` measurements, `min_distinct` distinct pieces of
+            evidence and every open hypothesis inconsistent with it scores at least
+            `switch_margin` worse. False: only complete trees are judged (the paper).
+        object_nats: nats of evidence per object a measurement explains beyond
+            `object_base` (negative below it), given by the `objects` of `TCAFF.update`; a
+            path's support is that of its best-supported measurement in the window (a
+            maximum, not a sum: the same objects matched again a second later add nothing).
+            The odds that one more object lands by chance within the aligner's inlier radius
+            (0.3 m) of a compatible object under a wrong alignment are about
+            density * pi * 0.3^2: e^-2 for 1.5 compatible objects per square metre, more
+            than any map of ours holds. Only with `sequential`.
+        object_base: objects a measurement must explain to count as plain evidence: the
+            paper's minimum number of associations.
+        early_measurements: measurements (at different steps, the seed's included) a path
+            needs before it is accepted early: at least two, so the hypothesis has been
+            seen consistent over time.
+        recall_for: steps after a main tree is dropped during which its last estimate
+            stays dormant: a measurement within its gate (its covariance grown by Q each
+            step) recalls it as the main hypothesis at once, with its id and history,
+            unless an open hypothesis inconsistent with it holds more evidence. With the
+            default Q, 100 steps grow its standard deviation by 1 m and 5 degrees, the
+            bounds of a correct alignment. None: a dropped hypothesis is forgotten.
+    """
+
+    window: int = 8
+    max_leaves: int = 200
+    max_children: int = 4
+    explore_max_leaves: int = 50
+    explore_max_children: int = 2
+    max_measurements: int = 32
+    p_no_measurement: float = 0.001
+    tau: float = 8.0
+    Q: np.ndarray = field(default_factory=_alignment_process_noise)
+    P0: np.ndarray = field(default_factory=constant_alignment_covariance)
+    angle_indices: tuple[int, ...] = (2,)
+    gate: Literal["mahalanobis", "box"] = "mahalanobis"
+    gate_probability: float = 0.999
+    gate_box: tuple[float, ...] | None = None
+    cost_model: Literal["paper", "reference"] = "paper"
+    root_in_window: bool = False
+    promotion: Literal["branch", "reseed"] = "branch"
+    drop_rule: Literal["best_path", "window"] = "best_path"
+    drop_after: int = 40
+    switch_after: int | None = 3
+    switch_margin: float = 5.0
+    switch_support: int | None = 2
+    min_distinct: int = 2
+    switch_stale: bool = True
+    withhold_contested: bool = True
+    lookalike_share: float = 0.9
+    report_after: int | None = None
+    sequential: bool = True
+    object_nats: float = 2.0
+    object_base: int = 5
+    early_measurements: int = 2
+    recall_for: int | None = 100
+
+    def __post_init__(self) -> None:
+        o = "TCAFFParams"
+        Q = _spd(self.Q, None, o, "Q")
+        d = Q.shape[0]
+        object.__setattr__(self, "Q", Q)
+        object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0"))
+        for name, low in (("window", 1), ("max_leaves", 1), ("max_children", 1),
+                          ("explore_max_leaves", 1), ("explore_max_children", 1),
+                          ("max_measurements", 1),
+                          ("drop_after", 1)):
+            value = getattr(self, name)
+            _require(_int_at_least(value, low), o, name, value, f"must be an int >= {low}")
+        for name in ("p_no_measurement", "gate_probability"):
+            value = getattr(self, name)
+            _require(_real(value) and 0 < value < 1, o, name, value, "must be in (0, 1)")
+        _require(_real(self.tau) and math.isfinite(self.tau), o, "tau", self.tau,
+                 "must be a finite number (nats)")
+        angles = self.angle_indices
+        if isinstance(angles, np.ndarray) and angles.ndim == 1:
+            angles = angles.tolist()
+        ok = (isinstance(angles, (tuple, list))
+              and all(_int_at_least(a, 0) and a < d for a in angles)
+              and len(set(angles)) == len(angles))
+        _require(ok, o, "angle_indices", self.angle_indices, f"must be distinct ints in [0, {d})")
+        object.__setattr__(self, "angle_indices", tuple(int(a) for a in angles))
+        _require(_one_of(self.gate, ("mahalanobis", "box")), o, "gate", self.gate,
+                 "must be 'mahalanobis' or 'box'")
+        box = (2.0,) * d if self.gate_box is None else _reals(self.gate_box)
+        _require(box is not None and len(box) == d and all(v > 0 for v in box), o, "gate_box",
+                 self.gate_box, f"must hold {d} numbers > 0, or be None")
+        object.__setattr__(self, "gate_box", box)
+        _require(_one_of(self.cost_model, ("paper", "reference")), o, "cost_model",
+                 self.cost_model, "must be 'paper' or 'reference'")
+        _require(isinstance(self.root_in_window, bool), o, "root_in_window",
+                 self.root_in_window, "must be True or False")
+        _require(_one_of(self.promotion, ("branch", "reseed")), o, "promotion", self.promotion,
+                 "must be 'branch' or 'reseed'")
+        _require(_one_of(self.drop_rule, ("best_path", "window")), o, "drop_rule",
+                 self.drop_rule, "must be 'best_path' or 'window'")
+        _require(self.switch_after is None or _int_at_least(self.switch_after, 1), o,
+                 "switch_after", self.switch_after, "must be an int >= 1 or None")
+        _require(_finite(self.switch_margin) and self.switch_margin >= 0, o,
+                 "switch_margin", self.switch_margin, "must be a finite number >= 0 (nats)")
+        _require(_int_at_least(self.min_distinct, 1), o, "min_distinct", self.min_distinct,
+                 "must be an int >= 1")
+        _require(self.switch_support is None or _int_at_least(self.switch_support, 1), o,
+                 "switch_support", self.switch_support, "must be an int >= 1 or None")
+        _require(isinstance(self.switch_stale, bool), o, "switch_stale", self.switch_stale,
+                 "must be True or False")
+        _require(isinstance(self.withhold_contested, bool), o, "withhold_contested",
+                 self.withhold_contested, "must be True or False")
+        _require(_real(self.lookalike_share) and 0 <= self.lookalike_share <= 1, o,
+                 "lookalike_share", self.lookalike_share, "must be a number in [0, 1]")
+        _require(self.report_after is None or _int_at_least(self.report_after, 1), o,
+                 "report_after", self.report_after, "must be an int >= 1 or None")
+        _require(isinstance(self.sequential, bool), o, "sequential", self.sequential,
+                 "must be True or False")
+        # the released code's promotion replays a full window, which a young tree has not
+        _require(not (self.sequential and self.promotion == "reseed"), o, "sequential",
+                 self.sequential, "must be False with promotion='reseed'")
+        _require(_finite(self.object_nats) and self.object_nats >= 0, o, "object_nats",
+                 self.object_nats, "must be a finite number >= 0 (nats)")
+        _require(_int_at_least(self.object_base, 0), o, "object_base", self.object_base,
+                 "must be an int >= 0")
+        _require(_int_at_least(self.early_measurements, 2), o, "early_measurements",
+                 self.early_measurements, "must be an int >= 2")
+        _require(self.recall_for is None or _int_at_least(self.recall_for, 1), o,
+                 "recall_for", self.recall_for, "must be an int >= 1 or None")
+
+    @property
+    def dim(self) -> int:
+        """d, the dimension of the state and of every measurement."""
+        return self.Q.shape[0]
+
+    @property
+    def counts_evidence(self) -> bool:
+        """Whether the filter reads the object evidence given to `update`."""
+        return (self.min_distinct > 1 or self.switch_stale or self.withhold_contested
+                or self.switch_support is not None)
+
+    @classmethod
+    def paper(cls) -> TCAFFParams:
+        """The paper's equations alone: every measurement counts as evidence, and a main
+        hypothesis confirmed at a step is never abandoned at that step."""
+        return cls(min_distinct=1, switch_stale=False, withhold_contested=False,
+                   switch_support=None, sequential=False, recall_for=None)
+
+    @classmethod
+    def reference(cls) -> TCAFFParams:
+        """The authors' released code: its threshold, gate, cost, promotion and deletion."""
+        return cls(tau=9.0, gate="box", cost_model="reference", root_in_window=True,
+                   promotion="reseed", drop_rule="window", drop_after=40, switch_after=None,
+                   switch_support=None, min_distinct=1, switch_stale=False,
+                   withhold_contested=False, sequential=False, recall_for=None)
+
+
+def _default_odometry_cov(dim: int) -> np.ndarray:
+    deg = math.radians(1.0)
+    if dim == 2:
+        return np.diag([0.05**2, 0.05**2, deg**2])
+    return np.diag([(0.5 * deg) ** 2, (0.5 * deg) ** 2, deg**2, 0.05**2, 0.05**2, 0.05**2])
+
+
+@dataclass(frozen=True, eq=False)
+class GraphParams(_ByValue):
+    """Settings of `InterRobotGraph` (iSAM2 smoothing of frame alignments and trajectories).
+
+    Attributes:
+        dim: 2 for Pose2 (planar robots), 3 for Pose3 with gravity-aligned alignments
+            (x, y, z, yaw).
+        Q: drift of one pair's alignment per step, the covariance of (x, y, theta) (dim 2,
+            (3, 3)) or (x, y, z, yaw) (dim 3, (4, 4)). Each robot's chain gets Q / 2, so the
+            relative drift of two robots is Q, as TCAFF assumes. None: TCAFF's default Q
+            (z drifting like x and y in 3D).
+        robust: M-estimator of the alignment factors: "huber", "cauchy" or "none" (Gaussian).
+        robust_k: its threshold, in standard deviations of the whitened residual.
+        anchor_sigma: metres and radians; prior on robot 0's first alignment and keyframe.
+        free_sigmas: (metres, radians) of the prior that fixes the gauge of robots (or
+            groups of robots) not connected to robot 0 by any factor. It is placed on their
+            latest variable at its current value and removed as soon as they connect, so it
+            never biases an alignment.
+        gravity_sigma: radians, roll and pitch uncertainty of a 3D alignment factor.
+        odometry_cov: covariance of the odometry between consecutive keyframes in gtsam's
+            tangent order ((vx, vy, omega) for Pose2; (wx, wy, wz, vx, vy, vz), rotation first,
+            for Pose3). None: 5 cm and 1 deg (0.5 deg roll and pitch) per keyframe.
+        relinearize_threshold, relinearize_skip: iSAM2's relinearisation settings. 0.05
+            rather than 0.01: with 12 alignments per step, 0.01 kept relinearising old
+            alignment variables as smoothing moved them and the update time grew tenfold
+            over an hour of steps; noise-free alignments still come out exact.
+        max_iterations, settle_threshold: extra iSAM2 iterations, at most `max_iterations`,
+            run while a variable the update touched is more than `settle_threshold` (metres or
+            radians, tangent) from its linearisation point: big corrections such as a first
+            alignment or a removed hypothesis are nonlinear.
+        switch_hold: when TCAFF switches a pair to a hypothesis that disagrees with the graph,
+            the earlier hypothesis's factors are removed only once the new one has been
+            reported at this many steps (the default window W): a late or passing switch then
+            leaves the smoothed history in place. 1 removes them at the switch.
+        horizon: steps the graph keeps for long runs: `update(k)` marginalises the variables
+            of the steps at or before k - horizon (alignment variables, and the keyframes
+            committed with those steps) into a linear factor on what they were linked to, one
+            step per update, so memory and update time stay bounded. Steps that left keep the
+            estimate they had then, and the covariance they had as the latest step; keyframes
+            keep their last pose. Factors that left can no longer be removed (a hypothesis
+            switch removes only those within the horizon). None keeps every step (offline
+            studies).
+    """
+
+    dim: Literal[2, 3] = 2
+    Q: np.ndarray | None = None
+    robust: Literal["huber", "cauchy", "none"] = "huber"
+    robust_k: float = 1.345
+    anchor_sigma: float = 1e-3
+    free_sigmas: tuple[float, float] = (1.0, 1.0)
+    gravity_sigma: float = 1e-3
+    odometry_cov: np.ndarray | None = None
+    relinearize_threshold: float = 0.05
+    relinearize_skip: int = 1
+    max_iterations: int = 10
+    settle_threshold: float = 0.5
+    switch_hold: int = TCAFFParams.window
+    horizon: int | None = None
+
+    def __post_init__(self) -> None:
+        o = "GraphParams"
+        _require(_one_of(self.dim, (2, 3)), o, "dim", self.dim, "must be 2 or 3")
+        n_param = 3 if self.dim == 2 else 4
+        if self.Q is None:
+            q = np.diag(_alignment_process_noise())
+            Q = np.diag(q if self.dim == 2 else [q[0], q[1], q[0], q[2]])
+        else:
+            Q = _spd(self.Q, n_param, o, "Q")
+        object.__setattr__(self, "Q", Q)
+        odo = (_default_odometry_cov(self.dim) if self.odometry_cov is None
+               else _spd(self.odometry_cov, 3 if self.dim == 2 else 6, o, "odometry_cov"))
+        object.__setattr__(self, "odometry_cov", odo)
+        _require(_one_of(self.robust, ("huber", "cauchy", "none")), o, "robust", self.robust,
+                 "must be 'huber', 'cauchy' or 'none'")
+        for name in ("robust_k", "anchor_sigma", "gravity_sigma", "relinearize_threshold",
+                     "settle_threshold"):
+            value = getattr(self, name)
+            _require(_real(value) and math.isfinite(value) and value > 0, o,
+                     name, value, "must be a finite number > 0")
+        sig = _reals(self.free_sigmas)
+        _require(sig is not None and len(sig) == 2 and all(0 < v < math.inf for v in sig), o,
+                 "free_sigmas", self.free_sigmas, "must be (metres, radians), finite and > 0")
+        object.__setattr__(self, "free_sigmas", sig)
+        _require(_int_at_least(self.relinearize_skip, 1), o, "relinearize_skip",
+                 self.relinearize_skip, "must be an int >= 1")
+        _require(_int_at_least(self.max_iterations, 0), o, "max_iterations",
+                 self.max_iterations, "must be an int >= 0")
+        _require(_int_at_least(self.switch_hold, 1), o, "switch_hold", self.switch_hold,
+                 "must be an int >= 1")
+        _require(self.horizon is None or _int_at_least(self.horizon, 2), o, "horizon",
+                 self.horizon, "must be an int >= 2 (steps) or None")

@@ -1,0 +1,157 @@
+"""How `InterRobotGraph` takes a TCAFF filter's output: the candidate each step's estimate took
+becomes an alignment factor tagged with its hypothesis, and the factors of a hypothesis the
+filter switched away from are removed once the new one has held (`GraphParams.switch_hold`)."""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DataError
+from .geometry import _chi2_quantile
+from .graph_inputs import _Factor
+from .inputs import real_array, shown
+from .tcaff import AlignmentEstimate
+
+__all__ = ["HypothesisFactors"]
+
+log = logging.getLogger(__name__)
+
+_AGREE_CHI2 = _chi2_quantile(0.999, 3)
+
+
+@dataclass
+class _Abandoned:
+    """A hypothesis TCAFF switched away from, whose factors wait for the new one to hold.
+
+    Attributes:
+        hypothesis: its tag; x (3,), P (3, 3): the graph's alignment of the pair when it was
+            abandoned; held: steps the hypotheses after it have been reported.
+    """
+
+    hypothesis: int
+    x: np.ndarray
+    P: np.ndarray
+    held: int = 0
+
+
+class HypothesisFactors:
+    """The part of `InterRobotGraph` that takes TCAFF's hypotheses (mixed into it; it uses the
+    graph's own attributes)."""
+
+    def remove_hypothesis(self, i: int, j: int, hypothesis: int) -> int:
+        """Queue the removal of every factor tagged with (i, j, hypothesis); returns how many.
+
+        Raises:
+            DataError: unknown robot.
+        """
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+
+        def tagged(f: _Factor) -> bool:
+            return f.tag is not None and f.tag[0] != "free" and f.tag[1:] == (i, j, hypothesis)
+
+        found = [index for index, f in self._active.items()
+                 if tagged(f) and index not in self._to_remove]
+        self._to_remove.extend(found)
+        queued = len(self._queued)  # factors still waiting are dropped from the queue
+        self._queued = [q for q in self._queued if not tagged(q)]
+        return len(found) + queued - len(self._queued)
+
+    def add_tcaff_estimate(self, step: int, i: int, j: int,
+                           estimate: AlignmentEstimate | None, zs, Rs) -> None:
+        """Feed one step of a TCAFF filter for the pair (i, j).
+
+        The factor is the candidate TCAFF's best path took at this step (zs[m], Rs[m] with
+        m = estimate.measurement), not the filtered estimate: consecutive filtered estimates
+        share their past measurements and would count them many times over.
+
+        A main tree dropped for want of measurements is no evidence against it, so its factors
+        stay. When the filter next reports a different hypothesis (after a drop, or by
+        switching), the earlier hypothesis's factors are kept if the new estimate agrees with
+        the graph's current alignment of the pair (squared Mahalanobis distance under the sum
+        of both covariances within the chi-square 0.999 quantile). Otherwise they are removed
+        once the new hypothesis has been reported at `switch_hold` steps; a switch back before
+        then removes the short-lived hypothesis's factors instead, and a switch to a third one
+        removes the one in between.
+
+        Args:
+            estimate: what `TCAFF.update(zs, Rs)` returned for this step.
+            zs: (k, 3) the candidates given to TCAFF; Rs: (k, 3, 3) their covariances.
+        """
+        if not self._planar:
+            raise DataError("add_tcaff_estimate: TCAFF estimates are (x, y, theta); use a "
+                            "planar graph (GraphParams(dim=2))")
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        if estimate is None:
+            return
+        if not isinstance(estimate, AlignmentEstimate):
+            raise DataError(f"add_tcaff_estimate: estimate must be an AlignmentEstimate or "
+                            f"None, got {shown(estimate)}")
+        if estimate.measurement >= 0:
+            zs = real_array("add_tcaff_estimate", "zs", zs)
+            Rs = real_array("add_tcaff_estimate", "Rs", Rs)
+            if not (zs.ndim == 2 and zs.shape[1:] == (3,) and Rs.shape == (len(zs), 3, 3)
+                    and estimate.measurement < len(zs)):
+                raise DataError(f"add_tcaff_estimate: estimate.measurement = "
+                                f"{estimate.measurement} must index zs (k, 3) and Rs (k, 3, 3), "
+                                f"got shapes {zs.shape} and {Rs.shape}")
+        pair = (i, j)
+        previous = self._hypothesis.get(pair)
+        current = estimate.hypothesis
+        waiting = self._abandoned.get(pair)
+        if previous is not None and previous != current:
+            if waiting is not None and self._agrees(estimate, waiting.x, waiting.P):
+                # back to the abandoned alignment before the hold ended: the short-lived
+                # hypothesis goes, and TCAFF's new id for the old alignment continues it
+                self.remove_hypothesis(i, j, previous)
+                del self._abandoned[pair]
+                waiting = None
+            elif self._steps and self._agrees(estimate, *self._latest(i, j)):
+                log.debug("pair (%d, %d): hypothesis %s agrees with %s, factors kept", i, j,
+                          current, previous)
+            elif waiting is not None:  # a third alignment: the one in between goes now
+                self.remove_hypothesis(i, j, previous)
+                waiting.held = 0
+            elif self._steps:
+                waiting = self._abandoned[pair] = _Abandoned(previous,
+                                                              *self._latest(i, j))
+        self._hypothesis[pair] = current
+        if waiting is not None:
+            waiting.held += 1
+            if waiting.held >= self.params.switch_hold:
+                removed = self.remove_hypothesis(i, j, waiting.hypothesis)
+                log.debug("pair (%d, %d): hypothesis %s abandoned, %d factors removed", i, j,
+                          waiting.hypothesis, removed)
+                del self._abandoned[pair]
+        if estimate.measurement >= 0:
+            m = estimate.measurement
+            self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
+
+    def settled(self, i: int, j: int) -> bool:
+        """False while the pair (i, j) or (j, i) has an abandoned hypothesis whose factors wait
+        for the new one to hold (`GraphParams.switch_hold`): the graph then still weighs both.
+
+        Raises:
+            DataError: i or j not a robot of this graph.
+        """
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        return (i, j) not in self._abandoned and (j, i) not in self._abandoned
+
+    def _latest(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """(x, y, theta) of the graph's latest T_oi_oj and its covariance."""
+        T, cov = self.alignment(i, j)
+        return self._params(T), cov
+
+    @staticmethod
+    def _agrees(estimate: AlignmentEstimate, x: np.ndarray, P: np.ndarray) -> bool:
+        """Whether a TCAFF estimate is consistent with the alignment x (3,), covariance P."""
+        residual = np.asarray(estimate.x, dtype=float) - x
+        residual[2] = math.remainder(residual[2], 2 * math.pi)
+        S = P + np.asarray(estimate.P, dtype=float)
+        return float(residual @ np.linalg.solve(S, residual)) <= _AGREE_CHI2

@@ -1,0 +1,135 @@
+"""What every parameter object checks its fields with, and the error it raises: `ParameterError`,
+a `ConfigError` that names the field, its value and the rule it breaks."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from typing import Any
+
+import numpy as np
+
+from .errors import ConfigError
+
+
+class ParameterError(ConfigError):
+    """A `ConfigError` about one field of a parameter object.
+
+    Attributes:
+        owner: the parameter class (or function) the field belongs to.
+        name: the field.
+        value: the rejected value.
+        rule: what the field must be, e.g. "must be an int >= 1".
+    """
+
+    def __init__(self, owner: str, name: str, value: Any, rule: str) -> None:
+        try:
+            shown = repr(value)
+        except Exception:  # an int beyond Python's digit limit, a broken __repr__
+            shown = f"<{type(value).__name__} that has no repr>"
+        super().__init__(f"{owner}.{name} = {shown}: {rule}")
+        self.owner, self.name, self.value, self.rule = owner, name, value, rule
+
+    def __reduce__(self):
+        # the default rebuilds from `args` (the message alone), which this __init__ refuses;
+        # errors of study jobs travel between processes
+        return type(self), (self.owner, self.name, self.value, self.rule)
+
+
+def _require(condition: bool, owner: str, name: str, value, rule: str) -> None:
+    if not condition:
+        raise ParameterError(owner, name, value, rule)
+
+
+def _given_or_default(cls: type, value, owner: str, name: str = "params"):
+    """`value` when it is a `cls`, `cls()` when it is None; a ConfigError naming `owner` and
+    `name` otherwise."""
+    if value is None:
+        return cls()
+    _require(isinstance(value, cls), owner, name, value, f"must be a {cls.__name__} or None")
+    return value
+
+
+def _int_at_least(value, low: int) -> bool:
+    """An int (Python or numpy, not a bool) >= low."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low
+
+
+#: the largest count the compiled kernels take
+_INT64_MAX = 2**63 - 1
+
+
+def _real(value) -> bool:
+    """A real number (Python or numpy, not a bool); may be NaN or infinite."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
+def _finite(value) -> bool:
+    """A finite real number (Python or numpy, not a bool); False for ints beyond the floats,
+    which numpy cannot take."""
+    try:
+        return _real(value) and math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def _one_of(value, choices: tuple) -> bool:
+    """One of `choices` (strings or ints) by type as well as value: 2.0 is not 2, True not 1."""
+    return (isinstance(value, (str, int, np.integer)) and not isinstance(value, bool)
+            and value in choices)
+
+
+def _reals(value) -> tuple[float, ...] | None:
+    """A sequence (tuple, list or 1-D array) of real numbers as a tuple of floats, else None."""
+    if isinstance(value, np.ndarray) and value.ndim == 1:
+        value = value.tolist()
+    if not isinstance(value, (tuple, list)) or not all(_real(v) for v in value):
+        return None
+    try:
+        return tuple(float(v) for v in value)
+    except OverflowError:  # an int beyond the floats
+        return None
+
+
+def _spd(matrix, d: int | None, owner: str, name: str) -> np.ndarray:
+    """`matrix` as a new float (d, d) array if it is a symmetric positive definite matrix of
+    real numbers (d None: of any size >= 1); else `ParameterError`."""
+    try:
+        M = np.array(matrix) if isinstance(matrix, (tuple, list, np.ndarray)) else None
+    except ValueError:  # ragged nested lists
+        M = None
+    ok = (M is not None and M.dtype.kind in "iuf" and M.ndim == 2 and M.shape[0] >= 1
+          and M.shape[0] == M.shape[1] and (d is None or M.shape[0] == d))
+    if ok:
+        # + 0.0 turns -0.0 into 0.0, so matrices equal by value are equal byte for byte
+        M = M.astype(float) + 0.0
+        ok = (bool(np.all(np.isfinite(M))) and np.allclose(M, M.T)
+              and bool(np.all(np.linalg.eigvalsh(M) > 0)))
+    size = "(d, d)" if d is None else f"({d}, {d})"
+    _require(ok, owner, name, matrix, f"must be a symmetric positive definite {size} matrix")
+    return M
+
+
+def _frozen(value):
+    """`value`, or for an array a hashable stand-in equal exactly when the arrays are."""
+    if isinstance(value, np.ndarray):
+        return value.shape, value.dtype.str, value.tobytes()
+    return value
+
+
+class _ByValue:
+    """Equality and hashing of a frozen parameter dataclass by the values of its fields, arrays
+    included (the dataclass's own `__eq__` compares arrays elementwise and cannot hash them).
+    Its subclasses are declared with `eq=False` so that these methods stay in place. The arrays
+    are the object's own copies and must not be modified in place."""
+
+    def _key(self) -> tuple:
+        return tuple(_frozen(getattr(self, f.name)) for f in fields(self))
+
+    def __eq__(self, other) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
