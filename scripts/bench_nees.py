@@ -61,18 +61,19 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from tcaff_gtsam.eval.metrics import NEES_95, NEES_997, Thresholds
 
 from tcaff_gtsam import FrameAlignerParams, PairwiseAligner, TCAFFParams
 from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 
+#: beyond either an estimate is wrong: the evaluation's false-accept thresholds (1 m, 5 deg)
+WRONG_M, WRONG_RAD = Thresholds().translation, Thresholds().heading
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MRCLAM = SHARED / "mrclam" / "MRCLAM_Dataset6"
 KITCHEN = SHARED / "rgbd" / "7scenes_redkitchen"
 #: the scenarios of `tcaff study paper`
 SCENARIOS = ("indoor_return", "same_direction", "opposite_directions", "four_robots",
              "ambiguous_grid", "indoor_rgbd", "mot")
-NEES_95, NEES_997 = 7.815, 14.16  # chi-square quantiles, 3 dof
-WRONG_M, WRONG_RAD = 1.0, math.radians(5.0)
 
 
 @dataclass(frozen=True)

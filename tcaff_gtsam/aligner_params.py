@@ -32,6 +32,16 @@ def _alignment_process_noise() -> np.ndarray:
     return np.diag([0.1**2, 0.1**2, math.radians(0.5) ** 2])
 
 
+def as_map_drift(owner: str, value) -> tuple[float, float]:
+    """`value` as a map drift (metres, radians) per square root of a second, two finite numbers
+    >= 0; else a ParameterError of `owner`'s field map_drift."""
+    drift = _reals(value)
+    _require(drift is not None and len(drift) == 2
+             and all(math.isfinite(v) and v >= 0 for v in drift), owner, "map_drift", value,
+             "must be (metres, radians) per square root of a second, two finite numbers >= 0")
+    return drift
+
+
 @dataclass(frozen=True)
 class ClipperParams:
     """CLIPPER consistency graph and solver settings.
@@ -297,12 +307,7 @@ class FrameAlignerParams(_ByValue):
             value = getattr(self, name)
             _require(_finite(value) and value >= 0, o, name, value,
                      "must be a finite number >= 0")
-        drift = _reals(self.map_drift)
-        _require(drift is not None and len(drift) == 2
-                 and all(math.isfinite(v) and v >= 0 for v in drift), o, "map_drift",
-                 self.map_drift, "must be (metres, radians) per square root of a second, two "
-                 "finite numbers >= 0")
-        object.__setattr__(self, "map_drift", drift)
+        object.__setattr__(self, "map_drift", as_map_drift(o, self.map_drift))
         if self.repeat_Q is not None:
             object.__setattr__(self, "repeat_Q", _spd(self.repeat_Q, 3, o, "repeat_Q"))
         _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .aligner_params import as_map_drift
 from .clipper import _graph, _height_slack, _solutions
 from .errors import ConfigError, DataError
 from .geometry import (
@@ -40,6 +41,7 @@ from .params import (
     _given_or_default,
     _real,
     _require,
+    _spd,
 )
 from .registration import (
     MAX_COORDINATE,
@@ -245,7 +247,7 @@ def calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weigh
         if not (_finite(value) and (value > 0 if low is None else value >= low)):
             rule = "> 0" if low is None else f">= {low:g}"
             raise ConfigError(f"{o}: {name} must be a finite number {rule}, got {shown(value)}")
-    drift = _drift(o, map_drift)
+    drift = as_map_drift(o, map_drift)
     Q_inv = _inverse_Q(o, Q)
     with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
         R = _calibrated_covariance(T_i_j, p, q, weights, float(kappa), float(noise_prior),
@@ -257,31 +259,10 @@ def calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weigh
     return R
 
 
-def _drift(owner: str, value) -> tuple[float, float]:
-    """`value` as (d_t, d_theta), two finite numbers >= 0; ConfigError otherwise."""
-    ok = (isinstance(value, (tuple, list, np.ndarray)) and len(value) == 2
-          and all(_finite(v) and v >= 0 for v in value))
-    if not ok:
-        raise ConfigError(f"{owner}: map_drift must be (metres, radians) per square root of a "
-                          f"second, two finite numbers >= 0, got {shown(value)}")
-    return float(value[0]), float(value[1])
-
-
 def _inverse_Q(owner: str, Q) -> np.ndarray:
-    """Q^-1 (3, 3) of the filter's drift per step (None: TCAFF's default); ConfigError when Q
-    is not a symmetric positive definite (3, 3) matrix."""
-    if Q is None:
-        Q = _alignment_process_noise()
-    try:
-        Q = np.asarray(Q, dtype=float)
-        ok = (Q.shape == (3, 3) and bool(np.isfinite(Q).all()) and np.allclose(Q, Q.T)
-              and bool(np.all(np.linalg.eigvalsh(Q) > 0)))
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ConfigError(f"{owner}: Q must be a symmetric positive definite (3, 3) matrix, "
-                          f"got {shown(Q)}")
-    return np.linalg.inv(Q)
+    """Q^-1 (3, 3) of the filter's drift per step (None: TCAFF's default); a ParameterError
+    naming Q when it is not a symmetric positive definite (3, 3) matrix."""
+    return np.linalg.inv(_alignment_process_noise() if Q is None else _spd(Q, 3, owner, "Q"))
 
 
 #: the smallest eigenvalue of a calibrated R relative to its largest (`_calibrated_covariance`)

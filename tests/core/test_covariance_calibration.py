@@ -141,8 +141,14 @@ def test_inflation_settles_the_filter_at_one_registration(seed, k, spread, offse
     common = {"kappa": 20.0, "Q": Q}
     R_s = calibrated_covariance(T_est, p, q, w, repeat_inflation=0.0, **common)
     R = calibrated_covariance(T_est, p, q, w, repeat_inflation=1.0, **common)
-    # R_s is the filter's fixed point, and a stable one (so the one the filter converges to)
-    P, transition = kalman_step(R_s, R, Q)
+    # R is the inflation R_s + R_s Q^-1 R_s up to the floor on its eigenvalues (1e-9 of its
+    # largest, for a factor graph), which only adds
+    inflated = R_s + R_s @ np.linalg.solve(Q, R_s)
+    lift = np.linalg.eigvalsh(R - inflated)
+    assert lift.min() > -1e-9 * np.abs(R).max()
+    assert lift.max() <= 1.01 * max(1e-9 * np.linalg.eigvalsh(inflated)[-1], 1e-6 * 0.05**2)
+    # R_s is the inflated filter's fixed point, and a stable one (the one it converges to)
+    P, transition = kalman_step(R_s, inflated, Q)
     np.testing.assert_allclose(P, R_s, rtol=1e-8, atol=1e-12 * np.abs(R_s).max())
     assert np.abs(np.linalg.eigvals(transition)).max() < 1.0
     assert np.all(np.linalg.eigvalsh(R - R_s) > -1e-12 * np.abs(R).max())
@@ -293,7 +299,7 @@ def test_bad_input_is_named():
             calibrated_covariance(T, p, q, w, **({"kappa": 20.0} | {name: value}))
     with pytest.raises(ConfigError, match="map_drift"):
         calibrated_covariance(T, p, q, w, kappa=20.0, map_drift=(0.1, "x"))
-    with pytest.raises(ConfigError, match="Q must be"):
+    with pytest.raises(ConfigError, match=r"(?s)calibrated_covariance\.Q = .*must be a symmetric"):
         calibrated_covariance(T, p, q, w, kappa=20.0, Q=np.diag([1.0, 1.0, 0.0]))
     with pytest.raises(ConfigError, match="overflow"):
         calibrated_covariance(T, p, q, w, kappa=1e300)
