@@ -141,6 +141,12 @@ class TCAFF(FilterState):
         # the last dropped main tree's best leaf, and the steps since it was dropped
         self._dormant: Leaves | None = None
         self._dormant_age = 0
+        # most measurements the main tree's best path has held in its window, and the dormant
+        # hypothesis's when it was dropped: the history a recall weighs against a main tree
+        # accepted in the gap
+        self._peak = 0
+        self._dormant_peak = 0
+        self._reclaiming = False  # the dormant hypothesis is being confirmed against the main
         self._estimate: AlignmentEstimate | None = None
         self._held: AlignmentEstimate | None = None
 
@@ -205,9 +211,8 @@ class TCAFF(FilterState):
             if prm.recall_for is not None:
                 # the best leaf before this step's prediction, as the dormant state of this step
                 best = self._main_best()
-                self._dormant = Leaves(best.x, best.P + prm.Q, best.choice, best.edge,
-                                       best.since, best.tree)
-                self._dormant_age = 0
+                self._keep_dormant(Leaves(best.x, best.P + prm.Q, best.choice, best.edge,
+                                          best.since, best.tree))
             self._main, self._rival, self._switch_streak = None, None, 0
         elif self._dormant is not None:
             self._age_dormant()
@@ -215,7 +220,10 @@ class TCAFF(FilterState):
             self._main = extend(self._main, zs, Rs, self._model, prm.max_children,
                                 lambda cost, choice, _: self._main_keep(cost, choice))
         complete = self._advance_exploring(zs, Rs)
+        self._reclaiming = False
         if self._main is not None:
+            if self._dormant is not None:
+                self._recall()
             if prm.switch_after is not None:
                 self._consider_switch(complete)
         else:
@@ -224,9 +232,14 @@ class TCAFF(FilterState):
                 self._recall()
             if self._main is None and prm.sequential:
                 self._accept_early()
-            if self._main is not None:
-                self._dormant = None
+        # a hypothesis accepted in the gap that contradicts the dormant one leaves it
+        # recallable: it has history, the newcomer only its window
+        if (self._main is not None and self._dormant is not None
+                and self._consistent(self._main_best(), self._dormant)[0]):
+            self._dormant = None
         self._estimate = self._main_estimate()
+        if self._estimate is not None:
+            self._peak = max(self._peak, self._estimate.n_measurements)
         if prm.switch_stale and self._estimate is not None and self._estimate.measurement >= 0:
             best = int(np.argmin(self._main.cost))
             if self._distinct(self._main.choice[best])[1]:
@@ -291,8 +304,9 @@ class TCAFF(FilterState):
         certain (`TCAFFParams.sequential`): its score (path cost less object support) plus
         the cost of a missed measurement at each of its remaining W - a steps is below tau,
         its path holds `early_measurements` measurements and `min_distinct` distinct pieces of
-        evidence, and every open hypothesis inconsistent with it scores `switch_margin`
-        worse. The lowest bound is tried first."""
+        evidence, every open hypothesis inconsistent with it scores `switch_margin` worse,
+        and it agrees with the dormant hypothesis if there is one. The lowest bound is tried
+        first."""
         prm = self.params
         explore = self._explore
         if len(explore) == 0:
@@ -303,6 +317,9 @@ class TCAFF(FilterState):
         bound = score + (prm.window - age) * self._model.no_measurement_cost
         ready = ((bound < prm.tau)
                  & (np.count_nonzero(window >= 0, axis=1) >= prm.early_measurements))
+        if self._dormant is not None:
+            # contradicting a hypothesis that was accepted before the gap takes the window
+            ready &= self._consistent(explore, self._dormant)
         for best in np.flatnonzero(ready)[np.argsort(bound[ready], kind="stable")]:
             rivals = ~self._consistent(explore, explore.take([best]))
             if np.any(score[rivals] < score[best] + prm.switch_margin):
@@ -344,6 +361,11 @@ class TCAFF(FilterState):
         support[has] = prm.object_nats * (best[has] - prm.object_base)
         return support
 
+    def _keep_dormant(self, leaf: Leaves) -> None:
+        """Keep the main tree's leaf (one-leaf Leaves) as the dormant hypothesis, with the
+        most measurements its window held (`_peak`)."""
+        self._dormant, self._dormant_age, self._dormant_peak = leaf, 0, self._peak
+
     def _age_dormant(self) -> None:
         """One more step of the dormant hypothesis: its covariance grows by Q, and it is
         forgotten after `recall_for` steps."""
@@ -355,31 +377,44 @@ class TCAFF(FilterState):
         self._dormant = Leaves(d.x, d.P + self.params.Q, d.choice, d.edge, d.since + 1, d.tree)
 
     def _recall(self) -> None:
-        """With no main tree: make the dormant hypothesis the main tree again once an open
-        exploring hypothesis consistent with it has taken `early_measurements` measurements,
-        the latest this step, and none inconsistent with it has taken more (a rival that
-        appeared in the gap must win by the acceptance rules). The dormant state is fused
-        with that hypothesis's, which goes on as the main tree's leaf under the dormant id."""
+        """Make the dormant hypothesis the main tree again once an open exploring hypothesis
+        consistent with it has taken `early_measurements` measurements, the latest this step,
+        and none inconsistent with it has taken more (a rival that appeared in the gap must
+        win by the acceptance rules). A main tree accepted in the gap (inconsistent with the
+        dormant one) gives way when the dormant hypothesis's history, the most measurements
+        its window held, is at least the main path's measurements in the window; until then
+        the main tree is contested (`_contested`). The dormant state is fused with the
+        confirming hypothesis's, which goes on as the main tree's leaf: under the dormant
+        id, or a new one when it displaces a main tree."""
         prm, dormant, explore = self.params, self._dormant, self._explore
         if len(explore) == 0:
             return
         taken = np.count_nonzero(explore.choice[:, -prm.window:] >= 0, axis=1)
         agree = self._consistent(explore, dormant)
-        fresh = np.flatnonzero(agree & (explore.choice[:, -1] >= 0)
-                               & (taken >= prm.early_measurements))
+        confirmed = agree & (taken >= prm.early_measurements)
+        if self._main is not None and confirmed.any():
+            self._reclaiming = True
+        fresh = np.flatnonzero(confirmed & (explore.choice[:, -1] >= 0))
         if fresh.size == 0:
             return
         best = int(fresh[np.lexsort((explore.cost[fresh], -taken[fresh]))[0]])
         if np.any(taken[~agree] > taken[best]):
             return
+        if self._main is not None:
+            if max(self._dormant_peak, int(taken[best])) < self._main_estimate().n_measurements:
+                return
+            self._reclaiming = False
+            self.hypothesis += 1
         x, P = kalman_children(dormant, [0], [0], explore.x[[best]], explore.P[[best]],
                                self._model)
         leaf = explore.take([best])
-        log.debug("step %d: main tree %d recalled, %d steps after it was dropped",
+        log.debug("step %d: hypothesis %d recalled, %d steps after it was dropped",
                   self.step, self.hypothesis, self._dormant_age)
         self._explore = explore.take(explore.tree != leaf.tree[0])
         self._switch_streak, self._rival, self._empty_windows = 0, None, 0
         self._fresh = self.step
+        self._peak = self._dormant_peak
+        self._dormant = None
         self._main = Leaves(x, P, leaf.choice, leaf.edge, leaf.since,
                             np.full(1, self.hypothesis, np.int64))
 
@@ -423,6 +458,9 @@ class TCAFF(FilterState):
         if self._switch_streak >= prm.switch_after:
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
+            if prm.recall_for is not None and self._main.since[m] >= prm.window:
+                # left in a gap of its measurements, it is recallable as a dropped one is
+                self._keep_dormant(self._main.take([m]))
             self._accept(complete, best)
 
     def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
@@ -443,7 +481,10 @@ class TCAFF(FilterState):
         main tree's best path outvotes it (seen `_outvote_need` times by `_support`, with
         `switch_support`: the outvoting streak builds), or that path took no measurement this
         step while the rival holds more distinct evidence in the window (and at least
-        `min_distinct` pieces)."""
+        `min_distinct` pieces), or the dormant hypothesis is being confirmed against it
+        (`_recall`)."""
+        if self._reclaiming:
+            return True
         main, explore = self._main, self._explore
         m = int(np.argmin(main.cost))
         # without object ids this step (maps not of look-alikes) nothing is contested
@@ -526,6 +567,7 @@ class TCAFF(FilterState):
         self.hypothesis += 1
         self._switch_streak, self._rival, self._empty_windows = 0, None, 0
         self._fresh = self.step
+        self._peak = 0
         in_tree = np.flatnonzero(complete.tree == complete.tree[best])
         tree = complete.take(in_tree)
         best = int(np.searchsorted(in_tree, best))

@@ -73,6 +73,10 @@ class FilterState:
             state["dormant.x"] = self._dormant.x.copy()
             state["dormant.P"] = self._dormant.P.copy()
             state["dormant.age"] = np.array(self._dormant_age, dtype=np.int64)
+            state["dormant.peak"] = np.array(self._dormant_peak, dtype=np.int64)
+            state["dormant.hypothesis"] = np.array(self._dormant.tree[0], dtype=np.int64)
+        state["peak"] = np.array(self._peak, dtype=np.int64)
+        state["reclaiming"] = np.array(self._reclaiming, dtype=np.int64)
         return state
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
@@ -107,6 +111,9 @@ class FilterState:
             bank_Rs = _state_array(state["bank.Rs"], "bank.Rs", np.float64)
             objects = self._objects_from(state, steps)  # absent from earlier states
             dormant = self._dormant_from(state)
+            # absent from states saved before a recall could displace a main tree
+            peak = _counter(state.get("peak", 0), "peak")
+            reclaiming = _counter(state.get("reclaiming", 0), "reclaiming")
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
         except (TypeError, ValueError, OverflowError) as exc:
@@ -155,7 +162,8 @@ class FilterState:
                             maxlen=self._columns)
         self._objects = deque(objects if objects is not None else [None] * len(evidence),
                               maxlen=self._columns)
-        self._dormant, self._dormant_age = dormant
+        self._dormant, self._dormant_age, self._dormant_peak = dormant
+        self._peak, self._reclaiming = peak, bool(reclaiming)
         self._held = self._main_estimate()
         self._estimate = self._reported(self._held)
 
@@ -282,28 +290,41 @@ class FilterState:
             start += max(size, 0)
         return out
 
-    def _dormant_from(self, state: Mapping) -> tuple[Leaves | None, int]:
-        """The dormant hypothesis of a `state_dict` and its age, (None, 0) when it has none;
-        DataError when its arrays are not a state and covariance or its age is out of range."""
+    def _dormant_from(self, state: Mapping) -> tuple[Leaves | None, int, int]:
+        """The dormant hypothesis of a `state_dict`, its age and its peak (None, 0, 0 when it
+        has none); DataError when its arrays are not a state and covariance, or its age, peak
+        or id are out of range."""
         if "dormant.x" not in state:
-            return None, 0
-        d = self.params.dim
+            return None, 0, 0
+        d, window = self.params.dim, self.params.window
         x = _state_array(state["dormant.x"], "dormant.x", np.float64)
         P = _state_array(state["dormant.P"], "dormant.P", np.float64)
         age = _counter(state["dormant.age"], "dormant.age")
         if x.shape != (1, d) or P.shape != (1, d, d):
             raise DataError(f"TCAFF state: dormant.x and dormant.P must have shapes (1, {d}) "
                             f"and (1, {d}, {d}), got {x.shape} and {P.shape}")
-        if "main.x" in state or int(np.asarray(state["hypothesis"]).item()) < 1:
-            raise DataError("TCAFF state: a dormant hypothesis needs a dropped one: no main "
-                            "tree and a hypothesis counter >= 1")
+        hypothesis = int(np.asarray(state["hypothesis"]).item())
+        # a main tree beside a dormant one was accepted after it, under a later id
+        main = "main.x" in state
+        default = hypothesis - 1 if main else hypothesis
+        dormant_id = _counter(state.get("dormant.hypothesis", default), "dormant.hypothesis")
+        if not 1 <= dormant_id <= default:
+            raise DataError(f"TCAFF state: a dormant hypothesis needs a dropped one: "
+                            f"dormant.hypothesis = {dormant_id} is not in [1, {default}] "
+                            f"(hypothesis counter {hypothesis}"
+                            f"{', with a main tree' if main else ''})")
+        peak = _counter(state.get("dormant.peak", 0), "dormant.peak")
+        if peak > window:
+            raise DataError(f"TCAFF state: dormant.peak = {peak} is more than the window "
+                            f"{window}")
         recall_for = self.params.recall_for
         if recall_for is None or not 0 <= age <= recall_for:
             raise DataError(f"TCAFF state: dormant.age = {age} is not within recall_for = "
                             f"{recall_for}")
         _check_covariances("dormant.x", x, "dormant.P", P)
-        leaf = seed(x, P[0], np.zeros(1, np.int64), np.full(1, NO_MEASUREMENT), self._columns)
-        return leaf, age
+        leaf = seed(x, P[0], np.full(1, dormant_id, np.int64), np.full(1, NO_MEASUREMENT),
+                    self._columns)
+        return leaf, age, peak
 
     def save(self, path: str | Path) -> None:
         """Write parameters and state to an npz archive at exactly `path`.

@@ -164,6 +164,96 @@ def test_a_rival_with_more_measurements_blocks_the_recall():
     assert unrivalled[91] is not None and unrivalled[91].hypothesis == 1
 
 
+def taken_over_in_the_gap(seed: int):
+    """The truth for 30 steps, 20 steps with nothing, a wrong alignment alone for 12 steps
+    (it displaces the unseen truth), then the truth at every step and the wrong alignment at
+    every other step: (stream, measurements per step, the step the truth returns)."""
+    gap, alone = 20, 12
+    stream = alignment_stream(np.random.default_rng(seed), 100, p_empty=0.0, outliers=(0, 0))
+    back = 30 + gap + alone
+    wrong = stream.truth + np.array([5.0, -3.0, 2.0])
+    zs = []
+    for t, z in enumerate(stream.zs):
+        if t < 30:
+            zs.append(z)
+        elif t < 30 + gap:
+            zs.append(np.empty((0, 3)))
+        elif t < back:
+            zs.append(wrong[t][None])
+        else:
+            zs.append(np.vstack([z, wrong[t][None]]) if t % 2 else z)
+    return stream, zs, back
+
+
+def correct(est, truth) -> bool:
+    e = est.x - truth
+    return bool(np.hypot(e[0], e[1]) < 1.0 and abs(wrap_angle(e[2])) < np.radians(5))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_hypothesis_displaced_in_its_gap_is_recalled_over_the_newcomer(seed):
+    """The truth, left unseen, is displaced by a wrong alignment seen alone; when the truth
+    returns it is recalled with its history as soon as its record (the most measurements its
+    window held) matches the newcomer's window, and the newcomer is withheld meanwhile.
+    Without recall the newcomer's full window keeps it reported for longer."""
+    stream, zs, back = taken_over_in_the_gap(seed)
+    filt = TCAFF()
+    estimates = feed(filt, zs)
+    wrong_before = [t for t in range(30, back) if estimates[t] is not None
+                    and not correct(estimates[t], stream.truth[t])]
+    assert wrong_before, "the wrong alignment takes over in the gap"
+    after = estimates[back:back + W]
+    # reported and wrong at most until the truth's second measurement, then withheld
+    wrong_after = [t for t, est in enumerate(after)
+                   if est is not None and not correct(est, stream.truth[back + t])]
+    assert all(t < 2 for t in wrong_after)
+    recalled = next(t for t, est in enumerate(after)
+                    if est is not None and correct(est, stream.truth[back + t]))
+    assert recalled < W - 2
+    assert all(est is not None and correct(est, stream.truth[back + t])
+               for t, est in enumerate(estimates[back + W:]))
+    forgetful = feed(TCAFF(replace(TCAFFParams(), recall_for=None)), zs)
+    wrong_forgetful = sum(est is not None and not correct(est, stream.truth[back + t])
+                          for t, est in enumerate(forgetful[back:]))
+    assert wrong_forgetful > len(wrong_after)
+
+
+def test_a_hypothesis_contradicting_the_dormant_one_waits_for_the_window():
+    """After the truth is dropped, a wrong alignment is not accepted early, however many
+    objects explain it: it contradicts a hypothesis accepted before the gap. Without a
+    dormant hypothesis the same stream is accepted early."""
+    wrong = TRUTH + np.array([5.0, -3.0, 2.0])
+    _, zs = gap_stream(0, 60, lambda t: wrong[None] if t >= 75 else np.empty((0, 3)))
+    estimates = feed(TCAFF(), zs[:90], objects=20)
+    assert all(est is None for est in estimates[75:75 + W - 1])
+    fresh = feed(TCAFF(), zs[75:90], objects=20)
+    assert first(fresh) <= 2
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_dormant_hypothesis_beside_a_main_tree_survives_save_and_load(seed, tmp_path):
+    _, zs, back = taken_over_in_the_gap(seed)
+    a = TCAFF()
+    feed(a, zs[:back + 1])
+    assert a._dormant is not None and a._main is not None
+    a.save(tmp_path / "f.npz")
+    b = TCAFF.load(tmp_path / "f.npz")
+    for est_a, est_b in zip(feed(a, zs[back + 1:]), feed(b, zs[back + 1:]), strict=True):
+        assert (est_a is None) == (est_b is None)
+        if est_a is not None:
+            np.testing.assert_array_equal(est_a.x, est_b.x)
+            assert est_a.hypothesis == est_b.hypothesis
+    state = a.state_dict()
+    assert "dormant.x" not in state  # recalled by now
+    feed(a := TCAFF(), zs[:back + 1])
+    state = a.state_dict()
+    for key, value, message in [
+            ("dormant.hypothesis", np.array(int(state["hypothesis"])), "needs a dropped one"),
+            ("dormant.peak", np.array(W + 1), "more than the window")]:
+        with pytest.raises(DataError, match=message):
+            TCAFF().load_state_dict(dict(state, **{key: value}))
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_the_dormant_hypothesis_survives_save_and_load(seed, tmp_path):
     _, zs = gap_stream(seed, 60)
