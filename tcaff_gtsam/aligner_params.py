@@ -124,7 +124,17 @@ class FrameAlignerParams(_ByValue):
         n_solutions: N of MNO-CLIPPER (Algorithm 1).
         mno_downweight: factor applied to affinities among an earlier solution's associations;
             0 removes those associations, as in the paper.
-        min_associations: solutions with fewer associations are discarded.
+        min_associations: solutions with fewer associations are discarded (but see
+            `sparse_associations`).
+        sparse_associations: in sparse maps of distinct objects, solutions of this many
+            associations are kept too: when the smaller map holds at most `sparse_objects`
+            recent objects and fewer than `sparse_share` of the object pairs pass the gates
+            (`FrameAligner.lookalike_share`). There a clique of four is most of what the
+            maps share, and few other cliques are possible; among look-alikes (MRCLAM's
+            landmarks carry no size, every pair passes) or in large maps it is often a
+            coincidence. The filter weighs such a candidate as weak evidence
+            (`TCAFFParams.object_nats`). None, or not below min_associations: no exception.
+        sparse_objects, sparse_share: see `sparse_associations`.
         max_associations: the most putative associations (nodes of the consistency graph)
             per map pair. When the size gate passes more (large maps of look-alike objects),
             each object of either map keeps only its `pairs_per_object` best pairs, at most
@@ -236,6 +246,9 @@ class FrameAlignerParams(_ByValue):
     n_solutions: int = 4
     mno_downweight: float = 0.0
     min_associations: int = 5
+    sparse_associations: int | None = 4
+    sparse_objects: int = 12
+    sparse_share: float = 0.9
     max_associations: int = 10000
     pairs_per_object: int = 2
     min_score_ratio: float = 0.75
@@ -286,6 +299,13 @@ class FrameAlignerParams(_ByValue):
                  "mno_downweight", self.mno_downweight, "must be in [0, 1)")
         _require(_int_at_least(self.min_associations, 2), o,
                  "min_associations", self.min_associations, "must be an int >= 2")
+        _require(self.sparse_associations is None
+                 or _int_at_least(self.sparse_associations, 2), o, "sparse_associations",
+                 self.sparse_associations, "must be an int >= 2 or None")
+        _require(_int_at_least(self.sparse_objects, 1), o, "sparse_objects",
+                 self.sparse_objects, "must be an int >= 1")
+        _require(_real(self.sparse_share) and 0 <= self.sparse_share <= 1, o, "sparse_share",
+                 self.sparse_share, "must be in [0, 1]")
         _require(_int_at_least(self.max_associations, self.min_associations), o,
                  "max_associations", self.max_associations,
                  f"must be an int >= min_associations ({self.min_associations})")
@@ -342,12 +362,22 @@ class FrameAlignerParams(_ByValue):
             _require(isinstance(getattr(self, name), bool), o, name, getattr(self, name),
                      "must be True or False")
 
+    def fewest_associations(self, n_ego: int, n_other: int, share: float) -> int:
+        """The fewest associations a candidate may have between maps of n_ego and n_other
+        recent objects, `share` of whose pairs pass the gates (`sparse_associations`)."""
+        sparse = self.sparse_associations
+        if (sparse is not None and min(n_ego, n_other) <= self.sparse_objects
+                and share < self.sparse_share):
+            return min(self.min_associations, sparse)
+        return self.min_associations
+
     @classmethod
     def reference(cls) -> FrameAlignerParams:
         """The authors' released settings, without this project's residual, spread and
         ambiguity checks, with the paper's size gate and with every search full."""
         return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False,
-                   guide_radius=None, size_partial=None, covariance="constant")
+                   guide_radius=None, size_partial=None, covariance="constant",
+                   sparse_associations=None)
 
     @classmethod
     def camera(cls, **changes) -> FrameAlignerParams:

@@ -328,17 +328,19 @@ class FrameAligner:
         With guide (3,), a held alignment, only the pairs agreeing under it are searched.
         `compatible`: the maps' gate when already made (`_recent_pair`)."""
         prm = self.params
-        if min(len(ego_r), len(other_r)) < prm.min_associations:
-            return []
         # the gate of the putative associations, kept whole for counting the inliers
         if compatible is None:
             compatible = self._compatible(ego_r, other_r)
+        fewest = prm.fewest_associations(len(ego_r), len(other_r),
+                                         float(compatible.mean()) if compatible.size else 0.0)
+        if min(len(ego_r), len(other_r)) < fewest:
+            return []
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
         searched = compatible if guide is None else compatible & self._agree(p_all, q_all,
                                                                              guide)
         n_pairs = int(np.count_nonzero(searched))
-        if n_pairs < prm.min_associations:
+        if n_pairs < fewest:
             return []
         ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
         if n_pairs > prm.max_associations:
@@ -373,7 +375,7 @@ class FrameAligner:
         rivals = prm.check_ambiguity and guide is None
         found = []
         for sol in solutions:
-            supported = (len(sol) >= prm.min_associations
+            supported = (len(sol) >= fewest
                          and sol.score >= prm.min_score_ratio * best)
             if not (supported or rivals):
                 continue  # it cannot qualify and nothing needs it as a rival

@@ -88,7 +88,8 @@ class ClipperRunner:
         self.setup, self.ks = setup, methods.clipper_k
         # the TCAFF methods' aligner (size gate, CLIPPER, kappa), keeping one solution
         self.aligner = FrameAligner(replace(stages.aligner.params, n_solutions=1,
-                                            min_associations=min(self.ks), max_rmse=None))
+                                            min_associations=min(self.ks),
+                                            sparse_associations=None, max_rmse=None))
         self.estimates = {f"clipper_k{k}": setup.empty() for k in self.ks}
         self.covariances = {f"clipper_k{k}": setup.empty_covariance() for k in self.ks}
         self.step_streams, self.finish_streams = list(self.estimates), []

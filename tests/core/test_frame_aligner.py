@@ -351,3 +351,57 @@ def test_lookalike_share_needs_a_finite_now(now):
 def test_lookalike_share_needs_object_maps():
     with pytest.raises(DataError, match="lookalike_share: ego"):
         FrameAligner().lookalike_share(np.zeros((3, 3)), a_pair().other, 1.0)
+
+
+def four_shared(rng: np.random.Generator, extra: int, same_size: bool):
+    """Maps sharing four objects, each with `extra` objects of its own: (ego, other, now,
+    T_oi_oj). Objects are 3-5 m apart, of distinct sizes unless `same_size`."""
+    n = 4 + 2 * extra
+    xy = np.array([[5.0 * (k % 3), 4.0 * (k // 3)] for k in range(n)]) + rng.normal(0, 0.5, (n, 2))
+    centroids = np.column_stack([xy, np.zeros(n)])
+    widths = np.full(n, 0.5) if same_size else 0.3 * 1.6 ** np.arange(n)
+    heights = np.full(n, 1.0) if same_size else 0.4 * 1.5 ** (np.arange(n) % 7)
+    T = se2_from_params(np.array([2.0, -1.0, 0.6]))
+    ego_idx = np.r_[0:4, 4:4 + extra]
+    other_idx = np.r_[0:4, 4 + extra:n]
+    back = np.linalg.inv(T)
+    other_xy = centroids[other_idx, :2] @ back[:2, :2].T + back[:2, 2]
+    now = 10.0
+
+    def object_map(idx, c):
+        return ObjectMap(c, widths[idx], heights[idx], np.full(len(idx), now))
+
+    return (object_map(ego_idx, centroids[ego_idx]),
+            object_map(other_idx, np.column_stack([other_xy, np.zeros(len(other_idx))])),
+            now, T)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_four_shared_objects_make_a_candidate_only_in_sparse_maps_of_distinct_objects(seed):
+    rng = np.random.default_rng(seed)
+    ego, other, now, T = four_shared(rng, 3, same_size=False)
+    found = FrameAligner().measurements(ego, other, now)
+    assert found and len(found[0].associations) == 4
+    dt, dtheta = error(T, found[0].T)
+    assert dt < 0.1 and dtheta < 1.0
+    # the paper's five
+    assert FrameAligner(FrameAlignerParams(sparse_associations=None)).measurements(
+        ego, other, now) == []
+    # look-alikes: every pair passes the gates
+    ego, other, now, _ = four_shared(np.random.default_rng(seed), 3, same_size=True)
+    assert FrameAligner().lookalike_share(ego, other, now) == 1.0
+    assert FrameAligner().measurements(ego, other, now) == []
+    # a large map: more objects than sparse_objects
+    ego, other, now, _ = four_shared(np.random.default_rng(seed), 10, same_size=False)
+    assert min(len(ego), len(other)) > FrameAlignerParams().sparse_objects
+    assert FrameAligner().lookalike_share(ego, other, now) < FrameAlignerParams().sparse_share
+    assert FrameAligner().measurements(ego, other, now) == []
+    assert FrameAligner(FrameAlignerParams(sparse_objects=20)).measurements(ego, other, now)
+
+
+@pytest.mark.parametrize("changes", [{"sparse_associations": 1}, {"sparse_associations": 4.0},
+                                     {"sparse_objects": 0}, {"sparse_share": 1.5}])
+def test_bad_sparse_settings_are_config_errors(changes):
+    name = next(iter(changes))
+    with pytest.raises(ConfigError, match=f"FrameAlignerParams.{name} = "):
+        FrameAlignerParams(**changes)

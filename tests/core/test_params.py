@@ -26,7 +26,7 @@ CLASSES = [ClipperParams, FrameAlignerParams, TCAFFParams, GraphParams]
 OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inliers"),
             ("FrameAlignerParams", "track_min"), ("FrameAlignerParams", "guide_radius"),
             ("FrameAlignerParams", "size_partial"), ("FrameAlignerParams", "height_epsilon"),
-            ("FrameAlignerParams", "repeat_Q"),
+            ("FrameAlignerParams", "repeat_Q"), ("FrameAlignerParams", "sparse_associations"),
             ("TCAFFParams", "report_after"), ("TCAFFParams", "recall_for"),
             ("TCAFFParams", "gate_box"),
             ("TCAFFParams", "switch_after"), ("TCAFFParams", "switch_support"),
