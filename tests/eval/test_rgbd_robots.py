@@ -15,9 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from tcaff_gtsam.eval.config import load_methods
+from tcaff_gtsam.eval.dataset_runs import evaluate_run, rgbd_name
 from tcaff_gtsam.eval.datasets import rgbd_robots as rr
 from tcaff_gtsam.eval.datasets.rgbd_sequence import RgbdSequence, read_sequence
-from tcaff_gtsam.eval.recorded import evaluate_run, rgbd_name
 from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 
 from tcaff_gtsam.errors import DataError
