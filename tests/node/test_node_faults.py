@@ -18,13 +18,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode
 from tcaff_gtsam.node.node import _draw
+from tcaff_gtsam.node.replay import MAX_TEAM, robot_names
 from tcaff_gtsam.node.run import free_ports
 
 from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params
+from tcaff_gtsam.params import ParameterError
 
 TRUE = np.array([2.0, -1.0, 0.4])  # T_r0_r1 as (x, y, theta)
 
@@ -373,3 +377,23 @@ def test_a_lossy_link_loses_the_same_maps_in_every_process() -> None:
     # seeds and senders draw apart: not one pattern of losses shifted or repeated
     by_key = lost.reshape(2, 3, 300)
     assert not (by_key[0] == by_key[1]).all() and not (by_key[0, 0] == by_key[0, 1]).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.one_of(st.integers(-2, 40), st.integers(-2**70, 2**70)))
+@example(n=MAX_TEAM + 1)
+@example(n=10**12)
+def test_a_team_is_at_most_max_team_robots(n):
+    """Ports (a socket each held open at once) and names of a team on this machine: as many
+    as asked up to MAX_TEAM, a ConfigError naming the count beyond it."""
+    if 0 <= n <= MAX_TEAM:
+        names = robot_names(n)
+        assert names == tuple(f"r{i}" for i in range(n))
+        if n <= 40:
+            ports = free_ports(n)
+            assert len(set(ports)) == n and all(1 <= p <= 65535 for p in ports)
+        return
+    for call, owner in ((free_ports, "free_ports"), (robot_names, "robot_names")):
+        with pytest.raises(ParameterError) as info:
+            call(n)
+        assert str(info.value).startswith(f"{owner}.n = {n!r}: must be an int in [0, {MAX_TEAM}]")
