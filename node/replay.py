@@ -18,8 +18,13 @@ import numpy as np
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.inputs import read_npz
 from tcaff_gtsam.object_map import ObjectMap
+from tcaff_gtsam.params import _int_at_least, _require
 
-__all__ = ["RobotReplay", "replay", "robot_names", "run_replay"]
+__all__ = ["MAX_TEAM", "RobotReplay", "replay", "robot_names", "run_replay"]
+
+#: the most robots a team run on one machine has (`TeamConsistency.MAX_ROBOTS`): each robot's
+#: node holds a port of its own (`run.free_ports`)
+MAX_TEAM = 1024
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,7 +96,13 @@ def run_replay(run, robot: int, names: tuple[str, ...] | None = None) -> RobotRe
 
 
 def robot_names(n: int) -> tuple[str, ...]:
-    """The names robots of a run get in a team: r0, r1, ..."""
+    """The names robots of a run get in a team: r0, r1, ..., r(n - 1).
+
+    Raises:
+        ConfigError: n not an int in [0, MAX_TEAM].
+    """
+    _require(_int_at_least(n, 0) and n <= MAX_TEAM, "robot_names", "n", n,
+             f"must be an int in [0, {MAX_TEAM}] (MAX_TEAM)")
     return tuple(f"r{i}" for i in range(n))
 
 

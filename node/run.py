@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
+from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams, _int_at_least, _require
 from tcaff_gtsam.precompile import compile_kernels
 
 from .link import Link, TlsFiles
 from .node import NodeParams, RobotNode
-from .replay import RobotReplay, replay, robot_names, run_replay
+from .replay import MAX_TEAM, RobotReplay, replay, robot_names, run_replay
 from .results import TEAM_COLUMNS, AlignmentCsv, write_counters
 
 __all__ = ["free_ports", "live_node", "node_argv", "replay_node", "save_replays", "start_team",
@@ -144,7 +144,13 @@ def _team_start(node: RobotNode, stop: threading.Event) -> float:
 
 
 def free_ports(n: int) -> list[int]:
-    """n TCP ports on 127.0.0.1 free at this moment."""
+    """n TCP ports on 127.0.0.1 free at this moment.
+
+    Raises:
+        ConfigError: n not an int in [0, MAX_TEAM] (a socket each is held open at once).
+    """
+    _require(_int_at_least(n, 0) and n <= MAX_TEAM, "free_ports", "n", n,
+             f"must be an int in [0, {MAX_TEAM}] (MAX_TEAM)")
     sockets = [socket.socket() for _ in range(n)]
     try:
         for s in sockets:

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 from tcaff_gtsam.eval.config import load_methods, load_mrclam
+from tcaff_gtsam.eval.dataset_runs import evaluate_run, load_mrclam_run
 from tcaff_gtsam.eval.datasets import mrclam
-from tcaff_gtsam.eval.recorded import evaluate_run, load_mrclam_run
 from tcaff_gtsam.eval.registry import describe, estimate_names, shown_streams
 from tcaff_gtsam.eval.results import summarize, thresholds_of
 

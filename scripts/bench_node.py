@@ -283,9 +283,9 @@ def recorded_team(data: Path, rate: float, busy: int, seconds: float | None,
     its state `down` s later: each node's JSON, the restarted node's time to be present
     again, and the offline and live scores of the same run."""
     from tcaff_gtsam.eval.config import MethodsConfig, load_mrclam
+    from tcaff_gtsam.eval.dataset_runs import evaluate_run, load_mrclam_run
     from tcaff_gtsam.eval.datasets import mrclam
     from tcaff_gtsam.eval.metrics import pooled_metrics
-    from tcaff_gtsam.eval.recorded import evaluate_run, load_mrclam_run
     from tcaff_gtsam.eval.results import thresholds_of
     from tcaff_gtsam.node.link import alive_key
     from tcaff_gtsam.node.results import read_alignments

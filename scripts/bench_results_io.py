@@ -18,8 +18,8 @@ from pathlib import Path
 from tcaff_gtsam.eval.config import MethodsConfig, load_scenario
 from tcaff_gtsam.eval.jobs import simulated_job
 from tcaff_gtsam.eval.metrics import PairTrace
-from tcaff_gtsam.eval.recording import record
 from tcaff_gtsam.eval.registry import estimate_names
+from tcaff_gtsam.eval.rerun_recording import record
 from tcaff_gtsam.eval.results import score, thresholds_of
 from tcaff_gtsam.eval.trajectories import write_g2o, write_tum
 

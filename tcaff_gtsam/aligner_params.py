@@ -21,6 +21,10 @@ from .param_checks import (
     _spd,
 )
 
+#: the most MNO-CLIPPER solutions asked for: each holds its (m,) relaxed vector and, with a
+#: downweight, its (m,) start draws; the paper asks for 4
+MAX_SOLUTIONS = 1000
+
 
 def constant_alignment_covariance() -> np.ndarray:
     """The original code's fixed measurement covariance diag(0.5 m, 0.5 m, 5 deg)^2, (3, 3)."""
@@ -121,7 +125,7 @@ class FrameAlignerParams(_ByValue):
         dim: 2 matches (x, y) centroids (the original's choice), 3 matches full 3D centroids
             (the alignment is then projected onto the gravity-aligned plane).
         clipper: consistency graph and solver settings.
-        n_solutions: N of MNO-CLIPPER (Algorithm 1).
+        n_solutions: N of MNO-CLIPPER (Algorithm 1), at most `MAX_SOLUTIONS`.
         mno_downweight: factor applied to affinities among an earlier solution's associations;
             0 removes those associations, as in the paper.
         min_associations: solutions with fewer associations are discarded (but see
@@ -293,8 +297,9 @@ class FrameAlignerParams(_ByValue):
         _require(_one_of(self.dim, (2, 3)), o, "dim", self.dim, "must be 2 or 3")
         _require(isinstance(self.clipper, ClipperParams), o, "clipper", self.clipper,
                  "must be a ClipperParams")
-        _require(_int_at_least(self.n_solutions, 1), o, "n_solutions",
-                 self.n_solutions, "must be an int >= 1")
+        _require(_int_at_least(self.n_solutions, 1) and self.n_solutions <= MAX_SOLUTIONS, o,
+                 "n_solutions", self.n_solutions,
+                 f"must be an int in [1, {MAX_SOLUTIONS}] (MAX_SOLUTIONS)")
         _require(_real(self.mno_downweight) and 0 <= self.mno_downweight < 1, o,
                  "mno_downweight", self.mno_downweight, "must be in [0, 1)")
         _require(_int_at_least(self.min_associations, 2), o,

@@ -16,7 +16,15 @@ from scipy import sparse
 
 from .errors import DataError
 from .inputs import index_pairs, kernel_array, real_array, shown
-from .params import ClipperParams, _finite, _given_or_default, _int_at_least, _real, _require
+from .params import (
+    MAX_SOLUTIONS,
+    ClipperParams,
+    _finite,
+    _given_or_default,
+    _int_at_least,
+    _real,
+    _require,
+)
 
 __all__ = ["ClipperSolution", "ConsistencyGraph", "clipper_solve", "consistency_graph",
            "mno_clipper"]
@@ -915,13 +923,14 @@ def mno_clipper(graph: ConsistencyGraph, n_solutions: int = 4,
     affinity. Returns up to `n_solutions` non-empty solutions, in the order found.
 
     Raises:
-        ConfigError: n_solutions not an int >= 1, downweight not in [0, 1), or params neither
-            a ClipperParams nor None.
+        ConfigError: n_solutions not an int in [1, `params.MAX_SOLUTIONS`], downweight not in
+            [0, 1), or params neither a ClipperParams nor None.
         DataError: graph is not a ConsistencyGraph.
     """
     params = _checked_graph("mno_clipper", graph, params)
-    _require(_int_at_least(n_solutions, 1), "mno_clipper", "n_solutions", n_solutions,
-             "must be an int >= 1")
+    _require(_int_at_least(n_solutions, 1) and n_solutions <= MAX_SOLUTIONS, "mno_clipper",
+             "n_solutions", n_solutions,
+             f"must be an int in [1, {MAX_SOLUTIONS}] (params.MAX_SOLUTIONS)")
     _require(_real(downweight) and 0 <= downweight < 1, "mno_clipper", "downweight", downweight,
              "must be in [0, 1)")
     return [s for s in _solutions(graph, n_solutions, params, downweight) if len(s)]

@@ -21,6 +21,10 @@ from .param_checks import (
     _spd,
 )
 
+#: the longest window TCAFF takes, steps: every hypothesis keeps a choice per step of it, and
+#: a thousand steps (17 minutes of exchanges at 1 Hz) is far past any test of consistency
+MAX_WINDOW = 1000
+
 
 @dataclass(frozen=True, eq=False)
 class TCAFFParams(_ByValue):
@@ -39,9 +43,9 @@ class TCAFFParams(_ByValue):
     likelihoods); lower is better.
 
     Attributes:
-        window: W, steps a hypothesis is judged over. Each measurement seeds an exploring tree
-            that sees the next W steps; the main tree keeps W steps below its root (see
-            `root_in_window`).
+        window: W, steps a hypothesis is judged over, at most `MAX_WINDOW`. Each measurement
+            seeds an exploring tree that sees the next W steps; the main tree keeps W steps
+            below its root (see `root_in_window`).
         max_leaves: B, leaves kept in the main tree.
         max_children: measurement children per main-tree leaf (the best gated ones), besides the
             one no-measurement child every leaf gets.
@@ -192,12 +196,14 @@ class TCAFFParams(_ByValue):
         d = Q.shape[0]
         object.__setattr__(self, "Q", Q)
         object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0"))
-        for name, low in (("window", 1), ("max_leaves", 1), ("max_children", 1),
+        for name, low in (("max_leaves", 1), ("max_children", 1),
                           ("explore_max_leaves", 1), ("explore_max_children", 1),
                           ("max_measurements", 1),
                           ("drop_after", 1)):
             value = getattr(self, name)
             _require(_int_at_least(value, low), o, name, value, f"must be an int >= {low}")
+        _require(_int_at_least(self.window, 1) and self.window <= MAX_WINDOW, o, "window",
+                 self.window, f"must be an int in [1, {MAX_WINDOW}] (MAX_WINDOW)")
         for name in ("p_no_measurement", "gate_probability"):
             value = getattr(self, name)
             _require(_real(value) and 0 < value < 1, o, name, value, "must be in (0, 1)")

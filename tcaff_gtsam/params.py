@@ -9,12 +9,13 @@ The objects live by subject: `aligner_params` (CLIPPER and the frame aligner),
 from __future__ import annotations
 
 from .aligner_params import (  # noqa: F401 (the drift default is the graph's too)
+    MAX_SOLUTIONS,
     ClipperParams,
     FrameAlignerParams,
     _alignment_process_noise,
     constant_alignment_covariance,
 )
-from .filter_params import GraphParams, TCAFFParams
+from .filter_params import MAX_WINDOW, GraphParams, TCAFFParams
 from .param_checks import (  # noqa: F401 (the checks every module's arguments take)
     _INT64_MAX,
     ParameterError,
@@ -28,6 +29,8 @@ from .param_checks import (  # noqa: F401 (the checks every module's arguments t
 )
 
 __all__ = [
+    "MAX_SOLUTIONS",
+    "MAX_WINDOW",
     "ClipperParams",
     "FrameAlignerParams",
     "GraphParams",

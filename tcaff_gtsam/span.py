@@ -27,12 +27,17 @@ from .geometry import _se2_from_params, _se2_to_params, wrap_angle
 from .inputs import real_array
 from .params import ClipperParams, _finite
 
-__all__ = ["SPANS", "KappaAdvice", "advise_kappa", "interpolate_poses", "misplacement",
-           "random_drive", "vio_like_odometry"]
+__all__ = ["MAX_SAMPLES", "SPANS", "KappaAdvice", "advise_kappa", "interpolate_poses",
+           "misplacement", "random_drive", "vio_like_odometry"]
 
 #: the spans tried by default, s: 30 s steps from 30 s, as the MRCLAM config's rule, with 5,
 #: 10 and 20 s (the paper's outdoor and indoor choices) before them
 SPANS = np.array([5.0, 10.0, 20.0, 30.0, 60.0, 90.0, 120.0, 150.0, 180.0, 210.0, 240.0, 300.0])
+
+#: the most samples a call draws (`random_drive`) or evaluates per span (`misplacement`): a
+#: day's drive at 0.1 s steps is 864 000, and a million poses (3, 3) are 72 MB, each
+#: temporary of the same size again
+MAX_SAMPLES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -124,7 +129,8 @@ def misplacement(times, T_world_body, T_odom_body, spans=SPANS, landmark_range: 
         (s,) the root mean square of that error over the times (and robots), m; NaN for a
         span longer than every trajectory.
     Raises:
-        DataError: any argument of the wrong shape or out of range.
+        DataError: any argument of the wrong shape or out of range; `every` so short that a
+            span of a trajectory would be evaluated at more than `MAX_SAMPLES` times.
     """
     o = "misplacement"
     # several robots: sequences of arrays (a single robot's times may be a list of numbers)
@@ -144,11 +150,19 @@ def misplacement(times, T_world_body, T_odom_body, spans=SPANS, landmark_range: 
     if not (_finite(every) and every > 0):
         raise DataError(f"{o}: every must be a finite number > 0 seconds, got {every!r}")
     landmark = np.array([float(landmark_range), 0.0, 1.0])
-    errors: list[list[np.ndarray]] = [[] for _ in spans]
+    # per span: the sum of the squared errors and their number, over the times and robots
+    squares, counts = np.zeros(spans.size), np.zeros(spans.size, np.int64)
     for t, T_true, T_odom in runs:
         t = _times(o, t)
         true_params = _se2_to_params(_poses(o, "T_world_body", T_true, t.size))
         odom_params = _se2_to_params(_poses(o, "T_odom_body", T_odom, t.size))
+        # the shortest span is evaluated at the most times
+        most = (t[-1] + 1e-9 - t[0] - spans[0]) / every
+        if most > MAX_SAMPLES:
+            raise DataError(f"{o}: every = {every!r} s evaluates the {t[-1] - t[0]:g} s "
+                            f"trajectory at {most:.3g} times per span, more than "
+                            f"MAX_SAMPLES = {MAX_SAMPLES}: every must be at least "
+                            f"{(t[-1] - t[0]) / MAX_SAMPLES:.3g} s for it")
         for i, span in enumerate(spans):
             at = np.arange(t[0] + span, t[-1] + 1e-9, every)
             if at.size == 0:
@@ -157,9 +171,10 @@ def misplacement(times, T_world_body, T_odom_body, spans=SPANS, landmark_range: 
             for params in (odom_params, true_params):
                 now, then = _at(t, params, at), _at(t, params, at - span)
                 seen.append(np.linalg.solve(now, then) @ landmark)
-            errors[i].append(np.hypot(*(seen[0] - seen[1])[:, :2].T))
-    return np.array([math.sqrt(float(np.mean(np.square(np.concatenate(e))))) if e else np.nan
-                     for e in errors])
+            squares[i] += np.sum(np.square(seen[0] - seen[1])[:, :2])
+            counts[i] += at.size
+    with np.errstate(invalid="ignore"):  # 0 / 0: a span longer than every trajectory
+        return np.sqrt(squares / counts)
 
 
 def advise_kappa(rms, spans=SPANS, epsilon: float = ClipperParams().epsilon) -> KappaAdvice:
@@ -197,7 +212,7 @@ def random_drive(rng: np.random.Generator, duration: float, speed: float,
         times (k,) s from 0 to `duration`, every `step` s, and T_world_body (k, 3, 3).
     Raises:
         DataError: a duration, speed, turn or step that is not a finite number > 0 (>= 0 for
-            speed and turn).
+            speed and turn); a duration of more than `MAX_SAMPLES` steps.
     """
     o = "random_drive"
     _check_rng(o, rng)
@@ -207,7 +222,12 @@ def random_drive(rng: np.random.Generator, duration: float, speed: float,
     for name, value in (("speed", speed), ("turn_std_deg_per_sqrt_s", turn_std_deg_per_sqrt_s)):
         if not (_finite(value) and value >= 0):
             raise DataError(f"{o}: {name} must be a finite number >= 0, got {value!r}")
-    n = math.ceil(duration / step) + 1
+    steps = duration / step
+    if not steps <= MAX_SAMPLES - 1:  # also inf, when step is tiny against duration
+        raise DataError(f"{o}: duration = {duration!r} s with step = {step!r} s is {steps:.3g} "
+                        f"steps, more than MAX_SAMPLES - 1 = {MAX_SAMPLES - 1}: a shorter "
+                        f"duration or a longer step")
+    n = math.ceil(steps) + 1
     times = step * np.arange(n)
     turns = math.radians(turn_std_deg_per_sqrt_s) * math.sqrt(step) * rng.standard_normal(n - 1)
     heading = np.r_[0.0, np.cumsum(turns)]

@@ -184,7 +184,7 @@ def _check_recording(path: Path | None) -> None:
     """Before any work: rerun-sdk is there and `path` can become a recording file."""
     if path is None:
         return
-    from ..recording import check_rerun
+    from ..rerun_recording import check_rerun
 
     check_rerun()
     if path.is_dir():
@@ -196,7 +196,7 @@ def _record(path: Path | None, jobs: list) -> None:
     """The runs into a Rerun recording, when asked for and there are runs."""
     if path is None or not jobs:
         return
-    from ..recording import record
+    from ..rerun_recording import record
 
     record(path, jobs)
     _console().print(f"recording: {path} (open it with: rerun {path})", soft_wrap=True)

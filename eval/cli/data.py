@@ -43,7 +43,7 @@ if TYPE_CHECKING:
 def _kimera_bars(bars: RichProgress):
     from rich.markup import escape
 
-    from ..recorded import KimeraProgress
+    from ..dataset_runs import KimeraProgress
 
     # Defined here: the base class lives in the recorded module, which loads the whole stack.
     class _KimeraBars(KimeraProgress):
@@ -107,7 +107,7 @@ def kimera_multi(
     from tcaff_gtsam.errors import TcaffError
 
     from ..config import load_kimera_multi, load_methods
-    from ..recorded import run_kimera_multi
+    from ..dataset_runs import run_kimera_multi
 
     console, err_console = _console(), _console(stderr=True)
     test = load_kimera_multi(config)
@@ -234,7 +234,7 @@ def mrclam(
     seeds = _check_seeds(seed)
     _writable_folder(output, "--output")
     from ..config import load_methods, load_mrclam, override
-    from ..recorded import run_mrclam
+    from ..dataset_runs import run_mrclam
 
     console = _console()
     settings = override(load_mrclam(config), "command line", duration=duration, kappa=kappa,
@@ -392,9 +392,9 @@ def rgbd(
     from tcaff_gtsam.errors import ConfigError
 
     from ..config import load_methods, load_rgbd, override
+    from ..dataset_runs import run_rgbd
     from ..datasets.rgbd_robots import halves, walk
     from ..datasets.rgbd_sequence import read_sequence
-    from ..recorded import run_rgbd
     from ..registry import describe
 
     console = _console()

@@ -32,7 +32,7 @@ def view(
     Needs the optional extra viz (pip install 'tcaff-gtsam[viz]'); open the file with
     `rerun FILE.rrd`. Runs saved before the maps were kept show no maps.
     """
-    from ..recording import record
+    from ..rerun_recording import record
     from ..results import load_saved
 
     path = output or results / "recording.rrd"

@@ -293,8 +293,8 @@ def _mrclam_run(data: Path, seed: int, duration: float | None):
     odometry drawn with `seed`)."""
     _check_seeds([seed])
     from ..config import load_mrclam
+    from ..dataset_runs import load_mrclam_run
     from ..datasets import mrclam
-    from ..recorded import load_mrclam_run
 
     _check_duration(duration)
     config = load_mrclam("default")

@@ -46,59 +46,15 @@ from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.span import interpolate_poses, misplacement, vio_like_odometry
 
 from ..runs import RecordedRun, RunSettings
+from .text_tables import read_table
 
-__all__ = ["LANDMARK_SIZE", "MrclamData", "RobotRecord", "load_run", "map_drift", "read_dataset",
-           "read_table"]
+__all__ = ["LANDMARK_SIZE", "MrclamData", "RobotRecord", "load_run", "map_drift", "read_dataset"]
 
 ROBOTS = range(1, 6)        # subjects
 LANDMARKS = range(6, 21)    # subjects
 #: width and height [m] given to every landmark of a map (the tubes are identical)
 LANDMARK_SIZE = (0.2, 0.5)
 _VIO_STEP = 0.1  # s between the truth samples the VIO-like odometry integrates
-
-
-def read_table(path: Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
-    """The rows of one MRCLAM file.
-
-    Returns:
-        rows (k, columns) float64, and lines (k,) int: each row's line number (1-based).
-    Raises:
-        DataError: the file is missing or unreadable, or a row has the wrong number of
-            columns, a non-numeric or non-finite entry (naming file and line).
-    """
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read ({exc})") from exc
-    numbers, lines = [], []
-    for k, line in enumerate(text.splitlines(), start=1):
-        content = line.split("#", 1)[0]
-        if content.strip():
-            numbers.append(content)
-            lines.append(k)
-    try:  # one conversion for the whole file; only a bad file is read row by row
-        values = np.array(" ".join(numbers).split(), dtype=float)
-        rows = values.reshape(len(numbers), columns)
-        ok = all(len(n.split()) == columns for n in numbers) if rows.size else True
-    except ValueError:
-        ok = False
-    if not ok:
-        for number, line in zip(numbers, lines, strict=True):
-            fields = number.split()
-            if len(fields) != columns:
-                raise DataError(f"{path}:{line}: expected {columns} columns, got {len(fields)} "
-                                f"({number.strip()!r})")
-            try:
-                [float(f) for f in fields]
-            except ValueError:
-                raise DataError(f"{path}:{line}: not a number in {number.strip()!r}") from None
-    bad = ~np.all(np.isfinite(rows), axis=1)
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
-        raise DataError(f"{path}:{lines[k]}: non-finite value in {numbers[k].strip()!r}")
-    return rows, np.array(lines, dtype=np.int64)
 
 
 def _check_times(path: Path, times: np.ndarray, lines: np.ndarray) -> None:
@@ -149,9 +105,7 @@ class MrclamData:
 
 
 def _timed(path: Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
-    rows, lines = read_table(path, columns)
-    if rows.shape[0] == 0:
-        raise DataError(f"{path}: no rows")
+    rows, lines, _ = read_table(path, columns)
     _check_times(path, rows[:, 0], lines)
     return rows, lines
 
@@ -171,9 +125,7 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
     if not robots or any(r not in ROBOTS for r in robots):
         raise DataError(f"robots: need some of the robot subjects 1-5, got {robots}")
     path = folder / "Barcodes.dat"
-    codes, lines = read_table(path, 2)
-    if codes.shape[0] == 0:
-        raise DataError(f"{path}: no rows")
+    codes, lines, _ = read_table(path, 2)
     subject_of = {}
     for (subject, barcode), line in zip(codes, lines, strict=True):
         if subject != int(subject) or barcode != int(barcode) or barcode in subject_of:
@@ -181,7 +133,7 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
                             f"{subject:g} {barcode:g}")
         subject_of[int(barcode)] = int(subject)
     path = folder / "Landmark_Groundtruth.dat"
-    table, _ = read_table(path, 5)
+    table = read_table(path, 5, empty_ok=True).rows
     landmarks = {int(row[0]): row[1:3].copy() for row in table if int(row[0]) in LANDMARKS}
     if not landmarks:
         raise DataError(f"{path}: no landmark (subjects {LANDMARKS.start}-{LANDMARKS.stop - 1})")
@@ -191,7 +143,7 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
         odometry, _ = _timed(folder / f"Robot{robot}_Odometry.dat", 3)
         truth, _ = _timed(folder / f"Robot{robot}_Groundtruth.dat", 4)
         path = folder / f"Robot{robot}_Measurement.dat"
-        seen, lines = read_table(path, 4)
+        seen, lines, _ = read_table(path, 4, empty_ok=True)
         _check_times(path, seen[:, 0], lines)
         fractional = np.flatnonzero(seen[:, 1] != np.round(seen[:, 1]))
         if fractional.size:

@@ -33,6 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 from tcaff_gtsam.mapping.frontend import RgbdFrontEnd
 from tcaff_gtsam.mapping.mapper import MapperParams
 
@@ -46,6 +47,8 @@ from .rgbd_sequence import RgbdSequence
 
 __all__ = ["Walk", "halves", "level_body", "level_rotation", "load_run", "map_walk",
            "odometry", "walk"]
+
+_DOWN = np.array([0.0, 0.0, -1.0])  # gravity in a level frame (z up)
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,18 +134,24 @@ def halves(frame_ids: np.ndarray) -> list[tuple[int, int]]:
 
 
 def level_rotation(gravity: np.ndarray) -> np.ndarray:
-    """(3, 3) R_level_world: a rotation taking the world's gravity direction (3,) to -z, the
-    smallest that does."""
+    """(3, 3) R_level_world: the smallest rotation taking the world's gravity direction
+    (3,), of any nonzero finite length, to -z. Gravity along +z (a world upside down) has no
+    smallest: a half turn about y.
+
+    Raises:
+        DataError: gravity not three finite numbers, not all zero.
+    """
     g = np.asarray(gravity, dtype=float)
-    g = g / np.linalg.norm(g)
-    down = np.array([0.0, 0.0, -1.0])
-    axis = np.cross(g, down)
-    s, c = np.linalg.norm(axis), float(g @ down)
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = axis / s
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + s * K + (1.0 - c) * K @ K
+    if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.any(g):
+        raise DataError(f"level_rotation: gravity must be 3 finite numbers, not all zero, "
+                        f"got {gravity!r}")
+    g = g / np.max(np.abs(g))  # so that the norm cannot overflow
+    if math.hypot(g[0], g[1]) < 1e-100:
+        # along z to double precision: scipy's turn loses precision when the cross product
+        # with -z underflows (a tilt of 1e-158 from +z moves -z by 3e-8)
+        g = np.array([0.0, 0.0, g[2]])
+    rotation, _ = Rotation.align_vectors(_DOWN[None], (g / np.linalg.norm(g))[None])
+    return rotation.as_matrix()
 
 
 def _yaw(R: np.ndarray) -> np.ndarray:

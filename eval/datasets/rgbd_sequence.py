@@ -47,10 +47,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 from tcaff_gtsam.mapping.camera import PinholeCamera, rigid_transform
 
 from tcaff_gtsam.errors import ConfigError, DataError
+
+from .text_tables import data_lines, read_table, read_text
 
 __all__ = [
     "MAX_ACCEL_SCATTER_DEG",
@@ -205,70 +207,6 @@ def _gravity_argument(gravity) -> np.ndarray:
 # -- text files --------------------------------------------------------------------------------
 
 
-def _text(path: Path, what: str = "file") -> str:
-    try:
-        return path.read_text()
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such {what}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read ({exc})") from exc
-
-
-def _data_rows(path: Path) -> tuple[list[int], list[str]]:
-    """Line numbers (1-based) and text of the lines that are neither blank nor `#` comments."""
-    lines, texts = [], []
-    for k, line in enumerate(_text(path).splitlines(), start=1):
-        stripped = line.strip()
-        if stripped and not stripped.startswith("#"):
-            lines.append(k)
-            texts.append(stripped)
-    return lines, texts
-
-
-def _bad_row(path: Path, line: int, text: str, fields: list[str], columns: int,
-             header: str) -> DataError | None:
-    """The error of one row of a numeric table, None when it is fine."""
-    if len(fields) != columns:
-        return DataError(f"{path}:{line}: expected {columns} columns ({header}), got "
-                         f"{len(fields)} ({text!r})")
-    for f in fields:
-        try:
-            value = float(f)
-        except ValueError:
-            return DataError(f"{path}:{line}: not a number: {f!r} in {text!r}")
-        if not math.isfinite(value):
-            return DataError(f"{path}:{line}: non-finite value {f!r} in {text!r}")
-    return None
-
-
-def _table(path: Path, columns: int, header: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """The numeric rows of a text table.
-
-    Returns:
-        rows (k, columns) float64, lines (k,) int64 (1-based line numbers), texts (k,).
-    Raises:
-        DataError: missing or unreadable file; a row with the wrong number of columns, a
-            non-number or a non-finite value (naming file and line); no rows.
-    """
-    lines, texts = _data_rows(path)
-    if not texts:
-        raise DataError(f"{path}: no rows (expected lines of '{header}')")
-    fields = [t.split() for t in texts]
-    rows = None
-    if all(len(f) == columns for f in fields):
-        try:  # one conversion for the whole file; only a bad file is checked row by row
-            rows = np.array(fields, dtype=float)
-        except ValueError:
-            rows = None
-    if rows is None or not np.all(np.isfinite(rows)):
-        for line, text, f in zip(lines, texts, fields, strict=True):
-            error = _bad_row(path, line, text, f, columns, header)
-            if error is not None:
-                raise error
-        rows = np.array([[float(f) for f in r] for r in fields])
-    return rows, np.array(lines, dtype=np.int64), texts
-
-
 def _check_increasing(path: Path, times: np.ndarray, lines: np.ndarray,
                       texts: list[str]) -> None:
     bad = np.flatnonzero(np.diff(times) <= 0)
@@ -298,7 +236,7 @@ class _Listing:
 
 def _image_list(path: Path, folder: Path) -> tuple[np.ndarray, tuple[Path, ...]]:
     """TUM's rgb.txt or depth.txt: times (k,) s strictly increasing, and the k image files."""
-    lines, texts = _data_rows(path)
+    lines, texts = data_lines(path)
     if not texts:
         raise DataError(f"{path}: no rows (expected lines of 'timestamp filename')")
     times, paths = np.empty(len(texts)), []
@@ -326,7 +264,7 @@ def _numbers(path: Path) -> tuple[list[float], list[int]]:
     """Every number of a small file, with its line; DataError naming file and line for a
     non-number or a non-finite value."""
     values, lines = [], []
-    for line, text in zip(*_data_rows(path), strict=True):
+    for line, text in zip(*data_lines(path), strict=True):
         for f in text.split():
             try:
                 value = float(f)
@@ -353,7 +291,7 @@ def _gravity_file(path: Path) -> np.ndarray:
 
 def _pose_file(path: Path) -> np.ndarray:
     """A 7-Scenes pose file: (4, 4) T_world_camera with an exactly orthonormal rotation."""
-    rows = [line.split() for line in _text(path).splitlines() if line.strip()]
+    rows = [line.split() for line in read_text(path).splitlines() if line.strip()]
     if len(rows) != 4 or any(len(r) != 4 for r in rows):
         raise DataError(f"{path}: expected a 4 x 4 matrix (4 rows of 4 numbers), got rows of "
                         f"{[len(r) for r in rows]} numbers")
@@ -406,7 +344,7 @@ def _camera(folder: Path, default: tuple[float, float, float, float], default_na
                             f"{default_name} intrinsics are for {_DEFAULT_SIZE[0]} x "
                             f"{_DEFAULT_SIZE[1]}; give the camera's 3 x 3 K in {path}")
         return PinholeCamera(*size, *default)
-    K, _, _ = _table(path, 3, "3 x 3 K: fx 0 cx / 0 fy cy / 0 0 1")
+    K, _, _ = read_table(path, 3, "3 x 3 K: fx 0 cx / 0 fy cy / 0 0 1")
     if K.shape != (3, 3):
         raise DataError(f"{path}: expected a 3 x 3 matrix K (3 rows of 3 numbers), got "
                         f"{K.shape[0]} rows")
@@ -572,10 +510,8 @@ def _interpolate(times: np.ndarray, rotations: Rotation, positions: np.ndarray,
     j, k = j[use], k[use]
     alpha = np.where(between[use], (at[use] - times[j]) / np.where(gap[use] > 0, gap[use], 1.0),
                      0.0)
-    R_j = rotations[j]
-    # R_j exp(alpha log(R_j' R_k)): the shorter arc (as_rotvec's angle is at most pi)
-    step = (R_j.inv() * rotations[k]).as_rotvec()
-    R = R_j * Rotation.from_rotvec(alpha[:, None] * step)
+    # a single sample has nothing to slerp between (only queries at its time are used)
+    R = rotations[j] if n == 1 else Slerp(times, rotations)(at[use])
     T[use, :3, :3] = R.as_matrix()
     T[use, :3, 3] = positions[j] + alpha[:, None] * (positions[k] - positions[j])
     T[use, 3] = (0.0, 0.0, 0.0, 1.0)
@@ -585,7 +521,7 @@ def _interpolate(times: np.ndarray, rotations: Rotation, positions: np.ndarray,
 def _ground_truth(path: Path) -> tuple[np.ndarray, Rotation, np.ndarray]:
     """groundtruth.txt: times (g,) s, rotations (g,) and positions (g, 3) m."""
     header = "timestamp tx ty tz qx qy qz qw"
-    rows, lines, texts = _table(path, 8, header)
+    rows, lines, texts = read_table(path, 8, header)
     _check_increasing(path, rows[:, 0], lines, texts)
     q = rows[:, 4:8]
     norm = np.linalg.norm(q, axis=1)
@@ -603,7 +539,7 @@ def _gravity_from_accelerometer(path: Path, truth: tuple[np.ndarray, Rotation, n
                                 ) -> np.ndarray:
     """(3,) unit: the direction of gravity in the world from accelerometer.txt, its readings
     taken as in the colour camera's optical frame (see `read_tum`)."""
-    rows, lines, texts = _table(path, 4, "timestamp ax ay az")
+    rows, lines, texts = read_table(path, 4, "timestamp ax ay az")
     _check_increasing(path, rows[:, 0], lines, texts)
     T = _interpolate(*truth, rows[:, 0])
     usable = np.isfinite(T[:, 0, 0]) & np.any(rows[:, 1:4] != 0, axis=1)

@@ -322,23 +322,56 @@ def test_lookalike_share_tells_landmarks_from_distinct_objects():
     assert aligner.lookalike_share(ObjectMap.empty(), grid.other, grid.now) == 0.0
 
 
+def _gated_share(ego: ObjectMap, other: ObjectMap, now: float,
+                 params: FrameAlignerParams) -> float:
+    """The look-alike share counted pair by pair from the gates' definitions
+    (`FrameAlignerParams.size_ratio`, `size_abs_diff`, `size_partial`): the gated pairs of the
+    objects seen within kappa, over all pairs of them; 0 without a pair."""
+    def similar(a, b, ratio):
+        return max(a, b) <= ratio * min(a, b) or abs(a - b) <= params.size_abs_diff
+
+    def gated(i, j):
+        w = similar(ego.widths[i], other.widths[j], params.size_ratio)
+        h = similar(ego.heights[i], other.heights[j], params.size_ratio)
+        if w and h:
+            return True
+        partial = params.size_partial
+        if partial is None or partial <= params.size_ratio:
+            return False
+        return (w and similar(ego.heights[i], other.heights[j], partial)) or (
+            h and similar(ego.widths[i], other.widths[j], partial))
+
+    recent_ego = [i for i in range(len(ego)) if now - ego.last_seen[i] < params.kappa]
+    recent_other = [j for j in range(len(other)) if now - other.last_seen[j] < params.kappa]
+    pairs = [(i, j) for i in recent_ego for j in recent_other]
+    return sum(gated(i, j) for i, j in pairs) / len(pairs) if pairs else 0.0
+
+
 @settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2**32 - 1), st.integers(0, 12), st.integers(0, 12))
-def test_lookalike_share_is_the_share_of_gated_pairs(seed, n_ego, n_other):
+@given(st.integers(0, 2**32 - 1), st.integers(0, 12), st.integers(0, 12),
+       st.sampled_from([2.0, None]))
+def test_lookalike_share_is_the_share_of_gated_pairs(seed, n_ego, n_other, size_partial):
     rng = np.random.default_rng(seed)
+    now = 50.0
 
     def random_map(n):
+        # ages up to twice kappa: some objects are too old to take part
         return ObjectMap(rng.uniform(-10, 10, (n, 3)), rng.uniform(0.2, 2.0, n),
-                         rng.uniform(0.2, 2.0, n), np.full(n, 50.0))
+                         rng.uniform(0.2, 2.0, n), now - rng.uniform(0.0, 40.0, n))
 
+    params = FrameAlignerParams(size_partial=size_partial)
     ego, other = random_map(n_ego), random_map(n_other)
-    share = FrameAligner().lookalike_share(ego, other, 50.0)
-    assert 0.0 <= share <= 1.0
-    assert FrameAligner().lookalike_share(other, ego, 50.0) == pytest.approx(share)
-    if n_ego and n_other:
-        # sizes copied from ego into other: each ego object has at least its twin
-        twins = ObjectMap(ego.centroids, ego.widths, ego.heights, ego.last_seen)
-        assert FrameAligner().lookalike_share(ego, twins, 50.0) >= 1.0 / n_ego - 1e-12
+    share = FrameAligner(params).lookalike_share(ego, other, now)
+    assert share == pytest.approx(_gated_share(ego, other, now, params), abs=1e-12)
+    assert FrameAligner(params).lookalike_share(other, ego, now) == pytest.approx(share)
+
+
+def test_lookalike_share_counts_pairs_not_objects():
+    """Two ego objects, each alike one of two other objects: every object has a partner, but
+    only two of the four pairs pass the gates."""
+    ego = ObjectMap(np.zeros((2, 3)), np.array([0.5, 1.8]), np.array([0.5, 1.8]), np.ones(2))
+    other = ObjectMap(np.ones((2, 3)), np.array([0.5, 1.8]), np.array([0.5, 1.8]), np.ones(2))
+    assert FrameAligner().lookalike_share(ego, other, 1.0) == 0.5
 
 
 @pytest.mark.parametrize("now", [float("nan"), "1", None])

@@ -149,7 +149,7 @@ def test_parameter_errors_name_the_field_and_survive_pickling():
         FrameAlignerParams(n_solutions=0)
     exc = info.value
     assert (exc.owner, exc.name, exc.value, exc.rule) == (
-        "FrameAlignerParams", "n_solutions", 0, "must be an int >= 1")
+        "FrameAlignerParams", "n_solutions", 0, "must be an int in [1, 1000] (MAX_SOLUTIONS)")
     again = pickle.loads(pickle.dumps(exc))
     assert isinstance(again, ConfigError) and str(again) == str(exc)
     assert (again.name, again.value) == ("n_solutions", 0)

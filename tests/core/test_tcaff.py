@@ -531,12 +531,17 @@ def test_outvoting_replaces_an_early_decoy_confirmed_every_other_step_within_W_p
             assert not on_truth or on_truth[0] - start + 1 > W + 5
 
 
-def test_a_look_alike_cluster_seen_at_every_step_outvotes_nothing():
+@pytest.mark.parametrize("params", [
+    TCAFFParams(switch_support=2),
+    # min_distinct = 1: only the outvoting's own count of distinct evidence keeps the decoy
+    # out, where the defaults' min_distinct = 2 would keep it out as well
+    replace(TCAFFParams.paper(), switch_support=2)], ids=["defaults", "paper"])
+def test_a_look_alike_cluster_seen_at_every_step_outvotes_nothing(params):
     """The truth is held; a wrong alignment that re-matches the same objects at every step
     counts as seen once, however often: it does not replace a truth seen in 3 steps of 4."""
-    W = TCAFFParams().window
+    W = params.window
     truth, decoy = np.array([4.0, -1.0, 0.7]), np.array([-2.0, 3.0, 2.5])
-    filt = TCAFF(TCAFFParams(switch_support=2))
+    filt = TCAFF(params)
     for t in range(60):
         z, ev = [], []
         if t >= W + 2:
@@ -546,7 +551,8 @@ def test_a_look_alike_cluster_seen_at_every_step_outvotes_nothing():
             z.append(truth)
             ev.append(np.array([[3000 + t, 4000 + t]]))
         est = filt.update(np.array(z), np.broadcast_to(R_CONSTANT, (len(z), 3, 3)), ev)
-    assert filt.hypothesis == 1 and np.allclose(est.x, truth, atol=0.05)
+    assert filt.hypothesis == 1
+    assert est is not None and np.allclose(est.x, truth, atol=0.05)
 
 
 def test_a_true_alignment_re_matched_while_standing_still_is_not_outvoted():

@@ -488,10 +488,13 @@ def test_the_study_workers_ignore_ctrl_c_from_their_start():
     assert not {"numpy", "tcaff_gtsam.eval.jobs", "tcaff_gtsam.eval.executor"} & set(loaded)
 
 
-def test_a_worker_that_starts_after_its_study_stopped_ends_quietly(capfd):
+def test_a_worker_that_starts_after_its_study_stopped_ends_quietly(capfd, tmp_path):
     """Ctrl-C while the workers start: a worker still importing once the study has given up
     waiting for it finds the study's queue closed, and ends without a traceback (which would
     follow the study's one-line message) and without taking a job."""
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
     from tcaff_gtsam.eval import executor
     from tcaff_gtsam.eval.quiet_spawn import QuietSpawnContext
 
@@ -499,11 +502,19 @@ def test_a_worker_that_starts_after_its_study_stopped_ends_quietly(capfd):
     manager = context.Manager()
     updates = manager.Queue()
     manager.shutdown()  # the stopped study closed its queue
-    worker = context.Process(target=executor._announce, args=(updates, 1))
+    taken = tmp_path / "taken"
     capfd.readouterr()
-    worker.start()
-    worker.join(120)
-    assert worker.exitcode == 0
+    # the study's pool: a worker whose initializer returns takes the queued job, which
+    # leaves the file behind
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=context,
+                               initializer=executor._announce, initargs=(updates, 1))
+    try:
+        job = pool.submit(taken.touch)
+        with pytest.raises(BrokenProcessPool):
+            job.result(timeout=120)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    assert not taken.exists()
     assert capfd.readouterr().err == ""
 
 

@@ -20,6 +20,7 @@ from tcaff_gtsam.eval.config import (
     load_kimera_multi,
     load_methods,
 )
+from tcaff_gtsam.eval.dataset_runs import run_kimera_multi
 from tcaff_gtsam.eval.datasets.kimera_multi import (
     GT_HEADER,
     MAPS_VERSION,
@@ -29,7 +30,6 @@ from tcaff_gtsam.eval.datasets.kimera_multi import (
     read_ground_truth,
 )
 from tcaff_gtsam.eval.methods import run_methods
-from tcaff_gtsam.eval.recorded import run_kimera_multi
 from tcaff_gtsam.eval.runs import RecordedRun, RunSettings
 from tcaff_gtsam.mapping.camera import T_body_camera
 from typer.testing import CliRunner

@@ -13,7 +13,7 @@ import pytest
 EVAL = Path(__file__).resolve().parents[2] / "eval"
 PACKAGE = "tcaff_gtsam.eval"
 #: what the run sources must not reach
-ABOVE = ("methods", "study", "mot", "plots", "jobs", "results", "recorded", "cli")
+ABOVE = ("methods", "study", "mot", "plots", "jobs", "results", "dataset_runs", "cli")
 
 
 def module_file(name: str) -> Path | None:

@@ -1,7 +1,7 @@
 """`tcaff rgbd`: recorded RGB-D sequences as robots, end to end on a small 7-Scenes folder the
 tests render (a room of boxes, a camera walking loops in it, in a world frame that is not
 gravity aligned), its bad input refused in one line, and the pieces it is made of
-(`_parse_ranges`, `_halves`, `recorded.walk_report`)."""
+(`_parse_ranges`, `_halves`, `dataset_runs.walk_report`)."""
 
 from __future__ import annotations
 
@@ -19,10 +19,10 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.config import load_methods, load_rgbd
+from tcaff_gtsam.eval.dataset_runs import run_rgbd, walk_report
 from tcaff_gtsam.eval.datasets import rgbd_robots
 from tcaff_gtsam.eval.datasets.rgbd_sequence import read_sequence
 from tcaff_gtsam.eval.metrics import Thresholds
-from tcaff_gtsam.eval.recorded import run_rgbd, walk_report
 from tcaff_gtsam.eval.sim.render import RgbdScene, render
 from tcaff_gtsam.eval.sim.world import room_walls
 from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera

@@ -15,9 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from tcaff_gtsam.eval.config import load_methods
+from tcaff_gtsam.eval.dataset_runs import evaluate_run, rgbd_name
 from tcaff_gtsam.eval.datasets import rgbd_robots as rr
 from tcaff_gtsam.eval.datasets.rgbd_sequence import RgbdSequence, read_sequence
-from tcaff_gtsam.eval.recorded import evaluate_run, rgbd_name
 from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 
 from tcaff_gtsam.errors import DataError
@@ -151,11 +151,60 @@ def test_level_rotation_takes_gravity_to_minus_z_by_the_smallest_turn(g):
 
 
 @pytest.mark.parametrize("g", [DOWN, -DOWN, np.array([0.0, 0.0, -1e-3]),
-                               np.array([1e-14, 0.0, 1.0])])
+                               np.array([1e-14, 0.0, 1.0]), np.array([0.0, 0.0, 1e300]),
+                               np.array([0.0, 1.4916832686056252e-155, 397.0]),
+                               np.array([1e-160, -1e-160, 1.0]), np.array([1e-120, 0.0, -1.0])])
 def test_level_rotation_of_gravity_along_z(g):
     R = rr.level_rotation(g)
-    np.testing.assert_allclose(R @ (g / np.linalg.norm(g)), DOWN, atol=1e-9)
-    assert np.linalg.det(R) == pytest.approx(1.0)
+    np.testing.assert_allclose(R @ (g / np.abs(g).max()), DOWN, atol=1e-14)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-15)
+    assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-15)
+    # no turn, or a half turn (symmetric) about a horizontal axis (z flipped, kept in-plane)
+    np.testing.assert_allclose(R, R.T, atol=1e-13)
+    assert R[2, 2] == pytest.approx(-1.0 if g[2] > 0 else 1.0, abs=1e-15)
+
+
+@pytest.mark.parametrize("g", [np.zeros(3), np.array([0.0, np.nan, -1.0]),
+                               np.array([0.0, 0.0, np.inf]), np.ones(2)])
+def test_level_rotation_refuses_a_gravity_without_a_direction(g):
+    with pytest.raises(DataError, match="level_rotation: gravity must be 3 finite numbers"):
+        rr.level_rotation(g)
+
+
+def smallest_turn(g: np.ndarray) -> np.ndarray:
+    """(3, 3) the rotation by acos(u . down) about u x down (u = g / |g|), by Rodrigues'
+    formula; identity for g along -z (undefined along +z). Accurate to rounding near +z too:
+    the axis comes from u's horizontal part exactly."""
+    u = g / np.linalg.norm(g)
+    axis = np.cross(u, DOWN)
+    s, c = np.linalg.norm(axis), float(u @ DOWN)
+    if s == 0.0:
+        return np.eye(3)
+    k = axis / s
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + s * K + (1.0 - c) * K @ K
+
+
+def test_level_rotation_is_the_smallest_turn_to_rounding():
+    """2000 gravity directions of lengths 1e-3 to 1e3: over the sphere, and within 1e-16 to
+    0.1 of -z (a level world) and of +z (upside down)."""
+    rng = np.random.default_rng(0)
+
+    def near(z: float, n: int) -> np.ndarray:
+        return np.array([0.0, 0.0, z]) + 10 ** rng.uniform(-16, -1, (n, 1)) * rng.normal(
+            size=(n, 3))
+
+    gs = np.concatenate([rng.normal(size=(1400, 3)), near(-1.0, 300), near(1.0, 300)])
+    gs *= 10 ** rng.uniform(-3, 3, (len(gs), 1))
+    for g in gs:
+        R = rr.level_rotation(g)
+        u = g / np.linalg.norm(g)
+        s2 = u[0] ** 2 + u[1] ** 2
+        # near a half turn scipy's quaternion loses precision as 1 + cos(angle) (= s^2 / (1 -
+        # cos), without the cancellation) goes to 0: at most 3 ulp / (1 + cos) measured
+        tol = 1e-14 + 4e-16 * (1.0 + u[2]) / s2 if u[2] > 0 else 1e-14
+        np.testing.assert_allclose(R, smallest_turn(g), rtol=0, atol=tol, err_msg=str(g))
+        np.testing.assert_allclose(R @ u, DOWN, rtol=0, atol=1e-12, err_msg=str(g))
 
 
 def random_walk(rng: np.random.Generator, k: int, g: np.ndarray) -> np.ndarray:

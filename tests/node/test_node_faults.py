@@ -8,20 +8,27 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import subprocess
 import sys
+import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode
 from tcaff_gtsam.node.node import _draw
+from tcaff_gtsam.node.replay import MAX_TEAM, robot_names
 from tcaff_gtsam.node.run import free_ports
 
 from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params
+from tcaff_gtsam.params import ParameterError
 
 TRUE = np.array([2.0, -1.0, 0.4])  # T_r0_r1 as (x, y, theta)
 
@@ -35,15 +42,30 @@ def world_maps(rng: np.random.Generator, n: int = 30) -> tuple[np.ndarray, np.nd
     return np.c_[xy, np.zeros(n)], np.c_[in_r1, np.zeros(n)], sizes
 
 
+class ObservedNode(RobotNode):
+    """A RobotNode that reports each map of r1 it has queued for its worker: `arrivals` gets
+    the perf_counter time (s) just after, from Zenoh's thread. A test can so know what the
+    node holds while its worker is busy, where the worker's own counters say nothing yet."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        self.arrivals: queue.Queue[float] = queue.Queue()
+        super().__init__(*args, **kwargs)
+
+    def _arrived(self, sample) -> None:
+        super()._arrived(sample)
+        if str(sample.key_expr).endswith("/r1/map"):
+            self.arrivals.put(time.perf_counter())
+
+
 class Team:
     """A RobotNode r0 and a raw sender session speaking for r1 (and for strangers)."""
 
     def __init__(self, tmp_path: Path, state: Path | None = None) -> None:
         port = free_ports(1)[0]
         self.got: list = []
-        self.node = RobotNode("r0", "faults", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",)),
-                              NodeParams(silence=2.0), on_alignment=self.got.append,
-                              state_dir=state)
+        self.node = ObservedNode("r0", "faults", ["r0", "r1"],
+                                 Link(listen=(f"127.0.0.1:{port}",)), NodeParams(silence=2.0),
+                                 on_alignment=self.got.append, state_dir=state)
         self.sender = Link(connect=(f"127.0.0.1:{port}",)).open()
         rng = np.random.default_rng(3)
         self.mine, self.theirs, self.sizes = world_maps(rng)
@@ -212,40 +234,78 @@ def test_a_late_ego_map_never_turns_a_pairs_clock_back(tmp_path: Path) -> None:
     assert c["aligned"] == 2 and not c["dropped_stale"], c
 
 
-def held_up_while_maps_arrive(tmp_path: Path, n_maps: int) -> tuple[Team, list]:
-    """A node whose worker the first alignment's callback holds up for a second, sent the
-    ego map at 10 s, then `n_maps` maps of r1 50 ms apart; its alignments, once idle."""
+@dataclass
+class HeldUp:
+    """What `held_up_while_maps_arrive` saw, times in perf_counter seconds."""
+
+    team: Team
+    got: list  # the node's AlignmentMessages, in order
+    published: tuple[float, float]  # just before and just after the ego map was published
+    arrivals: list[tuple[float, float]]  # per map of r1: just before sending, just after queued
+    released: float  # the worker was let go of the first alignment's callback
+
+
+#: hang guard of the waits below (s): a failure, not a pace the test expects
+_HANG = 60.0
+
+
+def held_up_while_maps_arrive(tmp_path: Path, n_maps: int) -> HeldUp:
+    """A node sent the ego map at 10 s, then map 0 of r1; while the first alignment's
+    callback holds the worker, maps 1 .. n_maps - 1 of r1, each sent once the node has queued
+    the one before. The worker is let go once every map is queued and the ego clock has run
+    on past the last one's arrival by more than the publishing of the ego map took (so that
+    a stamp taken when the worker gets to a map would be later than any at its arrival)."""
     team = Team(tmp_path)
     got: list = []
+    inside, release = threading.Event(), threading.Event()
 
-    def slow(message) -> None:
+    def held(message) -> None:
         got.append(message)
         if len(got) == 1:
-            time.sleep(1.0)
+            inside.set()
+            release.wait(_HANG)
 
-    team.node._on_alignment = slow
+    team.node._on_alignment = held
     n = len(team.sizes)
+    arrivals = []
     try:
-        team.ego(10.0)
+        before = time.perf_counter()
+        team.node.publish(10.0, ObjectMap(team.mine, team.sizes, team.sizes, np.full(n, 10.0)))
+        published = (before, time.perf_counter())
+        assert team.node.wait_idle(_HANG)
         for seq in range(n_maps):
+            sent = time.perf_counter()
             team.sender.put("tcaff/faults/r1/map", encode(MapMessage(
                 "r1", 1, seq, 100.0 + seq, team.theirs, team.sizes, team.sizes, np.zeros(n))))
-            time.sleep(0.05)
-        assert team.node.wait_idle(20)
+            arrivals.append((sent, team.node.arrivals.get(timeout=_HANG)))
+            if seq == 0:
+                assert inside.wait(_HANG), "the worker never aligned the first map"
+        let_go = arrivals[-1][1] + (published[1] - published[0])
+        while (released := time.perf_counter()) <= let_go:
+            time.sleep(let_go - released)
+        release.set()
+        assert team.node.wait_idle(_HANG)
     finally:
+        release.set()
         team.close()
-    return team, got
+    return HeldUp(team, got, published, arrivals, released)
 
 
 def test_a_map_is_stamped_when_it_arrives_not_when_the_worker_gets_to_it(tmp_path: Path
                                                                          ) -> None:
     """The worker is held up by the first alignment's callback while the second map
-    arrives: that map's time is the ego clock at its arrival, not a second later."""
-    _, got = held_up_while_maps_arrive(tmp_path, 2)
-    assert len(got) == 2
-    # both arrived within a few tenths of a second of the ego map, the second was handled
-    # a second after that
-    assert 10.0 <= got[0].stamp < got[1].stamp < 10.6, [m.stamp for m in got]
+    arrives: that map's time is the ego clock at its arrival (10 s at the ego map's
+    publishing, running at `speed`), not when the worker got to it."""
+    seen = held_up_while_maps_arrive(tmp_path, 2)
+    assert len(seen.got) == 2
+    speed = seen.team.node.params.speed
+    first, last = seen.published
+    for message, (sent, queued) in zip(seen.got, seen.arrivals, strict=True):
+        # the ego clock between the map's sending and its queueing
+        assert 10.0 + speed * (sent - last) <= message.stamp <= 10.0 + speed * (queued - first)
+    assert seen.got[0].stamp < seen.got[1].stamp
+    # the ego clock when the worker could first get to the second map is later still
+    assert 10.0 + speed * (seen.released - last) > 10.0 + speed * (seen.arrivals[1][1] - first)
 
 
 def test_the_saved_filter_is_the_pairs_latest(tmp_path: Path) -> None:
@@ -272,9 +332,10 @@ def test_the_saved_filter_is_the_pairs_latest(tmp_path: Path) -> None:
 def test_a_node_behind_aligns_the_newest_map_and_counts_the_skipped(tmp_path: Path) -> None:
     """The worker is held up while five maps of r1 arrive: it aligns the newest and counts
     the four older ones as skipped, instead of aligning each in turn ever later."""
-    team, got = held_up_while_maps_arrive(tmp_path, 6)
-    assert [m.neighbour_seq for m in got] == [0, 5], [m.neighbour_seq for m in got]
-    assert team.node.counters["skipped"] == 4 and team.node.counters["aligned"] == 2
+    seen = held_up_while_maps_arrive(tmp_path, 6)
+    assert [m.neighbour_seq for m in seen.got] == [0, 5], [m.neighbour_seq for m in seen.got]
+    c = seen.team.node.counters
+    assert c["skipped"] == 4 and c["aligned"] == 2 and c["maps_received"] == 2, c
 
 
 def test_a_restarted_node_reports_no_hypothesis_it_has_not_reconfirmed(tmp_path: Path) -> None:
@@ -316,3 +377,23 @@ def test_a_lossy_link_loses_the_same_maps_in_every_process() -> None:
     # seeds and senders draw apart: not one pattern of losses shifted or repeated
     by_key = lost.reshape(2, 3, 300)
     assert not (by_key[0] == by_key[1]).all() and not (by_key[0, 0] == by_key[0, 1]).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.one_of(st.integers(-2, 40), st.integers(-2**70, 2**70)))
+@example(n=MAX_TEAM + 1)
+@example(n=10**12)
+def test_a_team_is_at_most_max_team_robots(n):
+    """Ports (a socket each held open at once) and names of a team on this machine: as many
+    as asked up to MAX_TEAM, a ConfigError naming the count beyond it."""
+    if 0 <= n <= MAX_TEAM:
+        names = robot_names(n)
+        assert names == tuple(f"r{i}" for i in range(n))
+        if n <= 40:
+            ports = free_ports(n)
+            assert len(set(ports)) == n and all(1 <= p <= 65535 for p in ports)
+        return
+    for call, owner in ((free_ports, "free_ports"), (robot_names, "robot_names")):
+        with pytest.raises(ParameterError) as info:
+            call(n)
+        assert str(info.value).startswith(f"{owner}.n = {n!r}: must be an int in [0, {MAX_TEAM}]")

@@ -12,7 +12,7 @@ import rerun as rr
 from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.config import load_methods, load_scenario
 from tcaff_gtsam.eval.jobs import evaluate_simulated
-from tcaff_gtsam.eval.recording import check_rerun, record
+from tcaff_gtsam.eval.rerun_recording import check_rerun, record
 from tcaff_gtsam.eval.results import JobResult
 from tcaff_gtsam.eval.sim.simulate import SimRun, simulate
 

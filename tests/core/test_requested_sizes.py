@@ -1,0 +1,125 @@
+"""Sizes a caller asks for are bounded: an argument that would allocate by its value (samples
+of a drive, times of the misplacement, a filter's window, MNO-CLIPPER's solutions) is taken up
+to its limit and refused beyond it by a TcaffError naming the argument and its value, never by
+numpy's "Maximum allowed size exceeded" or a MemoryError."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+
+from tcaff_gtsam import TCAFF, consistency_graph, mno_clipper
+from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.params import (
+    MAX_SOLUTIONS,
+    MAX_WINDOW,
+    FrameAlignerParams,
+    ParameterError,
+    TCAFFParams,
+)
+from tcaff_gtsam.span import MAX_SAMPLES, misplacement, random_drive
+
+positive = st.floats(min_value=1e-300, max_value=1e300, allow_nan=False, allow_infinity=False)
+#: ints of any size, most of them beyond every limit
+counts = st.one_of(st.integers(-3, 3 * MAX_SOLUTIONS), st.integers(-2**80, 2**80))
+
+
+@settings(max_examples=80, deadline=None)
+@given(duration=positive, step=positive)
+@example(duration=1e300, step=0.5).via("the issue's call")
+@example(duration=499_999.5, step=0.5).via("MAX_SAMPLES samples exactly")
+@example(duration=500_000.0, step=0.5).via("one sample more")
+def test_random_drive_draws_at_most_max_samples(duration, step):
+    steps = duration / step
+    if steps > MAX_SAMPLES - 1:
+        with pytest.raises(DataError) as info:
+            random_drive(np.random.default_rng(0), duration, 0.5, step=step)
+        message = str(info.value)
+        assert message.startswith("random_drive: ")
+        assert f"duration = {duration!r} s" in message and f"step = {step!r} s" in message
+        return
+    times, T = random_drive(np.random.default_rng(0), duration, 0.5, step=step)
+    assert times.shape == (math.ceil(steps) + 1,) and T.shape == (times.size, 3, 3)
+    assert times.size <= MAX_SAMPLES
+
+
+@settings(max_examples=60, deadline=None)
+@given(every=positive)
+@example(every=1e-300)
+@example(every=5.0000001e-6).via("just under MAX_SAMPLES times")
+@example(every=4.9999e-6).via("just over")
+def test_misplacement_evaluates_at_most_max_samples_times_per_span(every):
+    """A 10 s drive standing still, the span 5 s: 5 / every + 1 times."""
+    times = np.arange(0.0, 10.0 + 1e-9, 0.5)
+    T = np.tile(np.eye(3), (times.size, 1, 1))
+    # the times of np.arange(5.0, 10.0 + 1e-9, every), as misplacement takes them
+    n = (10.0 + 1e-9 - 0.0 - 5.0) / every
+    if n > MAX_SAMPLES:
+        with pytest.raises(DataError) as info:
+            misplacement(times, T, T, [5.0], every=every)
+        assert str(info.value).startswith(f"misplacement: every = {every!r} s ")
+        return
+    np.testing.assert_array_equal(misplacement(times, T, T, [5.0], every=every), [0.0])
+
+
+def test_misplacement_pools_runs_without_keeping_each_error():
+    """Two runs of one span: the RMS over both runs' times, as if they were one list."""
+    times = np.arange(0.0, 30.0 + 1e-9, 0.5)
+    still = np.tile(np.eye(3), (times.size, 1, 1))
+    turned = still.copy()
+    turned[:, :2, :2] = [[0.0, -1.0], [1.0, 0.0]]  # a constant heading: no misplacement
+    drifting = still.copy()
+    drifting[:, 0, 2] = 0.01 * times  # a drift of 1 cm/s: 0.1 m over a 10 s span
+    rms = misplacement([times, times[:41]], [still, still[:41]], [drifting, turned[:41]],
+                       [10.0], every=1.0)
+    # 21 times of the first run at 0.1 m, 11 of the second at 0
+    np.testing.assert_allclose(rms, [math.sqrt(21 * 0.1**2 / 32)], rtol=1e-12)
+
+
+@settings(max_examples=80, deadline=None)
+@given(window=counts)
+@example(window=MAX_WINDOW)
+@example(window=MAX_WINDOW + 1)
+@example(window=10**12).via("3.6 TiB of choices before")
+def test_the_filter_window_is_bounded(window):
+    if 1 <= window <= MAX_WINDOW:
+        filt = TCAFF(TCAFFParams(window=window))
+        filt.update(np.zeros((1, 3)), 0.1 * np.eye(3)[None])
+        assert filt.step == 1 and filt.params.window == window
+        return
+    with pytest.raises(ParameterError) as info:
+        TCAFFParams(window=window)
+    assert str(info.value).startswith(
+        f"TCAFFParams.window = {window!r}: must be an int in [1, {MAX_WINDOW}]")
+
+
+def square_graph():
+    """Four corners matched to each other in every way: 16 associations."""
+    p = np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 2.0], [0.0, 2.0]])
+    return consistency_graph(p, p, np.argwhere(np.ones((4, 4), bool)))
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=counts, downweight=st.sampled_from([0.0, 0.5]))
+@example(n=MAX_SOLUTIONS, downweight=0.5)
+@example(n=MAX_SOLUTIONS + 1, downweight=0.5)
+@example(n=10**12, downweight=0.5).via("262 TiB of start draws before")
+def test_mno_clipper_solutions_are_bounded(n, downweight):
+    graph = square_graph()
+    if 1 <= n <= MAX_SOLUTIONS:
+        found = mno_clipper(graph, n, downweight=downweight)
+        assert 1 <= len(found) <= (min(n, graph.m) if downweight == 0 else n)
+        assert FrameAlignerParams(n_solutions=n).n_solutions == n
+        return
+    with pytest.raises(ParameterError) as info:
+        mno_clipper(graph, n, downweight=downweight)
+    assert str(info.value).startswith(
+        f"mno_clipper.n_solutions = {n!r}: must be an int in [1, {MAX_SOLUTIONS}]")
+    with pytest.raises(ParameterError) as info:
+        FrameAlignerParams(n_solutions=n)
+    assert str(info.value).startswith(
+        f"FrameAlignerParams.n_solutions = {n!r}: must be an int in [1, {MAX_SOLUTIONS}]")
