@@ -18,6 +18,12 @@ With `GraphParams.horizon`, only the variables of the latest `horizon` steps sta
 update, marginalised as a set of leaves of iSAM2's Bayes tree (see `_solve` for why it is one),
 and keeps, for reading, the estimates (and for alignment steps the joint covariance) it had.
 
+The graph's rooms: this module holds the variables, the alignment factors, each update and the
+gauge; `graph_inputs` the variables' keys and the checks of what is given; `graph_window` the
+iSAM2 update, the horizon and its marginalisation, and the roll-back; `graph_tcaff` TCAFF's
+hypotheses as factors; `graph_keyframes` the keyframes; `graph_output` what is read out.
+`InterRobotGraph` is the one public door to all of them.
+
 Covariances of poses follow gtsam: right perturbations T Exp(xi) with xi = (vx, vy, omega) for
 Pose2 and (wx, wy, wz, vx, vy, vz), rotation first, for Pose3. Alignment covariances given to or
 returned by this module are over the parameters (x, y, theta) or (x, y, z, yaw) instead, and
@@ -28,9 +34,7 @@ from __future__ import annotations
 
 import logging
 import math
-from bisect import bisect_left
 from collections import Counter, defaultdict
-from pathlib import Path
 
 import gtsam
 import numpy as np
@@ -53,7 +57,6 @@ from .graph_inputs import (
     _check_translation,
     _components,
     _Factor,
-    _key_list,
     _keyframe_of,
     _step_of,
     _x_key,
@@ -61,15 +64,17 @@ from .graph_inputs import (
     keyframe_key,
 )
 from .graph_keyframes import KeyframeFactors
+from .graph_output import GraphReadout
 from .graph_tcaff import HypothesisFactors, _Abandoned
-from .inputs import output_path, real_array, shown
+from .graph_window import SlidingWindow
+from .inputs import real_array, shown
 from .params import GraphParams, _given_or_default, _int_at_least
 
 __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 
 log = logging.getLogger(__name__)
 
-class InterRobotGraph(HypothesisFactors, KeyframeFactors):
+class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphReadout):
     """iSAM2 smoothing of the frame alignments of `n_robots` robots (and their keyframes).
 
     Per step: add that step's alignments (`add_alignment` or `add_tcaff_estimate`), then call
@@ -373,166 +378,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors):
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
 
-    def _joint(self, step: int) -> np.ndarray:
-        """Joint marginal covariance of every robot's A at `step`, gtsam's tangent order."""
-        keys = [_a_key(r, step) for r in range(self.n_robots)]
-        return self._isam.jointMarginalCovariance(keys).fullMatrix()
-
-    def _latest_joint(self, step: int) -> np.ndarray:
-        """With a horizon, the joint of the latest step as it is now, kept until the graph
-        changes: the first read of the step computes it (a caller reading every pair pays
-        for one joint, not a marginal per pair), else the update that adds the next step."""
-        joint = self._joints.get(step)
-        if joint is None:
-            joint = self._joints[step] = self._joint(step)
-        return joint
-
-    def _new_solver(self, isam_params: gtsam.ISAM2Params) -> None:
-        self._isam = gtsam.ISAM2(isam_params)
-
-    def _solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-               remove: list[int], removed_keys=()) -> gtsam.ISAM2Result:
-        """One iSAM2 update. With a horizon, the part of the Bayes tree it eliminates again is
-        ordered by the variables' groups (the rank of their step), so that no variable has a
-        newer one below it: what leaves is then always a set of leaves, and marginalising it
-        touches only their cliques (gtsam's fixed-lag smoother instead eliminates the whole
-        path from them to the root, the whole horizon, every time). `removed_keys`: the
-        variables of the factors `remove` lists."""
-        if self.params.horizon is None:
-            return self._isam.update(graph, values, remove)
-        update = gtsam.ISAM2UpdateParams()
-        update.removeFactorIndices = remove
-        if remove:  # the prediction leaves out the variables of removed factors
-            update.extraReelimKeys = _key_list(removed_keys)
-        affected, batch = self._isam.predictUpdateInfo(graph, values, update)
-        affected = ([*self._isam.getLinearizationPoint().keys(), *values.keys()] if batch
-                    else list(affected))
-        # ccolamd wants the groups numbered from 0 without gaps
-        groups = [self._group(key) for key in affected]
-        dense = {g: n for n, g in enumerate(sorted(set(groups)))}
-        constrained = gtsam.KeyGroupMap()  # the attribute keeps a copy: fill it first
-        for key, g in zip(affected, groups, strict=True):
-            constrained.insert2(key, dense[g])
-        update.constrainedKeys = constrained
-        return self._isam.update(graph, values, update)
-
-    def _commit(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                remove: list[int], removed_keys=()) -> list[int]:
-        """New factors, new values, removals (and their factors' variables); the new
-        factors' indices."""
-        return list(self._solve(graph, values, remove, removed_keys).getNewFactorsIndices())
-
-    def _group(self, key: int) -> int:
-        """Elimination group of a variable: the rank in self._steps of its step (for a
-        keyframe, of the first step added after it)."""
-        step = _step_of(key)
-        return self._keyframe_rank[key] if step is None else bisect_left(self._steps, step)
-
-    def _has_left(self, key: int) -> bool:
-        """Whether a variable of the graph has left it (or leaves with this update)."""
-        step = _step_of(key)
-        if step is None:
-            return self._keyframe_rank.get(key, -1) < self._n_left
-        return self._n_left > 0 and step <= self._steps[self._n_left - 1]
-
-    def _leaving(self, step: int | None) -> list[int]:
-        """With a horizon: the ranks (in self._steps) of the steps the update to `step` lets
-        leave. Gauge priors on what leaves are moved to the latest step first (a prior
-        marginalised into the graph could never be removed when the robots connect)."""
-        horizon = self.params.horizon
-        if horizon is None or step is None:
-            return []
-        first = self._n_left
-        while self._n_left < len(self._steps) and self._steps[self._n_left] <= step - horizon:
-            # a keyframe held only by the gauge prior moved below leaves with no factor
-            # (iSAM2 drops it), so its estimate is kept now; `_marginalise` updates it
-            for key in self._keyframes_at.get(self._n_left, []):
-                robot, index = _keyframe_of(key)
-                self._left_keyframes[robot][index] = self._value(key)
-            self._n_left += 1
-        self._to_remove.extend(index for index in self._free.values()
-                               if index not in self._to_remove
-                               and self._has_left(self._active[index].keys[0]))
-        return list(range(first, self._n_left))
-
-    def _marginalise(self, ranks: list[int]) -> None:
-        """Marginalise the variables of the steps at `ranks` and the keyframes added with them
-        (leaves of the Bayes tree, see `_solve`), keeping their estimates for reading."""
-        keys = []
-        for rank in ranks:
-            k = self._steps[rank]
-            step_keys = [_a_key(r, k) for r in range(self.n_robots)]
-            estimate = self._isam.calculateEstimate(step_keys)
-            get = estimate.atPose2 if self._planar else estimate.atPose3
-            A = np.array([get(key).matrix() for key in step_keys])
-            # kept by the update that added the next step (a step leaves only after one)
-            self._left[k] = (A, self._joints.pop(k))
-            keys += step_keys
-            for key in self._keyframes_at.pop(rank, []):
-                robot, index = _keyframe_of(key)
-                if self._isam.valueExists(key):
-                    self._left_keyframes[robot][index] = self._value(key)
-                    keys.append(key)
-                del self._keyframes[robot][index], self._keyframe_rank[key]
-        if not keys:
-            return
-        marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
-        active = self._active
-        for index in deleted:
-            active.pop(index, None)
-        self._marginal.difference_update(deleted)
-        self._marginal.update(marginal)
-        if self._free:
-            self._free = {chain: i for chain, i in self._free.items() if i in active}
-
-    def _forget_keyframes(self, keys: set[int]) -> None:
-        """Unregister keyframes whose values were dropped with a failed update."""
-        for key in keys:
-            if _step_of(key) is None:
-                robot, index = _keyframe_of(key)
-                frames = self._keyframes[robot]
-                del frames[index]
-                self._keyframes_at[self._keyframe_rank.pop(key)].remove(key)
-                before = max(frames, default=max(self._left_keyframes[robot], default=None))
-                if before is None:
-                    del self._last_keyframe[robot]
-                else:
-                    self._last_keyframe[robot] = before
-
-    def _roll_back(self, gone: list[tuple[int, _Factor]], marginals: dict, step: int | None,
-                   leaving: list[int]) -> None:
-        """After a failed update: a new solver holding the factors and values of the graph
-        before it (gtsam's own is unusable after an exception)."""
-        new_keys = set(self._pending_values.keys())
-        theta = gtsam.Values()
-        point = (self._isam.getLinearizationPoint() if self._settled_from is None
-                 else self._settled_from)
-        for key in point.keys():
-            if key not in new_keys:
-                theta.insert(key, point.atPose2(key) if self._planar else point.atPose3(key))
-        kept = [*self._active.items(), *gone]
-        graph = gtsam.NonlinearFactorGraph()
-        for _, f in kept:
-            graph.add(f.factor)
-        for factor in marginals.values():
-            graph.add(factor)
-        self._new_solver(self._isam.params())
-        indices = self._commit(graph, theta, [])
-        remap = dict(zip([i for i, _ in kept] + list(marginals), indices, strict=True))
-        self._active = {remap[i]: f for i, f in kept}
-        self._marginal = {remap[i] for i in marginals}
-        self._free = {chain: remap[i] for chain, i in self._free.items()}
-        for index, f in gone:
-            self._count(f, remap[index], +1)
-        for rank in leaving:
-            for key in self._keyframes_at.get(rank, []):
-                robot, index = _keyframe_of(key)
-                del self._left_keyframes[robot][index]
-        self._n_left -= len(leaving)
-        if step is not None:
-            self._steps.pop()
-            self._step_set.discard(step)
-
     def _count(self, f: _Factor, index: int, sign: int) -> None:
         if f.link:
             self._links[f.link] += sign
@@ -604,114 +449,3 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors):
                 self._queue_between(before, key, identity, noise)
         self._steps.append(step)
         self._step_set.add(step)
-
-    def _settle(self, keys: set[int]) -> None:
-        """Extra iterations while a variable the update touched is still far from its
-        linearisation point (after a first alignment or a removed hypothesis); ordinary steps
-        leave the usual relinearisation to the next update."""
-        keys = list(keys)
-        for _ in range(self.params.max_iterations):
-            delta = self._isam.getDelta()
-            present = [key for key in keys if delta.exists(key)]
-            if not present or np.abs(delta.vector(present)).max() < self.params.settle_threshold:
-                return
-            if self._settled_from is None:  # a roll-back restarts from here, not from the
-                # point a failed iteration moved (rare: big corrections only)
-                self._settled_from = gtsam.Values(self._isam.getLinearizationPoint())
-            self._solve(gtsam.NonlinearFactorGraph(), gtsam.Values(), [])
-
-    def alignment(self, i: int, j: int, step: int | None = None, covariance: bool = True
-                  ) -> tuple[np.ndarray, np.ndarray | None]:
-        """T_oi_oj(step) = A_i(step)^-1 A_j(step) from the current solution.
-
-        Returns:
-            T: (3, 3) or (4, 4); cov: marginal covariance of (x, y, theta) / (x, y, z, yaw),
-            or None when `covariance` is False.
-        Raises:
-            DataError: unknown robot or a step that has not been committed.
-        """
-        self._check_robot("i", i)
-        self._check_robot("j", j)
-        if not self._steps:
-            raise DataError("alignment: no step has been committed yet")
-        step = self._steps[-1] if step is None else step
-        if step not in self._step_set:
-            raise DataError(f"alignment: step {step} has not been committed")
-        ki, kj = alignment_key(i, step), alignment_key(j, step)
-        A_i, A_j = self._value(ki), self._value(kj)
-        T = np.linalg.inv(A_i) @ A_j
-        if not covariance:
-            return T, None
-        if i == j:
-            return T, np.zeros((self._n_param, self._n_param))
-        # kept for steps that left; with a horizon, the latest step's is computed once and kept
-        every = (self._left[step][1] if step in self._left
-                 else self._latest_joint(step)
-                 if step == self._steps[-1] and self.params.horizon is not None else None)
-        if every is not None:
-            n = 3 if self._planar else 6
-            rows = np.r_[i * n:(i + 1) * n, j * n:(j + 1) * n]
-            joint = every[np.ix_(rows, rows)]
-        else:
-            joint = self._isam.jointMarginalCovariance(gtsam.KeyVector([ki, kj])).fullMatrix()
-        Ad_inv = self._pose(np.linalg.inv(T)).AdjointMap()
-        J = np.hstack([-Ad_inv, np.eye(Ad_inv.shape[0])])
-        return T, self._params_cov(T, J @ joint @ J.T)
-
-    def connected(self, i: int, j: int) -> bool:
-        """Whether committed alignment factors link robots i and j (directly or through other
-        robots). When they do not, `alignment(i, j)` is only the gauge's guess: its value is
-        arbitrary and its covariance huge."""
-        self._check_robot("i", i)
-        self._check_robot("j", j)
-        root = _components(self._a_chains, (link for link, n in self._links.items() if n > 0))
-        return root(("A", i)) == root(("A", j))
-
-    def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
-        """T_oi_oj at every committed step from the current (smoothed) solution.
-
-        Returns:
-            steps (n,) and T (n, 3, 3) / (n, 4, 4).
-        """
-        self._check_robot("i", i)
-        self._check_robot("j", j)
-        estimate = self._isam.calculateEstimate()
-        get = estimate.atPose2 if self._planar else estimate.atPose3
-
-        def A(robot: int, k: int) -> np.ndarray:
-            return self._left[k][0][robot] if k in self._left else get(
-                alignment_key(robot, k)).matrix()
-
-        T = np.array([np.linalg.inv(A(i, k)) @ A(j, k) for k in self._steps])
-        size = self._side
-        return np.array(self._steps, np.int64), T.reshape(-1, size, size)
-
-    def alignment_params(self, i: int, j: int, step: int | None = None) -> np.ndarray:
-        """(x, y, theta) or (x, y, z, yaw) of T_oi_oj(step), without covariance."""
-        return self._params(self.alignment(i, j, step, covariance=False)[0])
-
-    def write_g2o(self, path: str | Path) -> None:
-        """Write the active factors and the current solution in g2o format (with a horizon:
-        the factors and variables still in the graph).
-
-        Raises:
-            DataError: the folder is missing, the path is a folder, or the file could not be
-                written.
-        """
-        path = output_path("write_g2o", path)
-        graph = gtsam.NonlinearFactorGraph()
-        for index in sorted(self._active):
-            factor = self._active[index].factor
-            if isinstance(factor, (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)):
-                noise = factor.noiseModel()
-                if isinstance(noise, gtsam.noiseModel.Robust):
-                    # g2o edges carry an information matrix; the M-estimator is not exported
-                    factor = type(factor)(*factor.keys(), factor.measured(), noise.noise())
-            graph.add(factor)
-        try:
-            path.unlink(missing_ok=True)  # so a failed write cannot leave an old file behind
-        except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the name
-            raise DataError(f"write_g2o: cannot replace {path} ({exc})") from None
-        gtsam.writeG2o(graph, self._isam.calculateEstimate(), str(path))
-        if not path.is_file():  # gtsam reports nothing when it cannot open the file
-            raise DataError(f"write_g2o: {path} could not be written")

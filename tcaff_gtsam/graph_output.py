@@ -1,0 +1,116 @@
+"""What `InterRobotGraph` reads out: an alignment T_oi_oj with its marginal covariance, whether
+two robots are linked, the history of an alignment, and the graph in g2o format."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from .errors import DataError
+from .graph_inputs import _components, alignment_key
+from .inputs import output_path
+
+__all__ = ["GraphReadout"]
+
+
+class GraphReadout:
+    """The part of `InterRobotGraph` that reads alignments out of the solution and writes it
+    (mixed into it; it uses the graph's own attributes)."""
+
+    def alignment(self, i: int, j: int, step: int | None = None, covariance: bool = True
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+        """T_oi_oj(step) = A_i(step)^-1 A_j(step) from the current solution.
+
+        Returns:
+            T: (3, 3) or (4, 4); cov: marginal covariance of (x, y, theta) / (x, y, z, yaw),
+            or None when `covariance` is False.
+        Raises:
+            DataError: unknown robot or a step that has not been committed.
+        """
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        if not self._steps:
+            raise DataError("alignment: no step has been committed yet")
+        step = self._steps[-1] if step is None else step
+        if step not in self._step_set:
+            raise DataError(f"alignment: step {step} has not been committed")
+        ki, kj = alignment_key(i, step), alignment_key(j, step)
+        A_i, A_j = self._value(ki), self._value(kj)
+        T = np.linalg.inv(A_i) @ A_j
+        if not covariance:
+            return T, None
+        if i == j:
+            return T, np.zeros((self._n_param, self._n_param))
+        # kept for steps that left; with a horizon, the latest step's is computed once and kept
+        every = (self._left[step][1] if step in self._left
+                 else self._latest_joint(step)
+                 if step == self._steps[-1] and self.params.horizon is not None else None)
+        if every is not None:
+            n = 3 if self._planar else 6
+            rows = np.r_[i * n:(i + 1) * n, j * n:(j + 1) * n]
+            joint = every[np.ix_(rows, rows)]
+        else:
+            joint = self._isam.jointMarginalCovariance(gtsam.KeyVector([ki, kj])).fullMatrix()
+        Ad_inv = self._pose(np.linalg.inv(T)).AdjointMap()
+        J = np.hstack([-Ad_inv, np.eye(Ad_inv.shape[0])])
+        return T, self._params_cov(T, J @ joint @ J.T)
+
+    def connected(self, i: int, j: int) -> bool:
+        """Whether committed alignment factors link robots i and j (directly or through other
+        robots). When they do not, `alignment(i, j)` is only the gauge's guess: its value is
+        arbitrary and its covariance huge."""
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        root = _components(self._a_chains, (link for link, n in self._links.items() if n > 0))
+        return root(("A", i)) == root(("A", j))
+
+    def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """T_oi_oj at every committed step from the current (smoothed) solution.
+
+        Returns:
+            steps (n,) and T (n, 3, 3) / (n, 4, 4).
+        """
+        self._check_robot("i", i)
+        self._check_robot("j", j)
+        estimate = self._isam.calculateEstimate()
+        get = estimate.atPose2 if self._planar else estimate.atPose3
+
+        def A(robot: int, k: int) -> np.ndarray:
+            return self._left[k][0][robot] if k in self._left else get(
+                alignment_key(robot, k)).matrix()
+
+        T = np.array([np.linalg.inv(A(i, k)) @ A(j, k) for k in self._steps])
+        size = self._side
+        return np.array(self._steps, np.int64), T.reshape(-1, size, size)
+
+    def alignment_params(self, i: int, j: int, step: int | None = None) -> np.ndarray:
+        """(x, y, theta) or (x, y, z, yaw) of T_oi_oj(step), without covariance."""
+        return self._params(self.alignment(i, j, step, covariance=False)[0])
+
+    def write_g2o(self, path: str | Path) -> None:
+        """Write the active factors and the current solution in g2o format (with a horizon:
+        the factors and variables still in the graph).
+
+        Raises:
+            DataError: the folder is missing, the path is a folder, or the file could not be
+                written.
+        """
+        path = output_path("write_g2o", path)
+        graph = gtsam.NonlinearFactorGraph()
+        for index in sorted(self._active):
+            factor = self._active[index].factor
+            if isinstance(factor, (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)):
+                noise = factor.noiseModel()
+                if isinstance(noise, gtsam.noiseModel.Robust):
+                    # g2o edges carry an information matrix; the M-estimator is not exported
+                    factor = type(factor)(*factor.keys(), factor.measured(), noise.noise())
+            graph.add(factor)
+        try:
+            path.unlink(missing_ok=True)  # so a failed write cannot leave an old file behind
+        except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the name
+            raise DataError(f"write_g2o: cannot replace {path} ({exc})") from None
+        gtsam.writeG2o(graph, self._isam.calculateEstimate(), str(path))
+        if not path.is_file():  # gtsam reports nothing when it cannot open the file
+            raise DataError(f"write_g2o: {path} could not be written")

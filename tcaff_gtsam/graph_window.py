@@ -1,0 +1,195 @@
+"""The sliding window of `InterRobotGraph`: each iSAM2 update (ordered so that what leaves is
+always a set of leaves of the Bayes tree), the steps and keyframes that leave with a horizon and
+their marginalisation, the joint covariance kept for reading them, and the roll-back to the
+graph as it was when gtsam cannot solve an update."""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+
+import gtsam
+import numpy as np
+
+from .graph_inputs import _a_key, _Factor, _key_list, _keyframe_of, _step_of
+
+__all__ = ["SlidingWindow"]
+
+
+class SlidingWindow:
+    """The part of `InterRobotGraph` that solves, keeps a horizon of steps and rolls back
+    (mixed into it; it uses the graph's own attributes)."""
+
+    def _joint(self, step: int) -> np.ndarray:
+        """Joint marginal covariance of every robot's A at `step`, gtsam's tangent order."""
+        keys = [_a_key(r, step) for r in range(self.n_robots)]
+        return self._isam.jointMarginalCovariance(keys).fullMatrix()
+
+    def _latest_joint(self, step: int) -> np.ndarray:
+        """With a horizon, the joint of the latest step as it is now, kept until the graph
+        changes: the first read of the step computes it (a caller reading every pair pays
+        for one joint, not a marginal per pair), else the update that adds the next step."""
+        joint = self._joints.get(step)
+        if joint is None:
+            joint = self._joints[step] = self._joint(step)
+        return joint
+
+    def _new_solver(self, isam_params: gtsam.ISAM2Params) -> None:
+        self._isam = gtsam.ISAM2(isam_params)
+
+    def _solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+               remove: list[int], removed_keys=()) -> gtsam.ISAM2Result:
+        """One iSAM2 update. With a horizon, the part of the Bayes tree it eliminates again is
+        ordered by the variables' groups (the rank of their step), so that no variable has a
+        newer one below it: what leaves is then always a set of leaves, and marginalising it
+        touches only their cliques (gtsam's fixed-lag smoother instead eliminates the whole
+        path from them to the root, the whole horizon, every time). `removed_keys`: the
+        variables of the factors `remove` lists."""
+        if self.params.horizon is None:
+            return self._isam.update(graph, values, remove)
+        update = gtsam.ISAM2UpdateParams()
+        update.removeFactorIndices = remove
+        if remove:  # the prediction leaves out the variables of removed factors
+            update.extraReelimKeys = _key_list(removed_keys)
+        affected, batch = self._isam.predictUpdateInfo(graph, values, update)
+        affected = ([*self._isam.getLinearizationPoint().keys(), *values.keys()] if batch
+                    else list(affected))
+        # ccolamd wants the groups numbered from 0 without gaps
+        groups = [self._group(key) for key in affected]
+        dense = {g: n for n, g in enumerate(sorted(set(groups)))}
+        constrained = gtsam.KeyGroupMap()  # the attribute keeps a copy: fill it first
+        for key, g in zip(affected, groups, strict=True):
+            constrained.insert2(key, dense[g])
+        update.constrainedKeys = constrained
+        return self._isam.update(graph, values, update)
+
+    def _commit(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                remove: list[int], removed_keys=()) -> list[int]:
+        """New factors, new values, removals (and their factors' variables); the new
+        factors' indices."""
+        return list(self._solve(graph, values, remove, removed_keys).getNewFactorsIndices())
+
+    def _group(self, key: int) -> int:
+        """Elimination group of a variable: the rank in self._steps of its step (for a
+        keyframe, of the first step added after it)."""
+        step = _step_of(key)
+        return self._keyframe_rank[key] if step is None else bisect_left(self._steps, step)
+
+    def _has_left(self, key: int) -> bool:
+        """Whether a variable of the graph has left it (or leaves with this update)."""
+        step = _step_of(key)
+        if step is None:
+            return self._keyframe_rank.get(key, -1) < self._n_left
+        return self._n_left > 0 and step <= self._steps[self._n_left - 1]
+
+    def _leaving(self, step: int | None) -> list[int]:
+        """With a horizon: the ranks (in self._steps) of the steps the update to `step` lets
+        leave. Gauge priors on what leaves are moved to the latest step first (a prior
+        marginalised into the graph could never be removed when the robots connect)."""
+        horizon = self.params.horizon
+        if horizon is None or step is None:
+            return []
+        first = self._n_left
+        while self._n_left < len(self._steps) and self._steps[self._n_left] <= step - horizon:
+            # a keyframe held only by the gauge prior moved below leaves with no factor
+            # (iSAM2 drops it), so its estimate is kept now; `_marginalise` updates it
+            for key in self._keyframes_at.get(self._n_left, []):
+                robot, index = _keyframe_of(key)
+                self._left_keyframes[robot][index] = self._value(key)
+            self._n_left += 1
+        self._to_remove.extend(index for index in self._free.values()
+                               if index not in self._to_remove
+                               and self._has_left(self._active[index].keys[0]))
+        return list(range(first, self._n_left))
+
+    def _marginalise(self, ranks: list[int]) -> None:
+        """Marginalise the variables of the steps at `ranks` and the keyframes added with them
+        (leaves of the Bayes tree, see `_solve`), keeping their estimates for reading."""
+        keys = []
+        for rank in ranks:
+            k = self._steps[rank]
+            step_keys = [_a_key(r, k) for r in range(self.n_robots)]
+            estimate = self._isam.calculateEstimate(step_keys)
+            get = estimate.atPose2 if self._planar else estimate.atPose3
+            A = np.array([get(key).matrix() for key in step_keys])
+            # kept by the update that added the next step (a step leaves only after one)
+            self._left[k] = (A, self._joints.pop(k))
+            keys += step_keys
+            for key in self._keyframes_at.pop(rank, []):
+                robot, index = _keyframe_of(key)
+                if self._isam.valueExists(key):
+                    self._left_keyframes[robot][index] = self._value(key)
+                    keys.append(key)
+                del self._keyframes[robot][index], self._keyframe_rank[key]
+        if not keys:
+            return
+        marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
+        active = self._active
+        for index in deleted:
+            active.pop(index, None)
+        self._marginal.difference_update(deleted)
+        self._marginal.update(marginal)
+        if self._free:
+            self._free = {chain: i for chain, i in self._free.items() if i in active}
+
+    def _forget_keyframes(self, keys: set[int]) -> None:
+        """Unregister keyframes whose values were dropped with a failed update."""
+        for key in keys:
+            if _step_of(key) is None:
+                robot, index = _keyframe_of(key)
+                frames = self._keyframes[robot]
+                del frames[index]
+                self._keyframes_at[self._keyframe_rank.pop(key)].remove(key)
+                before = max(frames, default=max(self._left_keyframes[robot], default=None))
+                if before is None:
+                    del self._last_keyframe[robot]
+                else:
+                    self._last_keyframe[robot] = before
+
+    def _roll_back(self, gone: list[tuple[int, _Factor]], marginals: dict, step: int | None,
+                   leaving: list[int]) -> None:
+        """After a failed update: a new solver holding the factors and values of the graph
+        before it (gtsam's own is unusable after an exception)."""
+        new_keys = set(self._pending_values.keys())
+        theta = gtsam.Values()
+        point = (self._isam.getLinearizationPoint() if self._settled_from is None
+                 else self._settled_from)
+        for key in point.keys():
+            if key not in new_keys:
+                theta.insert(key, point.atPose2(key) if self._planar else point.atPose3(key))
+        kept = [*self._active.items(), *gone]
+        graph = gtsam.NonlinearFactorGraph()
+        for _, f in kept:
+            graph.add(f.factor)
+        for factor in marginals.values():
+            graph.add(factor)
+        self._new_solver(self._isam.params())
+        indices = self._commit(graph, theta, [])
+        remap = dict(zip([i for i, _ in kept] + list(marginals), indices, strict=True))
+        self._active = {remap[i]: f for i, f in kept}
+        self._marginal = {remap[i] for i in marginals}
+        self._free = {chain: remap[i] for chain, i in self._free.items()}
+        for index, f in gone:
+            self._count(f, remap[index], +1)
+        for rank in leaving:
+            for key in self._keyframes_at.get(rank, []):
+                robot, index = _keyframe_of(key)
+                del self._left_keyframes[robot][index]
+        self._n_left -= len(leaving)
+        if step is not None:
+            self._steps.pop()
+            self._step_set.discard(step)
+
+    def _settle(self, keys: set[int]) -> None:
+        """Extra iterations while a variable the update touched is still far from its
+        linearisation point (after a first alignment or a removed hypothesis); ordinary steps
+        leave the usual relinearisation to the next update."""
+        keys = list(keys)
+        for _ in range(self.params.max_iterations):
+            delta = self._isam.getDelta()
+            present = [key for key in keys if delta.exists(key)]
+            if not present or np.abs(delta.vector(present)).max() < self.params.settle_threshold:
+                return
+            if self._settled_from is None:  # a roll-back restarts from here, not from the
+                # point a failed iteration moved (rare: big corrections only)
+                self._settled_from = gtsam.Values(self._isam.getLinearizationPoint())
+            self._solve(gtsam.NonlinearFactorGraph(), gtsam.Values(), [])
