@@ -1,0 +1,157 @@
+"""TCAFF state files: damaged files and tampered states are refused, the filter left alone."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from tcaff_gtsam.eval.sim.streams import alignment_stream
+from tcaff_streams import R_CONSTANT, run
+
+from tcaff_gtsam import TCAFF, TCAFFParams
+from tcaff_gtsam.errors import ConfigError, DataError
+
+
+def a_running_filter(params: TCAFFParams | None = None, steps: int = 40) -> TCAFF:
+    """A filter with a main tree, exploring trees and (for the reseed promotion) a bank."""
+    stream = alignment_stream(np.random.default_rng(3), steps, outliers=(1, 3))
+    filt = TCAFF(params or TCAFFParams())
+    run(filt, stream.zs)
+    assert filt.estimate is not None
+    return filt
+
+
+def test_empty_truncated_and_fifo_files_are_data_errors(tmp_path):
+    """They used to raise EOFError, BadZipFile, or block forever (the FIFO)."""
+    a_running_filter().save(tmp_path / "good.npz")
+    raw = (tmp_path / "good.npz").read_bytes()
+    (tmp_path / "empty.npz").write_bytes(b"")
+    with pytest.raises(DataError, match="empty file, not a saved TCAFF filter"):
+        TCAFF.load(tmp_path / "empty.npz")
+    for cut in (10, len(raw) // 3, len(raw) // 2, len(raw) - 10):
+        (tmp_path / "cut.npz").write_bytes(raw[:cut])
+        with pytest.raises(DataError, match="not a saved TCAFF filter"):
+            TCAFF.load(tmp_path / "cut.npz")
+    os.mkfifo(tmp_path / "fifo.npz")
+    with pytest.raises(DataError, match="not a regular file"):
+        TCAFF.load(tmp_path / "fifo.npz")
+    with pytest.raises(DataError, match="not a regular file"):
+        TCAFF.load(tmp_path)
+    with pytest.raises(DataError, match="no such TCAFF filter file"):
+        TCAFF.load(tmp_path / "missing.npz")
+
+
+#: the archive the damage test flips bits in, saved once
+SAVED: list[bytes] = []
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.data())
+def test_any_damaged_filter_file_loads_or_is_a_data_error(tmp_path_factory, data):
+    """Flipped bits in the compressed archive used to raise BadZipFile or zlib.error."""
+    path = tmp_path_factory.mktemp("flip") / "filter.npz"
+    if not SAVED:
+        a_running_filter(steps=20).save(path)
+        SAVED.append(path.read_bytes())
+    raw = bytearray(SAVED[0])
+    for _ in range(data.draw(st.integers(1, 3))):
+        i = data.draw(st.integers(0, len(raw) - 1))
+        raw[i] ^= 1 << data.draw(st.integers(0, 7))
+    path.write_bytes(bytes(raw[: data.draw(st.integers(1, len(raw)))]))
+    try:
+        filt = TCAFF.load(path)
+    except DataError:
+        return
+    filt.update([[3.0, -2.0, 1.0]], R_CONSTANT[None])  # what loads, runs
+
+
+def _scaled(key, factor):
+    return lambda s: s.__setitem__(key, s[key] * factor)
+
+
+def _set(key, index, value):
+    def change(state):
+        state[key] = state[key].copy()
+        state[key][index] = value
+    return change
+
+
+@pytest.mark.parametrize(("tamper", "message"), [
+    (_set("main.x", (0, 0), np.nan), "main.x holds non-finite values"),
+    (_set("explore.x", (0, 2), np.inf), "explore.x holds non-finite values"),
+    (_scaled("main.P", -1.0), r"main.P\[0\] is not positive definite"),
+    (_set("main.P", (0, 0, 1), 5.0), "main.P holds a covariance that is not symmetric"),
+    (_set("main.P", (0, 0, 0), 0.0), r"main.P\[0\] is not positive definite"),
+    (_set("main.edge", (0, 4), np.nan), "main.edge holds non-finite costs"),
+    (_set("main.since", 0, -1), "main.since holds negative step counts"),
+    (lambda s: s.__setitem__("step", np.array(-3)), "step = -3 must be >= 0"),
+    (lambda s: s.__setitem__("_next_tree", np.array(-1)), "_next_tree = -1 must be >= 0"),
+    (lambda s: s.__setitem__("_fresh", s["step"] + 1), "_fresh = .* is after step"),
+    (lambda s: s.update(step=np.array(9), _fresh=np.array(0)),
+     "evidence of 10 steps, expected 9"),
+    (_set("explore.tree", 0, 10**6), r"explore.tree ids must lie in \[0, _next_tree"),
+    (_set("explore.tree", 0, -4), r"explore.tree ids must lie in \[0, _next_tree"),
+    (_set("main.tree", 0, 99), "main.tree ids must all be the hypothesis counter"),
+    (_set("main.choice", (0, -1), 50), r"main.choice\[0, 9\] = 50 is not a measurement of "
+                                       r"its step"),
+    (_set("explore.choice", (0, -1), 7), r"explore.choice\[0, 9\] = 7 is not a measurement"),
+    (_set("main.choice", (0, -1), -3), "main.choice is not a path"),
+    (_set("main.choice", (0, -1), -2), "main.choice is not a path"),
+    (_set("steps.sizes", -1, -5), "steps.sizes must hold 10 counts"),
+    (lambda s: s.__setitem__("main.choice", s["main.choice"] + 0.5),
+     "main.choice must hold integers"),
+    (lambda s: s.__setitem__("main.choice", s["main.choice"].astype(np.int64) + 2**33),
+     "main.choice holds values beyond int32"),
+    (lambda s: s.__setitem__("main.x", s["main.x"] + 1j), "main.x must hold real numbers"),
+    (lambda s: s.__setitem__("step", np.array(40.5)), "step must be an integer"),
+])
+def test_a_tampered_state_is_refused_and_the_filter_left_alone(tamper, message):
+    source = a_running_filter()
+    state = {key: value.copy() for key, value in source.state_dict().items()}
+    tamper(state)
+    target = TCAFF()
+    with pytest.raises(DataError, match=f"^TCAFF state: .*{message}"):
+        target.load_state_dict(state)
+    assert target.step == 0 and target.estimate is None  # nothing was restored
+
+
+@pytest.mark.parametrize("params", [TCAFFParams(), replace(TCAFFParams.reference(),
+                                                            promotion="reseed")])
+def test_the_bank_of_a_reseeding_filter_is_checked(params):
+    state = a_running_filter(params).state_dict()
+    state["bank.Rs"] = -state["bank.Rs"]
+    if params.promotion == "reseed":
+        with pytest.raises(DataError, match=r"bank.Rs\[0\] is not positive definite"):
+            TCAFF(params).load_state_dict(state)
+    state = a_running_filter(params).state_dict()
+    state["bank.sizes"] = np.array([0, 0, 0], np.int64)
+    with pytest.raises(DataError, match="bank"):
+        TCAFF(params).load_state_dict(state)
+
+
+def test_a_state_saved_before_step_sizes_were_recorded_still_loads():
+    source = a_running_filter()
+    state = source.state_dict()
+    del state["steps.sizes"]
+    restored = TCAFF()
+    restored.load_state_dict(state)
+    np.testing.assert_array_equal(restored.estimate.x, source.estimate.x)
+    zs = [[3.0, -2.0, 1.0]]
+    np.testing.assert_array_equal(restored.update(zs, R_CONSTANT[None]).x,
+                                  source.update(zs, R_CONSTANT[None]).x)
+
+
+@pytest.mark.parametrize("state", [None, "state", [("step", 1)]])
+def test_a_state_that_is_not_a_mapping_is_a_data_error(state):
+    with pytest.raises(DataError, match=r"^TCAFF state: must be a mapping"):
+        TCAFF().load_state_dict(state)
+
+
+@pytest.mark.parametrize("params", ["reference", {"window": 8}, 1])
+def test_filter_params_of_the_wrong_type_are_a_config_error(params):
+    with pytest.raises(ConfigError, match=r"^TCAFF\.params = "):
+        TCAFF(params)
