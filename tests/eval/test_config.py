@@ -155,7 +155,7 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
     ({"scenarios": ["atlantis"]}, "no scenario config named 'atlantis'; shipped: "),
     # values the core parameter objects refuse, with the key's path
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"n_solutions": 0}}},
-     "methods.aligner.n_solutions: must be an int >= 1 (got 0)"),
+     "methods.aligner.n_solutions: must be an int in [1, 1000] (MAX_SOLUTIONS) (got 0)"),
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"clipper": {"sigma": "a"}}}},
      "methods.aligner.clipper.sigma: must be a finite number > 0 metres (got 'a')"),
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"clipper": 3}}},
@@ -181,7 +181,7 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
     ({"scenarios": [{**SCENARIO, "mapping": {"kappa": -1}}]},
      "scenarios.0.mapping.kappa: must be a number > 0 seconds (got -1)"),
     ({"scenarios": [{**SCENARIO, "window": 0}]},
-     "scenarios.0.window: must be an int >= 1 (got 0)"),
+     "scenarios.0.window: must be an int in [1, 1000] (MAX_WINDOW) (got 0)"),
     ({"scenarios": [{**SCENARIO, "pedestrians": {"tracker": {"gate": -1}}}]},
      "scenarios.0.pedestrians.tracker.gate: must be a finite number > 0 (got -1)"),
     ({"scenarios": [{**SCENARIO, "pedestrians": {"tracker": {"confirm_hits": "3"}}}]},
