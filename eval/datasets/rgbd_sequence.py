@@ -52,7 +52,7 @@ from tcaff_gtsam.mapping.camera import PinholeCamera, rigid_transform
 
 from tcaff_gtsam.errors import ConfigError, DataError
 
-from .text_tables import data_lines, read_table, read_text
+from .text_tables import data_lines, number, read_table, read_text
 
 __all__ = [
     "MAX_ACCEL_SCATTER_DEG",
@@ -266,13 +266,7 @@ def _numbers(path: Path) -> tuple[list[float], list[int]]:
     values, lines = [], []
     for line, text in zip(*data_lines(path), strict=True):
         for f in text.split():
-            try:
-                value = float(f)
-            except ValueError:
-                raise DataError(f"{path}:{line}: not a number: {f!r} in {text!r}") from None
-            if not math.isfinite(value):
-                raise DataError(f"{path}:{line}: non-finite value {f!r} in {text!r}")
-            values.append(value)
+            values.append(number(path, line, f, text))
             lines.append(line)
     return values, lines
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from tcaff_gtsam.errors import DataError
 
-__all__ = ["TextTable", "data_lines", "read_table", "read_text"]
+__all__ = ["TextTable", "data_lines", "number", "read_table", "read_text"]
 
 
 class TextTable(NamedTuple):
@@ -105,9 +105,16 @@ def _check_row(path: Path, line: int, text: str, columns: int, header: str | Non
         raise DataError(f"{path}:{line}: expected {columns} columns{named}, got "
                         f"{len(fields)} ({text!r})")
     for f in fields:
-        try:
-            value = float(f)
-        except ValueError:
-            raise DataError(f"{path}:{line}: not a number: {f!r} in {text!r}") from None
-        if not math.isfinite(value):
-            raise DataError(f"{path}:{line}: non-finite value {f!r} in {text!r}")
+        number(path, line, f, text)
+
+
+def number(path: Path, line: int, field: str, text: str) -> float:
+    """The finite number `field` of line `line` (text `text`) of `path`; DataError naming the
+    file and line when it is not one."""
+    try:
+        value = float(field)
+    except ValueError:
+        raise DataError(f"{path}:{line}: not a number: {field!r} in {text!r}") from None
+    if not math.isfinite(value):
+        raise DataError(f"{path}:{line}: non-finite value {field!r} in {text!r}")
+    return value
