@@ -42,7 +42,6 @@ import numpy as np
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.params import _finite, _require
 
-from .messages import MessageError
 from .ros2 import (
     ALIGNMENT_TYPE,
     CLOUD_TYPE,

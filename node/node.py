@@ -129,9 +129,10 @@ class RobotNode:
     """One robot's process in a team: publishes its maps, aligns to every neighbour's.
 
     `publish(t, object_map)` is the one verb: a mapping pipeline calls it with each new map.
-    Neighbours' maps arrive on Zenoh threads and are aligned on the node's own worker thread;
-    each step of a pair's filter is published on `tcaff/<team>/<robot>/alignment/<neighbour>`
-    and passed to `on_alignment` (called on the worker thread; keep it short).
+    Neighbours' maps arrive on the transport's threads (Zenoh's or rclpy's) and are aligned on
+    the node's own worker thread; each step of a pair's filter is published (over Zenoh on
+    `tcaff/<team>/<robot>/alignment/<neighbour>`) and passed to `on_alignment` (called on the
+    worker thread; keep it short).
 
     Bad messages (see `messages.decode`), maps of robots outside `members`, duplicates and
     maps older than the latest taken from that robot are dropped with one log line each and
@@ -251,7 +252,7 @@ class RobotNode:
     def _publish(self, t: float, object_map: ObjectMap, seq: int | None, block: bool) -> None:
         object_map = as_object_map("RobotNode.publish", "object_map", object_map)
         t = finite_time("RobotNode.publish", "t", t)
-        with self._publishing:  # the pipeline's thread, or Zenoh's with ros2_objects
+        with self._publishing:  # the pipeline's thread, or the transport's with ros2_objects
             seq = self._seq if seq is None else int(seq)
             if seq < self._seq:
                 raise DataError(f"RobotNode.publish: seq {seq} is not after the previous "
@@ -264,7 +265,7 @@ class RobotNode:
             item = ("ego", seq, t, recent, time.perf_counter())
             if block:
                 self._inbox.put(item)
-            else:  # never block Zenoh's thread
+            else:  # never block the transport's thread
                 try:
                     self._inbox.put_nowait(item)
                 except queue.Full:
