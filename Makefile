@@ -3,7 +3,9 @@ SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
-SYSTEM_LIBS := libusb-1.0-0
+# iproute2: `ip`, which brings up the loopback of the network namespaces the ROS 2 (DDS) tests run
+# in (unshare, of util-linux, makes them)
+SYSTEM_LIBS := libusb-1.0-0 iproute2 util-linux
 # Python's byte code and pytest's rewritten test modules are cached in __pycache__ (ignored by
 # git) even where the environment asks for none: without them every test worker and every
 # `tcaff` process the tests start compiles the sources again (7 s more of collection per worker)

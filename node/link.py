@@ -10,14 +10,18 @@ Keys of a team (names are letters, digits, `_` and `-`):
 from __future__ import annotations
 
 import json
+import logging
 import re
-from dataclasses import dataclass
+import ssl
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from tcaff_gtsam.errors import ConfigError
 
-__all__ = ["Link", "TlsFiles", "alignment_key", "alive_key", "check_name", "identity_rules",
-           "map_key", "team_key", "team_keys"]
+__all__ = ["Link", "TlsFiles", "alignment_key", "alive_key", "check_name", "common_name",
+           "identity_rules", "map_key", "team_key", "team_keys"]
+
+log = logging.getLogger(__name__)
 
 _NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _ENDPOINT = re.compile(r"^[A-Za-z0-9_.-]+:\d{1,5}$")
@@ -71,6 +75,23 @@ class TlsFiles:
             object.__setattr__(self, name, path)
 
 
+def common_name(certificate: Path) -> str | None:
+    """The common name of a PEM certificate's subject (None: it has none).
+
+    Raises:
+        ConfigError: the file is not a PEM certificate.
+    """
+    try:
+        # the standard library's only certificate reader (CPython's, since 2.7): no third
+        # party X.509 package for one field
+        subject = ssl._ssl._test_decode_cert(str(certificate))["subject"]
+    except (ssl.SSLError, OSError, KeyError) as exc:
+        raise ConfigError(f"--tls-cert {str(certificate)!r}: not a PEM certificate ({exc})"
+                          ) from None
+    names = [value for rdn in subject for key, value in rdn if key == "commonName"]
+    return names[-1] if names else None
+
+
 @dataclass(frozen=True)
 class Link:
     """A node's Zenoh endpoints: where it listens and which peers it dials.
@@ -85,13 +106,15 @@ class Link:
             the robot's ROS 2 topics) only from the certificate of that robot, so a holder of
             another robot's certificate cannot speak for it. Zenoh's access control refuses
             the others at the link, before the node sees them (Zenoh logs them; the node
-            cannot count them).
+            cannot count them). None (the default): decided by the node's certificate
+            (`for_robot`): checked when it names the node's robot, else not, with a warning
+            that any holder of the team's certificate can speak for any robot.
     """
 
     listen: tuple[str, ...] = ()
     connect: tuple[str, ...] = ()
     tls: TlsFiles | None = None
-    identities: bool = False
+    identities: bool | None = None
 
     def __post_init__(self) -> None:
         for option, endpoints in (("--listen", self.listen), ("--connect", self.connect)):
@@ -104,6 +127,20 @@ class Link:
         if self.identities and self.tls is None:
             raise ConfigError("--tls-identities needs the team's certificates (--tls-ca, "
                               "--tls-cert, --tls-key)")
+        if self.identities not in (None, True, False):
+            raise ConfigError(f"Link identities {self.identities!r}: must be True, False or "
+                              f"None")
+
+    def for_robot(self, robot: str) -> Link:
+        """This link as `robot`'s node runs it: `identities` None becomes True when the
+        certificate's common name is `robot` and False (warned: any holder of the team's
+        certificate can speak for any robot) when it is not; without TLS, False."""
+        if self.identities is not None:
+            return self
+        named = self.tls is not None and common_name(self.tls.certificate) == robot
+        if self.tls is not None and not named:
+            warn_shared_certificate(self.tls.certificate, robot)
+        return replace(self, identities=named)
 
     def config(self, team: str | None = None, robots: tuple[str, ...] = ()):
         """The zenoh.Config of a peer with exactly these endpoints, multicast scouting off;
@@ -138,6 +175,15 @@ class Link:
         import zenoh
 
         return zenoh.open(self.config(team, robots))
+
+
+def warn_shared_certificate(certificate: Path, robot: str) -> None:
+    """Say that a certificate that does not name `robot` lets any holder speak for any
+    robot."""
+    log.warning("%s: the certificate %s names %r, not the robot: robots' identities are not "
+                "checked, any holder of the team's certificate can speak for any robot (give "
+                "each robot a certificate whose common name is its name)", robot,
+                certificate, common_name(certificate))
 
 
 def identity_rules(team: str, robots: tuple[str, ...]) -> dict:

@@ -31,8 +31,9 @@ from tcaff_gtsam.params import (
 from tcaff_gtsam.tcaff import TCAFF, write_snapshot
 from tcaff_gtsam.team import TeamConsistency, TeamParams
 
-from .link import Link, alignment_key, alive_key, check_name, map_key, team_key, team_keys
-from .messages import AlignmentMessage, MapMessage, MessageError, TeamMessage, decode, encode
+from .link import Link, check_name
+from .messages import AlignmentMessage, MapMessage, MessageError, TeamMessage
+from .transport import Transport, ZenohTransport
 
 __all__ = ["NodeParams", "RobotNode"]
 
@@ -128,9 +129,10 @@ class RobotNode:
     """One robot's process in a team: publishes its maps, aligns to every neighbour's.
 
     `publish(t, object_map)` is the one verb: a mapping pipeline calls it with each new map.
-    Neighbours' maps arrive on Zenoh threads and are aligned on the node's own worker thread;
-    each step of a pair's filter is published on `tcaff/<team>/<robot>/alignment/<neighbour>`
-    and passed to `on_alignment` (called on the worker thread; keep it short).
+    Neighbours' maps arrive on the transport's threads (Zenoh's or rclpy's) and are aligned on
+    the node's own worker thread; each step of a pair's filter is published (over Zenoh on
+    `tcaff/<team>/<robot>/alignment/<neighbour>`) and passed to `on_alignment` (called on the
+    worker thread; keep it short).
 
     Bad messages (see `messages.decode`), maps of robots outside `members`, duplicates and
     maps older than the latest taken from that robot are dropped with one log line each and
@@ -155,7 +157,7 @@ class RobotNode:
             alignment being published (queueing included).
     """
 
-    def __init__(self, robot: str, team: str, members: list[str], link: Link,
+    def __init__(self, robot: str, team: str, members: list[str], link: Link | Transport,
                  params: NodeParams | None = None,
                  aligner_params: FrameAlignerParams | None = None,
                  tcaff_params: TCAFFParams | None = None,
@@ -167,6 +169,8 @@ class RobotNode:
         Args:
             members: every robot of the team (this one included or not); maps of others are
                 dropped.
+            link: the node's Zenoh endpoints, or a `Transport` (`node.dds.DdsTransport`: the
+                team over ROS 2's default middleware).
             state_dir: each pair's filter is saved there after each step (`TCAFF.snapshot`,
                 written on a thread of its own; counters "states_saved", "save_errors") and
                 restored from there on start; None: nothing saved.
@@ -183,7 +187,8 @@ class RobotNode:
         if not self.members:
             raise ConfigError(f"--members {members!r}: the team needs another robot besides "
                               f"{robot!r}")
-        self.params = params or NodeParams()
+        self._transport = ZenohTransport(link) if isinstance(link, Link) else link
+        self.params = self._transport.configure(robot, params or NodeParams())
         if self.params.ros2:  # before anything is opened
             from .ros2 import check_ros_name
 
@@ -219,23 +224,10 @@ class RobotNode:
         self._ego_latest: tuple[int, float, float] | None = None
         self._inbox: queue.Queue = queue.Queue(self.params.queue)
         self._idle = threading.Event()
-        self._session = link.open(team, tuple(sorted(self.members | {self.robot})))
         try:
-            self._map_pub = self._session.declare_publisher(map_key(team, robot))
-            self._align_pubs: dict[str, object] = {}
-            self._team_pubs: dict[str, object] = {}
-            self._subscribers = [self._session.declare_subscriber(key, self._arrived)
-                                 for key in team_keys(team)[:1 + (self._team is not None)]]
-            self._alive = self._session.liveliness().declare_token(alive_key(team, robot))
-            self._ros2 = None
-            if self.params.ros2:
-                from .ros2 import Ros2Bridge
-
-                self._ros2 = Ros2Bridge(self._session, robot, self.params.domain_id,
-                                        self._ros2_map if self.params.ros2_objects else None,
-                                        self._drop)
+            self._transport.open(self)
         except BaseException:  # nothing left open by a node that could not start
-            self._session.close()
+            self._transport.close()
             raise
         self._saver = None if self._state_dir is None else _Saver(self.robot, self.counters)
         self._worker = threading.Thread(target=self._work, name=f"tcaff-node-{robot}",
@@ -260,42 +252,29 @@ class RobotNode:
     def _publish(self, t: float, object_map: ObjectMap, seq: int | None, block: bool) -> None:
         object_map = as_object_map("RobotNode.publish", "object_map", object_map)
         t = finite_time("RobotNode.publish", "t", t)
-        with self._publishing:  # the pipeline's thread, or Zenoh's with ros2_objects
+        with self._publishing:  # the pipeline's thread, or the transport's with ros2_objects
             seq = self._seq if seq is None else int(seq)
             if seq < self._seq:
                 raise DataError(f"RobotNode.publish: seq {seq} is not after the previous "
                                 f"{self._seq - 1}")
             recent = object_map.recent(t, self.params.kappa)
-            self._map_pub.put(encode(MapMessage.of(self.robot, self.boot, seq, t, recent)))
+            self._transport.put_map(MapMessage.of(self.robot, self.boot, seq, t, recent),
+                                    recent)
             self.counters["maps_sent"] += 1
             self._seq = seq + 1
             item = ("ego", seq, t, recent, time.perf_counter())
             if block:
                 self._inbox.put(item)
-            else:  # never block Zenoh's thread
+            else:  # never block the transport's thread
                 try:
                     self._inbox.put_nowait(item)
                 except queue.Full:
-                    self._drop("overflow", "queue full (own map)")
-            self._to_ros2("object_map", t, recent)
-
-    def _to_ros2(self, what: str, *args) -> None:
-        """Publish on the ROS 2 side, after the node's own work: a failure there (a time ROS
-        cannot stamp, a closed session) is logged and counted, never lost to the team."""
-        if self._ros2 is None:
-            return
-        try:
-            getattr(self._ros2, what)(*args)
-            self.counters["ros2_sent"] += 1
-        except Exception as exc:  # the team's own messages are out already
-            self.counters["ros2_errors"] += 1
-            log.warning("%s: ROS 2 %s not published: %s", self.robot, what, exc)
+                    self.drop("overflow", "queue full (own map)")
 
     def present(self, timeout: float = 1.0) -> set[str]:
-        """The team members whose nodes are up and linked to this one (Zenoh liveliness)."""
-        replies = self._session.liveliness().get(alive_key(self.team, "*"), timeout=timeout)
-        up = {str(r.ok.key_expr).split("/")[2] for r in replies if r.ok is not None}
-        return up & self.members
+        """The team members whose nodes are up and linked to this one (Zenoh liveliness, or
+        over DDS a publisher of the member's map)."""
+        return self._transport.present(timeout) & self.members
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until every message received so far is handled; False on timeout."""
@@ -312,9 +291,7 @@ class RobotNode:
         self._worker.join(timeout=30)
         if self._saver is not None:
             self._saver.close()
-        if self._ros2 is not None:
-            self._ros2.close()
-        self._session.close()
+        self._transport.close()
 
     def __enter__(self) -> RobotNode:
         return self
@@ -324,19 +301,20 @@ class RobotNode:
 
     # -- the team's side ----------------------------------------------------------------------
 
-    def _arrived(self, sample) -> None:
-        """Zenoh's callback: queue the payload (never block the network thread)."""
-        key = str(sample.key_expr)
-        kind = "map" if key.endswith("/map") else "alignment"
+    def arrived(self, kind: str, source: str, read: Callable[[], MapMessage | AlignmentMessage]
+                ) -> None:
+        """The transport's callback (on its thread): queue a neighbour's "map" or another
+        robot's "alignment" from `source` (one name per sender and kind), to be read with
+        `read()` on the worker thread (see `node.transport`); never blocks."""
         if kind == "map":  # counted before the worker can see it
             with self._waiting_lock:
-                self._waiting[key] += 1
+                self._waiting[source] += 1
         try:
-            self._inbox.put_nowait((kind, key, sample.payload.to_bytes(), time.perf_counter()))
+            self._inbox.put_nowait((kind, source, read, time.perf_counter()))
         except queue.Full:
             if kind == "map":
-                self._unqueue(key)
-            self._drop("overflow", "queue full")
+                self._unqueue(source)
+            self.drop("overflow", "queue full")
 
     def _unqueue(self, key: str) -> int:
         """One map of `key` less waiting; the number still waiting."""
@@ -347,20 +325,21 @@ class RobotNode:
                 del self._waiting[key]  # bounded by the keys waiting, not every key seen
         return left
 
-    def _ros2_map(self, t: float, object_map: ObjectMap) -> None:
-        """A map from the ROS 2 objects topic (on Zenoh's thread): published as `publish`
+    def ros2_map(self, t: float, object_map: ObjectMap) -> None:
+        """A map from the ROS 2 objects topic (on the transport's thread): published as `publish`
         would; one not newer than the last is dropped as stale, one that cannot be published
         as malformed."""
         if self._ros2_last is not None and not t > self._ros2_last:
-            self._drop("stale", f"ROS 2 map at {t!r} s, the last at {self._ros2_last!r} s")
+            self.drop("stale", f"ROS 2 map at {t!r} s, the last at {self._ros2_last!r} s")
             return
         self._ros2_last = t
         try:
             self._publish(t, object_map, None, block=False)
         except DataError as exc:
-            self._drop("malformed", f"on the ROS 2 objects topic: {exc}")
+            self.drop("malformed", f"on the ROS 2 objects topic: {exc}")
 
-    def _drop(self, reason: str, detail: str) -> None:
+    def drop(self, reason: str, detail: str) -> None:
+        """Count and log a message the node refuses (`counters["dropped_<reason>"]`)."""
         self.counters[f"dropped_{reason}"] += 1
         log.warning("%s: dropped a message (%s): %s", self.robot, reason, detail)
 
@@ -379,21 +358,18 @@ class RobotNode:
                 log.exception("%s: failed to handle %s", self.robot, item[0])
                 self.counters["errors"] += 1
 
-    def _take(self, key: str, payload: bytes, arrived: float) -> None:
+    def _take(self, source: str, read: Callable[[], MapMessage], arrived: float) -> None:
         """Check a neighbour's map message and align it, now or when its ego map comes; live
         (not lockstep), a map with a newer one of its robot already queued is skipped."""
-        newer = self._unqueue(key) > 0
-        if key.split("/")[2] == self.robot:
-            return  # our own map, delivered back by the local session
-        if newer and not self.params.lockstep:  # behind: the newest map of the robot counts
-            self.counters["skipped"] += 1
+        if self._unqueue(source) > 0 and not self.params.lockstep:
+            self.counters["skipped"] += 1  # behind: the newest map of the robot counts
             return
         try:
-            message = _sent_on(key, payload, MapMessage, "a map")
+            message = read()
             if message.sender not in self.members:
                 raise MessageError("outsider", f"robot {message.sender!r} is not in the team")
         except MessageError as exc:
-            self._drop(exc.reason, f"on {key}: {exc}")
+            self.drop(exc.reason, f"on {source}: {exc}")
             return
         self.counters["maps_received"] += 1
         if self.params.drop_share and _draw(self.params.seed, message.sender, message.seq) < \
@@ -402,7 +378,7 @@ class RobotNode:
             return
         nb = self._neighbour(message.sender)
         if message.boot == nb.boot and message.seq <= nb.seq:
-            self._drop("duplicate" if message.seq == nb.seq else "stale",
+            self.drop("duplicate" if message.seq == nb.seq else "stale",
                        f"{message.sender} seq {message.seq}, latest {nb.seq}")
             return
         if message.boot != nb.boot and nb.boot is not None:
@@ -425,7 +401,7 @@ class RobotNode:
             while len(nb.pending) > _EGO_HISTORY:
                 nb.pending.pop(min(nb.pending))
         else:
-            self._drop("stale", f"{message.sender} seq {message.seq} is older than the ego "
+            self.drop("stale", f"{message.sender} seq {message.seq} is older than the ego "
                                 f"maps kept")
 
     def _ego_step(self, seq: int, t: float, ego_map: ObjectMap, wall: float) -> None:
@@ -460,7 +436,7 @@ class RobotNode:
         try:
             estimate = nb.aligner.update(t, ego_map, other)
         except DataError as exc:  # t not after the pair's last step: nothing was changed
-            self._drop("stale", f"{name}: {exc}")
+            self.drop("stale", f"{name}: {exc}")
             return
         nb.clock = t
         if nb.unconfirmed and estimate is not None:
@@ -482,16 +458,11 @@ class RobotNode:
             nb.aligner.filter.step, estimate.hypothesis if accepted else -1, accepted,
             estimate.x if accepted else np.full(3, np.nan),
             estimate.P if accepted else np.full((3, 3), np.nan))
-        if name not in self._align_pubs:
-            self._align_pubs[name] = self._session.declare_publisher(
-                alignment_key(self.team, self.robot, name))
-        self._align_pubs[name].put(encode(out))
+        self._transport.put_alignment(out)
         if arrived is not None:
             self.latencies.append(time.perf_counter() - arrived)
         self.latest[name] = out
         self._save(name, nb.aligner.filter)
-        if accepted:
-            self._to_ros2("alignment", out)
         if self._on_alignment is not None:
             self._on_alignment(out)
         if self._team is not None:
@@ -499,17 +470,15 @@ class RobotNode:
 
     # -- team consistency ---------------------------------------------------------------------
 
-    def _hear(self, key: str, payload: bytes, arrived: float) -> None:
+    def _hear(self, source: str, read: Callable[[], AlignmentMessage], arrived: float) -> None:
         """Keep another robot's alignment for the team consistency."""
-        if key.split("/")[2] == self.robot:
-            return
         try:
-            message = _sent_on(key, payload, AlignmentMessage, "an alignment")
+            message = read()
             if not {message.sender, message.neighbour} <= self.members | {self.robot}:
                 raise MessageError("outsider", f"pair {message.sender!r}, "
                                                f"{message.neighbour!r} is not of the team")
         except MessageError as exc:
-            self._drop(exc.reason, f"on {key}: {exc}")
+            self.drop(exc.reason, f"on {source}: {exc}")
             return
         self.counters["alignments_heard"] += 1
         self._heard[(message.sender, message.neighbour)] = (message, arrived)
@@ -534,13 +503,8 @@ class RobotNode:
             out = TeamMessage(self.robot, self.boot, seq, t, name,
                               tuple(self._robots[k] for k in est.path[1:-1]), True, est.x, est.P)
             self.counters["team_chained"] += est.chained
-        if name not in self._team_pubs:
-            self._team_pubs[name] = self._session.declare_publisher(
-                team_key(self.team, self.robot, name))
-        self._team_pubs[name].put(encode(out))
+        self._transport.put_team(out)
         self.team_latest[name] = out
-        if out.accepted:
-            self._to_ros2("alignment", out)
         if self._on_team is not None:
             self._on_team(out)
 
@@ -621,20 +585,3 @@ def _draw(seed: int, sender: str, seq: int) -> float:
     """A number in [0, 1) fixed by (seed, sender, seq): the same in every process and run."""
     digest = hashlib.blake2b(f"{seed}/{sender}/{seq}".encode(), digest_size=8).digest()
     return int.from_bytes(digest, "little") / 2.0**64
-
-
-def _sent_on(key: str, payload: bytes, kind: type, what: str):
-    """The message of `payload`, received on `key` (tcaff/<team>/<robot>/...): a `kind`
-    (`what` names it in the error) sent by the robot of its key.
-
-    Raises:
-        MessageError: a payload that does not decode, of another kind, or from another robot.
-    """
-    message = decode(payload)
-    if not isinstance(message, kind):
-        raise MessageError("malformed", f"not {what} on {what}'s key")
-    key_robot = key.split("/")[2]
-    if message.sender != key_robot:
-        raise MessageError("mismatch", f"sender {message.sender!r} on the key of "
-                                       f"{key_robot!r}")
-    return message

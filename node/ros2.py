@@ -9,7 +9,10 @@ Topics a node with `NodeParams.ros2` publishes (robot names are ROS 2 name token
     /<robot>/tcaff/team_alignment/<other>      the same type: each accepted team-consistent
                                                alignment (chained through a third robot or not)
 and, with `NodeParams.ros2_objects`, the node takes its robot's map from
-    /<robot>/tcaff/objects                     visualization_msgs/msg/MarkerArray, as above.
+    /<robot>/tcaff/objects                     visualization_msgs/msg/MarkerArray, as above
+    /<robot>/tcaff/object_cloud                sensor_msgs/msg/PointCloud2, one point per
+                                               object (`object_map_of_cloud`)
+(the DDS node of `node.dds` publishes the same topics, and its health on /diagnostics).
 
 An alignment's header.frame_id is `<robot>/odom`; its pose is the pose of `<neighbour>/odom` in
 it (x, y, yaw; z = 0), the message type having no child frame. Its covariance is ROS's 6 x 6
@@ -18,7 +21,14 @@ it (x, y, yaw; z = 0), the message type having no child frame. Its covariance is
 
 A map's markers carry each object's centroid (pose.position), width (scale.x = scale.y, m) and
 height (scale.z, m), and in header.stamp the time the object was last seen; the array opens with
-a DELETEALL marker stamped with the map's time, so that a viewer shows only the current map.
+a DELETEALL marker stamped with the map's time, so that a viewer shows only the current map,
+whose `id` is the sender's exchange counter (seq) and whose `text` its boot number (decimal):
+robots that exchange maps over ROS 2 read a neighbour's map from it (`exchange_of`).
+
+A PointCloud2 of objects holds one point per object with the float fields (FLOAT32 or FLOAT64
+each, any offsets, either byte order) x, y, z (the centroid, m), width, height (m) and
+last_seen (s, the clock of header.stamp; FLOAT64, as float32 holds epoch seconds to 2 min
+only); header.stamp is the map's time.
 
 On the wire (rmw_zenoh's design document): a message of topic T and type P/msg/N goes on the key
 `<domain_id>/<T without its leading slash>/P::msg::dds_::N_/<RIHS01 type hash>` as CDR (rosbags'
@@ -42,15 +52,23 @@ import numpy as np
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap
 
-from .messages import AlignmentMessage, MessageError, TeamMessage
+from .messages import MAX_OBJECTS, AlignmentMessage, MapMessage, MessageError, TeamMessage
 
-__all__ = ["ALIGNMENT_TYPE", "MAP_TYPE", "Ros2Bridge", "alignment_topic", "attachment",
-           "check_ros_name", "decode_attachment", "entity_token", "map_message", "map_topic",
-           "object_map_of", "objects_topic", "pose_message", "read_message", "serialize",
-           "team_topic", "topic_key", "type_hash"]
+__all__ = ["ALIGNMENT_TYPE", "CLOUD_FIELDS", "CLOUD_TYPE", "HEALTH_TYPE", "MAP_TYPE",
+           "Ros2Bridge", "alignment_of", "alignment_topic", "attachment", "check_ros_name",
+           "cloud_message", "cloud_topic", "decode_attachment", "entity_token", "exchange_of",
+           "health_message", "map_message", "map_topic", "object_map_of", "object_map_of_cloud",
+           "objects_topic", "pose_message", "read_message", "serialize", "team_topic",
+           "topic_key", "type_hash"]
 
 ALIGNMENT_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 MAP_TYPE = "visualization_msgs/msg/MarkerArray"
+CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
+HEALTH_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+#: the fields of a PointCloud2 of objects, one point per object
+CLOUD_FIELDS = ("x", "y", "z", "width", "height", "last_seen")
+_FLOAT32, _FLOAT64 = 7, 8  # sensor_msgs/PointField datatypes
+_INT32_MAX = 2**31 - 1
 #: the QoS of every entity, in rmw_zenoh's key form: reliable, volatile, keep the last 10
 #: (defaults left empty)
 QOS = "::,10:,:,:,,"
@@ -98,6 +116,11 @@ def map_topic(robot: str) -> str:
 def objects_topic(robot: str) -> str:
     """Where a node with `ros2_objects` takes its robot's map from."""
     return f"/{robot}/tcaff/objects"
+
+
+def cloud_topic(robot: str) -> str:
+    """Where a node with `ros2_objects` takes its robot's map as a PointCloud2 from."""
+    return f"/{robot}/tcaff/object_cloud"
 
 
 def alignment_topic(robot: str, neighbour: str) -> str:
@@ -184,7 +207,7 @@ def pose_message(t: float, frame_id: str, x: np.ndarray, P: np.ndarray):
 
 
 def _marker(types, t: float, frame_id: str, marker_id: int, action: int, centroid=(0, 0, 0),
-            scale=(0.0, 0.0, 0.0), rgba=(0.0, 0.0, 0.0, 0.0)):
+            scale=(0.0, 0.0, 0.0), rgba=(0.0, 0.0, 0.0, 0.0), text=""):
     g = types
     return g["visualization_msgs/msg/Marker"](
         header=_header(t, frame_id), ns="tcaff_objects", id=marker_id, type=_CYLINDER,
@@ -200,18 +223,26 @@ def _marker(types, t: float, frame_id: str, marker_id: int, action: int, centroi
         points=[], colors=[], texture_resource="",
         texture=g["sensor_msgs/msg/CompressedImage"](header=_header(0.0, ""), format="",
                                                      data=np.zeros(0, np.uint8)),
-        uv_coordinates=[], text="", mesh_resource="",
+        uv_coordinates=[], text=text, mesh_resource="",
         mesh_file=g["visualization_msgs/msg/MeshFile"](filename="",
                                                        data=np.zeros(0, np.uint8)),
         mesh_use_embedded_materials=False)
 
 
 def map_message(t: float, frame_id: str, object_map: ObjectMap,
-                rgba: tuple[float, float, float, float] = (0.2, 0.6, 1.0, 0.7)):
-    """A MarkerArray of `object_map` at `t` s: a DELETEALL marker stamped t, then one cylinder
-    per object (centroid, width as diameter, height; stamped with its last sighting)."""
+                rgba: tuple[float, float, float, float] = (0.2, 0.6, 1.0, 0.7), seq: int = 0,
+                boot: int = 0):
+    """A MarkerArray of `object_map` at `t` s: a DELETEALL marker stamped t (its id the
+    exchange counter `seq`, its text the sender's `boot` number), then one cylinder per object
+    (centroid, width as diameter, height; stamped with its last sighting).
+
+    Raises:
+        DataError: seq outside 0..2**31 - 1 (a marker's int32 id).
+    """
+    if not 0 <= seq <= _INT32_MAX:
+        raise DataError(f"exchange counter {seq}: a ROS 2 map carries it in an int32 marker id")
     types = _store().types
-    markers = [_marker(types, t, frame_id, 0, _MARKER_DELETEALL)]
+    markers = [_marker(types, t, frame_id, seq, _MARKER_DELETEALL, text=str(boot))]
     for k in range(len(object_map)):
         w = float(object_map.widths[k])
         markers.append(_marker(types, float(object_map.last_seen[k]), frame_id, k + 1,
@@ -243,6 +274,116 @@ def object_map_of(message) -> tuple[float, ObjectMap]:
     last_seen = np.array([seconds(m.header.stamp) for m in objects], dtype=float)
     t = cleared[-1] if cleared else float(last_seen.max())
     return t, ObjectMap(centroids, widths, heights, last_seen)
+
+
+def exchange_of(message, sender: str) -> MapMessage:
+    """A neighbour's map as the team exchanges it, from the MarkerArray `sender` published
+    (`map_message`): seq the DELETEALL marker's id, boot its text (0 when not a number), the
+    objects' ages from their stamps.
+
+    Raises:
+        MessageError: no DELETEALL marker (no exchange counter), too many objects, or objects
+            no ObjectMap holds ("malformed", "oversized").
+    """
+    cleared = [m for m in message.markers if m.action == _MARKER_DELETEALL]
+    if not cleared:
+        raise MessageError("malformed", "a map without its DELETEALL marker: no exchange "
+                                        "counter")
+    if len(message.markers) > MAX_OBJECTS + 1:
+        raise MessageError("oversized", f"{len(message.markers)} markers, at most "
+                                        f"{MAX_OBJECTS} objects")
+    try:
+        t, object_map = object_map_of(message)
+    except DataError as exc:
+        raise MessageError("malformed", str(exc)) from None
+    text = cleared[-1].text
+    boot = int(text) if text.isdigit() and int(text) < 2**32 else 0
+    return MapMessage(sender, boot, int(cleared[-1].id), t, object_map.centroids,
+                      object_map.widths, object_map.heights,
+                      np.maximum(t - object_map.last_seen, 0.0))
+
+
+def cloud_message(t: float, frame_id: str, object_map: ObjectMap):
+    """A PointCloud2 of `object_map` at `t` s in the layout `object_map_of_cloud` reads, all
+    six fields FLOAT64 (48 bytes per object, little-endian), as a pipeline may publish it."""
+    types = _store().types
+    points = np.column_stack([object_map.centroids, object_map.widths, object_map.heights,
+                              object_map.last_seen]).astype("<f8")
+    fields = [types["sensor_msgs/msg/PointField"](name=name, offset=8 * k, datatype=_FLOAT64,
+                                                   count=1)
+              for k, name in enumerate(CLOUD_FIELDS)]
+    return types[CLOUD_TYPE](
+        header=_header(t, frame_id), height=1, width=len(points), fields=fields,
+        is_bigendian=False, point_step=48, row_step=48 * len(points),
+        data=np.frombuffer(points.tobytes(), np.uint8), is_dense=True)
+
+
+def object_map_of_cloud(message) -> tuple[float, ObjectMap]:
+    """(t, map) of a PointCloud2 of objects (see the module docstring): t its header.stamp.
+
+    Raises:
+        DataError: a field missing or not FLOAT32 / FLOAT64, a point_step or data size that
+            does not hold the points, or values no ObjectMap holds.
+    """
+    n = int(message.width) * int(message.height)
+    step = int(message.point_step)
+    fields = {f.name: f for f in message.fields}
+    order = ">" if message.is_bigendian else "<"
+    columns = []
+    for name in CLOUD_FIELDS:
+        field = fields.get(name)
+        if field is None or field.datatype not in (_FLOAT32, _FLOAT64):
+            raise DataError(f"a PointCloud2 of objects needs a FLOAT32 or FLOAT64 field "
+                            f"{name!r}; fields: {sorted(fields)}")
+        size = 4 if field.datatype == _FLOAT32 else 8
+        if field.offset + size > step:
+            raise DataError(f"PointCloud2 field {name!r} at offset {field.offset} lies "
+                            f"outside point_step {step}")
+        columns.append((name, f"{order}f{size}", field.offset))
+    data = np.asarray(message.data, dtype=np.uint8)
+    if n > MAX_OBJECTS or data.size < n * step or (n and step <= 0):
+        raise DataError(f"a PointCloud2 of {n} objects of {step} bytes needs {n * step} "
+                        f"bytes (at most {MAX_OBJECTS} objects); it has {data.size}")
+    dtype = np.dtype({"names": [c[0] for c in columns], "formats": [c[1] for c in columns],
+                      "offsets": [c[2] for c in columns], "itemsize": max(step, 1)})
+    points = np.frombuffer(data[:n * step].tobytes(), dtype=dtype, count=n)
+    t = message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
+    column = {name: points[name].astype(float) for name in CLOUD_FIELDS}
+    return t, ObjectMap(np.column_stack([column["x"], column["y"], column["z"]]),
+                        column["width"], column["height"], column["last_seen"])
+
+
+def alignment_of(message, sender: str, neighbour: str) -> AlignmentMessage:
+    """Another robot's accepted alignment as the team consistency takes it, from the
+    PoseWithCovarianceStamped it published on `alignment_topic(sender, neighbour)`: x = (x,
+    y, yaw of the pose), P its covariance's rows and columns 0, 1 and 5; boot, seq, step,
+    hypothesis and the neighbour's map are not on the topic (0; its stamp NaN).
+
+    Raises:
+        MessageError: a pose or covariance that is not finite.
+    """
+    pose = message.pose.pose
+    q = pose.orientation
+    x = np.array([pose.position.x, pose.position.y,
+                  np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y**2 + q.z**2))])
+    P = np.asarray(message.pose.covariance, dtype=float).reshape(6, 6)[np.ix_(_XY_YAW, _XY_YAW)]
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+        raise MessageError("malformed", f"an alignment of {sender} to {neighbour} that is not "
+                                        f"finite")
+    stamp = message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
+    return AlignmentMessage(sender, 0, 0, stamp, neighbour, 0, np.nan, 0, 0, True, x, P)
+
+
+def health_message(t: float, robot: str, level: int, summary: str,
+                   values: dict[str, str]):
+    """A DiagnosticArray at `t` s with one status `tcaff: /<robot>/tcaff` (hardware_id the
+    robot) of `level` (0 OK, 1 WARN, 2 ERROR), `summary` and the key-value `values`."""
+    types = _store().types
+    status = types["diagnostic_msgs/msg/DiagnosticStatus"](
+        level=level, name=f"tcaff: /{robot}/tcaff", message=summary, hardware_id=robot,
+        values=[types["diagnostic_msgs/msg/KeyValue"](key=k, value=v)
+                for k, v in values.items()])
+    return types[HEALTH_TYPE](header=_header(t, ""), status=[status])
 
 
 def serialize(message, msgtype: str) -> bytes:
@@ -321,10 +462,11 @@ class Ros2Bridge:
             self._publishers[topic] = _Publisher(self, topic, msgtype)
         self._publishers[topic].put(message)
 
-    def object_map(self, t: float, object_map: ObjectMap) -> None:
-        """Publish the robot's shared map at `t` s."""
+    def object_map(self, t: float, object_map: ObjectMap, seq: int = 0, boot: int = 0
+                   ) -> None:
+        """Publish the robot's shared map at `t` s (exchange `seq` of boot `boot`)."""
         self._publish(map_topic(self.robot), MAP_TYPE,
-                      map_message(t, f"{self.robot}/odom", object_map))
+                      map_message(t, f"{self.robot}/odom", object_map, seq=seq, boot=boot))
 
     def alignment(self, message: AlignmentMessage | TeamMessage) -> None:
         """Publish an accepted alignment (a TeamMessage on the team topic); others are not

@@ -166,17 +166,21 @@ def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int]
               clock_offset: float = 0.0, state: Path | None = None,
               tls: TlsFiles | None = None, silence: float | None = None,
               team_consistency: bool = False, domain_id: int | None = None,
-              on_arrival: bool = False) -> list[str]:
+              on_arrival: bool = False, ros2: str = "zenoh") -> list[str]:
     """The command line of robot `robot` of a team of n on loopback, replaying its
     `RobotReplay` file: it listens on ports[robot] and dials every robot before it, so every
-    pair is linked once. `domain_id`: also publish ROS 2 topics in that domain (--ros2);
-    `on_arrival`: align maps as they arrive (--on-arrival), not exchange by exchange."""
+    pair is linked once. `domain_id`: speak ROS 2 in that domain (--ros2 `ros2`: "zenoh", the
+    Zenoh team with ROS 2 topics, or "dds", a team over rclpy, for which `ports` and `tls`
+    are not used); `on_arrival`: align maps as they arrive (--on-arrival), not exchange by
+    exchange."""
+    dds = domain_id is not None and ros2 == "dds"
     argv = [sys.executable, "-m", "tcaff_gtsam.eval.cli", "node", "--robot", f"r{robot}",
             "--team", team, "--replay", str(replay_file), "--speed", str(speed),
-            "--output", str(output),
-            "--listen", f"127.0.0.1:{ports[robot]}"]
-    for other in range(robot):
-        argv += ["--connect", f"127.0.0.1:{ports[other]}"]
+            "--output", str(output)]
+    if not dds:
+        argv += ["--listen", f"127.0.0.1:{ports[robot]}"]
+        for other in range(robot):
+            argv += ["--connect", f"127.0.0.1:{ports[other]}"]
     if start is not None:
         argv += ["--start-at", repr(start)]
     if drop_share:
@@ -192,8 +196,8 @@ def node_argv(replay_file: Path, robot: int, n: int, team: str, ports: list[int]
     if on_arrival:
         argv.append("--on-arrival")
     if domain_id is not None:
-        argv += ["--ros2", "--domain-id", str(domain_id)]
-    if tls is not None:
+        argv += ["--ros2", ros2, "--domain-id", str(domain_id)]
+    if tls is not None and not dds:
         argv += ["--tls-ca", str(tls.ca), "--tls-cert", str(tls.certificate),
                  "--tls-key", str(tls.key)]
     return argv

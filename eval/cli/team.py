@@ -7,6 +7,7 @@ they replay (simulated, MRCLAM, Kimera-Multi) and their TLS options.
 from __future__ import annotations
 
 import math
+from enum import Enum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -31,10 +32,24 @@ if TYPE_CHECKING:
     from rich.table import Table
 
 
-_ROS2_HELP = ("Also publish the map and the accepted alignments as ROS 2 topics with standard "
-              "messages (/<robot>/tcaff/...), as ROS 2's Zenoh middleware (rmw_zenoh) does; "
-              "see docs/team.md#ros-2.")
+
+
+class Ros2Transport(str, Enum):
+    """How a node speaks ROS 2 (`--ros2`)."""
+
+    dds = "dds"
+    zenoh = "zenoh"
+
+
+_ROS2_HELP = ("Speak ROS 2: 'dds' makes each node an rclpy node on the middleware the "
+              "environment selects (the team exchanges maps and alignments over ROS 2 topics "
+              "alone; no --listen/--connect; see docs/ros2.md); 'zenoh' keeps the Zenoh team "
+              "and also publishes its map and accepted alignments as ROS 2 topics laid out as "
+              "rmw_zenoh does (docs/team.md#ros-2).")
 _DOMAIN_HELP = "The ROS 2 domain (ROS_DOMAIN_ID) of those topics, 0 to 232."
+_PARAMS_FILE_HELP = ("With --ros2 dds: a ROS 2 parameters YAML overriding the node's "
+                     "parameters (kappa, silence, queue, team_consistency, health_period) of "
+                     "/<robot>/tcaff.")
 _TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
              "mutual TLS).")
 _ON_ARRIVAL_HELP = ("Align each neighbour's map as it arrives, with the robot's latest map, on "
@@ -63,6 +78,27 @@ def _tls(ca: Path | None, cert: Path | None, key: Path | None):
         _refuse("--tls-ca/--tls-cert/--tls-key", [str(x) for x in (ca, cert, key)],
                 "give all three or none")
     return TlsFiles(ca, cert, key)
+
+
+def _transport(ros2: Ros2Transport | None, listen: list[str] | None,
+               connect: list[str] | None, tls, identities: bool, params_file: Path | None):
+    """The node's Link (Zenoh) or, with --ros2 dds, its DdsTransport."""
+    if ros2 is not Ros2Transport.dds:
+        from tcaff_gtsam.node.link import Link
+
+        if params_file is not None:
+            _refuse("--params-file", str(params_file), "only with --ros2 dds")
+        return Link(tuple(listen or ()), tuple(connect or ()), tls,
+                    identities=True if identities else None)
+    given = {"--listen": listen, "--connect": connect, "--tls-ca/--tls-cert/--tls-key": tls,
+             "--tls-identities": identities or None}
+    for option, value in given.items():
+        if value:
+            _refuse(option, str(value), "is for a Zenoh team: --ros2 dds finds its team by "
+                    "ROS 2 discovery (see docs/ros2.md for what secures it)")
+    from tcaff_gtsam.node.dds import DdsTransport
+
+    return DdsTransport(params_file)
 
 
 def _check_domain(domain_id: int) -> None:
@@ -134,24 +170,29 @@ def node(
     tls_key: Annotated[Path | None, typer.Option(help="PEM file: this node's private key.")
     ] = None,
     tls_identities: Annotated[bool, typer.Option(
-        "--tls-identities", help="Each robot's certificate names its robot (common name = "
-        "robot name): take a robot's maps and alignments only from its own certificate.")
-    ] = False,
-    ros2: Annotated[bool, typer.Option("--ros2", help=_ROS2_HELP)] = False,
+        "--tls-identities", help="Take a robot's maps and alignments only from the "
+        "certificate named after it (common name = robot name). Without it this is checked "
+        "when this node's certificate names its robot; a shared team certificate is warned "
+        "about.")] = False,
+    ros2: Annotated[Ros2Transport | None, typer.Option("--ros2", help=_ROS2_HELP)] = None,
     domain_id: Annotated[int, typer.Option(help=_DOMAIN_HELP)] = 0,
+    params_file: Annotated[Path | None, typer.Option(help=_PARAMS_FILE_HELP)] = None,
     ros2_objects: Annotated[bool, typer.Option(
-        "--ros2-objects", help="Take the robot's maps from the ROS 2 topic "
-        "/<robot>/tcaff/objects (visualization_msgs/MarkerArray; implies --ros2) instead of "
-        "replaying them; needs --members. Runs until Ctrl-C or --duration.")] = False,
+        "--ros2-objects", help="Take the robot's maps from the ROS 2 topics "
+        "/<robot>/tcaff/objects (visualization_msgs/MarkerArray) and, with --ros2 dds, "
+        "/<robot>/tcaff/object_cloud (sensor_msgs/PointCloud2) instead of replaying them; "
+        "without --ros2: --ros2 zenoh. Needs --members. Runs until Ctrl-C or --duration.")
+    ] = False,
     members: Annotated[str | None, typer.Option(
         help="With --ros2-objects: every robot of the team, like r0,r1,r2.")] = None,
 ) -> None:
-    """One robot of a live team: publishes its maps over Zenoh, aligns to every neighbour.
+    """One robot of a live team: publishes its maps, aligns to every neighbour's.
 
-    The robot's maps are replayed (--scenario, --kimera or --replay) on a wall-clock schedule
-    that the robots of one run share through --start-at, or taken live from a ROS 2 topic
-    (--ros2-objects). From Python, `tcaff_gtsam.node.RobotNode` takes maps from a live
-    mapping pipeline.
+    Over Zenoh (--listen/--connect, optionally mutual TLS), or over ROS 2's default middleware
+    (--ros2 dds). The robot's maps are replayed (--scenario, --kimera or --replay) on a
+    wall-clock schedule that the robots of one run share through --start-at, or taken live
+    from a ROS 2 topic (--ros2-objects). From Python, `tcaff_gtsam.node.RobotNode` takes maps
+    from a live mapping pipeline.
     """
     sources = [scenario, kimera and str(kimera), replay and str(replay)]
     if ros2_objects:
@@ -177,17 +218,18 @@ def node(
     _check_seeds([seed])  # before the endpoints are checked: the run is made after them
     if drop_seed < 0:
         _refuse("--drop-seed", drop_seed, "must be an int >= 0")
-    from tcaff_gtsam.node.link import Link
+    if ros2 is None and ros2_objects:
+        ros2 = Ros2Transport.zenoh
+    link = _transport(ros2, listen, connect, _tls(tls_ca, tls_cert, tls_key), tls_identities,
+                      params_file)
     from tcaff_gtsam.node.node import NodeParams
     from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
     from tcaff_gtsam.node.run import live_node, replay_node
 
-    link = Link(tuple(listen or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key),
-                identities=tls_identities)
     # a replay's maps of exchange k go with the ego map of exchange k; live ones on arrival
     params = NodeParams(silence=silence, lockstep=not (ros2_objects or on_arrival), speed=speed,
                         drop_share=drop_share, seed=drop_seed,
-                        team_consistency=team_consistency, ros2=ros2 or ros2_objects,
+                        team_consistency=team_consistency, ros2=ros2 is not None,
                         domain_id=domain_id, ros2_objects=ros2_objects)
     _writable_folder(output, "--output")
     if ros2_objects:
@@ -330,7 +372,7 @@ def team(
     ] = None,
     tls_key: Annotated[Path | None, typer.Option(help="PEM file: the nodes' private key.")
     ] = None,
-    ros2: Annotated[bool, typer.Option("--ros2", help=_ROS2_HELP)] = False,
+    ros2: Annotated[Ros2Transport | None, typer.Option("--ros2", help=_ROS2_HELP)] = None,
     domain_id: Annotated[int, typer.Option(help=_DOMAIN_HELP)] = 0,
     bag: Annotated[Path | None, typer.Option(
         help="Also write the run (maps, accepted alignments, truth) as a ROS 2 bag (rosbag2, "
@@ -338,7 +380,8 @@ def team(
 ) -> None:
     """A live team on this machine: one node process per robot, scored against the truth.
 
-    Starts one node process per robot of a simulated or recorded run (Zenoh over loopback),
+    Starts one node process per robot of a simulated or recorded run (Zenoh over loopback, or
+    with --ros2 dds rclpy nodes on ROS 2's default middleware in --domain-id),
     waits for the run to end, and prints every pair's alignments against the truth. Robots are
     named r0, r1, ... in the run's order.
 
@@ -360,6 +403,10 @@ def team(
             _refuse("--bag", str(bag), "exists; a bag is written to a new folder")
         _writable_folder(bag.parent, "--bag")
     tls = _tls(tls_ca, tls_cert, tls_key)
+    dds = ros2 is Ros2Transport.dds
+    if dds and (tls is not None or base_port):
+        _refuse("--tls-ca/--base-port" if tls is not None else "--base-port",
+                str(tls or base_port), "is for a Zenoh team: --ros2 dds uses ROS 2 discovery")
     _writable_folder(output, "--output")
     from tcaff_gtsam.node.replay import robot_names
     from tcaff_gtsam.node.run import free_ports, node_argv, save_replays, start_team, wait_team
@@ -371,21 +418,29 @@ def team(
     else:
         run = _kimera_run(kimera, kimera_test, duration, output / "maps")
     n = run.n_robots
-    ports = free_ports(n) if base_port == 0 else list(range(base_port, base_port + n))
+    ports = free_ports(n) if base_port == 0 or dds else list(range(base_port, base_port + n))
     if not all(0 < p < 65536 for p in ports):
         _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
     replays = save_replays(run, output / "replay")
     argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
                        tls=tls, silence=silence, team_consistency=team_consistency,
-                       domain_id=domain_id if ros2 else None, on_arrival=on_arrival)
+                       domain_id=domain_id if ros2 else None, on_arrival=on_arrival,
+                       ros2=ros2.value if ros2 else "zenoh")
              for k in range(n)]
     console = _console()
+    if tls is not None:
+        console.print(f"warning: every node holds the one certificate {tls.certificate}, so "
+                      f"any holder of it can speak for any robot (identities are checked when "
+                      f"each robot's certificate names it: start such nodes with tcaff node)",
+                      soft_wrap=True, style="yellow")
     console.print(f"robots: {_named(run, robot_names(n))}", soft_wrap=True)
-    console.print(f"{n} nodes of team {team_name!r} on 127.0.0.1:{ports[0]}..{ports[-1]}; "
-                  f"{len(run.times)} exchanges at {speed:g}x, about "
-                  f"{len(run.times) / speed:.0f} s once every node is up. Watch with: tcaff "
-                  f"listen --team "
-                  f"{team_name} --connect 127.0.0.1:{ports[0]}")
+    where = (f"as ROS 2 nodes /r0/tcaff.. in domain {domain_id}" if dds
+             else f"on 127.0.0.1:{ports[0]}..{ports[-1]}")
+    watch = ("ros2 topic echo /r0/tcaff/alignment/r1" if dds else
+             f"tcaff listen --team {team_name} --connect 127.0.0.1:{ports[0]}")
+    console.print(f"{n} nodes of team {team_name!r} {where}; {len(run.times)} exchanges at "
+                  f"{speed:g}x, about {len(run.times) / speed:.0f} s once every node is up. "
+                  f"Watch with: {watch}", soft_wrap=True)
     procs = start_team(argvs, output / "logs")
     codes = wait_team(procs, 180 + len(run.times) / speed)
     failed = [f"r{k}" for k, c in enumerate(codes) if c != 0]

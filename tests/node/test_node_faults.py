@@ -51,9 +51,9 @@ class ObservedNode(RobotNode):
         self.arrivals: queue.Queue[float] = queue.Queue()
         super().__init__(*args, **kwargs)
 
-    def _arrived(self, sample) -> None:
-        super()._arrived(sample)
-        if str(sample.key_expr).endswith("/r1/map"):
+    def arrived(self, kind, source, read) -> None:
+        super().arrived(kind, source, read)
+        if source.endswith("/r1/map"):
             self.arrivals.put(time.perf_counter())
 
 

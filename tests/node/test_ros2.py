@@ -417,7 +417,7 @@ def test_tcaff_team_with_ros2_writes_a_bag_of_what_its_nodes_wrote(tmp_path, tca
     # silent after 10 s of run (2 s of wall time at 5x), not the default 3 s: on a loaded
     # machine late maps would otherwise step the filters without measurements
     done = tcaff_main("team", "--scenario", "indoor_return", "--duration", "20", "--speed",
-                      "5", "--ros2", "--domain-id", "3", "--bag", str(bag), "--output",
+                      "5", "--ros2", "zenoh", "--domain-id", "3", "--bag", str(bag), "--output",
                       str(out), "--on-arrival", "--silence", "10")
     assert done.returncode == 0, done.stdout + done.stderr
     assert f"ros2 bag play {bag}" in " ".join(done.stdout.split())
@@ -444,7 +444,7 @@ def test_tcaff_team_with_ros2_writes_a_bag_of_what_its_nodes_wrote(tmp_path, tca
     (["--ros2-objects", "--scenario", "four_robots"], "no --scenario, --kimera or --replay"),
     (["--ros2-objects"], "--members None: --ros2-objects needs the team's robots"),
     (["--ros2-objects", "--members", "r0,r-1"], "ROS 2 name token"),
-    (["--scenario", "four_robots", "--ros2", "--domain-id", "300"], "--domain-id 300"),
+    (["--scenario", "four_robots", "--ros2", "zenoh", "--domain-id", "300"], "--domain-id 300"),
     (["--scenario", "four_robots", "--members", "r0,r1"], "only with --ros2-objects"),
     (["--ros2-objects", "--members", "r0,r1", "--speed", "2"], "--speed 2.0"),
 ])

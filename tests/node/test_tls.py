@@ -118,10 +118,11 @@ def test_missing_certificate_files_are_refused(tmp_path: Path) -> None:
         TlsFiles(tmp_path / "ca.pem", tmp_path / "node.pem", tmp_path / "node.key")
 
 
-@pytest.mark.parametrize("identities", [True, False])
+@pytest.mark.parametrize("identities", [True, None, False])
 def test_a_team_certificate_of_r3_cannot_publish_r1s_map(certs, identities) -> None:
     """With identities, r0 takes r1's map only from r1's certificate: r3's certificate, of the
-    same authority, cannot speak for r1 (without them it can: the control)."""
+    same authority, cannot speak for r1 (without them it can: the control). By default
+    (None) they are checked, as r0's certificate names r0."""
     holders = ("r3", "stranger", "r1")  # each speaking for r1
     # a node r0 per holder, side by side: a node that has a newer map of r1 waiting skips
     # the older, so that one node would take one of maps arriving together
@@ -163,7 +164,23 @@ def test_a_team_certificate_of_r3_cannot_publish_r1s_map(certs, identities) -> N
             node.close()
     received = {holder: node.counters["maps_received"] for holder, node in nodes.items()}
     assert received["r1"] == 1
-    assert received["r3"] == received["stranger"] == (0 if identities else 1)
+    assert received["r3"] == received["stranger"] == (1 if identities is False else 0)
+
+
+def test_identities_are_checked_when_the_certificate_names_its_robot(certs, caplog) -> None:
+    """Secure by default: a node whose certificate names its robot checks identities without
+    being asked; one whose certificate names another (a certificate shared by the team) does
+    not, and says that any holder can speak for any robot; asked for, they are checked."""
+    link = Link(listen=("127.0.0.1:7447",), tls=certs["r0"])
+    with caplog.at_level("WARNING", logger="tcaff_gtsam.node.link"):
+        assert link.for_robot("r0").identities is True
+        assert not caplog.records
+        assert link.for_robot("r1").identities is False
+    assert "any holder of the team's certificate can speak for any robot" in caplog.text
+    assert "names 'r0'" in caplog.text
+    forced = Link(listen=("127.0.0.1:7447",), tls=certs["stranger"], identities=True)
+    assert forced.for_robot("r0").identities is True
+    assert Link(listen=("127.0.0.1:7447",)).for_robot("r0").identities is False
 
 
 def test_identities_need_the_teams_certificates() -> None:

@@ -1,0 +1,373 @@
+"""A team over ROS 2's default middleware: a `RobotNode` transport on rclpy, with whatever RMW
+the environment selects (rmw_fastrtps_cpp from the wheels of the `ros2` extra), so that a node
+is an ordinary ROS 2 node `/<robot>/tcaff` and a team needs nothing but ROS 2.
+
+Topics (layouts in `node.ros2`; every message CDR-serialised by rosbags and published raw):
+
+    /<robot>/tcaff/map                      MarkerArray, the robot's map; its neighbours align
+                                            to it (the DELETEALL marker carries seq and boot)
+                                            QoS: reliable, volatile, keep last 10
+    /<robot>/tcaff/alignment/<neighbour>    PoseWithCovarianceStamped, each accepted alignment
+    /<robot>/tcaff/team_alignment/<other>   the same, each accepted team alignment
+                                            QoS: reliable, transient local, keep last 1 (a
+                                            late subscriber gets the latest)
+    /diagnostics                            DiagnosticArray, the node's health once per
+                                            `health_period` s (pairs, latency, skipped maps)
+subscribed: every member's map, with team consistency every other robot's alignments, and with
+`NodeParams.ros2_objects` /<robot>/tcaff/objects (MarkerArray) and /<robot>/tcaff/object_cloud
+(PointCloud2), reliable, keep last 10.
+
+The node's settings are also ROS parameters of `/<robot>/tcaff` (read-only; `ros2 param get`),
+and a parameters file (`--params-file`, ROS's YAML) overrides them: kappa, silence, queue,
+team_consistency and health_period.
+
+Every rclpy process of this project's tests and benchmarks runs inside a network namespace
+holding only loopback (see docs/ros2.md): DDS discovery is multicast and reaches any interface
+it is given.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.params import _finite, _require
+
+from .ros2 import (
+    ALIGNMENT_TYPE,
+    CLOUD_TYPE,
+    HEALTH_TYPE,
+    MAP_TYPE,
+    alignment_of,
+    alignment_topic,
+    check_ros_name,
+    cloud_topic,
+    exchange_of,
+    health_message,
+    map_message,
+    map_topic,
+    object_map_of,
+    object_map_of_cloud,
+    objects_topic,
+    pose_message,
+    read_message,
+    serialize,
+    team_topic,
+)
+
+if TYPE_CHECKING:
+    from tcaff_gtsam.object_map import ObjectMap
+
+    from .messages import AlignmentMessage, MapMessage, TeamMessage
+    from .node import NodeParams, RobotNode
+
+__all__ = ["HEALTH_TOPIC", "DdsTransport", "isolated", "namespace_problem", "ros2_available"]
+
+log = logging.getLogger(__name__)
+
+HEALTH_TOPIC = "/diagnostics"
+#: the node's settings that are ROS parameters too
+_PARAMETERS = ("kappa", "silence", "queue", "team_consistency")
+
+
+def ros2_available() -> str | None:
+    """None when rclpy and the message packages import; else why not (for messages)."""
+    try:
+        import diagnostic_msgs.msg  # noqa: F401
+        import geometry_msgs.msg  # noqa: F401
+        import rclpy  # noqa: F401
+        import sensor_msgs.msg  # noqa: F401
+        import visualization_msgs.msg  # noqa: F401
+    except ImportError as exc:
+        return f"{exc} (pip install 'tcaff-gtsam[ros2]')"
+    return None
+
+
+def namespace_problem() -> str | None:
+    """None when this process can make a network namespace holding only loopback (`unshare
+    -n`, as root); else why not."""
+    try:
+        done = subprocess.run(isolated(["true"], 0)[0], capture_output=True, text=True,
+                              timeout=30)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"cannot run unshare: {exc}"
+    if done.returncode != 0:
+        return f"cannot make a network namespace: {done.stderr.strip() or done.returncode}"
+    return None
+
+
+def isolated(argv: list[str], domain_id: int) -> tuple[list[str], dict[str, str]]:
+    """(command line, environment) running `argv` as ROS 2 processes on this machine alone:
+    in a new network namespace holding only the loopback interface (`unshare -n`, then `ip
+    link set lo up`), with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and ROS_DOMAIN_ID
+    `domain_id`. Processes that `argv` starts share the namespace and see each other; no DDS
+    packet leaves it."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_DOMAIN_ID=str(domain_id))
+    return ["unshare", "-n", "sh", "-c", 'ip link set lo up && exec "$@"', "sh", *argv], env
+
+
+def _message_classes() -> dict[str, type]:
+    """rclpy's classes of the message types (their type support is what rclpy needs)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from sensor_msgs.msg import PointCloud2
+    from visualization_msgs.msg import MarkerArray
+
+    return {MAP_TYPE: MarkerArray, ALIGNMENT_TYPE: PoseWithCovarianceStamped,
+            CLOUD_TYPE: PointCloud2, HEALTH_TYPE: DiagnosticArray}
+
+
+def _qos(latched: bool):
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1 if latched else 10,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                  else DurabilityPolicy.VOLATILE))
+
+
+class DdsTransport:
+    """A node's team over rclpy (see the module docstring).
+
+    Args:
+        params_file: a ROS 2 parameters YAML whose values for `/<robot>/tcaff` override the
+            node's settings; None: the settings as given.
+        health_period: s between two health messages (overridden by the parameter of that
+            name).
+    Raises (from `RobotNode`):
+        ConfigError: rclpy or the message packages are not installed, a parameters file that
+            does not exist or whose values are refused, a bad health_period.
+    """
+
+    def __init__(self, params_file: str | Path | None = None, health_period: float = 1.0
+                 ) -> None:
+        _require(_finite(health_period) and health_period > 0, "DdsTransport",
+                 "health_period", health_period, "must be a number > 0 (s)")
+        if params_file is not None and not Path(params_file).is_file():
+            raise ConfigError(f"--params-file {str(params_file)!r}: no such file")
+        self.params_file = params_file
+        self.health_period = float(health_period)
+        self._context = None
+        self._lock = threading.Lock()  # rclpy entities are made on two threads
+        self._publishers: dict[str, object] = {}
+        self._reported: dict[str, int] = {}
+
+    # -- set-up -------------------------------------------------------------------------------
+
+    def configure(self, robot: str, params: NodeParams) -> NodeParams:
+        """Start the ROS node `/<robot>/tcaff` in `params.domain_id` and declare the settings
+        as its parameters; returns them as the parameters file leaves them (with `ros2` on:
+        robot names are ROS 2 name tokens)."""
+        why = ros2_available()
+        if why is not None:
+            raise ConfigError(f"--ros2 dds needs ROS 2's Python packages: {why}")
+        import rclpy
+        from rcl_interfaces.msg import ParameterDescriptor
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.signals import SignalHandlerOptions
+
+        self.robot = check_ros_name("--robot", robot)
+        self._classes = _message_classes()
+        self._context = rclpy.Context()
+        args = [] if self.params_file is None else ["--ros-args", "--params-file",
+                                                    str(self.params_file)]
+        # the node's process handles SIGINT / SIGTERM itself (and closes the node)
+        rclpy.init(args=args, context=self._context, domain_id=params.domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            self._ros = Node("tcaff", namespace=f"/{robot}", context=self._context)
+            read_only = ParameterDescriptor(read_only=True)
+            values = {}
+            for name in (*_PARAMETERS, "health_period"):
+                default = self.health_period if name == "health_period" else getattr(params,
+                                                                                      name)
+                values[name] = self._ros.declare_parameter(name, default, read_only).value
+            self.health_period = values.pop("health_period")
+            params = replace(params, ros2=True, **values)
+            _require(_finite(self.health_period) and self.health_period > 0, "--params-file",
+                     "health_period", self.health_period, "must be a number > 0 (s)")
+        except BaseException as exc:
+            self.close()
+            if isinstance(exc, (ConfigError, DataError)) or not isinstance(exc, Exception):
+                raise
+            raise ConfigError(f"--params-file {str(self.params_file)!r}: {exc}") from None
+        self._executor = SingleThreadedExecutor(context=self._context)
+        self._executor.add_node(self._ros)
+        return params
+
+    def open(self, node: RobotNode) -> None:
+        self._node = node
+        params = node.params
+        for member in sorted(node.members):
+            self._subscribe(map_topic(member), MAP_TYPE, False,
+                            self._arrived_map(member))
+            if params.team_consistency:
+                for other in sorted(node.members | {node.robot}):
+                    if other != member:
+                        self._subscribe(alignment_topic(member, other), ALIGNMENT_TYPE, True,
+                                        self._arrived_alignment(member, other))
+        if params.ros2_objects:
+            self._subscribe(objects_topic(node.robot), MAP_TYPE, False,
+                            self._objects(object_map_of))
+            self._subscribe(cloud_topic(node.robot), CLOUD_TYPE, False,
+                            self._objects(object_map_of_cloud))
+        self._publisher(map_topic(node.robot), MAP_TYPE, False)  # discovered from the start
+        self._health = self._publisher(HEALTH_TOPIC, HEALTH_TYPE, False)
+        self._ros.create_timer(self.health_period, self._report)
+        self._spinner = threading.Thread(target=self._spin, name=f"tcaff-dds-{node.robot}",
+                                         daemon=True)
+        self._spinner.start()
+
+    def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
+        try:
+            self._executor.spin()
+        except ExternalShutdownException:  # the context was shut down: the node is closing
+            pass
+
+    def _subscribe(self, topic: str, msgtype: str, latched: bool, callback) -> None:
+        self._ros.create_subscription(self._classes[msgtype], topic, callback, _qos(latched),
+                                      raw=True)
+
+    def _publisher(self, topic: str, msgtype: str, latched: bool):
+        with self._lock:
+            if topic not in self._publishers:
+                self._publishers[topic] = self._ros.create_publisher(
+                    self._classes[msgtype], topic, _qos(latched))
+            return self._publishers[topic]
+
+    # -- what arrives (on the executor's thread) ----------------------------------------------
+
+    def _arrived_map(self, member: str):
+        topic = map_topic(member)
+
+        def arrived(data: bytes) -> None:
+            self._node.arrived("map", topic,
+                               lambda: exchange_of(read_message(data, MAP_TYPE), member))
+        return arrived
+
+    def _arrived_alignment(self, sender: str, neighbour: str):
+        topic = alignment_topic(sender, neighbour)
+
+        def arrived(data: bytes) -> None:
+            self._node.arrived("alignment", topic, lambda: alignment_of(
+                read_message(data, ALIGNMENT_TYPE), sender, neighbour))
+        return arrived
+
+    def _objects(self, read):
+        """A callback taking the robot's map from its objects topic with `read`."""
+        msgtype = CLOUD_TYPE if read is object_map_of_cloud else MAP_TYPE
+        topic = (cloud_topic if msgtype == CLOUD_TYPE else objects_topic)(self.robot)
+
+        def arrived(data: bytes) -> None:
+            try:
+                t, object_map = read(read_message(data, msgtype))
+                self._node.ros2_map(t, object_map)
+            except Exception as exc:  # nothing may escape into rclpy's executor
+                self._node.drop("malformed", f"on {topic}: {exc}")
+        return arrived
+
+    # -- what goes out ------------------------------------------------------------------------
+
+    def put_map(self, message: MapMessage, recent: ObjectMap) -> None:
+        """Publish the map; a time or counter ROS 2 cannot carry is a DataError, before
+        anything is sent."""
+        data = serialize(map_message(message.stamp, f"{self.robot}/odom", recent,
+                                     seq=message.seq, boot=message.boot), MAP_TYPE)
+        self._publisher(map_topic(self.robot), MAP_TYPE, False).publish(data)
+
+    def put_alignment(self, message: AlignmentMessage) -> None:
+        self._put(alignment_topic, message)
+
+    def put_team(self, message: TeamMessage) -> None:
+        self._put(team_topic, message)
+
+    def _put(self, topic, message: AlignmentMessage | TeamMessage) -> None:
+        """Publish an accepted alignment; one ROS 2 cannot stamp is counted in
+        `ros2_errors` and logged, the node goes on."""
+        if not message.accepted:
+            return
+        try:
+            data = serialize(pose_message(message.stamp, f"{self.robot}/odom", message.x,
+                                          message.P), ALIGNMENT_TYPE)
+            self._publisher(topic(self.robot, message.neighbour), ALIGNMENT_TYPE,
+                            True).publish(data)
+            self._node.counters["ros2_sent"] += 1
+        except Exception as exc:  # the node's own results are kept already
+            self._node.counters["ros2_errors"] += 1
+            log.warning("%s: alignment to %s not published: %s", self.robot,
+                        message.neighbour, exc)
+
+    def _report(self) -> None:
+        """The node's health on /diagnostics: WARN when maps were dropped, skipped or lost,
+        or steps failed, since the last report; OK otherwise."""
+        node = self._node
+        counters = dict(node.counters)
+        latest = dict(node.latest)
+        latency = np.array(node.latencies)
+        pairs = {name: ("accepted" if m.accepted else "none") + f" at step {m.step}"
+                 for name, m in sorted(latest.items())}
+        accepted = sum(m.accepted for m in latest.values())
+        troubles = {k: v for k, v in counters.items()
+                    if (k.startswith("dropped_") or k in ("skipped", "lost", "errors",
+                                                          "ros2_errors"))
+                    and v > self._reported.get(k, 0)}
+        self._reported = counters
+        values = {"pairs_accepted": f"{accepted}/{len(node.members)}",
+                  **{f"pair {name}": text for name, text in pairs.items()},
+                  "latency_median_ms": f"{1e3 * np.median(latency):.1f}" if latency.size
+                  else "-",
+                  "latency_p95_ms": f"{1e3 * np.percentile(latency, 95):.1f}" if latency.size
+                  else "-",
+                  **{k: str(counters.get(k, 0)) for k in ("maps_sent", "maps_received",
+                                                          "aligned", "skipped", "lost")},
+                  "dropped": str(sum(v for k, v in counters.items()
+                                     if k.startswith("dropped_")))}
+        summary = f"{accepted} of {len(node.members)} pairs aligned" + (
+            "; since the last report: " + ", ".join(f"{k} {v}" for k, v in troubles.items())
+            if troubles else "")
+        try:
+            self._health.publish(serialize(health_message(time.time(), self.robot,
+                                                          1 if troubles else 0, summary,
+                                                          values), HEALTH_TYPE))
+        except Exception as exc:  # a closing context: the next report would say the same
+            log.debug("%s: health not published: %s", self.robot, exc)
+
+    # -- the graph ----------------------------------------------------------------------------
+
+    def present(self, timeout: float) -> set[str]:
+        """The members whose map this node's subscriptions are matched with (DDS
+        discovery); waits up to `timeout` s for all of them."""
+        deadline = time.monotonic() + timeout
+        while True:
+            up = {m for m in self._node.members
+                  if self._ros.count_publishers(map_topic(m)) > 0}
+            if up == self._node.members or time.monotonic() >= deadline:
+                return up
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        if self._context is None:
+            return
+        context, self._context = self._context, None
+        try:
+            if hasattr(self, "_executor"):
+                self._executor.shutdown(timeout_sec=5)
+            if hasattr(self, "_ros"):
+                self._ros.destroy_node()
+        finally:
+            context.try_shutdown()
+        if hasattr(self, "_spinner"):
+            self._spinner.join(timeout=5)
