@@ -299,3 +299,22 @@ def test_partial_pairs_takes_its_three_values_only(value):
     for good in ("all", "best", "auto"):
         assert FrameAlignerParams(partial_pairs=good).partial_pairs == good
     assert FrameAlignerParams().partial_pairs == "auto"
+
+
+def test_thinning_past_the_cap_names_the_gates_pairs_and_those_searched(caplog, graph_nodes):
+    ego, other, _, _ = cut_world(1, 60, 0.6, clutter=20)
+    params = FrameAlignerParams(partial_pairs="best", max_associations=100)
+    compatible, partial = size_gates(ego, other, params.size_ratio, params.size_abs_diff,
+                                     params.size_partial)
+    searched = (compatible & ~partial) | _partial_pairs_kept(
+        compatible, partial, ego.centroids[:, :2], other.centroids[:, :2], ego.ages(10.0),
+        other.ages(10.0), params.clipper.epsilon)
+    assert searched.sum() > 100
+    aligner = FrameAligner(params)
+    with caplog.at_level("WARNING", logger="tcaff_gtsam.frame_aligner"):
+        aligner.measurements(ego, other, 10.0)
+    assert aligner.thinned == 1
+    message = caplog.records[0].getMessage()
+    assert (f"passed {int(compatible.sum())} pairs of 80 x 80 recent objects "
+            f"({int(searched.sum())} of them searched)") in message
+    assert len(graph_nodes[0]) <= 100
