@@ -313,9 +313,9 @@ def _partial_pairs_kept(compatible: np.ndarray, partial: np.ndarray, ego_points:
 
 def _partial_neighbours(n_pairs: int) -> int:
     """The neighbours that describe each object when `_partial_pairs_kept` ranks `n_pairs`
-    compatible pairs: `NEIGHBOURS`, fewer beyond `_PARTIAL_STEPS` merge steps, at least
-    `_PARTIAL_NEIGHBOURS`."""
-    return max(_PARTIAL_NEIGHBOURS, min(NEIGHBOURS, _PARTIAL_STEPS // (2 * max(n_pairs, 1))))
+    compatible pairs: `NEIGHBOURS`, fewer beyond `_PARTIAL_STEPS` merge steps, but not fewer
+    than `_PARTIAL_NEIGHBOURS` (unless `NEIGHBOURS` is)."""
+    return min(NEIGHBOURS, max(_PARTIAL_NEIGHBOURS, _PARTIAL_STEPS // (2 * max(n_pairs, 1))))
 
 
 def _partial_ranking_pays(n_pairs: int, n_partial: int) -> bool:

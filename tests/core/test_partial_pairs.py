@@ -144,10 +144,7 @@ def test_ranking_pays_only_where_it_costs_less_than_the_checks_it_saves(n_pairs,
     assert pays == ((n_pairs**2 - complete**2) // 2 > steps)
     if n_partial == 0:
         assert not pays
-    assert _PARTIAL_NEIGHBOURS_MIN <= _partial_neighbours(n_pairs) <= reg.NEIGHBOURS
-
-
-_PARTIAL_NEIGHBOURS_MIN = reg._PARTIAL_NEIGHBOURS
+    assert reg._PARTIAL_NEIGHBOURS <= _partial_neighbours(n_pairs) <= reg.NEIGHBOURS
 
 
 def test_the_ranking_keeps_within_its_steps():
