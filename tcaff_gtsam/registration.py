@@ -45,6 +45,11 @@ _RANKING_STEPS = 1 << 27
 #: object is described by fewer neighbours, down to `_PARTIAL_NEIGHBOURS`
 _PARTIAL_STEPS = 1 << 14
 _PARTIAL_NEIGHBOURS = 8
+#: consistency checks the partial-view rule's pairs may add to a graph before they are ranked
+#: (`_partial_ranking_pays`), about a tenth of a millisecond of graph: the simulator's maps
+#: add at most 43 000, the 7-Scenes kitchen's 61 000 (68 000 with the defaults' gate, which
+#: takes no descriptors); a hundred objects of assorted sizes per map add millions
+_PARTIAL_CHECKS = 1 << 16
 #: points up to which `_neighbour_distances` sorts the rows of their distance matrix (16 bytes
 #: per pair of points) rather than querying a k-d tree
 _DENSE_NEIGHBOURS = 512
@@ -319,14 +324,15 @@ def _partial_neighbours(n_pairs: int) -> int:
 
 
 def _partial_ranking_pays(n_pairs: int, n_partial: int) -> bool:
-    """Whether ranking the pairs (`_partial_pairs_kept`) of `n_pairs` compatible pairs, of
-    which `n_partial` pass only the partial-view rule, takes fewer merge steps than the
-    consistency checks those partial pairs add to the graph (it checks every two of its m
-    nodes: (m^2 - m_c^2) / 2 more with them than with the m_c others alone). Where it does
-    not (maps of a few tens of objects), keeping them all costs less than choosing."""
+    """Whether to rank the pairs (`_partial_pairs_kept`) of `n_pairs` compatible pairs, of
+    which `n_partial` pass only the partial-view rule: when those partial pairs would add to
+    the graph more consistency checks (it checks every two of its m nodes: (m^2 - m_c^2) / 2
+    more with them than with the m_c others alone) than `_PARTIAL_CHECKS` and than ranking
+    takes merge steps. Below, keeping every partial pair costs a fraction of a millisecond,
+    and in such small maps a true pair of a small overlap often fails to rank first."""
     complete = n_pairs - n_partial
     added_checks = (n_pairs * n_pairs - complete * complete) // 2
-    return added_checks > 2 * _partial_neighbours(n_pairs) * n_pairs
+    return added_checks > max(_PARTIAL_CHECKS, 2 * _partial_neighbours(n_pairs) * n_pairs)
 
 
 @numba.njit(cache=True)
