@@ -127,10 +127,12 @@ class FrameAlignerParams(_ByValue):
             (`registration.neighbourhood_agreement` within `clipper.epsilon`, as
             `pairs_per_object` ranks them), then by recency: a partially seen object and its
             counterpart, whose surroundings are the same; at most one pair per object.
-            "auto" (the default): "best" where ranking the pairs costs fewer steps than the
-            consistency checks the partial pairs would add to the graph, else every partial
-            pair (maps of a few tens of objects, where the graph is small and a true pair
-            of a small overlap counts most). "all": every partial pair. Either way a guided
+            "auto" (the default): "best" where the partial pairs would add to the graph more
+            than 2^16 consistency checks and more than ranking them takes steps (maps of
+            many objects: a hundred of assorted sizes per map add millions), else every
+            partial pair (maps of a few tens of objects, the simulator's and the kitchen's,
+            whose graphs stay small and where a true pair of a small overlap often does not
+            rank first). "all": every partial pair. Either way a guided
             search (`guide_radius`), the objects a candidate explains and
             `FrameAligner.lookalike_share` take the whole gate; without `size_partial` this
             changes nothing.

@@ -50,9 +50,10 @@ _PARTIAL_NEIGHBOURS = 8
 #: add at most 43 000, the 7-Scenes kitchen's 61 000 (68 000 with the defaults' gate, which
 #: takes no descriptors); a hundred objects of assorted sizes per map add millions
 _PARTIAL_CHECKS = 1 << 16
-#: points up to which `_neighbour_distances` sorts the rows of their distance matrix (16 bytes
-#: per pair of points) rather than querying a k-d tree
-_DENSE_NEIGHBOURS = 512
+#: points up to which `_neighbour_distances` sorts the rows of their distance matrix rather
+#: than querying a k-d tree: a fraction of the tree's cost up to about 150 points (a quarter
+#: of it at 100 points and 48 neighbours), several times it at 500
+_DENSE_NEIGHBOURS = 128
 #: object pairs above which mutual inliers are found with k-d trees: the dense distance matrix
 #: costs 8 bytes per pair, several times over in temporaries
 _DENSE_INLIERS = 1 << 20
@@ -408,10 +409,7 @@ def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
     if k > 0 and n <= _DENSE_NEIGHBOURS:
         # a step's maps: sorting the distance matrix's rows costs a fraction of a tree query
         # for as many neighbours; the diagonal (the point itself) sorts first
-        distances = cdist(points, points)
-        if 2 * (k + 1) < n:  # the k + 1 smallest of each row first, then those sorted
-            distances = np.partition(distances, k, axis=1)[:, : k + 1]
-        out[:, :k] = np.sort(distances, axis=1)[:, 1: k + 1]
+        out[:, :k] = np.sort(cdist(points, points), axis=1)[:, 1: k + 1]
     elif k > 0:
         # the nearest is the point itself (or a duplicate of it: distance 0 either way)
         distances, _ = cKDTree(points).query(points, k + 1)
