@@ -132,8 +132,8 @@ class FrameAlignerParams(_ByValue):
             many objects: a hundred of assorted sizes per map add millions), else every
             partial pair (maps of a few tens of objects, the simulator's and the kitchen's,
             whose graphs stay small and where a true pair of a small overlap often does not
-            rank first). "all": every partial pair. Either way a guided
-            search (`guide_radius`), the objects a candidate explains and
+            rank first). "all": every partial pair. Either way a guided search
+            (`guide_radius`), the objects a candidate explains and
             `FrameAligner.lookalike_share` take the whole gate; without `size_partial` this
             changes nothing.
         dim: 2 matches (x, y) centroids (the original's choice), 3 matches full 3D centroids
