@@ -35,7 +35,23 @@ plus an all-to-all row (every pair of objects associated, no size gate) at n = 5
 the median of --repeat calls on one map pair (one call when it takes over 50 ms), then the
 median over the pairs (--runs for sized maps, --clustered-runs for clustered ones).
 
+The third table weighs the size gates on worlds of objects of assorted sizes in clusters
+(`gate_worlds`: clusters over 40 x 40 m, log-normal widths and heights, each map a random 70 %
+of the world's objects plus 10 % clutter, 0.1 m centroid noise per axis and 5 % size noise, the
+other's frame turned and moved at random; --gate-sizes objects per map, --gate-runs seeded map
+pairs each). Settings: "default" (FrameAlignerParams()), "all partial" (every pair the
+partial-view rule passes enters the graph: `partial_pairs="all"`) and "paper gate"
+(`size_partial=None`). Columns, medians over the map pairs unless said:
+  gate       pairs the size gate passes (the partial-view rule's included)
+  nodes      putative associations in the consistency graph
+  ms, cpu ms FrameAligner().measurements end to end, a fresh aligner per call: per map pair the
+             median of --repeat calls (the settings taking turns), wall clock and this
+             process's CPU time (the latter steadier on a shared machine)
+  cand.      share of the map pairs with a candidate
+  correct    share of the map pairs whose first candidate lies within 1 m and 5 deg of the truth
+
 Usage: python scripts/bench_association.py [--runs 15] [--sizes 20 50 100 200 500] [--profile]
+       python scripts/bench_association.py --only-gates [--gate-runs 20] [--gate-sizes 50 100]
 """
 
 from __future__ import annotations
@@ -49,6 +65,7 @@ import time
 import numpy as np
 from tcaff_gtsam.eval.sim.maps import MapPair, overlapping_maps
 
+import tcaff_gtsam.frame_aligner as frame_aligner
 from tcaff_gtsam import (
     ClipperParams,
     FrameAligner,
@@ -58,7 +75,7 @@ from tcaff_gtsam import (
     consistency_graph,
     mno_clipper,
 )
-from tcaff_gtsam.geometry import invert, se2_from_params, transform_points
+from tcaff_gtsam.geometry import invert, se2_error, se2_from_params, transform_points
 from tcaff_gtsam.pairwise import unchecked
 from tcaff_gtsam.registration import (
     _neighbourhood_pairs,
@@ -106,6 +123,130 @@ def clustered_maps(rng: np.random.Generator, n_objects: int, overlap: float = 0.
                                invert(T_oi_oj))
     true_pairs = np.argwhere(ego_ids[:, None] == other_ids[None, :]).astype(np.int64)
     return MapPair(ego, other, T_oi_oj, true_pairs, now)
+
+
+def gate_worlds(rng: np.random.Generator, n_objects: int, side: float = 40.0,
+                per_cluster: float = 6.0, cluster_spread: float = 1.5, seen: float = 0.7,
+                clutter: float = 0.1, noise: float = 0.1, size_noise: float = 0.05,
+                now: float = 100.0, max_age: float = 15.0) -> MapPair:
+    """Two maps of `n_objects` objects each (a world of n_objects / (seen + clutter) objects:
+    each map a random `seen` share of them plus `clutter` times as many false ones) of one
+    world whose objects of assorted sizes stand in clusters: cluster centres uniform in a
+    square of `side` metres, objects normal about a centre with `cluster_spread` metres per
+    axis, widths and heights log-normal (medians 0.7 and 0.8 m, sigma 0.6 in log), so that the
+    paper's size gate passes about a tenth of the pairs and the partial-view rule about twice
+    as many again. Every map entry has `noise` metres of centroid noise per axis and
+    `size_noise` relative noise on each extent; centroids stand at half the height."""
+    n_world = max(1, round(n_objects / (seen + clutter)))
+    centres = rng.uniform(0.0, side, (max(1, round(n_world / per_cluster)), 2))
+    xy = (centres[rng.integers(len(centres), size=n_world)]
+          + rng.normal(0.0, cluster_spread, (n_world, 2)))
+
+    def sizes(k: int) -> tuple[np.ndarray, np.ndarray]:
+        return (rng.lognormal(math.log(0.7), 0.6, k), rng.lognormal(math.log(0.8), 0.6, k))
+
+    widths, heights = sizes(n_world)
+    T_oi_oj = se2_from_params([*rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)])
+
+    def observe(T_frame_world: np.ndarray) -> tuple[ObjectMap, np.ndarray]:
+        ids = rng.choice(n_world, round(seen * n_world), replace=False)
+        k = round(clutter * n_world)
+        false_w, false_h = sizes(k)
+        w = np.r_[widths[ids], false_w] * (1 + size_noise * rng.standard_normal(ids.size + k))
+        h = np.r_[heights[ids], false_h] * (1 + size_noise * rng.standard_normal(ids.size + k))
+        w, h = np.abs(w), np.abs(h)
+        points = np.r_[xy[ids], rng.uniform(0.0, side, (k, 2))]
+        c = np.column_stack([transform_points(T_frame_world, points), h / 2])
+        c += rng.normal(0.0, noise, c.shape)
+        order = rng.permutation(ids.size + k)
+        labels = np.r_[ids, np.full(k, -1)]
+        return (ObjectMap(c[order], w[order], h[order],
+                          now - rng.uniform(0.0, max_age, ids.size + k)), labels[order])
+
+    ego, ego_ids = observe(np.eye(3))
+    other, other_ids = observe(invert(T_oi_oj))
+    true_pairs = np.argwhere((ego_ids[:, None] == other_ids[None, :])
+                             & (ego_ids[:, None] >= 0)).astype(np.int64)
+    return MapPair(ego, other, T_oi_oj, true_pairs, now)
+
+
+def gate_settings() -> dict[str, FrameAlignerParams]:
+    """The settings of the gate table (without "all partial" where the installed library has
+    no `partial_pairs`, whose default then is every partial pair)."""
+    settings = {"default": FrameAlignerParams()}
+    if "partial_pairs" in FrameAlignerParams.__dataclass_fields__:
+        settings["all partial"] = FrameAlignerParams(partial_pairs="all")
+    settings["paper gate"] = FrameAlignerParams(size_partial=None)
+    return settings
+
+
+def graph_nodes(params: FrameAlignerParams, pair: MapPair) -> int:
+    """The nodes of the first consistency graph the aligner builds for the pair (0: none)."""
+    seen: list[int] = []
+    real = frame_aligner._graph
+
+    def spy(p, q, associations, *args):
+        seen.append(len(associations))
+        return real(p, q, associations, *args)
+
+    frame_aligner._graph = spy
+    try:
+        FrameAligner(params).measurements(pair.ego, pair.other, pair.now)
+    finally:
+        frame_aligner._graph = real
+    return seen[0] if seen else 0
+
+
+def gate_rows(n: int, runs: int, repeat: int) -> list[tuple[str, dict[str, float]]]:
+    """The gate table's rows for maps of n objects: per setting, medians over `runs` pairs."""
+    settings = gate_settings()
+    found: dict[str, dict[str, list[float]]] = {name: {"gate": [], "nodes": [], "ms": [],
+                                                      "cpu": [], "cand": [], "correct": []}
+                                               for name in settings}
+    for seed in range(runs):
+        pair = gate_worlds(np.random.default_rng(seed), n)
+        wall: dict[str, list[float]] = {name: [] for name in settings}
+        cpu: dict[str, list[float]] = {name: [] for name in settings}
+        first = {}
+        for _ in range(repeat):
+            for name, params in settings.items():  # in turns: the same load for each
+                start, start_cpu = time.perf_counter(), time.process_time()
+                out = FrameAligner(params).measurements(pair.ego, pair.other, pair.now)
+                wall[name].append(1e3 * (time.perf_counter() - start))
+                cpu[name].append(1e3 * (time.process_time() - start_cpu))
+                first[name] = out[0] if out else None
+        for name, params in settings.items():
+            r = found[name]
+            r["gate"].append(int(size_compatible(pair.ego, pair.other, params.size_ratio,
+                                                 params.size_abs_diff,
+                                                 params.size_partial).sum()))
+            r["nodes"].append(graph_nodes(params, pair))
+            r["ms"].append(statistics.median(wall[name]))
+            r["cpu"].append(statistics.median(cpu[name]))
+            candidate = first[name]
+            r["cand"].append(candidate is not None)
+            ok = False
+            if candidate is not None:
+                dt, dtheta = se2_error(pair.T_oi_oj, candidate.T)
+                ok = bool(dt <= 1.0 and dtheta <= math.radians(5.0))
+            r["correct"].append(ok)
+    return [(name, {"n": n, "gate": statistics.median(r["gate"]),
+                    "nodes": statistics.median(r["nodes"]), "ms": statistics.median(r["ms"]),
+                    "cpu": statistics.median(r["cpu"]), "cand": float(np.mean(r["cand"])),
+                    "correct": float(np.mean(r["correct"]))})
+            for name, r in found.items()]
+
+
+def print_gate_table(rows: list[tuple[str, dict[str, float]]], runs: int) -> None:
+    print(f"size gates on clustered worlds of assorted sizes, medians over {runs} map pairs "
+          "(ms: FrameAligner().measurements, a fresh aligner per call)")
+    header = (f"{'objects':>8}  {'setting':<12}{'gate':>8}{'nodes':>8}{'ms':>9}{'cpu ms':>9}"
+              f"{'cand.':>8}{'correct':>9}")
+    print(header)
+    print("-" * len(header))
+    for name, v in rows:
+        print(f"{v['n']:>8.0f}  {name:<12}{v['gate']:>8.0f}{v['nodes']:>8.0f}{v['ms']:>9.2f}"
+              f"{v['cpu']:>9.2f}{v['cand']:>8.2f}{v['correct']:>9.2f}")
 
 
 def make_pair(kind: str, n: int, seed: int) -> MapPair:
@@ -246,18 +387,31 @@ def main() -> None:
                         help="time the +memory column up to N objects per map (default 200)")
     parser.add_argument("--profile", action="store_true",
                         help="also profile 20 MNO runs at the largest size with pyinstrument")
+    parser.add_argument("--gate-runs", type=int, default=20,
+                        help="map pairs per size in the size gates' table (default 20)")
+    parser.add_argument("--gate-sizes", type=int, nargs="+", default=[50, 100],
+                        help="objects per map in the size gates' table (default 50 100)")
+    parser.add_argument("--only-gates", action="store_true",
+                        help="print only the size gates' table")
     args = parser.parse_args()
     # the clustered maps are thinned to max_associations on purpose: no warning per step
     logging.getLogger("tcaff_gtsam.frame_aligner").setLevel(logging.ERROR)
-    for name in ("runs", "clustered_runs", "repeat"):
+    for name in ("runs", "clustered_runs", "repeat", "gate_runs"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be at least 1, got "
                          f"{getattr(args, name)}")
-    if min(args.sizes) < 1:
-        parser.error(f"--sizes must be at least 1, got {min(args.sizes)}")
+    for name in ("sizes", "gate_sizes"):
+        if min(getattr(args, name)) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, got "
+                         f"{min(getattr(args, name))}")
 
     # compile (or load the cached machine code) before timing anything
     one_run("sized", 12, 0, None, False, 1, False)
+    gate_rows(min(args.gate_sizes), 1, 1)
+    if args.only_gates:
+        print_gate_table([r for n in args.gate_sizes
+                          for r in gate_rows(n, args.gate_runs, args.repeat)], args.gate_runs)
+        return
     sized = {n: row("sized", n, args.runs, args.repeat, n <= args.memory_up_to)
              for n in args.sizes}
     cap = FrameAlignerParams().max_associations
@@ -270,6 +424,9 @@ def main() -> None:
     rows.append(("all-to-all", row("sized", 50, args.runs, args.repeat, True,
                                    all_to_all=True)))
     print_table(rows)
+    print()
+    print_gate_table([r for n in args.gate_sizes
+                      for r in gate_rows(n, args.gate_runs, args.repeat)], args.gate_runs)
 
     if args.profile:
         from pyinstrument import Profiler

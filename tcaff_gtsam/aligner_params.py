@@ -122,6 +122,24 @@ class FrameAlignerParams(_ByValue):
             extent (a chair behind a table loses its height, a box seen on one face its width)
             and leaves the other. None: both must be within size_ratio (the paper's gate,
             and the released code's).
+        partial_pairs: which of the pairs that only the partial-view rule (`size_partial`)
+            passes enter the consistency graph of a full search. In maps of many objects of
+            similar sizes they outnumber the paper's gate's pairs several times over (clustered
+            maps of 100 objects: about 1700 beside 830), nearly all false, and the graph costs
+            their square. "best": only a pair that is the best of all the compatible pairs of
+            both its objects, ranked by how well the two objects' surroundings agree
+            (`registration.neighbourhood_agreement` within `clipper.epsilon`, as
+            `pairs_per_object` ranks them), then by recency: a partially seen object and its
+            counterpart, whose surroundings are the same; at most one pair per object.
+            "auto" (the default): "best" where the partial pairs would add to the graph more
+            than 2^16 consistency checks and more than ranking them takes steps (maps of
+            many objects: a hundred of assorted sizes per map add millions), else every
+            partial pair (maps of a few tens of objects, the simulator's and the kitchen's,
+            whose graphs stay small and where a true pair of a small overlap often does not
+            rank first). "all": every partial pair. Either way a guided search
+            (`guide_radius`), the objects a candidate explains and
+            `FrameAligner.lookalike_share` take the whole gate; without `size_partial` this
+            changes nothing.
         dim: 2 matches (x, y) centroids (the original's choice), 3 matches full 3D centroids
             (the alignment is then projected onto the gravity-aligned plane).
         clipper: consistency graph and solver settings.
@@ -245,6 +263,7 @@ class FrameAlignerParams(_ByValue):
     size_ratio: float = 1.35
     size_abs_diff: float = 0.1
     size_partial: float | None = 2.0
+    partial_pairs: Literal["all", "best", "auto"] = "auto"
     dim: Literal[2, 3] = 2
     clipper: ClipperParams = field(default_factory=ClipperParams)
     n_solutions: int = 4
@@ -294,6 +313,8 @@ class FrameAlignerParams(_ByValue):
         _require(self.size_partial is None or (_finite(self.size_partial)
                                                 and self.size_partial >= 1),
                  o, "size_partial", self.size_partial, "must be None or a finite number >= 1")
+        _require(_one_of(self.partial_pairs, ("all", "best", "auto")), o, "partial_pairs",
+                 self.partial_pairs, "must be 'all', 'best' or 'auto'")
         _require(_one_of(self.dim, (2, 3)), o, "dim", self.dim, "must be 2 or 3")
         _require(isinstance(self.clipper, ClipperParams), o, "clipper", self.clipper,
                  "must be a ClipperParams")

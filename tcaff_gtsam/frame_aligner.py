@@ -50,11 +50,13 @@ from .registration import (
     _mutual_inliers,
     _neighbourhood_pairs,
     _pair_similarity,
+    _partial_pairs_kept,
+    _partial_ranking_pays,
     _registration_rmse,
     _spread,
     _weighted_arun,
     _weights,
-    size_compatible,
+    size_gates,
     weighted_arun,
 )
 
@@ -140,21 +142,20 @@ class FrameAligner:
         """
         o = "FrameAligner.lookalike_share"
         ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
-        compatible = self._recent_pair(ego, other, finite_time(o, "now", now))[4]
+        compatible = self._recent_pair(ego, other, finite_time(o, "now", now))[4][0]
         return float(compatible.mean()) if compatible.size else 0.0
 
     def _recent_pair(self, ego: ObjectMap, other: ObjectMap, now: float) -> tuple:
-        """(ego_idx, other_idx, ego_r, other_r, compatible): the indices and maps of the
-        objects seen within kappa of `now`, and the (n_ego, n_other) pairs of them the gates
-        pass. The last maps' are kept, so that a step asking `lookalike_share` and
-        `measurements` of the same maps gates them once."""
+        """(ego_idx, other_idx, ego_r, other_r, gates): the indices and maps of the objects
+        seen within kappa of `now`, and `_gates` of them. The last maps' are kept, so that a
+        step asking `lookalike_share` and `measurements` of the same maps gates them once."""
         last = self._last_pair
         if last is not None and last[0] is ego and last[1] is other and last[2] == now:
             return last[3]
         kappa = self.params.kappa
         ego_idx, other_idx = ego.recent_indices(now, kappa), other.recent_indices(now, kappa)
         ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
-        pair = (ego_idx, other_idx, ego_r, other_r, self._compatible(ego_r, other_r))
+        pair = (ego_idx, other_idx, ego_r, other_r, self._gates(ego_r, other_r))
         self._last_pair = (ego, other, now, pair)
         return pair
 
@@ -201,14 +202,15 @@ class FrameAligner:
         if not isinstance(guided, (bool, np.bool_)):
             raise DataError(f"{o}: guided must be True or False, got {shown(guided)}")
         prm = self.params
-        ego_idx, other_idx, ego_r, other_r, compatible = self._recent_pair(ego, other, now)
+        ego_idx, other_idx, ego_r, other_r, gates = self._recent_pair(ego, other, now)
+        compatible = gates[0]
         kept: list[_Solution] = []
         if guided and held is not None and prm.guide_radius is not None:
-            found = self._registered(ego_r, other_r, now, held, compatible)
+            found = self._registered(ego_r, other_r, now, held, gates)
             kept = [f for f in self._passing(found) if _confirms(f.z, held, prm)]
             self.guided_misses += not kept
         if not kept:
-            found = self._registered(ego_r, other_r, now, compatible=compatible)
+            found = self._registered(ego_r, other_r, now, gates=gates)
             kept = self._passing(found)
         ambiguous = [False] * len(kept)
         if kept and prm.check_ambiguity:
@@ -256,7 +258,7 @@ class FrameAligner:
         """The held alignment re-registered on the objects it pairs (`track_min`), or None
         when too few pair, they fail the spread or residual checks, or the result leaves the
         confirmation bounds. Associations index the maps of recent objects; `compatible` is
-        their gate (`_compatible`)."""
+        their gate (`_gates`)."""
         # The spread check matters most here: on MRCLAM, correctly paired landmarks of a
         # tight cluster gave headings 3-7 deg off, the same bias second after second, and
         # tracking on them walked the estimate out of the 5 deg bound.
@@ -320,34 +322,43 @@ class FrameAligner:
         return self._calibrated
 
     def _registered(self, ego_r: ObjectMap, other_r: ObjectMap, now: float,
-                    guide: np.ndarray | None = None, compatible: np.ndarray | None = None
+                    guide: np.ndarray | None = None, gates: tuple | None = None
                     ) -> list[_Solution]:
         """Every registrable MNO-CLIPPER solution between two maps of recent objects, with
         whether it passes the size, score and residual checks and (when the aligner counts
         them) the objects it explains. Those that do not pass are still rivals of the others.
-        With guide (3,), a held alignment, only the pairs agreeing under it are searched.
-        `compatible`: the maps' gate when already made (`_recent_pair`)."""
+        With guide (3,), a held alignment, only the pairs agreeing under it are searched;
+        without, the pairs only the partial-view rule passes are thinned (`partial_pairs`).
+        `gates`: the maps' `_gates` when already made (`_recent_pair`)."""
         prm = self.params
         # the gate of the putative associations, kept whole for counting the inliers
-        if compatible is None:
-            compatible = self._compatible(ego_r, other_r)
+        compatible, partial = self._gates(ego_r, other_r) if gates is None else gates
         fewest = prm.fewest_associations(len(ego_r), len(other_r),
                                          float(compatible.mean()) if compatible.size else 0.0)
         if min(len(ego_r), len(other_r)) < fewest:
             return []
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
-        searched = compatible if guide is None else compatible & self._agree(p_all, q_all,
-                                                                             guide)
+        ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
+        if guide is not None:
+            # pairs that agree under the held alignment: a partial pair among them is most
+            # likely its object's counterpart, and the graph is small either way
+            searched = compatible & self._agree(p_all, q_all, guide)
+        elif prm.partial_pairs != "all" and partial.any() and (
+                prm.partial_pairs == "best" or _partial_ranking_pays(
+                    int(np.count_nonzero(compatible)), int(np.count_nonzero(partial)))):
+            searched = (compatible & ~partial) | _partial_pairs_kept(
+                compatible, partial, p_all, q_all, ages_ego, ages_other, prm.clipper.epsilon)
+        else:
+            searched = compatible
         n_pairs = int(np.count_nonzero(searched))
         if n_pairs < fewest:
             return []
-        ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
         if n_pairs > prm.max_associations:
             assoc = _neighbourhood_pairs(searched, p_all, q_all, ages_ego, ages_other,
                                         prm.clipper.epsilon, prm.pairs_per_object,
                                         prm.max_associations)
-            self._thin(n_pairs, len(ego_r), len(other_r))
+            self._thin(int(np.count_nonzero(compatible)), n_pairs, len(ego_r), len(other_r))
         else:
             assoc = np.argwhere(searched).astype(np.int64)
         # the maps and parameters were checked when they were made, so the graph and solver
@@ -435,13 +446,16 @@ class FrameAligner:
         slack = _height_slack(ego_r.heights[:, None], other_r.heights[None, :])
         return compatible & (gap < prm.height_epsilon + slack)
 
-    def _compatible(self, ego_r: ObjectMap, other_r: ObjectMap) -> np.ndarray:
-        """(n_ego, n_other) bool, the pairs that may be associated: sizes within the size gate
-        and, when both maps carry descriptors, similarity at least `descriptor_min`."""
+    def _gates(self, ego_r: ObjectMap, other_r: ObjectMap) -> tuple[np.ndarray, np.ndarray]:
+        """(compatible, partial), each (n_ego, n_other) bool: the pairs that may be associated
+        (sizes within the size gate and, when both maps carry descriptors, similarity at least
+        `descriptor_min`), and those of them that only the partial-view rule passes
+        (`size_partial`; none without it)."""
         prm = self.params
-        compatible = size_compatible(ego_r, other_r, prm.size_ratio, prm.size_abs_diff,
-                                     prm.size_partial)
-        return _descriptor_gate(ego_r, other_r, compatible, prm.descriptor_min)
+        compatible, partial = size_gates(ego_r, other_r, prm.size_ratio, prm.size_abs_diff,
+                                         prm.size_partial)
+        compatible = _descriptor_gate(ego_r, other_r, compatible, prm.descriptor_min)
+        return compatible, partial & compatible
 
     def _agree(self, p_all: np.ndarray, q_all: np.ndarray, held: np.ndarray) -> np.ndarray:
         """(n_ego, n_other) whether each pair's centroids agree in the plane under the held
@@ -459,16 +473,18 @@ class FrameAligner:
                                                                    counts)] = True
         return agree
 
-    def _thin(self, n_pairs: int, n_ego: int, n_other: int) -> None:
+    def _thin(self, n_gate: int, n_pairs: int, n_ego: int, n_other: int) -> None:
         """Count a step whose associations were thinned for exceeding `max_associations`,
-        and say so: a warning the first time, then at debug level."""
+        and say so: a warning the first time, then at debug level. `n_gate`: the pairs the
+        gates passed; `n_pairs`: those searched (fewer after `partial_pairs` or a guide)."""
         self.thinned += 1
         level = logging.WARNING if self.thinned == 1 else logging.DEBUG
-        log.log(level, "FrameAligner: the size gate passed %d pairs of %d x %d recent objects, "
+        log.log(level, "FrameAligner: the size gate passed %d pairs of %d x %d recent objects%s, "
                 "more than max_associations=%d; kept each object's pairs_per_object=%d whose "
                 "neighbourhoods agree best%s",
-                n_pairs, n_ego, n_other, self.params.max_associations,
-                self.params.pairs_per_object,
+                n_gate, n_ego, n_other,
+                f" ({n_pairs} of them searched)" if n_pairs != n_gate else "",
+                self.params.max_associations, self.params.pairs_per_object,
                 " (repeats are logged at debug level; FrameAligner.thinned counts them)"
                 if self.thinned == 1 else "")
 

@@ -1,11 +1,12 @@
 """Compile the core's numba kernels into their on-disk cache: `python -m tcaff_gtsam.precompile`.
 
-The kernels (consistency graph, MNO-CLIPPER, mutual inliers, the ranking of look-alike pairs,
-the TCAFF hypothesis trees) are compiled with `cache=True`: the machine code is written next to
-each module (in its `__pycache__`, or numba's user cache when that is not writable) and loaded
-by later processes. The first process to use them otherwise pays the compilation, seconds, on
-its first alignment step; `make install` runs this once so that no user process does. Source
-changes are noticed by numba, which compiles again on the next call.
+The kernels (consistency graph, MNO-CLIPPER, mutual inliers, the ranking of look-alike pairs
+and of the partial-view rule's, the TCAFF hypothesis trees) are compiled with `cache=True`: the
+machine code is written next to each module (in its `__pycache__`, or numba's user cache when
+that is not writable) and loaded by later processes. The first process to use them otherwise
+pays the compilation, seconds, on its first alignment step; `make install` runs this once so
+that no user process does. Source changes are noticed by numba, which compiles again on the
+next call.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 from .hypothesis_tree import best_per_tree, mahalanobis_to, not_positive_definite
 from .object_map import ObjectMap
 from .pairwise import PairwiseAligner
-from .registration import _neighbourhood_pairs, neighbourhood_agreement
+from .registration import _neighbourhood_pairs, _partial_pairs_kept, neighbourhood_agreement
 
 __all__ = ["compile_kernels"]
 
@@ -41,8 +42,9 @@ def _maps(rng: np.random.Generator, t: float) -> tuple[ObjectMap, ObjectMap]:
 def compile_kernels() -> float:
     """Run the default and the reference pair aligner through a few steps (every kernel of the
     alignment path: graph, MNO-CLIPPER, the TCAFF filter), prune a large hypothesis tree, rank
-    the pairs of look-alike maps past the association cap and score their neighbourhoods'
-    agreement, so that each kernel is compiled, or loaded from the cache. The kernels are
+    the pairs of look-alike maps past the association cap and those of the partial-view
+    rule, and score their neighbourhoods' agreement, so that each kernel is compiled, or
+    loaded from the cache. The kernels are
     given writeable arrays only (`inputs.kernel_array`), the ones compiled here.
 
     Returns:
@@ -64,6 +66,9 @@ def compile_kernels() -> float:
     xy = rng.uniform(0.0, 15.0, (12, 2))
     _neighbourhood_pairs(np.ones((12, 12), bool), xy, xy, np.zeros(12), np.zeros(12), 0.25, 2, 5)
     neighbourhood_agreement(xy, xy, np.array([[0, 0], [1, 1], [2, 2]]), 0.25, 2)
+    # the partial-view rule's pairs of maps of many objects: each object's best pair
+    _partial_pairs_kept(np.ones((12, 12), bool), np.eye(12, dtype=bool), xy, xy, np.zeros(12),
+                        np.zeros(12), 0.25)
     return time.perf_counter() - start
 
 

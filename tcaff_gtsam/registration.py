@@ -7,6 +7,7 @@ import math
 import numba
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 from .errors import DataError
 from .geometry import _transform_points
@@ -39,16 +40,34 @@ NEIGHBOURS = 48
 #: the most merge steps (compatible pairs x both neighbour lists) one `_neighbourhood_pairs`
 #: takes, about half a second: beyond it each object is described by fewer neighbours
 _RANKING_STEPS = 1 << 27
+#: the most merge steps (compatible pairs x both neighbour lists) `_partial_pairs_kept` takes,
+#: a few hundredths of a millisecond (it runs on every step of the aligner): beyond them each
+#: object is described by fewer neighbours, down to `_PARTIAL_NEIGHBOURS`
+_PARTIAL_STEPS = 1 << 14
+_PARTIAL_NEIGHBOURS = 8
+#: consistency checks the partial-view rule's pairs may add to a graph before they are ranked
+#: (`_partial_ranking_pays`), about a tenth of a millisecond of graph: the simulator's maps
+#: add at most 43 000, the 7-Scenes kitchen's 61 000 (68 000 with the defaults' gate, which
+#: takes no descriptors); a hundred objects of assorted sizes per map add millions
+_PARTIAL_CHECKS = 1 << 16
+#: points up to which `_neighbour_distances` sorts the rows of their distance matrix rather
+#: than querying a k-d tree: a fraction of the tree's cost up to about 150 points (a quarter
+#: of it at 100 points and 48 neighbours), several times it at 500
+_DENSE_NEIGHBOURS = 128
 #: object pairs above which mutual inliers are found with k-d trees: the dense distance matrix
 #: costs 8 bytes per pair, several times over in temporaries
 _DENSE_INLIERS = 1 << 20
 
 
-def _sizes_similar(a: np.ndarray, b: np.ndarray, ratio: float, abs_diff: float) -> np.ndarray:
-    """(n,) x (m,) sizes -> (n, m) bool: larger <= ratio * smaller, or |a - b| <= abs_diff."""
+def _sizes_similar(a: np.ndarray, b: np.ndarray, ratios: tuple[float, ...], abs_diff: float
+                   ) -> list[np.ndarray]:
+    """(n,) x (m,) sizes -> per ratio of `ratios` an (n, m) bool: larger <= ratio * smaller,
+    or |a - b| <= abs_diff (the larger, the smaller and the difference made once)."""
     a = a[:, None]
     b = b[None, :]
-    return (np.maximum(a, b) <= ratio * np.minimum(a, b)) | (np.abs(a - b) <= abs_diff)
+    larger, smaller = np.maximum(a, b), np.minimum(a, b)
+    close = np.abs(a - b) <= abs_diff
+    return [(larger <= ratio * smaller) | close for ratio in ratios]
 
 
 def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
@@ -80,17 +99,28 @@ def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
              "partial_ratio", partial_ratio, "must be None or a finite number >= 1")
     ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
     pairs = [np.argwhere(block) + np.array([start, 0])
-             for start, block in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio)]
+             for start, block, _ in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio)]
     return np.concatenate([np.empty((0, 2), np.int64), *pairs]).astype(np.int64)
 
 
 def size_compatible(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float,
                     partial_ratio: float | None = None) -> np.ndarray:
     """(n_ego, n_other) bool: the size gate of `putative_associations` for every pair."""
-    out = np.empty((len(ego), len(other)), bool)
-    for start, block in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio):
-        out[start: start + block.shape[0]] = block
-    return out
+    return size_gates(ego, other, ratio, abs_diff, partial_ratio)[0]
+
+
+def size_gates(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float,
+               partial_ratio: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(compatible, partial), each (n_ego, n_other) bool: the size gate of
+    `putative_associations` for every pair, and the pairs of it that only the partial-view
+    rule passes (`partial_ratio`; none without it)."""
+    compatible = np.empty((len(ego), len(other)), bool)
+    partial = np.zeros((len(ego), len(other)), bool)
+    for start, block, partial_block in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio):
+        compatible[start: start + block.shape[0]] = block
+        if partial_block is not None:
+            partial[start: start + block.shape[0]] = partial_block
+    return compatible, partial
 
 
 def _block_rows(n_other: int) -> int:
@@ -100,19 +130,23 @@ def _block_rows(n_other: int) -> int:
 
 def _gate_blocks(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float,
                  partial_ratio: float | None = None):
-    """The size gate by blocks of ego rows: yields (first row, (rows, n_other) bool)."""
+    """The size gate by blocks of ego rows: yields (first row, (rows, n_other) bool, the
+    pairs of it only the partial-view rule passes ((rows, n_other) bool, or None without
+    the rule))."""
     rows = _block_rows(len(other))
     for start in range(0, len(ego), rows):
         part = slice(start, start + rows)
-        widths = _sizes_similar(ego.widths[part], other.widths, ratio, abs_diff)
-        heights = _sizes_similar(ego.heights[part], other.heights, ratio, abs_diff)
-        block = widths & heights
-        if partial_ratio is not None and partial_ratio > ratio:
-            block |= widths & _sizes_similar(ego.heights[part], other.heights, partial_ratio,
-                                             abs_diff)
-            block |= heights & _sizes_similar(ego.widths[part], other.widths, partial_ratio,
-                                              abs_diff)
-        yield start, block
+        ratios = (ratio,) if partial_ratio is None or partial_ratio <= ratio else (
+            ratio, partial_ratio)
+        widths = _sizes_similar(ego.widths[part], other.widths, ratios, abs_diff)
+        heights = _sizes_similar(ego.heights[part], other.heights, ratios, abs_diff)
+        block = widths[0] & heights[0]
+        partial = None
+        if len(ratios) == 2:
+            partial = (widths[0] & heights[1]) | (heights[0] & widths[1])
+            partial &= ~block
+            block |= partial
+        yield start, block, partial
 
 
 def _descriptor_gate(ego: ObjectMap, other: ObjectMap, compatible: np.ndarray,
@@ -240,6 +274,131 @@ def _neighbourhood_pairs(compatible: np.ndarray, ego_points: np.ndarray,
     return kept.astype(np.int64)
 
 
+def _partial_pairs_kept(compatible: np.ndarray, partial: np.ndarray, ego_points: np.ndarray,
+                        other_points: np.ndarray, ages_ego: np.ndarray, ages_other: np.ndarray,
+                        epsilon: float) -> np.ndarray:
+    """The pairs of `partial` that may enter the consistency graph: those that are the best
+    pair of both their objects.
+
+    A partial view cuts one object's extent, so the pair it makes with its counterpart passes
+    only the partial-view rule (`size_gates`); in maps of many objects such pairs outnumber
+    those of the paper's gate several times over, and nearly all of them are false. A true
+    pair is the true pair of both its objects, and neither has another: among all the
+    compatible pairs of each object, ranked as `_neighbourhood_pairs` ranks them (how well
+    the two objects' surroundings agree, `neighbourhood_agreement`; then the smaller sum of
+    ages; then the lower index), it comes first for both, as the surroundings of an object
+    and of its counterpart are the same. Each object is described by `NEIGHBOURS`
+    neighbours, fewer when the compatible pairs are so many that comparing them would take
+    more than `_PARTIAL_STEPS` steps (`_partial_neighbours`). The arguments are not checked:
+    the aligner's are.
+
+    Args:
+        compatible: (n, m) bool, the gates (`size_gates`' compatible, after any descriptor
+            gate); partial: (n, m) bool, the pairs of it that only the partial-view rule
+            passes.
+        ego_points, other_points: (n, d) and (m, d) metres, finite.
+        ages_ego, ages_other: (n,) and (m,) seconds since each object was last seen.
+        epsilon: metres, > 0.
+    Returns:
+        (n, m) bool, a subset of `partial` with at most one pair per object.
+    """
+    if not partial.any():
+        return np.zeros(partial.shape, bool)
+    neighbours = _partial_neighbours(int(np.count_nonzero(compatible)))
+    best_row, best_col = _best_pair_of_each(
+        kernel_array(compatible, bool), _neighbour_distances(ego_points, neighbours),
+        _neighbour_distances(other_points, neighbours), kernel_array(ages_ego),
+        kernel_array(ages_other), float(epsilon))
+    rows = np.flatnonzero(best_row >= 0)
+    cols = best_row[rows]
+    mutual = best_col[cols] == rows
+    kept = np.zeros(partial.shape, bool)
+    kept[rows[mutual], cols[mutual]] = True
+    return kept & partial
+
+
+def _partial_neighbours(n_pairs: int) -> int:
+    """The neighbours that describe each object when `_partial_pairs_kept` ranks `n_pairs`
+    compatible pairs: `NEIGHBOURS`, fewer beyond `_PARTIAL_STEPS` merge steps, but not fewer
+    than `_PARTIAL_NEIGHBOURS` (unless `NEIGHBOURS` is)."""
+    return min(NEIGHBOURS, max(_PARTIAL_NEIGHBOURS, _PARTIAL_STEPS // (2 * max(n_pairs, 1))))
+
+
+def _partial_ranking_pays(n_pairs: int, n_partial: int) -> bool:
+    """Whether to rank the pairs (`_partial_pairs_kept`) of `n_pairs` compatible pairs, of
+    which `n_partial` pass only the partial-view rule: when those partial pairs would add to
+    the graph more consistency checks (it checks every two of its m nodes: (m^2 - m_c^2) / 2
+    more with them than with the m_c others alone) than `_PARTIAL_CHECKS` and than ranking
+    takes merge steps. Below, keeping every partial pair costs a fraction of a millisecond,
+    and in such small maps a true pair of a small overlap often fails to rank first."""
+    complete = n_pairs - n_partial
+    added_checks = (n_pairs * n_pairs - complete * complete) // 2
+    return added_checks > max(_PARTIAL_CHECKS, 2 * _partial_neighbours(n_pairs) * n_pairs)
+
+
+@numba.njit(cache=True)
+def _best_pair_of_each(compatible, d_ego, d_other, ages_ego, ages_other, epsilon):
+    """(n,) and (m,) int64: the best compatible pair ((n, m) bool) of every ego object (its
+    other object) and of every other object (its ego object), -1 for none, ranked as
+    `_best_per_object` ranks them, from `_neighbour_distances` rows of both maps."""
+    n, m = compatible.shape
+    steps = d_ego.shape[1] + d_other.shape[1] - 2
+    # (score, age, pick) of each object's best pair so far, pick -1 for none yet
+    best_row = np.full((n, 3), -1.0)
+    best_col = np.full((m, 3), -1.0)
+    cols = np.empty(m, np.int64)
+    at_ego = np.empty(m, np.int64)
+    at_other = np.empty(m, np.int64)
+    count = np.empty(m, np.int64)
+    for i in range(n):
+        k = 0
+        for j in range(m):
+            if compatible[i, j]:
+                cols[k] = j
+                k += 1
+        if k == 0:
+            continue
+        a = d_ego[i]
+        at_ego[:k] = 0
+        at_other[:k] = 0
+        count[:k] = 0
+        # `_best_per_object`'s lockstep greedy matching of every pair of the row, by bursts
+        # of 8 steps: a pair is done once either index reached its row's inf (the steps after
+        # that match nothing), and most rows are done well before `steps`
+        done = 0
+        while done < steps:
+            for _ in range(8):
+                for c in range(k):
+                    d = a[at_ego[c]] - d_other[cols[c], at_other[c]]
+                    hit = abs(d) < epsilon
+                    count[c] += hit
+                    at_ego[c] += hit | (d < 0)
+                    at_other[c] += hit | (d > 0)
+            done += 8
+            busy = False
+            for c in range(k):
+                if a[at_ego[c]] < np.inf and d_other[cols[c], at_other[c]] < np.inf:
+                    busy = True
+                    break
+            if not busy:
+                break
+        for c in range(k):
+            j = cols[c]
+            age = ages_ego[i] + ages_other[j]
+            # offered in index order: a tie keeps the lower index, as `_offer` does
+            _take(best_row[i], count[c], age, j)
+            _take(best_col[j], count[c], age, i)
+    return best_row[:, 2].astype(np.int64), best_col[:, 2].astype(np.int64)
+
+
+@numba.njit(cache=True)
+def _take(best, score, age, pick):
+    """Make best ((3,) score, age, pick; pick -1 for none yet) (score, age, pick) when that
+    ranks above it: a higher score, or the same and a smaller age."""
+    if best[2] < 0 or score > best[0] or (score == best[0] and age < best[1]):
+        best[0], best[1], best[2] = score, age, pick
+
+
 def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
     """(n, k + 1) float64: each point's distances to its k = min(neighbours, n - 1) nearest
     other points, ascending, then an inf that ends the row for `_agreement` and
@@ -247,7 +406,11 @@ def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
     n = points.shape[0]
     k = min(neighbours, n - 1)
     out = np.full((n, k + 1), np.inf)
-    if k > 0:
+    if k > 0 and n <= _DENSE_NEIGHBOURS:
+        # a step's maps: sorting the distance matrix's rows costs a fraction of a tree query
+        # for as many neighbours; the diagonal (the point itself) sorts first
+        out[:, :k] = np.sort(cdist(points, points), axis=1)[:, 1: k + 1]
+    elif k > 0:
         # the nearest is the point itself (or a duplicate of it: distance 0 either way)
         distances, _ = cKDTree(points).query(points, k + 1)
         out[:, :k] = distances[:, 1:]

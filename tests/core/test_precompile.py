@@ -21,7 +21,8 @@ ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_mahalanobis_to"),
                  ("hypothesis_tree", "_first_not_positive_definite"),
                  ("registration", "_mutual_nearest"),
-                 ("registration", "_best_per_object")]
+                 ("registration", "_best_per_object"),
+                 ("registration", "_best_pair_of_each")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():
