@@ -19,7 +19,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .clipper import _graph, _height_slack, _solutions
+from .clipper import _solutions
+from .clipper_graph import _graph, _height_slack
 from .covariance import (
     _calibrated_covariance,
     _inverse_Q,

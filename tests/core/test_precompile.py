@@ -14,7 +14,7 @@ from precompiled import signatures_around
 from tcaff_gtsam.inputs import kernel_array
 
 #: the kernels the alignment path calls from Python (the others are called only by these)
-ENTRY_KERNELS = [("clipper", "_graph_csr"), ("clipper", "_mno"),
+ENTRY_KERNELS = [("clipper_graph", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_measurement_costs"),
                  ("hypothesis_tree", "_kalman_children"), ("hypothesis_tree", "_children"),
                  ("hypothesis_tree", "_best_per_group"),
@@ -44,11 +44,11 @@ def test_the_module_runs_and_says_what_it_did():
 
 READ_ONLY_INPUTS = """
 import numpy as np
-from tcaff_gtsam import TCAFF, clipper, hypothesis_tree, registration
+from tcaff_gtsam import TCAFF, clipper_graph, hypothesis_tree, registration
 from tcaff_gtsam.frame_aligner import FrameAligner
 from tcaff_gtsam.params import FrameAlignerParams
 from tcaff_gtsam.precompile import _maps, compile_kernels
-kernels = [clipper._graph_csr, hypothesis_tree._measurement_costs,
+kernels = [clipper_graph._graph_csr, hypothesis_tree._measurement_costs,
            hypothesis_tree._kalman_children, hypothesis_tree._first_not_positive_definite,
            registration._agreement]
 compile_kernels()
