@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.params import _finite, _require
+from tcaff_gtsam.params import _finite, _int_at_least, _require
 
 from .ros2 import (
     ALIGNMENT_TYPE,
@@ -50,6 +50,7 @@ from .ros2 import (
     alignment_of,
     alignment_topic,
     check_ros_name,
+    cloud_message,
     cloud_topic,
     exchange_of,
     health_message,
@@ -127,6 +128,21 @@ def _message_classes() -> dict[str, type]:
             CLOUD_TYPE: PointCloud2, HEALTH_TYPE: DiagnosticArray}
 
 
+def _warm_codecs() -> None:
+    """Serialise and read one message of each type the node sends or reads: rosbags makes
+    each type's code on first use (0.2 s on an idle core), which would otherwise fall on the
+    run's first maps and put the node behind its neighbours'."""
+    from tcaff_gtsam.object_map import ObjectMap
+
+    one = ObjectMap(np.zeros((1, 3)), np.ones(1), np.ones(1), np.zeros(1))
+    for message, msgtype in ((map_message(1.0, "warm", one, seq=0, boot=0), MAP_TYPE),
+                             (pose_message(1.0, "warm", np.zeros(3), np.eye(3)),
+                              ALIGNMENT_TYPE),
+                             (cloud_message(1.0, "warm", one), CLOUD_TYPE),
+                             (health_message(1.0, "warm", 0, "", {"k": "v"}), HEALTH_TYPE)):
+        read_message(serialize(message, msgtype), msgtype)
+
+
 def _qos(latched: bool):
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -160,33 +176,65 @@ class DdsTransport:
         self._context = None
         self._lock = threading.Lock()  # rclpy entities are made on two threads
         self._publishers: dict[str, object] = {}
+        self._maps: dict[str, object] = {}  # member -> the subscription of its map
         self._reported: dict[str, int] = {}
 
     # -- set-up -------------------------------------------------------------------------------
 
-    def configure(self, robot: str, params: NodeParams) -> NodeParams:
-        """Start the ROS node `/<robot>/tcaff` in `params.domain_id` and declare the settings
-        as its parameters; returns them as the parameters file leaves them (with `ros2` on:
-        robot names are ROS 2 name tokens)."""
+    def start(self, robot: str, domain_id: int = 0) -> None:
+        """Start the ROS node `/<robot>/tcaff` in `domain_id` and its map publisher, before
+        the rest of the node is made (`RobotNode` does it if nothing did): DDS discovery runs
+        on Fast DDS's own threads, so a process that starts this first finds its team and
+        its subscribers while it loads the aligner. Again with the same robot and domain:
+        nothing.
+
+        Raises:
+            ConfigError: rclpy or the message packages not installed, a robot name that is
+                not a ROS 2 name token, a domain not in 0..232, or started already as
+                another robot or in another domain.
+        """
+        if self._context is not None:
+            if (robot, domain_id) != (self.robot, self.domain_id):
+                raise ConfigError(f"--robot {robot!r}, --domain-id {domain_id!r}: the ROS "
+                                  f"node was started as {self.robot!r} in domain "
+                                  f"{self.domain_id}")
+            return
         why = ros2_available()
         if why is not None:
             raise ConfigError(f"--ros2 dds needs ROS 2's Python packages: {why}")
+        _require(_int_at_least(domain_id, 0) and domain_id <= 232, "DdsTransport.start",
+                 "domain_id", domain_id, "must be an int in 0..232")
         import rclpy
-        from rcl_interfaces.msg import ParameterDescriptor
-        from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from rclpy.signals import SignalHandlerOptions
 
         self.robot = check_ros_name("--robot", robot)
+        self.domain_id = domain_id
         self._classes = _message_classes()
-        self._context = rclpy.Context()
+        context = rclpy.Context()
         args = [] if self.params_file is None else ["--ros-args", "--params-file",
                                                     str(self.params_file)]
         # the node's process handles SIGINT / SIGTERM itself (and closes the node)
-        rclpy.init(args=args, context=self._context, domain_id=params.domain_id,
+        rclpy.init(args=args, context=context, domain_id=domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
+        self._context = context
         try:
-            self._ros = Node("tcaff", namespace=f"/{robot}", context=self._context)
+            self._ros = Node("tcaff", namespace=f"/{robot}", context=context)
+        except BaseException:
+            self.close()
+            raise
+        self._publisher(map_topic(robot), MAP_TYPE, False)  # discovered from the start
+        _warm_codecs()
+
+    def configure(self, robot: str, params: NodeParams) -> NodeParams:
+        """Start the ROS node (`start`, unless started) and declare the node's settings as
+        its parameters; returns them as the parameters file leaves them (with `ros2` on:
+        robot names are ROS 2 name tokens)."""
+        self.start(robot, params.domain_id)
+        from rcl_interfaces.msg import ParameterDescriptor
+        from rclpy.executors import SingleThreadedExecutor
+
+        try:
             read_only = ParameterDescriptor(read_only=True)
             values = {}
             for name in (*_PARAMETERS, "health_period"):
@@ -210,8 +258,8 @@ class DdsTransport:
         self._node = node
         params = node.params
         for member in sorted(node.members):
-            self._subscribe(map_topic(member), MAP_TYPE, False,
-                            self._arrived_map(member))
+            self._maps[member] = self._subscribe(map_topic(member), MAP_TYPE, False,
+                                                 self._arrived_map(member))
             if params.team_consistency:
                 for other in sorted(node.members | {node.robot}):
                     if other != member:
@@ -222,7 +270,6 @@ class DdsTransport:
                             self._objects(object_map_of))
             self._subscribe(cloud_topic(node.robot), CLOUD_TYPE, False,
                             self._objects(object_map_of_cloud))
-        self._publisher(map_topic(node.robot), MAP_TYPE, False)  # discovered from the start
         self._health = self._publisher(HEALTH_TOPIC, HEALTH_TYPE, False)
         self._ros.create_timer(self.health_period, self._report)
         self._spinner = threading.Thread(target=self._spin, name=f"tcaff-dds-{node.robot}",
@@ -237,8 +284,8 @@ class DdsTransport:
         except ExternalShutdownException:  # the context was shut down: the node is closing
             pass
 
-    def _subscribe(self, topic: str, msgtype: str, latched: bool, callback) -> None:
-        self._ros.create_subscription(self._classes[msgtype], topic, callback, _qos(latched),
+    def _subscribe(self, topic: str, msgtype: str, latched: bool, callback):
+        return self._ros.create_subscription(self._classes[msgtype], topic, callback, _qos(latched),
                                       raw=True)
 
     def _publisher(self, topic: str, msgtype: str, latched: bool):
@@ -348,12 +395,21 @@ class DdsTransport:
     # -- the graph ----------------------------------------------------------------------------
 
     def present(self, timeout: float) -> set[str]:
-        """The members whose map this node's subscriptions are matched with (DDS
-        discovery); waits up to `timeout` s for all of them."""
+        """The members linked both ways: this node's subscription of the member's map is
+        matched with its publisher, and the member's node subscribes to this node's map, with
+        this node's map publisher matched with as many subscriptions; waits up to `timeout` s
+        for all of them."""
+        own = self._publishers[map_topic(self.robot)]
         deadline = time.monotonic() + timeout
         while True:
+            # the ROS graph names the nodes subscribing; the publisher's matched count says
+            # that DDS has matched them (the graph alone can list a node before that)
+            hearing = {info.node_namespace.strip("/") for info in
+                       self._ros.get_subscriptions_info_by_topic(map_topic(self.robot))}
             up = {m for m in self._node.members
-                  if self._ros.count_publishers(map_topic(m)) > 0}
+                  if m in hearing and self._maps[m].get_publisher_count() > 0}
+            if own.get_subscription_count() < len(up):
+                up = set()
             if up == self._node.members or time.monotonic() >= deadline:
                 return up
             time.sleep(0.05)

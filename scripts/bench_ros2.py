@@ -1,7 +1,7 @@
 """A team over ROS 2's default middleware (DDS, `tcaff node --ros2 dds`) beside the same team over
 Zenoh, on this machine; prints tables.
 
-    python scripts/bench_ros2.py [--parts team,publish,start] [--rate 5] [--load 2]
+    python scripts/bench_ros2.py [--parts team,publish,start] [--rate 5] [--load 2] [--repeats 3]
                                  [--mrclam ../shared/data/mrclam/MRCLAM_Dataset6]
 
 Parts:
@@ -9,13 +9,15 @@ Parts:
            arrival at --rate exchanges per wall second with --load busy processes beside, over
            DDS and over Zenoh: availability and false accepts against the same aligner offline
            (scored as `bench_node.py --parts load` scores, an alignment standing for its pair
-           for 1 s), latency p95 per node, and maps lost (sent by a neighbour, never aligned
-           nor skipped).
+           for 1 s), latency p95 per node, maps lost (sent by a neighbour, never reaching
+           the node), maps skipped (reached it with a newer map of their robot waiting: a
+           node behind aligns the newest) and maps dropped (refused: stale, duplicate, queue
+           full, ...).
   publish  what publishing one accepted alignment costs on top of the alignment (median and
            p95 of 4 000): a DDS node's PoseWithCovarianceStamped (CDR, rclpy publish), and a
            Zenoh node's team message plus its rmw_zenoh-layout ROS 2 message.
   start    node start: spawn of a `tcaff node` process to its first map received by a watcher
-           (rclpy subscriber over DDS, Zenoh subscriber over Zenoh), 3 times each.
+           (rclpy subscriber over DDS, Zenoh subscriber over Zenoh), --repeats times each.
 
 The script runs itself inside a network namespace holding only loopback (`node.dds.isolated`):
 no DDS packet leaves this machine.
@@ -27,6 +29,7 @@ import argparse
 import json
 import math
 import os
+import select
 import subprocess
 import sys
 import tempfile
@@ -92,26 +95,63 @@ def team_scores(data: Path, rate: float, busy: int, transport: str) -> dict:
 def print_team(results: dict[str, dict], rate: float, busy: int) -> None:
     print(f"\nFive MRCLAM robots, {rate:g} exchanges per s, {busy} busy processes beside")
     print("| transport | availability live / offline | false accepts live / offline | "
-          "latency p95 per node | maps lost | skipped (share of maps) |")
-    print("|---|---|---|---|---|---|")
+          "latency p95 per node | maps lost | maps skipped (share) | maps dropped |")
+    print("|---|---|---|---|---|---|---|")
     for transport, got in results.items():
         live, offline = got["scores"]["live"], got["scores"]["offline"]
-        expected = (got["robots"] - 1) * got["steps"]
-        lost = [expected - s.get("maps_received", 0)
-                + sum(v for k, v in s.items() if k.startswith("dropped_"))
-                for s in got["stats"]]
-        p95 = [s.get("latency_p95_ms", math.nan) / 1e3 for s in got["stats"]]
-        skipped = [s.get("skipped", 0) / max(s.get("maps_received", 1), 1)
-                   for s in got["stats"]]
+        stats = got["stats"]
+        sent = sum(s["maps_sent"] for s in stats)
+        # every map reaches a node's worker once: taken (maps_received) or skipped for a
+        # newer one of its robot; what neither took nor skipped never arrived
+        expected = sum(sent - s["maps_sent"] for s in stats)
+        arrived = sum(s.get("maps_received", 0) + s.get("skipped", 0) for s in stats)
+        skipped = sum(s.get("skipped", 0) for s in stats)
+        dropped = sum(v for s in stats for k, v in s.items() if k.startswith("dropped_"))
+        p95 = [s.get("latency_p95_ms", math.nan) / 1e3 for s in stats]
         print(f"| {transport} | {live.availability:.3f} / {offline.availability:.3f} = "
               f"**{live.availability / offline.availability:.3f}** | "
               f"{100 * live.false_accept:.2f} % / {100 * offline.false_accept:.2f} % | "
-              f"{min(p95):.3f} to {max(p95):.3f} s | {sum(lost)} | "
-              f"{100 * min(skipped):.1f} to {100 * max(skipped):.1f} % |")
+              f"{min(p95):.3f} to {max(p95):.3f} s | {expected - arrived} of {expected} | "
+              f"{skipped} ({100 * skipped / expected:.2f} %) | {dropped} |")
+
+
+#: a subscriber in a process of its own, over DDS (argv: "dds", topic) or Zenoh ("zenoh",
+#: endpoint, key expression); prints "heard" at its first message, then takes the rest
+LISTENER = """
+import sys
+if sys.argv[1] == "dds":
+    import rclpy
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    rclpy.init()
+    node = Node("publish_listener")
+    heard = []
+    def take(data):
+        if not heard:
+            print("heard", flush=True)
+        heard.append(1)
+    node.create_subscription(PoseWithCovarianceStamped, sys.argv[2], take, QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL), raw=True)
+    rclpy.spin(node)
+else:
+    import threading
+    from tcaff_gtsam.node import Link
+    first = threading.Event()
+    session = Link(connect=(sys.argv[2],)).open()
+    session.declare_subscriber(sys.argv[3], lambda sample: first.set())
+    first.wait()
+    print("heard", flush=True)
+    threading.Event().wait()
+"""
 
 
 def publish_costs(messages: int = 4000) -> dict[str, np.ndarray]:
-    """s per accepted alignment published: over DDS, and over Zenoh with its ROS 2 topics."""
+    """s per accepted alignment published: over DDS, and over Zenoh with its ROS 2 topics;
+    each with no subscriber, then with one in another process that has received a first
+    message (so that it is matched)."""
     from tcaff_gtsam.node import Link, NodeParams, RobotNode
     from tcaff_gtsam.node.dds import DdsTransport
     from tcaff_gtsam.node.messages import AlignmentMessage
@@ -121,19 +161,33 @@ def publish_costs(messages: int = 4000) -> dict[str, np.ndarray]:
                                 np.array([1.0, 2.0, 0.3]), np.eye(3) * 1e-2)
 
     out = {}
-    port = free_ports(1)[0]
-    for name, link, params in (
-            ("DDS (rclpy)", DdsTransport(), NodeParams()),
-            ("Zenoh + rmw_zenoh layout", Link(listen=(f"127.0.0.1:{port}",)),
-             NodeParams(ros2=True))):
-        with RobotNode("r0", "bench", ["r0", "r1"], link, params) as node:
-            transport = node._transport
-            times = np.empty(messages)
-            for k in range(messages):
-                began = time.perf_counter()
-                transport.put_alignment(alignment(k))
-                times[k] = time.perf_counter() - began
-        out[name] = times
+    for matched in (False, True):
+        port = free_ports(1)[0]
+        for name, link, params, listener in (
+                ("DDS (rclpy)", DdsTransport(), NodeParams(domain_id=DOMAIN),
+                 ["dds", "/r0/tcaff/alignment/r1"]),
+                ("Zenoh + rmw_zenoh layout", Link(listen=(f"127.0.0.1:{port}",)),
+                 NodeParams(ros2=True), ["zenoh", f"127.0.0.1:{port}", "**"])):
+            with RobotNode("r0", "bench", ["r0", "r1"], link, params) as node:
+                transport = node._transport
+                heard = None
+                if matched:
+                    heard = subprocess.Popen([sys.executable, "-c", LISTENER, *listener],
+                                             stdout=subprocess.PIPE, text=True)
+                    waiting = True
+                    while waiting:  # publish until the listener has one
+                        transport.put_alignment(alignment(0))
+                        waiting = not select.select([heard.stdout], [], [], 0.05)[0]
+                    assert heard.stdout.readline().strip() == "heard"
+                times = np.empty(messages)
+                for k in range(messages):
+                    began = time.perf_counter()
+                    transport.put_alignment(alignment(k + 1))
+                    times[k] = time.perf_counter() - began
+                if heard is not None:
+                    heard.kill()
+                    heard.wait()
+            out[(name, "one subscriber" if matched else "no subscriber")] = times
     return out
 
 
@@ -203,6 +257,7 @@ def main() -> None:
     parser.add_argument("--parts", default="team,publish,start")
     parser.add_argument("--rate", type=float, default=5.0)
     parser.add_argument("--load", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=3, help="node starts timed (start)")
     parser.add_argument("--mrclam", type=Path,
                         default=Path("../shared/data/mrclam/MRCLAM_Dataset6"))
     args = parser.parse_args()
@@ -215,17 +270,17 @@ def main() -> None:
                     for t in ("dds", "zenoh")}, args.rate, args.load)
     if "publish" in parts:
         print("\nPublishing one accepted alignment (4 000 each)")
-        print("| how | median | p95 |")
-        print("|---|---|---|")
-        for name, times in publish_costs().items():
-            print(f"| {name} | {1e3 * np.median(times):.3f} ms | "
+        print("| how | matched | median | p95 |")
+        print("|---|---|---|---|")
+        for (name, matched), times in publish_costs().items():
+            print(f"| {name} | {matched} | {1e3 * np.median(times):.3f} ms | "
                   f"{1e3 * np.percentile(times, 95):.3f} ms |")
     if "start" in parts:
-        print("\nNode start: spawn to the first map a watcher receives (3 each)")
+        print(f"\nNode start: spawn to the first map a watcher receives ({args.repeats} each)")
         print("| transport | times | median |")
         print("|---|---|---|")
         for transport in ("dds", "zenoh"):
-            times = start_times(transport)
+            times = start_times(transport, args.repeats)
             print(f"| {transport} | {', '.join(f'{t:.2f}' for t in times)} s | "
                   f"{np.nanmedian(times):.2f} s |")
 

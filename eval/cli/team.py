@@ -222,6 +222,8 @@ def node(
         ros2 = Ros2Transport.zenoh
     link = _transport(ros2, listen, connect, _tls(tls_ca, tls_cert, tls_key), tls_identities,
                       params_file)
+    if ros2 is Ros2Transport.dds:  # DDS discovery runs while the aligner loads
+        link.start(robot, domain_id)
     from tcaff_gtsam.node.node import NodeParams
     from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
     from tcaff_gtsam.node.run import live_node, replay_node
