@@ -15,7 +15,7 @@ elsewhere, single thread, on problems of the issue's sizes), not run here. The s
 medians over the map pairs:
   m          putative associations (nodes of the consistency graph)
   rank       choosing the best pairs per object when the gate passes more than the cap [ms]
-             (`registration._neighbourhood_pairs`; - where the cap is not reached)
+             (`association._neighbourhood_pairs`; - where the cap is not reached)
   edges      consistent pairs in the graph
   graph      consistency graph construction [ms]
   solve      one CLIPPER solve [ms]
@@ -75,13 +75,9 @@ from tcaff_gtsam import (
     consistency_graph,
     mno_clipper,
 )
+from tcaff_gtsam.association import _neighbourhood_pairs, putative_associations, size_compatible
 from tcaff_gtsam.geometry import invert, se2_error, se2_from_params, transform_points
 from tcaff_gtsam.pairwise import unchecked
-from tcaff_gtsam.registration import (
-    _neighbourhood_pairs,
-    putative_associations,
-    size_compatible,
-)
 
 COLUMNS = ("n", "m", "edges", "rank", "graph", "solve", "mno", "graph+mno", "unchecked",
            "aligner", "+memory", "precision", "recall", "found")

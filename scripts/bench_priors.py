@@ -44,8 +44,9 @@ from tcaff_gtsam.eval.datasets.rgbd_sequence import read_sequence
 from tcaff_gtsam.eval.sim.simulate import simulate
 
 from tcaff_gtsam import FrameAligner, FrameAlignerParams
+from tcaff_gtsam.association import _descriptor_gate, size_compatible
 from tcaff_gtsam.geometry import invert, se2_error, se3_to_se2
-from tcaff_gtsam.registration import _descriptor_gate, mutual_inliers, size_compatible
+from tcaff_gtsam.registration import mutual_inliers
 
 SETTINGS = {
     "paper gate": FrameAlignerParams(size_partial=None),

@@ -46,8 +46,8 @@ def one_case(kind: str, n: int, seed: int) -> dict:
 
     from tcaff_gtsam import FrameAligner, ObjectMap
     from tcaff_gtsam import frame_aligner as fa
+    from tcaff_gtsam.association import size_compatible
     from tcaff_gtsam.geometry import se2_error
-    from tcaff_gtsam.registration import size_compatible
 
     aligner = FrameAligner()
     warm = overlapping_maps(np.random.default_rng(1), 20, overlap=0.5)

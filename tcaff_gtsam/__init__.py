@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING as _TYPE_CHECKING
 from .errors import ConfigError, DataError, ModelError, TcaffError
 
 if _TYPE_CHECKING:
+    from .association import putative_associations
     from .clipper import (
         ClipperSolution,
         ConsistencyGraph,
@@ -27,7 +28,7 @@ if _TYPE_CHECKING:
     from .object_map import ObjectMap
     from .pairwise import PairwiseAligner
     from .params import ClipperParams, FrameAlignerParams, GraphParams, TCAFFParams
-    from .registration import putative_associations, weighted_arun
+    from .registration import weighted_arun
     from .tcaff import TCAFF, AlignmentEstimate
     from .team import TeamConsistency, TeamEstimate, TeamParams
 
@@ -81,7 +82,7 @@ _LAZY = {
     "FrameAlignerParams": "params",
     "GraphParams": "params",
     "TCAFFParams": "params",
-    "putative_associations": "registration",
+    "putative_associations": "association",
     "weighted_arun": "registration",
     "TCAFF": "tcaff",
     "AlignmentEstimate": "tcaff",

@@ -128,7 +128,7 @@ class FrameAlignerParams(_ByValue):
             maps of 100 objects: about 1700 beside 830), nearly all false, and the graph costs
             their square. "best": only a pair that is the best of all the compatible pairs of
             both its objects, ranked by how well the two objects' surroundings agree
-            (`registration.neighbourhood_agreement` within `clipper.epsilon`, as
+            (`association.neighbourhood_agreement` within `clipper.epsilon`, as
             `pairs_per_object` ranks them), then by recency: a partially seen object and its
             counterpart, whose surroundings are the same; at most one pair per object.
             "auto" (the default): "best" where the partial pairs would add to the graph more
@@ -164,7 +164,7 @@ class FrameAlignerParams(_ByValue):
             in large maps: the graph costs about m^2 / 2 distance checks.
         pairs_per_object: with more pairs than `max_associations`, the pairs each object of
             either map keeps: those whose objects' surroundings agree best, each within its
-            own map (`registration.neighbourhood_agreement`: the distances to their nearest
+            own map (`association.neighbourhood_agreement`: the distances to their nearest
             neighbours that match within `clipper.epsilon`; then the most recently seen, as
             a tie-break). 2 keeps at most 2 (n_ego + n_other) pairs. Not used below the cap.
         min_score_ratio: solutions scoring below this fraction of the best are discarded.

@@ -19,6 +19,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .association import (
+    _descriptor_gate,
+    _neighbourhood_pairs,
+    _pair_similarity,
+    _partial_pairs_kept,
+    _partial_ranking_pays,
+    size_gates,
+)
 from .clipper import _solutions
 from .clipper_graph import _graph, _height_slack
 from .covariance import (
@@ -47,17 +55,11 @@ from .params import (
 from .registration import (
     MAX_COORDINATE,
     MAX_WEIGHT,
-    _descriptor_gate,
     _mutual_inliers,
-    _neighbourhood_pairs,
-    _pair_similarity,
-    _partial_pairs_kept,
-    _partial_ranking_pays,
     _registration_rmse,
     _spread,
     _weighted_arun,
     _weights,
-    size_gates,
     weighted_arun,
 )
 

@@ -80,6 +80,18 @@ def real_array(owner: str, name: str, value) -> np.ndarray:
                         ) from None
 
 
+def point_array(owner: str, name: str, value, d: int | None = None) -> np.ndarray:
+    """`value` as finite (k, d) points, d = 2 or 3 (or the given d), else DataError naming
+    `owner` and `name`."""
+    arr = real_array(owner, name, value)
+    if arr.ndim != 2 or (arr.shape[1] not in (2, 3) if d is None else arr.shape[1] != d):
+        raise DataError(f"{owner}: {name} must be (k, {'2 or 3' if d is None else d}) points, "
+                        f"got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise DataError(f"{owner}: {name} holds non-finite values")
+    return arr
+
+
 def index_pairs(owner: str, name: str, value) -> np.ndarray:
     """`value` as an (m, 2) int64 array of non-negative indices, e.g. associations (ego index,
     other index). Integers, or floats with whole values; never reshaped, never rounded.

@@ -16,13 +16,12 @@ import time
 
 import numpy as np
 
+from .association import _neighbourhood_pairs, _partial_pairs_kept, neighbourhood_agreement
 from .hypothesis_tree import best_per_tree, mahalanobis_to, not_positive_definite
 from .object_map import ObjectMap
 from .pairwise import PairwiseAligner
-from .registration import _neighbourhood_pairs, _partial_pairs_kept, neighbourhood_agreement
 
 __all__ = ["compile_kernels"]
-
 
 def _maps(rng: np.random.Generator, t: float) -> tuple[ObjectMap, ObjectMap]:
     """Two maps of 12 objects of assorted sizes, the second the first turned and moved."""

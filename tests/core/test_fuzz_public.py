@@ -34,8 +34,9 @@ from tcaff_gtsam import (
 
 #: the modules whose `__all__` is the library's public surface (the hypothesis tree's numba
 #: kernels are TCAFF's internals, reached only through `TCAFF.update`)
-MODULES = ("clipper", "frame_aligner", "geometry", "graph", "identities", "inputs",
-           "object_map", "pairwise", "params", "registration", "tcaff", "team")
+MODULES = ("association", "clipper", "clipper_graph", "frame_aligner", "geometry", "graph",
+           "identities", "inputs", "object_map", "pairwise", "params", "registration", "tcaff",
+           "team")
 
 #: examples per entry point; raise it for a longer search (TCAFF_FUZZ_EXAMPLES=1000)
 FUZZ = settings(max_examples=int(os.environ.get("TCAFF_FUZZ_EXAMPLES", "60")), deadline=None,

@@ -13,10 +13,10 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import maximum_bipartite_matching
 
 from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
-from tcaff_gtsam import registration as reg
+from tcaff_gtsam import association as reg
+from tcaff_gtsam.association import _neighbourhood_pairs, neighbourhood_agreement
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_error, se2_from_params, transform_points
-from tcaff_gtsam.registration import _neighbourhood_pairs, neighbourhood_agreement
 
 seeds = st.integers(0, 2**32 - 1)
 poses = st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-math.pi, math.pi))

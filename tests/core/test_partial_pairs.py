@@ -1,7 +1,7 @@
 """The partial-view size gate where it runs: which pairs only the partial-view rule passes
-(`registration.size_gates`), which of them enter the consistency graph
+(`association.size_gates`), which of them enter the consistency graph
 (`FrameAlignerParams.partial_pairs`: each the best pair of both its objects,
-`registration._partial_pairs_kept`) and when the aligner chooses among them
+`association._partial_pairs_kept`) and when the aligner chooses among them
 (`_partial_ranking_pays`)."""
 
 from __future__ import annotations
@@ -17,19 +17,19 @@ from test_priors import gate_reference, sized_map
 
 import tcaff_gtsam.frame_aligner as fa
 from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
-from tcaff_gtsam import registration as reg
-from tcaff_gtsam.geometry import invert, se2_error, se2_from_params, transform_points
-from tcaff_gtsam.params import ParameterError
-from tcaff_gtsam.registration import (
+from tcaff_gtsam import association as reg
+from tcaff_gtsam.association import (
     _neighbour_distances,
     _partial_neighbours,
     _partial_pairs_kept,
     _partial_ranking_pays,
-    mutual_inliers,
     neighbourhood_agreement,
     size_compatible,
     size_gates,
 )
+from tcaff_gtsam.geometry import invert, se2_error, se2_from_params, transform_points
+from tcaff_gtsam.params import ParameterError
+from tcaff_gtsam.registration import mutual_inliers
 
 seeds = st.integers(0, 2**32 - 1)
 extents = st.lists(st.tuples(st.floats(0.01, 3.0), st.floats(0.01, 3.0)), min_size=0,

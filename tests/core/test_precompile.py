@@ -21,8 +21,8 @@ ENTRY_KERNELS = [("clipper_graph", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_mahalanobis_to"),
                  ("hypothesis_tree", "_first_not_positive_definite"),
                  ("registration", "_mutual_nearest"),
-                 ("registration", "_best_per_object"),
-                 ("registration", "_best_pair_of_each")]
+                 ("association", "_best_per_object"),
+                 ("association", "_best_pair_of_each")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():
@@ -44,13 +44,13 @@ def test_the_module_runs_and_says_what_it_did():
 
 READ_ONLY_INPUTS = """
 import numpy as np
-from tcaff_gtsam import TCAFF, clipper_graph, hypothesis_tree, registration
+from tcaff_gtsam import TCAFF, association, clipper_graph, hypothesis_tree
 from tcaff_gtsam.frame_aligner import FrameAligner
 from tcaff_gtsam.params import FrameAlignerParams
 from tcaff_gtsam.precompile import _maps, compile_kernels
 kernels = [clipper_graph._graph_csr, hypothesis_tree._measurement_costs,
            hypothesis_tree._kalman_children, hypothesis_tree._first_not_positive_definite,
-           registration._agreement]
+           association._agreement]
 compile_kernels()
 print([len(k.signatures) for k in kernels])
 ego, other = _maps(np.random.default_rng(3), 0.0)

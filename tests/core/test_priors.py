@@ -21,16 +21,12 @@ from tcaff_gtsam import (
     ObjectMap,
     putative_associations,
 )
+from tcaff_gtsam.association import size_compatible
 from tcaff_gtsam.clipper import consistency_graph
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se2_error, se2_from_params, se2_to_params
 from tcaff_gtsam.params import ParameterError
-from tcaff_gtsam.registration import (
-    mutual_inliers,
-    registration_rmse,
-    size_compatible,
-    weighted_arun,
-)
+from tcaff_gtsam.registration import mutual_inliers, registration_rmse, weighted_arun
 
 FAST = settings(max_examples=15, deadline=None)
 

@@ -8,14 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from tcaff_gtsam.association import putative_associations
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.registration import (
-    arun_weights,
-    putative_associations,
-    registration_rmse,
-    weighted_arun,
-)
+from tcaff_gtsam.registration import arun_weights, registration_rmse, weighted_arun
 
 PROPS = settings(max_examples=40, deadline=None)
 

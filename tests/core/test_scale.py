@@ -15,16 +15,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from tcaff_gtsam.eval.sim.maps import overlapping_maps
 
-from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap
+from tcaff_gtsam import FrameAligner, FrameAlignerParams, ObjectMap, association
 from tcaff_gtsam import frame_aligner as fa
 from tcaff_gtsam import registration as reg
+from tcaff_gtsam.association import putative_associations, size_compatible
 from tcaff_gtsam.errors import ConfigError
 from tcaff_gtsam.geometry import se2_error, se2_from_params
-from tcaff_gtsam.registration import (
-    mutual_inliers,
-    putative_associations,
-    size_compatible,
-)
+from tcaff_gtsam.registration import mutual_inliers
 
 seeds = st.integers(0, 2**32 - 1)
 
@@ -32,12 +29,12 @@ seeds = st.integers(0, 2**32 - 1)
 @contextmanager
 def gate_block(pairs: int):
     """The size gate evaluated by blocks of `pairs` object pairs for the duration."""
-    saved = reg._GATE_BLOCK
-    reg._GATE_BLOCK = pairs
+    saved = association._GATE_BLOCK
+    association._GATE_BLOCK = pairs
     try:
         yield
     finally:
-        reg._GATE_BLOCK = saved
+        association._GATE_BLOCK = saved
 
 
 def random_map(rng: np.random.Generator, n: int, sizes: int = 4) -> ObjectMap:

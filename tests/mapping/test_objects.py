@@ -23,11 +23,11 @@ from tcaff_gtsam.mapping.objects import (
     shape_features,
 )
 
+from tcaff_gtsam.association import size_compatible
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se3_from_xyz_yaw, transform_points
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.params import FrameAlignerParams
-from tcaff_gtsam.registration import size_compatible
 
 FEW = settings(max_examples=25, deadline=None)
 
