@@ -143,6 +143,24 @@ def _warm_codecs() -> None:
         read_message(serialize(message, msgtype), msgtype)
 
 
+#: Fast DDS's default participant profile for a node: its first discovery announcements 30
+#: times 0.1 s apart instead of 5. With Fast DDS's own, 2 of 6 and 4 of 10 starts of a node
+#: beside a watcher missed the first announcements and found each other only at the periodic
+#: one 3 s later (spawn to first message 3.8-4.0 s instead of 1.2-1.9 s)
+FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
+
+
+def _announce_often() -> None:
+    """Point Fast DDS at `FASTDDS_PROFILE` before rclpy starts it, unless the middleware is
+    another or the user gave Fast DDS profiles of their own."""
+    if os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") != "rmw_fastrtps_cpp":
+        return
+    if any(v in os.environ for v in ("FASTDDS_DEFAULT_PROFILES_FILE",
+                                     "FASTRTPS_DEFAULT_PROFILES_FILE")):
+        return
+    os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILE)
+
+
 def _qos(latched: bool):
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -204,6 +222,7 @@ class DdsTransport:
             raise ConfigError(f"--ros2 dds needs ROS 2's Python packages: {why}")
         _require(_int_at_least(domain_id, 0) and domain_id <= 232, "DdsTransport.start",
                  "domain_id", domain_id, "must be an int in 0..232")
+        _announce_often()
         import rclpy
         from rclpy.node import Node
         from rclpy.signals import SignalHandlerOptions

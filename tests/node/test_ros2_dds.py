@@ -12,6 +12,7 @@ once and each test checks its own; they are marked `realtime`.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tcaff_gtsam.node import NodeParams, RobotNode, ros2
+from tcaff_gtsam.node import NodeParams, RobotNode, dds, ros2
 from tcaff_gtsam.node.dds import DdsTransport, isolated, namespace_problem, ros2_available
 from tcaff_gtsam.node.results import read_alignments, row_covariance
 
@@ -382,3 +383,29 @@ def test_dds_options_are_refused_in_one_line(tmp_path: Path, tcaff_main) -> None
     if _missing:  # without ROS 2 a DDS node says what to install
         with pytest.raises(ConfigError, match=r"tcaff-gtsam\[ros2\]"):
             RobotNode("r0", "t", ["r0", "r1"], DdsTransport(), NodeParams())
+
+
+@pytest.mark.parametrize(("given", "expected"), [
+    ({}, "ours"),
+    ({"RMW_IMPLEMENTATION": "rmw_fastrtps_cpp"}, "ours"),
+    ({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}, None),
+    ({"FASTDDS_DEFAULT_PROFILES_FILE": "/their/profile.xml"}, "/their/profile.xml"),
+    ({"FASTRTPS_DEFAULT_PROFILES_FILE": "/their/old.xml"}, None),
+])
+def test_the_node_announces_often_on_fast_dds_unless_told_otherwise(monkeypatch, given,
+                                                                     expected):
+    """The node's Fast DDS profile is used only where Fast DDS is the middleware and the user
+    gave no profile of their own; it exists and is valid XML with the announcements set."""
+    from xml.etree import ElementTree
+
+    for name in ("RMW_IMPLEMENTATION", "FASTDDS_DEFAULT_PROFILES_FILE",
+                 "FASTRTPS_DEFAULT_PROFILES_FILE"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in given.items():
+        monkeypatch.setenv(name, value)
+    dds._announce_often()
+    got = os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")
+    assert got == (str(dds.FASTDDS_PROFILE) if expected == "ours" else expected)
+    count = ElementTree.parse(dds.FASTDDS_PROFILE).getroot().find(
+        ".//{*}initialAnnouncements/{*}count")
+    assert int(count.text) > 5  # more than Fast DDS's own
