@@ -41,17 +41,13 @@ class Ros2Transport(str, Enum):
     zenoh = "zenoh"
 
 
-_ROS2_HELP = ("Speak ROS 2: 'dds' makes each node an rclpy node on the middleware the "
-              "environment selects (the team exchanges maps and alignments over ROS 2 topics "
-              "alone; no --listen/--connect; see docs/ros2.md); 'zenoh' keeps the Zenoh team "
-              "and also publishes its map and accepted alignments as ROS 2 topics laid out as "
-              "rmw_zenoh does (docs/team.md#ros-2).")
+_ROS2_HELP = ("'dds': an rclpy node on the environment's middleware, maps and alignments on "
+              "ROS 2 topics alone (docs/ros2.md); 'zenoh': the Zenoh team, also publishing "
+              "rmw_zenoh-layout topics (docs/team.md#ros-2).")
 _DOMAIN_HELP = "The ROS 2 domain (ROS_DOMAIN_ID) of those topics, 0 to 232."
-_PARAMS_FILE_HELP = ("With --ros2 dds: a ROS 2 parameters YAML overriding the node's "
-                     "parameters (kappa, silence, queue, team_consistency, health_period) of "
-                     "/<robot>/tcaff.")
-_TLS_HELP = ("PEM file: the team's certificate authority (with --tls-cert and --tls-key: "
-             "mutual TLS).")
+_PARAMS_FILE_HELP = ("With --ros2 dds: a ROS 2 parameters YAML for /<robot>/tcaff (kappa, "
+                     "silence, queue, team_consistency, health_period).")
+_TLS_HELP = "PEM file: the team's certificate authority (with --tls-cert, --tls-key: mutual TLS)."
 _ON_ARRIVAL_HELP = ("Align each neighbour's map as it arrives, with the robot's latest map, on "
                     "its clock at arrival (as robots with their own exchange counters do; "
                     "behind, a node skips to the newest map) instead of with the map of the "
@@ -178,10 +174,9 @@ def node(
     domain_id: Annotated[int, typer.Option(help=_DOMAIN_HELP)] = 0,
     params_file: Annotated[Path | None, typer.Option(help=_PARAMS_FILE_HELP)] = None,
     ros2_objects: Annotated[bool, typer.Option(
-        "--ros2-objects", help="Take the robot's maps from the ROS 2 topics "
-        "/<robot>/tcaff/objects (visualization_msgs/MarkerArray) and, with --ros2 dds, "
-        "/<robot>/tcaff/object_cloud (sensor_msgs/PointCloud2) instead of replaying them; "
-        "without --ros2: --ros2 zenoh. Needs --members. Runs until Ctrl-C or --duration.")
+        "--ros2-objects", help="Maps from /<robot>/tcaff/objects (MarkerArray) and, over "
+        "dds, /<robot>/tcaff/object_cloud (PointCloud2), not a replay (docs/ros2.md); "
+        "implies --ros2 zenoh if unset. Needs --members. Runs until Ctrl-C or --duration.")
     ] = False,
     members: Annotated[str | None, typer.Option(
         help="With --ros2-objects: every robot of the team, like r0,r1,r2.")] = None,
