@@ -114,6 +114,12 @@ class FilterState:
             # absent from states saved before a recall could displace a main tree
             peak = _counter(state.get("peak", 0), "peak")
             reclaiming = _counter(state.get("reclaiming", 0), "reclaiming")
+            if not 0 <= peak <= self.params.window or reclaiming not in (0, 1):
+                raise DataError(f"TCAFF state: peak = {peak} must be in [0, window "
+                                f"{self.params.window}] and reclaiming = {reclaiming} 0 or 1")
+            if reclaiming and (dormant[0] is None or "main.x" not in state):
+                raise DataError("TCAFF state: reclaiming needs a dormant hypothesis beside a "
+                                "main tree")
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
         except (TypeError, ValueError, OverflowError) as exc:
@@ -314,7 +320,7 @@ class FilterState:
                             f"(hypothesis counter {hypothesis}"
                             f"{', with a main tree' if main else ''})")
         peak = _counter(state.get("dormant.peak", 0), "dormant.peak")
-        if peak > window:
+        if not 0 <= peak <= window:
             raise DataError(f"TCAFF state: dormant.peak = {peak} is more than the window "
                             f"{window}")
         recall_for = self.params.recall_for

@@ -238,6 +238,11 @@ def test_a_dormant_hypothesis_beside_a_main_tree_survives_save_and_load(seed, tm
     assert a._dormant is not None and a._main is not None
     a.save(tmp_path / "f.npz")
     b = TCAFF.load(tmp_path / "f.npz")
+    saved, loaded = a.state_dict(), b.state_dict()
+    assert saved.keys() == loaded.keys() and {"peak", "reclaiming", "dormant.peak"} <= saved.keys()
+    for key, value in saved.items():
+        np.testing.assert_array_equal(value, loaded[key], err_msg=key)
+    assert (a.estimate is None) == (b.estimate is None)
     for est_a, est_b in zip(feed(a, zs[back + 1:]), feed(b, zs[back + 1:]), strict=True):
         assert (est_a is None) == (est_b is None)
         if est_a is not None:
@@ -245,11 +250,14 @@ def test_a_dormant_hypothesis_beside_a_main_tree_survives_save_and_load(seed, tm
             assert est_a.hypothesis == est_b.hypothesis
     state = a.state_dict()
     assert "dormant.x" not in state  # recalled by now
-    feed(a := TCAFF(), zs[:back + 1])
-    state = a.state_dict()
+    filt = TCAFF()
+    feed(filt, zs[:back + 1])
+    state = filt.state_dict()
     for key, value, message in [
             ("dormant.hypothesis", np.array(int(state["hypothesis"])), "needs a dropped one"),
-            ("dormant.peak", np.array(W + 1), "more than the window")]:
+            ("dormant.peak", np.array(W + 1), "more than the window"),
+            ("peak", np.array(W + 1), "peak = 9 must be in"),
+            ("reclaiming", np.array(7), "reclaiming = 7 0 or 1")]:
         with pytest.raises(DataError, match=message):
             TCAFF().load_state_dict(dict(state, **{key: value}))
 
