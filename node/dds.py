@@ -239,11 +239,11 @@ class DdsTransport:
         self._context = context
         try:
             self._ros = Node("tcaff", namespace=f"/{robot}", context=context)
+            self._publisher(map_topic(robot), MAP_TYPE, False)  # discovered from the start
+            _warm_codecs()
         except BaseException:
             self.close()
             raise
-        self._publisher(map_topic(robot), MAP_TYPE, False)  # discovered from the start
-        _warm_codecs()
 
     def configure(self, robot: str, params: NodeParams) -> NodeParams:
         """Start the ROS node (`start`, unless started) and declare the node's settings as
@@ -446,3 +446,9 @@ class DdsTransport:
             context.try_shutdown()
         if hasattr(self, "_spinner"):
             self._spinner.join(timeout=5)
+        # a later `start` makes everything anew, none of it on the closed context
+        self._publishers.clear()
+        self._maps.clear()
+        self._reported.clear()
+        for name in ("_executor", "_ros", "_spinner"):
+            self.__dict__.pop(name, None)

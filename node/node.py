@@ -188,45 +188,47 @@ class RobotNode:
             raise ConfigError(f"--members {members!r}: the team needs another robot besides "
                               f"{robot!r}")
         self._transport = ZenohTransport(link) if isinstance(link, Link) else link
-        self.params = self._transport.configure(robot, params or NodeParams())
-        if self.params.ros2:  # before anything is opened
-            from .ros2 import check_ros_name
-
-            for name in (robot, *self.members):
-                check_ros_name("--robot" if name == robot else "--members", name)
-        self._aligner_params = aligner_params or FrameAlignerParams(kappa=self.params.kappa)
-        self._tcaff_params = tcaff_params
-        self._on_alignment = on_alignment
-        self._on_team = on_team
-        self._state_dir = None if state_dir is None else Path(state_dir)
-        self.counters: Counter[str] = Counter()
-        self.latest: dict[str, AlignmentMessage] = {}
-        self.latencies: deque[float] = deque(maxlen=10_000)
-        self.team_latest: dict[str, TeamMessage] = {}
-        # robots in index order for TeamConsistency, and the other robots' latest alignments:
-        # (robot, neighbour) -> (message, perf_counter time of arrival)
-        self._robots = sorted(self.members | {self.robot})
-        self._team = (TeamConsistency(len(self._robots), team_params)
-                      if self.params.team_consistency else None)
-        self._heard: dict[tuple[str, str], tuple[AlignmentMessage, float]] = {}
-        self._neighbours: dict[str, _Neighbour] = {}
-        self._restore()
-        self.boot = random.SystemRandom().randrange(2**32)
-        self._seq = 0
-        self._publishing = threading.Lock()
-        # maps queued per key, to skip all but the newest of a robot when the node is behind
-        self._waiting: Counter[str] = Counter()
-        self._waiting_lock = threading.Lock()
-        self._ros2_last: float | None = None  # the latest ROS 2 map's time
-        self._closed = False
-        self._ego: dict[int, tuple[float, ObjectMap]] = {}
-        # seq, stamp, perf_counter() when it was published
-        self._ego_latest: tuple[int, float, float] | None = None
-        self._inbox: queue.Queue = queue.Queue(self.params.queue)
-        self._idle = threading.Event()
+        # from here on the transport may hold a started ROS node: nothing is left open by
+        # a node that could not start
         try:
+            self.params = self._transport.configure(robot, params or NodeParams())
+            if self.params.ros2:  # before anything is opened
+                from .ros2 import check_ros_name
+
+                for name in (robot, *self.members):
+                    check_ros_name("--robot" if name == robot else "--members", name)
+            self._aligner_params = aligner_params or FrameAlignerParams(kappa=self.params.kappa)
+            self._tcaff_params = tcaff_params
+            self._on_alignment = on_alignment
+            self._on_team = on_team
+            self._state_dir = None if state_dir is None else Path(state_dir)
+            self.counters: Counter[str] = Counter()
+            self.latest: dict[str, AlignmentMessage] = {}
+            self.latencies: deque[float] = deque(maxlen=10_000)
+            self.team_latest: dict[str, TeamMessage] = {}
+            # robots in index order for TeamConsistency, and the other robots' latest alignments:
+            # (robot, neighbour) -> (message, perf_counter time of arrival)
+            self._robots = sorted(self.members | {self.robot})
+            self._team = (TeamConsistency(len(self._robots), team_params)
+                          if self.params.team_consistency else None)
+            self._heard: dict[tuple[str, str], tuple[AlignmentMessage, float]] = {}
+            self._neighbours: dict[str, _Neighbour] = {}
+            self._restore()
+            self.boot = random.SystemRandom().randrange(2**32)
+            self._seq = 0
+            self._publishing = threading.Lock()
+            # maps queued per key, to skip all but the newest of a robot when the node is behind
+            self._waiting: Counter[str] = Counter()
+            self._waiting_lock = threading.Lock()
+            self._ros2_last: float | None = None  # the latest ROS 2 map's time
+            self._closed = False
+            self._ego: dict[int, tuple[float, ObjectMap]] = {}
+            # seq, stamp, perf_counter() when it was published
+            self._ego_latest: tuple[int, float, float] | None = None
+            self._inbox: queue.Queue = queue.Queue(self.params.queue)
+            self._idle = threading.Event()
             self._transport.open(self)
-        except BaseException:  # nothing left open by a node that could not start
+        except BaseException:
             self._transport.close()
             raise
         self._saver = None if self._state_dir is None else _Saver(self.robot, self.counters)

@@ -99,7 +99,8 @@ class ZenohTransport:
                     self._session, robot, node.params.domain_id,
                     node.ros2_map if node.params.ros2_objects else None, node.drop)
         except BaseException:  # nothing left open by a node that could not start
-            self._session.close()
+            session, self._session = self._session, None
+            session.close()
             raise
 
     def _arrived(self, sample) -> None:

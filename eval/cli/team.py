@@ -6,6 +6,7 @@ they replay (simulated, MRCLAM, Kimera-Multi) and their TLS options.
 
 from __future__ import annotations
 
+import atexit
 import math
 from enum import Enum
 from pathlib import Path
@@ -55,8 +56,7 @@ _ON_ARRIVAL_HELP = ("Align each neighbour's map as it arrives, with the robot's 
 _TEAM_HELP = ("Also publish each pair's team-consistent alignment (those failing a cycle of "
               "three robots left out, missing ones chained through a third) on team/<other> "
               "keys and in <robot>.team.csv.")
-_SILENCE_HELP = ("s of run without a neighbour's map before its filter steps without "
-                 "measurements (at --speed S, silence / S s of wall time).")
+_SILENCE_HELP = "s without a neighbour's map before its filter steps empty (wall: /--speed)."
 _KIMERA_HELP = ("Or a folder of Kimera-Multi rosbags and <robot>_gt_odom.csv files to replay, "
                 "mapped through the RGB-D front end (maps saved in OUTPUT/maps/ and reused).")
 _KIMERA_TEST_HELP = (f"With --kimera: the Kimera-Multi test YAML or shipped name "
@@ -219,6 +219,7 @@ def node(
                       params_file)
     if ros2 is Ros2Transport.dds:  # DDS discovery runs while the aligner loads
         link.start(robot, domain_id)
+        atexit.register(link.close)  # a refusal below leaves no ROS node behind (again: no-op)
     from tcaff_gtsam.node.node import NodeParams
     from tcaff_gtsam.node.replay import RobotReplay, robot_names, run_replay
     from tcaff_gtsam.node.run import live_node, replay_node
