@@ -11,8 +11,10 @@ once and each test checks its own; they are marked `realtime`.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -41,8 +43,17 @@ DOMAINS = {"team": 41, "objects": 42}
 def start_isolated(script: str, args: list[str], domain_id: int) -> subprocess.Popen:
     """Start a Python `script` with `args` in a loopback-only namespace (see the docstring)."""
     argv, env = isolated([sys.executable, "-c", textwrap.dedent(script), *args], domain_id)
+    # its own process group: a failed test kills the nodes it started too (`stop`)
     return subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, start_new_session=True)
+
+
+def stop(proc: subprocess.Popen) -> None:
+    """Kill a run still going and every process it started (its process group)."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
 
 
 #: an rclpy subscriber of one alignment topic (reliable, transient local as published, every
@@ -162,15 +173,14 @@ def live_runs(tmp_path_factory) -> dict[str, tuple[subprocess.Popen, Path]]:
                                       str(team / "bag")], DOMAINS["team"]), team / "dds"),
         "zenoh": (subprocess.Popen([sys.executable, "-m", "tcaff_gtsam.eval.cli", "team",
                                     *common, "--output", str(team / "zenoh")],
-                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                   start_new_session=True),
                   team / "zenoh"),
         "feed": (start_isolated(FEED, [str(feed), str(feed / "maps.npz"),
                                        str(DOMAINS["objects"])], DOMAINS["objects"]), feed)}
     yield runs
     for proc, _ in runs.values():
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        stop(proc)
 
 
 def finished(run: tuple[subprocess.Popen, Path]) -> tuple[subprocess.CompletedProcess, Path]:
