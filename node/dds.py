@@ -64,6 +64,7 @@ from .ros2 import (
     serialize,
     team_topic,
 )
+from .transport import ros2_output
 
 if TYPE_CHECKING:
     from tcaff_gtsam.object_map import ObjectMap
@@ -365,16 +366,14 @@ class DdsTransport:
         `ros2_errors` and logged, the node goes on."""
         if not message.accepted:
             return
-        try:
+
+        def publish() -> None:
             data = serialize(pose_message(message.stamp, f"{self.robot}/odom", message.x,
                                           message.P), ALIGNMENT_TYPE)
             self._publisher(topic(self.robot, message.neighbour), ALIGNMENT_TYPE,
                             True).publish(data)
-            self._node.counters["ros2_sent"] += 1
-        except Exception as exc:  # the node's own results are kept already
-            self._node.counters["ros2_errors"] += 1
-            log.warning("%s: alignment to %s not published: %s", self.robot,
-                        message.neighbour, exc)
+
+        ros2_output(self._node, f"alignment to {message.neighbour}", publish)
 
     def _report(self) -> None:
         """The node's health on /diagnostics: WARN when maps were dropped, skipped or lost,
