@@ -276,24 +276,31 @@ def held(rows: dict[str, np.ndarray], neighbour: str, steps: int, hold: int) -> 
     return out
 
 
+def mrclam_offline(data: Path, seconds: float | None):
+    """(run, job, methods): MRCLAM `data` (its first `seconds`, None: all) as the default
+    config loads it, and TCAFF's offline run of it, scored: what a live team is held to."""
+    from tcaff_gtsam.eval.config import MethodsConfig, load_mrclam
+    from tcaff_gtsam.eval.dataset_runs import evaluate_run, load_mrclam_run
+    from tcaff_gtsam.eval.datasets import mrclam
+
+    config = load_mrclam("default")
+    run = load_mrclam_run(mrclam.read_dataset(data), config, config.odometry, 0, seconds)
+    job, methods = evaluate_run(run, MethodsConfig(methods=["tcaff"]))
+    return run, job, methods
+
+
 def recorded_team(data: Path, rate: float, busy: int, seconds: float | None,
                   victim: int = 2, kill_share: float = 0.4, down: float = 3.0) -> dict:
     """Five MRCLAM robots live (on arrival) at `rate` exchanges per wall second beside `busy`
     spinning processes, robot `victim` killed at `kill_share` of the run and restarted from
     its state `down` s later: each node's JSON, the restarted node's time to be present
     again, and the offline and live scores of the same run."""
-    from tcaff_gtsam.eval.config import MethodsConfig, load_mrclam
-    from tcaff_gtsam.eval.dataset_runs import evaluate_run, load_mrclam_run
-    from tcaff_gtsam.eval.datasets import mrclam
     from tcaff_gtsam.eval.metrics import pooled_metrics
     from tcaff_gtsam.eval.results import thresholds_of
     from tcaff_gtsam.node.link import alive_key
     from tcaff_gtsam.node.results import read_alignments
 
-    config = load_mrclam("default")
-    run = load_mrclam_run(mrclam.read_dataset(data), config, config.odometry, 0, seconds)
-    methods = MethodsConfig(methods=["tcaff"])
-    job, methods = evaluate_run(run, methods)
+    run, job, methods = mrclam_offline(data, seconds)
     n, S = run.n_robots, len(run.times)
     spinners = spinning(busy)
     try:

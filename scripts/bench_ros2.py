@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_node import HOLD, held, spinning
+from bench_node import HOLD, held, mrclam_offline, spinning
 from tcaff_gtsam.node.dds import isolated
 from tcaff_gtsam.node.run import (
     free_ports,
@@ -55,16 +55,11 @@ _INSIDE = "TCAFF_BENCH_ISOLATED"
 
 def team_scores(data: Path, rate: float, busy: int, transport: str) -> dict:
     """The MRCLAM team over `transport` ("dds" or "zenoh"), scored against the offline run."""
-    from tcaff_gtsam.eval.config import MethodsConfig, load_mrclam
-    from tcaff_gtsam.eval.dataset_runs import evaluate_run, load_mrclam_run
-    from tcaff_gtsam.eval.datasets import mrclam
     from tcaff_gtsam.eval.metrics import pooled_metrics
     from tcaff_gtsam.eval.results import thresholds_of
     from tcaff_gtsam.node.results import read_alignments
 
-    config = load_mrclam("default")
-    run = load_mrclam_run(mrclam.read_dataset(data), config, config.odometry, 0, None)
-    job, methods = evaluate_run(run, MethodsConfig(methods=["tcaff"]))
+    run, job, methods = mrclam_offline(data, None)
     n, S = run.n_robots, len(run.times)
     spinners = spinning(busy)
     try:

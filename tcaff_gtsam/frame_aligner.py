@@ -146,7 +146,7 @@ class FrameAligner:
         o = "FrameAligner.lookalike_share"
         ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
         compatible = self._recent_pair(ego, other, finite_time(o, "now", now))[4][0]
-        return float(compatible.mean()) if compatible.size else 0.0
+        return _gated_share(compatible)
 
     def _recent_pair(self, ego: ObjectMap, other: ObjectMap, now: float) -> tuple:
         """(ego_idx, other_idx, ego_r, other_r, gates): the indices and maps of the objects
@@ -336,8 +336,7 @@ class FrameAligner:
         prm = self.params
         # the gate of the putative associations, kept whole for counting the inliers
         compatible, partial = self._gates(ego_r, other_r) if gates is None else gates
-        fewest = prm.fewest_associations(len(ego_r), len(other_r),
-                                         float(compatible.mean()) if compatible.size else 0.0)
+        fewest = prm.fewest_associations(len(ego_r), len(other_r), _gated_share(compatible))
         if min(len(ego_r), len(other_r)) < fewest:
             return []
         p_all = ego_r.centroids[:, : prm.dim]
@@ -528,6 +527,11 @@ class FrameAligner:
                     or abs(float(_wrap_angle(dz[2]))) > prm.distinct_heading):
                 return True
         return False
+
+
+def _gated_share(compatible: np.ndarray) -> float:
+    """The share of the object pairs (n_ego, n_other) bool that pass the gates, 0 for none."""
+    return float(compatible.mean()) if compatible.size else 0.0
 
 
 def _snapshots(owner: str, name: str, value) -> list[tuple[float, ObjectMap]]:

@@ -311,12 +311,10 @@ class TCAFF(FilterState):
         explore = self._explore
         if len(explore) == 0:
             return
-        window = explore.choice[:, -prm.window:]
         age = np.count_nonzero(explore.choice >= NO_MEASUREMENT, axis=1) - 1
         score = explore.cost - self._object_support(explore.choice)
         bound = score + (prm.window - age) * self._model.no_measurement_cost
-        ready = ((bound < prm.tau)
-                 & (np.count_nonzero(window >= 0, axis=1) >= prm.early_measurements))
+        ready = (bound < prm.tau) & (self._taken(explore.choice) >= prm.early_measurements)
         if self._dormant is not None:
             # contradicting a hypothesis that was accepted before the gap takes the window
             ready &= self._consistent(explore, self._dormant)
@@ -389,7 +387,7 @@ class TCAFF(FilterState):
         prm, dormant, explore = self.params, self._dormant, self._explore
         if len(explore) == 0:
             return
-        taken = np.count_nonzero(explore.choice[:, -prm.window:] >= 0, axis=1)
+        taken = self._taken(explore.choice)
         agree = self._consistent(explore, dormant)
         confirmed = agree & (taken >= prm.early_measurements)
         if self._main is not None and confirmed.any():
@@ -401,7 +399,8 @@ class TCAFF(FilterState):
         if np.any(taken[~agree] > taken[best]):
             return
         if self._main is not None:
-            if max(self._dormant_peak, int(taken[best])) < self._main_estimate().n_measurements:
+            main_taken = self._taken(self._main.choice[int(np.argmin(self._main.cost))])
+            if max(self._dormant_peak, int(taken[best])) < main_taken:
                 return
             self._reclaiming = False
             self.hypothesis += 1
@@ -490,7 +489,7 @@ class TCAFF(FilterState):
         # without object ids this step (maps not of look-alikes) nothing is contested
         if len(explore) == 0 or self._evidence[-1] is None:
             return False
-        taken = np.count_nonzero(explore.choice[:, -self.params.window:] >= 0, axis=1)
+        taken = self._taken(explore.choice)
         if self.params.switch_support is not None:
             need = self._outvote_need(m)
             if any(self._support(explore.choice[r]) >= need
@@ -515,8 +514,7 @@ class TCAFF(FilterState):
         tree's leaf m: `switch_support` more times than m's path took a measurement (the main
         path's measurements count as they are: a true alignment re-matching the same objects
         while the robots stand still is not to be outvoted for it)."""
-        seen = int(np.count_nonzero(self._main.choice[m, -self.params.window:] >= 0))
-        return seen + self.params.switch_support
+        return self._taken(self._main.choice[m]) + self.params.switch_support
 
     def _support(self, path: np.ndarray) -> int:
         """How often a rival's hypothesis was seen in the window: its measurements, or one
@@ -524,8 +522,13 @@ class TCAFF(FilterState):
         cluster re-matched again and again). A path with two or more counts every
         measurement, repeats included."""
         distinct = self._distinct(path)[0]
-        return distinct if distinct < 2 else int(np.count_nonzero(
-            path[-self.params.window:] >= 0))
+        return distinct if distinct < 2 else self._taken(path)
+
+    def _taken(self, choice: np.ndarray):
+        """Measurements in the window: (L,) ints for paths (L, W + 2), an int for one path
+        (W + 2,)."""
+        taken = np.count_nonzero(choice[..., -self.params.window:] >= 0, axis=-1)
+        return int(taken) if choice.ndim == 1 else taken
 
     def _distinct_enough(self, leaves: Leaves, index: int) -> bool:
         """Whether leaf `index`'s path holds `min_distinct` distinct pieces of evidence."""
@@ -625,10 +628,9 @@ class TCAFF(FilterState):
         main = self._main
         cost = main.cost
         best = int(np.argmin(cost))
-        path = main.choice[best, -self.params.window:]
+        path = main.choice[best]
         return AlignmentEstimate(main.x[best].copy(), main.P[best].copy(), float(cost[best]),
-                                 self.hypothesis, self.step, int(np.count_nonzero(path >= 0)),
-                                 int(path[-1]))
+                                 self.hypothesis, self.step, self._taken(path), int(path[-1]))
 
     # -- input and state -----------------------------------------------------------------------
 
