@@ -155,6 +155,12 @@ class TCAFFParams(_ByValue):
             unless an open hypothesis inconsistent with it holds more evidence. With the
             default Q, 100 steps grow its standard deviation by 1 m and 5 degrees, the
             bounds of a correct alignment. None: a dropped hypothesis is forgotten.
+        neutral_empty_steps: a step at which the aligner gave no measurement at all costs no
+            hypothesis a missed measurement (-log p_NM): the maps shared too few objects for
+            any candidate, which says nothing about which alignment is right, and a
+            hypothesis seen at two steps of a sparse overlap is not judged as if it had been
+            missed at the others. A step that offered measurements elsewhere still charges
+            every hypothesis that took none. False: every step charges a miss (the paper).
     """
 
     window: int = 8
@@ -189,6 +195,7 @@ class TCAFFParams(_ByValue):
     object_base: int = 5
     early_measurements: int = 2
     recall_for: int | None = 100
+    neutral_empty_steps: bool = True
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
@@ -249,6 +256,8 @@ class TCAFFParams(_ByValue):
                  "report_after", self.report_after, "must be an int >= 1 or None")
         _require(isinstance(self.sequential, bool), o, "sequential", self.sequential,
                  "must be True or False")
+        _require(isinstance(self.neutral_empty_steps, bool), o, "neutral_empty_steps",
+                 self.neutral_empty_steps, "must be True or False")
         # the released code's promotion replays a full window, which a young tree has not
         _require(not (self.sequential and self.promotion == "reseed"), o, "sequential",
                  self.sequential, "must be False with promotion='reseed'")
@@ -277,7 +286,8 @@ class TCAFFParams(_ByValue):
         """The paper's equations alone: every measurement counts as evidence, and a main
         hypothesis confirmed at a step is never abandoned at that step."""
         return cls(min_distinct=1, switch_stale=False, withhold_contested=False,
-                   switch_support=None, sequential=False, recall_for=None)
+                   switch_support=None, sequential=False, recall_for=None,
+                   neutral_empty_steps=False)
 
     @classmethod
     def reference(cls) -> TCAFFParams:
@@ -285,7 +295,8 @@ class TCAFFParams(_ByValue):
         return cls(tau=9.0, gate="box", cost_model="reference", root_in_window=True,
                    promotion="reseed", drop_rule="window", drop_after=40, switch_after=None,
                    switch_support=None, min_distinct=1, switch_stale=False,
-                   withhold_contested=False, sequential=False, recall_for=None)
+                   withhold_contested=False, sequential=False, recall_for=None,
+                   neutral_empty_steps=False)
 
 
 def _default_odometry_cov(dim: int) -> np.ndarray:

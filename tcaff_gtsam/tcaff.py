@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -114,6 +114,9 @@ class TCAFF(FilterState):
             Q=prm.Q, angular=angular, reference=prm.cost_model == "reference",
             use_box=prm.gate == "box", gate_chi2=_chi2_quantile(prm.gate_probability, d),
             gate_box=np.array(prm.gate_box), no_measurement_cost=float(nm_cost))
+        # a step without any measurement says nothing about which alignment is right
+        self._empty_step_model = (replace(self._model, no_measurement_cost=0.0)
+                                  if prm.neutral_empty_steps else self._model)
         self._columns = prm.window + 2
         self.reset()
 
@@ -216,10 +219,11 @@ class TCAFF(FilterState):
             self._main, self._rival, self._switch_streak = None, None, 0
         elif self._dormant is not None:
             self._age_dormant()
+        model = self._model if zs.shape[0] else self._empty_step_model
         if self._main is not None:
-            self._main = extend(self._main, zs, Rs, self._model, prm.max_children,
+            self._main = extend(self._main, zs, Rs, model, prm.max_children,
                                 lambda cost, choice, _: self._main_keep(cost, choice))
-        complete = self._advance_exploring(zs, Rs)
+        complete = self._advance_exploring(zs, Rs, model)
         self._reclaiming = False
         if self._main is not None:
             if self._dormant is not None:
@@ -267,7 +271,7 @@ class TCAFF(FilterState):
 
     # -- exploring trees -----------------------------------------------------------------------
 
-    def _advance_exploring(self, zs: np.ndarray, Rs: np.ndarray) -> Leaves:
+    def _advance_exploring(self, zs: np.ndarray, Rs: np.ndarray, model: CostModel) -> Leaves:
         """Extend the exploring trees by one step and seed one per measurement; return (and
         remove) the trees whose root is now W steps old.
 
@@ -276,7 +280,7 @@ class TCAFF(FilterState):
         grounds for a switch.
         """
         prm = self.params
-        explore = extend(self._explore, zs, Rs, self._model, prm.explore_max_children,
+        explore = extend(self._explore, zs, Rs, model, prm.explore_max_children,
                          lambda cost, _, tree: best_per_tree(cost, tree, prm.explore_max_leaves))
         done = explore.choice[:, 1] != BEFORE_ROOT  # root at step n - W
         index = np.arange(zs.shape[0])

@@ -35,6 +35,7 @@ OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inli
 #: fields that are switches
 SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),
             ("TCAFFParams", "withhold_contested"), ("TCAFFParams", "sequential"),
+            ("TCAFFParams", "neutral_empty_steps"),
             ("FrameAlignerParams", "check_ambiguity"),
             ("FrameAlignerParams", "descriptor_prior"), ("FrameAlignerParams", "refit")}
 #: values of the wrong kind for a number, a choice, a matrix or a nested parameter object

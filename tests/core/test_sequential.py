@@ -58,13 +58,20 @@ def test_a_hypothesis_explained_by_many_objects_is_accepted_before_W(seed):
 
 def test_the_bound_never_accepts_what_the_window_would_not():
     """Early acceptance needs the score plus a missed measurement at every remaining step to
-    beat tau: a path that misses every other step is accepted no earlier than the paper's
-    filter, which accepts it."""
-    zs = [[TRUTH] if t % 2 == 0 else [] for t in range(30)]
-    sequential = feed(TCAFF(), zs)
-    paper = feed(TCAFF(TCAFFParams.paper()), zs)
+    beat tau: a path that misses every other step, at which a clutter measurement was
+    offered, is accepted no earlier than the paper's filter, which accepts it. Where nothing
+    at all was offered at those steps they do not count against it (`neutral_empty_steps`),
+    and it is accepted sooner."""
+    rng = np.random.default_rng(0)
+    clutter = [[TRUTH] if t % 2 == 0 else [rng.uniform([-30, -30, -3], [30, 30, 3])]
+               for t in range(30)]
+    paper = feed(TCAFF(TCAFFParams.paper()), clutter)
     assert first(paper) == W
-    assert first(sequential) == first(paper)
+    assert first(feed(TCAFF(), clutter)) == first(paper)
+    silent = [[TRUTH] if t % 2 == 0 else [] for t in range(30)]
+    assert first(feed(TCAFF(TCAFFParams.paper()), silent)) == W
+    assert first(feed(TCAFF(), silent)) < W
+    assert first(feed(TCAFF(TCAFFParams(neutral_empty_steps=False)), silent)) == W
 
 
 def test_a_rival_as_strong_holds_off_early_acceptance():
@@ -364,10 +371,18 @@ def test_sequential_acceptance_is_refused_with_the_reseeding_promotion():
 
 def test_the_support_of_an_early_acceptance_is_that_of_the_complete_path():
     """A seed explaining 20 objects, confirmed once by a plain measurement: the seed leaves the
-    window when the tree is W steps old, so it does not count towards accepting it early."""
+    window when the tree is W steps old, so it does not count towards accepting it early: the
+    path is accepted as one whose seed explains 5, and, where the silent steps count as
+    misses, not at all."""
     zs = [[TRUTH], [TRUTH]] + [[]] * 12
-    filt = TCAFF()
-    estimates = [filt.update(np.asarray(z, float).reshape(-1, 3),
-                             np.broadcast_to(R, (len(z), 3, 3)), None,
-                             [20] if t == 0 else [5] * len(z)) for t, z in enumerate(zs)]
-    assert first(estimates) is None
+
+    def first_with(seed_objects: int, params: TCAFFParams) -> int | None:
+        filt = TCAFF(params)
+        return first([filt.update(np.asarray(z, float).reshape(-1, 3),
+                                  np.broadcast_to(R, (len(z), 3, 3)), None,
+                                  [seed_objects] if t == 0 else [5] * len(z))
+                      for t, z in enumerate(zs)])
+
+    assert first_with(5, TCAFFParams()) is not None
+    assert first_with(20, TCAFFParams()) == first_with(5, TCAFFParams())
+    assert first_with(20, TCAFFParams(neutral_empty_steps=False)) is None
