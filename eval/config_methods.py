@@ -16,13 +16,16 @@ from tcaff_gtsam.params import FrameAlignerParams, GraphParams, TCAFFParams
 from .config_base import _Model, _params
 from .registry import METHODS
 
+#: the most ICP iterations per step: each pairs every object of one map with the other's
+MAX_ICP_ITERATIONS = 10_000
+
 
 class IcpConfig(_Model):
     """ICP on object centroids, started from the true alignment, then from its last estimate."""
 
     max_correspondence_distance: float = Field(1.0, gt=0, description="m")
     min_correspondences: int = Field(5, ge=3)
-    max_iterations: int = Field(30, ge=1)
+    max_iterations: int = Field(30, ge=1, le=MAX_ICP_ITERATIONS)
 
 
 class ThresholdConfig(_Model):

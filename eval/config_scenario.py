@@ -13,7 +13,24 @@ from tcaff_gtsam.mapping.mapper import MapperParams
 from tcaff_gtsam.params import TCAFFParams
 
 from .config_base import GraphDrift, _Model, _params, _rule_of
+from .sim.maps import MAX_OBJECTS
 from .tracker import TrackerParams
+
+#: the longest scenario, s (`ScenarioConfig.duration`, a study's durations, the times of a
+#: layout, a written Kimera-like sequence): two hours
+MAX_DURATION = 7200.0
+
+#: the widest and tallest rendered image, pixels (`CameraConfig`, a written sequence)
+MAX_IMAGE_SIDE = 4096
+
+#: the fastest robot, m/s: its loops round a small room over MAX_DURATION make at most a few
+#: million waypoints (`sim.motion.MAX_WAYPOINTS`)
+MAX_SPEED = 20.0
+
+#: the longest side of a room, an outdoor path or a separation, and the most false detections
+#: per frame a sensor makes on average
+MAX_METRES = 10_000.0
+MAX_FALSE_PER_FRAME = 100.0
 
 
 class OdometryDrift(_Model):
@@ -46,15 +63,16 @@ class SensorConfig(_Detector):
     size_noise: float = Field(0.1, ge=0, le=1, description="relative std of width and height")
     partial_view: float = Field(0.6, gt=0, le=1,
                                 description="smallest share of an extent a view shows")
-    false_per_frame: float = Field(0.2, ge=0, description="mean false segments per frame")
+    false_per_frame: float = Field(0.2, ge=0, le=MAX_FALSE_PER_FRAME,
+                                   description="mean false segments per frame")
 
 
 class CameraConfig(_Model):
     """A rendered RGB-D camera: when a scenario has one, every frame is ray-cast and mapped by
     the real front end (depth segmenter, lifting, tracker) instead of the object-level sensor."""
 
-    width: int = Field(320, ge=32, le=4096, description="pixels")
-    height: int = Field(240, ge=32, le=4096, description="pixels")
+    width: int = Field(320, ge=32, le=MAX_IMAGE_SIDE, description="pixels")
+    height: int = Field(240, ge=32, le=MAX_IMAGE_SIDE, description="pixels")
     hfov_deg: float = Field(87.0, gt=10, lt=170, description="horizontal field of view")
     mount_height: float = Field(0.6, gt=0, description="m above the floor")
     pitch_deg: float = Field(5.0, ge=-45, le=45, description="deg looking down")
@@ -81,14 +99,15 @@ class IndoorReturnLayout(_Model):
     """Two robots in a square room of boxes; robot 1 leaves for another room and comes back."""
 
     kind: Literal["indoor_return"]
-    room: float = Field(10.0, gt=2, description="m, side of the room")
-    boxes: int = Field(14, ge=3)
-    away_boxes: int = Field(14, ge=0, description="boxes in the room robot 1 visits")
+    room: float = Field(10.0, gt=2, le=MAX_METRES, description="m, side of the room")
+    boxes: int = Field(14, ge=3, le=MAX_OBJECTS)
+    away_boxes: int = Field(14, ge=0, le=MAX_OBJECTS,
+                            description="boxes in the room robot 1 visits")
     away_similarity: float = Field(0.5, ge=0, le=1, description=(
         "share of the away room's boxes laid out like the home room's, 0.3 m jitter"))
-    leave_at: float = Field(70.0, ge=0, description="s")
-    return_at: float = Field(190.0, ge=0, description="s, back in the room")
-    speed: float = Field(0.5, gt=0, description="m/s")
+    leave_at: float = Field(70.0, ge=0, le=MAX_DURATION, description="s")
+    return_at: float = Field(190.0, ge=0, le=MAX_DURATION, description="s, back in the room")
+    speed: float = Field(0.5, gt=0, le=MAX_SPEED, description="m/s")
 
     @model_validator(mode="after")
     def _order(self) -> IndoorReturnLayout:
@@ -106,17 +125,21 @@ class PathLayout(_Model):
     """
 
     kind: Literal["same_direction", "opposite_directions"]
-    length: float = Field(200.0, gt=10, description="m")
-    objects_per_100m: float = Field(40.0, gt=0, description="on both sides together")
+    length: float = Field(200.0, gt=10, le=MAX_METRES, description="m")
+    objects_per_100m: float = Field(40.0, gt=0, description=(
+        "on both sides together; at most MAX_OBJECTS along the whole path"))
     lateral: tuple[float, float] = Field((2.0, 9.0), description="m, from the path's centre")
-    separation: float = Field(15.0, gt=0, description="m")
-    speed: float = Field(1.2, gt=0, description="m/s")
+    separation: float = Field(15.0, gt=0, le=MAX_METRES, description="m")
+    speed: float = Field(1.2, gt=0, le=MAX_SPEED, description="m/s")
 
     @model_validator(mode="after")
     def _fits(self) -> PathLayout:
         if self.separation >= self.length:
             raise ValueError(f"separation ({self.separation}) must be shorter than the path "
                              f"({self.length})")
+        if self.objects_per_100m * self.length / 100 > MAX_OBJECTS:
+            raise ValueError(f"objects_per_100m ({self.objects_per_100m}) on the "
+                             f"{self.length} m path is more than MAX_OBJECTS = {MAX_OBJECTS}")
         return self
 
     @field_validator("lateral")
@@ -131,26 +154,28 @@ class RoomLayout(_Model):
     """Several robots looping in one room of boxes and furniture."""
 
     kind: Literal["room"]
-    room: float = Field(14.0, gt=2, description="m, side of the room")
+    room: float = Field(14.0, gt=2, le=MAX_METRES, description="m, side of the room")
     robots: int = Field(4, ge=2, le=8)
-    objects: int = Field(24, ge=3)
-    speed: float = Field(0.5, gt=0, description="m/s")
+    objects: int = Field(24, ge=3, le=MAX_OBJECTS)
+    speed: float = Field(0.5, gt=0, le=MAX_SPEED, description="m/s")
 
 
 class GridLayout(_Model):
     """A regular grid of identical objects, with a few distinct landmarks around it."""
 
     kind: Literal["grid"]
-    rows: int = Field(5, ge=2)
-    cols: int = Field(8, ge=2)
-    spacing: float = Field(2.5, gt=0, description="m")
-    size: float = Field(0.5, gt=0, description="m, width and height of every grid object")
+    rows: int = Field(5, ge=2, le=100, description="rows x cols at most MAX_OBJECTS")
+    cols: int = Field(8, ge=2, le=100)
+    spacing: float = Field(2.5, gt=0, le=MAX_METRES, description="m")
+    size: float = Field(0.5, gt=0, le=MAX_METRES,
+                        description="m, width and height of every grid object")
     holes: float = Field(0.0, ge=0, lt=1, description="share of grid places left empty")
-    landmarks: int = Field(0, ge=0, description="distinct objects placed around the grid")
+    landmarks: int = Field(0, ge=0, le=MAX_OBJECTS,
+                           description="distinct objects placed around the grid")
     formation: Literal["abreast", "opposite"] = Field(
         "abreast", description="abreast: robot 1 sweeps beside robot 0, half a lane over; "
                                "opposite: it starts at the far end and sweeps back")
-    speed: float = Field(0.5, gt=0, description="m/s")
+    speed: float = Field(0.5, gt=0, le=MAX_SPEED, description="m/s")
 
 
 Layout = Annotated[IndoorReturnLayout | PathLayout | RoomLayout | GridLayout,
@@ -177,7 +202,8 @@ class PersonDetectorConfig(_Detector):
     p_detect: float = Field(0.85, gt=0, le=1, description="chance to detect a person in view")
     noise: float = Field(0.1, ge=0, description="m, position std per axis at zero range")
     noise_per_m: float = Field(0.02, ge=0, description="m of std per m of range")
-    false_per_frame: float = Field(0.3, ge=0, description="mean false detections per frame")
+    false_per_frame: float = Field(0.3, ge=0, le=MAX_FALSE_PER_FRAME,
+                                   description="mean false detections per frame")
 
 
 _Tracker = _params(TrackerParams)
@@ -213,7 +239,8 @@ class ScenarioConfig(_Model):
 
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
-    duration: float = Field(ge=1, le=7200, description="s, at least one 1 Hz map exchange")
+    duration: float = Field(ge=1, le=MAX_DURATION,
+                            description="s, at least one 1 Hz map exchange")
     layout: Layout
     odometry: OdometryDrift | list[OdometryDrift] = OdometryDrift()
     sensor: SensorConfig = SensorConfig()

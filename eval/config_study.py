@@ -11,7 +11,7 @@ from pydantic import Field, field_validator, model_validator
 
 from .config_base import _Model
 from .config_methods import MethodsConfig
-from .config_scenario import ScenarioConfig
+from .config_scenario import MAX_DURATION, ScenarioConfig
 
 
 class StudyConfig(_Model):
@@ -23,7 +23,7 @@ class StudyConfig(_Model):
     seeds: list[int] = Field(default_factory=lambda: [0], min_length=1)
     workers: int = Field(2, ge=1, le=64)
     output: str = "results"
-    durations: dict[str, Annotated[float, Field(ge=1, le=7200)]] = Field(
+    durations: dict[str, Annotated[float, Field(ge=1, le=MAX_DURATION)]] = Field(
         default_factory=dict,
         description="scenario name -> s: run that scenario at most this long (a quick study)")
 

@@ -35,6 +35,10 @@ __all__ = [
 #: pixels; no-depth regions this close to the image edge, and reaching it, count as the edge
 INVALID_MARGIN = 40
 
+#: the widest border band a `MaskFilter` drops masks in, pixels: the band is grown with a
+#: (2 border - 1)^2 kernel, 4 MB at this width, beyond the side of any image the filter sees
+MAX_BORDER = 1000
+
 
 @dataclass(frozen=True)
 class MaskFilter:
@@ -44,7 +48,8 @@ class MaskFilter:
         min_area: pixels; smaller masks are dropped.
         max_area_share: share of the image; larger masks (floor, walls, sky) are dropped.
         border: pixels; masks reaching within this distance of the image edge, or of the
-            band without depth along it (see `invalid_margin`), are dropped (0 keeps them).
+            band without depth along it (see `invalid_margin`), are dropped (0 keeps them);
+            at most `MAX_BORDER`.
         max_elongation: largest ratio of the mask's principal standard deviations (long over
             short axis); thin masks are edges, poles cut by the frame or segmentation slivers.
         min_depth_share: smallest share of mask pixels with a depth return.
@@ -64,8 +69,8 @@ class MaskFilter:
         o = "MaskFilter"
         _require(_int_at_least(self.min_area, 0), o, "min_area", self.min_area,
                  "must be an int >= 0 pixels")
-        _require(_int_at_least(self.border, 0), o, "border", self.border,
-                 "must be an int >= 0 pixels")
+        _require(_int_at_least(self.border, 0) and self.border <= MAX_BORDER, o, "border",
+                 self.border, f"must be an int in [0, {MAX_BORDER}] pixels (MAX_BORDER)")
         _require(_int_at_least(self.invalid_margin, 0), o, "invalid_margin",
                  self.invalid_margin, "must be an int >= 0 pixels")
         _require(_real(self.max_area_share)

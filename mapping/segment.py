@@ -89,6 +89,12 @@ class Segmenter(Protocol):
         ...
 
 
+#: the most dominant planes a `DepthSegmenter` removes, and the most RANSAC hypotheses it
+#: draws for each ((n, 3) indices, each scored on a sample of the pixels)
+MAX_PLANES = 100
+MAX_RANSAC_ITERATIONS = 100_000
+
+
 @dataclass(frozen=True)
 class DepthSegmenterParams:
     """Settings of `DepthSegmenter`.
@@ -102,7 +108,8 @@ class DepthSegmenterParams:
         jump_reach: pixels; depth is compared with the neighbours up to this far along rows
             and columns, so that a jump smeared over a few pixels (as real sensors and the
             median filter give) still cuts: a chair in front of a wall is split from it.
-        max_planes: largest number of dominant planes (floor, walls) removed.
+        max_planes: largest number of dominant planes (floor, walls) removed, at most
+            `MAX_PLANES`.
         plane_share: a plane must hold this share of the valid pixels to count as dominant.
         level_tolerance_deg: degrees; a plane whose normal lies this close to the gravity axis
             is level (a floor, ceiling or table top).
@@ -126,7 +133,8 @@ class DepthSegmenterParams:
             the border of the valid depth is still a wall when it spans this far, unless it
             stands in front of what is around it (`stands_in_front`) and does not meet the
             ceiling (a tall or wide cabinet's front).
-        ransac_iterations: plane hypotheses tried per plane.
+        ransac_iterations: plane hypotheses tried per plane, at most
+            `MAX_RANSAC_ITERATIONS`.
         ransac_stride: pixels; RANSAC scores hypotheses on every stride-th pixel per axis.
         seed: RANSAC's random seed; the same frame always gives the same masks.
         min_area: pixels; smaller components are dropped.
@@ -179,6 +187,11 @@ class DepthSegmenterParams:
             v = getattr(self, name)
             _require(_int_at_least(v, 0), o, name, v, "must be an int >= 0")
         _require(self.ransac_stride >= 1, o, "ransac_stride", self.ransac_stride, "must be >= 1")
+        for name, high, limit in (("max_planes", MAX_PLANES, "MAX_PLANES"),
+                                  ("ransac_iterations", MAX_RANSAC_ITERATIONS,
+                                   "MAX_RANSAC_ITERATIONS")):
+            v = getattr(self, name)
+            _require(v <= high, o, name, v, f"must be an int in [0, {high}] ({limit})")
         _require(_int_at_least(self.jump_reach, 1), o, "jump_reach", self.jump_reach,
                  "must be an int >= 1 pixels")
         for name in ("plane_share", "level_plane_share"):

@@ -9,7 +9,11 @@ from typing import Literal
 
 import numpy as np
 
-from .aligner_params import _alignment_process_noise, constant_alignment_covariance
+from .aligner_params import (
+    MAX_SOLUTIONS,
+    _alignment_process_noise,
+    constant_alignment_covariance,
+)
 from .param_checks import (
     _ByValue,
     _finite,
@@ -24,6 +28,15 @@ from .param_checks import (
 #: the longest window TCAFF takes, steps: every hypothesis keeps a choice per step of it, and
 #: a thousand steps (17 minutes of exchanges at 1 Hz) is far past any test of consistency
 MAX_WINDOW = 1000
+
+#: the most leaves a tree keeps (`max_leaves`, `explore_max_leaves`): fifty times the default
+#: main tree's; each leaf holds its path over the window
+MAX_LEAVES = 10_000
+
+#: the most measurements a step takes (`max_measurements`), and so the most children a leaf
+#: can have (`max_children`, `explore_max_children`): as many as MNO-CLIPPER gives
+#: (`MAX_SOLUTIONS`)
+MAX_MEASUREMENTS = MAX_SOLUTIONS
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,11 +59,12 @@ class TCAFFParams(_ByValue):
         window: W, steps a hypothesis is judged over, at most `MAX_WINDOW`. Each measurement
             seeds an exploring tree that sees the next W steps; the main tree keeps W steps
             below its root (see `root_in_window`).
-        max_leaves: B, leaves kept in the main tree.
+        max_leaves: B, leaves kept in the main tree, at most `MAX_LEAVES`.
         max_children: measurement children per main-tree leaf (the best gated ones), besides the
-            one no-measurement child every leaf gets.
+            one no-measurement child every leaf gets; at most `MAX_MEASUREMENTS`.
         explore_max_leaves, explore_max_children: the same for each exploring tree.
-        max_measurements: the most measurements taken in one step; beyond it the first ones
+        max_measurements: the most measurements taken in one step, at most
+            `MAX_MEASUREMENTS`; beyond it the first ones
             given are kept (`FrameAligner` lists the best score first) and it is logged. Each
             measurement seeds an exploring tree, so the step's cost grows with their number.
         p_no_measurement: p_NM; a no-measurement child costs -log p_NM - d/2 log 2 pi.
@@ -203,12 +217,16 @@ class TCAFFParams(_ByValue):
         d = Q.shape[0]
         object.__setattr__(self, "Q", Q)
         object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0"))
-        for name, low in (("max_leaves", 1), ("max_children", 1),
-                          ("explore_max_leaves", 1), ("explore_max_children", 1),
-                          ("max_measurements", 1),
-                          ("drop_after", 1)):
+        for name, high, limit in (("max_leaves", MAX_LEAVES, "MAX_LEAVES"),
+                                  ("explore_max_leaves", MAX_LEAVES, "MAX_LEAVES"),
+                                  ("max_children", MAX_MEASUREMENTS, "MAX_MEASUREMENTS"),
+                                  ("explore_max_children", MAX_MEASUREMENTS, "MAX_MEASUREMENTS"),
+                                  ("max_measurements", MAX_MEASUREMENTS, "MAX_MEASUREMENTS")):
             value = getattr(self, name)
-            _require(_int_at_least(value, low), o, name, value, f"must be an int >= {low}")
+            _require(_int_at_least(value, 1) and value <= high, o, name, value,
+                     f"must be an int in [1, {high}] ({limit})")
+        _require(_int_at_least(self.drop_after, 1), o, "drop_after", self.drop_after,
+                 "must be an int >= 1")
         _require(_int_at_least(self.window, 1) and self.window <= MAX_WINDOW, o, "window",
                  self.window, f"must be an int in [1, {MAX_WINDOW}] (MAX_WINDOW)")
         for name in ("p_no_measurement", "gate_probability"):

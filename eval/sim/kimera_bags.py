@@ -38,6 +38,7 @@ from tcaff_gtsam.geometry import se3_from_xyz_yaw
 from tcaff_gtsam.params import _int_at_least, _real
 
 from ..config import CameraConfig, load_scenario
+from ..config_scenario import MAX_DURATION, MAX_IMAGE_SIDE
 from .motion import drifting_odometry, poses_along
 from .render import RgbdScene, render
 from .rgbd import clear_paths
@@ -123,17 +124,19 @@ def _number(v) -> bool:
 
 
 def _check(robots: tuple, seconds, rate, width, height, depth_noise, mount: tuple) -> None:
-    pixels = "must be an int >= 8 pixels"
+    pixels = f"must be an int in [8, {MAX_IMAGE_SIDE}] pixels (MAX_IMAGE_SIDE)"
     checks = [
         (len(robots) > 0 and len(set(robots)) == len(robots) and all(
             isinstance(r, str) and re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", r) for r in robots),
          "robots", robots, "need distinct ROS names ([A-Za-z][A-Za-z0-9_]*)"),
         (_number(rate) and rate > 0 and abs(ODOM_RATE / rate - round(ODOM_RATE / rate)) < 1e-9,
          "rate", rate, f"must divide the {ODOM_RATE} Hz odometry rate (1, 2, 5, 10, 25, 50 Hz)"),
-        (_number(seconds) and _number(rate) and seconds * rate >= 1, "seconds", seconds,
-         "must be finite and hold a frame (>= 1 / rate)"),
-        (_int_at_least(width, 8), "width", width, pixels),
-        (_int_at_least(height, 8), "height", height, pixels),
+        (_number(seconds) and _number(rate) and seconds * rate >= 1
+         and seconds <= MAX_DURATION, "seconds", seconds,
+         f"must be finite, hold a frame (>= 1 / rate) and be at most {MAX_DURATION:g} s "
+         f"(MAX_DURATION)"),
+        (_int_at_least(width, 8) and width <= MAX_IMAGE_SIDE, "width", width, pixels),
+        (_int_at_least(height, 8) and height <= MAX_IMAGE_SIDE, "height", height, pixels),
         (_number(depth_noise) and 0 <= depth_noise <= 0.1, "depth_noise", depth_noise,
          "must be in [0, 0.1] m at 1 m"),
         *((_number(v), name, v, "must be a finite number") for name, v in zip(
@@ -155,7 +158,8 @@ def write_sequence(out_dir, robots=("acl_jackal2", "sparkal2"), seconds: float =
         out_dir: folder to write into (created); existing files are never overwritten.
         robots: one name per robot of the scenario.
         rate: colour (and depth) frame rate in Hz; must divide 50 Hz.
-        width, height: pixels of both images.
+        seconds: at most `config_scenario.MAX_DURATION` (two hours).
+        width, height: pixels of both images, ints in [8, `config_scenario.MAX_IMAGE_SIDE`].
         depth_noise: metres of depth std at 1 m range, growing with range squared.
         progress: called as progress(robot, frames_done, frames_total) after every frame.
         camera_height, camera_pitch_deg, camera_forward: the colour camera's mount: metres up,

@@ -15,7 +15,20 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import invert, se2_from_params, transform_points
 from tcaff_gtsam.object_map import ObjectMap
 
-__all__ = ["OBJECT_CLASSES", "MapPair", "overlapping_maps", "random_sizes"]
+from .sizes import count
+
+__all__ = ["MAX_OBJECTS", "MAX_POINTS", "OBJECT_CLASSES", "MapPair", "grid_maps",
+           "overlapping_maps", "random_sizes", "registration_problem"]
+
+#: the most objects a generated map or world holds (`overlapping_maps`' n_objects and its
+#: clutter each, `grid_maps`' rows x cols, the `world` builders'): a node's map message holds
+#: at most as many (`node.messages.MAX_OBJECTS`), and two maps of clutter and objects compare
+#: their labels in a (2 MAX_OBJECTS)^2 table of 400 MB
+MAX_OBJECTS = 10_000
+
+#: the most points of a `registration_problem`: it lists the n (n - 1) wrong pairs to draw
+#: its outliers from, 64 MB of indices for 2000 points
+MAX_POINTS = 2_000
 
 #: (width range, height range) in metres per object class; sizes are log-uniform in a range.
 OBJECT_CLASSES: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {
@@ -50,7 +63,9 @@ class MapPair:
 
 
 def random_sizes(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n,) widths and (n,) heights in metres drawn from `OBJECT_CLASSES` uniformly by class."""
+    """(n,) widths and (n,) heights in metres drawn from `OBJECT_CLASSES` uniformly by class,
+    n an int in [0, 2 MAX_OBJECTS] (the objects of two maps' world); DataError otherwise."""
+    n = count("random_sizes", "n", n, 2 * MAX_OBJECTS, "2 MAX_OBJECTS")
     classes = list(OBJECT_CLASSES.values())
     kind = rng.integers(len(classes), size=n)
     lo_w, hi_w = np.array([c[0] for c in classes]).T
@@ -70,18 +85,22 @@ def overlapping_maps(rng: np.random.Generator, n_objects: int = 50, overlap: flo
 
     Args:
         rng: randomness; same generator state, same maps.
-        n_objects: objects per map before clutter.
+        n_objects: objects per map before clutter, an int in [0, MAX_OBJECTS].
         overlap: share of each map's objects that the other map also holds, in [0, 1].
         noise: metres, std of the centroid noise per axis, independent in each map.
         size_noise: relative std of the observed width and height.
-        clutter: extra spurious small objects per map (false segments), not in the other map.
+        clutter: extra spurious small objects per map (false segments), not in the other map;
+            an int in [0, MAX_OBJECTS].
         spacing: metres; the world is a square of side spacing * sqrt(number of objects).
         T_oi_oj: (3, 3) true alignment; None draws a random one (|t| up to 20 m, any heading).
         now: seconds; objects were last seen uniformly within max_age seconds before it.
+    Raises:
+        DataError: n_objects or clutter not an int in [0, MAX_OBJECTS], overlap not in [0, 1].
     """
-    if n_objects < 0 or not 0 <= overlap <= 1 or clutter < 0:
-        raise DataError(f"overlapping_maps: need n_objects >= 0, overlap in [0, 1] and "
-                        f"clutter >= 0, got {n_objects}, {overlap}, {clutter}")
+    n_objects = count("overlapping_maps", "n_objects", n_objects, MAX_OBJECTS, "MAX_OBJECTS")
+    clutter = count("overlapping_maps", "clutter", clutter, MAX_OBJECTS, "MAX_OBJECTS")
+    if not 0 <= overlap <= 1:
+        raise DataError(f"overlapping_maps: overlap = {overlap!r}: must be in [0, 1]")
     if T_oi_oj is None:
         T_oi_oj = se2_from_params([*rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)])
     shared = round(overlap * n_objects)
@@ -130,11 +149,16 @@ def registration_problem(rng: np.random.Generator, n_inliers: int = 20,
 
     Returns:
         (ego points (n, dim), other points (n, dim), associations (m, 2), inlier mask (m,)).
+    Raises:
+        DataError: n_points not an int in [1, MAX_POINTS], n_inliers not one in [1, n_points],
+            outlier_ratio not in [0, 1), dim not 2 or 3.
     """
-    if not 0 <= outlier_ratio < 1 or not 1 <= n_inliers <= n_points or dim not in (2, 3):
-        raise DataError(f"registration_problem: need outlier_ratio in [0, 1), 1 <= n_inliers "
-                        f"<= n_points and dim in (2, 3), got {outlier_ratio}, {n_inliers}, "
-                        f"{n_points}, {dim}")
+    o = "registration_problem"
+    n_points = count(o, "n_points", n_points, MAX_POINTS, "MAX_POINTS", low=1)
+    n_inliers = count(o, "n_inliers", n_inliers, n_points, "n_points", low=1)
+    if not 0 <= outlier_ratio < 1 or dim not in (2, 3):
+        raise DataError(f"{o}: need outlier_ratio in [0, 1) and dim in (2, 3), got "
+                        f"{outlier_ratio}, {dim}")
     p = rng.uniform(0.0, side, (n_points, dim))
     R = np.linalg.qr(rng.standard_normal((dim, dim)))[0]
     R *= np.sign(np.linalg.det(R))
@@ -149,16 +173,27 @@ def registration_problem(rng: np.random.Generator, n_inliers: int = 20,
     return p, q, associations[order], inlier[order]
 
 
+def _grid_size(owner: str, rows, cols) -> tuple[int, int]:
+    """(rows, cols) of a grid of objects, ints >= 1 with rows x cols at most MAX_OBJECTS;
+    DataError naming `owner` otherwise."""
+    rows = count(owner, "rows", rows, MAX_OBJECTS, "MAX_OBJECTS", low=1)
+    return rows, count(owner, "cols", cols, MAX_OBJECTS // rows, "MAX_OBJECTS // rows", low=1)
+
+
 def grid_maps(rows: int = 2, cols: int = 4, spacing: float = 3.0, size: float = 0.5,
               T_oi_oj: np.ndarray | None = None, now: float = 100.0) -> MapPair:
     """Both robots see the same rows x cols grid of identical objects: an ambiguous world.
 
     Any symmetry of the grid (the 180 degree turn of a rectangle, for one) aligns the maps as
     well as the truth does, so single-shot matching cannot tell them apart. Noise-free.
+
+    Raises:
+        DataError: rows or cols not an int >= 1, rows x cols more than MAX_OBJECTS, spacing
+            or size not > 0.
     """
-    if rows < 1 or cols < 1 or spacing <= 0 or size <= 0:
-        raise DataError(f"grid_maps: need rows, cols >= 1 and spacing, size > 0, "
-                        f"got {rows}, {cols}, {spacing}, {size}")
+    rows, cols = _grid_size("grid_maps", rows, cols)
+    if not (spacing > 0 and size > 0):
+        raise DataError(f"grid_maps: need spacing, size > 0, got {spacing}, {size}")
     if T_oi_oj is None:
         T_oi_oj = se2_from_params([4.0, -2.0, 0.6])
     xy = spacing * np.argwhere(np.ones((rows, cols))).astype(float)

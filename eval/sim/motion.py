@@ -12,8 +12,14 @@ import numpy as np
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import invert, se2_from_params, wrap_angle
 
-__all__ = ["drifting_odometry", "lawnmower", "loop", "odometry_frame", "poses_along", "then",
-           "timed_waypoints", "wait"]
+from .sizes import amount, count
+
+__all__ = ["MAX_WAYPOINTS", "drifting_odometry", "lawnmower", "loop", "odometry_frame",
+           "poses_along", "then", "timed_waypoints", "wait"]
+
+#: the most waypoints `loop` and `lawnmower` make: two hours of a scenario's fastest loops
+#: round its smallest room are two million; ten million are 160 MB
+MAX_WAYPOINTS = 10_000_000
 
 
 def timed_waypoints(waypoints, speed: float, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -42,7 +48,13 @@ def then(first: tuple[np.ndarray, np.ndarray], waypoints, speed: float
 
 def loop(center, radius: float, laps: float, start_angle: float = 0.0, ccw: bool = True,
          points_per_lap: int = 36) -> np.ndarray:
-    """(m, 2) waypoints of `laps` turns around a circle."""
+    """(m, 2) waypoints of `laps` turns around a circle: points_per_lap an int in
+    [1, MAX_WAYPOINTS], laps a finite number >= 0 with points_per_lap x laps at most
+    MAX_WAYPOINTS (DataError otherwise)."""
+    points_per_lap = count("loop", "points_per_lap", points_per_lap, MAX_WAYPOINTS,
+                           "MAX_WAYPOINTS", low=1)
+    laps = amount("loop", "laps", laps, MAX_WAYPOINTS / points_per_lap,
+                  "MAX_WAYPOINTS / points_per_lap")
     n = max(round(points_per_lap * laps), 1)
     angle = start_angle + (1.0 if ccw else -1.0) * np.linspace(0, 2 * np.pi * laps, n + 1)
     return np.asarray(center, dtype=float) + radius * np.column_stack([np.cos(angle),
@@ -51,7 +63,9 @@ def loop(center, radius: float, laps: float, start_angle: float = 0.0, ccw: bool
 
 def lawnmower(bounds: tuple[float, float, float, float], lanes: int, along_x: bool = True
               ) -> np.ndarray:
-    """(2 lanes, 2) waypoints sweeping a rectangle (x0, y0, x1, y1) in parallel lanes."""
+    """(2 lanes, 2) waypoints sweeping a rectangle (x0, y0, x1, y1) in parallel lanes; lanes
+    an int in [1, MAX_WAYPOINTS / 2] (DataError otherwise)."""
+    lanes = count("lawnmower", "lanes", lanes, MAX_WAYPOINTS // 2, "MAX_WAYPOINTS / 2", low=1)
     x0, y0, x1, y1 = bounds
     points = []
     for k, c in enumerate(np.linspace(y0 if along_x else x0, y1 if along_x else x1, lanes)):

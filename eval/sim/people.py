@@ -13,9 +13,19 @@ import numpy as np
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import invert, se2_from_params, transform_points_batch
+from tcaff_gtsam.inputs import real_array
 
 from ..config import PedestriansConfig, PersonDetectorConfig
 from .motion import odometry_frame
+from .sizes import count
+
+#: the most people `walk` moves: fifty times a scenario's (`PedestriansConfig.count`)
+MAX_PEOPLE = 10_000
+
+#: the most legs (walks to a waypoint and rests there) of all people together in one `walk`,
+#: a few seconds of drawing: bounds that leave no room to walk, or times far in the future,
+#: would need without end
+MAX_LEGS = 1_000_000
 
 __all__ = ["PeopleRun", "detect_people", "simulate_people", "walk"]
 
@@ -60,16 +70,31 @@ def walk(rng: np.random.Generator, n: int, bounds: tuple[float, float, float, fl
          speed: tuple[float, float], pause: tuple[float, float], times: np.ndarray
          ) -> np.ndarray:
     """(F, n, 2) positions at `times` of n people walking between random waypoints in
-    `bounds` (x_min, y_min, x_max, y_max) metres, from a random start at time 0."""
+    `bounds` (x_min, y_min, x_max, y_max) metres, from a random start at time 0.
+
+    Raises:
+        DataError: n not an int in [0, MAX_PEOPLE], times not finite (F,) seconds, bounds
+            spanning no distance, more than MAX_LEGS legs to walk until the last time.
+    """
+    n = count("walk", "n", n, MAX_PEOPLE, "MAX_PEOPLE")
+    times = real_array("walk", "times", times)
+    if times.ndim != 1 or not np.isfinite(times).all():
+        raise DataError(f"walk: times must be finite (F,) seconds, got shape {times.shape}")
     x0, y0, x1, y1 = bounds
     if not (x1 >= x0 and y1 >= y0 and (x1 > x0 or y1 > y0)):
         raise DataError(f"walk: bounds (x_min, y_min, x_max, y_max) must span some distance, "
                         f"got {bounds}")
     end = float(times[-1]) if len(times) else 0.0
     out = np.zeros((len(times), n, 2))
+    legs = 0
     for person in range(n):
         knot_t, knot_xy = [0.0], [rng.uniform((x0, y0), (x1, y1))]
         while knot_t[-1] <= end:
+            legs += 1
+            if legs > MAX_LEGS:
+                raise DataError(f"walk: {n} people walking in {bounds} until {end:g} s need "
+                                f"more than MAX_LEGS = {MAX_LEGS} legs: wider bounds, longer "
+                                f"pauses or earlier times")
             goal = rng.uniform((x0, y0), (x1, y1))
             arrive = knot_t[-1] + np.linalg.norm(goal - knot_xy[-1]) / rng.uniform(*speed)
             rest = rng.uniform(*pause)

@@ -6,14 +6,21 @@ scattered over the plane, which is what MNO-CLIPPER hands the filter when maps o
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import se2_from_params, se2_to_params, wrap_angle
+from tcaff_gtsam.params import MAX_SOLUTIONS
+
+from .sizes import count
 
 __all__ = [
+    "MAX_PAIRS",
+    "MAX_PER_STEP",
+    "MAX_STEPS",
     "AlignmentStream",
     "DecoyStream",
     "RobotTeamStreams",
@@ -26,6 +33,28 @@ __all__ = [
 ]
 
 DEG = np.pi / 180.0
+
+#: the longest stream, steps (of every directed pair together in `robot_team_streams`): 28
+#: hours of exchanges at 1 Hz, 2.4 GB with MAX_PER_STEP measurements at every step
+MAX_STEPS = 100_000
+
+#: the most wrong alignments a step holds (`wrong_alignments`' k, `outliers`' high end): as
+#: many as MNO-CLIPPER hands the filter at most (`params.MAX_SOLUTIONS`)
+MAX_PER_STEP = MAX_SOLUTIONS
+
+#: the most object pairs a `decoy_stream`'s evidence holds, steps x (outliers[1] + 2) x
+#: objects_per_match at the most: 160 MB
+MAX_PAIRS = 10_000_000
+
+
+def _outliers(owner: str, outliers) -> tuple[int, int]:
+    """The inclusive range (low, high) of the wrong alignments per step: ints, 0 <= low <=
+    high <= MAX_PER_STEP; DataError naming `owner` otherwise."""
+    if not (isinstance(outliers, (tuple, list)) and len(outliers) == 2):
+        raise DataError(f"{owner}: outliers = {outliers!r:.60}: must be a (low, high) pair of "
+                        f"ints")
+    low = count(owner, "outliers[0]", outliers[0], MAX_PER_STEP, "MAX_PER_STEP")
+    return low, count(owner, "outliers[1]", outliers[1], MAX_PER_STEP, "MAX_PER_STEP", low)
 
 
 @dataclass(frozen=True)
@@ -45,7 +74,9 @@ class AlignmentStream:
 
 
 def wrong_alignments(rng: np.random.Generator, k: int, spread: float = 15.0) -> np.ndarray:
-    """(k, 3) alignments uniform over +-spread metres and all headings."""
+    """(k, 3) alignments uniform over +-spread metres and all headings; k an int in
+    [0, MAX_PER_STEP] (DataError otherwise)."""
+    k = count("wrong_alignments", "k", k, MAX_PER_STEP, "MAX_PER_STEP")
     return np.column_stack([rng.uniform(-spread, spread, (k, 2)), rng.uniform(-np.pi, np.pi, k)])
 
 
@@ -58,15 +89,14 @@ def alignment_stream(rng: np.random.Generator, steps: int, x0=(3.0, -2.0, 1.0),
     """A drifting true alignment observed with noise among outliers.
 
     Args:
-        steps: length of the stream.
+        steps: length of the stream, an int in [0, MAX_STEPS].
         x0: the true (x, y, theta) at the first step.
         drift: per-step std of the random walk of the truth (x, y, theta).
         noise, p_empty, outliers, spread: see `observe_alignments`.
         jumps: {step: (dx, dy, dtheta)} added to the truth at that step (a re-initialised
             odometry frame).
     """
-    if steps < 0:
-        raise DataError(f"alignment_stream: steps = {steps} must be >= 0")
+    steps = count("alignment_stream", "steps", steps, MAX_STEPS, "MAX_STEPS")
     return observe_alignments(rng, drifting_truth(rng, steps, x0, drift, jumps), noise,
                               p_empty, outliers, spread)
 
@@ -74,7 +104,9 @@ def alignment_stream(rng: np.random.Generator, steps: int, x0=(3.0, -2.0, 1.0),
 def drifting_truth(rng: np.random.Generator, steps: int, x0, drift,
                    jumps: dict[int, tuple[float, float, float]] | None = None) -> np.ndarray:
     """(steps, 3) alignments (x, y, theta) that start at x0 and random-walk with per-step std
-    `drift`, plus `jumps` {step: (dx, dy, dtheta)} added at their steps; theta wrapped."""
+    `drift`, plus `jumps` {step: (dx, dy, dtheta)} added at their steps; theta wrapped.
+    steps: an int in [0, MAX_STEPS] (DataError otherwise)."""
+    steps = count("drifting_truth", "steps", steps, MAX_STEPS, "MAX_STEPS")
     jumps = jumps or {}
     x = np.array(x0, dtype=float)
     truth = np.empty((steps, 3))
@@ -96,12 +128,13 @@ def observe_alignments(rng: np.random.Generator, truth: np.ndarray,
     Args:
         noise: std of the correct measurement per component.
         p_empty: probability that a step has no correct measurement.
-        outliers: inclusive range of the number of wrong alignments per step.
+        outliers: inclusive range of the number of wrong alignments per step, ints in
+            [0, MAX_PER_STEP].
         spread: metres, half-width of the square the wrong alignments fall in.
     """
-    if not 0 <= p_empty <= 1 or not 0 <= outliers[0] <= outliers[1]:
-        raise DataError(f"observe_alignments: need p_empty in [0, 1] and 0 <= outliers[0] <= "
-                        f"outliers[1], got {p_empty}, {outliers}")
+    outliers = _outliers("observe_alignments", outliers)
+    if not 0 <= p_empty <= 1:
+        raise DataError(f"observe_alignments: p_empty = {p_empty!r}: must be in [0, 1]")
     zs, correct = [], []
     for x in truth:
         meas = wrong_alignments(rng, int(rng.integers(outliers[0], outliers[1] + 1)), spread)
@@ -165,10 +198,25 @@ def decoy_stream(rng: np.random.Generator, steps: int = 120, decoy_alone: int = 
     first (at rate `p_truth`) for `lead` steps, then nothing but outliers for `lead_gap`
     steps, then the decoy alone: a decoy met after the robots parted, while the filter holds
     the truth.
+
+    Steps, lead, lead_gap, decoy_alone, gap and jump_at are ints in [0, MAX_STEPS] (decoy_alone
+    and new_object_every >= 1), outliers a range of ints in [0, MAX_PER_STEP], and
+    objects_per_match an int >= 0 with steps x (outliers[1] + 2) x objects_per_match at most
+    MAX_PAIRS; DataError otherwise.
     """
-    for name, value in (("lead", lead), ("lead_gap", lead_gap)):
-        if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
-            raise DataError(f"decoy_stream: {name} = {value!r}: must be an int >= 0")
+    o = "decoy_stream"
+    steps = count(o, "steps", steps, MAX_STEPS, "MAX_STEPS")
+    lead, lead_gap, gap = (count(o, name, value, MAX_STEPS, "MAX_STEPS") for name, value in
+                           (("lead", lead), ("lead_gap", lead_gap), ("gap", gap)))
+    decoy_alone = count(o, "decoy_alone", decoy_alone, MAX_STEPS, "MAX_STEPS", low=1)
+    new_object_every = count(o, "new_object_every", new_object_every, MAX_STEPS, "MAX_STEPS",
+                             low=1)
+    if jump_at is not None:
+        jump_at = count(o, "jump_at", jump_at, MAX_STEPS, "MAX_STEPS")
+    outliers = _outliers(o, outliers)
+    objects_per_match = count(o, "objects_per_match", objects_per_match,
+                              MAX_PAIRS // (max(steps, 1) * (outliers[1] + 2)),
+                              "MAX_PAIRS // (steps (outliers[1] + 2))")
     start = lead + lead_gap  # the decoy's first step
     if not (0 < decoy_alone < steps - start and 0 <= p_truth <= 1 and 0 <= p_decoy <= 1):
         raise DataError(f"decoy_stream: need 0 < decoy_alone < steps - lead - lead_gap, rates "
@@ -231,7 +279,17 @@ def robot_team_streams(rng: np.random.Generator, n_robots: int, steps: int,
 
     Robot r != 0 starts at a random alignment (|t| up to 20 m, any heading) and random-walks
     with per-step std `drift`; `observe` goes to `observe_alignments` for each pair.
+
+    Raises:
+        DataError: steps not an int in [0, MAX_STEPS], n_robots not an int >= 1 or with more
+            steps of all directed pairs, n_robots (n_robots - 1) max(steps, 1), than MAX_STEPS.
     """
+    o = "robot_team_streams"
+    steps = count(o, "steps", steps, MAX_STEPS, "MAX_STEPS")
+    # the largest n with n (n - 1) <= MAX_STEPS // max(steps, 1)
+    most = (1 + math.isqrt(1 + 4 * (MAX_STEPS // max(steps, 1)))) // 2
+    n_robots = count(o, "n_robots", n_robots, most, "n (n - 1) max(steps, 1) <= MAX_STEPS",
+                     low=1)
     A = np.zeros((n_robots, steps, 3, 3))
     for r in range(n_robots):
         x = np.zeros(3) if r == 0 else np.r_[rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)]

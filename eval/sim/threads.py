@@ -3,9 +3,12 @@ without importing the renderer (and Open3D) that reads it."""
 
 from __future__ import annotations
 
-from tcaff_gtsam.errors import DataError
+from .sizes import count as _count
 
-__all__ = ["cast_threads"]
+__all__ = ["MAX_THREADS", "cast_threads"]
+
+#: the most threads a ray cast may be told to use, far more than a machine's cores
+MAX_THREADS = 1024
 
 #: threads each ray cast uses; 0: Open3D's choice, every core (see `cast_threads`)
 per_cast = 0
@@ -18,8 +21,9 @@ def cast_threads(count: int) -> None:
     workers) casts on its share: the threads of one cast otherwise wait on each other while
     the other processes hold the cores, which costs CPU time and no pixel changes (each ray is
     cast alone).
+
+    Raises:
+        DataError: count not an int in [0, MAX_THREADS].
     """
     global per_cast
-    if isinstance(count, bool) or not (isinstance(count, int) and count >= 0):
-        raise DataError(f"cast_threads: count must be an int >= 0, got {count!r}")
-    per_cast = count
+    per_cast = _count("cast_threads", "count", count, MAX_THREADS, "MAX_THREADS")

@@ -11,8 +11,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.inputs import point_array
 
-from .maps import OBJECT_CLASSES
+from .maps import MAX_OBJECTS, OBJECT_CLASSES, _grid_size
+from .sizes import amount, count
 
 __all__ = ["World", "along_path", "combine", "grid", "scatter"]
 
@@ -57,12 +59,13 @@ def scatter(rng: np.random.Generator, n: int, bounds: tuple[float, float, float,
     metres apart (centre to centre) where the space allows.
 
     Args:
+        n: an int in [0, MAX_OBJECTS].
         bounds: (x_min, y_min, x_max, y_max) metres.
     """
+    n = count("scatter", "n", n, MAX_OBJECTS, "MAX_OBJECTS")
     unknown = sorted(set(classes) - set(OBJECT_CLASSES))
-    if unknown or n < 0:
-        raise DataError(f"scatter: need n >= 0 and known classes, got n = {n}, "
-                        f"unknown classes {unknown}")
+    if unknown:
+        raise DataError(f"scatter: need known classes, got unknown classes {unknown}")
     x0, y0, x1, y1 = bounds
     xy = np.zeros((0, 2))
     for _ in range(50 * max(n, 1)):  # rejection sampling; 50 tries per object is plenty
@@ -80,7 +83,9 @@ def scatter(rng: np.random.Generator, n: int, bounds: tuple[float, float, float,
 
 def grid(rows: int, cols: int, spacing: float, size: float,
          origin: tuple[float, float] = (0.0, 0.0)) -> World:
-    """rows x cols identical objects `spacing` metres apart, the first at `origin`."""
+    """rows x cols identical objects `spacing` metres apart, the first at `origin`; rows and
+    cols ints >= 1, rows x cols at most MAX_OBJECTS (DataError otherwise)."""
+    rows, cols = _grid_size("grid", rows, cols)
     ij = np.argwhere(np.ones((rows, cols), dtype=bool)).astype(float)
     n = len(ij)
     return World(np.asarray(origin) + spacing * ij[:, ::-1], np.full(n, size), np.full(n, size),
@@ -94,11 +99,23 @@ def along_path(rng: np.random.Generator, path: np.ndarray, per_100m: float,
 
     Args:
         path: (m, 2) metres, the polyline's vertices.
+        per_100m: a finite number >= 0; per_100m x length / 100 (the mean number of objects
+            drawn) at most MAX_OBJECTS.
+    Raises:
+        DataError: a path that is not finite (m, 2) points, per_100m not a finite number >= 0
+            or asking for more than MAX_OBJECTS objects on the path.
     """
+    o = "along_path"
+    path = point_array(o, "path", path, 2)
+    per_100m = amount(o, "per_100m", per_100m)
     seg = np.diff(path, axis=0)
     seg_len = np.linalg.norm(seg, axis=1)
     length = seg_len.sum()
-    n = rng.poisson(per_100m * length / 100.0)
+    mean = per_100m * length / 100.0
+    if not mean <= MAX_OBJECTS:  # also NaN, on a path too long for the floats
+        raise DataError(f"{o}: per_100m = {per_100m!r} on the {length:g} m path is {mean:.3g} "
+                        f"objects, more than MAX_OBJECTS = {MAX_OBJECTS}")
+    n = rng.poisson(mean)
     s = np.sort(rng.uniform(0.0, length, n))
     k = np.clip(np.searchsorted(np.cumsum(seg_len), s, side="right"), 0, len(seg) - 1)
     along = s - np.r_[0.0, np.cumsum(seg_len)][k]

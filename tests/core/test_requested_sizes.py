@@ -1,7 +1,8 @@
 """Sizes a caller asks for are bounded: an argument that would allocate by its value (samples
-of a drive, times of the misplacement, a filter's window, MNO-CLIPPER's solutions) is taken up
-to its limit and refused beyond it by a TcaffError naming the argument and its value, never by
-numpy's "Maximum allowed size exceeded" or a MemoryError."""
+of a drive, times of the misplacement, a filter's window and the caps on its trees,
+MNO-CLIPPER's solutions) is taken up to its limit and refused beyond it by a TcaffError naming
+the argument and its value, never by numpy's "Maximum allowed size exceeded" or a
+MemoryError."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from hypothesis import strategies as st
 
 from tcaff_gtsam import TCAFF, consistency_graph, mno_clipper
 from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.filter_params import MAX_LEAVES, MAX_MEASUREMENTS
 from tcaff_gtsam.params import (
     MAX_SOLUTIONS,
     MAX_WINDOW,
@@ -123,3 +125,36 @@ def test_mno_clipper_solutions_are_bounded(n, downweight):
         FrameAlignerParams(n_solutions=n)
     assert str(info.value).startswith(
         f"FrameAlignerParams.n_solutions = {n!r}: must be an int in [1, {MAX_SOLUTIONS}]")
+
+
+TREE_CAPS = [("max_leaves", MAX_LEAVES, "MAX_LEAVES"),
+             ("explore_max_leaves", MAX_LEAVES, "MAX_LEAVES"),
+             ("max_children", MAX_MEASUREMENTS, "MAX_MEASUREMENTS"),
+             ("explore_max_children", MAX_MEASUREMENTS, "MAX_MEASUREMENTS"),
+             ("max_measurements", MAX_MEASUREMENTS, "MAX_MEASUREMENTS")]
+
+
+@pytest.mark.parametrize(("name", "limit", "limit_name"), TREE_CAPS,
+                         ids=[name for name, _, _ in TREE_CAPS])
+@settings(max_examples=40, deadline=None)
+@given(value=counts)
+@example(value=MAX_LEAVES).via("MAX_LEAVES exactly")
+@example(value=MAX_MEASUREMENTS + 1).via("one more than MAX_MEASUREMENTS")
+@example(value=10**12)
+def test_tcaff_tree_caps_are_at_most_their_limit(name, limit, limit_name, value):
+    """The caps on the trees and measurements decide how many leaves a step extends; each is
+    an int in [1, its limit]."""
+    if 1 <= value <= limit:
+        assert getattr(TCAFFParams(**{name: value}), name) == value
+        return
+    with pytest.raises(ParameterError) as info:
+        TCAFFParams(**{name: value})
+    assert info.value.name == name and info.value.value == value
+    assert info.value.rule == f"must be an int in [1, {limit}] ({limit_name})"
+
+
+@pytest.mark.parametrize("name", [name for name, _, _ in TREE_CAPS])
+@pytest.mark.parametrize("bad", [True, 2.0, math.nan, "3", None])
+def test_tcaff_tree_caps_are_ints(name, bad):
+    with pytest.raises(ParameterError, match=rf"^TCAFFParams\.{name} = "):
+        TCAFFParams(**{name: bad})

@@ -218,6 +218,9 @@ def test_odometry_is_the_drifting_odometry(written):
     ({"rate": 15.0}, "rate"),
     ({"seconds": 0.0}, "seconds"),
     ({"width": 4}, "width"),
+    ({"seconds": 7200.02}, r"seconds = 7200.02: .* at most 7200 s \(MAX_DURATION\)"),
+    ({"width": 4097}, r"width = 4097: must be an int in \[8, 4096\] pixels \(MAX_IMAGE_SIDE\)"),
+    ({"height": 10**12}, r"height = 1000000000000: .*\(MAX_IMAGE_SIDE\)"),
     ({"depth_noise": -1.0}, "depth_noise"),
     ({"camera_pitch_deg": math.nan}, "camera_pitch_deg"),
 ])

@@ -216,7 +216,8 @@ def test_one_thread_casts_the_same_frame():
     finally:
         cast_threads(0)
     for bad in (-1, 1.5, None, True):
-        with pytest.raises(DataError, match="cast_threads: count must be an int >= 0"):
+        with pytest.raises(DataError, match=r"cast_threads: count = .*: must be an int in "
+                                            r"\[0, 1024\] \(MAX_THREADS\)"):
             cast_threads(bad)
 
 

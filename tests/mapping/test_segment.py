@@ -26,8 +26,11 @@ from rgbd_scenes import (
 from tcaff_gtsam.eval.sim.render import RgbdScene, render
 from tcaff_gtsam.eval.sim.world import room_walls
 from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
+from tcaff_gtsam.mapping.masks import MAX_BORDER
 from tcaff_gtsam.mapping.segment import (
     INVALID_MARGIN,
+    MAX_PLANES,
+    MAX_RANSAC_ITERATIONS,
     DepthSegmenter,
     DepthSegmenterParams,
     MaskFilter,
@@ -394,6 +397,28 @@ def test_depth_border_matches_labelling_every_region(seed, rows, cols, holes, ma
 def test_bad_mask_filter_raises_config_error(kwargs):
     with pytest.raises(ConfigError, match=next(iter(kwargs))):
         MaskFilter(**kwargs)
+
+
+SIZE_CAPS = [(MaskFilter, "border", MAX_BORDER, "MAX_BORDER"),
+             (DepthSegmenterParams, "max_planes", MAX_PLANES, "MAX_PLANES"),
+             (DepthSegmenterParams, "ransac_iterations", MAX_RANSAC_ITERATIONS,
+              "MAX_RANSAC_ITERATIONS")]
+
+
+@pytest.mark.parametrize(("cls", "name", "limit", "limit_name"), SIZE_CAPS,
+                         ids=[name for _, name, _, _ in SIZE_CAPS])
+@settings(max_examples=30, deadline=None)
+@given(value=st.one_of(st.integers(0, 2 * MAX_RANSAC_ITERATIONS), st.integers(0, 2**80)))
+def test_sizes_the_segmenter_allocates_by_are_at_most_their_limit(cls, name, limit, limit_name,
+                                                                    value):
+    """The border's dilation kernel, the planes removed and the RANSAC hypotheses drawn: an
+    int up to its limit, refused beyond it."""
+    if value <= limit:
+        assert getattr(cls(**{name: value}), name) == value
+        return
+    with pytest.raises(ConfigError, match=rf"^{cls.__name__}\.{name} = {value}: must be an int "
+                                          rf"in \[0, {limit}\].*\({limit_name}\)$"):
+        cls(**{name: value})
 
 
 # ---------------------------------------------------------------------------------------------
