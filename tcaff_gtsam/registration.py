@@ -132,7 +132,7 @@ def _weighted_arun(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray | 
     # 2D needs two distinct points; 3D needs the points off a single line. Centring loses
     # about 1e-16 of the coordinates' magnitude and the eigensolver about 1e-16 of the largest
     # spread, so spreads below those (with a wide margin) are rounding, not geometry.
-    floor = w_sum * (1e-9 * max(1.0, float(np.max(np.abs(q))))) ** 2
+    floor = w_sum * (1e-9 * max(1.0, float(np.abs(q).max()))) ** 2
     if d == 2:
         return _planar_arun(p_c, q_c, w, floor, p_mean, q_mean)
     scatter = (q_c * w[:, None]).T @ q_c
@@ -209,7 +209,9 @@ def registration_rmse(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
 def _registration_rmse(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
     d = p.shape[1]
     residual = p - (q @ T_a_b[:d, :d].T + T_a_b[:d, d])
-    return float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
+    # the sum over the pairs divided by their count is np.mean's arithmetic, without its
+    # dispatch
+    return math.sqrt((residual**2).sum(axis=1).sum() / p.shape[0])
 
 
 def mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: np.ndarray,
