@@ -56,48 +56,49 @@ class ClipperSolution:
 
 
 @numba.njit(cache=True)
-def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touched, n_old,
-             mark, stamp):
+def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touched, n_old):
     """Mu = M u and Cu = C u (C binary, diagonal included) for u supported on `support`.
 
     Scatter form: row q of the symmetric adjacency is also its column q, so the cost is the
     sum of the support's degrees, not m. Only the nodes written (the support and its
     neighbours) are valid; they are listed in `touched` ((m + 1,): one slot past the last is
-    written) in the order first written, and stamped with `stamp` in `mark`. Mu and Cu are
-    zero off the `n_old` nodes `touched` listed on entry (the buffers' previous product),
-    which are cleared first, so every other node has Mu = Cu = 0. Returns (number touched,
-    sum of u).
+    written) in the order first written. On entry Mu is 0 and Cu is -1 (never a sum of u >= 0:
+    not yet written) off the `n_old` nodes `touched` lists (the buffers' previous product),
+    which are reset first; on return every node not touched has Mu = 0 and Cu = -1. Returns
+    (number touched, sum of u).
     """
-    # Without branches: every node written is listed, and the count moves past it only on
-    # its first write. A branch on the first write cost a tenth of MNO-CLIPPER's time in
-    # mispredictions; each sum starts from the cleared 0.0 as it did from a 0.0 written on
-    # the first write, so the products are the same to the last bit. The first-write block
-    # is written out twice on purpose: moving it into a helper (even an inlined one) made
-    # this loop about 9 times slower under numba. Node indices are read as unsigned: numba
-    # then skips the negative-index wraparound of every access (a fifth of MNO-CLIPPER's
-    # time, with the same arithmetic), here and in the helpers below.
+    # Without branches or a mark array: every node written is listed, and the count moves
+    # past it only on its first write, which Cu < 0 tells. Each sum starts from 0.0 as it did
+    # when the first write set it, so the products are the same to the last bit; a branch on
+    # the first write and a mark per node cost about a seventh of MNO-CLIPPER's time. The
+    # first-write block is written out twice on purpose: moving it into a helper (even an
+    # inlined one) made this loop about 9 times slower under numba. Node indices are read as
+    # unsigned: numba then skips the negative-index wraparound of every access (a fifth of
+    # MNO-CLIPPER's time, with the same arithmetic), here and in the helpers below.
     for t in range(n_old):
         p = np.uint64(touched[t])
         Mu[p] = 0.0
-        Cu[p] = 0.0
+        Cu[p] = -1.0
     n_touched = 0
     total = 0.0
     for s in range(n_support):
         q = np.uint64(support[s])
         uq = u[q]
         total += uq
+        c = Cu[q]
+        first = c < 0.0
         touched[n_touched] = q
-        n_touched += mark[q] != stamp
-        mark[q] = stamp
+        n_touched += first
         Mu[q] += diag[q] * uq
-        Cu[q] += uq
+        Cu[q] = (0.0 if first else c) + uq
         for e in range(np.uint64(indptr[q]), np.uint64(indptr[q + np.uint64(1)])):
             p = np.uint64(indices[e])
+            c = Cu[p]
+            first = c < 0.0
             touched[n_touched] = p
-            n_touched += mark[p] != stamp
-            mark[p] = stamp
+            n_touched += first
             Mu[p] += weights[e] * uq
-            Cu[p] += uq
+            Cu[p] = (0.0 if first else c) + uq
     return n_touched, total
 
 
@@ -179,27 +180,25 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
     """Penalty homotopy of CLIPPER: projected gradient ascent of u' M_d u on the non-negative
     unit sphere with backtracking, raising d until no inconsistent pair carries weight.
 
-    Vectors are dense arrays that are zero off an explicit support list; the current iterate
-    (u, its products and gradient) and the line-search trial (ub, ...) each own a set of
-    buffers, swapped on acceptance. Returns (u, d, final objective u'Mu).
+    Vectors are dense arrays that are zero off an explicit support list (the products Mu, Cu
+    off their touched list: see `_scatter`); the current iterate (u, its products and
+    gradient) and the line-search trial (ub, ...) each own a set of buffers, swapped on
+    acceptance. Returns (u, d, final objective u'Mu).
     """
     m = u0.shape[0]
     u, ub = np.zeros(m), np.zeros(m)
     sup, sup_b = np.empty(m, np.int64), np.empty(m, np.int64)
     Mu, Mu_b = np.zeros(m), np.zeros(m)
-    Cu, Cu_b = np.zeros(m), np.zeros(m)
+    Cu, Cu_b = np.full(m, -1.0), np.full(m, -1.0)
     g, g_b = np.zeros(m), np.zeros(m)
     tch, tch_b = np.empty(m + 1, np.int64), np.empty(m + 1, np.int64)
-    mark, mark_b = np.full(m, -1, np.int64), np.full(m, -1, np.int64)
-    stamp = 0
     n_sup = 0
     for p in range(m):
         if active[p] and u0[p] > 0.0:
             u[p] = u0[p]
             sup[n_sup] = p
             n_sup += 1
-    n_tch, total = _scatter(indptr, indices, weights, diag, u, sup, n_sup, Mu, Cu, tch, 0,
-                            mark, stamp)
+    n_tch, total = _scatter(indptr, indices, weights, diag, u, sup, n_sup, Mu, Cu, tch, 0)
     n_tch_b = 0
     for _ in range(power_iterations):
         for s in range(n_sup):
@@ -209,9 +208,8 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
             break
         sup, sup_b = sup_b, sup
         n_sup = n_new
-        stamp += 1
         n_tch, total = _scatter(indptr, indices, weights, diag, u, sup, n_sup, Mu, Cu, tch,
-                                n_tch, mark, stamp)
+                                n_tch)
     d = _penalty_step(u, sup, n_sup, Mu, Cu, total, eps, True)
     _gradient(Mu, Cu, total, d, tch, n_tch, g)
     F = _objective(u, sup, n_sup, g)
@@ -227,9 +225,8 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
                 if n_b == 0:
                     alpha *= beta
                     continue
-                stamp += 1
                 n_tch_b, total_b = _scatter(indptr, indices, weights, diag, ub, sup_b, n_b,
-                                            Mu_b, Cu_b, tch_b, n_tch_b, mark_b, stamp)
+                                            Mu_b, Cu_b, tch_b, n_tch_b)
                 _gradient(Mu_b, Cu_b, total_b, d, tch_b, n_tch_b, g_b)
                 Fb = _objective(ub, sup_b, n_b, g_b)
                 if Fb - F < -eps:
@@ -250,7 +247,6 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
             Cu, Cu_b = Cu_b, Cu
             g, g_b = g_b, g
             tch, tch_b = tch_b, tch
-            mark, mark_b = mark_b, mark
             n_tch, n_tch_b, total, F = n_tch_b, n_tch, total_b, Fb
             if abs(delta) < tol_u:
                 break
