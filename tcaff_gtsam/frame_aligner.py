@@ -47,7 +47,7 @@ from .geometry import (
     _wrap_angle,
 )
 from .inputs import finite_time, real_array, shown
-from .object_map import ObjectMap, as_object_map
+from .object_map import _ALL_FIELDS, ObjectMap, as_object_map
 from .params import (
     FrameAlignerParams,
     _given_or_default,
@@ -160,7 +160,7 @@ class FrameAligner:
             return last[3]
         kappa = self.params.kappa
         ego_idx, other_idx = ego.recent_indices(now, kappa), other.recent_indices(now, kappa)
-        ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
+        ego_r, other_r = _recent_map(ego, ego_idx), _recent_map(other, other_idx)
         pair = (ego_idx, other_idx, ego_r, other_r, self._gates(ego_r, other_r))
         self._last_pair = (ego, other, now, pair)
         return pair
@@ -538,20 +538,22 @@ class FrameAligner:
 
 
 @functools.cache
-def _checked_defaults() -> FrameAlignerParams:
-    """FrameAlignerParams(), made (and its fields checked) once."""
-    return FrameAlignerParams()
+def _checked_defaults() -> tuple[FrameAlignerParams, tuple[str, ...]]:
+    """FrameAlignerParams(), made (and its fields checked) once, and its fields that hold
+    arrays."""
+    params = FrameAlignerParams()
+    return params, tuple(f.name for f in fields(params)
+                         if isinstance(getattr(params, f.name), np.ndarray))
 
 
 def _default_params() -> FrameAlignerParams:
     """A FrameAlignerParams() of the aligner's own, its arrays its own copies: a copy of the
     checked defaults, since checking every field again costs about a tenth of a
     millisecond, as much as a small step's search."""
-    params = copy.copy(_checked_defaults())
-    for f in fields(params):
-        value = getattr(params, f.name)
-        if isinstance(value, np.ndarray):
-            object.__setattr__(params, f.name, value.copy())
+    defaults, arrays = _checked_defaults()
+    params = copy.copy(defaults)
+    for name in arrays:
+        object.__setattr__(params, name, getattr(defaults, name).copy())
     return params
 
 
@@ -571,6 +573,19 @@ def _gated_share(compatible: np.ndarray, passed: int | None = None) -> float:
     # the count over the size is the mean to the last bit (both one rounding of exact
     # integers), without a float copy of the pairs
     return (int(np.count_nonzero(compatible)) if passed is None else passed) / compatible.size
+
+
+def _recent_map(objects: ObjectMap, idx: np.ndarray) -> ObjectMap:
+    """`objects.subset(idx)` for the indices (k,) of its recent objects (ascending), or the
+    map itself when they are all of them and its arrays are laid out as a subset's (C order):
+    the same objects without copying them."""
+    if idx.shape[0] != len(objects):
+        return objects.subset(idx)
+    for name in _ALL_FIELDS:
+        arr = getattr(objects, name)
+        if arr is not None and not arr.flags.c_contiguous:
+            return objects.subset(idx)
+    return objects
 
 
 def _snapshots(owner: str, name: str, value) -> list[tuple[float, ObjectMap]]:
