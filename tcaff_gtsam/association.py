@@ -8,7 +8,6 @@ from __future__ import annotations
 import numba
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.distance import cdist
 
 from .errors import DataError
 from .inputs import index_pairs, kernel_array, point_array, shown
@@ -37,10 +36,12 @@ _PARTIAL_NEIGHBOURS = 8
 #: add at most 43 000, the 7-Scenes kitchen's 61 000 (68 000 with the defaults' gate, which
 #: takes no descriptors); a hundred objects of assorted sizes per map add millions
 _PARTIAL_CHECKS = 1 << 16
-#: points up to which `_neighbour_distances` sorts the rows of their distance matrix rather
-#: than querying a k-d tree: a fraction of the tree's cost up to about 150 points (a quarter
-#: of it at 100 points and 48 neighbours), several times it at 500
+#: points up to which `_neighbour_distances` computes every distance (`_nearest_rows`) rather
+#: than querying a k-d tree: about two thirds of the tree's cost at 128 points and 48
+#: neighbours, a quarter of it at 100 points and 8, as much at 300 and 48
 _DENSE_NEIGHBOURS = 128
+
+
 @numba.njit(cache=True)
 def _size_gate(ego_w, ego_h, other_w, other_h, ratio, abs_diff, partial_ratio, compatible,
                partial):
@@ -379,15 +380,48 @@ def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
     `_best_per_object`."""
     n = points.shape[0]
     k = min(neighbours, n - 1)
-    out = np.full((n, k + 1), np.inf)
     if k > 0 and n <= _DENSE_NEIGHBOURS:
-        # a step's maps: sorting the distance matrix's rows costs a fraction of a tree query
-        # for as many neighbours; the diagonal (the point itself) sorts first
-        out[:, :k] = np.sort(cdist(points, points), axis=1)[:, 1: k + 1]
-    elif k > 0:
+        # a step's maps: every distance, the nearest kept in order, costs a fraction of a
+        # tree query for as many neighbours
+        return _nearest_rows(kernel_array(points), k)
+    out = np.full((n, k + 1), np.inf)
+    if k > 0:
         # the nearest is the point itself (or a duplicate of it: distance 0 either way)
         distances, _ = cKDTree(points).query(points, k + 1)
         out[:, :k] = distances[:, 1:]
+    return out
+
+
+@numba.njit(cache=True)
+def _nearest_rows(points, k):
+    """(n, k + 1): each of the points' (n, d) distances to its k nearest other points,
+    ascending, then an inf (`_neighbour_distances`). The distances are summed over the axes in
+    order and rooted, as scipy's cdist computes them (without fused multiply-adds: the same to
+    the last bit), and the point itself is left out as the first of its sorted row is (its
+    distance 0 sorts first; a duplicate's 0 is the same value). Rows are ranked by squared
+    distance and only the kept are rooted: the root does not decrease, so the roots of the
+    k + 1 smallest squares are the k + 1 smallest distances."""
+    n, dim = points.shape
+    out = np.empty((n, k + 1))
+    best = np.empty(k + 1)  # the k + 1 smallest squared distances of a row so far, ascending
+    for i in range(n):
+        filled = 0
+        for j in range(n):
+            s = 0.0
+            for a in range(dim):
+                diff = points[i, a] - points[j, a]
+                s += diff * diff
+            if filled == k + 1 and s >= best[k]:
+                continue
+            at = min(filled, k)
+            while at > 0 and best[at - 1] > s:
+                best[at] = best[at - 1]
+                at -= 1
+            best[at] = s
+            filled = min(filled + 1, k + 1)
+        for r in range(k):
+            out[i, r] = np.sqrt(best[r + 1])
+        out[i, k] = np.inf
     return out
 
 

@@ -23,7 +23,7 @@ ENTRY_KERNELS = [("clipper_graph", "_graph_csr"), ("clipper", "_mno"),
                  ("registration", "_mutual_nearest"),
                  ("association", "_best_per_object"),
                  ("association", "_best_pair_of_each"),
-                 ("association", "_size_gate")]
+                 ("association", "_size_gate"), ("association", "_nearest_rows")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():
