@@ -103,28 +103,24 @@ def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touc
 
 
 @numba.njit(cache=True)
-def _gradient(Mu, Cu, total, d, touched, n_touched, g):
-    """g = M_d u on the touched nodes, M_d = M - d (1 - C): (1 - C) u = sum(u) - C u."""
-    for t in range(n_touched):
-        p = np.uint64(touched[t])
-        g[p] = Mu[p] - d * (total - Cu[p])
-
-
-@numba.njit(cache=True)
-def _objective(u, support, n_support, g):
+def _objective(u, support, n_support, Mu, Cu, total, d):
+    """u' M_d u = sum over the support of u_p g_p, g = M_d u (`_project`)."""
     F = 0.0
     for s in range(n_support):
         p = np.uint64(support[s])
-        F += u[p] * g[p]
+        F += u[p] * (Mu[p] - d * (total - Cu[p]))
     return F
 
 
 @numba.njit(cache=True)
-def _project(u, g, alpha, touched, n_touched, active, out, out_support):
-    """out = normalize(max(u + alpha g, 0)) over active touched nodes.
+def _project(u, Mu, Cu, total, d, plain, alpha, touched, n_touched, active, out, out_support):
+    """out = normalize(max(u + alpha g, 0)) over active touched nodes, g = M_d u =
+    Mu - d (sum(u) - Cu) from the products of u (`_scatter`), or g = Mu when `plain`.
 
-    Untouched nodes stay at zero: they have u = 0 and g = -d sum(u) <= 0. Returns the size of
-    the new support (listed in out_support); 0 when everything was clipped.
+    The gradient is formed where it is used, here and in `_objective`, rather than stored: the
+    same values, without a pass of its own. Untouched nodes stay at zero: they have u = 0 and
+    g = -d sum(u) <= 0. Returns the size of the new support (listed in out_support); 0 when
+    everything was clipped.
     """
     norm_sq = 0.0
     n = 0
@@ -132,7 +128,8 @@ def _project(u, g, alpha, touched, n_touched, active, out, out_support):
         p = np.uint64(touched[t])
         if not active[p]:
             continue
-        v = u[p] + alpha * g[p]
+        g = Mu[p] if plain else Mu[p] - d * (total - Cu[p])
+        v = u[p] + alpha * g
         if v > 0.0:
             out[p] = v
             out_support[n] = p
@@ -190,7 +187,6 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
     sup, sup_b = np.empty(m, np.int64), np.empty(m, np.int64)
     Mu, Mu_b = np.zeros(m), np.zeros(m)
     Cu, Cu_b = np.full(m, -1.0), np.full(m, -1.0)
-    g, g_b = np.zeros(m), np.zeros(m)
     tch, tch_b = np.empty(m + 1, np.int64), np.empty(m + 1, np.int64)
     n_sup = 0
     for p in range(m):
@@ -203,7 +199,8 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
     for _ in range(power_iterations):
         for s in range(n_sup):
             u[np.uint64(sup[s])] = 0.0
-        n_new = _project(ub, Mu, 1.0, tch, n_tch, active, u, sup_b)  # u = Mu / |Mu| (ub is 0)
+        # u = Mu / |Mu| (ub is 0)
+        n_new = _project(ub, Mu, Cu, total, 0.0, True, 1.0, tch, n_tch, active, u, sup_b)
         if n_new == 0:
             break
         sup, sup_b = sup_b, sup
@@ -211,8 +208,7 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
         n_tch, total = _scatter(indptr, indices, weights, diag, u, sup, n_sup, Mu, Cu, tch,
                                 n_tch)
     d = _penalty_step(u, sup, n_sup, Mu, Cu, total, eps, True)
-    _gradient(Mu, Cu, total, d, tch, n_tch, g)
-    F = _objective(u, sup, n_sup, g)
+    F = _objective(u, sup, n_sup, Mu, Cu, total, d)
     for _ in range(max_outer):
         for _ in range(max_inner):
             alpha = 1.0
@@ -221,14 +217,14 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
             for _ in range(max_line_search):
                 for s in range(n_b):
                     ub[np.uint64(sup_b[s])] = 0.0
-                n_b = _project(u, g, alpha, tch, n_tch, active, ub, sup_b)
+                n_b = _project(u, Mu, Cu, total, d, False, alpha, tch, n_tch, active, ub,
+                               sup_b)
                 if n_b == 0:
                     alpha *= beta
                     continue
                 n_tch_b, total_b = _scatter(indptr, indices, weights, diag, ub, sup_b, n_b,
                                             Mu_b, Cu_b, tch_b, n_tch_b)
-                _gradient(Mu_b, Cu_b, total_b, d, tch_b, n_tch_b, g_b)
-                Fb = _objective(ub, sup_b, n_b, g_b)
+                Fb = _objective(ub, sup_b, n_b, Mu_b, Cu_b, total_b, d)
                 if Fb - F < -eps:
                     alpha *= beta
                 else:
@@ -245,7 +241,6 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
             n_sup = n_b
             Mu, Mu_b = Mu_b, Mu
             Cu, Cu_b = Cu_b, Cu
-            g, g_b = g_b, g
             tch, tch_b = tch_b, tch
             n_tch, n_tch_b, total, F = n_tch_b, n_tch, total_b, Fb
             if abs(delta) < tol_u:
@@ -254,8 +249,7 @@ def _solve(indptr, indices, weights, diag, active, u0, power_iterations, tol_u, 
         if step == 0.0:
             break
         d += step
-        _gradient(Mu, Cu, total, d, tch, n_tch, g)
-        F = _objective(u, sup, n_sup, g)
+        F = _objective(u, sup, n_sup, Mu, Cu, total, d)
     F_affinity = 0.0
     for s in range(n_sup):
         F_affinity += u[sup[s]] * Mu[sup[s]]
