@@ -8,7 +8,6 @@ from __future__ import annotations
 import numba
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.distance import cdist
 
 from .errors import DataError
 from .inputs import index_pairs, kernel_array, point_array, shown
@@ -17,8 +16,8 @@ from .params import _finite, _int_at_least, _require
 
 __all__ = ["neighbourhood_agreement", "putative_associations"]
 
-#: object pairs (rows x columns) in one block of the size gate: its float temporaries then take
-#: tens of MB whatever the map sizes, where the whole gate at 5000 objects per map took 1 GB
+#: object pairs (rows x columns) in one block of the descriptor gate: its float temporaries
+#: then take tens of MB whatever the map sizes
 _GATE_BLOCK = 1 << 20
 #: neighbours that describe an object for `_neighbourhood_pairs`: enough to reach past its own
 #: cluster (a row of cars, a group of chairs) to the next ones, whose distances tell apart
@@ -37,19 +36,36 @@ _PARTIAL_NEIGHBOURS = 8
 #: add at most 43 000, the 7-Scenes kitchen's 61 000 (68 000 with the defaults' gate, which
 #: takes no descriptors); a hundred objects of assorted sizes per map add millions
 _PARTIAL_CHECKS = 1 << 16
-#: points up to which `_neighbour_distances` sorts the rows of their distance matrix rather
-#: than querying a k-d tree: a fraction of the tree's cost up to about 150 points (a quarter
-#: of it at 100 points and 48 neighbours), several times it at 500
+#: points up to which `_neighbour_distances` computes every distance (`_nearest_rows`) rather
+#: than querying a k-d tree: about two thirds of the tree's cost at 128 points and 48
+#: neighbours, a quarter of it at 100 points and 8, as much at 300 and 48
 _DENSE_NEIGHBOURS = 128
-def _sizes_similar(a: np.ndarray, b: np.ndarray, ratios: tuple[float, ...], abs_diff: float
-                   ) -> list[np.ndarray]:
-    """(n,) x (m,) sizes -> per ratio of `ratios` an (n, m) bool: larger <= ratio * smaller,
-    or |a - b| <= abs_diff (the larger, the smaller and the difference made once)."""
-    a = a[:, None]
-    b = b[None, :]
-    larger, smaller = np.maximum(a, b), np.minimum(a, b)
-    close = np.abs(a - b) <= abs_diff
-    return [(larger <= ratio * smaller) | close for ratio in ratios]
+
+
+@numba.njit(cache=True)
+def _size_gate(ego_w, ego_h, other_w, other_h, ratio, abs_diff, partial_ratio, compatible,
+               partial):
+    """The size gate of objects of widths and heights (n,) and (m,) [m]: compatible (n, m)
+    bool written with the pairs it passes and partial (n, m) bool with those of them that
+    only the partial-view rule (`partial_ratio`, 0 for none) passes. Two sizes are similar
+    within a ratio when the larger is at most ratio times the smaller or they differ by at
+    most abs_diff. One pass, no (n, m) float temporaries."""
+    use_partial = partial_ratio > ratio
+    for i in range(ego_w.shape[0]):
+        for j in range(other_w.shape[0]):
+            w_large, w_small = max(ego_w[i], other_w[j]), min(ego_w[i], other_w[j])
+            h_large, h_small = max(ego_h[i], other_h[j]), min(ego_h[i], other_h[j])
+            w_close = abs(ego_w[i] - other_w[j]) <= abs_diff
+            h_close = abs(ego_h[i] - other_h[j]) <= abs_diff
+            w_ok = w_large <= ratio * w_small or w_close
+            h_ok = h_large <= ratio * h_small or h_close
+            both = w_ok and h_ok
+            cut = False
+            if use_partial and not both:
+                cut = ((w_ok and (h_large <= partial_ratio * h_small or h_close))
+                       or (h_ok and (w_large <= partial_ratio * w_small or w_close)))
+            compatible[i, j] = both or cut
+            partial[i, j] = cut
 
 
 def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
@@ -80,9 +96,8 @@ def putative_associations(ego: ObjectMap, other: ObjectMap, ratio: float = 1.35,
     _require(partial_ratio is None or (_finite(partial_ratio) and partial_ratio >= 1), o,
              "partial_ratio", partial_ratio, "must be None or a finite number >= 1")
     ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
-    pairs = [np.argwhere(block) + np.array([start, 0])
-             for start, block, _ in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio)]
-    return np.concatenate([np.empty((0, 2), np.int64), *pairs]).astype(np.int64)
+    return np.argwhere(size_gates(ego, other, ratio, abs_diff, partial_ratio)[0]).astype(
+        np.int64)
 
 
 def size_compatible(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float,
@@ -97,38 +112,16 @@ def size_gates(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float,
     `putative_associations` for every pair, and the pairs of it that only the partial-view
     rule passes (`partial_ratio`; none without it)."""
     compatible = np.empty((len(ego), len(other)), bool)
-    partial = np.zeros((len(ego), len(other)), bool)
-    for start, block, partial_block in _gate_blocks(ego, other, ratio, abs_diff, partial_ratio):
-        compatible[start: start + block.shape[0]] = block
-        if partial_block is not None:
-            partial[start: start + block.shape[0]] = partial_block
+    partial = np.empty((len(ego), len(other)), bool)
+    _size_gate(kernel_array(ego.widths), kernel_array(ego.heights), kernel_array(other.widths),
+               kernel_array(other.heights), float(ratio), float(abs_diff),
+               0.0 if partial_ratio is None else float(partial_ratio), compatible, partial)
     return compatible, partial
 
 
 def _block_rows(n_other: int) -> int:
-    """Ego rows per block of the size gate against `n_other` objects."""
+    """Ego rows per block of the descriptor gate against `n_other` objects."""
     return max(1, _GATE_BLOCK // max(n_other, 1))
-
-
-def _gate_blocks(ego: ObjectMap, other: ObjectMap, ratio: float, abs_diff: float,
-                 partial_ratio: float | None = None):
-    """The size gate by blocks of ego rows: yields (first row, (rows, n_other) bool, the
-    pairs of it only the partial-view rule passes ((rows, n_other) bool, or None without
-    the rule))."""
-    rows = _block_rows(len(other))
-    for start in range(0, len(ego), rows):
-        part = slice(start, start + rows)
-        ratios = (ratio,) if partial_ratio is None or partial_ratio <= ratio else (
-            ratio, partial_ratio)
-        widths = _sizes_similar(ego.widths[part], other.widths, ratios, abs_diff)
-        heights = _sizes_similar(ego.heights[part], other.heights, ratios, abs_diff)
-        block = widths[0] & heights[0]
-        partial = None
-        if len(ratios) == 2:
-            partial = (widths[0] & heights[1]) | (heights[0] & widths[1])
-            partial &= ~block
-            block |= partial
-        yield start, block, partial
 
 
 def _descriptor_gate(ego: ObjectMap, other: ObjectMap, compatible: np.ndarray,
@@ -346,12 +339,14 @@ def _best_pair_of_each(compatible, d_ego, d_other, ages_ego, ages_other, epsilon
         count[:k] = 0
         # `_best_per_object`'s lockstep greedy matching of every pair of the row, by bursts
         # of 8 steps: a pair is done once either index reached its row's inf (the steps after
-        # that match nothing), and most rows are done well before `steps`
+        # that match nothing), and most rows are done well before `steps`. Indices are read
+        # as unsigned, which spares numba's negative-index wraparound (a tenth of the time)
         done = 0
         while done < steps:
             for _ in range(8):
                 for c in range(k):
-                    d = a[at_ego[c]] - d_other[cols[c], at_other[c]]
+                    d = (a[np.uint64(at_ego[c])]
+                         - d_other[np.uint64(cols[c]), np.uint64(at_other[c])])
                     hit = abs(d) < epsilon
                     count[c] += hit
                     at_ego[c] += hit | (d < 0)
@@ -359,7 +354,8 @@ def _best_pair_of_each(compatible, d_ego, d_other, ages_ego, ages_other, epsilon
             done += 8
             busy = False
             for c in range(k):
-                if a[at_ego[c]] < np.inf and d_other[cols[c], at_other[c]] < np.inf:
+                if (a[np.uint64(at_ego[c])] < np.inf
+                        and d_other[np.uint64(cols[c]), np.uint64(at_other[c])] < np.inf):
                     busy = True
                     break
             if not busy:
@@ -387,15 +383,58 @@ def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
     `_best_per_object`."""
     n = points.shape[0]
     k = min(neighbours, n - 1)
-    out = np.full((n, k + 1), np.inf)
     if k > 0 and n <= _DENSE_NEIGHBOURS:
-        # a step's maps: sorting the distance matrix's rows costs a fraction of a tree query
-        # for as many neighbours; the diagonal (the point itself) sorts first
-        out[:, :k] = np.sort(cdist(points, points), axis=1)[:, 1: k + 1]
-    elif k > 0:
+        # a step's maps: every distance, the nearest kept in order, costs a fraction of a
+        # tree query for as many neighbours
+        return _nearest_rows(kernel_array(points), k)
+    out = np.full((n, k + 1), np.inf)
+    if k > 0:
         # the nearest is the point itself (or a duplicate of it: distance 0 either way)
         distances, _ = cKDTree(points).query(points, k + 1)
         out[:, :k] = distances[:, 1:]
+    return out
+
+
+@numba.njit(cache=True)
+def _nearest_rows(points, k):
+    """(n, k + 1): each of the points' (n, d) distances to its k nearest other points,
+    ascending, then an inf (`_neighbour_distances`). The distances are summed over the axes in
+    order and rooted, as scipy's cdist computes them (without fused multiply-adds: the same to
+    the last bit), and the point itself is left out as the first of its sorted row is (its
+    distance 0 sorts first; a duplicate's 0 is the same value). Rows are ranked by squared
+    distance and only the kept are rooted: the root does not decrease, so the roots of the
+    k + 1 smallest squares are the k + 1 smallest distances."""
+    n, dim = points.shape
+    out = np.empty((n, k + 1))
+    row = np.empty(n)  # squared distances of a row
+    best = np.empty(k + 1)  # the k + 1 smallest squared distances of a row so far, ascending
+    for i in range(n):
+        if dim == 2:  # written out, so that it compiles to vector instructions
+            for j in range(n):
+                dx = points[i, 0] - points[j, 0]
+                dy = points[i, 1] - points[j, 1]
+                row[j] = dx * dx + dy * dy  # 0 + dx^2 is dx^2: the same sum
+        else:
+            for j in range(n):
+                s = 0.0
+                for a in range(dim):
+                    diff = points[i, a] - points[j, a]
+                    s += diff * diff
+                row[j] = s
+        filled = 0
+        for j in range(n):
+            s = row[j]
+            if filled == k + 1 and s >= best[k]:
+                continue
+            at = min(filled, k)
+            while at > 0 and best[at - 1] > s:
+                best[at] = best[at - 1]
+                at -= 1
+            best[at] = s
+            filled = min(filled + 1, k + 1)
+        for r in range(k):
+            out[i, r] = np.sqrt(best[r + 1])
+        out[i, k] = np.inf
     return out
 
 
@@ -456,7 +495,8 @@ def _best_per_object(compatible, d_ego, d_other, ages_ego, ages_other, epsilon, 
         # index there; after `steps` steps every matching is finished.
         for _ in range(steps):
             for c in range(k):
-                d = a[at_ego[c]] - d_other[cols[c], at_other[c]]
+                d = (a[np.uint64(at_ego[c])]
+                     - d_other[np.uint64(cols[c]), np.uint64(at_other[c])])
                 hit = abs(d) < epsilon
                 count[c] += hit
                 at_ego[c] += hit | (d < 0)

@@ -10,11 +10,13 @@ Each candidate's covariance R (`FrameAlignerParams.covariance`): "constant" (the
 
 from __future__ import annotations
 
+import copy
+import functools
 import logging
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -45,7 +47,7 @@ from .geometry import (
     _wrap_angle,
 )
 from .inputs import finite_time, real_array, shown
-from .object_map import ObjectMap, as_object_map
+from .object_map import _ALL_FIELDS, ObjectMap, as_object_map
 from .params import (
     FrameAlignerParams,
     _given_or_default,
@@ -122,7 +124,8 @@ class FrameAligner:
         Raises:
             ConfigError: params is neither a FrameAlignerParams nor None.
         """
-        self.params = _given_or_default(FrameAlignerParams, params, "FrameAligner")
+        self.params = (_default_params() if params is None else
+                       _given_or_default(FrameAlignerParams, params, "FrameAligner"))
         #: steps on which the size gate passed more than `max_associations` pairs, so that
         #: each object kept only its `pairs_per_object` best
         self.thinned = 0
@@ -157,7 +160,7 @@ class FrameAligner:
             return last[3]
         kappa = self.params.kappa
         ego_idx, other_idx = ego.recent_indices(now, kappa), other.recent_indices(now, kappa)
-        ego_r, other_r = ego.subset(ego_idx), other.subset(other_idx)
+        ego_r, other_r = _recent_map(ego, ego_idx), _recent_map(other, other_idx)
         pair = (ego_idx, other_idx, ego_r, other_r, self._gates(ego_r, other_r))
         self._last_pair = (ego, other, now, pair)
         return pair
@@ -320,8 +323,10 @@ class FrameAligner:
         parameters checked them); Q^-1 computed once."""
         prm = self.params
         if self._calibrated is None:
+            Q_inv = (_default_Q_inverse() if prm.repeat_Q is None else
+                     _inverse_Q("FrameAlignerParams.repeat_Q", prm.repeat_Q))
             self._calibrated = (prm.residual_prior_dof, prm.map_drift, prm.repeat_inflation,
-                                _inverse_Q("FrameAlignerParams.repeat_Q", prm.repeat_Q))
+                                Q_inv)
         return self._calibrated
 
     def _registered(self, ego_r: ObjectMap, other_r: ObjectMap, now: float,
@@ -336,7 +341,9 @@ class FrameAligner:
         prm = self.params
         # the gate of the putative associations, kept whole for counting the inliers
         compatible, partial = self._gates(ego_r, other_r) if gates is None else gates
-        fewest = prm.fewest_associations(len(ego_r), len(other_r), _gated_share(compatible))
+        n_compatible = int(np.count_nonzero(compatible))
+        fewest = prm.fewest_associations(len(ego_r), len(other_r),
+                                         _gated_share(compatible, n_compatible))
         if min(len(ego_r), len(other_r)) < fewest:
             return []
         p_all = ego_r.centroids[:, : prm.dim]
@@ -348,7 +355,7 @@ class FrameAligner:
             searched = compatible & self._agree(p_all, q_all, guide)
         elif prm.partial_pairs != "all" and partial.any() and (
                 prm.partial_pairs == "best" or _partial_ranking_pays(
-                    int(np.count_nonzero(compatible)), int(np.count_nonzero(partial)))):
+                    n_compatible, int(np.count_nonzero(partial)))):
             searched = (compatible & ~partial) | _partial_pairs_kept(
                 compatible, partial, p_all, q_all, ages_ego, ages_other, prm.clipper.epsilon)
         else:
@@ -360,7 +367,7 @@ class FrameAligner:
             assoc = _neighbourhood_pairs(searched, p_all, q_all, ages_ego, ages_other,
                                         prm.clipper.epsilon, prm.pairs_per_object,
                                         prm.max_associations)
-            self._thin(int(np.count_nonzero(compatible)), n_pairs, len(ego_r), len(other_r))
+            self._thin(n_compatible, n_pairs, len(ego_r), len(other_r))
         else:
             assoc = np.argwhere(searched).astype(np.int64)
         # the maps and parameters were checked when they were made, so the graph and solver
@@ -386,6 +393,8 @@ class FrameAligner:
         counting = prm.min_inliers is not None or prm.check_ambiguity
         # a guided step returns only candidates confirming the hold, which need no rivals
         rivals = prm.check_ambiguity and guide is None
+        # the mutual-inlier kernel takes C-contiguous points: copied once, not per solution
+        p_plane = np.ascontiguousarray(p_all[:, :2])
         found = []
         for sol in solutions:
             supported = (len(sol) >= fewest
@@ -403,16 +412,15 @@ class FrameAligner:
             if not (qualifies or rivals):
                 continue
             level = self._same_level(compatible, ego_r, other_r, a)
-            explained = (_mutual_inliers(T2, p_all[:, :2], q_all[:, :2], level,
-                                         prm.inlier_radius) if counting or prm.refit else None)
+            explained = (_mutual_inliers(T2, p_plane, q_all[:, :2], level, prm.inlier_radius)
+                         if counting or prm.refit else None)
             if prm.refit and qualifies and explained.shape[0] >= len(sol):
                 refitted = self._refit(arun, explained, p_all, q_all, ages_ego, ages_other,
                                        level)
                 if refitted is not None:
                     T2, p, q, w, rmse, explained = refitted
             inliers = explained.shape[0] if counting else 0
-            found.append(_Solution(a, sol.score, T2, _se2_to_params(T2), p, q, w, rmse,
-                                   qualifies, inliers))
+            found.append(_Solution(a, sol.score, T2, p, q, w, rmse, qualifies, inliers))
         return found
 
     def _refit(self, arun, pairs: np.ndarray, p_all: np.ndarray, q_all: np.ndarray,
@@ -529,9 +537,55 @@ class FrameAligner:
         return False
 
 
-def _gated_share(compatible: np.ndarray) -> float:
-    """The share of the object pairs (n_ego, n_other) bool that pass the gates, 0 for none."""
-    return float(compatible.mean()) if compatible.size else 0.0
+@functools.cache
+def _checked_defaults() -> tuple[FrameAlignerParams, tuple[str, ...]]:
+    """FrameAlignerParams(), made (and its fields checked) once, and its fields that hold
+    arrays."""
+    params = FrameAlignerParams()
+    return params, tuple(f.name for f in fields(params)
+                         if isinstance(getattr(params, f.name), np.ndarray))
+
+
+def _default_params() -> FrameAlignerParams:
+    """A FrameAlignerParams() of the aligner's own, its arrays its own copies: a copy of the
+    checked defaults, since checking every field again costs about a tenth of a
+    millisecond, as much as a small step's search."""
+    defaults, arrays = _checked_defaults()
+    params = copy.copy(defaults)
+    for name in arrays:
+        object.__setattr__(params, name, getattr(defaults, name).copy())
+    return params
+
+
+@functools.cache
+def _default_Q_inverse() -> np.ndarray:
+    """Q^-1 (3, 3) of `repeat_Q` = None (TCAFF's default), inverted once; read-only."""
+    Q_inv = _inverse_Q("FrameAlignerParams.repeat_Q", None)
+    Q_inv.flags.writeable = False
+    return Q_inv
+
+
+def _gated_share(compatible: np.ndarray, passed: int | None = None) -> float:
+    """The share of the object pairs (n_ego, n_other) bool that pass the gates, 0 for none;
+    `passed`: their count when already made."""
+    if not compatible.size:
+        return 0.0
+    # the count over the size is the mean to the last bit (both one rounding of exact
+    # integers), without a float copy of the pairs
+    return (int(np.count_nonzero(compatible)) if passed is None else passed) / compatible.size
+
+
+def _recent_map(objects: ObjectMap, idx: np.ndarray) -> ObjectMap:
+    """`objects.subset(idx)` for the indices (k,) of its recent objects (ascending), or the
+    map itself when they are all of them and its arrays are laid out as a subset's (C order):
+    the same objects without copying them."""
+    if idx.shape[0] != len(objects):
+        return objects.subset(idx)
+    for name in _ALL_FIELDS:
+        arr = getattr(objects, name)
+        if arr is not None and not arr.flags.c_contiguous:
+            return objects.subset(idx)
+    return objects
 
 
 def _snapshots(owner: str, name: str, value) -> list[tuple[float, ObjectMap]]:
@@ -600,18 +654,25 @@ def _confirms(z: np.ndarray, held: np.ndarray | None, params: FrameAlignerParams
 
 @dataclass(frozen=True, eq=False)
 class _Solution:
-    """One registered MNO-CLIPPER solution (indices into the maps of recent objects)."""
+    """One registered MNO-CLIPPER solution (indices into the maps of recent objects): its
+    associations (k, 2), score, SE(2) registration T (3, 3) with its (x, y, theta) z (3,)
+    made when first asked for (a rival with fewer inliers than every candidate is never
+    asked), the registered points p, q (k, dim) and weights w (k,), residual RMS [m],
+    whether it passes the checks, and the objects it explains."""
 
     associations: np.ndarray
     score: float
     T: np.ndarray
-    z: np.ndarray
     p: np.ndarray
     q: np.ndarray
     w: np.ndarray
     rmse: float
     qualifies: bool
     inliers: int
+
+    @functools.cached_property
+    def z(self) -> np.ndarray:
+        return _se2_to_params(self.T)
 
 
 class MapMemory:

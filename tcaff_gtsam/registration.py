@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 from .association import neighbourhood_agreement, putative_associations  # re-exported
 from .errors import DataError
 from .geometry import _transform_points
-from .inputs import point_array, real_array, shown
+from .inputs import kernel_array, point_array, real_array, shown
 from .params import _finite, _require
 
 __all__ = [
@@ -132,7 +132,7 @@ def _weighted_arun(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray | 
     # 2D needs two distinct points; 3D needs the points off a single line. Centring loses
     # about 1e-16 of the coordinates' magnitude and the eigensolver about 1e-16 of the largest
     # spread, so spreads below those (with a wide margin) are rounding, not geometry.
-    floor = w_sum * (1e-9 * max(1.0, float(np.max(np.abs(q))))) ** 2
+    floor = w_sum * (1e-9 * max(1.0, float(np.abs(q).max()))) ** 2
     if d == 2:
         return _planar_arun(p_c, q_c, w, floor, p_mean, q_mean)
     scatter = (q_c * w[:, None]).T @ q_c
@@ -157,19 +157,18 @@ def _planar_arun(p_c: np.ndarray, q_c: np.ndarray, w: np.ndarray, floor: float,
     is not above `floor` (rounding): the rotation that maximises sum w p_c . R q_c is the
     angle of sum w (q_c . p_c, q_c x p_c), with no decomposition (the same optimum as the
     SVD's, at a fraction of its cost on the few points of a candidate)."""
-    wq = q_c * w[:, None]
-    if _eigenvalues_2x2(wq[:, 0] @ q_c[:, 0], wq[:, 1] @ q_c[:, 1], wq[:, 0] @ q_c[:, 1]
-                        )[1] <= floor:
+    wq_x, wq_y = (q_c * w[:, None]).T  # the columns, as views
+    q_x, q_y = q_c.T
+    p_x, p_y = p_c.T
+    if _eigenvalues_2x2(wq_x @ q_x, wq_y @ q_y, wq_x @ q_y)[1] <= floor:
         return None
-    dot = wq[:, 0] @ p_c[:, 0] + wq[:, 1] @ p_c[:, 1]
-    cross = wq[:, 0] @ p_c[:, 1] - wq[:, 1] @ p_c[:, 0]
+    dot = wq_x @ p_x + wq_y @ p_y
+    cross = wq_x @ p_y - wq_y @ p_x
     theta = math.atan2(cross, dot)
     c, s = math.cos(theta), math.sin(theta)
-    T = np.eye(3)
-    T[0, 0], T[0, 1], T[1, 0], T[1, 1] = c, -s, s, c
-    T[0, 2] = p_mean[0] - (c * q_mean[0] - s * q_mean[1])
-    T[1, 2] = p_mean[1] - (s * q_mean[0] + c * q_mean[1])
-    return T
+    return np.array([[c, -s, p_mean[0] - (c * q_mean[0] - s * q_mean[1])],
+                     [s, c, p_mean[1] - (s * q_mean[0] + c * q_mean[1])],
+                     [0.0, 0.0, 1.0]])
 
 
 def _eigenvalues_2x2(sxx: float, syy: float, sxy: float) -> tuple[float, float]:
@@ -209,7 +208,9 @@ def registration_rmse(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
 def _registration_rmse(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
     d = p.shape[1]
     residual = p - (q @ T_a_b[:d, :d].T + T_a_b[:d, d])
-    return float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
+    # the sum over the pairs divided by their count is np.mean's arithmetic, without its
+    # dispatch
+    return math.sqrt((residual**2).sum(axis=1).sum() / p.shape[0])
 
 
 def mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible: np.ndarray,
@@ -250,8 +251,8 @@ def _mutual_inliers(T_a_b: np.ndarray, p: np.ndarray, q: np.ndarray, compatible:
         return _mutual_inliers_by_tree(p, moved, compatible, radius)
     # one compiled signature (the one precompiled) whatever the callers' layouts, types and
     # write flags (numba compiles read-only arrays apart)
-    return _mutual_nearest(np.require(p, np.float64, "CW"), np.require(moved, np.float64, "CW"),
-                           np.require(compatible, np.bool_, "CW"), float(radius) ** 2)
+    return _mutual_nearest(kernel_array(p), kernel_array(moved), kernel_array(compatible, bool),
+                           float(radius) ** 2)
 
 
 @numba.njit(cache=True)

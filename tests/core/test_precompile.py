@@ -22,7 +22,8 @@ ENTRY_KERNELS = [("clipper_graph", "_graph_csr"), ("clipper", "_mno"),
                  ("hypothesis_tree", "_first_not_positive_definite"),
                  ("registration", "_mutual_nearest"),
                  ("association", "_best_per_object"),
-                 ("association", "_best_pair_of_each")]
+                 ("association", "_best_pair_of_each"),
+                 ("association", "_size_gate"), ("association", "_nearest_rows")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():
@@ -50,7 +51,7 @@ from tcaff_gtsam.params import FrameAlignerParams
 from tcaff_gtsam.precompile import _maps, compile_kernels
 kernels = [clipper_graph._graph_csr, hypothesis_tree._measurement_costs,
            hypothesis_tree._kalman_children, hypothesis_tree._first_not_positive_definite,
-           association._agreement]
+           association._agreement, association._size_gate]
 compile_kernels()
 print([len(k.signatures) for k in kernels])
 ego, other = _maps(np.random.default_rng(3), 0.0)

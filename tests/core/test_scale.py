@@ -1,4 +1,4 @@
-"""Large maps: the size gate by blocks, the cap on associations (each object's pairs whose
+"""Large maps: the descriptor gate by blocks, the cap on associations (each object's pairs whose
 neighbourhoods agree best), mutual inliers by k-d tree, and a FrameAligner step on maps whose
 gate passes far more pairs than the cap."""
 
@@ -28,7 +28,7 @@ seeds = st.integers(0, 2**32 - 1)
 
 @contextmanager
 def gate_block(pairs: int):
-    """The size gate evaluated by blocks of `pairs` object pairs for the duration."""
+    """The descriptor gate evaluated by blocks of `pairs` object pairs for the duration."""
     saved = association._GATE_BLOCK
     association._GATE_BLOCK = pairs
     try:
@@ -48,13 +48,22 @@ def random_map(rng: np.random.Generator, n: int, sizes: int = 4) -> ObjectMap:
 @given(seeds, st.integers(0, 40), st.integers(0, 40), st.integers(1, 60))
 def test_the_gate_by_blocks_is_the_whole_gate(seed, n_ego, n_other, block):
     rng = np.random.default_rng(seed)
-    ego, other = random_map(rng, n_ego), random_map(rng, n_other)
+
+    def described(objects: ObjectMap) -> ObjectMap:
+        d = np.abs(rng.normal(size=(len(objects), 8)))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return replace(objects, descriptors=d)
+
+    ego, other = described(random_map(rng, n_ego)), described(random_map(rng, n_other))
     whole = putative_associations(ego, other)
     compatible = size_compatible(ego, other, 1.35, 0.1)
-    with gate_block(block):
-        np.testing.assert_array_equal(putative_associations(ego, other), whole)
-        np.testing.assert_array_equal(size_compatible(ego, other, 1.35, 0.1), compatible)
     np.testing.assert_array_equal(np.argwhere(compatible), whole)
+    gated = association._descriptor_gate(ego, other, compatible, 0.7)
+    similar = ego.descriptors @ other.descriptors.T >= 0.7
+    np.testing.assert_array_equal(gated, compatible & similar)
+    with gate_block(block):
+        np.testing.assert_array_equal(association._descriptor_gate(ego, other, compatible, 0.7),
+                                      gated)
 
 
 @settings(max_examples=60, deadline=None)
