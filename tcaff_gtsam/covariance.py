@@ -85,11 +85,22 @@ def _sandwich(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarr
     A[:, 0, 2], A[:, 1, 2] = -Rq[:, 1], Rq[:, 0]
     A = A.reshape(2 * k, 3)
     w = np.repeat(weights, 2)
-    bread = np.linalg.pinv((A * w[:, None]).T @ A)
+    bread = _pinv((A * w[:, None]).T @ A)
     meat = (A * (w**2)[:, None]).T @ A
     G = bread @ meat @ bread
-    dof = 2 * k - 6 + float(np.trace(G @ (A.T @ A)))
-    return float(np.sum(residual**2)), dof, G, Rq
+    dof = 2 * k - 6 + float((G @ (A.T @ A)).trace())
+    return float((residual**2).sum()), dof, G, Rq
+
+
+def _pinv(a: np.ndarray) -> np.ndarray:
+    """np.linalg.pinv(a) of a real (n, n) matrix with its default cutoff (singular values up to
+    1e-15 of the largest dropped), in its arithmetic to the last bit, without the wrapper's
+    argument handling: that costs as much as the SVD of a 3 x 3 matrix."""
+    u, s, vt = np.linalg.svd(a, full_matrices=False)
+    large = s > 1e-15 * s.max()
+    s = np.divide(1, s, where=large, out=s)
+    s[~large] = 0
+    return vt.T @ (s[:, None] * u.T)
 
 
 def _residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
@@ -181,6 +192,9 @@ def _inverse_Q(owner: str, Q) -> np.ndarray:
 
 #: the smallest eigenvalue of a calibrated R relative to its largest (`_calibrated_covariance`)
 _MAX_CONDITION_INVERSE = 1e-9
+#: diag(1, 1, 0): the translation's block of (x, y, theta)
+_PLANE = np.diag([1.0, 1.0, 0.0])
+_PLANE.flags.writeable = False
 
 
 def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
@@ -196,8 +210,7 @@ def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weig
     c = (weights @ Rq) / total if total > 0 else Rq.mean(axis=0)
     J = np.array([c[1], -c[0], 1.0])
     d_t, d_theta = drift
-    R_s = s_sq * G + 0.5 * kappa * (d_t**2 * np.diag([1.0, 1.0, 0.0])
-                                    + d_theta**2 * np.outer(J, J))
+    R_s = s_sq * G + 0.5 * kappa * (d_t**2 * _PLANE + d_theta**2 * (J[:, None] * J))
     R = R_s + repeat_inflation * (R_s @ Q_inv @ R_s)
     R = 0.5 * (R + R.T)
     # Far from the odometry origin the heading's lever couples it to the translation, and the

@@ -292,15 +292,16 @@ class FrameAligner:
         return AlignmentMeasurement(z, self._covariance(T2, p, q, w), pairs.astype(np.int64),
                                     0.0, rmse, pairs.shape[0], tracked=True)
 
-    def _fit(self, arun, p: np.ndarray, q: np.ndarray, w: np.ndarray
+    def _fit(self, arun, p: np.ndarray, q: np.ndarray, w: np.ndarray, residual: bool = True
              ) -> tuple[np.ndarray, float] | None:
         """The registration of q (k, dim) onto p by `arun` (checked or not) with weights w:
-        (T (3, 3) SE(2), residual RMS in the plane [m]), or None when it is degenerate."""
+        (T (3, 3) SE(2), residual RMS in the plane [m], NaN unless `residual`), or None when
+        it is degenerate."""
         T = arun(p, q, w)
         if T is None:
             return None
         T2 = _se3_to_se2(T) if self.params.dim == 3 else T
-        return T2, _registration_rmse(T2, p[:, :2], q[:, :2])
+        return T2, _registration_rmse(T2, p[:, :2], q[:, :2]) if residual else math.nan
 
     def _covariance(self, T2: np.ndarray, p: np.ndarray, q: np.ndarray, w: np.ndarray
                     ) -> np.ndarray:
@@ -404,7 +405,8 @@ class FrameAligner:
             a = sol.associations
             p, q = p_all[a[:, 0]], q_all[a[:, 1]]
             w = _weights(ages_ego[a[:, 0]] * ages_other[a[:, 1]], prm.weight_offset)
-            fit = self._fit(arun, p, q, w)
+            # one that cannot qualify is kept only as a rival, whose residual nothing asks
+            fit = self._fit(arun, p, q, w, residual=supported)
             if fit is None:
                 continue
             T2, rmse = fit
@@ -657,8 +659,9 @@ class _Solution:
     """One registered MNO-CLIPPER solution (indices into the maps of recent objects): its
     associations (k, 2), score, SE(2) registration T (3, 3) with its (x, y, theta) z (3,)
     made when first asked for (a rival with fewer inliers than every candidate is never
-    asked), the registered points p, q (k, dim) and weights w (k,), residual RMS [m],
-    whether it passes the checks, and the objects it explains."""
+    asked), the registered points p, q (k, dim) and weights w (k,), residual RMS [m] (NaN
+    for one that cannot qualify: a rival only), whether it passes the checks, and the
+    objects it explains."""
 
     associations: np.ndarray
     score: float

@@ -336,3 +336,16 @@ def test_a_registration_of_no_weight_is_a_data_error_and_no_direction_is_known_e
     # one point fixes no heading: without drift that direction still gets a variance
     R = calibrated_covariance(T, p[:1], q[:1], w[:1], kappa=20.0, map_drift=(0.0, 0.0))
     assert np.linalg.eigvalsh(R).min() >= 1e-6 * 0.05**2 * 0.999
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(-12, 12), st.sampled_from([3, 2, 1, 0]))
+def test_the_sandwich_pseudo_inverse_is_numpys_to_the_last_bit(seed, scale, rank):
+    """`_pinv` stands in for np.linalg.pinv in the sandwich, on full-rank and singular
+    matrices alike (the latter a registration that does not observe some direction)."""
+    from tcaff_gtsam.covariance import _pinv
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(3, max(rank, 1))) * 10.0**scale
+    matrix = a @ a.T if rank else np.zeros((3, 3))
+    assert np.array_equal(_pinv(matrix), np.linalg.pinv(matrix))
