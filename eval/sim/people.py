@@ -7,6 +7,8 @@ frame through its odometry pose, as a real detector with depth would place them.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,6 +87,14 @@ def walk(rng: np.random.Generator, n: int, bounds: tuple[float, float, float, fl
         raise DataError(f"walk: bounds (x_min, y_min, x_max, y_max) must span some distance, "
                         f"got {bounds}")
     end = float(times[-1]) if len(times) else 0.0
+    legs_needed = f"{n} people walking in {bounds} until {end:g} s need more than MAX_LEGS = "
+    # no leg takes longer than the diagonal at the slowest speed plus the longest pause, so a
+    # span of more than MAX_LEGS of those is refused before any walking
+    slowest = min(speed)
+    longest = math.hypot(x1 - x0, y1 - y0) / slowest + max(pause) if slowest > 0 else math.inf
+    if n * (end / longest) > MAX_LEGS:
+        raise DataError(f"walk: {legs_needed}{MAX_LEGS} legs: wider bounds, longer pauses or "
+                        f"earlier times")
     out = np.zeros((len(times), n, 2))
     legs = 0
     for person in range(n):
@@ -92,8 +102,7 @@ def walk(rng: np.random.Generator, n: int, bounds: tuple[float, float, float, fl
         while knot_t[-1] <= end:
             legs += 1
             if legs > MAX_LEGS:
-                raise DataError(f"walk: {n} people walking in {bounds} until {end:g} s need "
-                                f"more than MAX_LEGS = {MAX_LEGS} legs: wider bounds, longer "
+                raise DataError(f"walk: {legs_needed}{MAX_LEGS} legs: wider bounds, longer "
                                 f"pauses or earlier times")
             goal = rng.uniform((x0, y0), (x1, y1))
             arrive = knot_t[-1] + np.linalg.norm(goal - knot_xy[-1]) / rng.uniform(*speed)

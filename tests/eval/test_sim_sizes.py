@@ -203,14 +203,22 @@ def test_loop_refuses_laps_that_are_not_a_finite_number(bad):
 
 
 def test_walk_stops_at_max_legs():
-    """Times far in the future (or bounds with no room to walk) would take legs without end."""
+    """Times far in the future (or bounds with no room to walk) would take legs without end:
+    refused at once where even the longest legs would be too many, else once the walk has
+    taken MAX_LEGS."""
     times = np.array([0.0, 1e300])
     with pytest.raises(DataError, match=r"^walk: 2 people .* more than MAX_LEGS = "):
         people.walk(rng(), 2, BOUNDS, (0.5, 1.2), (0.0, 3.0), times)
+    x0, y0, x1, y1 = BOUNDS
+    longest = math.hypot(x1 - x0, y1 - y0) / 0.5 + 3.0  # the slowest leg and longest pause
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(people, "MAX_LEGS", 50)
         with pytest.raises(DataError, match="MAX_LEGS = 50 legs"):
             people.walk(rng(), 2, BOUNDS, (0.5, 1.2), (0.0, 3.0), np.array([0.0, 1e4]))
+        # within the up-front bound, but the legs actually walked are shorter and more
+        with pytest.raises(DataError, match="MAX_LEGS = 50 legs"):
+            people.walk(rng(), 2, BOUNDS, (0.5, 1.2), (0.0, 3.0),
+                        np.array([0.0, 24.0 * longest]))
         assert people.walk(rng(), 2, BOUNDS, (0.5, 1.2), (0.0, 3.0), np.arange(5.0)).shape == (
             5, 2, 2)
 
