@@ -47,8 +47,9 @@ class TCAFFParams(_ByValue):
     `switch_stale`, `withhold_contested`): the same look-alikes re-matched at every step are
     one piece of evidence, not W. They accept a hypothesis as soon as its evidence makes the
     paper's decision certain (`sequential`), weigh a measurement by the objects it explains
-    (`object_nats`) and recall a dropped hypothesis on its first confirming measurement
-    (`recall_for`). `paper()` is the paper's equations alone in every world; `reference()` the
+    (`object_nats`), recall a dropped hypothesis on its first confirming measurement
+    (`recall_for`) and charge no hypothesis for a step without any measurement
+    (`neutral_empty_steps`). `paper()` is the paper's equations alone in every world; `reference()` the
     authors' released code, quirks included.
 
     The state x has dimension d = Q.shape[0] (3 for (x [m], y [m], theta [rad]) of T_oi_oj);
