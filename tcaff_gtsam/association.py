@@ -317,7 +317,6 @@ def _best_pair_of_each(compatible, d_ego, d_other, ages_ego, ages_other, epsilon
     other object) and of every other object (its ego object), -1 for none, ranked as
     `_best_per_object` ranks them, from `_neighbour_distances` rows of both maps."""
     n, m = compatible.shape
-    steps = d_ego.shape[1] + d_other.shape[1] - 2
     # (score, age, pick) of each object's best pair so far, pick -1 for none yet
     best_row = np.full((n, 3), -1.0)
     best_col = np.full((m, 3), -1.0)
@@ -326,40 +325,8 @@ def _best_pair_of_each(compatible, d_ego, d_other, ages_ego, ages_other, epsilon
     at_other = np.empty(m, np.int64)
     count = np.empty(m, np.int64)
     for i in range(n):
-        k = 0
-        for j in range(m):
-            if compatible[i, j]:
-                cols[k] = j
-                k += 1
-        if k == 0:
-            continue
-        a = d_ego[i]
-        at_ego[:k] = 0
-        at_other[:k] = 0
-        count[:k] = 0
-        # `_best_per_object`'s lockstep greedy matching of every pair of the row, by bursts
-        # of 8 steps: a pair is done once either index reached its row's inf (the steps after
-        # that match nothing), and most rows are done well before `steps`. Indices are read
-        # as unsigned, which spares numba's negative-index wraparound (a tenth of the time)
-        done = 0
-        while done < steps:
-            for _ in range(8):
-                for c in range(k):
-                    d = (a[np.uint64(at_ego[c])]
-                         - d_other[np.uint64(cols[c]), np.uint64(at_other[c])])
-                    hit = abs(d) < epsilon
-                    count[c] += hit
-                    at_ego[c] += hit | (d < 0)
-                    at_other[c] += hit | (d > 0)
-            done += 8
-            busy = False
-            for c in range(k):
-                if (a[np.uint64(at_ego[c])] < np.inf
-                        and d_other[np.uint64(cols[c]), np.uint64(at_other[c])] < np.inf):
-                    busy = True
-                    break
-            if not busy:
-                break
+        k = _row_agreements(compatible, i, d_ego, d_other, epsilon, cols, at_ego, at_other,
+                            count)
         for c in range(k):
             j = cols[c]
             age = ages_ego[i] + ages_other[j]
@@ -465,7 +432,6 @@ def _best_per_object(compatible, d_ego, d_other, ages_ego, ages_other, epsilon, 
     and every other object by (agreement, then smaller age sum, then lower index), 0 for the
     pairs not kept."""
     n, m = compatible.shape
-    steps = d_ego.shape[1] + d_other.shape[1] - 2
     keep = np.zeros((n, m), np.uint8)
     cols = np.empty(m, np.int64)
     at_ego = np.empty(m, np.int64)
@@ -478,29 +444,8 @@ def _best_per_object(compatible, d_ego, d_other, ages_ego, ages_other, epsilon, 
     col_age = np.full((m, per_object), np.inf)
     col_pick = np.full((m, per_object), -1, np.int64)
     for i in range(n):
-        k = 0
-        for j in range(m):
-            if compatible[i, j]:
-                cols[k] = j
-                k += 1
-        if k == 0:
-            continue
-        a = d_ego[i]
-        at_ego[:k] = 0
-        at_other[:k] = 0
-        count[:k] = 0
-        # The greedy matching of `_agreement`, run on all the row's pairs in lockstep and
-        # without branches: each pair's step waits on none of the others, which makes it
-        # about twice as fast as one pair after another. The inf ending every row stops an
-        # index there; after `steps` steps every matching is finished.
-        for _ in range(steps):
-            for c in range(k):
-                d = (a[np.uint64(at_ego[c])]
-                     - d_other[np.uint64(cols[c]), np.uint64(at_other[c])])
-                hit = abs(d) < epsilon
-                count[c] += hit
-                at_ego[c] += hit | (d < 0)
-                at_other[c] += hit | (d > 0)
+        k = _row_agreements(compatible, i, d_ego, d_other, epsilon, cols, at_ego, at_other,
+                            count)
         row_score[:] = -1
         row_age[:] = np.inf
         row_pick[:] = -1
@@ -517,6 +462,52 @@ def _best_per_object(compatible, d_ego, d_other, ages_ego, ages_other, epsilon, 
             if col_pick[j, r] >= 0:
                 keep[col_pick[j, r], j] = col_score[j, r] + 1
     return keep
+
+
+@numba.njit(cache=True)
+def _row_agreements(compatible, i, d_ego, d_other, epsilon, cols, at_ego, at_other, count):
+    """The compatible pairs ((n, m) bool) of ego object i: their other objects in cols[:k]
+    and their `_agreement` in count[:k], from `_neighbour_distances` rows; returns k.
+    at_ego, at_other, count and cols are (m,) int64 buffers the caller keeps across rows.
+
+    The greedy matching of `_agreement`, run on all the row's pairs in lockstep and without
+    branches: each pair's step waits on none of the others, which makes it about twice as fast
+    as one pair after another. By bursts of 8 steps: a pair is done once either index reached
+    its row's inf (the steps after that match nothing), and most rows are done well before
+    the longest matching's steps. Indices are read as unsigned, which spares numba's
+    negative-index wraparound (a tenth of the time)."""
+    k = 0
+    for j in range(compatible.shape[1]):
+        if compatible[i, j]:
+            cols[k] = j
+            k += 1
+    if k == 0:
+        return 0
+    a = d_ego[i]
+    at_ego[:k] = 0
+    at_other[:k] = 0
+    count[:k] = 0
+    steps = d_ego.shape[1] + d_other.shape[1] - 2
+    done = 0
+    while done < steps:
+        for _ in range(8):
+            for c in range(k):
+                d = (a[np.uint64(at_ego[c])]
+                     - d_other[np.uint64(cols[c]), np.uint64(at_other[c])])
+                hit = abs(d) < epsilon
+                count[c] += hit
+                at_ego[c] += hit | (d < 0)
+                at_other[c] += hit | (d > 0)
+        done += 8
+        busy = False
+        for c in range(k):
+            if (a[np.uint64(at_ego[c])] < np.inf
+                    and d_other[np.uint64(cols[c]), np.uint64(at_other[c])] < np.inf):
+                busy = True
+                break
+        if not busy:
+            break
+    return k
 
 
 @numba.njit(cache=True)

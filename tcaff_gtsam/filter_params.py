@@ -49,8 +49,8 @@ class TCAFFParams(_ByValue):
     paper's decision certain (`sequential`), weigh a measurement by the objects it explains
     (`object_nats`), recall a dropped hypothesis on its first confirming measurement
     (`recall_for`) and charge no hypothesis for a step without any measurement
-    (`neutral_empty_steps`). `paper()` is the paper's equations alone in every world; `reference()` the
-    authors' released code, quirks included.
+    (`neutral_empty_steps`). `paper()` is the paper's equations alone in every world;
+    `reference()` the authors' released code, quirks included.
 
     The state x has dimension d = Q.shape[0] (3 for (x [m], y [m], theta [rad]) of T_oi_oj);
     motion and measurement models are the identity. Costs are in nats (negative log

@@ -8,7 +8,6 @@ frame through its odometry pose, as a real detector with depth would place them.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 
 import numpy as np
