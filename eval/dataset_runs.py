@@ -210,6 +210,13 @@ class MrclamOutcome:
     skipped: dict[str, int]
 
 
+def _odometry_runs(odometries, seeds) -> list[tuple[str, int | None]]:
+    """(odometry, seed) of every run to make, repeats dropped, in the order given: each seed
+    for "vio" (seeded drift), one run without a seed for every other odometry."""
+    return [(o, s) for o in dict.fromkeys(odometries)
+            for s in (dict.fromkeys(seeds) if o == "vio" else [None])]
+
+
 def _saved(folder: Path, name: str, fingerprint: str, methods: MethodsConfig,
            figures: bool) -> RecordedOutcome | None:
     """The results an earlier run with the same fingerprint left in `folder`, or None. The
@@ -262,8 +269,7 @@ def run_mrclam(config: MrclamConfig, data: Path, output: Path, odometries: list[
     methods = config.methods
     assert isinstance(methods, MethodsConfig)
     dataset = mrclam.read_dataset(data)
-    todo = [(o, s) for o in dict.fromkeys(odometries)
-            for s in (dict.fromkeys(seeds) if o == "vio" else [None])]
+    todo = _odometry_runs(odometries, seeds)
     outcomes = []
     for odometry, seed in todo:
         name = mrclam_name(data, odometry, seed)
@@ -440,8 +446,7 @@ def run_rgbd(config: RgbdConfig, walks: list[rgbd_robots.Walk], output: Path,
     thresholds = thresholds_of(methods)
     tight = Thresholds(config.tight.translation, np.radians(config.tight.heading_deg))
     first = methods.tcaff_params(False, config.window).window
-    todo = [(o, s) for o in dict.fromkeys(odometries)
-            for s in (dict.fromkeys(seeds) if o == "vio" else [None])]
+    todo = _odometry_runs(odometries, seeds)
     outcomes = []
     for odometry, seed in todo:
         name = rgbd_name(walks, odometry, seed)
