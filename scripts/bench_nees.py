@@ -27,6 +27,11 @@ and prints one row per data set (seeds pooled) and model:
             NEES = e' P^-1 e of every estimate, e = estimate - truth (x [m], y [m], theta
             [rad], theta wrapped), and the share under 7.815 (chi-square, 3 dof, 95 %);
             honest: mean 3, 95 % under
+  95 % of mean
+            a bootstrap interval of the mean over the episodes (robot pairs of a run, both
+            directions together; their count in `pairs`): an estimate's error persists from
+            step to step, so a data set of few pairs (the kitchen: one per run) pins the
+            mean down only loosely; "-" below 5 pairs
   ok mean   mean NEES of the correct estimates (within 1 m and 5 deg), which the false
             accepts' huge NEES do not swamp
   held      mean NEES of the correct estimates at steps whose best path took no measurement:
@@ -234,7 +239,7 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
     aligner, tcaff = MODELS[model](aligner, tcaff, run)
     n = run.n_robots
     pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
-    errors, covariances, held = [], [], []
+    errors, covariances, held, episode = [], [], [], []
     overlap = available = correct = 0
     start = time.perf_counter()
     for i, j in pairs:
@@ -252,12 +257,14 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
             errors.append(e)
             covariances.append(est.P)
             held.append(est.measurement < 0)
+            episode.append(f"{source.name} {min(i, j)}-{max(i, j)}")
             ok = math.hypot(e[0], e[1]) <= WRONG_M and abs(e[2]) <= WRONG_RAD
             available += on
             correct += on and ok
     return {"group": source.group, "model": model,
             "errors": np.array(errors).reshape(-1, 3),
             "P": np.array(covariances).reshape(-1, 3, 3), "held": np.array(held, dtype=bool),
+            "episode": np.array(episode, dtype=str),
             "overlap": overlap, "available": available, "correct": correct,
             "seconds": time.perf_counter() - start}
 
@@ -265,11 +272,34 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
 # -- the table ---------------------------------------------------------------------------------
 
 
+#: fewer episodes than this give no interval: resampling two or three pairs bounds nothing
+MIN_EPISODES = 5
+
+
+def mean_interval(values: np.ndarray, episode: np.ndarray, draws: int = 2000
+                  ) -> tuple[float, float]:
+    """95 % interval of the mean of `values` (n,) by a bootstrap over their episodes (n,)
+    labels: consecutive estimates of one robot pair share their error, so the pair (both
+    directions) is the unit that is drawn again, not the estimate. A data set of few
+    episodes gives a wide interval: its mean says little about the covariance."""
+    labels, index = np.unique(episode, return_inverse=True)
+    if labels.size < MIN_EPISODES:
+        return math.nan, math.nan
+    sums = np.bincount(index, values, minlength=labels.size)
+    counts = np.bincount(index, minlength=labels.size)
+    rng = np.random.default_rng(0)
+    draw = rng.integers(0, labels.size, (draws, labels.size))
+    means = sums[draw].sum(axis=1) / counts[draw].sum(axis=1)
+    lo, hi = np.quantile(means, [0.025, 0.975])
+    return float(lo), float(hi)
+
+
 def summary(parts: list[dict]) -> dict:
     """The table's numbers of one data set and model from its runs' `run_source` results."""
     e = np.concatenate([p["errors"] for p in parts])
     P = np.concatenate([p["P"] for p in parts])
     held = np.concatenate([p["held"] for p in parts])
+    episode = np.concatenate([p["episode"] for p in parts])
     overlap = sum(p["overlap"] for p in parts)
     out = {"est": len(e), "available": sum(p["available"] for p in parts) / max(overlap, 1),
            "correct": sum(p["correct"] for p in parts) / max(overlap, 1)}
@@ -280,6 +310,7 @@ def summary(parts: list[dict]) -> dict:
     sigma = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
     out.update(
         nees_mean=float(nees.mean()), nees_median=float(np.median(nees)),
+        episodes=len(np.unique(episode)), nees_interval=mean_interval(nees, episode),
         under=float(np.mean(nees < NEES_95)),
         nees_ok=float(nees[~wrong].mean()) if (~wrong).any() else math.nan,
         nees_held=float(nees[held & ~wrong].mean()) if (held & ~wrong).any() else math.nan,
@@ -294,7 +325,8 @@ def summary(parts: list[dict]) -> dict:
 def print_table(results: list[dict], models: list[str]) -> None:
     """One row per data set and model (see the module's notes for the columns)."""
     groups = list(dict.fromkeys(r["group"] for r in results))
-    print(f"{'data set':26} {'model':12} {'est':>6} {'mean':>7} {'median':>6} {'<7.81':>6} "
+    print(f"{'data set':26} {'model':12} {'est':>6} {'pairs':>5} {'mean':>7} {'95 % of mean':>15} "
+          f"{'median':>6} {'<7.81':>6} "
           f"{'ok mean':>7} {'held':>6} {'wrong':>6} {'outside':>7} {'x':>5} {'y':>5} {'th':>5} "
           f"{'sig m':>6} {'sig deg':>7} {'avail':>6} {'correct':>7}")
     for group in groups:
@@ -306,14 +338,16 @@ def print_table(results: list[dict], models: list[str]) -> None:
             head = f"{group:26} {model:12} {r['est']:6d}"
             tail = f"{r['available']:6.3f} {r['correct']:7.3f}"
             if not r["est"]:
-                print(f"{head} {'-':>7} {'':>6} {'':>6} {'':>7} {'':>6} {'':>6} {'':>7} {'':>5} "
-                      f"{'':>5} "
-                      f"{'':>5} {'':>6} {'':>7} {tail}")
+                blank = " ".join(f"{'':>{w}}" for w in (15, 6, 6, 7, 6, 6, 7, 5, 5, 5, 6, 7))
+                print(f"{head} {'':>5} {'-':>7} {blank} {tail}")
                 continue
             outside = "-" if math.isnan(r["outside"]) else f"{r['outside']:.2f}"
             held = "-" if math.isnan(r["nees_held"]) else f"{r['nees_held']:.2f}"
             x, y, th = r["ratio"]
-            print(f"{head} {r['nees_mean']:7.2f} {r['nees_median']:6.2f} {r['under']:6.3f} "
+            lo, hi = r["nees_interval"]
+            interval = "-" if math.isnan(lo) else f"{lo:.2f}-{hi:.2f}"
+            print(f"{head} {r['episodes']:5d} {r['nees_mean']:7.2f} {interval:>15} "
+                  f"{r['nees_median']:6.2f} {r['under']:6.3f} "
                   f"{r['nees_ok']:7.2f} {held:>6} {r['wrong']:6.3f} {outside:>7} {x:5.2f} {y:5.2f} "
                   f"{th:5.2f} {math.hypot(*r['sigma'][:2]):6.3f} "
                   f"{math.degrees(r['sigma'][2]):7.2f} {tail}")
