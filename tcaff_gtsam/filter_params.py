@@ -38,6 +38,11 @@ MAX_LEAVES = 10_000
 #: (`MAX_SOLUTIONS`)
 MAX_MEASUREMENTS = MAX_SOLUTIONS
 
+#: the most bytes one filter's hypothesis trees may need at once (`TCAFFParams.tree_bytes`):
+#: each cap is bounded on its own, but their product is what a step allocates; 1 GiB lets a
+#: team of several robots run a filter per pair on one computer
+MAX_TREE_BYTES = 1 << 30
+
 
 @dataclass(frozen=True, eq=False)
 class TCAFFParams(_ByValue):
@@ -288,6 +293,28 @@ class TCAFFParams(_ByValue):
                  self.early_measurements, "must be an int >= 2")
         _require(self.recall_for is None or _int_at_least(self.recall_for, 1), o,
                  "recall_for", self.recall_for, "must be an int >= 1 or None")
+        caps = ("window", "max_leaves", "max_children", "explore_max_leaves",
+                "explore_max_children", "max_measurements")
+        need = self.tree_bytes()
+        _require(need <= MAX_TREE_BYTES, o, "(" + ", ".join(caps) + ")",
+                 tuple(getattr(self, name) for name in caps),
+                 f"the hypothesis trees could need {need / (1 << 30):.2f} GiB at once, more "
+                 f"than MAX_TREE_BYTES ({MAX_TREE_BYTES / (1 << 30):g} GiB); lower the window "
+                 f"or the caps")
+
+    def tree_bytes(self) -> int:
+        """Bytes the filter's hypothesis trees could need at once: every leaf of the main
+        tree (`max_leaves`) and of every open exploring tree (`max_measurements` seeded per
+        step, each open for `window` steps, `explore_max_leaves` each) given every child its
+        caps allow (`max_children`, `explore_max_children`, at most `max_measurements`, and
+        the child without a measurement), each leaf holding its state, covariance, and a
+        choice (4 bytes) and an edge cost (8) per column of its path (W + 2)."""
+        d, columns, cap = self.Q.shape[0], self.window + 2, self.max_measurements
+        leaf = 8 * d + 8 * d * d + 12 * columns + 16
+        main = self.max_leaves * (min(self.max_children, cap) + 1)
+        exploring = (cap * self.window * self.explore_max_leaves
+                     * (min(self.explore_max_children, cap) + 1))
+        return leaf * (main + exploring)
 
     @property
     def dim(self) -> int:

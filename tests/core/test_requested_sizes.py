@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from tcaff_gtsam import TCAFF, consistency_graph, mno_clipper
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.filter_params import MAX_LEAVES, MAX_MEASUREMENTS
+from tcaff_gtsam.filter_params import MAX_LEAVES, MAX_MEASUREMENTS, MAX_TREE_BYTES
 from tcaff_gtsam.params import (
     MAX_SOLUTIONS,
     MAX_WINDOW,
@@ -89,7 +89,8 @@ def test_misplacement_pools_runs_without_keeping_each_error():
 @example(window=10**12).via("3.6 TiB of choices before")
 def test_the_filter_window_is_bounded(window):
     if 1 <= window <= MAX_WINDOW:
-        filt = TCAFF(TCAFFParams(window=window))
+        # small trees: with the default caps a long window is refused for their product
+        filt = TCAFF(TCAFFParams(window=window, **SMALL_TREES))
         filt.update(np.zeros((1, 3)), 0.1 * np.eye(3)[None])
         assert filt.step == 1 and filt.params.window == window
         return
@@ -127,6 +128,10 @@ def test_mno_clipper_solutions_are_bounded(n, downweight):
         f"FrameAlignerParams.n_solutions = {n!r}: must be an int in [1, {MAX_SOLUTIONS}]")
 
 
+#: caps small enough that any one of them, or the window, may go to its limit within
+#: MAX_TREE_BYTES
+SMALL_TREES = {"max_leaves": 1, "explore_max_leaves": 1, "max_measurements": 1}
+
 TREE_CAPS = [("max_leaves", MAX_LEAVES, "MAX_LEAVES"),
              ("explore_max_leaves", MAX_LEAVES, "MAX_LEAVES"),
              ("max_children", MAX_MEASUREMENTS, "MAX_MEASUREMENTS"),
@@ -145,12 +150,82 @@ def test_tcaff_tree_caps_are_at_most_their_limit(name, limit, limit_name, value)
     """The caps on the trees and measurements decide how many leaves a step extends; each is
     an int in [1, its limit]."""
     if 1 <= value <= limit:
-        assert getattr(TCAFFParams(**{name: value}), name) == value
+        assert getattr(TCAFFParams(**{**SMALL_TREES, name: value}), name) == value
         return
     with pytest.raises(ParameterError) as info:
         TCAFFParams(**{name: value})
     assert info.value.name == name and info.value.value == value
     assert info.value.rule == f"must be an int in [1, {limit}] ({limit_name})"
+
+
+def tree_bytes(window, max_leaves, max_children, explore_max_leaves, explore_max_children,
+               max_measurements, d=3):
+    """The trees' worst case, counted leaf by leaf: x (d) and P (d, d) in float64, per column
+    of the path (W + 2) an int32 choice and a float64 edge cost, and two int64s."""
+    leaf = 8 * (d + d * d) + (4 + 8) * (window + 2) + 2 * 8
+    main = max_leaves * (1 + min(max_children, max_measurements))
+    open_trees = max_measurements * window  # seeded each step, each open W steps
+    exploring = open_trees * explore_max_leaves * (1 + min(explore_max_children,
+                                                           max_measurements))
+    return leaf * (main + exploring)
+
+
+CAP_ORDER = ("window", "max_leaves", "max_children", "explore_max_leaves",
+             "explore_max_children", "max_measurements")
+caps = st.fixed_dictionaries({
+    "window": st.integers(1, MAX_WINDOW), "max_leaves": st.integers(1, MAX_LEAVES),
+    "max_children": st.integers(1, MAX_MEASUREMENTS),
+    "explore_max_leaves": st.integers(1, MAX_LEAVES),
+    "explore_max_children": st.integers(1, MAX_MEASUREMENTS),
+    "max_measurements": st.integers(1, MAX_MEASUREMENTS)})
+
+
+@settings(max_examples=150, deadline=None)
+@given(caps=caps)
+@example(caps={"window": 8, "max_leaves": 200, "max_children": 4, "explore_max_leaves": 50,
+               "explore_max_children": 2, "max_measurements": 32}).via("the defaults")
+@example(caps={"window": 1000, "max_leaves": 200, "max_children": 4, "explore_max_leaves": 50,
+               "explore_max_children": 2, "max_measurements": 32}).via("54 GiB")
+@example(caps={"window": 8, "max_leaves": 10_000, "max_children": 1000,
+               "explore_max_leaves": 10_000, "explore_max_children": 1000,
+               "max_measurements": 1000}).via("every cap at its limit")
+def test_the_caps_together_are_bounded(caps):
+    """Each cap within its limit, a TCAFFParams is refused exactly when the trees they allow
+    could outgrow MAX_TREE_BYTES, by a ParameterError naming the caps and their values."""
+    need = tree_bytes(**caps)
+    if need <= MAX_TREE_BYTES:
+        params = TCAFFParams(**caps)
+        assert params.tree_bytes() == need
+        return
+    with pytest.raises(ParameterError) as info:
+        TCAFFParams(**caps)
+    assert info.value.name == "(" + ", ".join(CAP_ORDER) + ")"
+    assert info.value.value == tuple(caps[name] for name in CAP_ORDER)
+    assert f"could need {need / 2**30:.2f} GiB at once" in info.value.rule
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), window=st.integers(1, 6),
+       max_leaves=st.integers(1, 6), explore_max_leaves=st.integers(1, 4),
+       max_measurements=st.integers(1, 5))
+def test_the_trees_hold_no_more_leaves_than_their_caps_allow(seed, window, max_leaves,
+                                                             explore_max_leaves,
+                                                             max_measurements):
+    """Measurements bunched so that every leaf gates most of them: the main tree keeps at
+    most max_leaves leaves, the exploring trees (max_measurements seeded a step, open for W
+    steps) at most explore_max_leaves each, the counts `tree_bytes` is built on."""
+    params = TCAFFParams(window=window, max_leaves=max_leaves, max_children=3,
+                         explore_max_leaves=explore_max_leaves, explore_max_children=3,
+                         max_measurements=max_measurements)
+    filt = TCAFF(params)
+    rng = np.random.default_rng(seed)
+    for _ in range(4 * window + 6):
+        zs = rng.normal(0.0, [0.05, 0.05, 0.005], (int(rng.integers(0, 8)), 3))
+        filt.update(zs, np.broadcast_to(0.1 * np.eye(3), (len(zs), 3, 3)))
+        if filt._main is not None:
+            assert len(filt._main) <= max_leaves
+        assert len(filt._explore) <= max_measurements * window * explore_max_leaves
+        assert len(np.unique(filt._explore.tree)) <= max_measurements * window
 
 
 @pytest.mark.parametrize("name", [name for name, _, _ in TREE_CAPS])
