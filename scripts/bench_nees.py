@@ -36,6 +36,11 @@ and prints one row per data set (seeds pooled) and model:
             accepts' huge NEES do not swamp
   held      mean NEES of the correct estimates at steps whose best path took no measurement:
             whether P grows with the drift while nothing is measured
+  meas      the same at the steps whose best path took one
+  R         at those steps, the mean NEES of the measurement taken (the aligner's z against
+            its own R): whether R describes one registration's error; meas above R means the
+            filter's fusion shrinks P more than it shrinks the error (consecutive
+            registrations share most of their error)
   wrong     share of the estimates off by more than 1 m or 5 deg (false accepts)
   outside   share of those with NEES > 14.16 (outside their 99.7 % ellipse)
   x, y, th  RMS of e_k / sigma_k over the correct estimates (sigma_k = sqrt(P_kk)); 1: honest
@@ -239,7 +244,7 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
     aligner, tcaff = MODELS[model](aligner, tcaff, run)
     n = run.n_robots
     pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
-    errors, covariances, held, episode = [], [], [], []
+    errors, covariances, held, episode, taken = [], [], [], [], []
     overlap = available = correct = 0
     start = time.perf_counter()
     for i, j in pairs:
@@ -257,6 +262,8 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
             errors.append(e)
             covariances.append(est.P)
             held.append(est.measurement < 0)
+            taken.append(math.nan if est.measurement < 0
+                         else measurement_nees(pair.taken[est.measurement], truth[s]))
             episode.append(f"{source.name} {min(i, j)}-{max(i, j)}")
             ok = math.hypot(e[0], e[1]) <= WRONG_M and abs(e[2]) <= WRONG_RAD
             available += on
@@ -264,9 +271,16 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
     return {"group": source.group, "model": model,
             "errors": np.array(errors).reshape(-1, 3),
             "P": np.array(covariances).reshape(-1, 3, 3), "held": np.array(held, dtype=bool),
-            "episode": np.array(episode, dtype=str),
+            "episode": np.array(episode, dtype=str), "taken": np.array(taken, dtype=float),
             "overlap": overlap, "available": available, "correct": correct,
             "seconds": time.perf_counter() - start}
+
+
+def measurement_nees(measurement, truth: np.ndarray) -> float:
+    """NEES of the aligner's candidate z against its own R, at truth (x, y, theta)."""
+    e = measurement.z - truth
+    e[2] = wrap_angle(e[2])
+    return float(e @ np.linalg.solve(measurement.R, e))
 
 
 # -- the table ---------------------------------------------------------------------------------
@@ -300,6 +314,7 @@ def summary(parts: list[dict]) -> dict:
     P = np.concatenate([p["P"] for p in parts])
     held = np.concatenate([p["held"] for p in parts])
     episode = np.concatenate([p["episode"] for p in parts])
+    taken = np.concatenate([p["taken"] for p in parts])
     overlap = sum(p["overlap"] for p in parts)
     out = {"est": len(e), "available": sum(p["available"] for p in parts) / max(overlap, 1),
            "correct": sum(p["correct"] for p in parts) / max(overlap, 1)}
@@ -314,6 +329,9 @@ def summary(parts: list[dict]) -> dict:
         under=float(np.mean(nees < NEES_95)),
         nees_ok=float(nees[~wrong].mean()) if (~wrong).any() else math.nan,
         nees_held=float(nees[held & ~wrong].mean()) if (held & ~wrong).any() else math.nan,
+        nees_measured=(float(nees[~held & ~wrong].mean()) if (~held & ~wrong).any()
+                       else math.nan),
+        nees_R=float(taken[~held & ~wrong].mean()) if (~held & ~wrong).any() else math.nan,
         wrong=float(wrong.mean()),
         outside=float(np.mean(nees[wrong] > NEES_997)) if wrong.any() else math.nan,
         ratio=(np.sqrt(np.mean((e[~wrong] / sigma[~wrong]) ** 2, axis=0)) if (~wrong).any()
@@ -325,9 +343,11 @@ def summary(parts: list[dict]) -> dict:
 def print_table(results: list[dict], models: list[str]) -> None:
     """One row per data set and model (see the module's notes for the columns)."""
     groups = list(dict.fromkeys(r["group"] for r in results))
-    print(f"{'data set':26} {'model':12} {'est':>6} {'pairs':>5} {'mean':>7} {'95 % of mean':>15} "
+    print(f"{'data set':26} {'model':12} {'est':>6} {'pairs':>5} {'mean':>7} "
+          f"{'95 % of mean':>15} "
           f"{'median':>6} {'<7.81':>6} "
-          f"{'ok mean':>7} {'held':>6} {'wrong':>6} {'outside':>7} {'x':>5} {'y':>5} {'th':>5} "
+          f"{'ok mean':>7} {'held':>6} {'meas':>6} {'R':>6} {'wrong':>6} {'outside':>7} "
+          f"{'x':>5} {'y':>5} {'th':>5} "
           f"{'sig m':>6} {'sig deg':>7} {'avail':>6} {'correct':>7}")
     for group in groups:
         for model in models:
@@ -338,17 +358,19 @@ def print_table(results: list[dict], models: list[str]) -> None:
             head = f"{group:26} {model:12} {r['est']:6d}"
             tail = f"{r['available']:6.3f} {r['correct']:7.3f}"
             if not r["est"]:
-                blank = " ".join(f"{'':>{w}}" for w in (15, 6, 6, 7, 6, 6, 7, 5, 5, 5, 6, 7))
+                blank = " ".join(f"{'':>{w}}" for w in (15, 6, 6, 7, 6, 6, 6, 6, 7, 5, 5, 5, 6, 7))
                 print(f"{head} {'':>5} {'-':>7} {blank} {tail}")
                 continue
             outside = "-" if math.isnan(r["outside"]) else f"{r['outside']:.2f}"
-            held = "-" if math.isnan(r["nees_held"]) else f"{r['nees_held']:.2f}"
+            held, measured, R = ("-" if math.isnan(r[key]) else f"{r[key]:.2f}"
+                                 for key in ("nees_held", "nees_measured", "nees_R"))
             x, y, th = r["ratio"]
             lo, hi = r["nees_interval"]
             interval = "-" if math.isnan(lo) else f"{lo:.2f}-{hi:.2f}"
             print(f"{head} {r['episodes']:5d} {r['nees_mean']:7.2f} {interval:>15} "
                   f"{r['nees_median']:6.2f} {r['under']:6.3f} "
-                  f"{r['nees_ok']:7.2f} {held:>6} {r['wrong']:6.3f} {outside:>7} {x:5.2f} {y:5.2f} "
+                  f"{r['nees_ok']:7.2f} {held:>6} {measured:>6} {R:>6} {r['wrong']:6.3f} "
+                  f"{outside:>7} {x:5.2f} {y:5.2f} "
                   f"{th:5.2f} {math.hypot(*r['sigma'][:2]):6.3f} "
                   f"{math.degrees(r['sigma'][2]):7.2f} {tail}")
 
