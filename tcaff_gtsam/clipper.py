@@ -72,9 +72,10 @@ def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touc
     # when the first write set it, so the products are the same to the last bit; a branch on
     # the first write and a mark per node cost about a seventh of MNO-CLIPPER's time. The
     # first-write block is written out twice on purpose: moving it into a helper (even an
-    # inlined one) made this loop about 9 times slower under numba. Node indices are read as
-    # unsigned: numba then skips the negative-index wraparound of every access (a fifth of
-    # MNO-CLIPPER's time, with the same arithmetic), here and in the helpers below.
+    # inlined one) made this loop about 9 times slower under numba. Node indices, and the
+    # count as a position in `touched`, are read as unsigned: numba then skips the
+    # negative-index wraparound of every access (a fifth of MNO-CLIPPER's time, the count's
+    # another twentieth, with the same arithmetic), here and in the helpers below.
     for t in range(n_old):
         p = np.uint64(touched[t])
         Mu[p] = 0.0
@@ -87,7 +88,7 @@ def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touc
         total += uq
         c = Cu[q]
         first = c < 0.0
-        touched[n_touched] = q
+        touched[np.uint64(n_touched)] = q
         n_touched += first
         Mu[q] += diag[q] * uq
         Cu[q] = (0.0 if first else c) + uq
@@ -95,7 +96,7 @@ def _scatter(indptr, indices, weights, diag, u, support, n_support, Mu, Cu, touc
             p = np.uint64(indices[e])
             c = Cu[p]
             first = c < 0.0
-            touched[n_touched] = p
+            touched[np.uint64(n_touched)] = p
             n_touched += first
             Mu[p] += weights[e] * uq
             Cu[p] = (0.0 if first else c) + uq
@@ -119,22 +120,25 @@ def _project(u, Mu, Cu, total, d, plain, alpha, touched, n_touched, active, out,
 
     The gradient is formed where it is used, here and in `_objective`, rather than stored: the
     same values, without a pass of its own. Untouched nodes stay at zero: they have u = 0 and
-    g = -d sum(u) <= 0. Returns the size of the new support (listed in out_support); 0 when
+    g = -d sum(u) <= 0. `out` is zero on entry, so a node clipped (or inactive) may be written
+    0.0 like any other. Returns the size of the new support (listed in out_support); 0 when
     everything was clipped.
     """
+    # Without a branch on which nodes are kept (about half of those touched, in no order a
+    # predictor learns): each is written and listed, and the count moves past it only when
+    # it is kept; a clipped one adds 0.0 to the norm, which leaves it as it is (it is >= 0).
     norm_sq = 0.0
     n = 0
     for t in range(n_touched):
         p = np.uint64(touched[t])
-        if not active[p]:
-            continue
         g = Mu[p] if plain else Mu[p] - d * (total - Cu[p])
         v = u[p] + alpha * g
-        if v > 0.0:
-            out[p] = v
-            out_support[n] = p
-            n += 1
-            norm_sq += v * v
+        keep = active[p] & (v > 0.0)
+        v = v if keep else 0.0
+        out[p] = v
+        out_support[np.uint64(n)] = p
+        n += keep
+        norm_sq += v * v
     if n:
         scale = 1.0 / np.sqrt(norm_sq)
         for s in range(n):
