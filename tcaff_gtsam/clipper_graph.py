@@ -200,19 +200,25 @@ def _consistent_pairs(ego_points, other_points, ego_z, other_z, slack, other_idx
                 d_node = d_nodes[0]
                 for q in range(later, m):
                     d_node[q] = d_j[other_idx[q]]
-            count = 0
-            # unsigned q: numba then skips the negative-index wraparound of every access, a
-            # third of this loop's time
+            # the later nodes within epsilon, listed without a branch per node (a few in a
+            # hundred are, in no order a predictor learns): each is written and the count moves
+            # past it only when it is near. Unsigned q and count: numba then skips the
+            # negative-index wraparound of every access, a third of this loop's time
+            near = 0
             for q in range(np.uint64(later), np.uint64(m)):
-                c = abs(d_ego[q] - d_node[q])
-                if c < epsilon:
-                    ell = other_idx[q]
-                    if ell != j and (
-                            not heights or abs(dz_ego[q] - (other_z[j] - other_z[ell]))
-                            < height_epsilon + slack[p] + slack[q]):
-                        row_cols[count] = q
-                        row_c[count] = c
-                        count += 1
+                row_cols[np.uint64(near)] = q
+                near += abs(d_ego[q] - d_node[q]) < epsilon
+            # of those, the ones of another other object (and climbing alike), kept in order
+            count = 0
+            for t in range(near):
+                q = row_cols[t]
+                ell = other_idx[q]
+                if ell != j and (
+                        not heights or abs(dz_ego[q] - (other_z[j] - other_z[ell]))
+                        < height_epsilon + slack[p] + slack[q]):
+                    row_cols[count] = q
+                    row_c[count] = abs(d_ego[q] - d_node[q])
+                    count += 1
             if n + count > capacity:
                 capacity = max(2 * capacity, n + count)
                 rows = np.concatenate((rows[:n], np.empty(capacity - n, np.int64)))
