@@ -393,6 +393,32 @@ def _gathered(values, at):
 
 
 @numba.njit(cache=True)
+def _drop_inactive(indptr, indices, weights, active):
+    """Remove, in place, the entries of the CSR arrays (indptr (m + 1,), indices, weights) in
+    the rows of nodes no longer `active` ((m,) bool) or pointing at them, keeping the order
+    of the rest.
+
+    An inactive node never enters a support, so its row is never read, and the products at
+    it are never read either (the projection skips it, the objective and the penalty read
+    the support): the solver then sums the same terms in the same order, to the last bit,
+    without the fifth to third of its steps that went to such entries once the first
+    solutions left the graph. Each active row is compacted without a branch per entry: each
+    is written, and the count moves past it only when it points at an active node."""
+    kept = 0
+    start = indptr[0]
+    for q in range(indptr.shape[0] - 1):
+        end = indptr[q + 1]
+        if active[q]:
+            for e in range(start, end):
+                p = indices[e]
+                indices[kept] = p
+                weights[kept] = weights[e]
+                kept += active[p]
+        start = end
+        indptr[q + 1] = kept
+
+
+@numba.njit(cache=True)
 def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, threshold,
          power_iterations, tol_u, eps, beta, max_outer, max_inner, max_line_search):
     """MNO-CLIPPER in one compiled call: up to len(draws) solutions, the start vector of
@@ -405,7 +431,9 @@ def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, thres
     score scores[s] (x'Mx / x'x of its indicator x on the original affinity).
     """
     n_solutions, m = draws.shape
-    w = weights.copy()
+    # the graph the solver searches: with downweight 0 a solution's nodes leave it, and with
+    # them the entries of other rows that point at them (`_drop_inactive`)
+    solver_indptr, solver_indices, w = indptr.copy(), indices.copy(), weights.copy()
     dg = diag.copy()
     active = np.ones(m, np.bool_)
     member = np.zeros(m, np.bool_)
@@ -424,8 +452,9 @@ def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, thres
         norm = np.sqrt(np.dot(u0, u0))  # as np.linalg.norm computes it
         for p in range(m):
             u0[p] /= norm
-        u, d, objective = _solve(indptr, indices, w, dg, active, u0, power_iterations, tol_u,
-                                 eps, beta, max_outer, max_inner, max_line_search)
+        u, d, objective = _solve(solver_indptr, solver_indices, w, dg, active, u0,
+                                 power_iterations, tol_u, eps, beta, max_outer, max_inner,
+                                 max_line_search)
         nodes = _round(u, objective, eps, use_threshold, threshold, member)
         edges = _edges_within(indptr, indices, nodes, member)
         if nodes.shape[0]:
@@ -444,6 +473,7 @@ def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, thres
             for p in nodes:
                 active[p] = False
             n_active -= nodes.shape[0]
+            _drop_inactive(solver_indptr, solver_indices, w, active)
         else:
             for e in edges:
                 w[e] *= downweight
