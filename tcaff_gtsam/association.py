@@ -365,9 +365,12 @@ def _best_pair_of_each(compatible, d_ego, d_other, ages_ego, ages_other, epsilon
 @numba.njit(cache=True)
 def _take(best, score, age, pick):
     """Make best ((3,) score, age, pick; pick -1 for none yet) (score, age, pick) when that
-    ranks above it: a higher score, or the same and a smaller age."""
-    if best[2] < 0 or score > best[0] or (score == best[0] and age < best[1]):
-        best[0], best[1], best[2] = score, age, pick
+    ranks above it: a higher score, or the same and a smaller age. Without a branch on the
+    outcome, which no predictor learns: each entry is written, kept or replaced."""
+    take = (best[2] < 0) | (score > best[0]) | ((score == best[0]) & (age < best[1]))
+    best[0] = score if take else best[0]
+    best[1] = age if take else best[1]
+    best[2] = pick if take else best[2]
 
 
 def _neighbour_distances(points: np.ndarray, neighbours: int) -> np.ndarray:
