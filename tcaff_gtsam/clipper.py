@@ -473,7 +473,8 @@ def _mno(indptr, indices, weights, diag, draws, downweight, use_threshold, thres
             for p in nodes:
                 active[p] = False
             n_active -= nodes.shape[0]
-            _drop_inactive(solver_indptr, solver_indices, w, active)
+            if k < n_solutions and n_active > 0:  # another solution follows
+                _drop_inactive(solver_indptr, solver_indices, w, active)
         else:
             for e in edges:
                 w[e] *= downweight
