@@ -27,6 +27,7 @@ from .association import (
     _pair_similarity,
     _partial_pairs_kept,
     _partial_ranking_pays,
+    _true_pairs,
     size_gates,
 )
 from .clipper import _solutions
@@ -370,7 +371,7 @@ class FrameAligner:
                                         prm.max_associations)
             self._thin(n_compatible, n_pairs, len(ego_r), len(other_r))
         else:
-            assoc = np.argwhere(searched).astype(np.int64)
+            assoc = _true_pairs(searched)
         # the maps and parameters were checked when they were made, so the graph and solver
         # skip their checks; so does registration unless coordinates or weights (at most
         # 1 / weight_offset) are beyond what it takes, where weighted_arun says which

@@ -260,22 +260,32 @@ def _mutual_nearest(p: np.ndarray, moved: np.ndarray, compatible: np.ndarray, r2
                     ) -> np.ndarray:
     """(k, 2) pairs (i, j), sorted by i, where moved[j] is p[i]'s nearest compatible point
     and p[i] moved[j]'s, within squared distance r2; ties go to the lower index. One pass
-    over the pairs, no (n, m) temporaries (small maps call this for every candidate)."""
+    over the pairs, no (n, m) temporaries (small maps call this for every candidate).
+
+    A row's squared distances are made first (inf for the pairs not compatible, which then
+    are never nearer than anything), then the columns' nearest so far are updated along the
+    row and the row's own nearest is taken, each without a branch: the first two run in
+    vector instructions, and none waits on a guess of which pairs are compatible."""
     n, m = p.shape[0], moved.shape[0]
     nearest_q = np.full(n, -1, np.int64)
     nearest_p = np.full(m, -1, np.int64)
     best_q = np.full(n, np.inf)
     best_p = np.full(m, np.inf)
+    moved_x, moved_y = moved[:, 0].copy(), moved[:, 1].copy()
+    row = np.empty(m)
     for i in range(n):
         for j in range(m):
-            if compatible[i, j]:
-                dx = p[i, 0] - moved[j, 0]
-                dy = p[i, 1] - moved[j, 1]
-                d2 = dx * dx + dy * dy
-                if d2 < best_q[i]:
-                    best_q[i], nearest_q[i] = d2, j
-                if d2 < best_p[j]:
-                    best_p[j], nearest_p[j] = d2, i
+            dx = p[i, 0] - moved_x[j]
+            dy = p[i, 1] - moved_y[j]
+            row[j] = dx * dx + dy * dy if compatible[i, j] else np.inf
+        for j in range(m):
+            nearer = row[j] < best_p[j]
+            best_p[j] = row[j] if nearer else best_p[j]
+            nearest_p[j] = i if nearer else nearest_p[j]
+        for j in range(m):
+            nearer = row[j] < best_q[i]
+            best_q[i] = row[j] if nearer else best_q[i]
+            nearest_q[i] = j if nearer else nearest_q[i]
     out = np.empty((n, 2), np.int64)
     k = 0
     for i in range(n):

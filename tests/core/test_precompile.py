@@ -23,7 +23,8 @@ ENTRY_KERNELS = [("clipper_graph", "_graph_csr"), ("clipper", "_mno"),
                  ("registration", "_mutual_nearest"),
                  ("association", "_best_per_object"),
                  ("association", "_best_pair_of_each"),
-                 ("association", "_size_gate"), ("association", "_nearest_rows")]
+                 ("association", "_size_gate"), ("association", "_nearest_rows"),
+                 ("association", "_true_pairs"), ("association", "_mutual_best")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():
