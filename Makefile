@@ -27,10 +27,13 @@ $(STAMP): pyproject.toml
 	  fi; \
 	fi
 	@test -x $(PY) || python3 -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	@# setuptools' notice that an editable install is one (a UserWarning re-raised by pip) is
-	@# the only output left; the layout it warns about is deliberate (tests/test_packaging.py).
-	PYTHONWARNINGS="ignore:Editable installation:UserWarning" $(PY) -m pip install -q -e ".[dev]"
+	@# -qq: pip's errors only. Its warnings are a line for every package that a configured
+	@# local index lacks (278 lines on the build machines), none of them about this project.
+	$(PY) -m pip install -qq --upgrade pip
+	@# setuptools' notice that an editable install is one (a UserWarning re-raised by pip)
+	@# would be the only output left; the layout it warns about is deliberate
+	@# (tests/test_packaging.py).
+	PYTHONWARNINGS="ignore:Editable installation:UserWarning" $(PY) -m pip install -qq -e ".[dev]"
 	@# numba compiles the package's kernels (alignment, people tracker, mapping) once, here, into
 	@# the cache next to the package, so that no process pays seconds of compilation on its first
 	@# step
