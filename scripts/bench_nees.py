@@ -257,13 +257,15 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
             overlap += on
             if est is None or not np.all(np.isfinite(truth[s])):
                 continue
-            e = est.x - truth[s]
-            e[2] = wrap_angle(e[2])
+            e = error(est.x, truth[s])
             errors.append(e)
             covariances.append(est.P)
             held.append(est.measurement < 0)
-            taken.append(math.nan if est.measurement < 0
-                         else measurement_nees(pair.taken[est.measurement], truth[s]))
+            if est.measurement < 0:
+                taken.append(math.nan)
+            else:  # the measurement taken, against its own R
+                z = pair.taken[est.measurement]
+                taken.append(float(nees(error(z.z, truth[s])[None], z.R[None])[0]))
             episode.append(f"{source.name} {min(i, j)}-{max(i, j)}")
             ok = math.hypot(e[0], e[1]) <= WRONG_M and abs(e[2]) <= WRONG_RAD
             available += on
@@ -276,11 +278,16 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
             "seconds": time.perf_counter() - start}
 
 
-def measurement_nees(measurement, truth: np.ndarray) -> float:
-    """NEES of the aligner's candidate z against its own R, at truth (x, y, theta)."""
-    e = measurement.z - truth
+def error(x: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(3,) x - truth of (x [m], y [m], theta [rad]), theta wrapped."""
+    e = x - truth
     e[2] = wrap_angle(e[2])
-    return float(e @ np.linalg.solve(measurement.R, e))
+    return e
+
+
+def nees(e: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(n,) e' P^-1 e of errors e (n, 3) with covariances P (n, 3, 3)."""
+    return np.einsum("ni,ni->n", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
 
 
 # -- the table ---------------------------------------------------------------------------------
@@ -320,20 +327,20 @@ def summary(parts: list[dict]) -> dict:
            "correct": sum(p["correct"] for p in parts) / max(overlap, 1)}
     if not len(e):
         return out
-    nees = np.einsum("ni,ni->n", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
+    values = nees(e, P)
     wrong = (np.hypot(e[:, 0], e[:, 1]) > WRONG_M) | (np.abs(e[:, 2]) > WRONG_RAD)
     sigma = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
     out.update(
-        nees_mean=float(nees.mean()), nees_median=float(np.median(nees)),
-        episodes=len(np.unique(episode)), nees_interval=mean_interval(nees, episode),
-        under=float(np.mean(nees < NEES_95)),
-        nees_ok=float(nees[~wrong].mean()) if (~wrong).any() else math.nan,
-        nees_held=float(nees[held & ~wrong].mean()) if (held & ~wrong).any() else math.nan,
-        nees_measured=(float(nees[~held & ~wrong].mean()) if (~held & ~wrong).any()
+        nees_mean=float(values.mean()), nees_median=float(np.median(values)),
+        episodes=len(np.unique(episode)), nees_interval=mean_interval(values, episode),
+        under=float(np.mean(values < NEES_95)),
+        nees_ok=float(values[~wrong].mean()) if (~wrong).any() else math.nan,
+        nees_held=float(values[held & ~wrong].mean()) if (held & ~wrong).any() else math.nan,
+        nees_measured=(float(values[~held & ~wrong].mean()) if (~held & ~wrong).any()
                        else math.nan),
         nees_R=float(taken[~held & ~wrong].mean()) if (~held & ~wrong).any() else math.nan,
         wrong=float(wrong.mean()),
-        outside=float(np.mean(nees[wrong] > NEES_997)) if wrong.any() else math.nan,
+        outside=float(np.mean(values[wrong] > NEES_997)) if wrong.any() else math.nan,
         ratio=(np.sqrt(np.mean((e[~wrong] / sigma[~wrong]) ** 2, axis=0)) if (~wrong).any()
                else np.full(3, math.nan)),
         sigma=np.sqrt(np.mean(sigma**2, axis=0)))
