@@ -13,12 +13,16 @@ directed pair of:
 
 for each covariance model of --models:
 
-  today         the covariance the parameters give (library: constant; camera preset: residual)
+  today         the covariance the parameters give (the library's and the camera preset's:
+                calibrated)
   constant      the original's R = diag(0.5 m, 0.5 m, 5 deg)^2 for every candidate
   residual      the registration's sandwich covariance (`frame_aligner.residual_covariance`)
   calibrated    `frame_aligner.calibrated_covariance` with FrameAlignerParams' settings
   calibrated+Q  the same with the filter's Q set to the run's own drift (an oracle: the mean
                 square per-step change of the true T_oi_oj)
+  calibrated+drift
+                calibrated with R's `map_drift` set to that drift per square root of a second
+                (an oracle of what the odometries' drift tells R; the filter as it is)
 
 and prints one row per data set (seeds pooled) and model:
 
@@ -202,6 +206,13 @@ def truth_drift(run) -> np.ndarray:
                     max(float(np.mean(d[:, 2] ** 2)), math.radians(0.05) ** 2)])
 
 
+def truth_rates(run) -> tuple[float, float]:
+    """`truth_drift` as `map_drift`'s (metres, radians) per square root of a second."""
+    Q = truth_drift(run)
+    step = float(np.median(np.diff(run.times)))
+    return math.sqrt(Q[0, 0] / step), math.sqrt(Q[2, 2] / step)
+
+
 MODELS: dict[str, Model] = {
     # the covariance the parameters give (the library's and the camera preset's: calibrated)
     "today": lambda a, f, run: (a, f),
@@ -214,6 +225,9 @@ MODELS: dict[str, Model] = {
     # the same with the filter's Q (and the aligner's repeat_Q) set to the run's true drift
     "calibrated+Q": lambda a, f, run: (_with_repeat_Q(_mode(a, "calibrated"), truth_drift(run)),
                                        replace(f, Q=truth_drift(run))),
+    # the same R with the map drift set to the run's true drift; the filter's Q as it is
+    "calibrated+drift": lambda a, f, run: (replace(_mode(a, "calibrated"),
+                                                   map_drift=truth_rates(run)), f),
 }
 
 
@@ -350,7 +364,7 @@ def summary(parts: list[dict]) -> dict:
 def print_table(results: list[dict], models: list[str]) -> None:
     """One row per data set and model (see the module's notes for the columns)."""
     groups = list(dict.fromkeys(r["group"] for r in results))
-    print(f"{'data set':26} {'model':12} {'est':>6} {'pairs':>5} {'mean':>7} "
+    print(f"{'data set':26} {'model':16} {'est':>6} {'pairs':>5} {'mean':>7} "
           f"{'95 % of mean':>15} "
           f"{'median':>6} {'<7.81':>6} "
           f"{'ok mean':>7} {'held':>6} {'meas':>6} {'R':>6} {'wrong':>6} {'outside':>7} "
@@ -362,7 +376,7 @@ def print_table(results: list[dict], models: list[str]) -> None:
             if not parts:
                 continue
             r = summary(parts)
-            head = f"{group:26} {model:12} {r['est']:6d}"
+            head = f"{group:26} {model:16} {r['est']:6d}"
             tail = f"{r['available']:6.3f} {r['correct']:7.3f}"
             if not r["est"]:
                 blank = " ".join(f"{'':>{w}}" for w in (15, 6, 6, 7, 6, 6, 6, 6, 7, 5, 5, 5, 6, 7))
