@@ -9,6 +9,7 @@ from typing import Literal
 
 import numpy as np
 
+from .errors import DataError
 from .param_checks import (
     _INT64_MAX,
     _ByValue,
@@ -142,7 +143,8 @@ class FrameAlignerParams(_ByValue):
             changes nothing.
         dim: 2 matches (x, y) centroids (the original's choice), 3 matches full 3D centroids
             (the alignment is then projected onto the gravity-aligned plane).
-        clipper: consistency graph and solver settings.
+        clipper: consistency graph and solver settings. Its epsilon is widened by
+            `epsilon_drift` for maps of a long span.
         n_solutions: N of MNO-CLIPPER (Algorithm 1), at most `MAX_SOLUTIONS`.
         mno_downweight: factor applied to affinities among an earlier solution's associations;
             0 removes those associations, as in the paper.
@@ -184,9 +186,16 @@ class FrameAlignerParams(_ByValue):
             the prior of "calibrated"'s.
         residual_prior_dof: covariance="calibrated": the weight of `residual_floor` as a prior
             on the point noise, in degrees of freedom (0: the residual alone, floored).
-        map_drift: covariance="calibrated": (metres, radians) per square root of a second,
-            the random walk of the two robots' odometries relative to each other, which
-            distorts each map over its span kappa (half of it on average).
+        map_drift: (metres, radians) per square root of a second, the random walk of the two
+            robots' odometries relative to each other, which distorts each map over its span
+            kappa: the calibrated covariance adds it over half the span; `epsilon_drift`
+            widens CLIPPER's epsilon by its translation over the whole span.
+        epsilon_drift: standard deviations of that distortion by which two maps' distances
+            may disagree beyond CLIPPER's epsilon: the consistency graph (and the pair
+            rankings) use epsilon' = sqrt(epsilon^2 + (epsilon_drift d_t)^2 span), span = kappa
+            (the oldest recent object's age when kappa is inf). Two objects placed through a
+            drifting odometry a span apart are that much further from where the other map
+            puts them: 0.25 m at 20 s becomes 0.27 m, at 150 s 0.35 m. 0: epsilon as given.
         repeat_inflation: covariance="calibrated": rho of R = R_s + rho R_s Q^-1 R_s, where
             R_s is one registration's covariance and Q the filter's drift per step. With rho
             = 1 an identity-motion Kalman filter fed the same registration every step settles
@@ -282,6 +291,7 @@ class FrameAlignerParams(_ByValue):
     residual_floor: float = 0.05
     residual_prior_dof: float = 4.0
     map_drift: tuple[float, float] = (0.01, math.radians(0.25))
+    epsilon_drift: float = 2.0
     repeat_inflation: float = 0.5
     repeat_Q: np.ndarray | None = None
     min_inliers: int | None = None
@@ -349,7 +359,7 @@ class FrameAlignerParams(_ByValue):
         object.__setattr__(self, "R_constant", _spd(self.R_constant, 3, o, "R_constant"))
         _require(_finite(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
                  self.residual_floor, "must be a finite number > 0 metres")
-        for name in ("residual_prior_dof", "repeat_inflation"):
+        for name in ("residual_prior_dof", "repeat_inflation", "epsilon_drift"):
             value = getattr(self, name)
             _require(_finite(value) and value >= 0, o, name, value,
                      "must be a finite number >= 0")
@@ -388,6 +398,27 @@ class FrameAlignerParams(_ByValue):
             _require(isinstance(getattr(self, name), bool), o, name, getattr(self, name),
                      "must be True or False")
 
+    def span_epsilon(self, span: float) -> float:
+        """Metres: CLIPPER's epsilon for maps whose objects were placed over `span` seconds,
+        widened by `epsilon_drift` standard deviations of the odometries' drift.
+
+        Raises:
+            DataError: span not a finite number >= 0, or so long with these settings that
+                epsilon overflows.
+        """
+        o = "FrameAlignerParams.span_epsilon"
+        if not (_finite(span) and span >= 0):
+            raise DataError(f"{o}: span must be a finite number >= 0 seconds, got {span!r:.60}")
+        widen = self.epsilon_drift * self.map_drift[0]
+        # products, not powers: a float's ** overflows with an exception, * to inf
+        epsilon = math.sqrt(self.clipper.epsilon * self.clipper.epsilon
+                            + widen * widen * float(span))
+        if not math.isfinite(epsilon):
+            raise DataError(f"{o}: span = {span!r:.60} with epsilon_drift = "
+                            f"{self.epsilon_drift!r} and map_drift = {self.map_drift!r} "
+                            f"overflows epsilon")
+        return epsilon
+
     def fewest_associations(self, n_ego: int, n_other: int, share: float) -> int:
         """The fewest associations a candidate may have between maps of n_ego and n_other
         recent objects, `share` of whose pairs pass the gates (`sparse_associations`)."""
@@ -400,10 +431,11 @@ class FrameAlignerParams(_ByValue):
     @classmethod
     def reference(cls) -> FrameAlignerParams:
         """The authors' released settings, without this project's residual, spread and
-        ambiguity checks, with the paper's size gate and with every search full."""
+        ambiguity checks, with the paper's size gate and epsilon, and with every search
+        full."""
         return cls(max_rmse=None, min_inliers=None, min_spread=0.0, check_ambiguity=False,
                    guide_radius=None, size_partial=None, covariance="constant",
-                   sparse_associations=None)
+                   sparse_associations=None, epsilon_drift=0.0)
 
     @classmethod
     def camera(cls, **changes) -> FrameAlignerParams:

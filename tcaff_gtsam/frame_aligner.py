@@ -320,6 +320,15 @@ class FrameAligner:
                                           *self._calibrated_settings())
         return _residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor)
 
+    def _epsilon(self, ages_ego: np.ndarray, ages_other: np.ndarray) -> float:
+        """Metres, CLIPPER's epsilon widened for the maps' drift over their span
+        (`FrameAlignerParams.epsilon_drift`); ages (n,), (m,) seconds of the recent objects."""
+        prm = self.params
+        span = prm.kappa
+        if not math.isfinite(span):
+            span = float(max(ages_ego.max(initial=0.0), ages_other.max(initial=0.0)))
+        return prm.span_epsilon(span)
+
     def _calibrated_settings(self) -> tuple:
         """(prior_dof, map_drift, repeat_inflation, Q^-1) of covariance="calibrated" (the
         parameters checked them); Q^-1 computed once."""
@@ -351,6 +360,7 @@ class FrameAligner:
         p_all = ego_r.centroids[:, : prm.dim]
         q_all = other_r.centroids[:, : prm.dim]
         ages_ego, ages_other = ego_r.ages(now), other_r.ages(now)
+        epsilon = self._epsilon(ages_ego, ages_other)
         if guide is not None:
             # pairs that agree under the held alignment: a partial pair among them is most
             # likely its object's counterpart, and the graph is small either way
@@ -359,7 +369,7 @@ class FrameAligner:
                 prm.partial_pairs == "best" or _partial_ranking_pays(
                     n_compatible, int(np.count_nonzero(partial)))):
             searched = (compatible & ~partial) | _partial_pairs_kept(
-                compatible, partial, p_all, q_all, ages_ego, ages_other, prm.clipper.epsilon)
+                compatible, partial, p_all, q_all, ages_ego, ages_other, epsilon)
         else:
             searched = compatible
         n_pairs = int(np.count_nonzero(searched))
@@ -367,7 +377,7 @@ class FrameAligner:
             return []
         if n_pairs > prm.max_associations:
             assoc = _neighbourhood_pairs(searched, p_all, q_all, ages_ego, ages_other,
-                                        prm.clipper.epsilon, prm.pairs_per_object,
+                                        epsilon, prm.pairs_per_object,
                                         prm.max_associations)
             self._thin(n_compatible, n_pairs, len(ego_r), len(other_r))
         else:
@@ -380,7 +390,7 @@ class FrameAligner:
         if prm.height_epsilon is not None:
             z = (ego_r.centroids[:, 2], other_r.centroids[:, 2])
             slack = _height_slack(ego_r.heights[assoc[:, 0]], other_r.heights[assoc[:, 1]])
-        graph = _graph(p_all, q_all, assoc, prm.clipper.epsilon, prm.clipper.sigma,
+        graph = _graph(p_all, q_all, assoc, epsilon, prm.clipper.sigma,
                        np.ones(assoc.shape[0]) if prior is None else prior, z,
                        prm.height_epsilon, slack)
         solutions = [s for s in _solutions(graph, prm.n_solutions, prm.clipper,

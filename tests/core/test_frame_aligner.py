@@ -256,11 +256,14 @@ def test_a_guided_search_near_the_truth_finds_the_full_searchs_best_candidate(
     different, 9 of 149 random cases, at most 7.5 cm and 0.3 deg apart; seed 4542, found later,
     gives 17 associations, two of them other than the full search's, and as many inliers, 16 cm
     from the full search's) and explaining at least as many objects; the guided step returns
-    only candidates confirming the hold and needs no full search."""
+    only candidates confirming the hold and needs no full search. At CLIPPER's own epsilon,
+    which the bounds were measured at: widened for the maps' span (`epsilon_drift`, 0.27 m
+    here) seed 4542's guided clique is 21 cm and two inliers off the full search's, while 300
+    seeds held at the truth stay within 1.3 cm either way."""
     rng = np.random.default_rng(seed)
     T_true = se2_from_params([*rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)])
     pair = overlapping_maps(rng, 40, 0.6, 0.05, T_oi_oj=T_true)
-    aligner = FrameAligner(FrameAlignerParams(guide_radius=1.5))
+    aligner = FrameAligner(FrameAlignerParams(guide_radius=1.5, epsilon_drift=0.0))
     held = se2_to_params(T_true) + np.array([dx, dy, np.radians(dtheta_deg)])
     full = aligner.measurements(pair.ego, pair.other, pair.now, held=held)
     guided = aligner.measurements(pair.ego, pair.other, pair.now, held=held, guided=True)

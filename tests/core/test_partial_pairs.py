@@ -210,7 +210,7 @@ def test_the_graph_holds_the_papers_pairs_and_the_best_partial_ones(graph_nodes,
     nodes[graph_nodes[0][:, 0], graph_nodes[0][:, 1]] = True
     kept = _partial_pairs_kept(compatible, partial, ego.centroids[:, :2],
                                other.centroids[:, :2], ego.ages(10.0), other.ages(10.0),
-                               params.clipper.epsilon)
+                               params.span_epsilon(params.kappa))
     np.testing.assert_array_equal(nodes, (compatible & ~partial) | kept)
 
 
@@ -307,7 +307,7 @@ def test_thinning_past_the_cap_names_the_gates_pairs_and_those_searched(caplog, 
                                      params.size_partial)
     searched = (compatible & ~partial) | _partial_pairs_kept(
         compatible, partial, ego.centroids[:, :2], other.centroids[:, :2], ego.ages(10.0),
-        other.ages(10.0), params.clipper.epsilon)
+        other.ages(10.0), params.span_epsilon(params.kappa))
     assert searched.sum() > 100
     aligner = FrameAligner(params)
     with caplog.at_level("WARNING", logger="tcaff_gtsam.frame_aligner"):
