@@ -23,6 +23,10 @@ for each covariance model of --models:
   calibrated+drift
                 calibrated with R's `map_drift` set to that drift per square root of a second
                 (an oracle of what the odometries' drift tells R; the filter as it is)
+  calibrated+declared
+                calibrated with `map_drift` from what the odometries declare (`declared_drift`:
+                the simulator's random walks, the VIO-like heading walk, none for exact
+                odometry), as a user who knows their odometry would set it
 
 and prints one row per data set (seeds pooled) and model:
 
@@ -176,10 +180,10 @@ def dataset_methods(source: Source):
 
 
 # -- covariance models -------------------------------------------------------------------------
-# Each takes the aligner's and the filter's parameters and the run, and returns the parameters
-# changed.
+# Each takes the aligner's and the filter's parameters, the run and its source, and returns the
+# parameters changed.
 
-Model = Callable[[FrameAlignerParams, TCAFFParams, object],
+Model = Callable[[FrameAlignerParams, TCAFFParams, object, Source],
                  tuple[FrameAlignerParams, TCAFFParams]]
 
 
@@ -213,21 +217,53 @@ def truth_rates(run) -> tuple[float, float]:
     return math.sqrt(Q[0, 0] / step), math.sqrt(Q[2, 2] / step)
 
 
+def declared_drift(run, source: Source, default: tuple[float, float]) -> tuple[float, float]:
+    """`map_drift` from the odometries' own specification, as a user who knows them would set
+    it: two robots' random walks (d_t, d_theta) combine to (hypot(d_t_i, d_t_j),
+    hypot(d_theta_i, d_theta_j)), per square root of a second.
+
+    - simulator: each robot's `OdometryDrift` (the pair of the most drift);
+    - VIO-like odometry: its heading random walk, per square root of a minute; its scale
+      error is no random walk, so the default's translation stays;
+    - exact odometry: none; MRCLAM's dead reckoning declares nothing: the default.
+    """
+    if source.kind == "sim":
+        drifts = run.scenario.odometry
+        if not isinstance(drifts, (list, tuple)):
+            drifts = [drifts] * run.n_robots
+        return max(((math.hypot(a.position_rw, b.position_rw),
+                     math.radians(math.hypot(a.heading_rw_deg, b.heading_rw_deg)))
+                    for k, a in enumerate(drifts) for b in drifts[k + 1:]),
+                   key=lambda drift: drift[1])
+    if source.odometry == "vio":
+        from tcaff_gtsam.eval.config import load_mrclam, load_rgbd
+
+        config = load_mrclam("default") if source.kind == "mrclam" else load_rgbd("default")
+        per_second = config.vio.heading_rw_deg_per_sqrt_min / math.sqrt(60.0)
+        return default[0], math.radians(math.sqrt(2.0) * per_second)
+    if source.odometry == "exact":
+        return 0.0, 0.0
+    return default
+
+
 MODELS: dict[str, Model] = {
     # the covariance the parameters give (the library's and the camera preset's: calibrated)
-    "today": lambda a, f, run: (a, f),
+    "today": lambda a, f, run, source: (a, f),
     # the original's constant R = diag(0.5 m, 0.5 m, 5 deg)^2
-    "constant": lambda a, f, run: (_mode(a, "constant"), f),
+    "constant": lambda a, f, run, source: (_mode(a, "constant"), f),
     # the registration's sandwich covariance, as `residual_covariance` computes it
-    "residual": lambda a, f, run: (_mode(a, "residual"), f),
+    "residual": lambda a, f, run, source: (_mode(a, "residual"), f),
     # `calibrated_covariance` with the parameters' settings
-    "calibrated": lambda a, f, run: (_mode(a, "calibrated"), f),
+    "calibrated": lambda a, f, run, source: (_mode(a, "calibrated"), f),
     # the same with the filter's Q (and the aligner's repeat_Q) set to the run's true drift
-    "calibrated+Q": lambda a, f, run: (_with_repeat_Q(_mode(a, "calibrated"), truth_drift(run)),
-                                       replace(f, Q=truth_drift(run))),
+    "calibrated+Q": lambda a, f, run, source: (
+        _with_repeat_Q(_mode(a, "calibrated"), truth_drift(run)), replace(f, Q=truth_drift(run))),
     # the same R with the map drift set to the run's true drift; the filter's Q as it is
-    "calibrated+drift": lambda a, f, run: (replace(_mode(a, "calibrated"),
-                                                   map_drift=truth_rates(run)), f),
+    "calibrated+drift": lambda a, f, run, source: (replace(_mode(a, "calibrated"),
+                                                           map_drift=truth_rates(run)), f),
+    # R's map drift from what each robot's odometry declares (no truth)
+    "calibrated+declared": lambda a, f, run, source: (replace(
+        _mode(a, "calibrated"), map_drift=declared_drift(run, source, a.map_drift)), f),
 }
 
 
@@ -255,7 +291,7 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
         aligner = FrameAlignerParams(kappa=settings.kappa)
         tcaff = TCAFFParams() if settings.window is None else TCAFFParams(
             window=settings.window)
-    aligner, tcaff = MODELS[model](aligner, tcaff, run)
+    aligner, tcaff = MODELS[model](aligner, tcaff, run, source)
     n = run.n_robots
     pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
     errors, covariances, held, episode, taken = [], [], [], [], []
@@ -364,7 +400,7 @@ def summary(parts: list[dict]) -> dict:
 def print_table(results: list[dict], models: list[str]) -> None:
     """One row per data set and model (see the module's notes for the columns)."""
     groups = list(dict.fromkeys(r["group"] for r in results))
-    print(f"{'data set':26} {'model':16} {'est':>6} {'pairs':>5} {'mean':>7} "
+    print(f"{'data set':26} {'model':19} {'est':>6} {'pairs':>5} {'mean':>7} "
           f"{'95 % of mean':>15} "
           f"{'median':>6} {'<7.81':>6} "
           f"{'ok mean':>7} {'held':>6} {'meas':>6} {'R':>6} {'wrong':>6} {'outside':>7} "
@@ -376,7 +412,7 @@ def print_table(results: list[dict], models: list[str]) -> None:
             if not parts:
                 continue
             r = summary(parts)
-            head = f"{group:26} {model:16} {r['est']:6d}"
+            head = f"{group:26} {model:19} {r['est']:6d}"
             tail = f"{r['available']:6.3f} {r['correct']:7.3f}"
             if not r["est"]:
                 blank = " ".join(f"{'':>{w}}" for w in (15, 6, 6, 7, 6, 6, 6, 6, 7, 5, 5, 5, 6, 7))
