@@ -62,7 +62,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3, help="VIO-like odometry seeds 0 .. N-1")
     parser.add_argument("--kappa", type=float, default=20.0, help="map span, s")
     parser.add_argument("--radius", type=float, default=0.25,
-                        help="metres; the default is CLIPPER's epsilon")
+                        help="metres; the default is CLIPPER's epsilon as given (the aligner "
+                        "widens it to 0.27 m for 20 s maps, FrameAlignerParams.span_epsilon)")
     args = parser.parse_args()
     config = load_mrclam("default")
     data = mrclam.read_dataset(MRCLAM)
