@@ -170,11 +170,12 @@ class TCAFFParams(_ByValue):
             needs before it is accepted early: at least two, so the hypothesis has been
             seen consistent over time.
         recall_for: steps after a main tree is dropped during which its last estimate
-            stays dormant: a measurement within its gate (its covariance grown by Q each
-            step) recalls it as the main hypothesis at once, with its id and history,
-            unless an open hypothesis inconsistent with it holds more evidence. With the
-            default Q, 100 steps grow its standard deviation by 1 m and 5 degrees, the
-            bounds of a correct alignment. None: a dropped hypothesis is forgotten.
+            stays dormant: an exploring hypothesis within its gate (its covariance grown by
+            Q each step) that has taken `early_measurements` measurements, the latest at this
+            step, recalls it as the main hypothesis with its id and history, unless an open
+            hypothesis inconsistent with it holds more evidence. With the default Q, 100
+            steps grow its standard deviation by 1 m and 5 degrees, the bounds of a correct
+            alignment. None: a dropped hypothesis is forgotten.
         neutral_empty_steps: a step at which the aligner gave no measurement at all costs no
             hypothesis a missed measurement (-log p_NM): the maps shared too few objects for
             any candidate, which says nothing about which alignment is right, and a
