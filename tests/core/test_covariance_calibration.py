@@ -61,10 +61,17 @@ def monte_carlo_nees(rng, T, q, w, sigma, trials, **settings_) -> np.ndarray:
 
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), k=st.integers(6, 14),
-       sigma=st.floats(0.02, 0.2), offset=st.floats(0.0, 20.0))
+       sigma=st.floats(0.02, 0.1), offset=st.floats(0.0, 20.0))
+@example(seed=1, k=6, sigma=0.1, offset=15.0).via("the scene that left the linearisation")
 def test_point_noise_part_is_chi_square(seed, k, sigma, offset):
     """Known isotropic point noise (a prior of overwhelming weight), no drift, no inflation:
-    the NEES of R against the true transform is chi-square(3) within sampling error."""
+    the NEES of R against the true transform is chi-square(3) within sampling error.
+
+    R is the registration's first-order covariance, so this holds while the noise is small
+    against the scene's 2 m spread (up to 5 %: over 300 random scenes the means lay within
+    0.38 of 3). Beyond it six unevenly weighted points bend the registration away from its
+    linearisation: seed 1, k = 6 at 0.19 m gives a mean of 3.58 over 5000 trials (3.11 at
+    0.1 m)."""
     rng = np.random.default_rng(seed)
     T, q, w = scene(rng, k, 2.0, offset)
     trials = 300
