@@ -256,8 +256,7 @@ MODELS: dict[str, Model] = {
     # `calibrated_covariance` with the parameters' settings
     "calibrated": lambda a, f, run, source: (_mode(a, "calibrated"), f),
     # the same with the filter's Q (and the aligner's repeat_Q) set to the run's true drift
-    "calibrated+Q": lambda a, f, run, source: (
-        _with_repeat_Q(_mode(a, "calibrated"), truth_drift(run)), replace(f, Q=truth_drift(run))),
+    "calibrated+Q": lambda a, f, run, source: _with_Q(a, f, truth_drift(run)),
     # the same R with the map drift set to the run's true drift; the filter's Q as it is
     "calibrated+drift": lambda a, f, run, source: (replace(_mode(a, "calibrated"),
                                                            map_drift=truth_rates(run)), f),
@@ -267,9 +266,10 @@ MODELS: dict[str, Model] = {
 }
 
 
-def _with_repeat_Q(params: FrameAlignerParams, Q: np.ndarray) -> FrameAlignerParams:
-    """`params` whose calibrated covariance inflates for a filter of drift Q (3, 3)."""
-    return replace(params, repeat_Q=Q)
+def _with_Q(aligner: FrameAlignerParams, tcaff: TCAFFParams, Q: np.ndarray
+            ) -> tuple[FrameAlignerParams, TCAFFParams]:
+    """The calibrated covariance inflated for a filter of drift Q (3, 3), and that filter."""
+    return replace(_mode(aligner, "calibrated"), repeat_Q=Q), replace(tcaff, Q=Q)
 
 
 # -- one run -----------------------------------------------------------------------------------
@@ -317,9 +317,8 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
                 z = pair.taken[est.measurement]
                 taken.append(float(nees(error(z.z, truth[s])[None], z.R[None])[0]))
             episode.append(f"{source.name} {min(i, j)}-{max(i, j)}")
-            ok = math.hypot(e[0], e[1]) <= WRONG_M and abs(e[2]) <= WRONG_RAD
             available += on
-            correct += on and ok
+            correct += on and not wrong(e[None])[0]
     return {"group": source.group, "model": model,
             "errors": np.array(errors).reshape(-1, 3),
             "P": np.array(covariances).reshape(-1, 3, 3), "held": np.array(held, dtype=bool),
@@ -333,6 +332,11 @@ def error(x: np.ndarray, truth: np.ndarray) -> np.ndarray:
     e = x - truth
     e[2] = wrap_angle(e[2])
     return e
+
+
+def wrong(e: np.ndarray) -> np.ndarray:
+    """(n,) bool: errors e (n, 3) off by more than 1 m or 5 deg (false accepts)."""
+    return (np.hypot(e[:, 0], e[:, 1]) > WRONG_M) | (np.abs(e[:, 2]) > WRONG_RAD)
 
 
 def nees(e: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -378,23 +382,24 @@ def summary(parts: list[dict]) -> dict:
     if not len(e):
         return out
     values = nees(e, P)
-    wrong = (np.hypot(e[:, 0], e[:, 1]) > WRONG_M) | (np.abs(e[:, 2]) > WRONG_RAD)
+    bad = wrong(e)
     sigma = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
     out.update(
         nees_mean=float(values.mean()), nees_median=float(np.median(values)),
         episodes=len(np.unique(episode)), nees_interval=mean_interval(values, episode),
         under=float(np.mean(values < NEES_95)),
-        nees_ok=float(values[~wrong].mean()) if (~wrong).any() else math.nan,
-        nees_held=float(values[held & ~wrong].mean()) if (held & ~wrong).any() else math.nan,
-        nees_measured=(float(values[~held & ~wrong].mean()) if (~held & ~wrong).any()
-                       else math.nan),
-        nees_R=float(taken[~held & ~wrong].mean()) if (~held & ~wrong).any() else math.nan,
-        wrong=float(wrong.mean()),
-        outside=float(np.mean(values[wrong] > NEES_997)) if wrong.any() else math.nan,
-        ratio=(np.sqrt(np.mean((e[~wrong] / sigma[~wrong]) ** 2, axis=0)) if (~wrong).any()
+        nees_ok=mean_where(values, ~bad), nees_held=mean_where(values, held & ~bad),
+        nees_measured=mean_where(values, ~held & ~bad), nees_R=mean_where(taken, ~held & ~bad),
+        wrong=float(bad.mean()), outside=mean_where(values > NEES_997, bad),
+        ratio=(np.sqrt(np.mean((e[~bad] / sigma[~bad]) ** 2, axis=0)) if (~bad).any()
                else np.full(3, math.nan)),
         sigma=np.sqrt(np.mean(sigma**2, axis=0)))
     return out
+
+
+def mean_where(values: np.ndarray, mask: np.ndarray) -> float:
+    """Mean of values (n,) where mask (n,) bool holds; NaN where it holds nowhere."""
+    return float(values[mask].mean()) if mask.any() else math.nan
 
 
 def print_table(results: list[dict], models: list[str]) -> None:

@@ -4,10 +4,10 @@ For every directed robot pair of UTIAS MRCLAM data set 6 (`mrclam.load_run` with
 evaluation's settings, VIO-like odometry) and every overlap step (the maps share enough
 landmarks, `AlignmentRun.overlap`), counts the pairs of recent landmarks, one from each map,
 that are mutual nearest neighbours within --radius metres once the other map is moved by the
-true T_oi_oj: the associations an aligner could find consistent. Prints, per count, the share of
-the overlap steps and how often the truth (within 1 m / 5 deg) is among the candidates of
-`PairwiseAligner` with the library's defaults, and without the aligner's checks
-(`pairwise.unchecked`).
+true T_oi_oj: the associations an aligner could find consistent. Prints, per count, the share
+of the overlap steps and how often the truth (within 1 m / 5 deg, scored as the evaluation
+scores) is among the candidates of `PairwiseAligner` with the library's defaults, and without
+the aligner's checks (`pairwise.unchecked`).
 
     python scripts/mrclam_overlap.py [--seeds 3] [--kappa 20] [--radius 0.25]
 """
@@ -15,17 +15,16 @@ the overlap steps and how often the truth (within 1 m / 5 deg) is among the cand
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import numpy as np
 from tcaff_gtsam.eval.config import load_mrclam
 from tcaff_gtsam.eval.datasets import mrclam
-from tcaff_gtsam.eval.metrics import Thresholds
+from tcaff_gtsam.eval.metrics import Thresholds, step_errors
 
 from tcaff_gtsam import FrameAlignerParams, PairwiseAligner
-from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 from tcaff_gtsam.pairwise import unchecked
+from tcaff_gtsam.registration import mutual_inliers
 
 MRCLAM = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / \
     "MRCLAM_Dataset6"
@@ -36,24 +35,18 @@ MOST = 7
 def agreeing(p: np.ndarray, q: np.ndarray, T: np.ndarray, radius: float) -> int:
     """How many of ego points p (n, 2) and other points q (m, 2) are mutual nearest neighbours
     within `radius` metres once q is moved by T (3, 3)."""
-    if not len(p) or not len(q):
-        return 0
-    moved = q @ T[:2, :2].T + T[:2, 2]
-    d = np.linalg.norm(p[:, None] - moved[None], axis=2)
-    nearest = d.argmin(axis=1)
-    mutual = d.argmin(axis=0)[nearest] == np.arange(len(p))
-    return int(np.count_nonzero(mutual & (d[np.arange(len(p)), nearest] <= radius)))
+    return len(mutual_inliers(T, p, q, np.ones((len(p), len(q)), bool), radius))
 
 
-def holds_truth(candidates, truth: np.ndarray) -> bool:
-    """Whether one of the candidates lies within the false-accept thresholds of truth (3,)."""
+def holds_truth(candidates, T_true: np.ndarray) -> bool:
+    """Whether one of the candidates is correct against T_true (3, 3), as the evaluation
+    scores an estimate (`metrics.step_errors` within the false-accept thresholds)."""
+    if not candidates:
+        return False
     limits = Thresholds()
-    for m in candidates:
-        e = m.z - truth
-        if math.hypot(e[0], e[1]) <= limits.translation and \
-                abs(wrap_angle(e[2])) <= limits.heading:
-            return True
-    return False
+    err = step_errors(np.broadcast_to(T_true, (len(candidates), 3, 3)),
+                      np.array([m.z for m in candidates]))
+    return bool(np.any((err[:, 0] <= limits.translation) & (err[:, 1] <= limits.heading)))
 
 
 def main() -> None:
@@ -78,19 +71,18 @@ def main() -> None:
             aligners = [PairwiseAligner(FrameAlignerParams(kappa=args.kappa)),
                         PairwiseAligner(unchecked(FrameAlignerParams(kappa=args.kappa)))]
             T_true = run.T_true(i, j)
-            truth = se2_to_params(T_true)
             shared = run.overlap(i, j)
             for s, t in enumerate(run.times):
                 ego, other = run.maps[i][s], run.maps[j][s]
                 for aligner in aligners:
                     aligner.update(float(t), ego, other)
-                if not (shared is None or shared[s]) or not np.all(np.isfinite(truth[s])):
+                if not (shared is None or shared[s]) or not np.all(np.isfinite(T_true[s])):
                     continue
                 recent_ego = ego.centroids[ego.last_seen >= t - args.kappa, :2]
                 recent_other = other.centroids[other.last_seen >= t - args.kappa, :2]
                 row = min(agreeing(recent_ego, recent_other, T_true[s], args.radius), MOST)
-                table[row] += [1, holds_truth(aligners[0].measurements, truth[s]),
-                               holds_truth(aligners[1].measurements, truth[s])]
+                table[row] += [1, holds_truth(aligners[0].measurements, T_true[s]),
+                               holds_truth(aligners[1].measurements, T_true[s])]
         print(f"seed {seed} done", flush=True)
     total = table[:, 0].sum()
     print(f"\nMRCLAM 6, VIO-like seeds 0-{args.seeds - 1}, {args.kappa:g} s maps: {total} overlap "

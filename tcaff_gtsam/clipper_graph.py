@@ -203,11 +203,13 @@ def _consistent_pairs(ego_points, other_points, ego_z, other_z, slack, other_idx
         for h in range(g + 1, n_groups):
             d_group[h] = np.sqrt(d_group[h])
         for h in range(g + 1, n_groups):
+            d_gh = d_group[h]
+            dz_gh = ego_z[i] - ego_z[group_ego[h]] if heights else 0.0
             # unsigned q: numba then skips the negative-index wraparound, and the stores are
             # contiguous instead of scattered
             for q in range(np.uint64(group_start[h]), np.uint64(group_start[h + 1])):
-                d_ego[q] = d_group[h]
-                dz_ego[q] = ego_z[i] - ego_z[group_ego[h]] if heights else 0.0
+                d_ego[q] = d_gh
+                dz_ego[q] = dz_gh
         later = group_start[g + 1]
         first = np.uint64(later)
         n_later = np.uint64(m) - first
