@@ -387,14 +387,17 @@ class TCAFF(FilterState):
         its window held, is at least the main path's measurements in the window; until then
         the main tree is contested (`_contested`). The dormant state is fused with the
         confirming hypothesis's, which goes on as the main tree's leaf: under the dormant
-        id, or a new one when it displaces a main tree."""
+        id, or a new one when it displaces a main tree. A measurement of the dormant
+        hypothesis at this step contests the main tree too, before it is confirmed."""
         prm, dormant, explore = self.params, self._dormant, self._explore
         if len(explore) == 0:
             return
         taken = self._taken(explore.choice)
         agree = self._consistent(explore, dormant)
         confirmed = agree & (taken >= prm.early_measurements)
-        if self._main is not None and confirmed.any():
+        # seen again, even once, the dormant hypothesis contests the main one: a decoy that
+        # displaced it in its gap is not reported on the truth's own return
+        if self._main is not None and np.any(confirmed | (agree & (explore.choice[:, -1] >= 0))):
             self._reclaiming = True
         fresh = np.flatnonzero(confirmed & (explore.choice[:, -1] >= 0))
         if fresh.size == 0:
@@ -461,8 +464,10 @@ class TCAFF(FilterState):
         if self._switch_streak >= prm.switch_after:
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
-            if prm.recall_for is not None and self._main.since[m] >= prm.window:
-                # left in a gap of its measurements, it is recallable as a dropped one is
+            if (prm.recall_for is not None
+                    and self._taken(self._main.choice[m]) < prm.early_measurements):
+                # left in a gap of its measurements (or with one stray measurement in the
+                # window, less than a recall needs), it is recallable as a dropped one is
                 self._keep_dormant(self._main.take([m]))
             self._accept(complete, best)
 
@@ -481,11 +486,11 @@ class TCAFF(FilterState):
 
     def _contested(self) -> bool:
         """Whether, at a step given object ids, an exploring hypothesis inconsistent with the
-        main tree's best path outvotes it (seen `_outvote_need` times by `_support`, with
-        `switch_support`: the outvoting streak builds), or that path took no measurement this
-        step while the rival holds more distinct evidence in the window (and at least
-        `min_distinct` pieces), or the dormant hypothesis is being confirmed against it
-        (`_recall`)."""
+        main tree's best path outvotes it over the steps since the rival's root (seen
+        `_outvote_need` times by `_support`, with `switch_support`), or that path took no
+        measurement this step while the rival holds more distinct evidence in the window (and
+        at least `min_distinct` pieces), or the dormant hypothesis was seen at this step or is
+        being confirmed against it (`_recall`)."""
         if self._reclaiming:
             return True
         main, explore = self._main, self._explore
@@ -495,8 +500,11 @@ class TCAFF(FilterState):
             return False
         taken = self._taken(explore.choice)
         if self.params.switch_support is not None:
-            need = self._outvote_need(m)
-            if any(self._support(explore.choice[r]) >= need
+            # over the steps since the rival was first seen: a rival seen more often than the
+            # main path since then is contested before its window fills
+            need = self._outvote_need(m, np.count_nonzero(explore.choice >= NO_MEASUREMENT,
+                                                          axis=1))
+            if any(self._support(explore.choice[r]) >= need[r]
                    for r in self._rivals_of(m, taken >= need)):
                 return True
         if main.since[m] == 0:
@@ -513,12 +521,18 @@ class TCAFF(FilterState):
             return rivals
         return rivals[~self._consistent(self._explore.take(rivals), self._main.take([m]))]
 
-    def _outvote_need(self, m: int) -> int:
+    def _outvote_need(self, m: int, span: np.ndarray | None = None):
         """How often a rival must be seen in the window (`_support`) to outvote the main
         tree's leaf m: `switch_support` more times than m's path took a measurement (the main
         path's measurements count as they are: a true alignment re-matching the same objects
-        while the robots stand still is not to be outvoted for it)."""
-        return self._taken(self._main.choice[m]) + self.params.switch_support
+        while the robots stand still is not to be outvoted for it). An int over the window;
+        with `span` ((L,) ints in [1, W], each rival's steps since its root), (L,) ints over
+        each rival's last `span` steps."""
+        path, prm = self._main.choice[m], self.params
+        if span is None:
+            return self._taken(path) + prm.switch_support
+        seen = np.cumsum(path[::-1][:prm.window] >= 0)  # in the last 1 .. W steps
+        return seen[np.clip(span, 1, prm.window) - 1] + prm.switch_support
 
     def _support(self, path: np.ndarray) -> int:
         """How often a rival's hypothesis was seen in the window: its measurements, or one

@@ -208,6 +208,36 @@ def test_an_outvoted_decoy_is_withheld_while_the_switch_is_confirmed():
     assert np.allclose(runs[False][first_true].x, truth, atol=0.05)
 
 
+def test_a_rival_seen_more_often_since_it_appeared_is_contested_before_its_window_fills():
+    """A decoy seen alone at every step, then at every fourth step while the truth comes at
+    every step: over the steps since the truth first came it is seen more often, so the
+    decoy is withheld at once, not only once the truth's count over the whole window passes
+    the decoy's (W steps in which the decoy was seen at every step)."""
+    W = TCAFFParams().window
+    truth, decoy = np.array([4.0, -1.0, 0.7]), np.array([-2.0, 3.0, 2.5])
+    start = W + 2
+    zs, evidence = [], []
+    for t in range(40):
+        z, ev = [], []
+        if t < start or t % 4 == 0:
+            z.append(decoy)
+            ev.append(np.array([[1000 + t, 2000 + t]]))
+        if t >= start:
+            z.append(truth)
+            ev.append(np.array([[3000 + t, 4000 + t]]))
+        zs.append(np.array(z).reshape(-1, 3))
+        evidence.append(ev)
+    filt = TCAFF()
+    estimates = [filt.update(z, np.broadcast_to(R_CONSTANT, (len(z), 3, 3)), ev)
+                 for z, ev in zip(zs, evidence, strict=True)]
+    assert np.allclose(estimates[start - 1].x, decoy, atol=1e-6)
+    decoy_after = [k - start for k in range(start, len(zs)) if estimates[k] is not None
+                   and not np.allclose(estimates[k].x, truth, atol=0.05)]
+    assert decoy_after == [0]  # the truth's first step: seen once, like the decoy
+    assert all(est is not None and np.allclose(est.x, truth, atol=0.05)
+               for est in estimates[start + W + 3:])
+
+
 def test_without_re_checking_nothing_is_outvoted():
     """switch_after = None (the released code) never re-checks, whatever switch_support says:
     the early decoy stays."""
