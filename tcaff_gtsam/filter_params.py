@@ -129,9 +129,10 @@ class TCAFFParams(_ByValue):
             evidence in the window than that path does (and at least `min_distinct`): the
             robots' frames have likely jumped and the old estimate would be wrong until the
             switch, W + `switch_after` steps later. With `switch_support`, also while a
-            hypothesis it gates out is seen that many more times in the window (the
-            outvoting streak builds), confirmed this step or not. Only at steps given object
-            ids (`lookalike_share`).
+            hypothesis it gates out has been seen that many more times than the main path
+            since its root (the steps since it was first seen), confirmed this step or not.
+            Only at steps given object ids (`lookalike_share`). With `recall_for`, also at
+            any step that sees a dormant hypothesis again (`TCAFF` docs, recall).
         lookalike_share: the distinct-evidence rules (`min_distinct`, `switch_stale`,
             `withhold_contested`, `switch_support`) read object ids only at steps whose two
             maps are of look-alikes: `PairwiseAligner` gives ids when at least this share of
