@@ -198,9 +198,10 @@ class FrameAlignerParams(_ByValue):
             puts them: 0.25 m at 20 s becomes 0.27 m, at 150 s 0.35 m. 0: epsilon as given.
         repeat_inflation: covariance="calibrated": rho of R = R_s + rho R_s Q^-1 R_s, where
             R_s is one registration's covariance and Q the filter's drift per step. With rho
-            = 1 an identity-motion Kalman filter fed the same registration every step settles
-            at P = R_s; lower values let consecutive registrations share only part of their
-            error. 0: no inflation.
+            = 1 (default) an identity-motion Kalman filter fed the same registration every
+            step settles at P = R_s: consecutive registrations of mostly the same objects
+            share nearly all their error (docs/tcaff.md, "One registration's error, not
+            less"). Lower values let them share only part of it. 0: no inflation.
         repeat_Q: covariance="calibrated": the (3, 3) Q of that inflation, the drift per step
             of the filter the candidates feed; None: that filter's Q where the aligner knows
             it (`PairwiseAligner`, `pairwise.feeding`), else TCAFF's default Q.
@@ -292,7 +293,7 @@ class FrameAlignerParams(_ByValue):
     residual_prior_dof: float = 4.0
     map_drift: tuple[float, float] = (0.01, math.radians(0.25))
     epsilon_drift: float = 2.0
-    repeat_inflation: float = 0.5
+    repeat_inflation: float = 1.0
     repeat_Q: np.ndarray | None = None
     min_inliers: int | None = None
     inlier_radius: float = 0.3

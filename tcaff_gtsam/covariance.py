@@ -114,7 +114,7 @@ def _residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weight
 def calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
                           kappa: float, noise_prior: float = 0.05, prior_dof: float = 4.0,
                           map_drift: tuple[float, float] = (0.01, math.radians(0.25)),
-                          repeat_inflation: float = 0.5, Q: np.ndarray | None = None
+                          repeat_inflation: float = 1.0, Q: np.ndarray | None = None
                           ) -> np.ndarray:
     """Covariance (3, 3) of (x [m], y [m], theta [rad]) of T_oi_oj registered from two maps,
     for a filter that takes a registration of (mostly) the same objects every step.

@@ -7,6 +7,7 @@ check against the library's `FrameAlignerParams`, whose defaults are the options
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -58,8 +59,6 @@ _ALIGNER_OPTIONS = {"kappa": "--kappa", "dim": "--dim", "n_solutions": "--soluti
 
 def _aligner_params(kappa: float, dim: int, solutions: int, min_associations: int,
                     covariance: str, seed: int) -> FrameAlignerParams:
-    from dataclasses import replace
-
     from tcaff_gtsam.params import ParameterError
 
     try:
@@ -86,14 +85,19 @@ def align_maps(
     min_associations: Annotated[int, typer.Option(
         help="Fewest associations kept.")] = _ALIGNER.min_associations,
     covariance: Annotated[str, typer.Option(
-        help="'constant' (the original's R) or 'residual' (from the registration).")
+        help="'calibrated' (the residuals pooled with a prior, and the map drift over "
+             "kappa), 'residual' (the registration's alone) or 'constant' (the original's R).")
     ] = _ALIGNER.covariance,
     seed: Annotated[int, typer.Option(
         help="Seed of CLIPPER's start vector.")] = _ALIGNER.clipper.seed,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")
                        ] = False,
 ) -> None:
-    """Print the candidate alignments T_oi_oj (other's odometry frame into the ego's)."""
+    """Print the candidate alignments T_oi_oj (other's odometry frame into the ego's).
+
+    Each comes with its covariance; 'calibrated' gives that of this one registration (a
+    filter that registers the same objects every step inflates it,
+    `FrameAlignerParams.repeat_inflation`; here nothing follows)."""
     import json
 
     import numpy as np
@@ -104,6 +108,7 @@ def align_maps(
     if now is not None and not math.isfinite(now):
         _refuse("--now", now, "must be a finite number of seconds")
     params = _aligner_params(kappa, dim, solutions, min_associations, covariance, seed)
+    params = replace(params, repeat_inflation=0.0)  # one registration, no repeats to average
     ego_map, other_map = ObjectMap.load(ego), ObjectMap.load(other)
     if now is None:
         stamps = np.r_[ego_map.last_seen, other_map.last_seen]

@@ -182,6 +182,24 @@ def test_make_maps_then_align_maps_finds_the_truth(tmp_path):
     assert "candidate alignments" in table.output
 
 
+def test_align_maps_gives_one_registrations_covariance(tmp_path):
+    """No filter follows the command, so its R is the registration's own (repeat_inflation
+    = 0), which is smaller than the R the aligner gives a filter."""
+    from tcaff_gtsam import FrameAligner, FrameAlignerParams
+    from tcaff_gtsam.object_map import ObjectMap
+
+    assert runner.invoke(app, ["make-maps", str(tmp_path), "--seed", "3"]).exit_code == 0
+    ego, other = ObjectMap.load(tmp_path / "ego.npz"), ObjectMap.load(tmp_path / "other.npz")
+    result = runner.invoke(app, ["align-maps", str(tmp_path / "ego.npz"),
+                                 str(tmp_path / "other.npz"), "--json"])
+    R = np.array(json.loads(result.output)[0]["R"])
+    now = float(max(ego.last_seen.max(), other.last_seen.max()))
+    single = FrameAligner(FrameAlignerParams(repeat_inflation=0.0)).measurements(ego, other, now)
+    filtered = FrameAligner(FrameAlignerParams()).measurements(ego, other, now)
+    np.testing.assert_allclose(R, single[0].R, rtol=1e-9)
+    assert np.all(np.linalg.eigvalsh(filtered[0].R - R) > 0)
+
+
 def test_missing_map_is_a_clear_error(tmp_path, tcaff_main):
     done = tcaff_main("align-maps", str(tmp_path / "nope.npz"), str(tmp_path / "nope2.npz"))
     assert done.returncode == 2
