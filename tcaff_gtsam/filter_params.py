@@ -132,7 +132,7 @@ class TCAFFParams(_ByValue):
             hypothesis it gates out has been seen that many more times than the main path
             since its root (the steps since it was first seen), confirmed this step or not.
             Only at steps given object ids (`lookalike_share`). With `recall_for`, also at
-            any step that sees a dormant hypothesis again (`TCAFF` docs, recall).
+            any step that sees a dormant hypothesis again (`recall_for`).
         lookalike_share: the distinct-evidence rules (`min_distinct`, `switch_stale`,
             `withhold_contested`, `switch_support`) read object ids only at steps whose two
             maps are of look-alikes: `PairwiseAligner` gives ids when at least this share of
@@ -170,13 +170,15 @@ class TCAFFParams(_ByValue):
         early_measurements: measurements (at different steps, the seed's included) a path
             needs before it is accepted early: at least two, so the hypothesis has been
             seen consistent over time.
-        recall_for: steps after a main tree is dropped during which its last estimate
-            stays dormant: an exploring hypothesis within its gate (its covariance grown by
-            Q each step) that has taken `early_measurements` measurements, the latest at this
-            step, recalls it as the main hypothesis with its id and history, unless an open
-            hypothesis inconsistent with it holds more evidence. With the default Q, 100
-            steps grow its standard deviation by 1 m and 5 degrees, the bounds of a correct
-            alignment. None: a dropped hypothesis is forgotten.
+        recall_for: steps after a main tree is dropped (or replaced by a rival while its
+            window held fewer than `early_measurements` measurements) during which its last
+            estimate stays dormant: an exploring hypothesis within its gate (its covariance
+            grown by Q each step) that has taken `early_measurements` measurements, the
+            latest at this step, recalls it as the main hypothesis with its id and history,
+            unless an open hypothesis inconsistent with it holds more evidence. From the
+            first such measurement, a main tree beside it is withheld (`withhold_contested`).
+            With the default Q, 100 steps grow its standard deviation by 1 m and 5 degrees,
+            the bounds of a correct alignment. None: a dropped hypothesis is forgotten.
         neutral_empty_steps: a step at which the aligner gave no measurement at all costs no
             hypothesis a missed measurement (-log p_NM): the maps shared too few objects for
             any candidate, which says nothing about which alignment is right, and a

@@ -240,7 +240,8 @@ class TCAFF(FilterState):
         # recallable: it has history, the newcomer only its window
         if (self._main is not None and self._dormant is not None
                 and self._consistent(self._main_best(), self._dormant)[0]):
-            self._dormant = None
+            # the main tree now is the dormant hypothesis (a switch to it): nothing to reclaim
+            self._dormant, self._reclaiming = None, False
         self._estimate = self._main_estimate()
         if self._estimate is not None:
             self._peak = max(self._peak, self._estimate.n_measurements)
@@ -315,7 +316,7 @@ class TCAFF(FilterState):
         explore = self._explore
         if len(explore) == 0:
             return
-        age = np.count_nonzero(explore.choice >= NO_MEASUREMENT, axis=1) - 1
+        age = self._steps_since_root(explore.choice) - 1
         score = explore.cost - self._object_support(explore.choice)
         bound = score + (prm.window - age) * self._model.no_measurement_cost
         ready = (bound < prm.tau) & (self._taken(explore.choice) >= prm.early_measurements)
@@ -395,11 +396,12 @@ class TCAFF(FilterState):
         taken = self._taken(explore.choice)
         agree = self._consistent(explore, dormant)
         confirmed = agree & (taken >= prm.early_measurements)
+        seen_now = explore.choice[:, -1] >= 0
         # seen again, even once, the dormant hypothesis contests the main one: a decoy that
         # displaced it in its gap is not reported on the truth's own return
-        if self._main is not None and np.any(confirmed | (agree & (explore.choice[:, -1] >= 0))):
+        if self._main is not None and np.any(confirmed | (agree & seen_now)):
             self._reclaiming = True
-        fresh = np.flatnonzero(confirmed & (explore.choice[:, -1] >= 0))
+        fresh = np.flatnonzero(confirmed & seen_now)
         if fresh.size == 0:
             return
         best = int(fresh[np.lexsort((explore.cost[fresh], -taken[fresh]))[0]])
@@ -449,7 +451,7 @@ class TCAFF(FilterState):
             rival[rival] = [self._distinct_enough(complete, r) for r in np.flatnonzero(rival)]
         if prm.switch_support is not None:
             # ... but one seen less often than a rival is, confirmed or not
-            need = self._outvote_need(m)
+            need = self._outvote_need(m, prm.window)
             for r in np.flatnonzero(inconsistent & ~rival & (cost < main_cost[m])):
                 rival[r] = (self._support(complete.choice[r]) >= need
                             and self._distinct_enough(complete, r))
@@ -502,8 +504,7 @@ class TCAFF(FilterState):
         if self.params.switch_support is not None:
             # over the steps since the rival was first seen: a rival seen more often than the
             # main path since then is contested before its window fills
-            need = self._outvote_need(m, np.count_nonzero(explore.choice >= NO_MEASUREMENT,
-                                                          axis=1))
+            need = self._outvote_need(m, self._steps_since_root(explore.choice))
             if any(self._support(explore.choice[r]) >= need[r]
                    for r in self._rivals_of(m, taken >= need)):
                 return True
@@ -521,18 +522,21 @@ class TCAFF(FilterState):
             return rivals
         return rivals[~self._consistent(self._explore.take(rivals), self._main.take([m]))]
 
-    def _outvote_need(self, m: int, span: np.ndarray | None = None):
-        """How often a rival must be seen in the window (`_support`) to outvote the main
-        tree's leaf m: `switch_support` more times than m's path took a measurement (the main
-        path's measurements count as they are: a true alignment re-matching the same objects
-        while the robots stand still is not to be outvoted for it). An int over the window;
-        with `span` ((L,) ints in [1, W], each rival's steps since its root), (L,) ints over
-        each rival's last `span` steps."""
+    def _outvote_need(self, m: int, span):
+        """How often a rival must be seen (`_support`) over its last `span` steps (an int, or
+        (L,) ints, one per rival; in [1, W]: W for a complete tree, its steps since its root
+        for an open one) to outvote the main tree's leaf m: `switch_support` more times than
+        m's path took a measurement over the same steps (the main path's measurements count
+        as they are: a true alignment re-matching the same objects while the robots stand
+        still is not to be outvoted for it). An int, or (L,) ints, like `span`."""
         path, prm = self._main.choice[m], self.params
-        if span is None:
-            return self._taken(path) + prm.switch_support
         seen = np.cumsum(path[::-1][:prm.window] >= 0)  # in the last 1 .. W steps
         return seen[np.clip(span, 1, prm.window) - 1] + prm.switch_support
+
+    @staticmethod
+    def _steps_since_root(choice: np.ndarray) -> np.ndarray:
+        """(L,) steps of paths (L, W + 2) from their root's step to this one, both counted."""
+        return np.count_nonzero(choice >= NO_MEASUREMENT, axis=1)
 
     def _support(self, path: np.ndarray) -> int:
         """How often a rival's hypothesis was seen in the window: its measurements, or one

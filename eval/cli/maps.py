@@ -62,9 +62,10 @@ def _aligner_params(kappa: float, dim: int, solutions: int, min_associations: in
     from tcaff_gtsam.params import ParameterError
 
     try:
+        # one registration, no filter after it: no inflation for repeated registrations
         return replace(_ALIGNER, kappa=kappa, dim=dim, n_solutions=solutions,
                        min_associations=min_associations, covariance=covariance,
-                       clipper=replace(_ALIGNER.clipper, seed=seed))
+                       clipper=replace(_ALIGNER.clipper, seed=seed), repeat_inflation=0.0)
     except ParameterError as exc:
         if exc.name not in _ALIGNER_OPTIONS:
             raise
@@ -108,7 +109,6 @@ def align_maps(
     if now is not None and not math.isfinite(now):
         _refuse("--now", now, "must be a finite number of seconds")
     params = _aligner_params(kappa, dim, solutions, min_associations, covariance, seed)
-    params = replace(params, repeat_inflation=0.0)  # one registration, no repeats to average
     ego_map, other_map = ObjectMap.load(ego), ObjectMap.load(other)
     if now is None:
         stamps = np.r_[ego_map.last_seen, other_map.last_seen]

@@ -233,12 +233,47 @@ def test_a_hypothesis_displaced_after_one_stray_sighting_in_its_gap_is_still_rec
     window back, and the newcomer would be reported wrong for W + 2 steps more."""
     stream, zs, back = taken_over_in_the_gap(0)
     zs[stray] = np.vstack([zs[stray], stream.truth[stray][None]])
-    estimates = feed(TCAFF(), zs)
+    filt = TCAFF()
+    estimates = feed(filt, zs[:back])
+    assert filt.hypothesis == 2 and filt._dormant is not None  # outvoted, and kept
+    estimates += feed(filt, zs[back:])
     wrong = [t for t in range(30, len(zs)) if estimates[t] is not None
              and not correct(estimates[t], stream.truth[t])]
     assert wrong and max(wrong) < back
     assert all(correct(est, stream.truth[back + t])
                for t, est in enumerate(estimates[back:]) if est is not None)
+
+
+def test_a_switch_to_the_reclaiming_hypothesis_leaves_nothing_to_reclaim():
+    """The truth, displaced in its gap by a decoy and kept dormant, returns; while it is being
+    confirmed the decoy is withheld, and the switch that makes it the main tree (a hypothesis
+    consistent with the dormant one) ends the reclaiming: the truth is reported at once, and
+    the state at every step loads back (reclaiming without a dormant hypothesis is refused)."""
+    rng = np.random.default_rng(46)
+    decoy = np.array([-2.0, 3.0, 2.5])
+    decoy_noise, miss, lead = rng.uniform(0.05, 0.6), rng.uniform(0.05, 0.4), rng.uniform(0.3, 0.6)
+    filt, switched = TCAFF(), None
+    for t in range(113):
+        zs, evidence = [], []
+        if t < 20 and rng.random() < lead:
+            zs.append(TRUTH)
+            evidence.append(np.array([[1000 + t, 2000 + t]]))
+        if t >= 70:
+            zs.append(decoy + rng.normal(0, [decoy_noise, decoy_noise, decoy_noise / 10]))
+            ids = 9 if t > 95 else 5000 + t  # a look-alike re-matched once the truth is near
+            evidence.append(np.array([[ids, ids if t > 95 else 6000 + t]]))
+        if t >= 100 and rng.random() > miss:
+            zs.append(TRUTH + rng.normal(0, [0.02, 0.02, 0.002]))
+            evidence.append(np.array([[3000 + t, 4000 + t]]))
+        before = filt.hypothesis
+        est = filt.update(np.array(zs).reshape(-1, 3), np.broadcast_to(R, (len(zs), 3, 3)),
+                          evidence)
+        TCAFF().load_state_dict(filt.state_dict())
+        if filt.hypothesis != before and correct(filt.held, TRUTH):
+            switched = (t, est)
+    assert switched is not None, "the truth takes over"
+    t, est = switched
+    assert est is not None and correct(est, TRUTH), f"withheld at step {t}"
 
 
 def test_a_hypothesis_contradicting_the_dormant_one_waits_for_the_window():

@@ -208,14 +208,16 @@ def test_an_outvoted_decoy_is_withheld_while_the_switch_is_confirmed():
     assert np.allclose(runs[False][first_true].x, truth, atol=0.05)
 
 
-def test_a_rival_seen_more_often_since_it_appeared_is_contested_before_its_window_fills():
+@pytest.mark.parametrize("start, reported", [(10, [0]), (12, [0, 1])])
+def test_a_rival_seen_more_often_since_it_appeared_is_contested_before_its_window_fills(
+        start, reported):
     """A decoy seen alone at every step, then at every fourth step while the truth comes at
-    every step: over the steps since the truth first came it is seen more often, so the
-    decoy is withheld at once, not only once the truth's count over the whole window passes
-    the decoy's (W steps in which the decoy was seen at every step)."""
+    every step: the decoy is withheld as soon as the truth has been seen `switch_support`
+    more times than the decoy since the truth first came (from the truth's second step, or
+    its third when the decoy is seen at its first), not once the truth's count passes the
+    decoy's over the whole window, which holds the decoy's lead (4 steps later)."""
     W = TCAFFParams().window
     truth, decoy = np.array([4.0, -1.0, 0.7]), np.array([-2.0, 3.0, 2.5])
-    start = W + 2
     zs, evidence = [], []
     for t in range(40):
         z, ev = [], []
@@ -233,7 +235,8 @@ def test_a_rival_seen_more_often_since_it_appeared_is_contested_before_its_windo
     assert np.allclose(estimates[start - 1].x, decoy, atol=1e-6)
     decoy_after = [k - start for k in range(start, len(zs)) if estimates[k] is not None
                    and not np.allclose(estimates[k].x, truth, atol=0.05)]
-    assert decoy_after == [0]  # the truth's first step: seen once, like the decoy
+    # a rival seen once is no evidence to withhold on (min_distinct, switch_support)
+    assert decoy_after == reported
     assert all(est is not None and np.allclose(est.x, truth, atol=0.05)
                for est in estimates[start + W + 3:])
 
