@@ -131,8 +131,8 @@ class TCAFFParams(_ByValue):
             switch, W + `switch_after` steps later. With `switch_support`, also while a
             hypothesis it gates out has been seen that many more times than the main path
             since its root (the steps since it was first seen), confirmed this step or not.
-            Only at steps given object ids (`lookalike_share`). With `recall_for`, also at
-            any step that sees a dormant hypothesis again (`recall_for`).
+            Only at steps given object ids (`lookalike_share`). With `recall_for`, also
+            within W steps of a measurement of a dormant hypothesis (`recall_for`).
         lookalike_share: the distinct-evidence rules (`min_distinct`, `switch_stale`,
             `withhold_contested`, `switch_support`) read object ids only at steps whose two
             maps are of look-alikes: `PairwiseAligner` gives ids when at least this share of
@@ -175,8 +175,9 @@ class TCAFFParams(_ByValue):
             estimate stays dormant: an exploring hypothesis within its gate (its covariance
             grown by Q each step) that has taken `early_measurements` measurements, the
             latest at this step, recalls it as the main hypothesis with its id and history,
-            unless an open hypothesis inconsistent with it holds more evidence. From the
-            first such measurement, a main tree beside it is withheld (`withhold_contested`).
+            unless an open hypothesis inconsistent with it holds more evidence. Within W
+            steps of any such measurement a main tree beside it is withheld
+            (`withhold_contested`), from the first.
             With the default Q, 100 steps grow its standard deviation by 1 m and 5 degrees,
             the bounds of a correct alignment. None: a dropped hypothesis is forgotten.
         neutral_empty_steps: a step at which the aligner gave no measurement at all costs no

@@ -388,20 +388,20 @@ class TCAFF(FilterState):
         its window held, is at least the main path's measurements in the window; until then
         the main tree is contested (`_contested`). The dormant state is fused with the
         confirming hypothesis's, which goes on as the main tree's leaf: under the dormant
-        id, or a new one when it displaces a main tree. A measurement of the dormant
-        hypothesis at this step contests the main tree too, before it is confirmed."""
+        id, or a new one when it displaces a main tree. Any open hypothesis consistent with
+        the dormant one (a measurement of it in the last W steps) contests the main tree,
+        before it is confirmed."""
         prm, dormant, explore = self.params, self._dormant, self._explore
         if len(explore) == 0:
             return
         taken = self._taken(explore.choice)
         agree = self._consistent(explore, dormant)
-        confirmed = agree & (taken >= prm.early_measurements)
-        seen_now = explore.choice[:, -1] >= 0
-        # seen again, even once, the dormant hypothesis contests the main one: a decoy that
-        # displaced it in its gap is not reported on the truth's own return
-        if self._main is not None and np.any(confirmed | (agree & seen_now)):
+        # seen again, even once in the last W steps, the dormant hypothesis contests the main
+        # one: a decoy that displaced it in its gap is not reported on the truth's return
+        if self._main is not None and agree.any():
             self._reclaiming = True
-        fresh = np.flatnonzero(confirmed & seen_now)
+        confirmed = agree & (taken >= prm.early_measurements)
+        fresh = np.flatnonzero(confirmed & (explore.choice[:, -1] >= 0))
         if fresh.size == 0:
             return
         best = int(fresh[np.lexsort((explore.cost[fresh], -taken[fresh]))[0]])
@@ -491,8 +491,8 @@ class TCAFF(FilterState):
         main tree's best path outvotes it over the steps since the rival's root (seen
         `_outvote_need` times by `_support`, with `switch_support`), or that path took no
         measurement this step while the rival holds more distinct evidence in the window (and
-        at least `min_distinct` pieces), or the dormant hypothesis was seen at this step or is
-        being confirmed against it (`_recall`)."""
+        at least `min_distinct` pieces), or the dormant hypothesis was seen in the last W
+        steps (`_recall`)."""
         if self._reclaiming:
             return True
         main, explore = self._main, self._explore

@@ -225,6 +225,20 @@ def test_a_hypothesis_displaced_in_its_gap_is_recalled_over_the_newcomer(seed):
     assert wrong_forgetful > len(wrong_after)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_the_returning_truth_contests_the_newcomer_through_a_missed_step(seed):
+    """The truth returns, is missed at its second step, then seen again: the newcomer that
+    displaced it stays withheld through the missed step (a measurement of the dormant
+    hypothesis in the last W steps contests it, not only one at this step)."""
+    stream, zs, back = taken_over_in_the_gap(seed)
+    wrong = stream.truth + np.array([5.0, -3.0, 2.0])
+    zs[back + 1] = wrong[back + 1][None]
+    estimates = feed(TCAFF(), zs)
+    assert not [t for t in range(back, len(zs))
+                if estimates[t] is not None and not correct(estimates[t], stream.truth[t])]
+    assert correct(estimates[-1], stream.truth[-1])
+
+
 @pytest.mark.parametrize("stray", [55, 59])
 def test_a_hypothesis_displaced_after_one_stray_sighting_in_its_gap_is_still_recalled(stray):
     """One sighting of the truth in its gap, while the wrong alignment is seen alone, is less
