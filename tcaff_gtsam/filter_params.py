@@ -170,16 +170,16 @@ class TCAFFParams(_ByValue):
         early_measurements: measurements (at different steps, the seed's included) a path
             needs before it is accepted early: at least two, so the hypothesis has been
             seen consistent over time.
-        recall_for: steps after a main tree is dropped (or replaced by a rival while its
-            window held fewer than `early_measurements` measurements) during which its last
-            estimate stays dormant: an exploring hypothesis within its gate (its covariance
-            grown by Q each step) that has taken `early_measurements` measurements, the
-            latest at this step, recalls it as the main hypothesis with its id and history,
-            unless an open hypothesis inconsistent with it holds more evidence. Within W
-            steps of any such measurement a main tree beside it is withheld
-            (`withhold_contested`), from the first.
-            With the default Q, 100 steps grow its standard deviation by 1 m and 5 degrees,
-            the bounds of a correct alignment. None: a dropped hypothesis is forgotten.
+        recall_for: steps after a main tree is dropped (or replaced by a rival after W
+            steps without a measurement) during which its last estimate stays dormant: an
+            exploring hypothesis within its gate (its covariance grown by Q each step) that
+            has taken `early_measurements` measurements, the latest at this step, recalls it
+            as the main hypothesis with its id and history, unless an open hypothesis
+            inconsistent with it holds more evidence. Within W steps of any such
+            measurement, from the first, a main tree beside it is withheld
+            (`withhold_contested`). With the default Q, 100 steps grow its standard deviation
+            by 1 m and 5 degrees, the bounds of a correct alignment. None: a dropped
+            hypothesis is forgotten.
         neutral_empty_steps: a step at which the aligner gave no measurement at all costs no
             hypothesis a missed measurement (-log p_NM): the maps shared too few objects for
             any candidate, which says nothing about which alignment is right, and a

@@ -466,10 +466,8 @@ class TCAFF(FilterState):
         if self._switch_streak >= prm.switch_after:
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
-            if (prm.recall_for is not None
-                    and self._taken(self._main.choice[m]) < prm.early_measurements):
-                # left in a gap of its measurements (or with one stray measurement in the
-                # window, less than a recall needs), it is recallable as a dropped one is
+            if prm.recall_for is not None and self._main.since[m] >= prm.window:
+                # left in a gap of its measurements, it is recallable as a dropped one is
                 self._keep_dormant(self._main.take([m]))
             self._accept(complete, best)
 

@@ -239,25 +239,6 @@ def test_the_returning_truth_contests_the_newcomer_through_a_missed_step(seed):
     assert correct(estimates[-1], stream.truth[-1])
 
 
-@pytest.mark.parametrize("stray", [55, 59])
-def test_a_hypothesis_displaced_after_one_stray_sighting_in_its_gap_is_still_recalled(stray):
-    """One sighting of the truth in its gap, while the wrong alignment is seen alone, is less
-    than a recall needs: the truth it leaves is still kept dormant when the newcomer outvotes
-    it, and recalled on its return. Kept only after W silent steps, it would have to win the
-    window back, and the newcomer would be reported wrong for W + 2 steps more."""
-    stream, zs, back = taken_over_in_the_gap(0)
-    zs[stray] = np.vstack([zs[stray], stream.truth[stray][None]])
-    filt = TCAFF()
-    estimates = feed(filt, zs[:back])
-    assert filt.hypothesis == 2 and filt._dormant is not None  # outvoted, and kept
-    estimates += feed(filt, zs[back:])
-    wrong = [t for t in range(30, len(zs)) if estimates[t] is not None
-             and not correct(estimates[t], stream.truth[t])]
-    assert wrong and max(wrong) < back
-    assert all(correct(est, stream.truth[back + t])
-               for t, est in enumerate(estimates[back:]) if est is not None)
-
-
 def test_a_switch_to_the_reclaiming_hypothesis_leaves_nothing_to_reclaim():
     """The truth, displaced in its gap by a decoy and kept dormant, returns; while it is being
     confirmed the decoy is withheld, and the switch that makes it the main tree (a hypothesis

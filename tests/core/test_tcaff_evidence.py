@@ -241,6 +241,23 @@ def test_a_rival_seen_more_often_since_it_appeared_is_contested_before_its_windo
                for est in estimates[start + W + 3:])
 
 
+def test_an_outvoted_decoy_seen_now_and_then_is_not_recalled_over_the_truth():
+    """A decoy accepted while seen alone, then outvoted by the truth while it is still seen
+    now and then (on this stream with at most one measurement in its window at the switch),
+    is not kept dormant: the record of its lone phase (W measurements in a window) would
+    recall it over the truth at its next sightings, again and again. Only a hypothesis
+    silent for W steps is kept."""
+    stream = decoy_stream(np.random.default_rng(119))
+    estimates = run_with_evidence(TCAFF(), stream)
+    truth = stream.truth
+    ok = [est is not None and errors([est], [x])[0, 0] < 1.0 and errors([est], [x])[0, 1] < 5.0
+          for est, x in zip(estimates, truth, strict=True)]
+    first = ok.index(True)
+    parted = 80 - 10  # the robots part before the truth jumps (decoy_stream's defaults)
+    wrong = [t for t in range(first, parted) if estimates[t] is not None and not ok[t]]
+    assert first < 50 and wrong == []
+
+
 def test_without_re_checking_nothing_is_outvoted():
     """switch_after = None (the released code) never re-checks, whatever switch_support says:
     the early decoy stays."""
