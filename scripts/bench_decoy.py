@@ -14,7 +14,11 @@ decoy_stream`). For each preset, over the seeds:
 - flaps: hypothesis changes after the first correct estimate, not counting the jump's (steps
   without an estimate are skipped).
 
-    python scripts/bench_decoy.py [--seeds 20] [--window 8]
+    python scripts/bench_decoy.py [--seeds 20] [--window 8] [--first-seed 0] [--other-settings]
+
+--other-settings runs the default preset on stream settings the table above does not use
+(other rates, lone spans and gaps; `OTHER_SETTINGS`), with --first-seed 100 a check on streams
+no rule was designed on.
 """
 
 from __future__ import annotations
@@ -67,16 +71,34 @@ STREAMS = {
     "early": {"steps": 200, **EARLY},
     "held": {"steps": 100, "lead": 20, "lead_gap": 10, **EARLY},
 }
+_MOVING = {"noise": EARLY["noise"], "jump_at": None, "decoy_moves": True}
+#: (name, decoy_stream's arguments): truth and decoy rates, lone spans and gaps beside STREAMS'
+OTHER_SETTINGS = {
+    "early 0.6 / 0.5, alone 20": {"steps": 200, "decoy_alone": 20, "p_truth": 0.6,
+                                  "p_decoy": 0.5, "outliers": (0, 3), **_MOVING},
+    "early 0.9 / 0.3, alone 8": {"steps": 200, "decoy_alone": 8, "p_truth": 0.9,
+                                 "p_decoy": 0.3, "outliers": (0, 2), **_MOVING},
+    "held 0.75 / 0.5, gap 15": {"steps": 120, "decoy_alone": 12, "p_truth": 0.75,
+                                "p_decoy": 0.5, "outliers": (0, 3), "lead": 25,
+                                "lead_gap": 15, **_MOVING},
+    "held 0.6 / 0.4, gap 5, alone 16": {"steps": 120, "decoy_alone": 16, "p_truth": 0.6,
+                                        "p_decoy": 0.4, "outliers": (0, 3), "lead": 30,
+                                        "lead_gap": 5, **_MOVING},
+    "held 0.9 / 0.6, gap 20, alone 8": {"steps": 120, "decoy_alone": 8, "p_truth": 0.9,
+                                        "p_decoy": 0.6, "outliers": (0, 2), "lead": 20,
+                                        "lead_gap": 20, **_MOVING},
+    "late 0.7 / 0.5, alone 20": {"p_truth": 0.7, "p_decoy": 0.5, "decoy_alone": 20},
+}
 
 
-def run(params: TCAFFParams, kind: str, seeds: int) -> dict:
-    """The numbers of one preset over `seeds` streams of one kind."""
+def run(params: TCAFFParams, settings: dict, seeds: int, first_seed: int = 0) -> dict:
+    """The numbers of one preset over `seeds` streams of `decoy_stream(**settings)`."""
     R = constant_alignment_covariance()
     limits = Thresholds()
     n_est = n_wrong = flaps = 0
     recovery, jump_recovery, available = [], [], []
-    for seed in range(seeds):
-        stream = decoy_stream(np.random.default_rng(seed), **STREAMS[kind])
+    for seed in range(first_seed, first_seed + seeds):
+        stream = decoy_stream(np.random.default_rng(seed), **settings)
         tcaff = TCAFF(params)
         x = np.full((len(stream), 3), np.nan)
         hyp = np.zeros(len(stream), np.int64)
@@ -108,14 +130,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--window", type=int, default=8, help="W")
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--other-settings", action="store_true",
+                        help="the default preset on OTHER_SETTINGS' streams")
     args = parser.parse_args()
-    print(f"{'streams':7} {'preset':30} {'false acc.':>10} {'available':>10} {'recovery':>16} "
-          f"{'jump recovery':>16} {'flaps':>6}")
-    for kind in STREAMS:
-        for name, params in PRESETS.items():
-            r = run(replace(params, window=args.window), kind, args.seeds)
-            print(f"{kind:7} {name:30} {r['false']:>8.1f} % {r['available']:>10.3f} "
-                  f"{r['recovery']:>16} {r['jump']:>16} {r['flaps']:>6}")
+    if args.other_settings:
+        rows = [(name, "default", settings, PRESETS["default"])
+                for name, settings in OTHER_SETTINGS.items()]
+    else:
+        rows = [(kind, name, STREAMS[kind], params) for kind in STREAMS
+                for name, params in PRESETS.items()]
+    width = max(len(row[0]) for row in rows)
+    print(f"{'streams':{width}} {'preset':30} {'false acc.':>10} {'available':>10} "
+          f"{'recovery':>16} {'jump recovery':>16} {'flaps':>6}")
+    for kind, name, settings, params in rows:
+        r = run(replace(params, window=args.window), settings, args.seeds, args.first_seed)
+        print(f"{kind:{width}} {name:30} {r['false']:>8.1f} % {r['available']:>10.3f} "
+              f"{r['recovery']:>16} {r['jump']:>16} {r['flaps']:>6}")
 
 
 if __name__ == "__main__":
