@@ -123,6 +123,11 @@ class Thresholds:
             raise ConfigError(f"Thresholds.judge_hold: expected a finite number of seconds "
                               f">= 0, got {hold!r}")
 
+    def correct(self, err: np.ndarray) -> np.ndarray:
+        """(...,) bool: errors (..., 2) of `step_errors` within both thresholds (NaN errors,
+        steps without an estimate, are not)."""
+        return (err[..., 0] <= self.translation) & (err[..., 1] <= self.heading)
+
 
 def _as_se2_stack(T, name: str, n: int | None = None) -> np.ndarray:
     """Check that T is a finite (n, 3, 3) stack of SE(2) matrices; return it as a float array."""
@@ -416,11 +421,6 @@ def relative_pose_errors(trace: PairTrace) -> np.ndarray:
     return err
 
 
-def _within(err: np.ndarray, thresholds: Thresholds) -> np.ndarray:
-    """(...,) bool: errors (..., 2) within both thresholds (NaN errors are not)."""
-    return (err[..., 0] <= thresholds.translation) & (err[..., 1] <= thresholds.heading)
-
-
 def perfect_judge(trace: PairTrace, thresholds: Thresholds | None = None) -> np.ndarray:
     """What a perfect judge of the pair's candidates holds at each step.
 
@@ -448,7 +448,7 @@ def perfect_judge(trace: PairTrace, thresholds: Thresholds | None = None) -> np.
     if steps.size:
         err = se2_error(trace.T_true[steps], se2_from_params(z))
         nearness = np.maximum(err[:, 0] / thresholds.translation, err[:, 1] / thresholds.heading)
-        correct = np.flatnonzero(_within(err, thresholds))
+        correct = np.flatnonzero(thresholds.correct(err))
         # per step, its correct candidate nearest the truth: the first of each step in this order
         order = correct[np.lexsort((nearness[correct], steps[correct]))]
         took, first = np.unique(steps[order], return_index=True)
@@ -461,7 +461,7 @@ def perfect_judge(trace: PairTrace, thresholds: Thresholds | None = None) -> np.
     if held.any():
         err[held] = se2_error(trace.T_true[held], se2_from_params(kept[held]))
     fresh = trace.times - trace.times[np.maximum(last_take, 0)] <= thresholds.judge_hold
-    good = held & _within(err, thresholds) & fresh
+    good = held & thresholds.correct(err) & fresh
     # a held candidate that failed at one step stays dropped until the next take
     last_bad = np.maximum.accumulate(np.where(good, -1, index))
     holding = held & (last_bad < last_take)
@@ -627,7 +627,7 @@ def pooled_metrics(traces: Sequence[PairTrace], thresholds: Thresholds | None = 
         has = trace.has_estimate
         err = _errors(trace.T_true, trace.estimate, has)
         # NaN compares False, so steps without an estimate are never correct
-        correct = _within(err, thresholds)
+        correct = thresholds.correct(err)
         errs.append(err[has])
         if trace.covariance is not None:
             neeses.append(_nees(trace.T_true, trace.estimate, trace.covariance, has)[has])

@@ -108,7 +108,7 @@ def run(params: TCAFFParams, settings: dict, seeds: int, first_seed: int = 0) ->
                 x[t], hyp[t] = est.x, est.hypothesis
         err = step_errors(se2_from_params(stream.truth), x)  # NaN rows: no estimate
         has = ~np.isnan(err[:, 0])
-        correct = has & (err[:, 0] <= limits.translation) & (err[:, 1] <= limits.heading)
+        correct = limits.correct(err)  # NaN rows (no estimate) are not
         n_est += int(has.sum())
         n_wrong += int((has & ~correct).sum())
         steps = steps_to_correct(correct, stream.truth_from)

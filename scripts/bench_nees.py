@@ -79,13 +79,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from tcaff_gtsam.eval.metrics import NEES_95, NEES_997, Thresholds
+from tcaff_gtsam.eval.metrics import NEES_95, NEES_997, Thresholds, step_errors, step_nees
 
 from tcaff_gtsam import FrameAlignerParams, PairwiseAligner, TCAFFParams
 from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 
-#: beyond either an estimate is wrong: the evaluation's false-accept thresholds (1 m, 5 deg)
-WRONG_M, WRONG_RAD = Thresholds().translation, Thresholds().heading
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MRCLAM = SHARED / "mrclam" / "MRCLAM_Dataset6"
 KITCHEN = SHARED / "rgbd" / "7scenes_redkitchen"
@@ -277,7 +275,10 @@ def _with_Q(aligner: FrameAlignerParams, tcaff: TCAFFParams, Q: np.ndarray
 
 def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
     """Every directed pair of one run under one model: per estimate the error (n, 3), its P
-    (n, 3, 3); counts of overlap steps, of those with an estimate and with a correct one."""
+    (n, 3, 3), its NEES and whether it is correct (as the evaluation scores them,
+    `metrics.step_nees` and `step_errors` within `Thresholds`), and the NEES of the measurement
+    it took against that measurement's own R (NaN for a held estimate); counts of overlap
+    steps, of those with an estimate and with a correct one."""
     from tcaff_gtsam.precompile import compile_kernels
 
     compile_kernels()
@@ -294,54 +295,43 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
     aligner, tcaff = MODELS[model](aligner, tcaff, run, source)
     n = run.n_robots
     pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
-    errors, covariances, held, episode, taken = [], [], [], [], []
+    limits = Thresholds()
+    parts = []
     overlap = available = correct = 0
     start = time.perf_counter()
+    steps = len(run.times)
     for i, j in pairs:
         pair = PairwiseAligner(aligner, tcaff)
-        truth = se2_to_params(run.T_true(i, j))
+        T_true = run.T_true(i, j)
+        truth = se2_to_params(T_true)
         shared = run.overlap(i, j)
+        on = np.ones(steps, bool) if shared is None else np.asarray(shared, bool)
+        x, z = np.full((steps, 3), np.nan), np.full((steps, 3), np.nan)
+        P, R = np.full((steps, 3, 3), np.nan), np.full((steps, 3, 3), np.nan)
         for s, t in enumerate(run.times):
             est = pair.update(float(t), run.maps[i][s], run.maps[j][s])
-            on = bool(shared is None or shared[s])
-            overlap += on
             if est is None or not np.all(np.isfinite(truth[s])):
                 continue
-            e = error(est.x, truth[s])
-            errors.append(e)
-            covariances.append(est.P)
-            held.append(est.measurement < 0)
-            if est.measurement < 0:
-                taken.append(math.nan)
-            else:  # the measurement taken, against its own R
-                z = pair.taken[est.measurement]
-                taken.append(float(nees(error(z.z, truth[s])[None], z.R[None])[0]))
-            episode.append(f"{source.name} {min(i, j)}-{max(i, j)}")
-            available += on
-            correct += on and not wrong(e[None])[0]
-    return {"group": source.group, "model": model,
-            "errors": np.array(errors).reshape(-1, 3),
-            "P": np.array(covariances).reshape(-1, 3, 3), "held": np.array(held, dtype=bool),
-            "episode": np.array(episode, dtype=str), "taken": np.array(taken, dtype=float),
+            x[s], P[s] = est.x, est.P
+            if est.measurement >= 0:
+                z[s], R[s] = pair.taken[est.measurement].z, pair.taken[est.measurement].R
+        has = ~np.isnan(x[:, 0])
+        ok = limits.correct(step_errors(T_true[has], x[has]))
+        measured = ~np.isnan(z[has, 0])
+        taken = np.full(measured.shape, np.nan)
+        taken[measured] = step_nees(T_true[has][measured], z[has][measured], R[has][measured])
+        e = x[has] - truth[has]
+        e[:, 2] = wrap_angle(e[:, 2])
+        parts.append({"errors": e, "P": P[has], "nees": step_nees(T_true[has], x[has], P[has]),
+                      "ok": ok, "held": ~measured, "taken": taken,
+                      "episode": np.full(len(e), f"{source.name} {min(i, j)}-{max(i, j)}")})
+        overlap += int(on.sum())
+        available += int((on & has).sum())
+        correct += int((on[has] & ok).sum())
+    joined = {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+    return {"group": source.group, "model": model, **joined,
             "overlap": overlap, "available": available, "correct": correct,
             "seconds": time.perf_counter() - start}
-
-
-def error(x: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """(3,) x - truth of (x [m], y [m], theta [rad]), theta wrapped."""
-    e = x - truth
-    e[2] = wrap_angle(e[2])
-    return e
-
-
-def wrong(e: np.ndarray) -> np.ndarray:
-    """(n,) bool: errors e (n, 3) off by more than 1 m or 5 deg (false accepts)."""
-    return (np.hypot(e[:, 0], e[:, 1]) > WRONG_M) | (np.abs(e[:, 2]) > WRONG_RAD)
-
-
-def nees(e: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """(n,) e' P^-1 e of errors e (n, 3) with covariances P (n, 3, 3)."""
-    return np.einsum("ni,ni->n", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
 
 
 # -- the table ---------------------------------------------------------------------------------
@@ -371,18 +361,15 @@ def mean_interval(values: np.ndarray, episode: np.ndarray, draws: int = 2000
 
 def summary(parts: list[dict]) -> dict:
     """The table's numbers of one data set and model from its runs' `run_source` results."""
-    e = np.concatenate([p["errors"] for p in parts])
-    P = np.concatenate([p["P"] for p in parts])
-    held = np.concatenate([p["held"] for p in parts])
-    episode = np.concatenate([p["episode"] for p in parts])
-    taken = np.concatenate([p["taken"] for p in parts])
+    e, P, values, ok, held, episode, taken = (
+        np.concatenate([p[key] for p in parts])
+        for key in ("errors", "P", "nees", "ok", "held", "episode", "taken"))
     overlap = sum(p["overlap"] for p in parts)
     out = {"est": len(e), "available": sum(p["available"] for p in parts) / max(overlap, 1),
            "correct": sum(p["correct"] for p in parts) / max(overlap, 1)}
     if not len(e):
         return out
-    values = nees(e, P)
-    bad = wrong(e)
+    bad = ~ok
     sigma = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
     out.update(
         nees_mean=float(values.mean()), nees_median=float(np.median(values)),

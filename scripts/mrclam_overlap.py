@@ -43,10 +43,9 @@ def holds_truth(candidates, T_true: np.ndarray) -> bool:
     scores an estimate (`metrics.step_errors` within the false-accept thresholds)."""
     if not candidates:
         return False
-    limits = Thresholds()
     err = step_errors(np.broadcast_to(T_true, (len(candidates), 3, 3)),
                       np.array([m.z for m in candidates]))
-    return bool(np.any((err[:, 0] <= limits.translation) & (err[:, 1] <= limits.heading)))
+    return bool(np.any(Thresholds().correct(err)))
 
 
 def main() -> None:

@@ -137,8 +137,6 @@ class FrameAligner:
         self._last_pair: tuple | None = None
         # `_calibrated_settings`, made on first use
         self._calibrated: tuple | None = None
-        # `_epsilon` of maps of a finite span kappa, made on first use
-        self._kappa_epsilon: float | None = None
 
     def lookalike_share(self, ego: ObjectMap, other: ObjectMap, now: float) -> float:
         """The share of the object pairs of two maps (objects seen within kappa of `now`)
@@ -326,12 +324,9 @@ class FrameAligner:
         """Metres, CLIPPER's epsilon widened for the maps' drift over their span
         (`FrameAlignerParams.epsilon_drift`); ages (n,), (m,) seconds of the recent objects."""
         prm = self.params
-        if not math.isfinite(prm.kappa):
-            return prm.span_epsilon(float(max(ages_ego.max(initial=0.0),
-                                              ages_other.max(initial=0.0))))
-        if self._kappa_epsilon is None:  # the same at every search of every step
-            self._kappa_epsilon = prm.span_epsilon(prm.kappa)
-        return self._kappa_epsilon
+        span = (prm.kappa if math.isfinite(prm.kappa)
+                else float(max(ages_ego.max(initial=0.0), ages_other.max(initial=0.0))))
+        return prm.span_epsilon(span)
 
     def _calibrated_settings(self) -> tuple:
         """(prior_dof, map_drift, repeat_inflation, Q^-1) of covariance="calibrated" (the

@@ -249,9 +249,8 @@ def test_an_outvoted_decoy_seen_now_and_then_is_not_recalled_over_the_truth():
     silent for W steps is kept."""
     stream = decoy_stream(np.random.default_rng(119))
     estimates = run_with_evidence(TCAFF(), stream)
-    truth = stream.truth
-    ok = [est is not None and errors([est], [x])[0, 0] < 1.0 and errors([est], [x])[0, 1] < 5.0
-          for est, x in zip(estimates, truth, strict=True)]
+    ok = [est is not None and bool(np.all(errors([est], [x])[0] < (1.0, 5.0)))
+          for est, x in zip(estimates, stream.truth, strict=True)]
     first = ok.index(True)
     parted = 80 - 10  # the robots part before the truth jumps (decoy_stream's defaults)
     wrong = [t for t in range(first, parted) if estimates[t] is not None and not ok[t]]
