@@ -140,7 +140,7 @@ def main() -> None:
     else:
         rows = [(kind, name, STREAMS[kind], params) for kind in STREAMS
                 for name, params in PRESETS.items()]
-    width = max(len(row[0]) for row in rows)
+    width = max(len("streams"), *(len(row[0]) for row in rows))
     print(f"{'streams':{width}} {'preset':30} {'false acc.':>10} {'available':>10} "
           f"{'recovery':>16} {'jump recovery':>16} {'flaps':>6}")
     for kind, name, settings, params in rows:
