@@ -391,6 +391,18 @@ class GraphParams(_ByValue):
             the earlier hypothesis's factors are removed only once the new one has been
             reported at this many steps (the default window W): a late or passing switch then
             leaves the smoothed history in place. 1 removes them at the switch.
+        shared_maps: each robot's map enters every alignment of that robot at a step, so
+            those alignments share its error: around a cycle (robots 0-1, 1-2, 2-0) the
+            graph would otherwise count it once per alignment and report a covariance too
+            small. True inflates the alignment factors committed for one step by E / (V - 1)
+            in each group of V robots that E of them connect, so that together they claim
+            no more than V - 1 alignments, a tree's worth; exactly right for a cycle or a
+            complete graph of equal alignments whose errors are all their maps', and cautious
+            where part of the error is each pair's own. Alignments that form no cycle (two
+            robots, a chain, a star) are unchanged, and the factors of one pair at a step
+            (both directions, rival hypotheses) count as one pair: give one direction per
+            pair, as two register the same maps. False counts every factor in full, for
+            alignments from independent sources.
         horizon: steps the graph keeps for long runs: `update(k)` marginalises the variables
             of the steps at or before k - horizon (alignment variables, and the keyframes
             committed with those steps) into a linear factor on what they were linked to, one
@@ -414,6 +426,7 @@ class GraphParams(_ByValue):
     max_iterations: int = 10
     settle_threshold: float = 0.5
     switch_hold: int = TCAFFParams.window
+    shared_maps: bool = True
     horizon: int | None = None
 
     def __post_init__(self) -> None:
@@ -446,5 +459,7 @@ class GraphParams(_ByValue):
                  self.max_iterations, "must be an int >= 0")
         _require(_int_at_least(self.switch_hold, 1), o, "switch_hold", self.switch_hold,
                  "must be an int >= 1")
+        _require(isinstance(self.shared_maps, bool), o, "shared_maps", self.shared_maps,
+                 "must be True or False")
         _require(self.horizon is None or _int_at_least(self.horizon, 2), o, "horizon",
                  self.horizon, "must be an int >= 2 (steps) or None")

@@ -6,7 +6,8 @@ Two kinds of variables, each robot r having its own chain of both:
   are linked by identity between-factors with the drift covariance Q / 2 per step (so a pair
   drifts by Q, as TCAFF assumes); robot 0's first A is anchored by a prior. A robot not (yet, or
   no longer) connected to robot 0 by alignments gets a weak prior that only fixes its gauge. An
-  alignment T_oi_oj at step k is the factor A_i(k)^-1 A_j(k) = T_oi_oj, and
+  alignment T_oi_oj at step k is the factor A_i(k)^-1 A_j(k) = T_oi_oj (its covariance
+  inflated where the step's alignments close a cycle: `GraphParams.shared_maps`), and
   `alignment(i, j, k)` reads T_oi_oj(k) = A_i(k)^-1 A_j(k) with its marginal covariance. The
   graph makes these cycle consistent: T_ij T_jk = T_ik holds exactly.
 - X_r(m), keyframe poses in the common frame, for CSLAM use: odometry between-factors along each
@@ -277,7 +278,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             i, j: robots (ego, other), i != j.
             T_oi_oj: (3, 3) SE(2) / (4, 4) SE(3) matrix, or parameters (x, y, theta) /
                 (x, y, z, yaw); 3D alignments are projected onto the gravity-aligned ones.
-            cov: covariance of those parameters, (3, 3) or (4, 4).
+            cov: covariance of those parameters, (3, 3) or (4, 4); inflated at the update when
+                the step's alignments close a cycle (`GraphParams.shared_maps`).
             hypothesis: tag; `remove_hypothesis(i, j, hypothesis)` removes these factors.
             robust: use the M-estimator of `params.robust` (else Gaussian).
         Raises:
@@ -335,7 +337,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         now, later = [], []
         for q in self._queued:
             (later if q.step is not None and q.step > newest else now).append(q)
-        self._queued = now
+        self._queued = self._shared_maps_weighed(now) if self.params.shared_maps else now
         leaving = self._leaving(step)
         self._fix_gauge()
         if not self._queued and not self._to_remove:
@@ -377,6 +379,42 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._marginalise(leaving)
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
+
+    def _shared_maps_weighed(self, queued: list[_Factor]) -> list[_Factor]:
+        """`queued` with the alignment factors of each step that close cycles inflated
+        (`GraphParams.shared_maps`): in each group of V robots that E pairs of robots
+        connect, each factor's covariance times E / (V - 1). Factors of one pair (both
+        directions, rival hypotheses) count as one pair."""
+        by_step: dict[int, list[int]] = defaultdict(list)
+        for n, q in enumerate(queued):
+            if q.tag is not None and q.tag[0] == "alignment":
+                by_step[q.step].append(n)
+        out = list(queued)
+        for members in by_step.values():
+            links = {frozenset(queued[n].link) for n in members}
+            if len(links) < 3:  # a cycle of different robots needs three pairs
+                continue
+            robots_of_step = {chain for link in links for chain in link}
+            root = _components(robots_of_step, (tuple(link) for link in links))
+            pairs, robots = Counter(), defaultdict(set)
+            for link in links:
+                group = root(next(iter(link)))
+                pairs[group] += 1
+                robots[group].update(link)
+            for n in members:
+                group = root(queued[n].link[0])
+                inflation = pairs[group] / (len(robots[group]) - 1)
+                if inflation > 1.0:
+                    out[n] = self._inflated(queued[n], inflation)
+        return out
+
+    def _inflated(self, q: _Factor, inflation: float) -> _Factor:
+        """The between-factor q with its covariance times `inflation`, robust as it was."""
+        noise = q.factor.noiseModel()
+        robust = isinstance(noise, gtsam.noiseModel.Robust)
+        cov = (noise.noise() if robust else noise).covariance() * inflation
+        factor = type(q.factor)(*q.keys, q.factor.measured(), self._noise(cov, robust))
+        return q._replace(factor=factor)
 
     def _count(self, f: _Factor, index: int, sign: int) -> None:
         if f.link:

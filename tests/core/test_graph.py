@@ -128,6 +128,74 @@ def test_cycle_consistency_of_the_graph_but_not_of_pairwise_filters():
     assert filter_gap[0] > 1e-3
 
 
+#: alignments of one step among robots: no cycle, a cycle, every pair of four
+SHAPES = {"chain": (3, [(0, 1), (1, 2)]), "triangle": (3, [(0, 1), (1, 2), (0, 2)]),
+          "complete": (4, [(i, j) for i in range(4) for j in range(i + 1, 4)])}
+
+
+@pytest.mark.parametrize("shape, counted_in_full", [("chain", 1.0), ("triangle", 2 / 3),
+                                                    ("complete", 1 / 2)])
+def test_a_cycle_of_alignments_claims_no_more_than_a_tree_of_them(shape, counted_in_full):
+    """Equal alignments of one step, each with covariance C: with `shared_maps` the
+    alignment 0-1 reads out C itself (the maps the cycle shares are counted once); counted
+    in full, a cycle claims 3/2 and a complete graph of four twice the information. A chain
+    closes no cycle and is the same either way."""
+    C = np.diag([0.04, 0.03, 0.002])
+    n, pairs = SHAPES[shape]
+    for shared, scale in ((True, 1.0), (False, counted_in_full)):
+        graph = InterRobotGraph(n, GraphParams(robust="none", shared_maps=shared))
+        for i, j in pairs:
+            graph.add_alignment(0, i, j, np.zeros(3), C)
+        graph.update(0)
+        np.testing.assert_allclose(graph.alignment(0, 1)[1], scale * C, rtol=1e-6, atol=1e-9)
+
+
+def test_both_directions_of_a_pair_count_as_one_pair():
+    """A pair given both ways at a step is still one pair: nothing to inflate, so a triangle
+    with one pair doubled reads out as a triangle does (each direction counted in full)."""
+    C = np.diag([0.04, 0.03, 0.002])
+    covariances = []
+    for doubled in (False, True):
+        graph = InterRobotGraph(3, GraphParams(robust="none"))
+        for i, j in SHAPES["triangle"][1] + ([(2, 1)] if doubled else []):
+            graph.add_alignment(0, i, j, np.zeros(3), C)
+        graph.update(0)
+        covariances.append(graph.alignment(0, 2)[1])
+    # the doubled pair 1-2 is inflated as the triangle's (3 / 2), not as four factors (2)
+    graph = InterRobotGraph(3, GraphParams(robust="none", shared_maps=False))
+    for i, j in SHAPES["triangle"][1] + [(2, 1)]:
+        graph.add_alignment(0, i, j, np.zeros(3), 1.5 * C)
+    graph.update(0)
+    np.testing.assert_allclose(covariances[1], graph.alignment(0, 2)[1], rtol=1e-6, atol=1e-9)
+    assert np.all(np.diag(covariances[1]) < np.diag(covariances[0]))
+
+
+def test_alignments_sharing_their_maps_give_an_honest_covariance():
+    """Four robots whose maps are each off by their own offset M_r ~ N(0, S) at one step:
+    each alignment is M_i^-1 M_j, reported with covariance 2 S, and the graph's alignment 0-1
+    is off by M_0^-1 M_1 whatever it fuses. With `shared_maps` its NEES is chi-square (mean
+    3); counted once per alignment, the maps claim twice the information (mean 6)."""
+    rng = np.random.default_rng(7)
+    S = np.diag([0.05, 0.05, np.radians(1.0)]) ** 2
+    pairs = SHAPES["complete"][1]
+    nees = {True: [], False: []}
+    for _ in range(300):
+        M = [se2_from_params(rng.multivariate_normal(np.zeros(3), S)) for _ in range(4)]
+        for shared, values in nees.items():
+            graph = InterRobotGraph(4, GraphParams(robust="none", shared_maps=shared))
+            for i, j in pairs:
+                graph.add_alignment(0, i, j, np.linalg.inv(M[i]) @ M[j], 2 * S)
+            graph.update(0)
+            T, P = graph.alignment(0, 1)
+            e = se2_to_params(np.linalg.inv(M[0]) @ M[1] @ np.linalg.inv(T))
+            np.testing.assert_allclose(e, 0.0, atol=5e-3)  # off by that, to iSAM2's few mm
+            error = se2_to_params(T)  # the truth is the identity
+            values.append(float(error @ np.linalg.solve(P, error)))
+    # means of 300 draws: sampling sd 0.14 and 0.28
+    assert 2.5 < np.mean(nees[True]) < 3.5
+    assert np.mean(nees[False]) > 5.0
+
+
 def outlier_run(robust: str, outliers: bool) -> float:
     """Mean smoothed translation error of T_01 from alignments with 10 % gross outliers."""
     rng = np.random.default_rng(5)
