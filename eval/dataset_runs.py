@@ -370,8 +370,7 @@ def walk_report(job: JobResult, streams: list[str], thresholds: Thresholds, tigh
         n = got.shape[0]
 
         def wrong(limit: Thresholds, got=got, n=n) -> float | None:
-            bad = (got[:, 0] > limit.translation) | (got[:, 1] > limit.heading)
-            return None if n == 0 else float(bad.mean())
+            return None if n == 0 else float(np.mean(~limit.correct(got)))
 
         covariance = job.arrays.get(f"cov_{stream}")
         nees = None
@@ -379,7 +378,6 @@ def walk_report(job: JobResult, streams: list[str], thresholds: Thresholds, tigh
             nees = np.concatenate([step_nees(T, job.arrays[f"est_{stream}"][p], covariance[p])
                                    for p, T in enumerate(T_true)])
             nees = nees[~np.isnan(nees)]  # the estimate steps, in the order of `got`
-            false = (got[:, 0] > thresholds.translation) | (got[:, 1] > thresholds.heading)
 
         report[stream] = {
             "estimates": n, "false_accept": wrong(thresholds), "false_accept_tight": wrong(tight),
@@ -390,7 +388,8 @@ def walk_report(job: JobResult, streams: list[str], thresholds: Thresholds, tigh
             "nees_mean": None if nees is None else float(nees.mean()),
             "nees_under_95": None if nees is None else float(np.mean(nees < NEES_95)),
             "confident_false_accept": (None if nees is None
-                                       else float(np.mean(false & (nees > NEES_997))))}
+                                       else float(np.mean(~thresholds.correct(got)
+                                                          & (nees > NEES_997))))}
     return report
 
 
