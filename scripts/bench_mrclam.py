@@ -4,9 +4,11 @@ Reads the data set once, then for raw odometry and for each seed of the VIO-like
 builds the maps (the shipped `mrclam` evaluation's settings), runs every method of the method
 set over every directed pair and prints two tables:
 
-- accuracy, pooled over pairs (and over seeds for vio): false accepts, availability (overlap
-  steps with an estimate) and correct availability (with a correct one), median translation
-  and mean heading error, time to the first correct estimate, ms per pair and step;
+- accuracy, pooled over pairs (and over seeds for vio): false accepts (and the confident
+  ones, outside their own 99.7 % ellipse), availability (overlap steps with an estimate) and
+  correct availability (with a correct one), median translation and mean heading error, the
+  NEES of the reported covariances (mean, share under the 95 % bound 7.815; "-" for a method
+  that reports none), time to the first correct estimate, ms per pair and step;
 - time per pair and step of each stage: reading, maps, MNO-CLIPPER candidates, each method.
 
     python scripts/bench_mrclam.py --data ../shared/data/mrclam/MRCLAM_Dataset6 [--seeds 3]
@@ -59,17 +61,21 @@ def main() -> None:
         stage_rows.append((odometry, 1e3 * build / pair_steps, seconds, pair_steps))
         accuracy[odometry] = summarize(jobs, names, thresholds_of(methods))[odometry]
     print("\nAccuracy, pooled over the directed pairs (vio: and seeds)")
-    header = (f"{'odometry':9} {'method':22} {'false acc.':>10} {'available':>9} "
-              f"{'correct':>7} {'median m':>8} {'mean deg':>8} {'1st ok s':>8} {'ms':>7}")
+    header = (f"{'odometry':9} {'method':22} {'false acc.':>10} {'conf.':>7} {'available':>9} "
+              f"{'correct':>7} {'median m':>8} {'mean deg':>8} {'NEES':>7} {'<7.81':>6} "
+              f"{'1st ok s':>8} {'ms':>7}")
     print(header)
     for odometry, by_method in accuracy.items():
         for method in names:
             r = by_method[method]
             print(f"{odometry:9} {describe(method).label:22} "
-                  f"{cell(r['false_accept'], 100, 1):>8} % {cell(r['availability'], 1, 3):>9} "
+                  f"{cell(r['false_accept'], 100, 1):>8} % "
+                  f"{cell(r['confident_false_accept'], 100, 1):>5} % "
+                  f"{cell(r['availability'], 1, 3):>9} "
                   f"{cell(r['correct_availability'], 1, 3):>7} "
                   f"{cell(r['translation_error_m_median']):>8} "
                   f"{cell(r['heading_error_deg_mean']):>8} "
+                  f"{cell(r['nees_mean']):>7} {cell(r['nees_under_95'], 100, 0):>4} % "
                   f"{cell(r['time_to_first_correct_s'], 1, 0):>8} "
                   f"{r['ms_per_pair_step']:7.3f}")
     print("\nTime per pair and step [ms]")

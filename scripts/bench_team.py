@@ -11,7 +11,9 @@ settle), each of the next `--seconds` 1 Hz exchanges runs what a team's alignmen
           `InterRobotGraph.update`.
 Prints, per team size, milliseconds per second of data (the mean over the measured seconds, and
 the median and maximum of single seconds) and each stage's share, on one thread (numba, BLAS
-and OpenMP are limited to one thread before they load).
+and OpenMP are limited to one thread before they load); and what the pairs found: the share
+holding an estimate, its median translation error and the NEES of its covariance (mean, and
+share under the chi-square 95 % bound 7.815).
 
     python scripts/bench_team.py [--robots 2 4 8 16] [--seconds 20] [--warm-up 30] [--seed 0]
                                  [--guide-radius METRES|none]
@@ -31,6 +33,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 from tcaff_gtsam.eval.config import load_scenario  # noqa: E402
 from tcaff_gtsam.eval.methods.stages import warm_up  # noqa: E402
+from tcaff_gtsam.eval.metrics import NEES_95, step_nees  # noqa: E402
 from tcaff_gtsam.eval.sim.simulate import simulate  # noqa: E402
 
 from tcaff_gtsam import (  # noqa: E402
@@ -56,7 +59,8 @@ def team_run(n_robots: int, seconds: float, seed: int):
 def run_team(run, warm: int, guide_radius: float | None = None
              ) -> tuple[dict[str, list[float]], dict[str, float]]:
     """Seconds of each stage per measured exchange (those from `warm` on), and what the team
-    found over them: pairs with an estimate, median translation error [m] of those."""
+    found over them: pairs with an estimate, median translation error [m] of those and the
+    NEES of their covariances (mean, share under NEES_95)."""
     n = run.n_robots
     pairs = [(i, j) for i in range(n) for j in range(n) if i != j]
     aligners = {pair: PairwiseAligner(FrameAlignerParams(guide_radius=guide_radius))
@@ -64,7 +68,7 @@ def run_team(run, warm: int, guide_radius: float | None = None
     team = TeamConsistency(n)
     graph = InterRobotGraph(n)
     seconds = {stage: [] for stage in STAGES}
-    held, errors = [], []
+    held, errors, nees = [], [], []
     for s, t in enumerate(run.times):
         t0 = time.process_time()
         estimates = {(i, j): aligners[(i, j)].update(t, run.maps[i][s], run.maps[j][s])
@@ -89,8 +93,13 @@ def run_team(run, warm: int, guide_radius: float | None = None
         if found:
             T_true = np.array([run.T_true(*pair)[s] for pair, _ in found])
             errors.extend(se2_error(T_true, np.array([est.T for _, est in found]))[:, 0])
+            nees.extend(step_nees(T_true, np.array([est.x for _, est in found]),
+                                  np.array([est.P for _, est in found])))
     return seconds, {"held": statistics.mean(held) / len(pairs),
-                     "error": float(np.median(errors)) if errors else float("nan")}
+                     "error": float(np.median(errors)) if errors else float("nan"),
+                     "nees": float(np.mean(nees)) if nees else float("nan"),
+                     "under": 100 * float(np.mean(np.array(nees) < NEES_95)) if nees
+                     else float("nan")}
 
 
 def main() -> None:
@@ -109,7 +118,7 @@ def main() -> None:
     warm_up()
     header = (f"{'robots':>6} {'pairs':>5} {'ms/s mean':>9} {'median':>7} {'max':>7} "
               f"{'pairs %':>7} {'team %':>6} {'graph %':>7} {'ms/pair':>7} {'held':>5} "
-              f"{'err m':>6}")
+              f"{'err m':>6} {'NEES':>6} {'<7.81':>6}")
     print(header)
     for n in args.robots:
         run = team_run(n, args.warm_up + args.seconds, args.seed)
@@ -120,9 +129,11 @@ def main() -> None:
         print(f"{n:>6} {n_pairs:>5} {1e3 * total.mean():>9.1f} {1e3 * np.median(total):>7.1f} "
               f"{1e3 * total.max():>7.1f} {share['pairs']:>7.1f} {share['team']:>6.1f} "
               f"{share['graph']:>7.1f} {1e3 * np.mean(seconds['pairs']) / n_pairs:>7.3f} "
-              f"{found['held']:>5.2f} {found['error']:>6.2f}", flush=True)
+              f"{found['held']:>5.2f} {found['error']:>6.2f} {found['nees']:>6.2f} "
+              f"{found['under']:>4.0f} %", flush=True)
     print("ms/s: milliseconds of one thread per second of data; held: share of directed pairs "
-          "with an estimate; err m: median translation error of those estimates")
+          "with an estimate; err m: median translation error of those estimates; NEES: of "
+          "their covariances (honest: 3, 95 % under 7.81)")
     print("target: 16 robots (240 directed pairs) <= 250 ms per second of data")
 
 
