@@ -109,7 +109,7 @@ def main() -> None:
             nees = step_nees(truth, se2_to_params(T), np.asarray(P))
             rows[name].append(np.column_stack([errors(truth, T), nees]))
     print(f"\n{'method':16} {'translation m':>14} {'heading deg':>12} {'NEES':>6} "
-          f"{'<7.81':>6} {'estimates':>10}")
+          f"{'<7.81':>7} {'estimates':>10}")
     for name, parts in rows.items():
         err = np.vstack(parts)
         print(f"{name:16} {err[:, 0].mean():8.3f} +- {err[:, 0].std():.3f} "

@@ -62,7 +62,7 @@ def main() -> None:
         accuracy[odometry] = summarize(jobs, names, thresholds_of(methods))[odometry]
     print("\nAccuracy, pooled over the directed pairs (vio: and seeds)")
     header = (f"{'odometry':9} {'method':22} {'false acc.':>10} {'conf.':>7} {'available':>9} "
-              f"{'correct':>7} {'median m':>8} {'mean deg':>8} {'NEES':>7} {'<7.81':>6} "
+              f"{'correct':>7} {'median m':>8} {'mean deg':>8} {'NEES':>9} {'<7.81':>6} "
               f"{'1st ok s':>8} {'ms':>7}")
     print(header)
     for odometry, by_method in accuracy.items():
@@ -75,7 +75,7 @@ def main() -> None:
                   f"{cell(r['correct_availability'], 1, 3):>7} "
                   f"{cell(r['translation_error_m_median']):>8} "
                   f"{cell(r['heading_error_deg_mean']):>8} "
-                  f"{cell(r['nees_mean']):>7} {cell(r['nees_under_95'], 100, 0):>4} % "
+                  f"{cell(r['nees_mean']):>9} {cell(r['nees_under_95'], 100, 0):>4} % "
                   f"{cell(r['time_to_first_correct_s'], 1, 0):>8} "
                   f"{r['ms_per_pair_step']:7.3f}")
     print("\nTime per pair and step [ms]")

@@ -47,6 +47,11 @@ from tcaff_gtsam.geometry import se2_error  # noqa: E402
 STAGES = ("pairs", "team", "graph")
 
 
+def cell(value: float, width: int, digits: int = 2) -> str:
+    """value in a column of `width`, "-" when there is none (NaN: no estimate)."""
+    return f"{'-' if value != value else f'{value:.{digits}f}':>{width}}"
+
+
 def team_run(n_robots: int, seconds: float, seed: int):
     """The `four_robots` room driven by n_robots robots for `seconds` seconds. The scenario
     file allows at most 8 robots per room; the layout itself has no such bound, so the copy is
@@ -129,8 +134,8 @@ def main() -> None:
         print(f"{n:>6} {n_pairs:>5} {1e3 * total.mean():>9.1f} {1e3 * np.median(total):>7.1f} "
               f"{1e3 * total.max():>7.1f} {share['pairs']:>7.1f} {share['team']:>6.1f} "
               f"{share['graph']:>7.1f} {1e3 * np.mean(seconds['pairs']) / n_pairs:>7.3f} "
-              f"{found['held']:>5.2f} {found['error']:>6.2f} {found['nees']:>6.2f} "
-              f"{found['under']:>4.0f} %", flush=True)
+              f"{found['held']:>5.2f} {cell(found['error'], 6)} {cell(found['nees'], 6)} "
+              f"{cell(found['under'], 4, 0)} %", flush=True)
     print("ms/s: milliseconds of one thread per second of data; held: share of directed pairs "
           "with an estimate; err m: median translation error of those estimates; NEES: of "
           "their covariances (honest: 3, 95 % under 7.81)")

@@ -394,15 +394,19 @@ class GraphParams(_ByValue):
         shared_maps: each robot's map enters every alignment of that robot at a step, so
             those alignments share its error: around a cycle (robots 0-1, 1-2, 2-0) the
             graph would otherwise count it once per alignment and report a covariance too
-            small. True inflates the alignment factors committed for one step by E / (V - 1)
-            in each group of V robots that E of them connect, so that together they claim
-            no more than V - 1 alignments, a tree's worth; exactly right for a cycle or a
-            complete graph of equal alignments whose errors are all their maps', and cautious
-            where part of the error is each pair's own. Alignments that form no cycle (two
-            robots, a chain, a star) are unchanged, and the factors of one pair at a step
-            (both directions, rival hypotheses) count as one pair: give one direction per
-            pair, as two register the same maps. False counts every factor in full, for
-            alignments from independent sources.
+            small. True inflates the alignment factors that one update commits for a step:
+            in each block of their robot pairs (pairs joined by cycles, a biconnected
+            component) with E pairs among V robots, each covariance times E / (V - 1), so
+            that the block claims no more than V - 1 alignments, a tree's worth. Exact for a
+            cycle or a complete graph of equal alignments whose errors are all their maps';
+            cautious where part of the error is each pair's own; approximate in between (the
+            pair two triangles share reads 0.83 of one alignment's covariance). A pair on no
+            cycle (two robots, a chain, a star, a pair hanging off a cycle) is unchanged, and
+            the factors of one pair at a step (both directions, rival hypotheses) count as
+            one pair: give one direction per pair, as two register the same maps. Factors
+            added to a step already committed, or removed later, do not re-weigh the others.
+            In 3D the roll and pitch of `gravity_sigma` are inflated with the rest. False
+            counts every factor in full, for alignments from independent sources.
         horizon: steps the graph keeps for long runs: `update(k)` marginalises the variables
             of the steps at or before k - horizon (alignment variables, and the keyframes
             committed with those steps) into a linear factor on what they were linked to, one

@@ -75,6 +75,50 @@ __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 
 log = logging.getLogger(__name__)
 
+def _blocks(pairs: list[tuple]) -> list[int]:
+    """The block (biconnected component) of each pair of a graph whose edges are `pairs`
+    (distinct (a, b), a != b): pairs share a block when a cycle runs through both; a pair on
+    no cycle is a block alone. Hopcroft and Tarjan's depth-first search, without recursion."""
+    neighbours = defaultdict(list)
+    for e, (a, b) in enumerate(pairs):
+        neighbours[a].append((b, e))
+        neighbours[b].append((a, e))
+    order: dict = {}  # node -> its depth-first index
+    low: dict = {}  # node -> the lowest index its subtree reaches by one back edge
+    block, open_edges, n_blocks = [-1] * len(pairs), [], 0
+    for root in neighbours:
+        if root in order:
+            continue
+        order[root] = low[root] = len(order)
+        path = [(root, -1, iter(neighbours[root]))]
+        while path:
+            v, entered_by, rest = path[-1]
+            for w, e in rest:
+                if e == entered_by:
+                    continue
+                if w not in order:
+                    order[w] = low[w] = len(order)
+                    open_edges.append(e)
+                    path.append((w, e, iter(neighbours[w])))
+                    break
+                if order[w] < order[v]:  # a back edge, met from its lower end
+                    open_edges.append(e)
+                    low[v] = min(low[v], order[w])
+            else:
+                path.pop()
+                if path:
+                    u = path[-1][0]
+                    low[u] = min(low[u], low[v])
+                    if low[v] >= order[u]:  # nothing below v reaches above u: a block ends
+                        while True:
+                            e = open_edges.pop()
+                            block[e] = n_blocks
+                            if e == entered_by:
+                                break
+                        n_blocks += 1
+    return block
+
+
 class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphReadout):
     """iSAM2 smoothing of the frame alignments of `n_robots` robots (and their keyframes).
 
@@ -382,28 +426,27 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
 
     def _shared_maps_weighed(self, queued: list[_Factor]) -> list[_Factor]:
         """`queued` with the alignment factors of each step that close cycles inflated
-        (`GraphParams.shared_maps`): in each group of V robots that E pairs of robots
-        connect, each factor's covariance times E / (V - 1). Factors of one pair (both
-        directions, rival hypotheses) count as one pair."""
+        (`GraphParams.shared_maps`): in each block of the step's robot pairs (a biconnected
+        component: pairs joined by cycles) of E pairs among V robots, each factor's
+        covariance times E / (V - 1); a pair on no cycle is a block of its own and stays as
+        it is. Factors of one pair (both directions, rival hypotheses) count as one pair."""
         by_step: dict[int, list[int]] = defaultdict(list)
         for n, q in enumerate(queued):
             if q.tag is not None and q.tag[0] == "alignment":
                 by_step[q.step].append(n)
         out = list(queued)
         for members in by_step.values():
-            links = {frozenset(queued[n].link) for n in members}
-            if len(links) < 3:  # a cycle of different robots needs three pairs
+            pair_of = [tuple(sorted(queued[n].link)) for n in members]
+            pairs = list(dict.fromkeys(pair_of))
+            if len(pairs) < 3:  # a cycle of different robots needs three pairs
                 continue
-            robots_of_step = {chain for link in links for chain in link}
-            root = _components(robots_of_step, (tuple(link) for link in links))
-            pairs, robots = Counter(), defaultdict(set)
-            for link in links:
-                group = root(next(iter(link)))
-                pairs[group] += 1
-                robots[group].update(link)
-            for n in members:
-                group = root(queued[n].link[0])
-                inflation = pairs[group] / (len(robots[group]) - 1)
+            block = dict(zip(pairs, _blocks(pairs), strict=True))
+            edges, robots = Counter(block.values()), defaultdict(set)
+            for pair, b in block.items():
+                robots[b].update(pair)
+            for n, pair in zip(members, pair_of, strict=True):
+                b = block[pair]
+                inflation = edges[b] / (len(robots[b]) - 1)
                 if inflation > 1.0:
                     out[n] = self._inflated(queued[n], inflation)
         return out

@@ -9,6 +9,8 @@ import tempfile
 import gtsam
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from tcaff_gtsam.eval.sim.streams import robot_team_streams
 
 from tcaff_gtsam import TCAFF, InterRobotGraph, TCAFFParams
@@ -20,7 +22,7 @@ from tcaff_gtsam.geometry import (
     se3_from_xyz_yaw,
     wrap_angle,
 )
-from tcaff_gtsam.graph import alignment_key, keyframe_key
+from tcaff_gtsam.graph import _blocks, alignment_key, keyframe_key
 from tcaff_gtsam.params import GraphParams, constant_alignment_covariance
 
 R = constant_alignment_covariance()
@@ -128,18 +130,28 @@ def test_cycle_consistency_of_the_graph_but_not_of_pairwise_filters():
     assert filter_gap[0] > 1e-3
 
 
-#: alignments of one step among robots: no cycle, a cycle, every pair of four
-SHAPES = {"chain": (3, [(0, 1), (1, 2)]), "triangle": (3, [(0, 1), (1, 2), (0, 2)]),
-          "complete": (4, [(i, j) for i in range(4) for j in range(i + 1, 4)])}
+#: alignments of one step among robots: no cycle, cycles, a cycle with a pair hanging off it,
+#: a cycle beside a separate pair
+SHAPES = {"chain": (3, [(0, 1), (1, 2)]), "path": (4, [(0, 1), (1, 2), (2, 3)]),
+          "star": (4, [(0, 1), (0, 2), (0, 3)]),
+          "triangle": (3, [(0, 1), (1, 2), (0, 2)]),
+          "complete": (4, [(i, j) for i in range(4) for j in range(i + 1, 4)]),
+          "triangle and pendant": (4, [(0, 1), (1, 2), (0, 2), (2, 3)]),
+          "triangle and apart": (5, [(0, 1), (1, 2), (0, 2), (3, 4)])}
 
 
-@pytest.mark.parametrize("shape, counted_in_full", [("chain", 1.0), ("triangle", 2 / 3),
-                                                    ("complete", 1 / 2)])
-def test_a_cycle_of_alignments_claims_no_more_than_a_tree_of_them(shape, counted_in_full):
-    """Equal alignments of one step, each with covariance C: with `shared_maps` the
-    alignment 0-1 reads out C itself (the maps the cycle shares are counted once); counted
-    in full, a cycle claims 3/2 and a complete graph of four twice the information. A chain
-    closes no cycle and is the same either way."""
+@pytest.mark.parametrize("shape, read, counted_in_full", [
+    ("chain", (0, 1), 1.0), ("path", (1, 2), 1.0), ("star", (0, 1), 1.0),
+    ("triangle", (0, 1), 2 / 3), ("complete", (0, 1), 1 / 2),
+    ("triangle and pendant", (0, 1), 2 / 3), ("triangle and pendant", (2, 3), 1.0),
+    ("triangle and apart", (0, 1), 2 / 3), ("triangle and apart", (3, 4), 1.0)])
+def test_a_cycle_of_alignments_claims_no_more_than_a_tree_of_them(shape, read,
+                                                                   counted_in_full):
+    """Equal alignments of one step, each with covariance C: with `shared_maps` a pair on a
+    cycle reads out C itself (the maps the cycle shares are counted once); counted in full,
+    a cycle claims 3/2 and a complete graph of four twice the information. Pairs on no cycle
+    (a chain, a path, a star, a pair hanging off a cycle or apart from it) are the same either
+    way."""
     C = np.diag([0.04, 0.03, 0.002])
     n, pairs = SHAPES[shape]
     for shared, scale in ((True, 1.0), (False, counted_in_full)):
@@ -147,12 +159,67 @@ def test_a_cycle_of_alignments_claims_no_more_than_a_tree_of_them(shape, counted
         for i, j in pairs:
             graph.add_alignment(0, i, j, np.zeros(3), C)
         graph.update(0)
-        np.testing.assert_allclose(graph.alignment(0, 1)[1], scale * C, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(graph.alignment(*read)[1], scale * C, rtol=1e-6, atol=1e-9)
+
+
+def parts_without(pairs, removed) -> list:
+    """The connected part of each pair once node `removed` is taken out (None: none is), a
+    pair at the removed node counting with its other node."""
+    parent = {x: x for p in pairs for x in p}
+
+    def root(x):
+        while parent[x] != x:
+            x = parent[x]
+        return x
+
+    for a, b in pairs:
+        if removed not in (a, b):
+            parent[root(a)] = root(b)
+    return [root(b if a == removed else a) for a, b in pairs]
+
+
+def separated(pairs, e, f) -> bool:
+    """Whether the pairs e and f (indices into `pairs`) are not connected, or removing one
+    node puts them in different parts. Pairs on a common cycle never are: the definition of
+    a block."""
+    nodes = {x for p in pairs for x in p}
+    return any(part[e] != part[f] for part in (parts_without(pairs, removed)
+                                               for removed in [None, *nodes]))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.sets(st.tuples(st.integers(0, 6), st.integers(0, 6)).filter(lambda p: p[0] < p[1]),
+               min_size=1, max_size=12))
+def test_blocks_are_the_biconnected_components(pairs):
+    pairs = sorted(pairs)
+    block = _blocks(pairs)
+    for e in range(len(pairs)):
+        for f in range(e + 1, len(pairs)):
+            assert (block[e] == block[f]) == (not separated(pairs, e, f)), (pairs, e, f)
+
+
+def test_an_inflated_factor_keeps_its_m_estimator():
+    C = np.diag([0.04, 0.03, 0.002])
+    for robust, kind in (("huber", gtsam.noiseModel.mEstimator.Huber),
+                         ("cauchy", gtsam.noiseModel.mEstimator.Cauchy)):
+        graph = InterRobotGraph(3, GraphParams(robust=robust, robust_k=2.0))
+        for i, j in SHAPES["triangle"][1]:
+            graph.add_alignment(0, i, j, np.zeros(3), C)
+        graph.update(0)
+        noises = [f.factor.noiseModel() for f in graph._active.values()
+                  if f.tag is not None and f.tag[0] == "alignment"]
+        assert len(noises) == 3
+        for noise in noises:
+            assert isinstance(noise, gtsam.noiseModel.Robust)
+            assert isinstance(noise.robust(), kind)
+            # the same threshold: Huber's weight is 1 up to k, Cauchy's 1 / (1 + (r / k)^2)
+            assert noise.robust().weight(2.0) == pytest.approx(1.0 if robust == "huber" else 0.5)
+            np.testing.assert_allclose(noise.noise().covariance(), 1.5 * C, rtol=1e-9)
 
 
 def test_both_directions_of_a_pair_count_as_one_pair():
-    """A pair given both ways at a step is still one pair: nothing to inflate, so a triangle
-    with one pair doubled reads out as a triangle does (each direction counted in full)."""
+    """A pair given both ways at a step is still one pair: a triangle with one pair given
+    twice is inflated as a triangle (3 / 2 on each of its four factors), not as four pairs."""
     C = np.diag([0.04, 0.03, 0.002])
     covariances = []
     for doubled in (False, True):
