@@ -197,10 +197,13 @@ _PLANE = np.diag([1.0, 1.0, 0.0])
 _PLANE.flags.writeable = False
 
 
-def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
-                           kappa: float, noise_prior: float, prior_dof: float,
-                           drift: tuple[float, float], repeat_inflation: float,
-                           Q_inv: np.ndarray) -> np.ndarray:
+def _single_registration_parts(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray,
+                               weights: np.ndarray, kappa: float, noise_prior: float,
+                               prior_dof: float, drift: tuple[float, float]
+                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The three parts (3, 3) of one registration's covariance R_s (`calibrated_covariance`,
+    parts 1 and 2): the point noise s~^2 G, and the map drift's translation and heading
+    (about the weighted centroid c of R q)."""
     rss, dof, G, Rq = _sandwich(T_i_j, p, q, weights)
     if prior_dof > 0:
         s_sq = (rss + prior_dof * noise_prior**2) / (max(dof, 0.0) + prior_dof)
@@ -210,7 +213,17 @@ def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weig
     c = (weights @ Rq) / total if total > 0 else Rq.mean(axis=0)
     J = np.array([c[1], -c[0], 1.0])
     d_t, d_theta = drift
-    R_s = s_sq * G + 0.5 * kappa * (d_t**2 * _PLANE + d_theta**2 * (J[:, None] * J))
+    return (s_sq * G, 0.5 * kappa * d_t**2 * _PLANE,
+            0.5 * kappa * d_theta**2 * (J[:, None] * J))
+
+
+def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
+                           kappa: float, noise_prior: float, prior_dof: float,
+                           drift: tuple[float, float], repeat_inflation: float,
+                           Q_inv: np.ndarray) -> np.ndarray:
+    point, drift_translation, drift_heading = _single_registration_parts(
+        T_i_j, p, q, weights, kappa, noise_prior, prior_dof, drift)
+    R_s = point + drift_translation + drift_heading
     R = R_s + repeat_inflation * (R_s @ Q_inv @ R_s)
     R = 0.5 * (R + R.T)
     # Far from the odometry origin the heading's lever couples it to the translation, and the

@@ -1,0 +1,137 @@
+"""Which part of one registration's covariance R_s is off, per data set.
+
+`calibrated_covariance` builds R_s from three parts: the point noise s~^2 G, the map drift's
+translation (kappa / 2 d_t^2 on x and y) and its heading (kappa / 2 d_theta^2 J J', a turn
+about the registered objects). For every measurement TCAFF's best path takes (library
+defaults, the runs of `bench_nees.py`), this records the three parts of its R_s and its error
+e = z - truth, keeps the correct ones (within 1 m and 5 deg), and fits one scale per part,
+a, b_t, b_theta, maximising the Gaussian likelihood of the errors under
+a point + b_t translation + b_theta heading. 1 for each says the part is right; a scale of
+the drift parts says how much more (or less) drift the errors show than `map_drift` gives,
+to compare with what the data set's odometry declares (the variance ratio of
+`bench_nees.declared_drift` to `map_drift`, printed beside it).
+
+    python scripts/fit_covariance_parts.py [--data sim kitchen mrclam] [--seeds 3]
+                                           [--sim-seeds 2] [--cache results/bench_nees]
+
+Columns: n (measurements), the NEES of z against R_s itself (3 when R_s is right), the three
+fitted scales, the declared ones (translation, heading; "-" where the odometry declares
+nothing), and the mean association count k.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+from bench_nees import SCENARIOS, declared_drift, load, sources
+from scipy.optimize import minimize
+from tcaff_gtsam.eval.metrics import Thresholds, step_errors
+
+from tcaff_gtsam import frame_aligner
+from tcaff_gtsam.covariance import _single_registration_parts
+from tcaff_gtsam.geometry import se2_to_params, wrap_angle
+from tcaff_gtsam.pairwise import PairwiseAligner
+from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
+
+#: R (the aligner's output, as bytes) -> the parts of its R_s, filled while a run goes
+_PARTS: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray, int]] = {}
+
+
+def _recording(covariance):
+    """`frame_aligner._calibrated_covariance` that also records each R's parts."""
+    def calibrated(T, p, q, w, kappa, noise_prior, prior_dof, drift, rho, Q_inv):
+        R = covariance(T, p, q, w, kappa, noise_prior, prior_dof, drift, rho, Q_inv)
+        _PARTS[R.tobytes()] = (*_single_registration_parts(T, p, q, w, kappa, noise_prior,
+                                                           prior_dof, drift), len(w))
+        return R
+    return calibrated
+
+
+def measurements(source, cache: Path) -> list[tuple]:
+    """(error (3,), point, translation, heading parts (3, 3), k) of every correct measurement
+    the best paths of the run's pairs took."""
+    run = load(source, cache)
+    settings = run.settings
+    aligner = FrameAlignerParams(kappa=settings.kappa)
+    tcaff = TCAFFParams() if settings.window is None else TCAFFParams(window=settings.window)
+    limits = Thresholds()
+    n = run.n_robots
+    rows = []
+    for i, j in run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]:
+        _PARTS.clear()
+        pair = PairwiseAligner(aligner, tcaff)
+        T_true = run.T_true(i, j)
+        truth = se2_to_params(T_true)
+        for s, t in enumerate(run.times):
+            est = pair.update(float(t), run.maps[i][s], run.maps[j][s])
+            if est is None or est.measurement < 0 or not np.all(np.isfinite(truth[s])):
+                continue
+            taken = pair.taken[est.measurement]
+            parts = _PARTS.get(taken.R.tobytes())
+            if parts is None or not limits.correct(step_errors(T_true[s:s + 1],
+                                                               taken.z[None]))[0]:
+                continue
+            e = taken.z - truth[s]
+            e[2] = wrap_angle(e[2])
+            rows.append((e, *parts))
+    return rows
+
+
+def fit(rows: list[tuple]) -> tuple[float, np.ndarray]:
+    """The NEES of the errors against R_s, and the scales (3,) of its parts that best
+    explain them."""
+    e = np.array([r[0] for r in rows])
+    parts = np.array([[r[1], r[2], r[3]] for r in rows])  # (n, 3, 3, 3)
+
+    def whitened(S):
+        return np.einsum("ni,ni->n", e, np.linalg.solve(S, e[..., None])[..., 0])
+
+    def nll(log_scale):
+        S = np.einsum("k,nkij->nij", np.exp(log_scale), parts) + 1e-12 * np.eye(3)
+        return float(np.sum(np.linalg.slogdet(S)[1] + whitened(S)))
+
+    best = minimize(nll, np.zeros(3), method="Nelder-Mead",
+                    options={"maxiter": 2000, "xatol": 1e-3, "fatol": 1e-3})
+    return float(whitened(parts.sum(axis=1)).mean()), np.exp(best.x)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", nargs="+", default=["sim", "kitchen", "mrclam"],
+                        choices=["mrclam", "kitchen", "sim"])
+    parser.add_argument("--seeds", type=int, default=3, help="VIO-like odometry seeds")
+    parser.add_argument("--sim-seeds", type=int, default=2)
+    parser.add_argument("--cache", type=Path, default=Path("results/bench_nees"),
+                        help="folder of the cached runs (shared with bench_nees.py)")
+    args = parser.parse_args()
+    frame_aligner._calibrated_covariance = _recording(frame_aligner._calibrated_covariance)
+    default = FrameAlignerParams().map_drift
+    groups: dict[str, list] = {}
+    declared: dict[str, tuple[float, float]] = {}
+    for source in sources(args.data, args.seeds, args.sim_seeds, list(SCENARIOS),
+                          [20.0, 150.0]):
+        groups.setdefault(source.group, []).extend(measurements(source, args.cache))
+        drift = declared_drift(load(source, args.cache), source, default)
+        declared[source.group] = (drift if drift is not default
+                                  else (math.nan, math.nan))
+    print(f"{'data set':24} {'n':>6} {'NEES R_s':>8} {'point':>6} {'drift t':>7} "
+          f"{'drift th':>8} {'declared t, th':>15} {'k':>5}")
+    for group, rows in groups.items():
+        if len(rows) < 10:
+            print(f"{group:24} {len(rows):>6}  too few correct measurements to fit")
+            continue
+        nees, (a, b_t, b_theta) = fit(rows)
+        d_t, d_theta = declared[group]
+        ratio = "-" if math.isnan(d_t) else (f"{(d_t / default[0]) ** 2:.2f}, "
+                                              f"{(d_theta / default[1]) ** 2:.2f}")
+        k = np.mean([r[4] for r in rows])
+        print(f"{group:24} {len(rows):>6} {nees:>8.2f} {a:>6.2f} {b_t:>7.2f} {b_theta:>8.2f} "
+              f"{ratio:>15} {k:>5.1f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
