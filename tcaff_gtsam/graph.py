@@ -51,6 +51,7 @@ from .graph_inputs import (
     _KIND_SHIFT,
     _ROBOT_SHIFT,
     _a_key,
+    _blocks,
     _chain,
     _check_cov,
     _check_finite,
@@ -74,50 +75,6 @@ from .params import GraphParams, _given_or_default, _int_at_least
 __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 
 log = logging.getLogger(__name__)
-
-def _blocks(pairs: list[tuple]) -> list[int]:
-    """The block (biconnected component) of each pair of a graph whose edges are `pairs`
-    (distinct (a, b), a != b): pairs share a block when a cycle runs through both; a pair on
-    no cycle is a block alone. Hopcroft and Tarjan's depth-first search, without recursion."""
-    neighbours = defaultdict(list)
-    for e, (a, b) in enumerate(pairs):
-        neighbours[a].append((b, e))
-        neighbours[b].append((a, e))
-    order: dict = {}  # node -> its depth-first index
-    low: dict = {}  # node -> the lowest index its subtree reaches by one back edge
-    block, open_edges, n_blocks = [-1] * len(pairs), [], 0
-    for root in neighbours:
-        if root in order:
-            continue
-        order[root] = low[root] = len(order)
-        path = [(root, -1, iter(neighbours[root]))]
-        while path:
-            v, entered_by, rest = path[-1]
-            for w, e in rest:
-                if e == entered_by:
-                    continue
-                if w not in order:
-                    order[w] = low[w] = len(order)
-                    open_edges.append(e)
-                    path.append((w, e, iter(neighbours[w])))
-                    break
-                if order[w] < order[v]:  # a back edge, met from its lower end
-                    open_edges.append(e)
-                    low[v] = min(low[v], order[w])
-            else:
-                path.pop()
-                if path:
-                    u = path[-1][0]
-                    low[u] = min(low[u], low[v])
-                    if low[v] >= order[u]:  # nothing below v reaches above u: a block ends
-                        while True:
-                            e = open_edges.pop()
-                            block[e] = n_blocks
-                            if e == entered_by:
-                                break
-                        n_blocks += 1
-    return block
-
 
 class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphReadout):
     """iSAM2 smoothing of the frame alignments of `n_robots` robots (and their keyframes).

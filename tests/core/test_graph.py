@@ -22,7 +22,8 @@ from tcaff_gtsam.geometry import (
     se3_from_xyz_yaw,
     wrap_angle,
 )
-from tcaff_gtsam.graph import _blocks, alignment_key, keyframe_key
+from tcaff_gtsam.graph import alignment_key, keyframe_key
+from tcaff_gtsam.graph_inputs import _blocks
 from tcaff_gtsam.params import GraphParams, constant_alignment_covariance
 
 R = constant_alignment_covariance()
