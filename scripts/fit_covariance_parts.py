@@ -4,7 +4,8 @@
 translation (kappa / 2 d_t^2 on x and y) and its heading (kappa / 2 d_theta^2 J J', a turn
 about the registered objects). For every measurement TCAFF's best path takes (library
 defaults, the runs of `bench_nees.py`), this records the three parts of its R_s and its error
-e = z - truth, keeps the correct ones (within 1 m and 5 deg), and fits one scale per part,
+e = z - truth, keeps the correct ones (within 1 m and 5 deg: where many are wrong the errors'
+tail is cut off and the scales come out low), and fits one scale per part,
 a, b_t, b_theta, maximising the Gaussian likelihood of the errors under
 a point + b_t translation + b_theta heading. 1 for each says the part is right; a scale of
 the drift parts says how much more (or less) drift the errors show than `map_drift` gives,
@@ -52,7 +53,7 @@ def _recording(covariance):
 
 def measurements(source, cache: Path) -> list[tuple]:
     """(error (3,), point, translation, heading parts (3, 3), k) of every correct measurement
-    the best paths of the run's pairs took."""
+    the best paths of the run's pairs took. Needs `_recording` in place (`main` puts it)."""
     run = load(source, cache)
     settings = run.settings
     aligner = FrameAlignerParams(kappa=settings.kappa)
@@ -71,7 +72,10 @@ def measurements(source, cache: Path) -> list[tuple]:
                 continue
             taken = pair.taken[est.measurement]
             parts = _PARTS.get(taken.R.tobytes())
-            if parts is None or not limits.correct(step_errors(T_true[s:s + 1],
+            if parts is None:
+                raise RuntimeError(f"{source.name}: a measurement's R was not recorded (is "
+                                   "frame_aligner._calibrated_covariance recording?)")
+            if not limits.correct(step_errors(T_true[s:s + 1],
                                                                taken.z[None]))[0]:
                 continue
             e = taken.z - truth[s]

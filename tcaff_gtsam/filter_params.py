@@ -399,8 +399,9 @@ class GraphParams(_ByValue):
             component) with E pairs among V robots, each covariance times E / (V - 1), so
             that the block claims no more than V - 1 alignments, a tree's worth. Exact for a
             cycle or a complete graph of equal alignments whose errors are all their maps';
-            cautious where part of the error is each pair's own; approximate in between (the
-            pair two triangles share reads 0.83 of one alignment's covariance). A pair on no
+            cautious where part of the error is each pair's own; only approximate for other
+            shapes (of two triangles sharing a pair, the shared pair reads 0.83 of one
+            alignment's covariance, too sure, the other measured pairs 1.04). A pair on no
             cycle (two robots, a chain, a star, a pair hanging off a cycle) is unchanged, and
             the factors of one pair at a step (both directions, rival hypotheses) count as
             one pair: give one direction per pair, as two register the same maps. Factors
