@@ -39,11 +39,13 @@ def _alignment_process_noise() -> np.ndarray:
 
 def as_map_drift(owner: str, value) -> tuple[float, float]:
     """`value` as a map drift (metres, radians) per square root of a second, two finite numbers
-    >= 0; else a ParameterError of `owner`'s field map_drift."""
+    >= 0 whose squares are finite too (the covariance's variances); else a ParameterError of
+    `owner`'s field map_drift."""
     drift = _reals(value)
     _require(drift is not None and len(drift) == 2
-             and all(math.isfinite(v) and v >= 0 for v in drift), owner, "map_drift", value,
-             "must be (metres, radians) per square root of a second, two finite numbers >= 0")
+             and all(math.isfinite(v) and v >= 0 and math.isfinite(v * v) for v in drift),
+             owner, "map_drift", value, "must be (metres, radians) per square root of a second, "
+             "two finite numbers >= 0 (below 1e154, whose squares are finite)")
     return drift
 
 

@@ -290,7 +290,8 @@ def test_maps_that_keep_every_object_take_the_oldest_association_as_span():
 
 @pytest.mark.parametrize(("name", "value"), [
     ("repeat_inflation", -1.0), ("residual_prior_dof", math.nan), ("map_drift", (0.1,)),
-    ("map_drift", (-0.1, 0.0)), ("repeat_Q", np.eye(2)), ("repeat_Q", -np.eye(3)),
+    ("map_drift", (-0.1, 0.0)), ("map_drift", (1e160, 0.0)), ("map_drift", (0.0, 1e160)),
+    ("repeat_Q", np.eye(2)), ("repeat_Q", -np.eye(3)),
 ])
 def test_the_aligner_refuses_bad_settings(name, value):
     pair = overlapping_maps(np.random.default_rng(3), 40, 0.6, 0.1)
@@ -310,8 +311,9 @@ def test_bad_input_is_named():
                         ("repeat_inflation", math.inf)):
         with pytest.raises(ConfigError, match=name):
             calibrated_covariance(T, p, q, w, **({"kappa": 20.0} | {name: value}))
-    with pytest.raises(ConfigError, match="map_drift"):
-        calibrated_covariance(T, p, q, w, kappa=20.0, map_drift=(0.1, "x"))
+    for drift in ((0.1, "x"), (1e160, 0.0)):  # a drift whose square overflows too
+        with pytest.raises(ConfigError, match="map_drift"):
+            calibrated_covariance(T, p, q, w, kappa=20.0, map_drift=drift)
     with pytest.raises(ConfigError, match=r"(?s)calibrated_covariance\.Q = .*must be a symmetric"):
         calibrated_covariance(T, p, q, w, kappa=20.0, Q=np.diag([1.0, 1.0, 0.0]))
     with pytest.raises(ConfigError, match="overflow"):
