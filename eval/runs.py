@@ -17,7 +17,7 @@ from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import invert, se3_to_se2
 from tcaff_gtsam.object_map import ObjectMap
 
-__all__ = ["AlignmentRun", "RecordedRun", "RunSettings", "planar_poses"]
+__all__ = ["AlignmentRun", "RecordedRun", "RunSettings", "directed_pairs", "planar_poses"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,13 @@ class AlignmentRun(Protocol):
         """(S,) bool: the two maps share enough objects for an alignment to be found; None when
         the source cannot tell (availability is then counted over every step)."""
         ...
+
+
+def directed_pairs(run: AlignmentRun) -> list[tuple[int, int]]:
+    """The run's directed pairs (i, j) to align: its own list, or every ordered pair of its
+    robots."""
+    n = run.n_robots
+    return run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
 
 
 def planar_poses(T: np.ndarray) -> np.ndarray:

@@ -80,6 +80,7 @@ from pathlib import Path
 
 import numpy as np
 from tcaff_gtsam.eval.metrics import NEES_95, NEES_997, Thresholds, step_errors, step_nees
+from tcaff_gtsam.eval.runs import directed_pairs
 
 from tcaff_gtsam import FrameAlignerParams, PairwiseAligner, TCAFFParams
 from tcaff_gtsam.geometry import se2_to_params, wrap_angle
@@ -185,6 +186,13 @@ Model = Callable[[FrameAlignerParams, TCAFFParams, object, Source],
                  tuple[FrameAlignerParams, TCAFFParams]]
 
 
+def library_params(run) -> tuple[FrameAlignerParams, TCAFFParams]:
+    """The library's defaults with the run's map span kappa and window W."""
+    settings = run.settings
+    return (FrameAlignerParams(kappa=settings.kappa),
+            TCAFFParams() if settings.window is None else TCAFFParams(window=settings.window))
+
+
 def _mode(params: FrameAlignerParams, covariance: str) -> FrameAlignerParams:
     """`params` with covariance set to `covariance`."""
     return replace(params, covariance=covariance)
@@ -193,10 +201,8 @@ def _mode(params: FrameAlignerParams, covariance: str) -> FrameAlignerParams:
 def truth_drift(run) -> np.ndarray:
     """(3, 3) Q of the run's own drift: the mean square per-step change of every pair's true
     T_oi_oj (x and y pooled; theta wrapped), an oracle of the odometries' relative drift."""
-    n = run.n_robots
-    pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
     steps = []
-    for i, j in pairs:
+    for i, j in directed_pairs(run):
         truth = se2_to_params(run.T_true(i, j))
         d = np.diff(truth, axis=0)
         d[:, 2] = wrap_angle(d[:, 2])
@@ -289,12 +295,9 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
         aligner, tcaff = m.aligner_params(settings.kappa), m.tcaff_params(False,
                                                                           settings.window)
     else:
-        aligner = FrameAlignerParams(kappa=settings.kappa)
-        tcaff = TCAFFParams() if settings.window is None else TCAFFParams(
-            window=settings.window)
+        aligner, tcaff = library_params(run)
     aligner, tcaff = MODELS[model](aligner, tcaff, run, source)
-    n = run.n_robots
-    pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
+    pairs = directed_pairs(run)
     limits = Thresholds()
     parts = []
     overlap = available = correct = 0

@@ -27,15 +27,16 @@ import math
 from pathlib import Path
 
 import numpy as np
-from bench_nees import SCENARIOS, declared_drift, load, sources
+from bench_nees import SCENARIOS, declared_drift, library_params, load, sources
 from scipy.optimize import minimize
 from tcaff_gtsam.eval.metrics import Thresholds, step_errors
+from tcaff_gtsam.eval.runs import directed_pairs
 
 from tcaff_gtsam import frame_aligner
 from tcaff_gtsam.covariance import _single_registration_parts
 from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 from tcaff_gtsam.pairwise import PairwiseAligner
-from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams
+from tcaff_gtsam.params import FrameAlignerParams
 
 #: R (the aligner's output, as bytes) -> the parts of its R_s, filled while a run goes
 _PARTS: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray, int]] = {}
@@ -55,13 +56,10 @@ def measurements(source, cache: Path) -> list[tuple]:
     """(error (3,), point, translation, heading parts (3, 3), k) of every correct measurement
     the best paths of the run's pairs took. Needs `_recording` in place (`main` puts it)."""
     run = load(source, cache)
-    settings = run.settings
-    aligner = FrameAlignerParams(kappa=settings.kappa)
-    tcaff = TCAFFParams() if settings.window is None else TCAFFParams(window=settings.window)
+    aligner, tcaff = library_params(run)
     limits = Thresholds()
-    n = run.n_robots
     rows = []
-    for i, j in run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]:
+    for i, j in directed_pairs(run):
         _PARTS.clear()
         pair = PairwiseAligner(aligner, tcaff)
         T_true = run.T_true(i, j)

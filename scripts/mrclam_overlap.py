@@ -21,6 +21,7 @@ import numpy as np
 from tcaff_gtsam.eval.config import load_mrclam
 from tcaff_gtsam.eval.datasets import mrclam
 from tcaff_gtsam.eval.metrics import Thresholds, step_errors
+from tcaff_gtsam.eval.runs import directed_pairs
 
 from tcaff_gtsam import FrameAlignerParams, PairwiseAligner
 from tcaff_gtsam.pairwise import unchecked
@@ -65,8 +66,7 @@ def main() -> None:
     for seed in range(args.seeds):
         run, _ = mrclam.load_run(data, "vio", seed, args.kappa, config.nu, config.min_shared,
                                  config.vio.heading_rw_deg_per_sqrt_min, config.vio.scale_std)
-        n = run.n_robots
-        for i, j in run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]:
+        for i, j in directed_pairs(run):
             aligners = [PairwiseAligner(FrameAlignerParams(kappa=args.kappa)),
                         PairwiseAligner(unchecked(FrameAlignerParams(kappa=args.kappa)))]
             T_true = run.T_true(i, j)

@@ -409,16 +409,20 @@ class FrameAlignerParams(_ByValue):
             DataError: span not a finite number >= 0, or so long with these settings that
                 epsilon overflows.
         """
-        from .inputs import shown  # (inputs imports the parameter objects)
-
+        # called at every search; inputs imports the parameter objects, so `shown` is
+        # imported where a message needs it
         o = "FrameAlignerParams.span_epsilon"
         if not (_finite(span) and span >= 0):
+            from .inputs import shown
+
             raise DataError(f"{o}: span must be a finite number >= 0 seconds, got {shown(span)}")
         widen = self.epsilon_drift * self.map_drift[0]
         # products, not powers: a float's ** overflows with an exception, * to inf
         epsilon = math.sqrt(self.clipper.epsilon * self.clipper.epsilon
                             + widen * widen * float(span))
         if not math.isfinite(epsilon):
+            from .inputs import shown
+
             raise DataError(f"{o}: span = {shown(span)} with epsilon_drift = "
                             f"{shown(self.epsilon_drift)} and map_drift = "
                             f"{shown(self.map_drift)} overflows epsilon")

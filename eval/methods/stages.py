@@ -26,7 +26,7 @@ from tcaff_gtsam.precompile import compile_kernels
 from tcaff_gtsam.tcaff import TCAFF, AlignmentEstimate
 
 from ..config import MethodsConfig
-from ..runs import AlignmentRun
+from ..runs import AlignmentRun, directed_pairs
 
 __all__ = ["RunSetup", "SharedStages", "warm_up"]
 
@@ -51,8 +51,8 @@ class RunSetup:
 
     @classmethod
     def of(cls, run: AlignmentRun) -> RunSetup:
-        n, n_steps = run.n_robots, len(run.times)
-        pairs = run.pairs or [(i, j) for i in range(n) for j in range(n) if i != j]
+        n_steps = len(run.times)
+        pairs = directed_pairs(run)
         T_true = np.array([run.T_true(i, j) for i, j in pairs]).reshape(len(pairs), n_steps, 3, 3)
         known = np.all(np.isfinite(T_true), axis=(2, 3))
         truth = np.full((len(pairs), n_steps, 3), np.nan)

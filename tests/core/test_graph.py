@@ -23,7 +23,7 @@ from tcaff_gtsam.geometry import (
     wrap_angle,
 )
 from tcaff_gtsam.graph import alignment_key, keyframe_key
-from tcaff_gtsam.graph_inputs import _blocks
+from tcaff_gtsam.graph_inputs import _blocks, _components
 from tcaff_gtsam.params import GraphParams, constant_alignment_covariance
 
 R = constant_alignment_covariance()
@@ -166,16 +166,8 @@ def test_a_cycle_of_alignments_claims_no_more_than_a_tree_of_them(shape, read,
 def parts_without(pairs, removed) -> list:
     """The connected part of each pair once node `removed` is taken out (None: none is), a
     pair at the removed node counting with its other node."""
-    parent = {x: x for p in pairs for x in p}
-
-    def root(x):
-        while parent[x] != x:
-            x = parent[x]
-        return x
-
-    for a, b in pairs:
-        if removed not in (a, b):
-            parent[root(a)] = root(b)
+    root = _components({x for p in pairs for x in p},
+                       (p for p in pairs if removed not in p))
     return [root(b if a == removed else a) for a, b in pairs]
 
 
