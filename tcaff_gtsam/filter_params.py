@@ -408,6 +408,15 @@ class GraphParams(_ByValue):
             added to a step already committed, or removed later, do not re-weigh the others.
             In 3D the roll and pitch of `gravity_sigma` are inflated with the rest. False
             counts every factor in full, for alignments from independent sources.
+        cycle_check: with three or more robots, `update` first tests the TCAFF estimates
+            given for its step (`add_tcaff_estimate`) around every cycle of three robots, as
+            `TeamConsistency` does (chi-square 0.999 on the composed covariance; the largest
+            set of pairs that no failed cycle lies inside is kept). The factors of a
+            hypothesis left out, committed and to come, are held out of the graph until a
+            later step's test keeps it again, and the pair is read through the other robots.
+            Without it, one wrong pair measured more often than the pairs that contradict it
+            pulls the graph to its side, and every pair of its robots with it. False weighs
+            every hypothesis's factors by the M-estimator alone.
         horizon: steps the graph keeps for long runs: `update(k)` marginalises the variables
             of the steps at or before k - horizon (alignment variables, and the keyframes
             committed with those steps) into a linear factor on what they were linked to, one
@@ -432,6 +441,7 @@ class GraphParams(_ByValue):
     settle_threshold: float = 0.5
     switch_hold: int = TCAFFParams.window
     shared_maps: bool = True
+    cycle_check: bool = True
     horizon: int | None = None
 
     def __post_init__(self) -> None:
@@ -464,7 +474,8 @@ class GraphParams(_ByValue):
                  self.max_iterations, "must be an int >= 0")
         _require(_int_at_least(self.switch_hold, 1), o, "switch_hold", self.switch_hold,
                  "must be an int >= 1")
-        _require(isinstance(self.shared_maps, bool), o, "shared_maps", self.shared_maps,
-                 "must be True or False")
+        for name in ("shared_maps", "cycle_check"):
+            _require(isinstance(getattr(self, name), bool), o, name, getattr(self, name),
+                     "must be True or False")
         _require(self.horizon is None or _int_at_least(self.horizon, 2), o, "horizon",
                  self.horizon, "must be an int >= 2 (steps) or None")

@@ -67,10 +67,11 @@ from .graph_inputs import (
 )
 from .graph_keyframes import KeyframeFactors
 from .graph_output import GraphReadout
-from .graph_tcaff import HypothesisFactors, _Abandoned
+from .graph_tcaff import HypothesisFactors, _Abandoned, _Suspended
 from .graph_window import SlidingWindow
 from .inputs import real_array, shown
 from .params import GraphParams, _given_or_default, _int_at_least
+from .tcaff import AlignmentEstimate
 
 __all__ = ["InterRobotGraph", "alignment_key", "keyframe_key"]
 
@@ -136,6 +137,9 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._hypothesis: dict[tuple[int, int], int] = {}
         # pair -> an abandoned hypothesis whose factors wait for removal
         self._abandoned: dict[tuple[int, int], _Abandoned] = {}
+        # this step's TCAFF estimates, and pairs whose hypothesis the cycle check holds out
+        self._given: dict[tuple[int, int], AlignmentEstimate] = {}
+        self._suspended: dict[tuple[int, int], _Suspended] = {}
 
     # -- pose helpers --------------------------------------------------------------------------
 
@@ -334,11 +338,15 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             if self.params.horizon is not None and self._steps:
                 self._latest_joint(self._steps[-1])  # the latest step's, before it stops being so
             self._add_step(step)
+        suspended = {pair: _Suspended(held_out.hypothesis, list(held_out.factors))
+                     for pair, held_out in self._suspended.items()}
+        restored = self._cycle_checked()
         # alignments for later steps wait in the queue until their step is committed
         now, later = [], []
         for q in self._queued:
             (later if q.step is not None and q.step > newest else now).append(q)
-        self._queued = self._shared_maps_weighed(now) if self.params.shared_maps else now
+        self._queued = (self._shared_maps_weighed(now) if self.params.shared_maps
+                        else now) + restored
         leaving = self._leaving(step)
         self._fix_gauge()
         if not self._queued and not self._to_remove:
@@ -364,6 +372,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._settle(touched)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             self._roll_back(gone, marginals, step, leaving)
+            self._suspended = suspended
             self._forget_keyframes(set(self._pending_values.keys()))
             dropped, self._queued = self._queued, later
             self._pending_values, self._to_remove = gtsam.Values(), []

@@ -1,6 +1,8 @@
 """How `InterRobotGraph` takes a TCAFF filter's output: the candidate each step's estimate took
-becomes an alignment factor tagged with its hypothesis, and the factors of a hypothesis the
-filter switched away from are removed once the new one has held (`GraphParams.switch_hold`)."""
+becomes an alignment factor tagged with its hypothesis, the factors of a hypothesis the
+filter switched away from are removed once the new one has held (`GraphParams.switch_hold`),
+and those of a hypothesis that the other pairs' estimates contradict around cycles of three
+robots are held out of the graph while they do (`GraphParams.cycle_check`)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from .geometry import _chi2_quantile
 from .graph_inputs import _Factor
 from .inputs import real_array, shown
 from .tcaff import AlignmentEstimate
+from .team import TeamConsistency
 
 __all__ = ["HypothesisFactors"]
 
@@ -38,6 +41,18 @@ class _Abandoned:
     held: int = 0
 
 
+@dataclass
+class _Suspended:
+    """A pair's hypothesis the cycle check left out: its factors, held out of the graph.
+
+    Attributes:
+        hypothesis: its tag; factors: its alignment factors, as they were committed.
+    """
+
+    hypothesis: int
+    factors: list[_Factor]
+
+
 class HypothesisFactors:
     """The part of `InterRobotGraph` that takes TCAFF's hypotheses (mixed into it; it uses the
     graph's own attributes)."""
@@ -59,7 +74,11 @@ class HypothesisFactors:
         self._to_remove.extend(found)
         queued = len(self._queued)  # factors still waiting are dropped from the queue
         self._queued = [q for q in self._queued if not tagged(q)]
-        return len(found) + queued - len(self._queued)
+        held_out = self._suspended.get((i, j))
+        suspended = 0
+        if held_out is not None and held_out.hypothesis == hypothesis:
+            suspended = len(self._suspended.pop((i, j)).factors)
+        return len(found) + queued - len(self._queued) + suspended
 
     def add_tcaff_estimate(self, step: int, i: int, j: int,
                            estimate: AlignmentEstimate | None, zs, Rs) -> None:
@@ -77,6 +96,12 @@ class HypothesisFactors:
         once the new hypothesis has been reported at `switch_hold` steps; a switch back before
         then removes the short-lived hypothesis's factors instead, and a switch to a third one
         removes the one in between.
+
+        With `GraphParams.cycle_check`, the next `update` tests the estimates given for its
+        step around every cycle of three robots (`TeamConsistency`). The factors of a
+        hypothesis it leaves out, those committed and those to come, are held out of the
+        graph until a later step's test keeps that hypothesis again (those whose step left the
+        horizon meanwhile are dropped); the pair's alignment is then read through the others.
 
         Args:
             estimate: what `TCAFF.update(zs, Rs)` returned for this step.
@@ -100,7 +125,8 @@ class HypothesisFactors:
                 raise DataError(f"add_tcaff_estimate: estimate.measurement = "
                                 f"{estimate.measurement} must index zs (k, 3) and Rs (k, 3, 3), "
                                 f"got shapes {zs.shape} and {Rs.shape}")
-        pair = (i, j)
+        pair = (int(i), int(j))
+        self._given[pair] = estimate
         previous = self._hypothesis.get(pair)
         current = estimate.hypothesis
         waiting = self._abandoned.get(pair)
@@ -131,6 +157,54 @@ class HypothesisFactors:
         if estimate.measurement >= 0:
             m = estimate.measurement
             self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
+
+    def _cycle_checked(self) -> list[_Factor]:
+        """Apply the cycle check to this update's estimates (`GraphParams.cycle_check`).
+
+        Queues the removal of the factors of hypotheses it leaves out and moves queued ones of
+        held-out hypotheses aside. Returns the held-out factors of hypotheses it keeps again,
+        to be committed as they were (not weighed again by `shared_maps`).
+        """
+        given, self._given = self._given, {}
+        if not self.params.cycle_check or (len(given) < 3 and not self._suspended):
+            return []
+        team = TeamConsistency(self.n_robots)
+        team.update(given, pairs=[])
+        rejected = set(team.rejected)
+        restored: list[_Factor] = []
+        for pair, estimate in given.items():
+            held_out = self._suspended.get(pair)
+            undirected = (min(pair), max(pair))
+            if held_out is not None and held_out.hypothesis != estimate.hypothesis:
+                del self._suspended[pair]  # the filter left that hypothesis: it stays out
+                held_out = None
+            if undirected in rejected and held_out is None:
+                self._suspended[pair] = _Suspended(estimate.hypothesis,
+                                                   self._take_out(pair, estimate.hypothesis))
+            elif undirected not in rejected and held_out is not None:
+                del self._suspended[pair]
+                restored.extend(f for f in held_out.factors if f.step not in self._left)
+        if self._suspended:  # factors of held-out hypotheses queued since: aside too
+            kept = []
+            for q in self._queued:
+                held_out = self._suspended.get(q.tag[1:3]) if q.tag and q.tag[0] == "alignment" \
+                    else None
+                if held_out is not None and q.tag[3] == held_out.hypothesis:
+                    held_out.factors.append(q)
+                else:
+                    kept.append(q)
+            self._queued = kept
+            for held_out in self._suspended.values():  # bounded by the horizon
+                held_out.factors = [f for f in held_out.factors if f.step not in self._left]
+        return restored
+
+    def _take_out(self, pair: tuple[int, int], hypothesis: int) -> list[_Factor]:
+        """Queue the removal of the committed factors of (pair, hypothesis); returns them."""
+        tag = ("alignment", *pair, hypothesis)
+        found = [index for index, f in self._active.items()
+                 if f.tag == tag and index not in self._to_remove]
+        self._to_remove.extend(found)
+        return [self._active[index] for index in found]
 
     def settled(self, i: int, j: int) -> bool:
         """False while the pair (i, j) or (j, i) has an abandoned hypothesis whose factors wait

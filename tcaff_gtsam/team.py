@@ -216,16 +216,15 @@ class TeamConsistency:
         index = {p: b for b, p in enumerate(pairs)}
         masks = [sum(1 << index[e] for e in cycle) for cycle in failed]
         if len(pairs) <= self.params.exact_up_to:
-            spread = [float(np.trace(edges[p][1][:2, :2])) for p in pairs]
-            best, best_key = 0, (-1, 0.0)
-            for subset in range(1 << len(pairs)):
-                if any(subset & m == m for m in masks):
-                    continue
-                members = [b for b in range(len(pairs)) if subset >> b & 1]
-                key = (len(members), -sum(spread[b] for b in members))
-                if key > best_key:
-                    best, best_key = subset, key
-            return {p for p, b in index.items() if best >> b & 1}
+            spread = np.array([np.trace(edges[p][1][:2, :2]) for p in pairs])
+            subsets = np.arange(1 << len(pairs), dtype=np.int64)
+            valid = np.ones(len(subsets), dtype=bool)
+            for m in masks:
+                valid &= (subsets & m) != m
+            members = (subsets[valid, None] >> np.arange(len(pairs))) & 1  # (s, n) 0 / 1
+            # the most pairs, then the smallest summed spread; lexsort's last key is primary
+            best = np.lexsort((members @ spread, -members.sum(axis=1)))[0]
+            return {p for p, b in index.items() if members[best, b]}
         kept = set(pairs)
         cycles = [set(c) for c in failed]
         while cycles:

@@ -25,6 +25,7 @@ from tcaff_gtsam.geometry import (
 from tcaff_gtsam.graph import alignment_key, keyframe_key
 from tcaff_gtsam.graph_inputs import _blocks, _components
 from tcaff_gtsam.params import GraphParams, constant_alignment_covariance
+from tcaff_gtsam.tcaff import AlignmentEstimate
 
 R = constant_alignment_covariance()
 
@@ -905,3 +906,127 @@ def test_the_latest_steps_kept_joint_follows_every_change_of_the_graph():
         with pytest.raises(DataError, match="as it was before"):
             graph.update(6)
     same_covariances()
+
+
+# -- the cycle check ---------------------------------------------------------------------------
+
+FRAMES = [se2_from_params(x) for x in ([0, 0, 0], [6.0, -2.0, 0.7], [-3.0, 5.0, -1.9],
+                                        [2.0, 8.0, 2.6])]
+TURNED = se2_from_params([11.0, 4.0, np.radians(110)])  # a look-alike turn of robot 3's map
+
+
+def truth(i: int, j: int) -> np.ndarray:
+    return np.linalg.inv(FRAMES[i]) @ FRAMES[j]
+
+
+def estimate(x, measured: bool, hypothesis: int = 1, held_for: int = 0) -> AlignmentEstimate:
+    """A TCAFF estimate of x (3,), measured at this step (its candidate is x) or held."""
+    P = R * (1.0 + 0.2 * held_for)
+    return AlignmentEstimate(np.asarray(x, dtype=float), P, 0.0, hypothesis, 1, 8,
+                             0 if measured else -1)
+
+
+def feed(graph: InterRobotGraph, step: int, reported: dict) -> None:
+    """Give the graph one step of TCAFF estimates: (i, j) -> (T, measured, hypothesis)."""
+    for (i, j), (T, measured, hypothesis) in reported.items():
+        x = se2_to_params(T)
+        graph.add_tcaff_estimate(step, i, j, estimate(x, measured, hypothesis,
+                                                      0 if measured else step),
+                                 x[None], R[None])
+    graph.update(step)
+
+
+def wrong_pair_measured_most(cycle_check: bool, steps: int = 60, horizon: int | None = None
+                             ) -> InterRobotGraph:
+    """Robots 0-3: the pair (0, 3) holds a wrong alignment measured at every step; (0, 1) and
+    (0, 2) are right but measured at the first five steps only and held after; (1, 2), (1, 3)
+    and (2, 3) are right and measured at every step."""
+    graph = InterRobotGraph(4, GraphParams(cycle_check=cycle_check, horizon=horizon))
+    for k in range(steps):
+        reported = {pair: (truth(*pair), True, 1) for pair in [(1, 2), (1, 3), (2, 3)]}
+        reported[(0, 3)] = (truth(0, 3) @ TURNED, True, 1)
+        for pair in [(0, 1), (0, 2)]:
+            reported[pair] = (truth(*pair), k < 5, 1)
+        feed(graph, k, reported)
+    return graph
+
+
+def test_a_wrong_pair_contradicted_around_cycles_is_held_out_of_the_graph():
+    graph = wrong_pair_measured_most(cycle_check=True)
+    for pair in [(0, 1), (0, 2), (0, 3), (1, 3)]:
+        dt, dth = pose_error(truth(*pair), graph.alignment(*pair)[0])
+        assert dt < 0.05 and dth < 0.5, (pair, dt, dth)
+    assert not any(f.tag[1:3] == (0, 3) for f in graph._active.values()
+                   if f.tag is not None and f.tag[0] == "alignment")
+    # counted by the M-estimator alone, the pair measured most pulls robot 0 to its side
+    graph = wrong_pair_measured_most(cycle_check=False)
+    dt, dth = pose_error(truth(0, 1), graph.alignment(0, 1)[0])
+    assert dth > 5.0, dth
+
+
+def test_held_out_factors_are_bounded_by_the_horizon():
+    graph = wrong_pair_measured_most(cycle_check=True, steps=30, horizon=6)
+    # what left at an update is dropped at the next
+    assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(23, 30))
+    dt, dth = pose_error(truth(0, 3), graph.alignment(0, 3)[0])
+    assert dt < 0.05 and dth < 0.5
+
+
+def test_a_hypothesis_kept_again_gets_its_factors_back():
+    """(0, 3) is right throughout but reported off at steps 10-14: held out then, and every
+    factor of its hypothesis is in the graph again from step 15 on."""
+    graph = InterRobotGraph(4)
+    counts = []
+    for k in range(25):
+        reported = {pair: (truth(*pair), True, 1)
+                    for pair in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (0, 3)]}
+        if 10 <= k < 15:
+            reported[(0, 3)] = (truth(0, 3) @ TURNED, True, 1)
+        feed(graph, k, reported)
+        counts.append(sum(f.tag[1:3] == (0, 3) for f in graph._active.values()
+                          if f.tag is not None and f.tag[0] == "alignment"))
+    assert counts[9] == 10 and counts[10:15] == [0] * 5 and counts[15] == 16
+    assert counts[-1] == 25
+    # the five off factors are back too, weighed by the M-estimator as before
+    dt, dth = pose_error(truth(0, 3), graph.alignment(0, 3)[0])
+    assert dt < 0.15 and dth < 2.0  # R: 0.5 m and 5 deg
+
+
+def test_a_held_out_hypothesis_the_filter_leaves_stays_out():
+    """Held out, then the filter reports a new hypothesis for the pair that agrees: the held-out
+    factors are dropped, the new ones enter."""
+    graph = InterRobotGraph(4)
+    for k in range(20):
+        reported = {pair: (truth(*pair), True, 1)
+                    for pair in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]}
+        reported[(0, 3)] = ((truth(0, 3) @ TURNED, True, 1) if k < 10
+                            else (truth(0, 3), True, 2))
+        feed(graph, k, reported)
+    hypotheses = [f.tag[3] for f in graph._active.values()
+                  if f.tag is not None and f.tag[0] == "alignment" and f.tag[1:3] == (0, 3)]
+    assert hypotheses == [2] * 10
+    assert graph._suspended == {}
+    assert graph.remove_hypothesis(0, 3, 2) == 10
+
+
+def test_an_update_gtsam_cannot_solve_leaves_the_held_out_factors_as_they_were():
+    """An update that would put the held-out factors back fails: they stay held out, and the
+    next update puts them back."""
+    graph = wrong_pair_measured_most(cycle_check=True, steps=10)
+    held_out = [f.step for f in graph._suspended[(0, 3)].factors]
+    assert held_out == list(range(10))
+    for i, j in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (0, 3)]:  # all right: (0, 3) kept
+        x = se2_to_params(truth(i, j))
+        graph.add_tcaff_estimate(10, i, j, estimate(x, False), x[None], R[None])
+    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):  # what gtsam cannot eliminate
+        graph.add_between(alignment_key(0, 9), alignment_key(1, 9), se2_from_params(T),
+                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    with pytest.raises(DataError, match="could not solve"):
+        graph.update(10)
+    assert [f.step for f in graph._suspended[(0, 3)].factors] == held_out
+    feed(graph, 11, {pair: (truth(*pair), True, 1)
+                     for pair in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (0, 3)]})
+    assert (0, 3) not in graph._suspended
+    assert sorted(f.step for f in graph._active.values()
+                  if f.tag is not None and f.tag[0] == "alignment" and f.tag[1:3] == (0, 3)
+                  ) == [*range(10), 11]

@@ -38,7 +38,7 @@ SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),
             ("TCAFFParams", "neutral_empty_steps"),
             ("FrameAlignerParams", "check_ambiguity"),
             ("FrameAlignerParams", "descriptor_prior"), ("FrameAlignerParams", "refit"),
-            ("GraphParams", "shared_maps")}
+            ("GraphParams", "shared_maps"), ("GraphParams", "cycle_check")}
 #: values of the wrong kind for a number, a choice, a matrix or a nested parameter object
 JUNK = ("8", "huge", b"1", [["a"]], {}, object(), float("nan"))
 
