@@ -13,7 +13,6 @@ it.
 
 from __future__ import annotations
 
-import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -97,16 +96,17 @@ def _compose(xa: np.ndarray, Pa: np.ndarray, xb: np.ndarray, Pb: np.ndarray
     return x, (Ja @ Pa @ Ja.transpose(0, 2, 1)) + (Jb @ Pb @ Jb.transpose(0, 2, 1))
 
 
-def _invert(a: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(x, P) of T_a^-1, the covariance propagated to first order."""
-    x, P = a
-    c, s = math.cos(x[2]), math.sin(x[2])
-    Rt = np.array([[c, s], [-s, c]])
-    t = -Rt @ x[:2]
-    J = -np.eye(3)
-    J[:2, :2] = -Rt
-    J[:2, 2] = [t[1], -t[0]]
-    return np.array([t[0], t[1], _wrap_angle(-x[2])]), J @ P @ J.T
+def _invert(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x (m, 3), P (m, 3, 3)) of T^-1 for m alignments x (m, 3), P (m, 3, 3), the covariance
+    propagated to first order."""
+    c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
+    tx = -(c * x[:, 0] + s * x[:, 1])  # t = -R' x[:2]
+    ty = s * x[:, 0] - c * x[:, 1]
+    J = np.zeros((len(x), 3, 3))
+    J[:, 0, 0], J[:, 0, 1], J[:, 1, 0], J[:, 1, 1] = -c, -s, s, -c  # -R'
+    J[:, 0, 2], J[:, 1, 2], J[:, 2, 2] = ty, -tx, -1.0
+    return (np.column_stack([tx, ty, _wrap_angle(-x[:, 2])]),
+            J @ P @ J.transpose(0, 2, 1))
 
 
 def _distances(xa: np.ndarray, Pa: np.ndarray, xb: np.ndarray, Pb: np.ndarray) -> np.ndarray:
@@ -170,25 +170,35 @@ class TeamConsistency:
                                 f"AlignmentEstimate), got {shown(est)}")
             x = real_array(o, f"estimates[{key}].x", est.x)
             P = real_array(o, f"estimates[{key}].P", est.P)
-            if x.shape != (3,) or P.shape != (3, 3) or not (np.all(np.isfinite(x))
-                                                         and np.all(np.isfinite(P))):
+            if x.shape != (3,) or P.shape != (3, 3):
                 raise DataError(f"{o}: pair {key}: need a finite x (3,) and P (3, 3), got "
                                 f"shapes {x.shape} and {P.shape}")
             i, j = int(key[0]), int(key[1])
             given[(i, j)] = (x, P)
-        edges = {}
-        for (i, j), xP in given.items():
-            a, b = min(i, j), max(i, j)
-            if (a, b) in edges:
-                continue
-            forward = xP if i < j else _invert(xP)
-            other = given.get((j, i))
-            if other is not None:
-                backward = other if j < i else _invert(other)
-                if _distances(forward[0][None], forward[1][None], backward[0][None],
-                              backward[1][None])[0] > self._gate:
-                    continue
-            edges[(a, b)] = forward
+        if given:  # finite, checked for all at once
+            finite = (np.isfinite([x for x, _ in given.values()]).all(axis=1)
+                      & np.isfinite([P for _, P in given.values()]).all(axis=(1, 2)))
+            if not finite.all():
+                key = list(given)[int(np.argmin(finite))]
+                raise DataError(f"{o}: pair {key}: need a finite x (3,) and P (3, 3), got "
+                                f"x = {shown(given[key][0])}, P = {shown(given[key][1])}")
+        # every given (j, i), j > i, turned into (i, j) at once
+        down = [key for key in given if key[0] > key[1]]
+        turned = {}
+        if down:
+            x, P = _invert(np.array([given[k][0] for k in down]),
+                           np.array([given[k][1] for k in down]))
+            turned = {(i, j): (x[n], P[n]) for n, (j, i) in enumerate(down)}
+        edges = {pair: given[pair] if pair in given else turned[pair]
+                 for pair in sorted({(min(k), max(k)) for k in given})}
+        both = [pair for pair in edges if pair in given and pair in turned]
+        if both:  # both directions given: a pair whose two filters disagree is left out
+            apart = _distances(np.array([given[p][0] for p in both]),
+                               np.array([given[p][1] for p in both]),
+                               np.array([turned[p][0] for p in both]),
+                               np.array([turned[p][1] for p in both])) > self._gate
+            for pair in np.array(both)[apart].tolist():
+                del edges[tuple(pair)]
         return edges
 
     def _failed_cycles(self, edges) -> list[tuple]:
@@ -264,10 +274,13 @@ class TeamConsistency:
         # every kept alignment in both directions, as (n, n) arrays
         linked = np.zeros((n, n), dtype=bool)
         X, P = np.zeros((n, n, 3)), np.zeros((n, n, 3, 3))
-        for i, j in sorted(kept):
+        if kept:
+            up = sorted(kept)
+            i, j = np.array(up).T
             linked[i, j] = linked[j, i] = True
-            X[i, j], P[i, j] = edges[(i, j)]
-            X[j, i], P[j, i] = _invert(edges[(i, j)])
+            X[i, j] = [edges[p][0] for p in up]
+            P[i, j] = [edges[p][1] for p in up]
+            X[j, i], P[j, i] = _invert(X[i, j], P[i, j])
         out = {(int(i), int(j)): TeamEstimate(X[i, j].copy(), P[i, j].copy(), (int(i), int(j)))
                for i, j in zip(*np.nonzero(linked & want), strict=True)}
         out.update(self._chains(linked, X, P, want))
