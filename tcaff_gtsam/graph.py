@@ -112,6 +112,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         # only shrinks it later)
         self._left: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._joints: dict[int, np.ndarray] = {}  # that covariance while the step was latest
+        # past steps' factors removed since (and not put back): their joints no longer hold
+        self._removed_at: Counter[int] = Counter()
         self._n_left = 0  # self._steps[:self._n_left] have left
         self._marginal: set[int] = set()  # indices of the marginal factors of what left
         self._settled_from: gtsam.Values | None = None
@@ -335,18 +337,19 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             raise DataError(f"update: {len(skipped)} queued alignments refer to step "
                             f"{skipped[0].step}, which was skipped; they were dropped")
         if step is not None:
-            if self.params.horizon is not None and self._steps:
+            if self._steps and (self.params.horizon is not None
+                                or self.params.past_covariance == "causal"):
                 self._latest_joint(self._steps[-1])  # the latest step's, before it stops being so
             self._add_step(step)
-        suspended = {pair: _Suspended(held_out.hypothesis, list(held_out.factors))
-                     for pair, held_out in self._suspended.items()}
-        restored = self._cycle_checked()
         # alignments for later steps wait in the queue until their step is committed
         now, later = [], []
         for q in self._queued:
             (later if q.step is not None and q.step > newest else now).append(q)
-        self._queued = (self._shared_maps_weighed(now) if self.params.shared_maps
-                        else now) + restored
+        suspended = {pair: _Suspended(held_out.hypothesis, list(held_out.factors))
+                     for pair, held_out in self._suspended.items()}
+        now, restored = self._cycle_checked(
+            self._shared_maps_weighed(now) if self.params.shared_maps else now)
+        self._queued = now + restored
         leaving = self._leaving(step)
         self._fix_gauge()
         if not self._queued and not self._to_remove:
@@ -362,6 +365,10 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         for index, f in gone:
             removed_keys.update(f.keys)
             self._count(f, index, -1)
+        # a past step's causal joint describes it while every factor it had is in the graph:
+        # count the removed ones not put back (a held-out hypothesis comes back whole)
+        removed_at = Counter(f.step for _, f in gone if f.step is not None)
+        removed_at.subtract(f.step for f in restored)
         touched |= removed_keys
         factors = self._isam.getFactorsUnsafe()
         self._settled_from = None
@@ -385,6 +392,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         for q, index in zip(self._queued, indices, strict=True):
             self._active[index] = q
             self._count(q, index, +1)
+        self._removed_at.update(removed_at)
+        self._removed_at = +self._removed_at  # only steps with some removed for good
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._marginalise(leaving)
         if self._steps:  # the latest step's joint changed: computed again when it is needed

@@ -24,8 +24,12 @@ class GraphReadout:
         """T_oi_oj(step) = A_i(step)^-1 A_j(step) from the current solution.
 
         Returns:
-            T: (3, 3) or (4, 4); cov: marginal covariance of (x, y, theta) / (x, y, z, yaw),
-            or None when `covariance` is False.
+            T: (3, 3) or (4, 4); cov: covariance of (x, y, theta) / (x, y, z, yaw), or None
+            when `covariance` is False. For the latest step, its marginal covariance. For an
+            earlier step, with `GraphParams.past_covariance = "causal"` (the default), the
+            marginal it had while it was the latest, unless factors of that step have been
+            removed since (then, and with "smoothed", its marginal now); a step that left the
+            horizon keeps the one it had as the latest.
         Raises:
             DataError: unknown robot or a step that has not been committed.
         """
@@ -43,10 +47,14 @@ class GraphReadout:
             return T, None
         if i == j:
             return T, np.zeros((self._n_param, self._n_param))
-        # kept for steps that left; with a horizon, the latest step's is computed once and kept
+        # kept for steps that left and (past_covariance="causal") for earlier steps; the
+        # latest step's is computed once and kept
+        causal = self.params.past_covariance == "causal"
         every = (self._left[step][1] if step in self._left
                  else self._latest_joint(step)
-                 if step == self._steps[-1] and self.params.horizon is not None else None)
+                 if step == self._steps[-1] and (causal or self.params.horizon is not None)
+                 else self._joints.get(step) if causal and step not in self._removed_at
+                 else None)
         if every is not None:
             n = 3 if self._planar else 6
             rows = np.r_[i * n:(i + 1) * n, j * n:(j + 1) * n]

@@ -112,11 +112,19 @@ class HypothesisFactors:
                             "planar graph (GraphParams(dim=2))")
         self._check_robot("i", i)
         self._check_robot("j", j)
+        if i == j:
+            raise DataError(f"add_tcaff_estimate: i and j are both {i}")
         if estimate is None:
             return
         if not isinstance(estimate, AlignmentEstimate):
             raise DataError(f"add_tcaff_estimate: estimate must be an AlignmentEstimate or "
                             f"None, got {shown(estimate)}")
+        x = np.asarray(estimate.x)
+        P = np.asarray(estimate.P)
+        if not (x.shape == (3,) and P.shape == (3, 3) and np.isfinite(x).all()
+                and np.isfinite(P).all()):
+            raise DataError(f"add_tcaff_estimate: estimate needs a finite x (3,) and P (3, 3), "
+                            f"got x = {shown(estimate.x)}, P = {shown(estimate.P)}")
         if estimate.measurement >= 0:
             zs = real_array("add_tcaff_estimate", "zs", zs)
             Rs = real_array("add_tcaff_estimate", "Rs", Rs)
@@ -158,19 +166,26 @@ class HypothesisFactors:
             m = estimate.measurement
             self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
 
-    def _cycle_checked(self) -> list[_Factor]:
-        """Apply the cycle check to this update's estimates (`GraphParams.cycle_check`).
+    def _cycle_checked(self, queued: list[_Factor]) -> tuple[list[_Factor], list[_Factor]]:
+        """Apply the cycle check to the estimates given since the last update
+        (`GraphParams.cycle_check`).
 
-        Queues the removal of the factors of hypotheses it leaves out and moves queued ones of
-        held-out hypotheses aside. Returns the held-out factors of hypotheses it keeps again,
-        to be committed as they were (not weighed again by `shared_maps`).
+        Queues the removal of the committed factors of hypotheses it leaves out. Args: queued,
+        the factors this update commits, already weighed (`shared_maps`). Returns them without
+        those of held-out hypotheses (kept aside), and the kept-aside factors of hypotheses it
+        keeps again, to be committed as they were weighed.
         """
         given, self._given = self._given, {}
         if not self.params.cycle_check or (len(given) < 3 and not self._suspended):
-            return []
-        team = TeamConsistency(self.n_robots)
-        team.update(given, pairs=[])
-        rejected = set(team.rejected)
+            return queued, []
+        # the robots of this step's estimates, numbered from 0: a team of only those
+        robots = sorted({r for pair in given for r in pair})
+        rejected: set[tuple[int, int]] = set()
+        if 3 <= len(robots) <= TeamConsistency.MAX_ROBOTS:
+            number = {r: n for n, r in enumerate(robots)}
+            team = TeamConsistency(len(robots))
+            team.update({(number[i], number[j]): e for (i, j), e in given.items()}, pairs=[])
+            rejected = {(robots[a], robots[b]) for a, b in team.rejected}
         restored: list[_Factor] = []
         for pair, estimate in given.items():
             held_out = self._suspended.get(pair)
@@ -184,19 +199,19 @@ class HypothesisFactors:
             elif undirected not in rejected and held_out is not None:
                 del self._suspended[pair]
                 restored.extend(f for f in held_out.factors if f.step not in self._left)
-        if self._suspended:  # factors of held-out hypotheses queued since: aside too
-            kept = []
-            for q in self._queued:
-                held_out = self._suspended.get(q.tag[1:3]) if q.tag and q.tag[0] == "alignment" \
-                    else None
-                if held_out is not None and q.tag[3] == held_out.hypothesis:
-                    held_out.factors.append(q)
-                else:
-                    kept.append(q)
-            self._queued = kept
-            for held_out in self._suspended.values():  # bounded by the horizon
-                held_out.factors = [f for f in held_out.factors if f.step not in self._left]
-        return restored
+        if not self._suspended:
+            return queued, restored
+        kept = []
+        for q in queued:  # factors of held-out hypotheses committed now: aside too
+            held_out = (self._suspended.get(q.tag[1:3])
+                        if q.tag is not None and q.tag[0] == "alignment" else None)
+            if held_out is not None and q.tag[3] == held_out.hypothesis:
+                held_out.factors.append(q)
+            else:
+                kept.append(q)
+        for held_out in self._suspended.values():  # bounded by the horizon
+            held_out.factors = [f for f in held_out.factors if f.step not in self._left]
+        return kept, restored
 
     def _take_out(self, pair: tuple[int, int], hypothesis: int) -> list[_Factor]:
         """Queue the removal of the committed factors of (pair, hypothesis); returns them."""

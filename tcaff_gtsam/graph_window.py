@@ -25,9 +25,10 @@ class SlidingWindow:
         return self._isam.jointMarginalCovariance(keys).fullMatrix()
 
     def _latest_joint(self, step: int) -> np.ndarray:
-        """With a horizon, the joint of the latest step as it is now, kept until the graph
-        changes: the first read of the step computes it (a caller reading every pair pays
-        for one joint, not a marginal per pair), else the update that adds the next step."""
+        """The joint of the latest step as it is now, kept until the graph changes (with a
+        horizon or `past_covariance="causal"`): the first read of the step computes it (a
+        caller reading every pair pays for one joint, not a marginal per pair), else the
+        update that adds the next step, which keeps it as the step's causal joint."""
         joint = self._joints.get(step)
         if joint is None:
             joint = self._joints[step] = self._joint(step)
@@ -111,8 +112,11 @@ class SlidingWindow:
             estimate = self._isam.calculateEstimate(step_keys)
             get = estimate.atPose2 if self._planar else estimate.atPose3
             A = np.array([get(key).matrix() for key in step_keys])
-            # kept by the update that added the next step (a step leaves only after one)
-            self._left[k] = (A, self._joints.pop(k))
+            # kept by the update that added the next step (a step leaves only after one),
+            # unless a removal since made it stale: then the joint as it is now
+            joint = self._joints.pop(k, None)
+            stale = self._removed_at.pop(k, 0) > 0
+            self._left[k] = (A, self._joint(k) if joint is None or stale else joint)
             keys += step_keys
             for key in self._keyframes_at.pop(rank, []):
                 robot, index = _keyframe_of(key)

@@ -150,8 +150,9 @@ class TeamConsistency:
         self.rejected: list[tuple[int, int]] = []
 
     def _edges(self, estimates: Mapping) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
-        """One (x, P) of T_oi_oj per unordered pair i < j. When both directions are given and
-        disagree, the pair is left out: its two filters contradict each other."""
+        """One (x, P) of T_oi_oj per unordered pair i < j: the (i, j) estimate where both
+        directions are given, else the (j, i) one inverted. When both are given and disagree,
+        the pair is left out: its two filters contradict each other."""
         o = "TeamConsistency.update"
         if not isinstance(estimates, Mapping):
             raise DataError(f"{o}: estimates must be a mapping (i, j) -> estimate, got "
@@ -226,15 +227,20 @@ class TeamConsistency:
         index = {p: b for b, p in enumerate(pairs)}
         masks = [sum(1 << index[e] for e in cycle) for cycle in failed]
         if len(pairs) <= self.params.exact_up_to:
-            spread = np.array([np.trace(edges[p][1][:2, :2]) for p in pairs])
+            spread = [float(np.trace(edges[p][1][:2, :2])) for p in pairs]
             subsets = np.arange(1 << len(pairs), dtype=np.int64)
             valid = np.ones(len(subsets), dtype=bool)
             for m in masks:
                 valid &= (subsets & m) != m
-            members = (subsets[valid, None] >> np.arange(len(pairs))) & 1  # (s, n) 0 / 1
-            # the most pairs, then the smallest summed spread; lexsort's last key is primary
-            best = np.lexsort((members @ spread, -members.sum(axis=1)))[0]
-            return {p for p, b in index.items() if members[best, b]}
+            subsets = subsets[valid]
+            size, summed = np.zeros(len(subsets), dtype=np.int64), np.zeros(len(subsets))
+            for b in range(len(pairs)):  # summed in pair order, as ties are decided
+                member = (subsets >> b) & 1
+                size += member
+                summed += member * spread[b]
+            # the most pairs, then the smallest summed spread, then the first subset
+            best = subsets[np.lexsort((summed, -size))[0]]
+            return {p for p, b in index.items() if best >> b & 1}
         kept = set(pairs)
         cycles = [set(c) for c in failed]
         while cycles:

@@ -36,6 +36,12 @@ def pose_error(T_true, T_est):
     return dt, np.degrees(dth)
 
 
+def same_spread(C, D) -> bool:
+    """Two (x, y, theta) covariances of one kept joint, mapped at slightly different estimates:
+    the same standard deviations to 1 %."""
+    return bool(np.allclose(np.sqrt(np.diag(C)), np.sqrt(np.diag(D)), rtol=0.01))
+
+
 def team(seed=0):
     rng = np.random.default_rng(seed)
     T01 = se2_from_params([10.0, -3.0, 2.0])
@@ -281,8 +287,9 @@ def test_huber_bounds_gross_outliers_and_gaussian_does_not():
 
 def test_removing_a_hypothesis_restores_the_estimate():
     _, truth = team()
-    good = InterRobotGraph(2)
-    mixed = InterRobotGraph(2)
+    smoothed = GraphParams(past_covariance="smoothed")  # step 25's, as the solution has it now
+    good = InterRobotGraph(2, smoothed)
+    mixed = InterRobotGraph(2, smoothed)
     wrong = truth[(0, 1)] @ se2_from_params([3.0, 0.0, 0.5])
     for k in range(30):
         for graph in (good, mixed):
@@ -611,7 +618,7 @@ def noisy_team_run(graph: InterRobotGraph, steps: int, seed: int = 0) -> dict:
 def test_a_bounded_graph_keeps_its_horizon_and_what_left_it():
     horizon, steps = 10, 60
     bounded = InterRobotGraph(3, GraphParams(horizon=horizon))
-    whole = InterRobotGraph(3)
+    whole = InterRobotGraph(3, GraphParams(past_covariance="smoothed"))
     run = noisy_team_run(bounded, steps)
     noisy_team_run(whole, steps)
     # the latest `horizon` steps of variables stay; every step can still be read
@@ -976,7 +983,7 @@ def test_a_hypothesis_kept_again_gets_its_factors_back():
     """(0, 3) is right throughout but reported off at steps 10-14: held out then, and every
     factor of its hypothesis is in the graph again from step 15 on."""
     graph = InterRobotGraph(4)
-    counts = []
+    counts, causal = [], {}
     for k in range(25):
         reported = {pair: (truth(*pair), True, 1)
                     for pair in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (0, 3)]}
@@ -985,6 +992,9 @@ def test_a_hypothesis_kept_again_gets_its_factors_back():
         feed(graph, k, reported)
         counts.append(sum(f.tag[1:3] == (0, 3) for f in graph._active.values()
                           if f.tag is not None and f.tag[0] == "alignment"))
+        causal[k] = graph.alignment(1, 2)[1]
+    # back whole: the steps before read the covariance they had as the latest again
+    assert same_spread(graph.alignment(1, 2, 5)[1], causal[5])
     assert counts[9] == 10 and counts[10:15] == [0] * 5 and counts[15] == 16
     assert counts[-1] == 25
     # the five off factors are back too, weighed by the M-estimator as before
@@ -1030,3 +1040,122 @@ def test_an_update_gtsam_cannot_solve_leaves_the_held_out_factors_as_they_were()
     assert sorted(f.step for f in graph._active.values()
                   if f.tag is not None and f.tag[0] == "alignment" and f.tag[1:3] == (0, 3)
                   ) == [*range(10), 11]
+
+
+# -- the covariance of a past step ---------------------------------------------------------------
+
+
+def steady_pair(params: GraphParams, steps: int = 40, wrong_at=()) -> tuple[InterRobotGraph, dict]:
+    """Two robots measured at every step (hypothesis 1), plus hypothesis 2's factors at the steps
+    `wrong_at`; returns the graph and each step's covariance read right after its update."""
+    _, truth = team()
+    rng = np.random.default_rng(1)
+    graph, causal = InterRobotGraph(2, params), {}
+    for k in range(steps):
+        z = se2_to_params(truth[(0, 1)]) + rng.normal(0, [0.3, 0.3, 0.05])
+        graph.add_alignment(k, 0, 1, z, R, hypothesis=1)
+        if k in wrong_at:
+            graph.add_alignment(k, 0, 1, truth[(0, 1)] @ se2_from_params([3.0, 0.0, 0.5]), R,
+                                hypothesis=2)
+        graph.update(k)
+        causal[k] = graph.alignment(0, 1)[1]
+    return graph, causal
+
+
+def test_a_past_step_reports_the_covariance_it_had_as_the_latest():
+    graph, causal = steady_pair(GraphParams())
+    smoothed, _ = steady_pair(GraphParams(past_covariance="smoothed"))
+    for k in (5, 20, 39):
+        assert same_spread(graph.alignment(0, 1, k)[1], causal[k]), k
+        np.testing.assert_allclose(graph.alignment(0, 1, k)[0], smoothed.alignment(0, 1, k)[0],
+                                   atol=1e-9)  # the same smoothed mean
+    # inside the run the smoothed marginal reads the steps after it too: smaller
+    assert np.linalg.det(smoothed.alignment(0, 1, 20)[1]) < 0.6 * np.linalg.det(causal[20])
+
+
+@pytest.mark.parametrize("horizon", [None, 8])
+def test_a_past_step_whose_factors_are_removed_reports_its_marginal_now(horizon):
+    """Hypothesis 2's factors at steps 20-22 removed at step 25: those steps are read as the
+    graph has them now (as a graph reporting smoothed marginals does), the others as they were;
+    with a horizon they leave on the way."""
+    wrong_at = (20, 21, 22)
+    runs = [steady_pair(GraphParams(horizon=horizon, past_covariance=kind), 25, wrong_at)
+            for kind in ("causal", "smoothed")]
+    for graph, causal in runs:
+        assert graph.remove_hypothesis(0, 1, 2) == 3
+        for k in range(25, 40):
+            graph.add_alignment(k, 0, 1, graph.alignment_params(0, 1), R, hypothesis=1)
+            graph.update(k)
+            causal[k] = graph.alignment(0, 1)[1]
+    (graph, causal), (smoothed, _) = runs
+    for k in wrong_at:
+        assert same_spread(graph.alignment(0, 1, k)[1], smoothed.alignment(0, 1, k)[1]), k
+    # step 34 is inside the horizon of either graph (a step that left keeps its causal joint)
+    assert same_spread(graph.alignment(0, 1, 34)[1], causal[34])
+    assert np.linalg.det(smoothed.alignment(0, 1, 34)[1]) < 0.6 * np.linalg.det(causal[34])
+
+
+def test_a_bad_tcaff_estimate_is_refused_before_it_changes_the_graph():
+    graph = wrong_pair_measured_most(cycle_check=True, steps=5)
+    x = se2_to_params(truth(0, 1))
+    bad = [(0, 1, estimate([np.nan, 0.0, 0.0], True), "finite x"),
+           (1, 1, estimate(x, True), "both 1"),
+           (0, 1, AlignmentEstimate(x, np.eye(2), 0.0, 1, 1, 8, 0), "finite x")]
+    for i, j, est, match in bad:
+        with pytest.raises(DataError, match=match):
+            graph.add_tcaff_estimate(5, i, j, est, x[None], R[None])
+    feed(graph, 5, {pair: (truth(*pair), True, 1)
+                    for pair in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]})
+    dt, dth = pose_error(truth(0, 3), graph.alignment(0, 3)[0])
+    assert dt < 0.05 and dth < 0.5
+
+
+def alignment_variances(graph, step: int, pair) -> list[float]:
+    """The x variance of every alignment factor of `pair` committed at `step`."""
+    out = []
+    for f in graph._active.values():
+        if f.tag is not None and f.tag[0] == "alignment" and f.step == step \
+                and f.tag[1:3] == pair:
+            noise = f.factor.noiseModel()
+            out.append(float(noise.noise().covariance()[0, 0]))
+    return out
+
+
+def test_a_factor_held_out_at_its_commit_comes_back_weighed_like_the_others():
+    """At step 12 the six pairs of four robots form one block: every factor's covariance times
+    E / (V - 1) = 2, the (0, 3) one held out then put back too."""
+    graph = InterRobotGraph(4)
+    pairs = [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (0, 3)]
+    for k in range(20):
+        reported = {pair: (truth(*pair), True, 1) for pair in pairs}
+        if 10 <= k < 15:
+            reported[(0, 3)] = (truth(0, 3) @ TURNED, True, 1)
+        feed(graph, k, reported)
+    variance = alignment_variances(graph, 12, (0, 1))[0]
+    assert variance == pytest.approx(2 * R[0, 0])
+    assert alignment_variances(graph, 12, (0, 3)) == pytest.approx([variance])
+
+
+def test_removing_a_held_out_hypothesis_drops_its_factors():
+    graph = wrong_pair_measured_most(cycle_check=True, steps=10)
+    assert graph.remove_hypothesis(0, 3, 1) == 10
+    assert (0, 3) not in graph._suspended
+    feed(graph, 10, {pair: (truth(*pair), True, 1)  # kept now, with nothing to put back
+                     for pair in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]}
+         | {(0, 3): (truth(0, 3), True, 1)})
+    assert [f.step for f in graph._active.values()
+            if f.tag is not None and f.tag[0] == "alignment" and f.tag[1:3] == (0, 3)] == [10]
+
+
+def test_a_hypothesis_kept_again_after_its_steps_left_gets_back_only_those_within():
+    """Held out from step 0 to 29 with a horizon of 6, kept from step 30: of its factors only
+    those of the steps still in the graph come back."""
+    graph = InterRobotGraph(4, GraphParams(horizon=6))
+    pairs = [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]
+    for k in range(32):
+        reported = {pair: (truth(*pair), True, 1) for pair in pairs}
+        reported[(0, 3)] = (truth(0, 3) @ (TURNED if k < 30 else np.eye(3)), True, 1)
+        feed(graph, k, reported)
+    steps = sorted(f.step for f in graph._active.values()
+                   if f.tag is not None and f.tag[0] == "alignment" and f.tag[1:3] == (0, 3))
+    assert steps == list(range(26, 32))
