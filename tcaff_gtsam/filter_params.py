@@ -413,7 +413,8 @@ class GraphParams(_ByValue):
             `TeamConsistency` does (chi-square 0.999 on the composed covariance; the largest
             set of pairs that no failed cycle lies inside is kept). The factors of a
             hypothesis left out, committed and to come, are held out of the graph until a
-            later step's test keeps it again, and the pair is read through the other robots.
+            later update's test does not leave it out, and the pair is read through the other
+            robots. Not tested at an update whose estimates span over 1024 robots.
             Without it, one wrong pair measured more often than the pairs that contradict it
             pulls the graph to its side, and every pair of its robots with it. False weighs
             every hypothesis's factors by the M-estimator alone.
@@ -423,9 +424,11 @@ class GraphParams(_ByValue):
             with the smoothed mean. Consecutive registrations share most of their error, and
             TCAFF's R makes a filter reading forward settle at one registration's error; the
             smoothed marginal reads that evidence twice, from both sides, and comes out
-            surer than the error (NEES 3.3-3.9 against 2.3-2.8 causal). A step some of whose
-            factors are removed later and not put back (a hypothesis abandoned) reports its
-            marginal now. "smoothed": the marginal covariance in the current solution.
+            surer than the error (NEES 3.3-3.9 against 2.3-2.8 causal). A factor removed
+            for good later (a hypothesis abandoned) makes the steps from its own to the
+            removal report their marginal now. "smoothed": the marginal covariance in the
+            current solution. With either, a step that left the horizon keeps the joint it
+            left with.
         horizon: steps the graph keeps for long runs: `update(k)` marginalises the variables
             of the steps at or before k - horizon (alignment variables, and the keyframes
             committed with those steps) into a linear factor on what they were linked to, one

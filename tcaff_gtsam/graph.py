@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import logging
 import math
+from bisect import bisect_right
 from collections import Counter, defaultdict
 
 import gtsam
@@ -84,9 +85,10 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
     `update(step)`; read `alignment(i, j, step)` right after for the causal estimate, or later
     for the smoothed one. Factors wait in a queue until the next `update`.
 
-    Up to 2^16 robots (what the variables' keys tell apart). With a horizon, every step keeps
-    the joint covariance of all robots' alignments, (3 n)^2 numbers (1.1 KB a step at 4 robots,
-    18 KB at 16), so that any pair's covariance can be read after the step has left.
+    Up to 2^16 robots (what the variables' keys tell apart). Every step keeps the joint
+    covariance of all robots' alignments it had as the latest, (3 n)^2 numbers (1.2 KB a step at
+    4 robots, 18 KB at 16): a past step's covariance (`GraphParams.past_covariance`), and with a
+    horizon, any pair's covariance after the step has left.
     """
 
     def __init__(self, n_robots: int, params: GraphParams | None = None) -> None:
@@ -112,8 +114,10 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         # only shrinks it later)
         self._left: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._joints: dict[int, np.ndarray] = {}  # that covariance while the step was latest
-        # past steps' factors removed since (and not put back): their joints no longer hold
-        self._removed_at: Counter[int] = Counter()
+        # committed factors removed and not put back, by id: (factor, its step, the update's
+        # step), and the kept steps whose joint counted one of them (from its step on)
+        self._removed: dict[int, tuple[_Factor, int, int]] = {}
+        self._stale: set[int] = set()
         self._n_left = 0  # self._steps[:self._n_left] have left
         self._marginal: set[int] = set()  # indices of the marginal factors of what left
         self._settled_from: gtsam.Values | None = None
@@ -365,10 +369,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         for index, f in gone:
             removed_keys.update(f.keys)
             self._count(f, index, -1)
-        # a past step's causal joint describes it while every factor it had is in the graph:
-        # count the removed ones not put back (a held-out hypothesis comes back whole)
-        removed_at = Counter(f.step for _, f in gone if f.step is not None)
-        removed_at.subtract(f.step for f in restored)
         touched |= removed_keys
         factors = self._isam.getFactorsUnsafe()
         self._settled_from = None
@@ -392,12 +392,37 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         for q, index in zip(self._queued, indices, strict=True):
             self._active[index] = q
             self._count(q, index, +1)
-        self._removed_at.update(removed_at)
-        self._removed_at = +self._removed_at  # only steps with some removed for good
+        self._forget_removed(gone, restored, newest)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._marginalise(leaving)
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
+
+    def _forget_removed(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],
+                        newest: int) -> None:
+        """Mark the kept joints that counted a factor this update removed for good, from the
+        factor's step up to the step before this update's (information runs forward along
+        the chains); a held-out factor put back unmarks them (`past_covariance`)."""
+        changed = bool(restored)
+        for f in restored:
+            self._removed.pop(id(f), None)
+        for _, f in gone:
+            if f.step is not None and f.step < newest:
+                self._removed[id(f)] = (f, f.step, newest)
+                changed = True
+        if not changed:
+            return
+        first = self._steps[self._n_left] if self._n_left < len(self._steps) else newest
+        self._removed = {key: v for key, v in self._removed.items() if v[2] > first}
+        merged: list[list[int]] = []  # the spans [step, update) as disjoint ones
+        for start, end in sorted((s, u) for _, s, u in self._removed.values()):
+            if merged and start <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], end)
+            else:
+                merged.append([start, end])
+        starts = [start for start, _ in merged]
+        self._stale = {k for k in self._joints
+                       if (n := bisect_right(starts, k) - 1) >= 0 and k < merged[n][1]}
 
     def _shared_maps_weighed(self, queued: list[_Factor]) -> list[_Factor]:
         """`queued` with the alignment factors of each step that close cycles inflated

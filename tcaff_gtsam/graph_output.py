@@ -53,7 +53,7 @@ class GraphReadout:
         every = (self._left[step][1] if step in self._left
                  else self._latest_joint(step)
                  if step == self._steps[-1] and (causal or self.params.horizon is not None)
-                 else self._joints.get(step) if causal and step not in self._removed_at
+                 else self._joints.get(step) if causal and step not in self._stale
                  else None)
         if every is not None:
             n = 3 if self._planar else 6

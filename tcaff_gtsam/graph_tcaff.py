@@ -133,6 +133,9 @@ class HypothesisFactors:
                 raise DataError(f"add_tcaff_estimate: estimate.measurement = "
                                 f"{estimate.measurement} must index zs (k, 3) and Rs (k, 3, 3), "
                                 f"got shapes {zs.shape} and {Rs.shape}")
+        if estimate.measurement >= 0:  # first: what it refuses leaves the graph as it was
+            m = estimate.measurement
+            self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=estimate.hypothesis)
         pair = (int(i), int(j))
         self._given[pair] = estimate
         previous = self._hypothesis.get(pair)
@@ -162,9 +165,6 @@ class HypothesisFactors:
                 log.debug("pair (%d, %d): hypothesis %s abandoned, %d factors removed", i, j,
                           waiting.hypothesis, removed)
                 del self._abandoned[pair]
-        if estimate.measurement >= 0:
-            m = estimate.measurement
-            self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=current)
 
     def _cycle_checked(self, queued: list[_Factor]) -> tuple[list[_Factor], list[_Factor]]:
         """Apply the cycle check to the estimates given since the last update

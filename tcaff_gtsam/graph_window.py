@@ -115,7 +115,8 @@ class SlidingWindow:
             # kept by the update that added the next step (a step leaves only after one),
             # unless a removal since made it stale: then the joint as it is now
             joint = self._joints.pop(k, None)
-            stale = self._removed_at.pop(k, 0) > 0
+            stale = k in self._stale
+            self._stale.discard(k)
             self._left[k] = (A, self._joint(k) if joint is None or stale else joint)
             keys += step_keys
             for key in self._keyframes_at.pop(rank, []):

@@ -97,8 +97,8 @@ class GraphRunner:
     of the pair waits for removal. Smoothed: once more at the end, when factors still link the
     two robots, the graph's alignment at every step from the pair's first TCAFF estimate to its
     last, gaps included (outside that span the graph would only extrapolate the drift). Each
-    with the graph's marginal covariance of the pair's (x, y, theta) at that step, from the
-    same solution."""
+    with the graph's covariance of the pair's (x, y, theta) at that step
+    (`InterRobotGraph.alignment`: for a past step, the one it had as the latest)."""
 
     def __init__(self, setup: RunSetup, stages: SharedStages, methods: MethodsConfig) -> None:
         settings = setup.run.settings

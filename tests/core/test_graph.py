@@ -1090,6 +1090,7 @@ def test_a_past_step_whose_factors_are_removed_reports_its_marginal_now(horizon)
     (graph, causal), (smoothed, _) = runs
     for k in wrong_at:
         assert same_spread(graph.alignment(0, 1, k)[1], smoothed.alignment(0, 1, k)[1]), k
+        assert not same_spread(graph.alignment(0, 1, k)[1], causal[k]), k
     # step 34 is inside the horizon of either graph (a step that left keeps its causal joint)
     assert same_spread(graph.alignment(0, 1, 34)[1], causal[34])
     assert np.linalg.det(smoothed.alignment(0, 1, 34)[1]) < 0.6 * np.linalg.det(causal[34])
@@ -1159,3 +1160,56 @@ def test_a_hypothesis_kept_again_after_its_steps_left_gets_back_only_those_withi
     steps = sorted(f.step for f in graph._active.values()
                    if f.tag is not None and f.tag[0] == "alignment" and f.tag[1:3] == (0, 3))
     assert steps == list(range(26, 32))
+
+
+def test_a_removal_marks_the_steps_after_it_that_counted_it():
+    """Factors of steps 0-10 removed at step 16: steps 0-15 had counted them (through the
+    chains) and read their marginal now, like a graph reporting smoothed marginals."""
+    _, truth_ = team()
+    graphs = {}
+    for kind in ("causal", "smoothed"):
+        graph = graphs[kind] = InterRobotGraph(2, GraphParams(past_covariance=kind))
+        for k in range(16):
+            if k <= 10:
+                graph.add_alignment(k, 0, 1, se2_to_params(truth_[(0, 1)]), R, hypothesis=2)
+            graph.update(k)
+        graph.remove_hypothesis(0, 1, 2)
+        for k in range(16, 20):
+            graph.update(k)
+    for k in (5, 13, 15):
+        C = graphs["causal"].alignment(0, 1, k)[1]
+        assert same_spread(C, graphs["smoothed"].alignment(0, 1, k)[1]), k
+        assert np.sqrt(C[0, 0]) > 0.9  # nothing links the robots any more
+
+
+def test_putting_back_a_held_out_factor_does_not_cancel_a_removal_at_its_step():
+    """(0, 3) is held out at steps 10-14 (its step-12 factor at its commit) and put back at
+    15; a tight (1, 2) factor at step 12 was removed for good at step 13."""
+    pairs = [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (0, 3)]
+    graphs = {}
+    for kind in ("causal", "smoothed"):
+        graph = graphs[kind] = InterRobotGraph(4, GraphParams(past_covariance=kind))
+        for k in range(20):
+            reported = {pair: (truth(*pair), True, 1) for pair in pairs}
+            if 10 <= k < 15:
+                reported[(0, 3)] = (truth(0, 3) @ TURNED, True, 1)
+            if k == 12:
+                graph.add_alignment(12, 1, 2, se2_to_params(truth(1, 2)), R * 1e-4,
+                                    hypothesis=99)
+            if k == 13:
+                assert graph.remove_hypothesis(1, 2, 99) == 1
+            feed(graph, k, reported)
+    assert same_spread(graphs["causal"].alignment(1, 2, 12)[1],
+                       graphs["smoothed"].alignment(1, 2, 12)[1])
+
+
+def test_the_latest_step_reads_the_factors_an_update_without_a_step_commits():
+    _, truth_ = team()
+    graph = InterRobotGraph(2)
+    for k in range(5):
+        graph.add_alignment(k, 0, 1, se2_to_params(truth_[(0, 1)]), R)
+        graph.update(k)
+    before = graph.alignment(0, 1)[1]
+    graph.add_alignment(4, 0, 1, se2_to_params(truth_[(0, 1)]), R)
+    graph.update()
+    assert np.linalg.det(graph.alignment(0, 1)[1]) < 0.8 * np.linalg.det(before)
