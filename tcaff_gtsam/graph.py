@@ -392,13 +392,13 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         for q, index in zip(self._queued, indices, strict=True):
             self._active[index] = q
             self._count(q, index, +1)
-        self._forget_removed(gone, restored, newest)
+        self._mark_stale(gone, restored, newest)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._marginalise(leaving)
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
 
-    def _forget_removed(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],
+    def _mark_stale(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],
                         newest: int) -> None:
         """Mark the kept joints that counted a factor this update removed for good, from the
         factor's step up to the step before this update's (information runs forward along

@@ -27,9 +27,9 @@ class GraphReadout:
             T: (3, 3) or (4, 4); cov: covariance of (x, y, theta) / (x, y, z, yaw), or None
             when `covariance` is False. For the latest step, its marginal covariance. For an
             earlier step, with `GraphParams.past_covariance = "causal"` (the default), the
-            marginal it had while it was the latest, unless factors of that step have been
-            removed since (then, and with "smoothed", its marginal now); a step that left the
-            horizon keeps the one it had as the latest.
+            marginal it had while it was the latest, unless a factor it counted (of its step
+            or an earlier one) has been removed for good since (then, and with "smoothed", its
+            marginal now); a step that left the horizon keeps the one it left with.
         Raises:
             DataError: unknown robot or a step that has not been committed.
         """

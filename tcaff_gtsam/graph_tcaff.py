@@ -46,7 +46,8 @@ class _Suspended:
     """A pair's hypothesis the cycle check left out: its factors, held out of the graph.
 
     Attributes:
-        hypothesis: its tag; factors: its alignment factors, as they were committed.
+        hypothesis: its tag; factors: its alignment factors, weighed as their update weighed
+            them (committed then, or held out at their commit).
     """
 
     hypothesis: int
@@ -97,10 +98,10 @@ class HypothesisFactors:
         then removes the short-lived hypothesis's factors instead, and a switch to a third one
         removes the one in between.
 
-        With `GraphParams.cycle_check`, the next `update` tests the estimates given for its
-        step around every cycle of three robots (`TeamConsistency`). The factors of a
+        With `GraphParams.cycle_check`, the next `update` tests the estimates given since the
+        last one around every cycle of three robots (`TeamConsistency`). The factors of a
         hypothesis it leaves out, those committed and those to come, are held out of the
-        graph until a later step's test keeps that hypothesis again (those whose step left the
+        graph until a later update's test does not leave it out (those whose step left the
         horizon meanwhile are dropped); the pair's alignment is then read through the others.
 
         Args:
