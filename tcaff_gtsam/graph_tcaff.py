@@ -184,9 +184,12 @@ class HypothesisFactors:
         rejected: set[tuple[int, int]] = set()
         if 3 <= len(robots) <= TeamConsistency.MAX_ROBOTS:
             number = {r: n for n, r in enumerate(robots)}
-            team = TeamConsistency(len(robots))
-            team.update({(number[i], number[j]): e for (i, j), e in given.items()}, pairs=[])
-            rejected = {(robots[a], robots[b]) for a, b in team.rejected}
+            # checked when they were given (add_tcaff_estimate)
+            checked = {(number[i], number[j]): (np.asarray(e.x, dtype=float),
+                                                np.asarray(e.P, dtype=float))
+                       for (i, j), e in given.items()}
+            rejected = {(robots[a], robots[b])
+                        for a, b in TeamConsistency(len(robots))._rejected(checked)}
         restored: list[_Factor] = []
         for pair, estimate in given.items():
             held_out = self._suspended.get(pair)

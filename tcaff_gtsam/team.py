@@ -149,10 +149,8 @@ class TeamConsistency:
         self._gate = _chi2_quantile(self.params.cycle_probability, 3)
         self.rejected: list[tuple[int, int]] = []
 
-    def _edges(self, estimates: Mapping) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
-        """One (x, P) of T_oi_oj per unordered pair i < j: the (i, j) estimate where both
-        directions are given, else the (j, i) one inverted. When both are given and disagree,
-        the pair is left out: its two filters contradict each other."""
+    def _given(self, estimates: Mapping) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+        """(i, j) -> (x (3,), P (3, 3)) of every estimate given, checked."""
         o = "TeamConsistency.update"
         if not isinstance(estimates, Mapping):
             raise DataError(f"{o}: estimates must be a mapping (i, j) -> estimate, got "
@@ -183,6 +181,13 @@ class TeamConsistency:
                 key = list(given)[int(np.argmin(finite))]
                 raise DataError(f"{o}: pair {key}: need a finite x (3,) and P (3, 3), got "
                                 f"x = {shown(given[key][0])}, P = {shown(given[key][1])}")
+        return given
+
+    def _edges(self, given: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]
+               ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+        """One (x, P) of T_oi_oj per unordered pair i < j of the checked estimates `given`: the
+        (i, j) one where both directions are given, else the (j, i) one inverted. When both
+        are given and disagree, the pair is left out: its two filters contradict each other."""
         # every given (j, i), j > i, turned into (i, j) at once
         down = [key for key in given if key[0] > key[1]]
         turned = {}
@@ -268,7 +273,7 @@ class TeamConsistency:
             DataError: a key or wanted pair that is not two robots of the team, a non-finite
                 or misshapen estimate.
         """
-        edges = self._edges(estimates)
+        edges = self._edges(self._given(estimates))
         kept = self._largest_consistent(edges, self._failed_cycles(edges))
         self.rejected = [p for p in sorted(edges) if p not in kept]
         n = self.n_robots
@@ -291,6 +296,15 @@ class TeamConsistency:
                for i, j in zip(*np.nonzero(linked & want), strict=True)}
         out.update(self._chains(linked, X, P, want))
         return out
+
+    def _rejected(self, given: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]
+                  ) -> list[tuple[int, int]]:
+        """The undirected pairs (i < j) that `update` would leave out, from estimates already
+        checked, (i, j) -> (x (3,), P (3, 3)): what the graph's cycle check needs, without
+        the chains."""
+        edges = self._edges(given)
+        kept = self._largest_consistent(edges, self._failed_cycles(edges))
+        return [p for p in sorted(edges) if p not in kept]
 
     def _wanted(self, pairs: Iterable) -> list[tuple[int, int]]:
         n, wanted = self.n_robots, []

@@ -281,3 +281,21 @@ def test_the_largest_team_keeps_a_closed_cycle_and_a_lone_pair():
     assert team.rejected == []
     assert sorted(out) == [(0, 2), (2, 0), (500, 700)]
     np.testing.assert_allclose(out[(2, 0)].x, [-2.0, 0.0, 0.0], atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 7))
+def test_what_the_graph_asks_leaves_out_what_update_does(seed, n):
+    """The graph's cycle check reads `_rejected` on estimates it checked itself: the same
+    pairs as `update` leaves out, on teams with some alignments wrong and some pairs given
+    in one direction, both, or neither."""
+    rng = np.random.default_rng(seed)
+    frames = team_frames(rng, n)
+    pairs = [p for p in itertools.permutations(range(n), 2) if rng.random() < 0.6]
+    estimates = true_estimates(frames, pairs)
+    for key in pairs:
+        if rng.random() < 0.2:
+            estimates[key].x = estimates[key].x + rng.normal(0, [2.0, 2.0, 0.5])
+    team = TeamConsistency(n)
+    team.update(estimates)
+    assert team._rejected(team._given(estimates)) == team.rejected
