@@ -341,8 +341,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             raise DataError(f"update: {len(skipped)} queued alignments refer to step "
                             f"{skipped[0].step}, which was skipped; they were dropped")
         if step is not None:
-            if self._steps and (self.params.horizon is not None
-                                or self.params.past_covariance == "causal"):
+            if self._steps and self._keeps_joints:
                 self._latest_joint(self._steps[-1])  # the latest step's, before it stops being so
             self._add_step(step)
         # alignments for later steps wait in the queue until their step is committed

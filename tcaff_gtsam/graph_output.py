@@ -47,14 +47,7 @@ class GraphReadout:
             return T, None
         if i == j:
             return T, np.zeros((self._n_param, self._n_param))
-        # kept for steps that left and (past_covariance="causal") for earlier steps; the
-        # latest step's is computed once and kept
-        causal = self.params.past_covariance == "causal"
-        every = (self._left[step][1] if step in self._left
-                 else self._latest_joint(step)
-                 if step == self._steps[-1] and (causal or self.params.horizon is not None)
-                 else self._joints.get(step) if causal and step not in self._stale
-                 else None)
+        every = self._kept_joint(step)
         if every is not None:
             n = 3 if self._planar else 6
             rows = np.r_[i * n:(i + 1) * n, j * n:(j + 1) * n]

@@ -70,9 +70,7 @@ class HypothesisFactors:
         def tagged(f: _Factor) -> bool:
             return f.tag is not None and f.tag[0] != "free" and f.tag[1:] == (i, j, hypothesis)
 
-        found = [index for index, f in self._active.items()
-                 if tagged(f) and index not in self._to_remove]
-        self._to_remove.extend(found)
+        found = self._take_out(tagged)
         queued = len(self._queued)  # factors still waiting are dropped from the queue
         self._queued = [q for q in self._queued if not tagged(q)]
         held_out = self._suspended.get((i, j))
@@ -198,8 +196,9 @@ class HypothesisFactors:
                 del self._suspended[pair]  # the filter left that hypothesis: it stays out
                 held_out = None
             if undirected in rejected and held_out is None:
+                tag = ("alignment", *pair, estimate.hypothesis)
                 self._suspended[pair] = _Suspended(estimate.hypothesis,
-                                                   self._take_out(pair, estimate.hypothesis))
+                                                   self._take_out(lambda f, tag=tag: f.tag == tag))
             elif undirected not in rejected and held_out is not None:
                 del self._suspended[pair]
                 restored.extend(f for f in held_out.factors if f.step not in self._left)
@@ -217,11 +216,10 @@ class HypothesisFactors:
             held_out.factors = [f for f in held_out.factors if f.step not in self._left]
         return kept, restored
 
-    def _take_out(self, pair: tuple[int, int], hypothesis: int) -> list[_Factor]:
-        """Queue the removal of the committed factors of (pair, hypothesis); returns them."""
-        tag = ("alignment", *pair, hypothesis)
+    def _take_out(self, tagged) -> list[_Factor]:
+        """Queue the removal of the committed factors `tagged(f)` picks; returns them."""
         found = [index for index, f in self._active.items()
-                 if f.tag == tag and index not in self._to_remove]
+                 if tagged(f) and index not in self._to_remove]
         self._to_remove.extend(found)
         return [self._active[index] for index in found]
 

@@ -34,6 +34,24 @@ class SlidingWindow:
             joint = self._joints[step] = self._joint(step)
         return joint
 
+    @property
+    def _keeps_joints(self) -> bool:
+        """Whether steps keep the joint they had as the latest (a horizon, or
+        `past_covariance="causal"`)."""
+        return self.params.horizon is not None or self.params.past_covariance == "causal"
+
+    def _kept_joint(self, step: int) -> np.ndarray | None:
+        """The joint `alignment` reads a step's covariance from: the one it left with, the
+        latest step's (computed once), an earlier step's as it was the latest unless stale
+        (`past_covariance="causal"`); None where the current marginal is read instead."""
+        if step in self._left:
+            return self._left[step][1]
+        if step == self._steps[-1]:
+            return self._latest_joint(step) if self._keeps_joints else None
+        if self.params.past_covariance == "causal" and step not in self._stale:
+            return self._joints.get(step)
+        return None
+
     def _new_solver(self, isam_params: gtsam.ISAM2Params) -> None:
         self._isam = gtsam.ISAM2(isam_params)
 

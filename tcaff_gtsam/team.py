@@ -273,8 +273,7 @@ class TeamConsistency:
             DataError: a key or wanted pair that is not two robots of the team, a non-finite
                 or misshapen estimate.
         """
-        edges = self._edges(self._given(estimates))
-        kept = self._largest_consistent(edges, self._failed_cycles(edges))
+        edges, kept = self._consistent(self._given(estimates))
         self.rejected = [p for p in sorted(edges) if p not in kept]
         n = self.n_robots
         want = np.ones((n, n), dtype=bool)
@@ -302,9 +301,15 @@ class TeamConsistency:
         """The undirected pairs (i < j) that `update` would leave out, from estimates already
         checked, (i, j) -> (x (3,), P (3, 3)): what the graph's cycle check needs, without
         the chains."""
-        edges = self._edges(given)
-        kept = self._largest_consistent(edges, self._failed_cycles(edges))
+        edges, kept = self._consistent(given)
         return [p for p in sorted(edges) if p not in kept]
+
+    def _consistent(self, given: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]
+                    ) -> tuple[dict, set[tuple[int, int]]]:
+        """The undirected alignments of the checked estimates `given` (`_edges`) and the
+        largest consistent set of their pairs."""
+        edges = self._edges(given)
+        return edges, self._largest_consistent(edges, self._failed_cycles(edges))
 
     def _wanted(self, pairs: Iterable) -> list[tuple[int, int]]:
         n, wanted = self.n_robots, []
