@@ -17,7 +17,15 @@ to compare with what the data set's odometry declares (the variance ratio of
 
 Columns: n (measurements), the NEES of z against R_s itself (3 when R_s is right), the three
 fitted scales, the declared ones (translation, heading; "-" where the odometry declares
-nothing), and the mean association count k.
+nothing), the mean association count k, and two measures of how much of a registration's
+error the next one repeats (what `repeat_inflation` assumes all of):
+
+  step      over consecutive correct measurements of one hypothesis at consecutive steps, the
+            mean of d' (R_s,k-1 + R_s,k)^-1 d / 3, d the change of z less the true change: the
+            fresh share of the error times R_s's scale (0 when every registration repeats the
+            last one's error, the NEES of R_s / 3 when none does). This one a filter could
+            measure without the truth.
+  fresh     step divided by the NEES of R_s / 3: the fresh share itself (needs the truth).
 """
 
 from __future__ import annotations
@@ -53,8 +61,10 @@ def _recording(covariance):
 
 
 def measurements(source, cache: Path) -> list[tuple]:
-    """(error (3,), point, translation, heading parts (3, 3), k) of every correct measurement
-    the best paths of the run's pairs took. Needs `_recording` in place (`main` puts it)."""
+    """(error (3,), point, translation, heading parts (3, 3), k, step) of every correct
+    measurement the best paths of the run's pairs took; step: d' (R_s,k-1 + R_s,k)^-1 d / 3 of
+    its change d from the previous step's correct measurement of the same hypothesis, less
+    the true change (NaN without one). Needs `_recording` in place (`main` puts it)."""
     run = load(source, cache)
     aligner, tcaff = library_params(run)
     limits = Thresholds()
@@ -64,6 +74,7 @@ def measurements(source, cache: Path) -> list[tuple]:
         pair = PairwiseAligner(aligner, tcaff)
         T_true = run.T_true(i, j)
         truth = se2_to_params(T_true)
+        last = None  # (step, hypothesis, z, R_s) of the previous correct measurement
         for s, t in enumerate(run.times):
             est = pair.update(float(t), run.maps[i][s], run.maps[j][s])
             if est is None or est.measurement < 0 or not np.all(np.isfinite(truth[s])):
@@ -78,7 +89,14 @@ def measurements(source, cache: Path) -> list[tuple]:
                 continue
             e = taken.z - truth[s]
             e[2] = wrap_angle(e[2])
-            rows.append((e, *parts))
+            R_s = parts[0] + parts[1] + parts[2]
+            step = math.nan
+            if last is not None and last[0] == s - 1 and last[1] == est.hypothesis:
+                d = taken.z - last[2] - (truth[s] - truth[s - 1])
+                d[2] = wrap_angle(d[2])
+                step = float(d @ np.linalg.solve(last[3] + R_s, d)) / 3
+            last = (s, est.hypothesis, taken.z, R_s)
+            rows.append((e, *parts, step))
     return rows
 
 
@@ -121,7 +139,7 @@ def main() -> None:
         declared[source.group] = (drift if drift is not default
                                   else (math.nan, math.nan))
     print(f"{'data set':24} {'n':>6} {'NEES R_s':>8} {'point':>6} {'drift t':>7} "
-          f"{'drift th':>8} {'declared t, th':>15} {'k':>5}")
+          f"{'drift th':>8} {'declared t, th':>15} {'k':>5} {'step':>5} {'fresh':>5}")
     for group, rows in groups.items():
         if len(rows) < 10:
             print(f"{group:24} {len(rows):>6}  too few correct measurements to fit")
@@ -131,8 +149,10 @@ def main() -> None:
         ratio = "-" if math.isnan(d_t) else (f"{(d_t / default[0]) ** 2:.2f}, "
                                               f"{(d_theta / default[1]) ** 2:.2f}")
         k = np.mean([r[4] for r in rows])
+        step = np.nanmean([r[5] for r in rows]) if any(np.isfinite(r[5]) for r in rows) \
+            else math.nan
         print(f"{group:24} {len(rows):>6} {nees:>8.2f} {a:>6.2f} {b_t:>7.2f} {b_theta:>8.2f} "
-              f"{ratio:>15} {k:>5.1f}", flush=True)
+              f"{ratio:>15} {k:>5.1f} {step:>5.2f} {step / (nees / 3):>5.2f}", flush=True)
 
 
 if __name__ == "__main__":
