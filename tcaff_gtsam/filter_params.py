@@ -171,7 +171,9 @@ class TCAFFParams(_ByValue):
             needs before it is accepted early: at least two, so the hypothesis has been
             seen consistent over time.
         recall_for: steps after a main tree is dropped (or replaced by a rival after W
-            steps without a measurement) during which its last estimate stays dormant: an
+            steps without a measurement, or before `early_measurements` measurements after
+            such a gap confirmed its return: one stray measurement in its widened gate is no
+            return) during which its last estimate stays dormant: an
             exploring hypothesis within its gate (its covariance grown by Q each step) that
             has taken `early_measurements` measurements, the latest at this step, recalls it
             as the main hypothesis with its id and history, unless an open hypothesis

@@ -143,6 +143,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._hypothesis: dict[tuple[int, int], int] = {}
         # pair -> an abandoned hypothesis whose factors wait for removal
         self._abandoned: dict[tuple[int, int], _Abandoned] = {}
+        # both as the last update that succeeded left them: what a failed one restores
+        self._switches = self._switch_state()
         # this step's TCAFF estimates, and pairs whose hypothesis the cycle check holds out
         self._given: dict[tuple[int, int], AlignmentEstimate] = {}
         self._suspended: dict[tuple[int, int], _Suspended] = {}
@@ -325,7 +327,9 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         Raises:
             DataError: `step` is not after the last committed step, a queued alignment refers
                 to a step that neither exists nor is `step`, or gtsam could not solve the graph
-                with the queued factors (they are dropped and the graph is as it was).
+                with the queued factors (they are dropped, and the graph holds the factors,
+                hypotheses and pending switches it held before; its estimate is solved again
+                from them, so it may move within the solver's tolerance).
         """
         if step is not None:
             step = _check_index("update: step", step, _ROBOT_SHIFT)
@@ -357,6 +361,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._fix_gauge()
         if not self._queued and not self._to_remove:
             self._queued = later
+            self._switches = self._switch_state()
             return
         graph = gtsam.NonlinearFactorGraph()
         touched = set()
@@ -376,9 +381,10 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         try:
             indices = self._commit(graph, self._pending_values, self._to_remove, removed_keys)
             self._settle(touched)
-        except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
+        except (RuntimeError, ValueError) as exc:  # gtsam refused it: back to the graph before
             self._roll_back(gone, marginals, step, leaving)
             self._suspended = suspended
+            self._hypothesis, self._abandoned = self._switch_state(self._switches)
             self._forget_keyframes(set(self._pending_values.keys()))
             dropped, self._queued = self._queued, later
             self._pending_values, self._to_remove = gtsam.Values(), []
@@ -396,6 +402,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._marginalise(leaving)
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
+        self._switches = self._switch_state()
 
     def _mark_stale(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],
                         newest: int) -> None:

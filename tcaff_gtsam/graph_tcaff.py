@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .errors import DataError
 from .geometry import _chi2_quantile
-from .graph_inputs import _Factor
+from .graph_inputs import _ROBOT_SHIFT, _check_cov, _check_index, _Factor
 from .inputs import real_array, shown
 from .tcaff import AlignmentEstimate
 from .team import TeamConsistency
@@ -118,12 +118,18 @@ class HypothesisFactors:
         if not isinstance(estimate, AlignmentEstimate):
             raise DataError(f"add_tcaff_estimate: estimate must be an AlignmentEstimate or "
                             f"None, got {shown(estimate)}")
+        _check_index("add_tcaff_estimate: step", step, _ROBOT_SHIFT)
         x = np.asarray(estimate.x)
-        P = np.asarray(estimate.P)
-        if not (x.shape == (3,) and P.shape == (3, 3) and np.isfinite(x).all()
-                and np.isfinite(P).all()):
-            raise DataError(f"add_tcaff_estimate: estimate needs a finite x (3,) and P (3, 3), "
-                            f"got x = {shown(estimate.x)}, P = {shown(estimate.P)}")
+        if not (x.shape == (3,) and np.isfinite(x).all()):
+            raise DataError(f"add_tcaff_estimate: estimate needs a finite x (3,), got x = "
+                            f"{shown(estimate.x)}")
+        # the cycle check solves with it: a singular P is refused here, not deep in an update
+        _check_cov("add_tcaff_estimate: estimate.P", estimate.P, 3)
+        for name in ("measurement", "hypothesis"):
+            value = getattr(estimate, name)
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
+                raise DataError(f"add_tcaff_estimate: estimate.{name} must be an int, got "
+                                f"{shown(value)}")
         if estimate.measurement >= 0:
             zs = real_array("add_tcaff_estimate", "zs", zs)
             Rs = real_array("add_tcaff_estimate", "Rs", Rs)
@@ -215,6 +221,13 @@ class HypothesisFactors:
         for held_out in self._suspended.values():  # bounded by the horizon
             held_out.factors = [f for f in held_out.factors if f.step not in self._left]
         return kept, restored
+
+    def _switch_state(self, state: tuple | None = None) -> tuple[dict, dict]:
+        """Copies of each pair's reported hypothesis and its abandoned one (of `state`, such a
+        pair of dicts, when given): an update that fails restores them as the last update
+        that succeeded left them, so a switch whose removal it dropped is still pending."""
+        hypothesis, abandoned = (self._hypothesis, self._abandoned) if state is None else state
+        return dict(hypothesis), {pair: replace(a) for pair, a in abandoned.items()}
 
     def _take_out(self, tagged) -> list[_Factor]:
         """Queue the removal of the committed factors `tagged(f)` picks; returns them."""

@@ -10,7 +10,7 @@ from bisect import bisect_left
 import gtsam
 import numpy as np
 
-from .graph_inputs import _a_key, _Factor, _key_list, _keyframe_of, _step_of
+from .graph_inputs import _a_key, _Factor, _key_list, _keyframe_of, _step_of, _x_key
 
 __all__ = ["SlidingWindow"]
 
@@ -115,9 +115,12 @@ class SlidingWindow:
                 robot, index = _keyframe_of(key)
                 self._left_keyframes[robot][index] = self._value(key)
             self._n_left += 1
-        self._to_remove.extend(index for index in self._free.values()
-                               if index not in self._to_remove
-                               and self._has_left(self._active[index].keys[0]))
+        # a chain whose every variable leaves takes its prior along: removed, it would leave
+        # the chain's last variable free while it is marginalised
+        self._to_remove.extend(
+            index for (kind, robot), index in self._free.items()
+            if index not in self._to_remove and self._has_left(self._active[index].keys[0])
+            and (kind == "A" or not self._has_left(_x_key(robot, self._last_keyframe[robot]))))
         return list(range(first, self._n_left))
 
     def _marginalise(self, ranks: list[int]) -> None:

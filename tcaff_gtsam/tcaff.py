@@ -150,6 +150,9 @@ class TCAFF(FilterState):
         self._peak = 0
         self._dormant_peak = 0
         self._reclaiming = False  # the dormant hypothesis is being confirmed against the main
+        # measurements the main's best path has taken since it came out of a silence of W
+        # steps or more, until there are `early_measurements` of them (0: not in such a return)
+        self._returning = 0
         self._estimate: AlignmentEstimate | None = None
         self._held: AlignmentEstimate | None = None
 
@@ -217,12 +220,17 @@ class TCAFF(FilterState):
                 self._keep_dormant(Leaves(best.x, best.P + prm.Q, best.choice, best.edge,
                                           best.since, best.tree))
             self._main, self._rival, self._switch_streak = None, None, 0
+            self._returning = 0
         elif self._dormant is not None:
             self._age_dormant()
         model = self._model if zs.shape[0] else self._empty_step_model
         if self._main is not None:
+            silent = bool(self._main.since[np.argmin(self._main.cost)] >= prm.window)
             self._main = extend(self._main, zs, Rs, model, prm.max_children,
                                 lambda cost, choice, _: self._main_keep(cost, choice))
+            if self._main.since[np.argmin(self._main.cost)] == 0:
+                returning = 1 if silent else self._returning + (self._returning > 0)
+                self._returning = returning if returning < prm.early_measurements else 0
         complete = self._advance_exploring(zs, Rs, model)
         self._reclaiming = False
         if self._main is not None:
@@ -421,7 +429,7 @@ class TCAFF(FilterState):
         self._explore = explore.take(explore.tree != leaf.tree[0])
         self._switch_streak, self._rival, self._empty_windows = 0, None, 0
         self._fresh = self.step
-        self._peak = self._dormant_peak
+        self._peak, self._returning = self._dormant_peak, 0
         self._dormant = None
         self._main = Leaves(x, P, leaf.choice, leaf.edge, leaf.since,
                             np.full(1, self.hypothesis, np.int64))
@@ -466,8 +474,10 @@ class TCAFF(FilterState):
         if self._switch_streak >= prm.switch_after:
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
-            if prm.recall_for is not None and self._main.since[m] >= prm.window:
-                # left in a gap of its measurements, it is recallable as a dropped one is
+            if prm.recall_for is not None and (self._main.since[m] >= prm.window
+                                               or self._returning):
+                # left in a gap of its measurements, or before a return from one is
+                # confirmed, it is recallable as a dropped one is
                 self._keep_dormant(self._main.take([m]))
             self._accept(complete, best)
 
@@ -591,6 +601,7 @@ class TCAFF(FilterState):
         self._switch_streak, self._rival, self._empty_windows = 0, None, 0
         self._fresh = self.step
         self._peak = 0
+        self._returning = 0
         in_tree = np.flatnonzero(complete.tree == complete.tree[best])
         tree = complete.take(in_tree)
         best = int(np.searchsorted(in_tree, best))

@@ -77,6 +77,7 @@ class FilterState:
             state["dormant.hypothesis"] = np.array(self._dormant.tree[0], dtype=np.int64)
         state["peak"] = np.array(self._peak, dtype=np.int64)
         state["reclaiming"] = np.array(self._reclaiming, dtype=np.int64)
+        state["returning"] = np.array(self._returning, dtype=np.int64)
         return state
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
@@ -120,6 +121,13 @@ class FilterState:
             if reclaiming and (dormant[0] is None or "main.x" not in state):
                 raise DataError("TCAFF state: reclaiming needs a dormant hypothesis beside a "
                                 "main tree")
+            # absent from states saved before a return from a gap was counted
+            returning = _counter(state.get("returning", 0), "returning")
+            if returning >= self.params.early_measurements or (
+                    returning and "main.x" not in state):
+                raise DataError(f"TCAFF state: returning = {returning} must be below "
+                                f"early_measurements = {self.params.early_measurements}, and "
+                                f"0 without a main tree")
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
         except (TypeError, ValueError, OverflowError) as exc:
@@ -169,7 +177,7 @@ class FilterState:
         self._objects = deque(objects if objects is not None else [None] * len(evidence),
                               maxlen=self._columns)
         self._dormant, self._dormant_age, self._dormant_peak = dormant
-        self._peak, self._reclaiming = peak, bool(reclaiming)
+        self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
         self._held = self._main_estimate()
         self._estimate = self._reported(self._held)
 

@@ -753,6 +753,28 @@ def test_a_keyframe_after_its_predecessor_left_starts_the_chain_again():
     assert graph.trajectory(1)[0].tolist() == [0, 1, 2]
 
 
+@pytest.mark.parametrize("resume", [None, 2, 5])
+def test_a_chain_of_keyframes_linked_to_nothing_leaves_whole(resume):
+    """Robot 1 adds keyframes at steps 0 and 1 only, linked to nothing but each other (weakly
+    fixed by a prior on the last), then nothing until `resume`: its chain leaves the horizon
+    of 2 with its prior. Before, the prior was removed as its keyframe left and every later
+    update was refused as unsolvable; a chain started again later starts afresh."""
+    graph = InterRobotGraph(2, GraphParams(horizon=2))
+    given = []
+    for k in range(9):
+        if k < 2 or (resume is not None and k in (resume, resume + 1)):
+            index = len(given)
+            graph.add_keyframe(1, index, se2_from_params([0.5 * index, 0.0, 0.01 * index]))
+            given.append(index)
+        graph.update(k)
+    assert graph.steps == list(range(9))
+    indices, poses = graph.trajectory(1)
+    assert indices.tolist() == given
+    # the odometry between keyframes 0 and 1 is what the graph kept of them
+    t_err, th_err = pose_error(se2_from_params([0.5, 0.0, 0.01]),
+                               np.linalg.inv(poses[0]) @ poses[1])
+    assert t_err < 1e-6 and th_err < 1e-4
+
 def assert_no_newer_below(graph: InterRobotGraph) -> None:
     """No clique of the Bayes tree has a variable of a newer step than its parent's: what lets
     the oldest steps leave as leaves."""
@@ -1099,17 +1121,68 @@ def test_a_past_step_whose_factors_are_removed_reports_its_marginal_now(horizon)
 def test_a_bad_tcaff_estimate_is_refused_before_it_changes_the_graph():
     graph = wrong_pair_measured_most(cycle_check=True, steps=5)
     x = se2_to_params(truth(0, 1))
-    bad = [(0, 1, estimate([np.nan, 0.0, 0.0], True), "finite x"),
-           (1, 1, estimate(x, True), "both 1"),
-           (0, 1, AlignmentEstimate(x, np.eye(2), 0.0, 1, 1, 8, 0), "finite x")]
-    for i, j, est, match in bad:
+    bad = [(5, 0, 1, estimate([np.nan, 0.0, 0.0], True), "finite x"),
+           (5, 1, 1, estimate(x, True), "both 1"),
+           (5, 0, 1, AlignmentEstimate(x, np.eye(2), 0.0, 1, 1, 8, 0), r"P must have shape"),
+           # finite but singular: the cycle check would solve with it deep in the update
+           (5, 0, 1, AlignmentEstimate(x, np.zeros((3, 3)), 0.0, 1, 1, 8, -1),
+            "P must be symmetric positive definite"),
+           (5, 0, 1, AlignmentEstimate(x, -R, 0.0, 1, 1, 8, -1), "positive definite"),
+           (5, 0, 1, AlignmentEstimate(x, R, 0.0, 1, 1, 8, 0.0), "measurement must be an int"),
+           (5, 0, 1, AlignmentEstimate(x, R, 0.0, 1, 1, 8, None), "measurement must be an int"),
+           (5, 0, 1, AlignmentEstimate(x, R, 0.0, np.array([1, 2]), 1, 8, 0),
+            "hypothesis must be an int"),
+           (-5, 0, 1, estimate(x, False), "step = -5 must be an int"),
+           ("abc", 0, 1, estimate(x, False), "step = 'abc' must be an int")]
+    for step, i, j, est, match in bad:
         with pytest.raises(DataError, match=match):
-            graph.add_tcaff_estimate(5, i, j, est, x[None], R[None])
+            graph.add_tcaff_estimate(step, i, j, est, x[None], R[None])
     feed(graph, 5, {pair: (truth(*pair), True, 1)
                     for pair in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]})
     dt, dth = pose_error(truth(0, 3), graph.alignment(0, 3)[0])
     assert dt < 0.05 and dth < 0.5
 
+
+def test_a_switch_pending_at_a_failed_update_is_still_pending_after_it():
+    """The hold of a switch ends at an update gtsam cannot solve: the roll-back puts the
+    abandoned hypothesis's factors back and the switch is still pending, so the next updates
+    remove them as if the failure had not happened. Before, the pending switch was lost with
+    the failed update and the abandoned factors stayed in the graph for good."""
+    def run(fail: bool) -> InterRobotGraph:
+        graph = InterRobotGraph(2, GraphParams(switch_hold=3))
+        right, wrong = se2_to_params(truth(0, 1)), se2_to_params(truth(0, 1) @ TURNED)
+        for k in range(20):
+            x, hypothesis = (right, 1) if k < 10 else (wrong, 2)
+            graph.add_tcaff_estimate(k, 0, 1, estimate(x, True, hypothesis), x[None], R[None])
+            if fail and k == 12:
+                for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
+                    graph.add_between(alignment_key(0, 11), alignment_key(1, 11),
+                                      se2_from_params(T), np.diag([1e-12] * 3), robust=False)
+                with pytest.raises(DataError, match="could not solve"):
+                    graph.update(k)
+                graph.add_tcaff_estimate(k, 0, 1, estimate(x, True, 2), x[None], R[None])
+            graph.update(k)
+        return graph
+
+    for graph in (run(False), run(True)):
+        assert alignment_hypotheses(graph) == {2} and graph.settled(0, 1)
+        dt, _ = pose_error(truth(0, 1) @ TURNED, graph.alignment(0, 1)[0])
+        assert dt < 0.05
+
+
+def test_what_gtsam_refuses_with_a_value_error_is_a_data_error():
+    """One robot, no factor but its gauge, and a horizon: gtsam refuses the constrained
+    ordering from the third step with a ValueError of its own. Each update either succeeds or
+    is a DataError, and the graph stays readable (before, the ValueError escaped and the next
+    read raised an IndexError)."""
+    graph = InterRobotGraph(1, GraphParams(horizon=4))
+    for k in range(8):
+        try:
+            graph.update(k)
+        except DataError as exc:
+            assert "could not solve" in str(exc)
+        np.testing.assert_allclose(graph.alignment(0, 0)[0], np.eye(3), atol=1e-12)
+    assert graph.steps[:3] == [0, 1, 2]
 
 def alignment_variances(graph, step: int, pair) -> list[float]:
     """The x variance of every alignment factor of `pair` committed at `step`."""

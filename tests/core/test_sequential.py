@@ -283,6 +283,63 @@ def test_a_hypothesis_contradicting_the_dormant_one_waits_for_the_window():
     assert first(fresh) <= 2
 
 
+def with_a_stray(seed: int, at: int = 54):
+    """`taken_over_in_the_gap` with one stray measurement 1.1 m and 2 deg from the truth at
+    step `at`, while the wrong alignment is seen alone: within the unseen truth's widened
+    gate, so its best path takes it."""
+    stream, zs, back = taken_over_in_the_gap(seed)
+    stray = stream.truth[at] + np.array([0.8, -0.8, np.radians(2.0)])
+    zs[at] = np.vstack([zs[at], stray[None]])
+    return stream, zs, back
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_one_stray_measurement_in_the_gap_does_not_make_the_truth_forgettable(seed):
+    """The unseen truth takes one stray measurement in its gap, a few steps before the wrong
+    alignment displaces it: that is no return from the gap, so it stays recallable and is
+    recalled when it returns. Before, the stray made it a hypothesis confirmed W steps ago,
+    forgotten when displaced, and the wrong alignment stayed reported for W + 2 steps
+    after the truth returned."""
+    stream, zs, back = with_a_stray(seed)
+    filt = TCAFF()
+    estimates = feed(filt, zs[:back])
+    assert estimates[back - 1] is not None
+    assert not correct(estimates[back - 1], stream.truth[back - 1])  # displaced
+    assert filt._dormant is not None
+    estimates += feed(filt, zs[back:])
+    assert not [t for t in range(back, len(zs))
+                if estimates[t] is not None and not correct(estimates[t], stream.truth[t])]
+    recalled = next(t for t in range(back, len(zs))
+                    if estimates[t] is not None and correct(estimates[t], stream.truth[t]))
+    assert recalled - back < W - 2
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_a_return_being_confirmed_survives_save_and_load(seed, tmp_path):
+    _, zs, _ = with_a_stray(seed)
+    a = TCAFF()
+    feed(a, zs[:55])
+    assert a._returning == 1  # the stray, not yet confirmed
+    a.save(tmp_path / "f.npz")
+    b = TCAFF.load(tmp_path / "f.npz")
+    assert b._returning == 1
+    for est_a, est_b in zip(feed(a, zs[55:]), feed(b, zs[55:]), strict=True):
+        assert (est_a is None) == (est_b is None)
+        if est_a is not None:
+            np.testing.assert_array_equal(est_a.x, est_b.x)
+            assert est_a.hypothesis == est_b.hypothesis
+    state = TCAFF()
+    feed(state, zs[:55])
+    saved = state.state_dict()
+    older = {key: value for key, value in saved.items() if key != "returning"}
+    TCAFF().load_state_dict(older)  # saved before it was recorded: 0
+    no_main = TCAFF()
+    feed(no_main, zs[:3])
+    for bad, message in [(dict(saved, returning=np.array(2)), "returning = 2 must be below"),
+                         (dict(no_main.state_dict(), returning=np.array(1)), "0 without a main")]:
+        with pytest.raises(DataError, match=message):
+            TCAFF().load_state_dict(bad)
+
 @pytest.mark.parametrize("seed", range(2))
 def test_a_dormant_hypothesis_beside_a_main_tree_survives_save_and_load(seed, tmp_path):
     _, zs, back = taken_over_in_the_gap(seed)
