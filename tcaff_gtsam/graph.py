@@ -41,7 +41,7 @@ from collections import Counter, defaultdict
 import gtsam
 import numpy as np
 
-from .errors import DataError
+from .errors import ConfigError, DataError
 from .geometry import (
     _se2_from_params,
     _se2_to_params,
@@ -68,7 +68,7 @@ from .graph_inputs import (
 )
 from .graph_keyframes import KeyframeFactors
 from .graph_output import GraphReadout
-from .graph_tcaff import HypothesisFactors, _Abandoned, _Suspended
+from .graph_tcaff import HypothesisFactors, _Abandoned, _copied_switches, _Suspended
 from .graph_window import SlidingWindow
 from .inputs import real_array, shown
 from .params import GraphParams, _given_or_default, _int_at_least
@@ -99,6 +99,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self.n_robots = n_robots
         self.params = _given_or_default(GraphParams, params, "InterRobotGraph")
         prm = self.params
+        if n_robots == 1 and prm.horizon is not None:
+            # its steps' variables only chain to each other, and the horizon's ordering of
+            # them fails from the third step; one robot has no alignment to estimate anyway
+            raise ConfigError(f"InterRobotGraph: a horizon (GraphParams.horizon = "
+                              f"{prm.horizon}) needs at least two robots, got n_robots = 1")
         self._planar = prm.dim == 2
         isam_params = gtsam.ISAM2Params()
         isam_params.setRelinearizeThreshold(prm.relinearize_threshold)
@@ -144,7 +149,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         # pair -> an abandoned hypothesis whose factors wait for removal
         self._abandoned: dict[tuple[int, int], _Abandoned] = {}
         # both as the last update that succeeded left them: what a failed one restores
-        self._switches = self._switch_state()
+        self._switches = _copied_switches(self._hypothesis, self._abandoned)
         # this step's TCAFF estimates, and pairs whose hypothesis the cycle check holds out
         self._given: dict[tuple[int, int], AlignmentEstimate] = {}
         self._suspended: dict[tuple[int, int], _Suspended] = {}
@@ -361,7 +366,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._fix_gauge()
         if not self._queued and not self._to_remove:
             self._queued = later
-            self._switches = self._switch_state()
+            self._switches = _copied_switches(self._hypothesis, self._abandoned)
             return
         graph = gtsam.NonlinearFactorGraph()
         touched = set()
@@ -381,10 +386,10 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         try:
             indices = self._commit(graph, self._pending_values, self._to_remove, removed_keys)
             self._settle(touched)
-        except (RuntimeError, ValueError) as exc:  # gtsam refused it: back to the graph before
+        except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             self._roll_back(gone, marginals, step, leaving)
             self._suspended = suspended
-            self._hypothesis, self._abandoned = self._switch_state(self._switches)
+            self._hypothesis, self._abandoned = _copied_switches(*self._switches)
             self._forget_keyframes(set(self._pending_values.keys()))
             dropped, self._queued = self._queued, later
             self._pending_values, self._to_remove = gtsam.Values(), []
@@ -402,7 +407,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._marginalise(leaving)
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
-        self._switches = self._switch_state()
+        self._switches = _copied_switches(self._hypothesis, self._abandoned)
 
     def _mark_stale(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],
                         newest: int) -> None:

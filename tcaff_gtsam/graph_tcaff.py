@@ -54,6 +54,14 @@ class _Suspended:
     factors: list[_Factor]
 
 
+def _copied_switches(hypothesis: dict, abandoned: dict) -> tuple[dict, dict]:
+    """Copies of each pair's reported hypothesis and its abandoned one (`_Abandoned`, copied
+    too: its `held` count goes on in the graph): what a failed update restores, as the last
+    update that succeeded left them, so that a switch whose removal it dropped is still
+    pending."""
+    return dict(hypothesis), {pair: replace(a) for pair, a in abandoned.items()}
+
+
 class HypothesisFactors:
     """The part of `InterRobotGraph` that takes TCAFF's hypotheses (mixed into it; it uses the
     graph's own attributes)."""
@@ -221,13 +229,6 @@ class HypothesisFactors:
         for held_out in self._suspended.values():  # bounded by the horizon
             held_out.factors = [f for f in held_out.factors if f.step not in self._left]
         return kept, restored
-
-    def _switch_state(self, state: tuple | None = None) -> tuple[dict, dict]:
-        """Copies of each pair's reported hypothesis and its abandoned one (of `state`, such a
-        pair of dicts, when given): an update that fails restores them as the last update
-        that succeeded left them, so a switch whose removal it dropped is still pending."""
-        hypothesis, abandoned = (self._hypothesis, self._abandoned) if state is None else state
-        return dict(hypothesis), {pair: replace(a) for pair, a in abandoned.items()}
 
     def _take_out(self, tagged) -> list[_Factor]:
         """Queue the removal of the committed factors `tagged(f)` picks; returns them."""

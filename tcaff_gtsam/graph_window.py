@@ -10,7 +10,15 @@ from bisect import bisect_left
 import gtsam
 import numpy as np
 
-from .graph_inputs import _a_key, _Factor, _key_list, _keyframe_of, _step_of, _x_key
+from .graph_inputs import (
+    _a_key,
+    _components,
+    _Factor,
+    _key_list,
+    _keyframe_of,
+    _step_of,
+    _x_key,
+)
 
 __all__ = ["SlidingWindow"]
 
@@ -115,13 +123,27 @@ class SlidingWindow:
                 robot, index = _keyframe_of(key)
                 self._left_keyframes[robot][index] = self._value(key)
             self._n_left += 1
-        # a chain whose every variable leaves takes its prior along: removed, it would leave
-        # the chain's last variable free while it is marginalised
-        self._to_remove.extend(
-            index for (kind, robot), index in self._free.items()
-            if index not in self._to_remove and self._has_left(self._active[index].keys[0])
-            and (kind == "A" or not self._has_left(_x_key(robot, self._last_keyframe[robot]))))
+        leaving = [(chain, index) for chain, index in self._free.items()
+                   if index not in self._to_remove
+                   and self._has_left(self._active[index].keys[0])]
+        if leaving:
+            # a group of chains that leaves whole takes its prior along: removed, it would
+            # leave the group's last variables free while they are marginalised
+            whole = self._leaving_whole()
+            self._to_remove.extend(index for chain, index in leaving if chain not in whole)
         return list(range(first, self._n_left))
+
+    def _leaving_whole(self) -> set[tuple]:
+        """The chains whose whole group of linked chains (committed or queued links) leaves
+        with this update: chains of keyframes only (a robot's alignments go on with every
+        step), each with its last keyframe gone."""
+        links = [*self._links, *(q.link for q in self._queued if q.link)]
+        chains = {chain for link in links for chain in link}
+        chains |= {("X", robot) for robot in self._last_keyframe}
+        root = _components(chains, links)
+        staying = {root(c) for c in chains
+                   if c[0] == "A" or not self._has_left(_x_key(c[1], self._last_keyframe[c[1]]))}
+        return {c for c in chains if root(c) not in staying}
 
     def _marginalise(self, ranks: list[int]) -> None:
         """Marginalise the variables of the steps at `ranks` and the keyframes added with them

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from tcaff_gtsam.eval.sim.streams import robot_team_streams
 
 from tcaff_gtsam import TCAFF, InterRobotGraph, TCAFFParams
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import (
     se2_error,
     se2_from_params,
@@ -775,6 +775,33 @@ def test_a_chain_of_keyframes_linked_to_nothing_leaves_whole(resume):
                                np.linalg.inv(poses[0]) @ poses[1])
     assert t_err < 1e-6 and th_err < 1e-4
 
+
+def test_a_chain_of_keyframes_leaving_beside_a_linked_one_leaves_its_prior_behind():
+    """Robot 1's one keyframe is linked to robot 2's chain, which goes on; the pair's prior
+    sits on robot 1's keyframe. When that keyframe leaves, the group does not leave whole: its
+    prior is removed and moved to robot 2's chain, not marginalised into it, and robot 2's
+    keyframes land where robot 0's alignment later puts them."""
+    graph = InterRobotGraph(3, GraphParams(horizon=2))
+    cov = np.diag([0.01, 0.01, 0.001])
+    graph.add_keyframe(1, 0, np.eye(3))
+    graph.add_keyframe(2, 0, np.eye(3))
+    graph.add_keyframe_alignment(1, 0, 2, 0, se2_from_params([1.0, 0.0, 0.0]), cov)
+    graph.update(0)
+    for k in range(1, 4):
+        graph.add_keyframe(2, k, se2_from_params([0.5 * k, 0.0, 0.0]))
+        graph.update(k)
+    T_o0_o2 = se2_from_params([20.0, -10.0, 1.0])
+    graph.add_keyframe(0, 0, np.eye(3))
+    graph.add_keyframe_alignment(0, 0, 2, 3, T_o0_o2, cov)
+    for k in range(4, 7):
+        graph.update(k)
+    indices, poses = graph.trajectory(2)
+    t_err, th_err = pose_error(T_o0_o2 @ se2_from_params([1.5, 0.0, 0.0]),
+                               poses[indices.tolist().index(3)])
+    assert t_err < 1e-3 and th_err < 1e-2
+    assert not any(chain[0] == "X" for chain in graph._free)  # joined to the anchor
+
+
 def assert_no_newer_below(graph: InterRobotGraph) -> None:
     """No clique of the Bayes tree has a variable of a newer step than its parent's: what lets
     the oldest steps leave as leaves."""
@@ -1143,46 +1170,56 @@ def test_a_bad_tcaff_estimate_is_refused_before_it_changes_the_graph():
     assert dt < 0.05 and dth < 0.5
 
 
-def test_a_switch_pending_at_a_failed_update_is_still_pending_after_it():
-    """The hold of a switch ends at an update gtsam cannot solve: the roll-back puts the
-    abandoned hypothesis's factors back and the switch is still pending, so the next updates
-    remove them as if the failure had not happened. Before, the pending switch was lost with
-    the failed update and the abandoned factors stayed in the graph for good."""
-    def run(fail: bool) -> InterRobotGraph:
+@pytest.mark.parametrize("fail_at", [11, 12])
+def test_a_switch_pending_at_a_failed_update_is_still_pending_after_it(fail_at):
+    """A switch at step 10 with `switch_hold` = 3; the update of step `fail_at` fails (gtsam
+    cannot solve it) and the caller gives the step again. The hold goes on from where the
+    last update that succeeded left it: after every step the graph holds the hypotheses it
+    holds in a run without the failure, and ends with the new one alone. Before, a failure at
+    the hold's end lost the pending switch and the abandoned factors stayed for good."""
+    def run(fail: bool) -> tuple[InterRobotGraph, list[set[int]]]:
         graph = InterRobotGraph(2, GraphParams(switch_hold=3))
         right, wrong = se2_to_params(truth(0, 1)), se2_to_params(truth(0, 1) @ TURNED)
+        held = []
         for k in range(20):
             x, hypothesis = (right, 1) if k < 10 else (wrong, 2)
             graph.add_tcaff_estimate(k, 0, 1, estimate(x, True, hypothesis), x[None], R[None])
-            if fail and k == 12:
+            if fail and k == fail_at:
                 for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
-                    graph.add_between(alignment_key(0, 11), alignment_key(1, 11),
+                    graph.add_between(alignment_key(0, k - 1), alignment_key(1, k - 1),
                                       se2_from_params(T), np.diag([1e-12] * 3), robust=False)
                 with pytest.raises(DataError, match="could not solve"):
                     graph.update(k)
                 graph.add_tcaff_estimate(k, 0, 1, estimate(x, True, 2), x[None], R[None])
             graph.update(k)
-        return graph
+            held.append(alignment_hypotheses(graph))
+        return graph, held
 
-    for graph in (run(False), run(True)):
-        assert alignment_hypotheses(graph) == {2} and graph.settled(0, 1)
+    (plain, held_plain), (failed, held_failed) = run(False), run(True)
+    assert held_failed == held_plain
+    assert held_plain[-1] == {2} and {1, 2} in held_plain
+    for graph in (plain, failed):
+        assert graph.settled(0, 1)
         dt, _ = pose_error(truth(0, 1) @ TURNED, graph.alignment(0, 1)[0])
         assert dt < 0.05
 
 
-def test_what_gtsam_refuses_with_a_value_error_is_a_data_error():
-    """One robot, no factor but its gauge, and a horizon: gtsam refuses the constrained
-    ordering from the third step with a ValueError of its own. Each update either succeeds or
-    is a DataError, and the graph stays readable (before, the ValueError escaped and the next
-    read raised an IndexError)."""
-    graph = InterRobotGraph(1, GraphParams(horizon=4))
+def test_one_robot_with_a_horizon_is_refused():
+    """One robot's steps only chain to each other, and the horizon's constrained ordering of
+    them failed from the third step (a ValueError that escaped and left the graph unreadable):
+    the graph is refused when it is made. Without a horizon one robot works."""
+    with pytest.raises(ConfigError, match="needs at least two robots"):
+        InterRobotGraph(1, GraphParams(horizon=4))
+    graph = InterRobotGraph(1)
     for k in range(8):
-        try:
-            graph.update(k)
-        except DataError as exc:
-            assert "could not solve" in str(exc)
-        np.testing.assert_allclose(graph.alignment(0, 0)[0], np.eye(3), atol=1e-12)
-    assert graph.steps[:3] == [0, 1, 2]
+        graph.update(k)
+    np.testing.assert_allclose(graph.alignment(0, 0)[0], np.eye(3), atol=1e-12)
+    for robots in (2, 3):
+        bounded = InterRobotGraph(robots, GraphParams(horizon=4))
+        for k in range(8):
+            bounded.update(k)
+        assert bounded.steps == list(range(8))
+
 
 def alignment_variances(graph, step: int, pair) -> list[float]:
     """The x variance of every alignment factor of `pair` committed at `step`."""

@@ -302,16 +302,52 @@ def test_one_stray_measurement_in_the_gap_does_not_make_the_truth_forgettable(se
     after the truth returned."""
     stream, zs, back = with_a_stray(seed)
     filt = TCAFF()
-    estimates = feed(filt, zs[:back])
+    estimates = []
+    for z in zs[:back]:
+        accepted = filt.hypothesis
+        estimates += feed(filt, [z])
+        if filt.hypothesis != accepted:  # a hypothesis accepted now is not returning
+            assert filt._returning == 0
     assert estimates[back - 1] is not None
     assert not correct(estimates[back - 1], stream.truth[back - 1])  # displaced
     assert filt._dormant is not None
+    assert filt._returning == 0  # the newcomer, seen at every step, is not returning
     estimates += feed(filt, zs[back:])
     assert not [t for t in range(back, len(zs))
                 if estimates[t] is not None and not correct(estimates[t], stream.truth[t])]
     recalled = next(t for t in range(back, len(zs))
                     if estimates[t] is not None and correct(estimates[t], stream.truth[t]))
     assert recalled - back < W - 2
+
+
+@pytest.mark.parametrize("early", [2, 3])
+@pytest.mark.parametrize("gap", [W - 1, W, W + 5])
+def test_a_return_counts_from_w_silent_steps_until_it_is_confirmed(gap, early):
+    """The main path, silent for `gap` steps, is measured again at every step: a return from
+    a gap of W steps or more until it has `early_measurements` measurements; after a shorter
+    silence, none."""
+    filt = TCAFF(replace(TCAFFParams(), early_measurements=early))
+    _, zs = gap_stream(0, gap)
+    feed(filt, zs[:30 + gap])
+    assert filt._main is not None and filt._returning == 0
+    counts = [feed(filt, [z])[0] is not None and filt._returning for z in zs[30 + gap:34 + gap]]
+    if gap < W:
+        assert counts == [0, 0, 0, 0]
+    else:
+        assert counts == [*range(1, early), 0, 0, 0][:4]
+
+
+def test_a_main_tree_dropped_while_returning_leaves_a_state_that_loads():
+    """One stray measurement after a silence of W steps, then nothing until the main tree is
+    dropped: the count of the return goes with it, and the state loads."""
+    _, zs = gap_stream(0, 80)
+    zs[30 + W + 2] = TRUTH[None] + np.array([[0.3, -0.2, 0.01]])
+    filt = TCAFF()
+    feed(filt, zs[:30 + W + 3])
+    assert filt._returning == 1
+    feed(filt, zs[30 + W + 3:100])
+    assert filt._main is None and filt._returning == 0
+    TCAFF().load_state_dict(filt.state_dict())
 
 
 @pytest.mark.parametrize("seed", range(2))
@@ -339,6 +375,7 @@ def test_a_return_being_confirmed_survives_save_and_load(seed, tmp_path):
                          (dict(no_main.state_dict(), returning=np.array(1)), "0 without a main")]:
         with pytest.raises(DataError, match=message):
             TCAFF().load_state_dict(bad)
+
 
 @pytest.mark.parametrize("seed", range(2))
 def test_a_dormant_hypothesis_beside_a_main_tree_survives_save_and_load(seed, tmp_path):
