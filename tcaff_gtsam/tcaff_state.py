@@ -130,6 +130,8 @@ class FilterState:
                                 f"0 without a main tree")
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
+        except DataError:  # refused on purpose, with its own message
+            raise
         except (TypeError, ValueError, OverflowError) as exc:
             raise DataError(f"TCAFF state: an entry has the wrong kind or is out of range "
                             f"({exc})") from None

@@ -371,8 +371,11 @@ def test_a_return_being_confirmed_survives_save_and_load(seed, tmp_path):
     TCAFF().load_state_dict(older)  # saved before it was recorded: 0
     no_main = TCAFF()
     feed(no_main, zs[:3])
-    for bad, message in [(dict(saved, returning=np.array(2)), "returning = 2 must be below"),
-                         (dict(no_main.state_dict(), returning=np.array(1)), "0 without a main")]:
+    # refused with its own message, not as "an entry has the wrong kind"
+    for bad, message in [(dict(saved, returning=np.array(2)),
+                          "^TCAFF state: returning = 2 must be below"),
+                         (dict(no_main.state_dict(), returning=np.array(1)),
+                          "^TCAFF state: returning = 1 .* 0 without a main")]:
         with pytest.raises(DataError, match=message):
             TCAFF().load_state_dict(bad)
 
