@@ -1170,19 +1170,24 @@ def test_a_bad_tcaff_estimate_is_refused_before_it_changes_the_graph():
     assert dt < 0.05 and dth < 0.5
 
 
-@pytest.mark.parametrize("fail_at", [11, 12])
-def test_a_switch_pending_at_a_failed_update_is_still_pending_after_it(fail_at):
+@pytest.mark.parametrize(("fail_at", "held_first"), [(11, False), (12, False), (10, True)])
+def test_a_switch_pending_at_a_failed_update_is_still_pending_after_it(fail_at, held_first):
     """A switch at step 10 with `switch_hold` = 3; the update of step `fail_at` fails (gtsam
     cannot solve it) and the caller gives the step again. The hold goes on from where the
     last update that succeeded left it: after every step the graph holds the hypotheses it
     holds in a run without the failure, and ends with the new one alone. Before, a failure at
-    the hold's end lost the pending switch and the abandoned factors stayed for good."""
+    the hold's end lost the pending switch and the abandoned factors stayed for good. With
+    `held_first` the switch is first reported by a held estimate and an `update()` with
+    nothing to commit, which the failure at step 10 must not undo."""
     def run(fail: bool) -> tuple[InterRobotGraph, list[set[int]]]:
         graph = InterRobotGraph(2, GraphParams(switch_hold=3))
         right, wrong = se2_to_params(truth(0, 1)), se2_to_params(truth(0, 1) @ TURNED)
         held = []
         for k in range(20):
             x, hypothesis = (right, 1) if k < 10 else (wrong, 2)
+            if held_first and k == 10:
+                graph.add_tcaff_estimate(k - 1, 0, 1, estimate(x, False, 2), x[None], R[None])
+                graph.update()
             graph.add_tcaff_estimate(k, 0, 1, estimate(x, True, hypothesis), x[None], R[None])
             if fail and k == fail_at:
                 for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
