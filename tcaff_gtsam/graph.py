@@ -357,7 +357,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         now, later = [], []
         for q in self._queued:
             (later if q.step is not None and q.step > newest else now).append(q)
-        suspended = {pair: _Suspended(held_out.hypothesis, list(held_out.factors))
+        # the held-out hypotheses as they are: within an update their factor lists only grow
+        suspended = {pair: (held_out, len(held_out.factors))
                      for pair, held_out in self._suspended.items()}
         now, restored = self._cycle_checked(
             self._shared_maps_weighed(now) if self.params.shared_maps else now)
@@ -388,7 +389,9 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._settle(touched)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             self._roll_back(gone, marginals, step, leaving)
-            self._suspended = suspended
+            self._suspended = {pair: held_out for pair, (held_out, _) in suspended.items()}
+            for held_out, n in suspended.values():
+                del held_out.factors[n:]
             self._hypothesis, self._abandoned = _copied_switches(*self._switches)
             self._forget_keyframes(set(self._pending_values.keys()))
             dropped, self._queued = self._queued, later

@@ -46,7 +46,8 @@ class _Suspended:
     """A pair's hypothesis the cycle check left out: its factors, held out of the graph.
 
     Attributes:
-        hypothesis: its tag; factors: its alignment factors, weighed as their update weighed
+        hypothesis: its tag; factors: its alignment factors of the steps still in the graph
+            (`_marginalise` drops those of steps that leave), weighed as their update weighed
             them (committed then, or held out at their commit).
     """
 
@@ -215,7 +216,7 @@ class HypothesisFactors:
                                                    self._take_out(lambda f, tag=tag: f.tag == tag))
             elif undirected not in rejected and held_out is not None:
                 del self._suspended[pair]
-                restored.extend(f for f in held_out.factors if f.step not in self._left)
+                restored.extend(held_out.factors)
         if not self._suspended:
             return queued, restored
         kept = []
@@ -226,8 +227,6 @@ class HypothesisFactors:
                 held_out.factors.append(q)
             else:
                 kept.append(q)
-        for held_out in self._suspended.values():  # bounded by the horizon
-            held_out.factors = [f for f in held_out.factors if f.step not in self._left]
         return kept, restored
 
     def _take_out(self, tagged) -> list[_Factor]:

@@ -147,7 +147,12 @@ class SlidingWindow:
 
     def _marginalise(self, ranks: list[int]) -> None:
         """Marginalise the variables of the steps at `ranks` and the keyframes added with them
-        (leaves of the Bayes tree, see `_solve`), keeping their estimates for reading."""
+        (leaves of the Bayes tree, see `_solve`), keeping their estimates for reading. The
+        factors of those steps that the cycle check holds out can never come back: dropped."""
+        if ranks and self._suspended:
+            gone = {self._steps[rank] for rank in ranks}
+            for held_out in self._suspended.values():
+                held_out.factors = [f for f in held_out.factors if f.step not in gone]
         keys = []
         for rank in ranks:
             k = self._steps[rank]

@@ -1022,8 +1022,9 @@ def test_a_wrong_pair_contradicted_around_cycles_is_held_out_of_the_graph():
 
 def test_held_out_factors_are_bounded_by_the_horizon():
     graph = wrong_pair_measured_most(cycle_check=True, steps=30, horizon=6)
-    # what left at an update is dropped at the next
-    assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(23, 30))
+    # what leaves at an update is dropped with it: only the steps still in the graph
+    assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(24, 30))
+    assert graph.steps[graph._n_left] == 24
     dt, dth = pose_error(truth(0, 3), graph.alignment(0, 3)[0])
     assert dt < 0.05 and dth < 0.5
 
@@ -1090,6 +1091,29 @@ def test_an_update_gtsam_cannot_solve_leaves_the_held_out_factors_as_they_were()
                   if f.tag is not None and f.tag[0] == "alignment" and f.tag[1:3] == (0, 3)
                   ) == [*range(10), 11]
 
+
+
+def test_an_update_gtsam_cannot_solve_drops_what_it_held_out():
+    """A failed update whose factor of the held-out hypothesis was set aside with it: the
+    held-out factors are those of before the update, and its factor is dropped with the
+    update's others."""
+    graph = wrong_pair_measured_most(cycle_check=True, steps=10)
+    assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(10))
+    reported = {pair: (truth(*pair), True, 1) for pair in [(1, 2), (1, 3), (2, 3)]}
+    reported[(0, 3)] = (truth(0, 3) @ TURNED, True, 1)
+    reported |= {pair: (truth(*pair), False, 1) for pair in [(0, 1), (0, 2)]}  # held
+    for (i, j), (T, measured, hypothesis) in reported.items():
+        x = se2_to_params(T)
+        graph.add_tcaff_estimate(10, i, j, estimate(x, measured, hypothesis,
+                                                    0 if measured else 10), x[None], R[None])
+    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):  # what gtsam cannot eliminate
+        graph.add_between(alignment_key(0, 9), alignment_key(1, 9), se2_from_params(T),
+                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    with pytest.raises(DataError, match="could not solve"):
+        graph.update(10)
+    assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(10))
+    feed(graph, 10, reported)
+    assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(11))
 
 # -- the covariance of a past step ---------------------------------------------------------------
 

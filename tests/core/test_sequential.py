@@ -330,7 +330,10 @@ def test_a_return_counts_from_w_silent_steps_until_it_is_confirmed(gap, early):
     _, zs = gap_stream(0, gap)
     feed(filt, zs[:30 + gap])
     assert filt._main is not None and filt._returning == 0
-    counts = [feed(filt, [z])[0] is not None and filt._returning for z in zs[30 + gap:34 + gap]]
+    counts = []
+    for z in zs[30 + gap:34 + gap]:
+        feed(filt, [z])
+        counts.append(filt._returning)
     if gap < W:
         assert counts == [0, 0, 0, 0]
     else:
