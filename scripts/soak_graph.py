@@ -10,9 +10,11 @@ maximum of `update` over those steps (wall clock), the median, p99 and maximum o
 filters' outputs (`add_tcaff_estimate` for every pair) and to read every pair's alignment; at the
 end, the growth of memory per 1000 steps after `--settle` steps.
 
-    python scripts/soak_graph.py [--robots 4] [--steps 20000] [--horizon 300] [--every 500]
+    python scripts/soak_graph.py [--robots 4] [--steps 20000] [--horizon 300] [--history N]
+                                 [--every 500]
 
-`--horizon 0` keeps every step (the unbounded graph).
+`--horizon 0` keeps every step (the unbounded graph); `--history N` keeps the latest N steps
+that left the horizon readable and forgets older ones (`GraphParams.history`; all by default).
 """
 
 from __future__ import annotations
@@ -47,20 +49,24 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20000)
     parser.add_argument("--horizon", type=int, default=300,
                         help="steps the graph keeps; 0 keeps all (default 300)")
+    parser.add_argument("--history", type=int, default=None,
+                        help="steps that left the horizon kept readable (default: all)")
     parser.add_argument("--every", type=int, default=500, help="steps between reports")
     parser.add_argument("--settle", type=int, default=2000,
                         help="steps before the memory growth is measured")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
-    graph = InterRobotGraph(args.robots, GraphParams(horizon=args.horizon or None))
+    graph = InterRobotGraph(args.robots, GraphParams(horizon=args.horizon or None,
+                                                     history=args.history))
     pairs = [(i, j) for i in range(args.robots) for j in range(args.robots) if i != j]
     filters = {pair: TCAFF() for pair in pairs}
     # each odometry frame in robot 0's, drifting as in the simulator's team streams
     x = np.c_[rng.uniform(-20, 20, (args.robots, 2)), rng.uniform(-np.pi, np.pi, args.robots)]
     x[0] = 0.0
     times, cpu, adds, reads, marks = [], [], [], [], []
-    print(f"{args.robots} robots, horizon {args.horizon or 'none'}")
+    print(f"{args.robots} robots, horizon {args.horizon or 'none'}, history "
+          f"{'all' if args.history is None else args.history}")
     print(f"{'step':>7} {'RSS MB':>8} {'update ms':>10} {'p95':>8} {'p99':>8} {'max':>8} "
           f"{'cpu med':>8} {'cpu p99':>8} {'cpu max':>8} {'add ms':>8} {'read ms':>8}")
     for k in range(args.steps):
@@ -85,13 +91,13 @@ def main() -> None:
             graph.alignment(*pair)
         reads.append(1e3 * (time.perf_counter() - t0))
         if (k + 1) % args.every == 0:
-            t, c = np.array(times[-args.every:]), np.array(cpu[-args.every:])
+            t, c = np.array(times), np.array(cpu)
             marks.append((k + 1, rss_mb()))
             print(f"{k + 1:>7} {marks[-1][1]:8.1f} {np.median(t):10.3f} "
                   f"{np.percentile(t, 95):8.3f} {np.percentile(t, 99):8.3f} {t.max():8.3f} "
                   f"{np.median(c):8.3f} {np.percentile(c, 99):8.3f} {c.max():8.3f} "
-                  f"{np.median(adds[-args.every:]):8.3f} {np.median(reads[-args.every:]):8.3f}",
-                  flush=True)
+                  f"{np.median(adds):8.3f} {np.median(reads):8.3f}", flush=True)
+            times, cpu, adds, reads = [], [], [], []  # so that the soak's own lists stay bounded
     after = [(k, m) for k, m in marks if k >= args.settle]
     if len(after) >= 2:
         (k0, m0), (k1, m1) = after[0], after[-1]

@@ -439,6 +439,12 @@ class GraphParams(_ByValue):
             keep their last pose. Factors that left can no longer be removed (a hypothesis
             switch removes only those within the horizon). None keeps every step (offline
             studies).
+        history: with a horizon, how many of the steps that left it stay readable (the
+            latest ones): their alignments and covariances, and the keyframes that left with
+            them. Older ones are forgotten, and reading them raises `DataError`. What a step
+            keeps is (3 n)^2 + 9 n numbers for n planar robots ((6 n)^2 + 16 n in 3D): 1.4 KB
+            at four robots, 19 KB at 16, so 3600 steps (an hour at 1 Hz) 5 MB and 70 MB.
+            None keeps them all. Needs a horizon.
     """
 
     dim: Literal[2, 3] = 2
@@ -458,6 +464,7 @@ class GraphParams(_ByValue):
     cycle_check: bool = True
     past_covariance: Literal["causal", "smoothed"] = "causal"
     horizon: int | None = None
+    history: int | None = None
 
     def __post_init__(self) -> None:
         o = "GraphParams"
@@ -496,3 +503,7 @@ class GraphParams(_ByValue):
                  self.past_covariance, "must be 'causal' or 'smoothed'")
         _require(self.horizon is None or _int_at_least(self.horizon, 2), o, "horizon",
                  self.horizon, "must be an int >= 2 (steps) or None")
+        _require(self.history is None or _int_at_least(self.history, 0), o, "history",
+                 self.history, "must be an int >= 0 (steps) or None")
+        _require(self.history is None or self.horizon is not None, o, "history",
+                 self.history, "needs a horizon: without one no step leaves the graph")

@@ -88,7 +88,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
     Up to 2^16 robots (what the variables' keys tell apart). Every step keeps the joint
     covariance of all robots' alignments it had as the latest, (3 n)^2 numbers (1.2 KB a step at
     4 robots, 18 KB at 16): a past step's covariance (`GraphParams.past_covariance`), and with a
-    horizon, any pair's covariance after the step has left.
+    horizon, any pair's covariance after the step has left, for the latest
+    `GraphParams.history` steps that left (all of them by default).
     """
 
     def __init__(self, n_robots: int, params: GraphParams | None = None) -> None:
@@ -118,6 +119,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         # was the latest (cheap to compute then, near the root of the Bayes tree; smoothing
         # only shrinks it later)
         self._left: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # with `history`: the keyframes (robot, index) that left with each step in self._left,
+        # the latest step forgotten and each robot's latest keyframe forgotten
+        self._left_with: dict[int, list[tuple[int, int]]] = {}
+        self._forgotten_to: int | None = None
+        self._forgotten_keyframe: dict[int, int] = {}
         self._joints: dict[int, np.ndarray] = {}  # that covariance while the step was latest
         # committed factors removed and not put back, by id: (factor, its step, the update's
         # step), and the kept steps whose joint counted one of them (from its step on)
@@ -148,11 +154,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._hypothesis: dict[tuple[int, int], int] = {}
         # pair -> an abandoned hypothesis whose factors wait for removal
         self._abandoned: dict[tuple[int, int], _Abandoned] = {}
-        # both as the last update that succeeded left them: what a failed one restores
-        self._switches = _copied_switches(self._hypothesis, self._abandoned)
         # this step's TCAFF estimates, and pairs whose hypothesis the cycle check holds out
         self._given: dict[tuple[int, int], AlignmentEstimate] = {}
         self._suspended: dict[tuple[int, int], _Suspended] = {}
+        # the three as the last update that succeeded left them: what a failed one restores
+        self._switches = _copied_switches(self._hypothesis, self._abandoned, self._suspended)
 
     # -- pose helpers --------------------------------------------------------------------------
 
@@ -312,7 +318,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         if self._steps and step <= self._steps[-1] and step not in self._step_set:
             raise DataError(f"add_alignment: step {step} was never committed (steps so far "
                             f"end at {self._steps[-1]})")
-        if step in self._left:
+        if self._has_left(_a_key(0, step)):
             raise DataError(f"add_alignment: step {step} has left the graph (horizon "
                             f"{self.params.horizon} steps, latest {self._steps[-1]})")
         T = self._matrix(T_oi_oj)
@@ -357,9 +363,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         now, later = [], []
         for q in self._queued:
             (later if q.step is not None and q.step > newest else now).append(q)
-        # the held-out hypotheses as they are: within an update their factor lists only grow
-        suspended = {pair: (held_out, len(held_out.factors))
-                     for pair, held_out in self._suspended.items()}
         now, restored = self._cycle_checked(
             self._shared_maps_weighed(now) if self.params.shared_maps else now)
         self._queued = now + restored
@@ -367,7 +370,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._fix_gauge()
         if not self._queued and not self._to_remove:
             self._queued = later
-            self._switches = _copied_switches(self._hypothesis, self._abandoned)
+            self._switches = _copied_switches(self._hypothesis, self._abandoned,
+                                              self._suspended)
             return
         graph = gtsam.NonlinearFactorGraph()
         touched = set()
@@ -389,10 +393,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._settle(touched)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             self._roll_back(gone, marginals, step, leaving)
+            hypothesis, abandoned, suspended = self._switches
+            self._hypothesis, self._abandoned, _ = _copied_switches(hypothesis, abandoned, {})
             self._suspended = {pair: held_out for pair, (held_out, _) in suspended.items()}
             for held_out, n in suspended.values():
                 del held_out.factors[n:]
-            self._hypothesis, self._abandoned = _copied_switches(*self._switches)
             self._forget_keyframes(set(self._pending_values.keys()))
             dropped, self._queued = self._queued, later
             self._pending_values, self._to_remove = gtsam.Values(), []
@@ -410,7 +415,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._marginalise(leaving)
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
-        self._switches = _copied_switches(self._hypothesis, self._abandoned)
+        self._switches = _copied_switches(self._hypothesis, self._abandoned, self._suspended)
 
     def _mark_stale(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],
                         newest: int) -> None:

@@ -85,6 +85,11 @@ class KeyframeFactors:
             raise DataError(f"{name}: keyframe {index} of robot {robot} has left the graph "
                             f"(horizon {self.params.horizon} steps, latest {self._steps[-1]})")
         if index not in self._keyframes[robot]:
+            forgotten = self._forgotten_keyframe.get(robot)
+            if forgotten is not None and index <= forgotten:
+                raise DataError(f"{name}: keyframe {index} of robot {robot} left the graph "
+                                f"and was forgotten (GraphParams.history = "
+                                f"{self.params.history})")
             raise DataError(f"{name}: robot {robot} has no keyframe {index}")
         return index
 
@@ -137,7 +142,7 @@ class KeyframeFactors:
     def trajectory(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
         """Committed keyframes of `robot`: indices (m,) and poses (m, 3, 3) / (m, 4, 4) in the
         common frame. Keyframes that left the graph (with a horizon) keep the pose they had
-        when they left."""
+        when they left, until they are forgotten (`GraphParams.history`)."""
         self._check_robot("robot", robot)
         estimate = self._isam.calculateEstimate()
         get = estimate.atPose2 if self._planar else estimate.atPose3

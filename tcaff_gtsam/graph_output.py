@@ -3,6 +3,7 @@ two robots are linked, the history of an alignment, and the graph in g2o format.
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from pathlib import Path
 
 import gtsam
@@ -31,7 +32,8 @@ class GraphReadout:
             or an earlier one) has been removed for good since (then, and with "smoothed", its
             marginal now); a step that left the horizon keeps the one it left with.
         Raises:
-            DataError: unknown robot or a step that has not been committed.
+            DataError: unknown robot, a step that has not been committed, or one forgotten
+                (`GraphParams.history`).
         """
         self._check_robot("i", i)
         self._check_robot("j", j)
@@ -40,6 +42,10 @@ class GraphReadout:
         step = self._steps[-1] if step is None else step
         if step not in self._step_set:
             raise DataError(f"alignment: step {step} has not been committed")
+        if self._forgotten_to is not None and step <= self._forgotten_to:
+            raise DataError(f"alignment: step {step} left the horizon and was forgotten (the "
+                            f"latest GraphParams.history = {self.params.history} steps that "
+                            f"left are kept, from step {self._forgotten_to + 1} on)")
         ki, kj = alignment_key(i, step), alignment_key(j, step)
         A_i, A_j = self._value(ki), self._value(kj)
         T = np.linalg.inv(A_i) @ A_j
@@ -68,7 +74,8 @@ class GraphReadout:
         return root(("A", i)) == root(("A", j))
 
     def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
-        """T_oi_oj at every committed step from the current (smoothed) solution.
+        """T_oi_oj at every committed step from the current (smoothed) solution, except the
+        steps forgotten (`GraphParams.history`).
 
         Returns:
             steps (n,) and T (n, 3, 3) / (n, 4, 4).
@@ -82,9 +89,11 @@ class GraphReadout:
             return self._left[k][0][robot] if k in self._left else get(
                 alignment_key(robot, k)).matrix()
 
-        T = np.array([np.linalg.inv(A(i, k)) @ A(j, k) for k in self._steps])
+        steps = (self._steps if self._forgotten_to is None
+                 else self._steps[bisect_right(self._steps, self._forgotten_to):])
+        T = np.array([np.linalg.inv(A(i, k)) @ A(j, k) for k in steps])
         size = self._side
-        return np.array(self._steps, np.int64), T.reshape(-1, size, size)
+        return np.array(steps, np.int64), T.reshape(-1, size, size)
 
     def alignment_params(self, i: int, j: int, step: int | None = None) -> np.ndarray:
         """(x, y, theta) or (x, y, z, yaw) of T_oi_oj(step), without covariance."""

@@ -55,12 +55,16 @@ class _Suspended:
     factors: list[_Factor]
 
 
-def _copied_switches(hypothesis: dict, abandoned: dict) -> tuple[dict, dict]:
-    """Copies of each pair's reported hypothesis and its abandoned one (`_Abandoned`, copied
-    too: its `held` count goes on in the graph): what a failed update restores, as the last
-    update that succeeded left them, so that a switch whose removal it dropped is still
-    pending."""
-    return dict(hypothesis), {pair: replace(a) for pair, a in abandoned.items()}
+def _copied_switches(hypothesis: dict, abandoned: dict, suspended: dict
+                     ) -> tuple[dict, dict, dict]:
+    """What a failed update restores, as the last update that succeeded left it: copies of
+    each pair's reported hypothesis and its abandoned one (`_Abandoned`, copied too: its
+    `held` count goes on in the graph), so that a switch whose removal it dropped is still
+    pending; and each held-out hypothesis (`_Suspended`) with the length of its factor list,
+    which only grows within an update, so that one `remove_hypothesis` took out since comes
+    back with what it held."""
+    return (dict(hypothesis), {pair: replace(a) for pair, a in abandoned.items()},
+            {pair: (held_out, len(held_out.factors)) for pair, held_out in suspended.items()})
 
 
 class HypothesisFactors:

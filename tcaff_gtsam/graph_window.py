@@ -172,7 +172,10 @@ class SlidingWindow:
                 if self._isam.valueExists(key):
                     self._left_keyframes[robot][index] = self._value(key)
                     keys.append(key)
+                if self.params.history is not None:
+                    self._left_with.setdefault(k, []).append((robot, index))
                 del self._keyframes[robot][index], self._keyframe_rank[key]
+        self._forget()
         if not keys:
             return
         marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
@@ -184,6 +187,20 @@ class SlidingWindow:
         if self._free:
             self._free = {chain: i for chain, i in self._free.items() if i in active}
 
+    def _forget(self) -> None:
+        """Forget the steps that left beyond the latest `GraphParams.history` of them, and the
+        keyframes that left with them (steps leave in order, so `_left` is oldest first)."""
+        history = self.params.history
+        if history is None:
+            return
+        while len(self._left) > history:
+            k = next(iter(self._left))
+            del self._left[k]
+            self._forgotten_to = k
+            for robot, index in self._left_with.pop(k, ()):
+                self._left_keyframes[robot].pop(index, None)
+                self._forgotten_keyframe[robot] = index
+
     def _forget_keyframes(self, keys: set[int]) -> None:
         """Unregister keyframes whose values were dropped with a failed update."""
         for key in keys:
@@ -192,7 +209,8 @@ class SlidingWindow:
                 frames = self._keyframes[robot]
                 del frames[index]
                 self._keyframes_at[self._keyframe_rank.pop(key)].remove(key)
-                before = max(frames, default=max(self._left_keyframes[robot], default=None))
+                before = max(frames, default=max(self._left_keyframes[robot],
+                                                 default=self._forgotten_keyframe.get(robot)))
                 if before is None:
                     del self._last_keyframe[robot]
                 else:

@@ -724,6 +724,68 @@ def test_a_bounded_graph_with_keyframes_stays_the_same_size():
     assert len(graph.trajectory(1)[0]) == 240
 
 
+@pytest.mark.parametrize("history", [0, 7])
+def test_a_bounded_history_keeps_the_latest_steps_that_left_and_forgets_the_rest(history):
+    horizon, steps = 12, 60
+    forgetting = InterRobotGraph(2, GraphParams(horizon=horizon, history=history))
+    keeping = InterRobotGraph(2, GraphParams(horizon=horizon))
+    keyframe_team_run(forgetting, steps)
+    keyframe_team_run(keeping, steps)
+    kept = steps - horizon - history  # the first step still readable
+    # what is kept reads as the graph that forgets nothing reads it
+    for k in (kept, steps - horizon, steps - 1):
+        T_f, C_f = forgetting.alignment(0, 1, k)
+        T_k, C_k = keeping.alignment(0, 1, k)
+        np.testing.assert_allclose(T_f, T_k, atol=1e-12)
+        np.testing.assert_allclose(C_f, C_k, atol=1e-15)
+    steps_f, T_f = forgetting.alignment_history(0, 1)
+    _, T_k = keeping.alignment_history(0, 1)
+    assert steps_f.tolist() == list(range(kept, steps))
+    np.testing.assert_allclose(T_f, T_k[kept:], atol=1e-9)
+    for r in range(2):
+        indices_f, poses_f = forgetting.trajectory(r)
+        _, poses_k = keeping.trajectory(r)
+        assert indices_f.tolist() == list(range(kept, steps))
+        np.testing.assert_allclose(poses_f, poses_k[kept:], atol=1e-9)
+    # the rest is gone, memory with it, and says so
+    assert len(forgetting._left) == history and len(forgetting._left_with) == history
+    assert sum(map(len, forgetting._left_keyframes.values())) == 2 * history
+    with pytest.raises(DataError, match="forgotten"):
+        forgetting.alignment(0, 1, kept - 1)
+    with pytest.raises(DataError, match="left the graph"):
+        forgetting.add_alignment(kept - 1, 0, 1, np.eye(3), R)
+    with pytest.raises(DataError, match="forgotten"):
+        forgetting.add_keyframe_alignment(0, kept - 1, 1, steps - 1, np.eye(3), R)
+    with pytest.raises(DataError, match="not after"):
+        forgetting.add_keyframe(1, kept - 1, np.eye(3))
+    # and the graph goes on
+    forgetting.add_alignment(steps, 0, 1, np.eye(3), R)
+    forgetting.update(steps)
+    assert forgetting.alignment_history(0, 1)[0].tolist() == list(range(kept + 1, steps + 1))
+
+
+def test_a_failed_update_after_a_robots_keyframes_were_forgotten_keeps_their_order():
+    graph = InterRobotGraph(2, GraphParams(horizon=3, history=0))
+    T_o0_o1 = se2_from_params([3.0, 1.0, 0.5])
+    graph.add_keyframe(1, 4, np.eye(3))
+    for k in range(10):
+        graph.add_alignment(k, 0, 1, T_o0_o1, R)
+        graph.update(k)
+    assert graph.trajectory(1)[0].tolist() == []  # left and forgotten
+    graph.add_keyframe(1, 5, np.eye(3))
+    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
+        graph.add_between(alignment_key(0, 9), alignment_key(1, 9), se2_from_params(T),
+                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    with pytest.raises(DataError, match="as it was before"):
+        graph.update(10)
+    # keyframe 5 was dropped with the update; 4, forgotten, still bounds the next index
+    with pytest.raises(DataError, match="not after 4"):
+        graph.add_keyframe(1, 4, np.eye(3))
+    graph.add_keyframe(1, 5, np.eye(3))
+    graph.update(10)
+    assert graph.trajectory(1)[0].tolist() == [5]
+
+
 def test_a_keyframe_after_its_predecessor_left_starts_the_chain_again():
     graph = InterRobotGraph(2, GraphParams(horizon=5))
     T_o0_o1 = se2_from_params([3.0, 1.0, 0.5])
@@ -1114,6 +1176,25 @@ def test_an_update_gtsam_cannot_solve_drops_what_it_held_out():
     assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(10))
     feed(graph, 10, reported)
     assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(11))
+
+def test_a_failed_update_brings_back_a_held_out_hypothesis_removed_before_it():
+    """`remove_hypothesis` on a held-out hypothesis, then an update gtsam cannot solve: the
+    removal is dropped with the update, the held-out factors with it (before, they were
+    lost while the pair's hypotheses were restored)."""
+    graph = wrong_pair_measured_most(cycle_check=True, steps=10)
+    hypothesis = graph._suspended[(0, 3)].hypothesis
+    assert graph.remove_hypothesis(0, 3, hypothesis) == 10
+    assert (0, 3) not in graph._suspended
+    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):  # what gtsam cannot eliminate
+        graph.add_between(alignment_key(0, 9), alignment_key(1, 9), se2_from_params(T),
+                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    with pytest.raises(DataError, match="could not solve"):
+        graph.update(10)
+    assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(10))
+    assert graph.remove_hypothesis(0, 3, hypothesis) == 10  # asked again, it goes
+    graph.update(10)
+    assert (0, 3) not in graph._suspended
+
 
 # -- the covariance of a past step ---------------------------------------------------------------
 

@@ -31,7 +31,8 @@ OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inli
             ("TCAFFParams", "gate_box"),
             ("TCAFFParams", "switch_after"), ("TCAFFParams", "switch_support"),
             ("GraphParams", "Q"),
-            ("GraphParams", "odometry_cov"), ("GraphParams", "horizon")}
+            ("GraphParams", "odometry_cov"), ("GraphParams", "horizon"),
+            ("GraphParams", "history")}
 #: fields that are switches
 SWITCHES = {("TCAFFParams", "root_in_window"), ("TCAFFParams", "switch_stale"),
             ("TCAFFParams", "withhold_contested"), ("TCAFFParams", "sequential"),
@@ -82,6 +83,8 @@ def test_none_and_bools_only_where_the_field_takes_them(cls, name, value):
     (lambda: TCAFFParams(gate_box=["a", 1, 1]), "TCAFFParams.gate_box = ['a', 1, 1]"),
     (lambda: TCAFFParams(angle_indices=2), "TCAFFParams.angle_indices = 2"),
     (lambda: TCAFFParams(P0=[[1.0], [1.0, 2.0]]), "TCAFFParams.P0 = "),
+    (lambda: GraphParams(history=10), "GraphParams.history = 10: needs a horizon"),
+    (lambda: GraphParams(horizon=5, history=-1), "GraphParams.history = -1: must be an int"),
 ])
 def test_wrong_kinds_are_config_errors_not_type_errors(make, message):
     with pytest.raises(ConfigError) as info:
