@@ -599,6 +599,14 @@ def test_connected_follows_committed_alignments_through_other_robots():
 # -- long runs and a graph that cannot be broken --------------------------------------------------
 
 
+def queue_unsolvable(graph: InterRobotGraph, step: int) -> None:
+    """Queue what gtsam cannot eliminate: two rigid, contradictory factors between robots 0
+    and 1 at `step`, so that the next `update` fails."""
+    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
+        graph.add_between(alignment_key(0, step), alignment_key(1, step), se2_from_params(T),
+                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+
+
 def noisy_team_run(graph: InterRobotGraph, steps: int, seed: int = 0) -> dict:
     """Alignments of a drifting 3-robot team with 0.1 m / 1 deg noise at every step; the
     causal estimate of each step, {(pair, step): T}."""
@@ -773,9 +781,7 @@ def test_a_failed_update_after_a_robots_keyframes_were_forgotten_keeps_their_ord
         graph.update(k)
     assert graph.trajectory(1)[0].tolist() == []  # left and forgotten
     graph.add_keyframe(1, 5, np.eye(3))
-    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
-        graph.add_between(alignment_key(0, 9), alignment_key(1, 9), se2_from_params(T),
-                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    queue_unsolvable(graph, 9)
     with pytest.raises(DataError, match="as it was before"):
         graph.update(10)
     # keyframe 5 was dropped with the update; 4, forgotten, still bounds the next index
@@ -804,9 +810,7 @@ def test_a_keyframe_after_its_predecessor_left_starts_the_chain_again():
     assert t_err < 1e-6 and th_err < 1e-4
     # a failed update drops its keyframe: the same index can be given again
     graph.add_keyframe(1, 2, T_o1_b1)
-    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
-        graph.add_between(alignment_key(0, 20), alignment_key(1, 20), se2_from_params(T),
-                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    queue_unsolvable(graph, 20)
     with pytest.raises(DataError, match="as it was before"):
         graph.update(21)
     assert graph.trajectory(1)[0].tolist() == [0, 1]
@@ -916,9 +920,7 @@ def test_an_update_gtsam_cannot_solve_is_rolled_back(horizon):
         graph.update(k)
     before = graph.alignment(0, 1)
     history = graph.alignment_history(0, 1)
-    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
-        graph.add_between(alignment_key(0, 14), alignment_key(1, 14), se2_from_params(T),
-                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    queue_unsolvable(graph, 14)
     with pytest.raises(DataError, match=r"as it was before"):
         graph.update(15)
     assert graph.steps == list(range(15))
@@ -1018,9 +1020,7 @@ def test_the_latest_steps_kept_joint_follows_every_change_of_the_graph():
     both(lambda g: g.update())
     same_covariances()
     for graph in graphs:  # a failed update leaves the graph, and its covariances, as they were
-        for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
-            graph.add_between(alignment_key(0, 5), alignment_key(1, 5), se2_from_params(T),
-                              np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+        queue_unsolvable(graph, 5)
         with pytest.raises(DataError, match="as it was before"):
             graph.update(6)
     same_covariances()
@@ -1140,9 +1140,7 @@ def test_an_update_gtsam_cannot_solve_leaves_the_held_out_factors_as_they_were()
     for i, j in [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3), (0, 3)]:  # all right: (0, 3) kept
         x = se2_to_params(truth(i, j))
         graph.add_tcaff_estimate(10, i, j, estimate(x, False), x[None], R[None])
-    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):  # what gtsam cannot eliminate
-        graph.add_between(alignment_key(0, 9), alignment_key(1, 9), se2_from_params(T),
-                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    queue_unsolvable(graph, 9)
     with pytest.raises(DataError, match="could not solve"):
         graph.update(10)
     assert [f.step for f in graph._suspended[(0, 3)].factors] == held_out
@@ -1168,9 +1166,7 @@ def test_an_update_gtsam_cannot_solve_drops_what_it_held_out():
         x = se2_to_params(T)
         graph.add_tcaff_estimate(10, i, j, estimate(x, measured, hypothesis,
                                                     0 if measured else 10), x[None], R[None])
-    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):  # what gtsam cannot eliminate
-        graph.add_between(alignment_key(0, 9), alignment_key(1, 9), se2_from_params(T),
-                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    queue_unsolvable(graph, 9)
     with pytest.raises(DataError, match="could not solve"):
         graph.update(10)
     assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(10))
@@ -1185,9 +1181,7 @@ def test_a_failed_update_brings_back_a_held_out_hypothesis_removed_before_it():
     hypothesis = graph._suspended[(0, 3)].hypothesis
     assert graph.remove_hypothesis(0, 3, hypothesis) == 10
     assert (0, 3) not in graph._suspended
-    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):  # what gtsam cannot eliminate
-        graph.add_between(alignment_key(0, 9), alignment_key(1, 9), se2_from_params(T),
-                          np.diag([1e-12, 1e-12, 1e-12]), robust=False)
+    queue_unsolvable(graph, 9)
     with pytest.raises(DataError, match="could not solve"):
         graph.update(10)
     assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(10))
@@ -1295,9 +1289,7 @@ def test_a_switch_pending_at_a_failed_update_is_still_pending_after_it(fail_at, 
                 graph.update()
             graph.add_tcaff_estimate(k, 0, 1, estimate(x, True, hypothesis), x[None], R[None])
             if fail and k == fail_at:
-                for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
-                    graph.add_between(alignment_key(0, k - 1), alignment_key(1, k - 1),
-                                      se2_from_params(T), np.diag([1e-12] * 3), robust=False)
+                queue_unsolvable(graph, k - 1)
                 with pytest.raises(DataError, match="could not solve"):
                     graph.update(k)
                 graph.add_tcaff_estimate(k, 0, 1, estimate(x, True, 2), x[None], R[None])
