@@ -56,6 +56,8 @@ def main() -> None:
                         help="steps before the memory growth is measured")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    if args.history is not None and not args.horizon:
+        parser.error("--history needs a horizon (--horizon > 0)")
     rng = np.random.default_rng(args.seed)
     graph = InterRobotGraph(args.robots, GraphParams(horizon=args.horizon or None,
                                                      history=args.history))

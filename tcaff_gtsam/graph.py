@@ -86,10 +86,10 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
     for the smoothed one. Factors wait in a queue until the next `update`.
 
     Up to 2^16 robots (what the variables' keys tell apart). Every step keeps the joint
-    covariance of all robots' alignments it had as the latest, (3 n)^2 numbers (1.2 KB a step at
-    4 robots, 18 KB at 16): a past step's covariance (`GraphParams.past_covariance`), and with a
-    horizon, any pair's covariance after the step has left, for the latest
-    `GraphParams.history` steps that left (all of them by default).
+    covariance of all robots' alignments it had as the latest: a past step's covariance
+    (`GraphParams.past_covariance`), and with a horizon, any pair's covariance after the step
+    has left, for the latest `GraphParams.history` steps that left (all of them by default;
+    what that costs is under `history`).
     """
 
     def __init__(self, n_robots: int, params: GraphParams | None = None) -> None:
@@ -139,6 +139,12 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
         self._keyframe_rank: dict[int, int] = {}
         self._keyframes_at: dict[int, list[int]] = defaultdict(list)  # rank -> keys
+        # with a horizon: the keyframes each keyframe is linked to (by how many factors), and
+        # since the last update that succeeded, the links added and the keyframes whose rank
+        # rose, with the rank they had (`_leave_together`)
+        self._linked: dict[int, Counter[int]] = defaultdict(Counter)
+        self._new_links: list[tuple[int, int]] = []
+        self._regrouped: dict[int, int] = {}
         self._last_keyframe: dict[int, int] = {}  # robot -> its latest keyframe index
         # keyframes that left: their pose in the common frame when they left, per robot
         self._left_keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
@@ -339,8 +345,9 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             DataError: `step` is not after the last committed step, a queued alignment refers
                 to a step that neither exists nor is `step`, or gtsam could not solve the graph
                 with the queued factors (they are dropped, and the graph holds the factors,
-                hypotheses and pending switches it held before; its estimate is solved again
-                from them, so it may move within the solver's tolerance).
+                hypotheses, pending switches and held-out hypotheses it held before; its
+                estimate is solved again from them, from their linearisation point, and can
+                move where the graph holds contradicting alignments).
         """
         if step is not None:
             step = _check_index("update: step", step, _ROBOT_SHIFT)
@@ -372,6 +379,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._queued = later
             self._switches = _copied_switches(self._hypothesis, self._abandoned,
                                               self._suspended)
+            self._new_links, self._regrouped = [], {}
             return
         graph = gtsam.NonlinearFactorGraph()
         touched = set()
@@ -388,12 +396,19 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._settled_from = None
         # the marginal factors of what left (a roll-back needs them)
         marginals = {i: factors.at(i) for i in self._marginal}
+        stale = (dict(self._removed), set(self._stale)) if gone or restored else None
         try:
             indices = self._commit(graph, self._pending_values, self._to_remove, removed_keys)
             self._settle(touched)
+            self._mark_stale(gone, restored, newest)
+            joints = self._leaving_joints(leaving)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
+            if stale is not None:
+                self._removed, self._stale = stale
+            self._unlink_new()  # first: the roll-back orders the new tree by the ranks
             self._roll_back(gone, marginals, step, leaving)
             hypothesis, abandoned, suspended = self._switches
+            # copied again: the snapshot must serve a failure of the next update too
             self._hypothesis, self._abandoned, _ = _copied_switches(hypothesis, abandoned, {})
             self._suspended = {pair: held_out for pair, (held_out, _) in suspended.items()}
             for held_out, n in suspended.values():
@@ -410,12 +425,12 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         for q, index in zip(self._queued, indices, strict=True):
             self._active[index] = q
             self._count(q, index, +1)
-        self._mark_stale(gone, restored, newest)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
-        self._marginalise(leaving)
+        self._marginalise(leaving, joints)
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
         self._switches = _copied_switches(self._hypothesis, self._abandoned, self._suspended)
+        self._new_links, self._regrouped = [], {}
 
     def _mark_stale(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],
                         newest: int) -> None:

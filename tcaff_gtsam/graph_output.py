@@ -43,9 +43,9 @@ class GraphReadout:
         if step not in self._step_set:
             raise DataError(f"alignment: step {step} has not been committed")
         if self._forgotten_to is not None and step <= self._forgotten_to:
-            raise DataError(f"alignment: step {step} left the horizon and was forgotten (the "
-                            f"latest GraphParams.history = {self.params.history} steps that "
-                            f"left are kept, from step {self._forgotten_to + 1} on)")
+            raise DataError(f"alignment: step {step} left the horizon and was forgotten "
+                            f"(GraphParams.history = {self.params.history}: only that many of "
+                            f"the latest steps that left are kept)")
         ki, kj = alignment_key(i, step), alignment_key(j, step)
         A_i, A_j = self._value(ki), self._value(kj)
         T = np.linalg.inv(A_i) @ A_j

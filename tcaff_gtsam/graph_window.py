@@ -1,7 +1,8 @@
 """The sliding window of `InterRobotGraph`: each iSAM2 update (ordered so that what leaves is
 always a set of leaves of the Bayes tree), the steps and keyframes that leave with a horizon and
-their marginalisation, the joint covariance kept for reading them, and the roll-back to the
-graph as it was when gtsam cannot solve an update."""
+their marginalisation, the joint covariance kept for reading them (and forgotten beyond
+`GraphParams.history`), and the roll-back to the graph as it was when gtsam cannot solve an
+update."""
 
 from __future__ import annotations
 
@@ -75,8 +76,11 @@ class SlidingWindow:
             return self._isam.update(graph, values, remove)
         update = gtsam.ISAM2UpdateParams()
         update.removeFactorIndices = remove
-        if remove:  # the prediction leaves out the variables of removed factors
-            update.extraReelimKeys = _key_list(removed_keys)
+        # the prediction leaves out the variables of removed factors, and keyframes whose
+        # group rose (`_leave_together`) must be eliminated again in it
+        again = [*removed_keys, *(key for key in self._regrouped if self._isam.valueExists(key))]
+        if again:
+            update.extraReelimKeys = _key_list(again)
         affected, batch = self._isam.predictUpdateInfo(graph, values, update)
         affected = ([*self._isam.getLinearizationPoint().keys(), *values.keys()] if batch
                     else list(affected))
@@ -87,7 +91,8 @@ class SlidingWindow:
         for key, g in zip(affected, groups, strict=True):
             constrained.insert2(key, dense[g])
         update.constrainedKeys = constrained
-        return self._isam.update(graph, values, update)
+        result = self._isam.update(graph, values, update)
+        return result
 
     def _commit(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                 remove: list[int], removed_keys=()) -> list[int]:
@@ -145,10 +150,23 @@ class SlidingWindow:
                    if c[0] == "A" or not self._has_left(_x_key(c[1], self._last_keyframe[c[1]]))}
         return {c for c in chains if root(c) not in staying}
 
-    def _marginalise(self, ranks: list[int]) -> None:
+    def _leaving_joints(self, ranks: list[int]) -> dict[int, np.ndarray]:
+        """The joint each step at `ranks` leaves with, by step: the one kept by the update that
+        added the next step (a step leaves only after one), unless a removal since made it
+        stale, then the joint as it is now. Computed before anything leaves, so that a system
+        gtsam cannot solve for it rolls the update back."""
+        joints = {}
+        for rank in ranks:
+            k = self._steps[rank]
+            joint = self._joints.get(k)
+            joints[k] = self._joint(k) if joint is None or k in self._stale else joint
+        return joints
+
+    def _marginalise(self, ranks: list[int], joints: dict[int, np.ndarray]) -> None:
         """Marginalise the variables of the steps at `ranks` and the keyframes added with them
-        (leaves of the Bayes tree, see `_solve`), keeping their estimates for reading. The
-        factors of those steps that the cycle check holds out can never come back: dropped."""
+        (leaves of the Bayes tree, see `_solve`), keeping their estimates and `joints` (by
+        step, `_leaving_joints`) for reading until `_forget` forgets them. The factors of
+        those steps that the cycle check holds out can never come back: dropped."""
         if ranks and self._suspended:
             gone = {self._steps[rank] for rank in ranks}
             for held_out in self._suspended.values():
@@ -160,12 +178,9 @@ class SlidingWindow:
             estimate = self._isam.calculateEstimate(step_keys)
             get = estimate.atPose2 if self._planar else estimate.atPose3
             A = np.array([get(key).matrix() for key in step_keys])
-            # kept by the update that added the next step (a step leaves only after one),
-            # unless a removal since made it stale: then the joint as it is now
-            joint = self._joints.pop(k, None)
-            stale = k in self._stale
+            self._joints.pop(k, None)
             self._stale.discard(k)
-            self._left[k] = (A, self._joint(k) if joint is None or stale else joint)
+            self._left[k] = (A, joints[k])
             keys += step_keys
             for key in self._keyframes_at.pop(rank, []):
                 robot, index = _keyframe_of(key)
@@ -175,6 +190,7 @@ class SlidingWindow:
                 if self.params.history is not None:
                     self._left_with.setdefault(k, []).append((robot, index))
                 del self._keyframes[robot][index], self._keyframe_rank[key]
+                self._unlink(key)
         self._forget()
         if not keys:
             return
@@ -199,7 +215,32 @@ class SlidingWindow:
             self._forgotten_to = k
             for robot, index in self._left_with.pop(k, ()):
                 self._left_keyframes[robot].pop(index, None)
-                self._forgotten_keyframe[robot] = index
+                self._forgotten_keyframe[robot] = max(index,
+                                                      self._forgotten_keyframe.get(robot, -1))
+
+    def _unlink(self, key: int) -> None:
+        """Drop a keyframe that leaves (or was dropped) from the links of `_leave_together`."""
+        for other in self._linked.pop(key, ()):
+            if other in self._linked:
+                del self._linked[other][key]
+
+    def _unlink_new(self) -> None:
+        """After a failed update: the links its dropped factors made are undone, and the
+        keyframes still in the graph get back the rank they had (`_leave_together`)."""
+        for pair in self._new_links:
+            for key, other in (pair, pair[::-1]):
+                links = self._linked.get(key)
+                if links is not None and other in links:
+                    links[other] -= 1
+                    if links[other] <= 0:
+                        del links[other]
+        for key, old in self._regrouped.items():
+            rank = self._keyframe_rank.get(key)
+            if rank is not None:
+                self._keyframes_at[rank].remove(key)
+                self._keyframes_at[old].append(key)
+                self._keyframe_rank[key] = old
+        self._new_links, self._regrouped = [], {}
 
     def _forget_keyframes(self, keys: set[int]) -> None:
         """Unregister keyframes whose values were dropped with a failed update."""
@@ -209,6 +250,7 @@ class SlidingWindow:
                 frames = self._keyframes[robot]
                 del frames[index]
                 self._keyframes_at[self._keyframe_rank.pop(key)].remove(key)
+                self._unlink(key)
                 before = max(frames, default=max(self._left_keyframes[robot],
                                                  default=self._forgotten_keyframe.get(robot)))
                 if before is None:
@@ -244,7 +286,8 @@ class SlidingWindow:
         for rank in leaving:
             for key in self._keyframes_at.get(rank, []):
                 robot, index = _keyframe_of(key)
-                del self._left_keyframes[robot][index]
+                # one whose rank `_unlink_new` lowered into a leaving step was not kept
+                self._left_keyframes[robot].pop(index, None)
         self._n_left -= len(leaving)
         if step is not None:
             self._steps.pop()

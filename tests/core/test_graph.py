@@ -766,6 +766,11 @@ def test_a_bounded_history_keeps_the_latest_steps_that_left_and_forgets_the_rest
         forgetting.add_keyframe_alignment(0, kept - 1, 1, steps - 1, np.eye(3), R)
     with pytest.raises(DataError, match="not after"):
         forgetting.add_keyframe(1, kept - 1, np.eye(3))
+    with pytest.raises(DataError, match=rf"X_1\({kept - 1}\) = key \d+ has left the graph"):
+        forgetting.add_between(keyframe_key(1, kept - 1), keyframe_key(1, steps - 1),
+                               np.eye(3), R)
+    with pytest.raises(DataError, match=r"X_1\(1000\) = key \d+ does not exist"):
+        forgetting.add_between(keyframe_key(1, 1000), keyframe_key(1, steps - 1), np.eye(3), R)
     # and the graph goes on
     forgetting.add_alignment(steps, 0, 1, np.eye(3), R)
     forgetting.update(steps)
@@ -817,6 +822,79 @@ def test_a_keyframe_after_its_predecessor_left_starts_the_chain_again():
     graph.add_keyframe(1, 2, T_o1_b1)
     graph.update(21)
     assert graph.trajectory(1)[0].tolist() == [0, 1, 2]
+
+
+def test_keyframes_of_robots_at_different_rates_leave_the_graph_linked():
+    """The smallest case first: robot 2's keyframe 4 leaves at update 26 while a factor links
+    it to robot 1's keyframe 4, which stays. gtsam's marginalisation of leaves raised a
+    ValueError there, after the commit, and left the graph half updated; the two now leave
+    together."""
+    graph = InterRobotGraph(3, GraphParams(horizon=3))
+    graph.add_keyframe(1, 3, se2_from_params([1.0, 0.0, 0.05]))
+    graph.add_keyframe(2, 4, se2_from_params([1.2, 0.2, 0.05]))
+    for k in (22, 26):
+        if k == 26:
+            graph.add_keyframe(1, 4, se2_from_params([1.4, 0.0, 0.07]))
+            graph.add_keyframe(2, 7, se2_from_params([1.9, 0.3, 0.07]))
+            graph.add_keyframe_alignment(2, 4, 1, 4, [3.7, 10.8, 2.6], R)
+        graph.add_alignment(k, 0, 1, [6.0, -2.0, 0.7], R)
+        graph.add_alignment(k, 1, 2, [1.0, 2.0, 0.3], R)
+        graph.update(k)
+    assert graph.trajectory(1)[0].tolist() == [3, 4]
+    assert graph.trajectory(2)[0].tolist() == [4, 7]
+    assert graph._keyframe_rank[keyframe_key(2, 4)] == graph._keyframe_rank[keyframe_key(1, 4)]
+
+
+@pytest.mark.parametrize("fail_at", [None, 17, 31])
+def test_keyframes_linked_across_steps_leave_a_bounded_graph_without_error(fail_at):
+    """Robot 1 adds a keyframe every step, robot 2 every third, and most steps link their
+    latest keyframes: links between keyframes of different steps, with a horizon of two.
+    Every update succeeds (before, one raised gtsam's ValueError at step 11), the
+    trajectories read as the unbounded graph's within the drift of a bounded one, and an
+    update that fails undoes what its factors did to when keyframes leave."""
+    rng = np.random.default_rng(65)
+    graphs = [InterRobotGraph(3, GraphParams(horizon=2)), InterRobotGraph(3),
+              InterRobotGraph(3, GraphParams(horizon=2))]  # the last never sees the failure
+    odometry = {1: np.eye(3), 2: np.eye(3)}
+
+    def give(graph, k, link, noise):
+        for r in (1, 2) if k % 3 == 0 else (1,):
+            graph.add_keyframe(r, k, odometry[r])
+        if link:
+            graph.add_keyframe_alignment(1, k, 2, 3 * (k // 3),
+                                         se2_to_params(truth(1, 2)) + noise, R)
+        for i, j in ((0, 1), (1, 2)):
+            graph.add_alignment(k, i, j, se2_to_params(truth(i, j)) + noise, R)
+
+    for k in range(40):
+        for r in (1, 2):
+            odometry[r] = odometry[r] @ se2_from_params([0.3, 0.0, 0.02 * r])
+        link = rng.random() < 0.7
+        noise = rng.normal(0, [0.05, 0.05, 0.01])
+        for n, graph in enumerate(graphs):
+            if k == fail_at and n < 2:
+                give(graph, k, link, noise)
+                # a keyframe linked to an older one of robot 1, and what gtsam cannot solve
+                graph.add_keyframe(2, 1000, odometry[2])
+                graph.add_keyframe_alignment(2, 1000, 1, k - 1, np.zeros(3), R)
+                queue_unsolvable(graph, k - 1)
+                with pytest.raises(DataError, match="as it was before"):
+                    graph.update(k)
+            give(graph, k, link, noise)
+            graph.update(k)
+    bounded, whole, unfailed = graphs
+    for r in (1, 2):
+        indices, poses = bounded.trajectory(r)
+        whole_indices, whole_poses = whole.trajectory(r)
+        assert indices.tolist() == whole_indices.tolist()
+        assert indices.tolist() == unfailed.trajectory(r)[0].tolist()
+        for pose, whole_pose in zip(poses, whole_poses, strict=True):
+            t_err, th_err = pose_error(whole_pose, pose)
+            assert t_err < 0.3 and th_err < 2.0
+    # what stays: the horizon's keyframes, and those linked to robot 2's latest (3 steps back)
+    assert len(bounded._keyframes[1]) <= 2 + 3 and len(bounded._linked) <= 2 + 3 + 2
+    assert (bounded._keyframe_rank == unfailed._keyframe_rank
+            and bounded._linked == unfailed._linked)
 
 
 @pytest.mark.parametrize("resume", [None, 2, 5])
@@ -1172,6 +1250,7 @@ def test_an_update_gtsam_cannot_solve_drops_what_it_held_out():
     assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(10))
     feed(graph, 10, reported)
     assert [f.step for f in graph._suspended[(0, 3)].factors] == list(range(11))
+
 
 def test_a_failed_update_brings_back_a_held_out_hypothesis_removed_before_it():
     """`remove_hypothesis` on a held-out hypothesis, then an update gtsam cannot solve: the
