@@ -139,12 +139,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
         self._keyframe_rank: dict[int, int] = {}
         self._keyframes_at: dict[int, list[int]] = defaultdict(list)  # rank -> keys
-        # with a horizon: the keyframes each keyframe is linked to (by how many factors), and
-        # since the last update that succeeded, the links added and the keyframes whose rank
-        # rose, with the rank they had (`_leave_together`)
-        self._linked: dict[int, Counter[int]] = defaultdict(Counter)
-        self._new_links: list[tuple[int, int]] = []
-        self._regrouped: dict[int, int] = {}
         self._last_keyframe: dict[int, int] = {}  # robot -> its latest keyframe index
         # keyframes that left: their pose in the common frame when they left, per robot
         self._left_keyframes: dict[int, dict[int, np.ndarray]] = defaultdict(dict)
@@ -379,7 +373,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._queued = later
             self._switches = _copied_switches(self._hypothesis, self._abandoned,
                                               self._suspended)
-            self._new_links, self._regrouped = [], {}
             return
         graph = gtsam.NonlinearFactorGraph()
         touched = set()
@@ -405,7 +398,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             if stale is not None:
                 self._removed, self._stale = stale
-            self._unlink_new()  # first: the roll-back orders the new tree by the ranks
             self._roll_back(gone, marginals, step, leaving)
             hypothesis, abandoned, suspended = self._switches
             # copied again: the snapshot must serve a failure of the next update too
@@ -430,7 +422,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
         self._switches = _copied_switches(self._hypothesis, self._abandoned, self._suspended)
-        self._new_links, self._regrouped = [], {}
 
     def _mark_stale(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],
                         newest: int) -> None:

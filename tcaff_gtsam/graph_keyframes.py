@@ -36,9 +36,9 @@ class KeyframeFactors:
         keyframes are linked to the previous one by the odometry between them.
 
         With `GraphParams.horizon`, a keyframe leaves the graph with the step of the first
-        `update(step)` after it was added, or later with a keyframe a factor links it to. A
-        keyframe whose predecessor has left starts its robot's chain again, as a first
-        keyframe does: nothing in the graph would still hold the odometry between them.
+        `update(step)` after it was added. A keyframe whose predecessor has left starts its
+        robot's chain again, as a first keyframe does: nothing in the graph would still hold
+        the odometry between them.
 
         Args:
             T_o_b: (3, 3) SE(2) or (4, 4) SE(3) matrix.
@@ -113,7 +113,6 @@ class KeyframeFactors:
         i, j = int(i), int(j)
         self._queue_between(_x_key(i, m_i), _x_key(j, m_j), T_bi_bj, noise,
                             ("keyframe", i, j, hypothesis), link=(("X", i), ("X", j)))
-        self._leave_together(_x_key(i, m_i), _x_key(j, m_j))
 
     def add_between(self, key_a: int, key_b: int, T_a_b, cov_tangent, robust: bool = True
                     ) -> None:
@@ -137,47 +136,16 @@ class KeyframeFactors:
             if not self._exists(key):
                 step = _step_of(key)
                 robot, index = _keyframe_of(key)
-                left = (step in self._step_set if step is not None
-                        else index in self._left_keyframes[robot]
-                        or index <= self._forgotten_keyframe.get(robot, -1))
+                left = robot < self.n_robots and (
+                    step in self._step_set if step is not None
+                    else index in self._left_keyframes.get(robot, ())
+                    or index <= self._forgotten_keyframe.get(robot, -1))
                 name = (f"A_{robot}({step})" if step is not None else f"X_{robot}({index})")
                 raise DataError(f"add_between: {name} = key {key} "
                                 f"{'has left the graph' if left else 'does not exist'}")
         link = (_chain(key_a), _chain(key_b))
         self._queue_between(key_a, key_b, T, self._noise(C, robust),
                             link=link if link[0] != link[1] else None)
-        if link[0][0] == link[1][0] == "X":
-            self._leave_together(key_a, key_b)
-
-    def _leave_together(self, key_a: int, key_b: int) -> None:
-        """With a horizon: two keyframes a factor links leave with the later one's step, and
-        so does every keyframe linked to them by such factors, or after them in their robot's
-        chain. A keyframe that left while linked to a later keyframe of
-        another robot could sit in the Bayes tree under a clique that partly stays, which
-        gtsam's marginalisation of leaves mishandles: it raised from `update` after the
-        commit and left the graph half updated. The keyframes whose rank rises are eliminated
-        again by the next update (`_solve`), so that none is below an older variable."""
-        if self.params.horizon is None:
-            return
-        self._linked[key_a][key_b] += 1
-        self._linked[key_b][key_a] += 1
-        self._new_links.append((key_a, key_b))
-        rank = max(self._keyframe_rank[key_a], self._keyframe_rank[key_b])
-        # linked keyframes of other robots share a rank and a chain's ranks never fall, so
-        # what is already at `rank` needs nothing more
-        todo = [key_a, key_b]
-        while todo:
-            key = todo.pop()
-            old = self._keyframe_rank[key]
-            if old >= rank:
-                continue
-            self._keyframes_at[old].remove(key)
-            self._keyframes_at[rank].append(key)
-            self._keyframe_rank[key] = rank
-            self._regrouped.setdefault(key, old)
-            robot, index = _keyframe_of(key)
-            todo.extend(self._linked[key])
-            todo.extend(_x_key(robot, later) for later in self._keyframes[robot] if later > index)
 
     def trajectory(self, robot: int) -> tuple[np.ndarray, np.ndarray]:
         """Committed keyframes of `robot`: indices (m,) and poses (m, 3, 3) / (m, 4, 4) in the
@@ -187,9 +155,8 @@ class KeyframeFactors:
         estimate = self._isam.calculateEstimate()
         get = estimate.atPose2 if self._planar else estimate.atPose3
         left = self._left_keyframes[robot]
-        gone = sorted(left)  # keyframes of one step leave in the order they were linked
         inside = [i for i in self._keyframes[robot] if estimate.exists(keyframe_key(robot, i))]
-        poses = [*(left[i] for i in gone), *(get(keyframe_key(robot, i)).matrix() for i in inside)]
+        poses = [*left.values(), *(get(keyframe_key(robot, i)).matrix() for i in inside)]
         size = self._side
-        return (np.array([*gone, *inside], np.int64),
+        return (np.array([*left, *inside], np.int64),
                 np.array(poses, dtype=float).reshape(-1, size, size))

@@ -76,11 +76,8 @@ class SlidingWindow:
             return self._isam.update(graph, values, remove)
         update = gtsam.ISAM2UpdateParams()
         update.removeFactorIndices = remove
-        # the prediction leaves out the variables of removed factors, and keyframes whose
-        # group rose (`_leave_together`) must be eliminated again in it
-        again = [*removed_keys, *(key for key in self._regrouped if self._isam.valueExists(key))]
-        if again:
-            update.extraReelimKeys = _key_list(again)
+        if remove:  # the prediction leaves out the variables of removed factors
+            update.extraReelimKeys = _key_list(removed_keys)
         affected, batch = self._isam.predictUpdateInfo(graph, values, update)
         affected = ([*self._isam.getLinearizationPoint().keys(), *values.keys()] if batch
                     else list(affected))
@@ -91,8 +88,7 @@ class SlidingWindow:
         for key, g in zip(affected, groups, strict=True):
             constrained.insert2(key, dense[g])
         update.constrainedKeys = constrained
-        result = self._isam.update(graph, values, update)
-        return result
+        return self._isam.update(graph, values, update)
 
     def _commit(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                 remove: list[int], removed_keys=()) -> list[int]:
@@ -190,7 +186,6 @@ class SlidingWindow:
                 if self.params.history is not None:
                     self._left_with.setdefault(k, []).append((robot, index))
                 del self._keyframes[robot][index], self._keyframe_rank[key]
-                self._unlink(key)
         self._forget()
         if not keys:
             return
@@ -215,32 +210,7 @@ class SlidingWindow:
             self._forgotten_to = k
             for robot, index in self._left_with.pop(k, ()):
                 self._left_keyframes[robot].pop(index, None)
-                self._forgotten_keyframe[robot] = max(index,
-                                                      self._forgotten_keyframe.get(robot, -1))
-
-    def _unlink(self, key: int) -> None:
-        """Drop a keyframe that leaves (or was dropped) from the links of `_leave_together`."""
-        for other in self._linked.pop(key, ()):
-            if other in self._linked:
-                del self._linked[other][key]
-
-    def _unlink_new(self) -> None:
-        """After a failed update: the links its dropped factors made are undone, and the
-        keyframes still in the graph get back the rank they had (`_leave_together`)."""
-        for pair in self._new_links:
-            for key, other in (pair, pair[::-1]):
-                links = self._linked.get(key)
-                if links is not None and other in links:
-                    links[other] -= 1
-                    if links[other] <= 0:
-                        del links[other]
-        for key, old in self._regrouped.items():
-            rank = self._keyframe_rank.get(key)
-            if rank is not None:
-                self._keyframes_at[rank].remove(key)
-                self._keyframes_at[old].append(key)
-                self._keyframe_rank[key] = old
-        self._new_links, self._regrouped = [], {}
+                self._forgotten_keyframe[robot] = index
 
     def _forget_keyframes(self, keys: set[int]) -> None:
         """Unregister keyframes whose values were dropped with a failed update."""
@@ -250,7 +220,6 @@ class SlidingWindow:
                 frames = self._keyframes[robot]
                 del frames[index]
                 self._keyframes_at[self._keyframe_rank.pop(key)].remove(key)
-                self._unlink(key)
                 before = max(frames, default=max(self._left_keyframes[robot],
                                                  default=self._forgotten_keyframe.get(robot)))
                 if before is None:
@@ -286,8 +255,7 @@ class SlidingWindow:
         for rank in leaving:
             for key in self._keyframes_at.get(rank, []):
                 robot, index = _keyframe_of(key)
-                # one whose rank `_unlink_new` lowered into a leaving step was not kept
-                self._left_keyframes[robot].pop(index, None)
+                del self._left_keyframes[robot][index]
         self._n_left -= len(leaving)
         if step is not None:
             self._steps.pop()
