@@ -120,9 +120,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         # only shrinks it later)
         self._left: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         # with `history`: the keyframes (robot, index) that left with each step in self._left,
-        # the latest step forgotten and each robot's latest keyframe forgotten
+        # and each robot's latest keyframe forgotten
         self._left_with: dict[int, list[tuple[int, int]]] = {}
-        self._forgotten_to: int | None = None
         self._forgotten_keyframe: dict[int, int] = {}
         self._joints: dict[int, np.ndarray] = {}  # that covariance while the step was latest
         # committed factors removed and not put back, by id: (factor, its step, the update's

@@ -136,10 +136,7 @@ class KeyframeFactors:
             if not self._exists(key):
                 step = _step_of(key)
                 robot, index = _keyframe_of(key)
-                left = robot < self.n_robots and (
-                    step in self._step_set if step is not None
-                    else index in self._left_keyframes.get(robot, ())
-                    or index <= self._forgotten_keyframe.get(robot, -1))
+                left = robot < self.n_robots and self._has_left(key)
                 name = (f"A_{robot}({step})" if step is not None else f"X_{robot}({index})")
                 raise DataError(f"add_between: {name} = key {key} "
                                 f"{'has left the graph' if left else 'does not exist'}")

@@ -3,7 +3,7 @@ two robots are linked, the history of an alignment, and the graph in g2o format.
 
 from __future__ import annotations
 
-from bisect import bisect_right
+from bisect import bisect_left
 from pathlib import Path
 
 import gtsam
@@ -42,7 +42,7 @@ class GraphReadout:
         step = self._steps[-1] if step is None else step
         if step not in self._step_set:
             raise DataError(f"alignment: step {step} has not been committed")
-        if self._forgotten_to is not None and step <= self._forgotten_to:
+        if bisect_left(self._steps, step) < self._n_forgotten:
             raise DataError(f"alignment: step {step} left the horizon and was forgotten "
                             f"(GraphParams.history = {self.params.history}: only that many of "
                             f"the latest steps that left are kept)")
@@ -89,8 +89,7 @@ class GraphReadout:
             return self._left[k][0][robot] if k in self._left else get(
                 alignment_key(robot, k)).matrix()
 
-        steps = (self._steps if self._forgotten_to is None
-                 else self._steps[bisect_right(self._steps, self._forgotten_to):])
+        steps = self._steps[self._n_forgotten:]
         T = np.array([np.linalg.inv(A(i, k)) @ A(j, k) for k in steps])
         size = self._side
         return np.array(steps, np.int64), T.reshape(-1, size, size)

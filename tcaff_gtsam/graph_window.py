@@ -103,11 +103,24 @@ class SlidingWindow:
         return self._keyframe_rank[key] if step is None else bisect_left(self._steps, step)
 
     def _has_left(self, key: int) -> bool:
-        """Whether a variable of the graph has left it (or leaves with this update)."""
+        """Whether a variable has left the graph, forgotten or not (or leaves with this
+        update); False for one that never was in it."""
         step = _step_of(key)
         if step is None:
-            return self._keyframe_rank.get(key, -1) < self._n_left
-        return self._n_left > 0 and step <= self._steps[self._n_left - 1]
+            rank = self._keyframe_rank.get(key)
+            if rank is not None:
+                return rank < self._n_left
+            robot, index = _keyframe_of(key)
+            return (index in self._left_keyframes.get(robot, ())
+                    or index <= self._forgotten_keyframe.get(robot, -1))
+        return (step in self._step_set and self._n_left > 0
+                and step <= self._steps[self._n_left - 1])
+
+    @property
+    def _n_forgotten(self) -> int:
+        """How many of the first steps are forgotten (`GraphParams.history`): steps leave in
+        order, and `_left` holds the latest of those that left."""
+        return self._n_left - len(self._left)
 
     def _leaving(self, step: int | None) -> list[int]:
         """With a horizon: the ranks (in self._steps) of the steps the update to `step` lets
@@ -207,7 +220,6 @@ class SlidingWindow:
         while len(self._left) > history:
             k = next(iter(self._left))
             del self._left[k]
-            self._forgotten_to = k
             for robot, index in self._left_with.pop(k, ()):
                 self._left_keyframes[robot].pop(index, None)
                 self._forgotten_keyframe[robot] = index

@@ -1321,7 +1321,7 @@ def test_one_robot_with_a_horizon_is_refused():
     graph = InterRobotGraph(1)
     for k in range(8):
         graph.update(k)
-    np.testing.assert_allclose(graph.alignment(0, 0)[0], np.eye(3), atol=1e-12)
+    assert graph.steps == list(range(8))
     for robots in (2, 3):
         bounded = InterRobotGraph(robots, GraphParams(horizon=4))
         for k in range(8):
