@@ -417,7 +417,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._active[index] = q
             self._count(q, index, +1)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
-        self._marginalise(leaving, joints)
+        self._marginalise(leaving, joints, marginals)
         if self._steps:  # the latest step's joint changed: computed again when it is needed
             self._joints.pop(self._steps[-1], None)
         self._switches = _copied_switches(self._hypothesis, self._abandoned, self._suspended)

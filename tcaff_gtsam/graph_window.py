@@ -171,11 +171,14 @@ class SlidingWindow:
             joints[k] = self._joint(k) if joint is None or k in self._stale else joint
         return joints
 
-    def _marginalise(self, ranks: list[int], joints: dict[int, np.ndarray]) -> None:
+    def _marginalise(self, ranks: list[int], joints: dict[int, np.ndarray],
+                     marginals: dict) -> None:
         """Marginalise the variables of the steps at `ranks` and the keyframes added with them
         (leaves of the Bayes tree, see `_solve`), keeping their estimates and `joints` (by
         step, `_leaving_joints`) for reading until `_forget` forgets them. The factors of
-        those steps that the cycle check holds out can never come back: dropped."""
+        those steps that the cycle check holds out can never come back: dropped.
+        `marginals`: the marginal factors of what left before, by index (a refused
+        marginalisation drops them from gtsam's graph)."""
         if ranks and self._suspended:
             gone = {self._steps[rank] for rank in ranks}
             for held_out in self._suspended.values():
@@ -202,7 +205,14 @@ class SlidingWindow:
         self._forget()
         if not keys:
             return
-        marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
+        try:
+            marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
+        except ValueError:
+            # gtsam refuses: a keyframe linked to one of another robot that stays can share a
+            # clique with it above a clique that leaves whole (its ordering groups keyframes
+            # by the step added after them, not by what they are linked to)
+            self._marginalise_rebuilt(keys, marginals)
+            return
         active = self._active
         for index in deleted:
             active.pop(index, None)
@@ -210,6 +220,45 @@ class SlidingWindow:
         self._marginal.update(marginal)
         if self._free:
             self._free = {chain: i for chain, i in self._free.items() if i in active}
+
+    def _marginalise_rebuilt(self, keys: list[int], marginals: dict) -> None:
+        """Marginalise `keys` where gtsam's marginalisation of leaves refused them, in a new
+        solver: the factors on them (`self._active`'s and the earlier `marginals`, by index)
+        are linearised at the linearisation point and the keys eliminated from them; the other
+        factors and what that elimination leaves on the variables that stay (as linear
+        factors fixed at that point, as gtsam's own marginal factors are) make the new
+        solver. Its estimate starts from the same linearisation point."""
+        theta = self._isam.getLinearizationPoint()  # the failed call leaves it whole
+        leaving = set(keys)
+        on_leaving = gtsam.NonlinearFactorGraph()
+        kept: list[tuple[str, int, object]] = []  # ("active" | "marginal", old index, factor)
+        for kind, index, factor in [*(("active", i, f.factor) for i, f in self._active.items()),
+                                    *(("marginal", i, m) for i, m in marginals.items())]:
+            if leaving.isdisjoint(factor.keys()):
+                kept.append((kind, index, factor))
+            else:
+                on_leaving.add(factor)
+        _, remaining = on_leaving.linearize(theta).eliminatePartialMultifrontal(
+            gtsam.Ordering(list(keys)))
+        new_marginals = gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, theta)
+        graph = gtsam.NonlinearFactorGraph()
+        for _, _, factor in kept:
+            graph.add(factor)
+        graph.push_back(new_marginals)
+        values = gtsam.Values()
+        for key in theta.keys():
+            if key not in leaving:
+                values.insert(key, theta.atPose2(key) if self._planar else theta.atPose3(key))
+        self._new_solver(self._isam.params())
+        indices = self._commit(graph, values, [])
+        remap = {(kind, index): new for (kind, index, _), new in zip(kept, indices[:len(kept)],
+                                                                   strict=True)}
+        self._active = {remap["active", i]: f for i, f in self._active.items()
+                        if ("active", i) in remap}
+        self._marginal = ({remap["marginal", i] for i in marginals if ("marginal", i) in remap}
+                          | set(indices[len(kept):]))
+        self._free = {chain: remap["active", i] for chain, i in self._free.items()
+                      if ("active", i) in remap}
 
     def _forget(self) -> None:
         """Forget the steps that left beyond the latest `GraphParams.history` of them, and the

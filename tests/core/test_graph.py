@@ -873,6 +873,51 @@ def test_a_chain_of_keyframes_leaving_beside_a_linked_one_leaves_its_prior_behin
     assert not any(chain[0] == "X" for chain in graph._free)  # joined to the anchor
 
 
+def test_a_keyframe_that_leaves_linked_to_one_that_stays_is_marginalised():
+    """Robot 2's keyframe 4 (added before step 22) is linked to robot 1's keyframe 4 (added
+    before step 26) in the update that lets step 22 leave a horizon of 3. gtsam's Bayes tree
+    puts the two in one clique above a clique that leaves whole, and its marginalisation of
+    leaves refused them: update raised gtsam's ValueError after committing, the graph half
+    updated. The graph now marginalises them in a solver built again, and holds what a graph
+    without a horizon holds."""
+    frames = [se2_from_params(x) for x in ([0.0, 0.0, 0.0], [6.0, -2.0, 0.7],
+                                           [-3.0, 5.0, -1.9])]
+    bounded, whole = InterRobotGraph(3, GraphParams(horizon=3)), InterRobotGraph(3)
+    odometry = {1: se2_from_params([1.0, 0.0, 0.05]), 2: se2_from_params([1.2, 0.2, 0.05])}
+    step_odometry = se2_from_params([0.4, 0.1, 0.02])
+    first = {1: 3, 2: 4}
+    for graph in (bounded, whole):
+        for r in (1, 2):
+            graph.add_keyframe(r, first[r], odometry[r])
+        graph.update(22)
+    for k in range(26, 34, 2):
+        index = {1: first[1] + (k - 22) // 2, 2: first[2] + (k - 22) // 2}
+        for graph in (bounded, whole):
+            for r in (1, 2):
+                graph.add_keyframe(r, index[r], odometry[r] @ step_odometry)
+            if k == 26:
+                graph.add_keyframe_alignment(2, first[2], 1, index[1],
+                                             np.linalg.inv(frames[2]) @ frames[1], R)
+            graph.add_alignment(k, 0, 1, np.linalg.inv(frames[0]) @ frames[1], R)
+            graph.update(k)
+        for r in (1, 2):
+            odometry[r] = odometry[r] @ step_odometry
+    assert bounded.steps == whole.steps == [22, 26, 28, 30, 32]
+    for r in (1, 2):
+        indices_b, poses_b = bounded.trajectory(r)
+        indices_w, poses_w = whole.trajectory(r)
+        assert indices_b.tolist() == indices_w.tolist()
+        for T_b, T_w in zip(poses_b, poses_w, strict=True):
+            t_err, th_err = pose_error(T_w, T_b)
+            assert t_err < 1e-3 and th_err < 1e-2, (r, t_err, th_err)
+    # the two chains are placed relative to each other only through the link of the
+    # keyframe that left
+    X_1, X_2 = (bounded.trajectory(r)[1][-1] for r in (1, 2))
+    T_b1_b2 = np.linalg.inv(odometry[1]) @ np.linalg.inv(frames[1]) @ frames[2] @ odometry[2]
+    t_err, th_err = pose_error(T_b1_b2, np.linalg.inv(X_1) @ X_2)
+    assert t_err < 1e-3 and th_err < 1e-2
+
+
 def assert_no_newer_below(graph: InterRobotGraph) -> None:
     """No clique of the Bayes tree has a variable of a newer step than its parent's: what lets
     the oldest steps leave as leaves."""
