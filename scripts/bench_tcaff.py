@@ -25,7 +25,8 @@ import time
 import numpy as np
 from tcaff_gtsam.eval.sim.streams import wrong_alignments
 
-from tcaff_gtsam import TCAFF, TCAFFParams
+from tcaff_gtsam import TCAFF, FrameAlignerParams, TCAFFParams
+from tcaff_gtsam.pairwise import fed_by
 from tcaff_gtsam.params import constant_alignment_covariance
 
 R = constant_alignment_covariance()
@@ -70,7 +71,9 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true",
                         help="profile the default preset at k = 4 with a main tree")
     args = parser.parse_args()
+    # "pair": as `PairwiseAligner` runs it, with the aligner's jitter reference
     presets = {"default": TCAFFParams(),
+               "pair": fed_by(TCAFFParams(), FrameAlignerParams()),
                "at W": TCAFFParams(sequential=False, recall_for=None),
                "reference": TCAFFParams.reference()}
     time_stream(presets["default"], make_stream(50, 4, "in gate"))  # compile (cached afterwards)

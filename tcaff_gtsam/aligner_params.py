@@ -204,6 +204,17 @@ class FrameAlignerParams(_ByValue):
             step settles at P = R_s: consecutive registrations of mostly the same objects
             share nearly all their error (docs/tcaff.md, "One registration's error, not
             less"). Lower values let them share only part of it. 0: no inflation.
+        jitter_reference: covariance="calibrated" with `repeat_inflation` > 0: the jitter
+            below which consecutive registrations of one alignment stay where this R holds
+            (`TCAFFParams.jitter_reference`: the mean of d' (R_a + R_b)^-1 d / 3 over
+            consecutive measurements the filter took, d their difference). `PairwiseAligner`
+            gives it to its filter unless the filter names its own, and the filter then
+            scales the covariance it reports by the jitter over it where that is more than
+            1. Such R counts the error consecutive registrations share, so the jitter is
+            small where it holds (0.05-0.13 on MRCLAM's VIO-like maps, the kitchen and the
+            simulator's indoor scenarios) and larger where the odometry drifts faster than
+            `map_drift` assumes (0.35-0.7 outdoors and on MRCLAM's dead reckoning, where P
+            was two to five times too small). None: not given.
         repeat_Q: covariance="calibrated": the (3, 3) Q of that inflation, the drift per step
             of the filter the candidates feed; None: that filter's Q where the aligner knows
             it (`PairwiseAligner`, `pairwise.feeding`), else TCAFF's default Q.
@@ -296,6 +307,7 @@ class FrameAlignerParams(_ByValue):
     map_drift: tuple[float, float] = (0.01, math.radians(0.25))
     epsilon_drift: float = 2.0
     repeat_inflation: float = 1.0
+    jitter_reference: float | None = 0.15
     repeat_Q: np.ndarray | None = None
     min_inliers: int | None = None
     inlier_radius: float = 0.3
@@ -367,6 +379,10 @@ class FrameAlignerParams(_ByValue):
             _require(_finite(value) and value >= 0, o, name, value,
                      "must be a finite number >= 0")
         object.__setattr__(self, "map_drift", as_map_drift(o, self.map_drift))
+        _require(self.jitter_reference is None or (_finite(self.jitter_reference)
+                                                    and self.jitter_reference > 0), o,
+                 "jitter_reference", self.jitter_reference,
+                 "must be a finite number > 0 or None")
         if self.repeat_Q is not None:
             object.__setattr__(self, "repeat_Q", _spd(self.repeat_Q, 3, o, "repeat_Q"))
         _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,

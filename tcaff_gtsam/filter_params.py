@@ -182,6 +182,20 @@ class TCAFFParams(_ByValue):
             (`withhold_contested`). With the default Q, 100 steps grow its standard deviation
             by 1 m and 5 degrees, the bounds of a correct alignment. None: a dropped
             hypothesis is forgotten.
+        jitter_reference: the covariance `update` reports is P times max(1, j /
+            jitter_reference), with j the jitter of the alignments the filter held: over the
+            last `jitter_span` steps, the mean of d' (R_a + R_b)^-1 d / d_dim for every two
+            consecutive steps at which the main hypothesis's best path took a measurement
+            (z_a, z_b with covariances R_a, R_b; d = z_b - z_a, angles wrapped). For
+            measurements whose covariances count the error consecutive ones share, as the
+            aligner's calibrated R does (`FrameAlignerParams.jitter_reference`, which
+            `PairwiseAligner` gives its filter when this is None): where that R holds, j stays
+            below the reference, and above it the alignment moves between registrations more
+            than R allows (docs/tcaff.md). Only the estimates reported (and `TCAFF.held`) are
+            scaled: the hypotheses, their costs and every decision are the same. None: P as
+            the filter has it (independent measurements with their own R: j is about 1 there
+            by construction).
+        jitter_span: steps over which the jitter is taken (`jitter_reference`).
         neutral_empty_steps: a step at which the aligner gave no measurement at all costs no
             hypothesis a missed measurement (-log p_NM): the maps shared too few objects for
             any candidate, which says nothing about which alignment is right, and a
@@ -223,6 +237,8 @@ class TCAFFParams(_ByValue):
     early_measurements: int = 2
     recall_for: int | None = 100
     neutral_empty_steps: bool = True
+    jitter_reference: float | None = None
+    jitter_span: int = 40
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
@@ -300,6 +316,12 @@ class TCAFFParams(_ByValue):
                  self.early_measurements, "must be an int >= 2")
         _require(self.recall_for is None or _int_at_least(self.recall_for, 1), o,
                  "recall_for", self.recall_for, "must be an int >= 1 or None")
+        _require(self.jitter_reference is None or (_finite(self.jitter_reference)
+                                                    and self.jitter_reference > 0), o,
+                 "jitter_reference", self.jitter_reference,
+                 "must be a finite number > 0 or None")
+        _require(_int_at_least(self.jitter_span, 2), o, "jitter_span", self.jitter_span,
+                 "must be an int >= 2")
         caps = ("window", "max_leaves", "max_children", "explore_max_leaves",
                 "explore_max_children", "max_measurements")
         need = self.tree_bytes()

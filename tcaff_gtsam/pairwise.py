@@ -15,8 +15,8 @@ from .object_map import ObjectMap, as_object_map
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
-__all__ = ["PairwiseAligner", "admitted", "counted", "evidence_of", "explained", "feeding",
-           "gives_ids", "guided_search", "unchecked"]
+__all__ = ["PairwiseAligner", "admitted", "counted", "evidence_of", "explained", "fed_by",
+           "feeding", "gives_ids", "guided_search", "unchecked"]
 
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
@@ -46,6 +46,23 @@ def feeding(aligner: FrameAlignerParams, tcaff: TCAFFParams) -> FrameAlignerPara
     if aligner.repeat_Q is not None or tcaff.dim != 3:
         return aligner
     return replace(aligner, repeat_Q=tcaff.Q)
+
+
+def fed_by(tcaff: TCAFFParams, aligner: FrameAlignerParams) -> TCAFFParams:
+    """`tcaff` for a filter of `aligner`'s candidates: with the aligner's `jitter_reference`
+    where the filter names none and the aligner's covariance counts the error consecutive
+    registrations share (calibrated, `repeat_inflation` > 0).
+
+    Raises:
+        ConfigError: tcaff not a TCAFFParams or aligner not a FrameAlignerParams.
+    """
+    _require(isinstance(tcaff, TCAFFParams), "fed_by", "tcaff", tcaff, "must be a TCAFFParams")
+    _require(isinstance(aligner, FrameAlignerParams), "fed_by", "aligner", aligner,
+             "must be a FrameAlignerParams")
+    if (tcaff.jitter_reference is not None or aligner.jitter_reference is None
+            or aligner.covariance != "calibrated" or aligner.repeat_inflation == 0):
+        return tcaff
+    return replace(tcaff, jitter_reference=aligner.jitter_reference)
 
 
 def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | None,
@@ -223,7 +240,7 @@ class PairwiseAligner:
         self.aligner = FrameAligner(feeding(_given_or_default(
             FrameAlignerParams, aligner_params, "PairwiseAligner", "aligner_params"),
             tcaff_params))
-        self.filter = TCAFF(tcaff_params)
+        self.filter = TCAFF(fed_by(tcaff_params, self.aligner.params))
         self.measurements: list[AlignmentMeasurement] = []
         self.taken: list[AlignmentMeasurement] = []
         self._last_time: float | None = None

@@ -153,6 +153,11 @@ class TCAFF(FilterState):
         # measurements the main's best path has taken since it came out of a silence of W
         # steps or more, until there are `early_measurements` of them (0: not in such a return)
         self._returning = 0
+        # (step, d' (R_a + R_b)^-1 d / d_dim) of consecutive measurements of the main
+        # hypothesis over the last `jitter_span` steps, and (step, hypothesis, z, R) of the
+        # latest measurement the main hypothesis took (`jitter_reference`)
+        self._jitter: deque[tuple[int, float]] = deque()
+        self._last_taken: tuple[int, int, np.ndarray, np.ndarray] | None = None
         self._estimate: AlignmentEstimate | None = None
         self._held: AlignmentEstimate | None = None
 
@@ -260,8 +265,10 @@ class TCAFF(FilterState):
         if self._estimate is not None:
             has_measurement = self._estimate.n_measurements > 0
             self._empty_windows = 0 if has_measurement else self._empty_windows + 1
-        self._held = self._estimate
-        self._estimate = self._reported(self._estimate)
+        if prm.jitter_reference is not None:
+            self._record_jitter(zs, Rs)
+        self._held = self._jittered(self._estimate)
+        self._estimate = self._reported(self._held)
         return self._estimate
 
     def _capped(self, zs: np.ndarray, Rs: np.ndarray, evidence: list | None,
@@ -480,6 +487,31 @@ class TCAFF(FilterState):
                 # confirmed, it is recallable as a dropped one is
                 self._keep_dormant(self._main.take([m]))
             self._accept(complete, best)
+
+    def _record_jitter(self, zs: np.ndarray, Rs: np.ndarray) -> None:
+        """Record the jitter of this step's measurement on the main path against the previous
+        step's, when both are of the same hypothesis (`jitter_reference`), and forget what
+        is older than `jitter_span` steps."""
+        estimate, prm, jitter = self._estimate, self.params, self._jitter
+        if estimate is not None and estimate.measurement >= 0:
+            z, R = zs[estimate.measurement], Rs[estimate.measurement]
+            last = self._last_taken
+            if last is not None and last[0] == self.step - 1 and last[1] == estimate.hypothesis:
+                d = z - last[2]
+                d[self._model.angular] = _wrap_angle(d[self._model.angular])
+                jitter.append((self.step, float(d @ np.linalg.solve(R + last[3], d)) / prm.dim))
+            self._last_taken = (self.step, estimate.hypothesis, z.copy(), R.copy())
+        while jitter and jitter[0][0] <= self.step - prm.jitter_span:
+            jitter.popleft()
+
+    def _jittered(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
+        """`estimate` with its covariance scaled by the jitter over `jitter_reference` where
+        that is more than 1."""
+        if estimate is None or not self._jitter:
+            return estimate
+        scale = (sum(value for _, value in self._jitter)
+                 / (len(self._jitter) * self.params.jitter_reference))
+        return estimate if scale <= 1.0 else replace(estimate, P=estimate.P * scale)
 
     def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
         """The main tree's estimate, or None while `withhold_contested` or `report_after`

@@ -78,6 +78,12 @@ class FilterState:
         state["peak"] = np.array(self._peak, dtype=np.int64)
         state["reclaiming"] = np.array(self._reclaiming, dtype=np.int64)
         state["returning"] = np.array(self._returning, dtype=np.int64)
+        state["jitter.steps"] = np.array([k for k, _ in self._jitter], dtype=np.int64)
+        state["jitter.values"] = np.array([v for _, v in self._jitter], dtype=np.float64)
+        if self._last_taken is not None:
+            step, hypothesis, z, R = self._last_taken
+            state["jitter.last"] = np.array([step, hypothesis], dtype=np.int64)
+            state["jitter.last_z"], state["jitter.last_R"] = z.copy(), R.copy()
         return state
 
     def load_state_dict(self, state: dict[str, np.ndarray]) -> None:
@@ -128,6 +134,7 @@ class FilterState:
                 raise DataError(f"TCAFF state: returning = {returning} must be below "
                                 f"early_measurements = {self.params.early_measurements}, and "
                                 f"0 without a main tree")
+            jitter, last_taken = self._jitter_from(state, counters)
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
         except DataError:  # refused on purpose, with its own message
@@ -180,7 +187,8 @@ class FilterState:
                               maxlen=self._columns)
         self._dormant, self._dormant_age, self._dormant_peak = dormant
         self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
-        self._held = self._main_estimate()
+        self._jitter, self._last_taken = jitter, last_taken
+        self._held = self._jittered(self._main_estimate())
         self._estimate = self._reported(self._held)
 
     def _check_values(self, counters: dict[str, int], trees: dict[str, Leaves],
@@ -305,6 +313,39 @@ class FilterState:
             out.append(None if size < 0 else counts[start:start + size])
             start += max(size, 0)
         return out
+
+    def _jitter_from(self, state: Mapping, counters: dict[str, int]
+                     ) -> tuple[deque, tuple | None]:
+        """The jitter record of a `state_dict` and the latest measurement of the main
+        hypothesis (empty and None in states saved before they were recorded); DataError
+        when the steps are not increasing within the last `jitter_span` steps, the values
+        not finite and >= 0, or the measurement not a finite state with an SPD covariance
+        of a step and hypothesis the filter has reached."""
+        d, step = self.params.dim, counters["step"]
+        if "jitter.steps" not in state:
+            return deque(), None
+        steps = _state_array(state["jitter.steps"], "jitter.steps", np.int64)
+        values = _state_array(state["jitter.values"], "jitter.values", np.float64)
+        if (steps.ndim != 1 or values.shape != steps.shape or np.any(np.diff(steps) <= 0)
+                or np.any(steps > step) or np.any(steps <= step - self.params.jitter_span)
+                or not np.all(np.isfinite(values) & (values >= 0))):
+            raise DataError(f"TCAFF state: jitter.steps must increase within the last "
+                            f"jitter_span = {self.params.jitter_span} steps of step {step}, "
+                            f"one finite value >= 0 each in jitter.values")
+        jitter = deque(zip(steps.tolist(), values.tolist(), strict=True))
+        if "jitter.last" not in state:
+            return jitter, None
+        last = _state_array(state["jitter.last"], "jitter.last", np.int64)
+        z = _state_array(state["jitter.last_z"], "jitter.last_z", np.float64)
+        R = _state_array(state["jitter.last_R"], "jitter.last_R", np.float64)
+        if (last.shape != (2,) or not 1 <= last[0] <= step
+                or not 1 <= last[1] <= counters["hypothesis"]
+                or z.shape != (d,) or not np.all(np.isfinite(z))
+                or R.shape != (d, d) or not np.all(np.isfinite(R)) or _not_spd(R[None])):
+            raise DataError(f"TCAFF state: jitter.last must be (step, hypothesis) the filter "
+                            f"reached, jitter.last_z a finite ({d},) state and "
+                            f"jitter.last_R a ({d}, {d}) SPD covariance")
+        return jitter, (int(last[0]), int(last[1]), z, R)
 
     def _dormant_from(self, state: Mapping) -> tuple[Leaves | None, int, int]:
         """The dormant hypothesis of a `state_dict`, its age and its peak (None, 0, 0 when it

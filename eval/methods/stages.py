@@ -17,6 +17,7 @@ from tcaff_gtsam.pairwise import (
     counted,
     evidence_of,
     explained,
+    fed_by,
     feeding,
     gives_ids,
     guided_search,
@@ -94,8 +95,9 @@ class SharedStages:
     def __init__(self, setup: RunSetup, methods: MethodsConfig) -> None:
         settings = setup.run.settings
         self.setup = setup
-        self.tcaff_params = methods.tcaff_params(False, settings.window)
-        self.checked = feeding(methods.aligner_params(settings.kappa), self.tcaff_params)
+        self.checked = feeding(methods.aligner_params(settings.kappa),
+                               methods.tcaff_params(False, settings.window))
+        self.tcaff_params = fed_by(methods.tcaff_params(False, settings.window), self.checked)
         self.aligner = FrameAligner(unchecked(self.checked))
         # checks beyond the residual need a search of their own; the residual alone filters
         # the unchecked candidates

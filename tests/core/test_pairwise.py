@@ -9,7 +9,7 @@ from tcaff_gtsam.eval.sim.maps import overlapping_maps
 from tcaff_gtsam import FrameAlignerParams, ObjectMap, PairwiseAligner, TCAFFParams
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_error, se2_from_params
-from tcaff_gtsam.pairwise import guided_search
+from tcaff_gtsam.pairwise import fed_by, guided_search
 
 
 @pytest.mark.parametrize("params", [TCAFFParams(), TCAFFParams.paper()],
@@ -333,6 +333,26 @@ def test_the_calibrated_covariance_is_inflated_for_the_filter_it_feeds():
         pa.update(pair.now, pair.ego, pair.other)
         R[name] = pa.measurements[0].R
     assert np.linalg.eigvalsh(R["slow"] - R["default"]).min() > 0
+
+
+@pytest.mark.parametrize(("aligner", "tcaff", "expected"), [
+    (FrameAlignerParams(), TCAFFParams(), 0.15),
+    (FrameAlignerParams(jitter_reference=0.3), TCAFFParams(), 0.3),
+    (FrameAlignerParams(), TCAFFParams(jitter_reference=0.4), 0.4),  # the filter's own
+    (FrameAlignerParams(), TCAFFParams.paper(), 0.15),  # the aligner's R, whatever the filter
+    (FrameAlignerParams(jitter_reference=None), TCAFFParams(), None),
+    (FrameAlignerParams(covariance="residual"), TCAFFParams(), None),  # independent errors
+    (FrameAlignerParams(repeat_inflation=0.0), TCAFFParams(), None),
+    (FrameAlignerParams.reference(), TCAFFParams.reference(), None),
+])
+def test_the_pairs_filter_takes_the_jitter_its_aligners_covariance_allows(aligner, tcaff,
+                                                                         expected):
+    assert PairwiseAligner(aligner, tcaff).filter.params.jitter_reference == expected
+    assert fed_by(tcaff, aligner).jitter_reference == expected
+    with pytest.raises(ConfigError, match="fed_by.tcaff = "):
+        fed_by(aligner, aligner)
+    with pytest.raises(ConfigError, match="fed_by.aligner = "):
+        fed_by(tcaff, tcaff)
 
 
 def test_counted_and_evidence_of_refuse_malformed_arguments():

@@ -207,10 +207,48 @@ def test_generic_dimension_tracks_a_1d_level_among_clutter():
         _ = est.T
 
 
+def test_the_reported_covariance_grows_with_the_jitter_and_nothing_else_changes():
+    """Consecutive measurements 0.2 m and 2 deg apart against R of 0.5 m and 5 deg: a jitter
+    of about 0.16. With a reference of 0.05 the reported P is scaled by the mean jitter of
+    the last `jitter_span` steps over it (worked out here from the measurements the estimates
+    took), the held one too; the estimates, their hypotheses and measurements are the same as
+    without."""
+    stream = alignment_stream(np.random.default_rng(5), 150, jumps={80: (2.0, 0.0, 0.5)})
+    plain, jittery = TCAFF(), TCAFF(TCAFFParams(jitter_reference=0.05, jitter_span=10))
+    taken, jitter, scaled = None, [], 0
+    for step, zs in enumerate(stream.zs, start=1):
+        Rs = np.broadcast_to(R_CONSTANT, (len(zs), 3, 3))
+        plain.update(zs, Rs)
+        jittery.update(zs, Rs)
+        # the held estimates: a reported one may be withheld, its measurement still counts
+        a, b = plain.held, jittery.held
+        assert (a is None) == (b is None) and (plain.estimate is None) == (
+            jittery.estimate is None)
+        if a is None:
+            continue
+        assert (a.hypothesis, a.n_measurements, a.measurement, a.cost) == (
+            b.hypothesis, b.n_measurements, b.measurement, b.cost)
+        np.testing.assert_array_equal(a.x, b.x)
+        if a.measurement >= 0:
+            z = zs[a.measurement]
+            if taken is not None and taken[:2] == (step - 1, a.hypothesis):
+                d = z - taken[2]
+                d[2] = wrap_angle(d[2])
+                jitter.append((step, d @ np.linalg.solve(2 * R_CONSTANT, d) / 3))
+            taken = (step, a.hypothesis, z)
+        recent = [value for k, value in jitter if k > step - 10]
+        scale = max(1.0, np.mean(recent) / 0.05) if recent else 1.0
+        np.testing.assert_allclose(b.P, a.P * scale, rtol=1e-12)
+        if jittery.estimate is not None:
+            np.testing.assert_array_equal(jittery.estimate.P, b.P)
+        scaled += scale > 1.5
+    assert scaled > 50
+
+
 def test_state_save_and_restore_continue_identically(tmp_path):
     stream = alignment_stream(np.random.default_rng(9), 160, jumps={70: (2.0, 0.0, 0.5)})
     Rs = [np.broadcast_to(R_CONSTANT, (len(z), 3, 3)) for z in stream.zs]
-    for params in (TCAFFParams(), TCAFFParams.reference()):
+    for params in (TCAFFParams(), TCAFFParams.reference(), TCAFFParams(jitter_reference=0.05)):
         a = TCAFF(params)
         for zs, R in zip(stream.zs[:60], Rs[:60], strict=True):
             a.update(zs, R)

@@ -119,6 +119,36 @@ def test_a_tampered_state_is_refused_and_the_filter_left_alone(tamper, message):
     assert target.step == 0 and target.estimate is None  # nothing was restored
 
 
+def _first(key: str, value):
+    """A tamper setting the first entry of `key` to `value`."""
+    def tamper(state):
+        state[key] = state[key].copy()
+        state[key][0] = value
+    return tamper
+
+
+@pytest.mark.parametrize(("tamper", "message"), [
+    (_first("jitter.steps", 10**6), "jitter.steps must increase within the last"),
+    (_first("jitter.steps", -5), "jitter.steps must increase within the last"),
+    (_first("jitter.values", -1.0), "one finite value >= 0 each"),
+    (_first("jitter.values", np.nan), "one finite value >= 0 each"),
+    (lambda s: s.__setitem__("jitter.values", s["jitter.values"][1:]),
+     "one finite value >= 0 each"),
+    (_first("jitter.last", 10**6), r"jitter.last must be \(step, hypothesis\)"),
+    (lambda s: s.__setitem__("jitter.last_R", -np.eye(3)), r"jitter.last_R a \(3, 3\) SPD"),
+    (lambda s: s.__setitem__("jitter.last_z", np.zeros(2)), r"jitter.last_z a finite \(3,\)"),
+])
+def test_a_tampered_jitter_record_is_refused(tamper, message):
+    params = TCAFFParams(jitter_reference=0.05)
+    state = a_running_filter(params).state_dict()
+    assert state["jitter.steps"].size > 1 and "jitter.last" in state
+    tamper(state)
+    target = TCAFF(params)
+    with pytest.raises(DataError, match=f"^TCAFF state: .*{message}"):
+        target.load_state_dict(state)
+    assert target.step == 0 and target.estimate is None
+
+
 @pytest.mark.parametrize("params", [TCAFFParams(), replace(TCAFFParams.reference(),
                                                             promotion="reseed")])
 def test_the_bank_of_a_reseeding_filter_is_checked(params):
