@@ -213,8 +213,8 @@ class FrameAlignerParams(_ByValue):
             1. Such R counts the error consecutive registrations share, so the jitter is
             small where it holds (0.05-0.13 on MRCLAM's VIO-like maps, the kitchen and the
             simulator's indoor scenarios) and larger where the odometry drifts faster than
-            `map_drift` assumes (0.35-0.7 outdoors and on MRCLAM's dead reckoning, where P
-            was two to five times too small). None: not given.
+            `map_drift` assumes (0.35-0.7 outdoors and on MRCLAM's dead reckoning, whose
+            NEES was 5 to 40). None: not given.
         repeat_Q: covariance="calibrated": the (3, 3) Q of that inflation, the drift per step
             of the filter the candidates feed; None: that filter's Q where the aligner knows
             it (`PairwiseAligner`, `pairwise.feeding`), else TCAFF's default Q.

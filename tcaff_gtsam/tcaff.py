@@ -497,9 +497,9 @@ class TCAFF(FilterState):
             z, R = zs[estimate.measurement], Rs[estimate.measurement]
             last = self._last_taken
             if last is not None and last[0] == self.step - 1 and last[1] == estimate.hypothesis:
-                d = z - last[2]
-                d[self._model.angular] = _wrap_angle(d[self._model.angular])
-                jitter.append((self.step, float(d @ np.linalg.solve(R + last[3], d)) / prm.dim))
+                distance = mahalanobis_to(z[None], R[None], last[2], last[3],
+                                          self._model.angular)[0]
+                jitter.append((self.step, float(distance) / prm.dim))
             self._last_taken = (self.step, estimate.hypothesis, z.copy(), R.copy())
         while jitter and jitter[0][0] <= self.step - prm.jitter_span:
             jitter.popleft()
@@ -507,10 +507,10 @@ class TCAFF(FilterState):
     def _jittered(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
         """`estimate` with its covariance scaled by the jitter over `jitter_reference` where
         that is more than 1."""
-        if estimate is None or not self._jitter:
+        reference = self.params.jitter_reference
+        if estimate is None or not self._jitter or reference is None:
             return estimate
-        scale = (sum(value for _, value in self._jitter)
-                 / (len(self._jitter) * self.params.jitter_reference))
+        scale = sum(value for _, value in self._jitter) / (len(self._jitter) * reference)
         return estimate if scale <= 1.0 else replace(estimate, P=estimate.P * scale)
 
     def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:

@@ -349,9 +349,9 @@ def test_the_pairs_filter_takes_the_jitter_its_aligners_covariance_allows(aligne
                                                                          expected):
     assert PairwiseAligner(aligner, tcaff).filter.params.jitter_reference == expected
     assert fed_by(tcaff, aligner).jitter_reference == expected
-    with pytest.raises(ConfigError, match="fed_by.tcaff = "):
+    with pytest.raises(ConfigError, match=r"fed_by\.tcaff = "):
         fed_by(aligner, aligner)
-    with pytest.raises(ConfigError, match="fed_by.aligner = "):
+    with pytest.raises(ConfigError, match=r"fed_by\.aligner = "):
         fed_by(tcaff, tcaff)
 
 

@@ -149,6 +149,16 @@ def test_a_tampered_jitter_record_is_refused(tamper, message):
     assert target.step == 0 and target.estimate is None
 
 
+def test_a_jitter_record_loaded_into_a_filter_without_a_reference_is_not_used():
+    state = a_running_filter(TCAFFParams(jitter_reference=0.05)).state_dict()
+    plain, source = TCAFF(), a_running_filter()
+    plain.load_state_dict(state)
+    np.testing.assert_array_equal(plain.held.P, source.held.P)  # the same stream, unscaled
+    plain.update(np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    source.update(np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    np.testing.assert_array_equal(plain.held.P, source.held.P)
+
+
 @pytest.mark.parametrize("params", [TCAFFParams(), replace(TCAFFParams.reference(),
                                                             promotion="reseed")])
 def test_the_bank_of_a_reseeding_filter_is_checked(params):
