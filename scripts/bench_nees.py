@@ -60,6 +60,9 @@ and prints one row per data set (seeds pooled) and model:
   avail, correct
             share of the overlap steps (the maps share enough objects) with an estimate, and
             with a correct one
+  jitter    mean of d' (R_a + R_b)^-1 d / 3 over every two consecutive steps whose estimates
+            took a measurement of the same hypothesis (d the difference of the two
+            measurements): what `TCAFFParams.jitter_reference` compares
 
 Runs are built once and cached as pickles in --cache (delete it after changing the loaders or
 the simulator); the kitchen's maps take the mapping front end about 7 s a run. The default
@@ -318,13 +321,21 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
         on = np.ones(steps, bool) if shared is None else np.asarray(shared, bool)
         x, z = np.full((steps, 3), np.nan), np.full((steps, 3), np.nan)
         P, R = np.full((steps, 3, 3), np.nan), np.full((steps, 3, 3), np.nan)
+        hypothesis = np.full(steps, -1)
         for s, t in enumerate(run.times):
             est = pair.update(float(t), run.maps[i][s], run.maps[j][s])
             if est is None or not np.all(np.isfinite(truth[s])):
                 continue
-            x[s], P[s] = est.x, est.P
+            x[s], P[s], hypothesis[s] = est.x, est.P, est.hypothesis
             if est.measurement >= 0:
                 z[s], R[s] = pair.taken[est.measurement].z, pair.taken[est.measurement].R
+        # the jitter of consecutive measurements of one hypothesis (`jitter_reference`)
+        pairs_on = np.flatnonzero(~np.isnan(z[1:, 0]) & ~np.isnan(z[:-1, 0])
+                                  & (hypothesis[1:] == hypothesis[:-1])) + 1
+        d = z[pairs_on] - z[pairs_on - 1]
+        d[:, 2] = wrap_angle(d[:, 2])
+        jitter = np.einsum("ni,ni->n", d, np.linalg.solve(R[pairs_on] + R[pairs_on - 1],
+                                                          d[..., None])[..., 0]) / 3
         has = ~np.isnan(x[:, 0])
         ok = limits.correct(step_errors(T_true[has], x[has]))
         measured = ~np.isnan(z[has, 0])
@@ -334,7 +345,8 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
         e[:, 2] = wrap_angle(e[:, 2])
         parts.append({"errors": e, "P": P[has], "nees": step_nees(T_true[has], x[has], P[has]),
                       "ok": ok, "held": ~measured, "taken": taken,
-                      "episode": np.full(len(e), f"{source.name} {min(i, j)}-{max(i, j)}")})
+                      "episode": np.full(len(e), f"{source.name} {min(i, j)}-{max(i, j)}"),
+                      "jitter": jitter})
         overlap += int(on.sum())
         available += int((on & has).sum())
         correct += int((on[has] & ok).sum())
@@ -375,8 +387,10 @@ def summary(parts: list[dict]) -> dict:
         np.concatenate([p[key] for p in parts])
         for key in ("errors", "P", "nees", "ok", "held", "episode", "taken"))
     overlap = sum(p["overlap"] for p in parts)
+    jitter = np.concatenate([p["jitter"] for p in parts])
     out = {"est": len(e), "available": sum(p["available"] for p in parts) / max(overlap, 1),
-           "correct": sum(p["correct"] for p in parts) / max(overlap, 1)}
+           "correct": sum(p["correct"] for p in parts) / max(overlap, 1),
+           "jitter": float(jitter.mean()) if jitter.size else math.nan}
     if not len(e):
         return out
     bad = ~ok
@@ -407,7 +421,7 @@ def print_table(results: list[dict], models: list[str]) -> None:
           f"{'median':>6} {'<7.81':>6} "
           f"{'ok mean':>7} {'held':>6} {'meas':>6} {'R':>6} {'wrong':>6} {'outside':>7} "
           f"{'x':>5} {'y':>5} {'th':>5} "
-          f"{'sig m':>6} {'sig deg':>7} {'avail':>6} {'correct':>7}")
+          f"{'sig m':>6} {'sig deg':>7} {'avail':>6} {'correct':>7} {'jitter':>6}")
     for group in groups:
         for model in models:
             parts = [r for r in results if r["group"] == group and r["model"] == model]
@@ -415,7 +429,7 @@ def print_table(results: list[dict], models: list[str]) -> None:
                 continue
             r = summary(parts)
             head = f"{group:26} {model:19} {r['est']:6d}"
-            tail = f"{r['available']:6.3f} {r['correct']:7.3f}"
+            tail = f"{r['available']:6.3f} {r['correct']:7.3f} {r['jitter']:6.2f}"
             if not r["est"]:
                 blank = " ".join(f"{'':>{w}}" for w in (15, 6, 6, 7, 6, 6, 6, 6, 7, 5, 5, 5, 6, 7))
                 print(f"{head} {'':>5} {'-':>7} {blank} {tail}")

@@ -211,7 +211,7 @@ class FrameAlignerParams(_ByValue):
             gives it to its filter unless the filter names its own, and the filter then
             scales the covariance it reports by the jitter over it where that is more than
             1. Such R counts the error consecutive registrations share, so the jitter is
-            small where it holds (0.05-0.13 on MRCLAM's VIO-like maps, the kitchen and the
+            small where it holds (0.03-0.13 on MRCLAM's VIO-like maps, the kitchen and the
             simulator's indoor scenarios) and larger where the odometry drifts faster than
             `map_drift` assumes (0.35-0.7 outdoors and on MRCLAM's dead reckoning, whose
             NEES was 5 to 40). None: not given.

@@ -229,6 +229,7 @@ class SlidingWindow:
         factors fixed at that point, as gtsam's own marginal factors are) make the new
         solver. Its estimate starts from the same linearisation point."""
         theta = self._isam.getLinearizationPoint()  # the failed call leaves it whole
+        marginals = self._pointed(marginals, theta)
         leaving = set(keys)
         on_leaving = gtsam.NonlinearFactorGraph()
         kept: list[tuple[str, int, object]] = []  # ("active" | "marginal", old index, factor)
@@ -259,6 +260,15 @@ class SlidingWindow:
                           | set(indices[len(kept):]))
         self._free = {chain: remap["active", i] for chain, i in self._free.items()
                       if ("active", i) in remap}
+
+    @staticmethod
+    def _pointed(marginals: dict, point: gtsam.Values) -> dict:
+        """The marginal factors of what left (by index) as linear factors that hold the
+        linearisation point `point` of their variables, for a new solver: gtsam's own hold
+        none, their variables being fixed in the solver that made them, and a new solver would
+        relinearise those variables under them."""
+        return {i: gtsam.LinearContainerFactor(m.linearize(point), point)
+                for i, m in marginals.items()}
 
     def _forget(self) -> None:
         """Forget the steps that left beyond the latest `GraphParams.history` of them, and the
@@ -303,7 +313,7 @@ class SlidingWindow:
         graph = gtsam.NonlinearFactorGraph()
         for _, f in kept:
             graph.add(f.factor)
-        for factor in marginals.values():
+        for factor in self._pointed(marginals, point).values():
             graph.add(factor)
         self._new_solver(self._isam.params())
         indices = self._commit(graph, theta, [])

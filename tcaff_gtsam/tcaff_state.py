@@ -187,7 +187,10 @@ class FilterState:
                               maxlen=self._columns)
         self._dormant, self._dormant_age, self._dormant_peak = dormant
         self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
-        self._jitter, self._last_taken = jitter, last_taken
+        # a filter without a reference keeps no record (it would never trim one)
+        self._jitter, self._last_taken = ((jitter, last_taken)
+                                          if self.params.jitter_reference is not None
+                                          else (deque(), None))
         self._held = self._jittered(self._main_estimate())
         self._estimate = self._reported(self._held)
 

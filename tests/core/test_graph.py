@@ -918,6 +918,39 @@ def test_a_keyframe_that_leaves_linked_to_one_that_stays_is_marginalised():
     assert t_err < 1e-3 and th_err < 1e-2
 
 
+def test_a_marginalisation_gtsam_refuses_at_every_step_gives_what_its_own_gives(monkeypatch):
+    """The graph's own marginalisation (`_marginalise_rebuilt`), forced at every step by a
+    gtsam that refuses every marginalisation of leaves, with the marginal factors of earlier
+    steps in the graph and a failed update rolled back among them: the same estimates as
+    gtsam's own marginalisation to within a millimetre."""
+    horizon, steps = 12, 60
+    normal = InterRobotGraph(2, GraphParams(horizon=horizon))
+    keyframe_team_run(normal, steps)
+
+    def refuse(self, keys):
+        raise ValueError("Asking to remove variables from the variable index that are not "
+                         "unused")
+
+    monkeypatch.setattr(gtsam.ISAM2, "marginalizeLeavesWithIndices", refuse)
+    forced = InterRobotGraph(2, GraphParams(horizon=horizon))
+    keyframe_team_run(forced, steps)
+    assert len(forced._marginal) > 0
+    _, T_normal = normal.alignment_history(0, 1)
+    _, T_forced = forced.alignment_history(0, 1)
+    np.testing.assert_allclose(T_forced, T_normal, atol=2e-3)
+    for r in range(2):
+        np.testing.assert_allclose(forced.trajectory(r)[1], normal.trajectory(r)[1], atol=2e-3)
+    # a failed update after rebuilt marginalisations rolls back to them, and the graph goes on
+    for graph in (normal, forced):
+        queue_unsolvable(graph, steps - 1)
+        with pytest.raises(DataError, match="as it was before"):
+            graph.update(steps)
+        graph.add_alignment(steps, 0, 1, normal.alignment(0, 1, steps - 1)[0], R)
+        graph.update(steps)
+    np.testing.assert_allclose(forced.alignment(0, 1, steps)[0],
+                               normal.alignment(0, 1, steps)[0], atol=2e-3)
+
+
 def assert_no_newer_below(graph: InterRobotGraph) -> None:
     """No clique of the Bayes tree has a variable of a newer step than its parent's: what lets
     the oldest steps leave as leaves."""

@@ -208,18 +208,22 @@ def test_generic_dimension_tracks_a_1d_level_among_clutter():
 
 
 def test_the_reported_covariance_grows_with_the_jitter_and_nothing_else_changes():
-    """Consecutive measurements 0.2 m and 2 deg apart against R of 0.5 m and 5 deg: a jitter
-    of about 0.16. With a reference of 0.05 the reported P is scaled by the mean jitter of
-    the last `jitter_span` steps over it (worked out here from the measurements the estimates
-    took), the held one too; the estimates, their hypotheses and measurements are the same as
+    """Consecutive measurements 0.2 m and 2 deg apart against R of 0.25-1 m and 2.5-10 deg
+    (a scale drawn per step): a jitter of about 0.16. With a reference of 0.05 the reported P
+    is scaled by the mean jitter of the last `jitter_span` steps over it (worked out here from
+    the measurements the estimates took and their R), the held one too; with a reference of
+    10 it is not scaled; the estimates, their hypotheses and measurements are the same as
     without."""
-    stream = alignment_stream(np.random.default_rng(5), 150, jumps={80: (2.0, 0.0, 0.5)})
+    rng = np.random.default_rng(5)
+    stream = alignment_stream(rng, 150, jumps={80: (2.0, 0.0, 0.5)})
     plain, jittery = TCAFF(), TCAFF(TCAFFParams(jitter_reference=0.05, jitter_span=10))
+    calm = TCAFF(TCAFFParams(jitter_reference=10.0))  # never above its reference
     taken, jitter, scaled = None, [], 0
     for step, zs in enumerate(stream.zs, start=1):
-        Rs = np.broadcast_to(R_CONSTANT, (len(zs), 3, 3))
+        Rs = np.broadcast_to(R_CONSTANT * rng.uniform(0.5, 2.0), (len(zs), 3, 3))
         plain.update(zs, Rs)
         jittery.update(zs, Rs)
+        calm.update(zs, Rs)
         # the held estimates: a reported one may be withheld, its measurement still counts
         a, b = plain.held, jittery.held
         assert (a is None) == (b is None) and (plain.estimate is None) == (
@@ -229,13 +233,14 @@ def test_the_reported_covariance_grows_with_the_jitter_and_nothing_else_changes(
         assert (a.hypothesis, a.n_measurements, a.measurement, a.cost) == (
             b.hypothesis, b.n_measurements, b.measurement, b.cost)
         np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(calm.held.P, a.P)
         if a.measurement >= 0:
-            z = zs[a.measurement]
+            z, R = zs[a.measurement], Rs[a.measurement]
             if taken is not None and taken[:2] == (step - 1, a.hypothesis):
                 d = z - taken[2]
                 d[2] = wrap_angle(d[2])
-                jitter.append((step, d @ np.linalg.solve(2 * R_CONSTANT, d) / 3))
-            taken = (step, a.hypothesis, z)
+                jitter.append((step, d @ np.linalg.solve(R + taken[3], d) / 3))
+            taken = (step, a.hypothesis, z, R)
         recent = [value for k, value in jitter if k > step - 10]
         scale = max(1.0, np.mean(recent) / 0.05) if recent else 1.0
         np.testing.assert_allclose(b.P, a.P * scale, rtol=1e-12)
@@ -257,6 +262,11 @@ def test_state_save_and_restore_continue_identically(tmp_path):
         a.save(tmp_path / "filter.npz")
         c = TCAFF.load(tmp_path / "filter.npz")
         assert c.params.cost_model == params.cost_model
+        for other in (b, c):  # restored as held and reported, the jitter's scale included
+            for got, want in ((other.held, a.held), (other.estimate, a.estimate)):
+                assert (got is None) == (want is None)
+                if want is not None:
+                    np.testing.assert_array_equal(got.P, want.P)
         changed = 0
         for zs, R in zip(stream.zs[60:], Rs[60:], strict=True):
             ea, eb, ec = a.update(zs, R), b.update(zs, R), c.update(zs, R)

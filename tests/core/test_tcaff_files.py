@@ -149,14 +149,22 @@ def test_a_tampered_jitter_record_is_refused(tamper, message):
     assert target.step == 0 and target.estimate is None
 
 
-def test_a_jitter_record_loaded_into_a_filter_without_a_reference_is_not_used():
+def test_a_jitter_record_loaded_into_a_filter_without_a_reference_is_dropped():
+    """Not used, and not kept: a record it never trims would, jitter_span steps later, make
+    its own state one that no filter loads."""
     state = a_running_filter(TCAFFParams(jitter_reference=0.05)).state_dict()
     plain, source = TCAFF(), a_running_filter()
     plain.load_state_dict(state)
     np.testing.assert_array_equal(plain.held.P, source.held.P)  # the same stream, unscaled
-    plain.update(np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    source.update(np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    np.testing.assert_array_equal(plain.held.P, source.held.P)
+    for _ in range(TCAFFParams().jitter_span + 1):
+        plain.update(np.zeros((0, 3)), np.zeros((0, 3, 3)))
+        source.update(np.zeros((0, 3)), np.zeros((0, 3, 3)))
+        assert (plain.held is None) == (source.held is None)
+        if source.held is not None:
+            np.testing.assert_array_equal(plain.held.P, source.held.P)
+    again = plain.state_dict()
+    assert again["jitter.steps"].size == 0 and "jitter.last" not in again
+    TCAFF().load_state_dict(again)
 
 
 @pytest.mark.parametrize("params", [TCAFFParams(), replace(TCAFFParams.reference(),

@@ -375,3 +375,18 @@ def test_the_graphs_covariances_are_its_marginals_at_each_step():
     for k in steps[:: max(1, len(steps) // 5)]:
         np.testing.assert_allclose(smoothed[p, k], graph.graph.alignment(*setup.pairs[p], k)[1],
                                    rtol=1e-9, atol=1e-15)
+
+
+def test_the_studys_tcaff_runs_as_a_pair_aligner_does():
+    """The study's TCAFF stage gives each pair's filter what `PairwiseAligner` gives its own:
+    the aligner's jitter reference, so the covariances it scores are the library's."""
+    from tcaff_gtsam.eval.methods.stages import RunSetup, SharedStages
+    from tcaff_gtsam.eval.sim.simulate import simulate
+
+    from tcaff_gtsam import PairwiseAligner
+
+    run = simulate(short("indoor_return", 10), 0)
+    stages = SharedStages(RunSetup.of(run), QUICK_METHODS)
+    pair = PairwiseAligner(stages.checked, QUICK_METHODS.tcaff_params(False, None))
+    assert stages.tcaff_params.jitter_reference is not None
+    assert stages.tcaff_params == pair.filter.params
