@@ -321,9 +321,9 @@ class FilterState:
                      ) -> tuple[deque, tuple | None]:
         """The jitter record of a `state_dict` and the latest measurement of the main
         hypothesis (empty and None in states saved before they were recorded); DataError
-        when the steps are not increasing within the last `jitter_span` steps, the values
-        not finite and >= 0, or the measurement not a finite state with an SPD covariance
-        of a step and hypothesis the filter has reached."""
+        when the steps are not increasing, from step 2, within the last `jitter_span`
+        steps, the values not finite and >= 0, or the measurement not a finite state with
+        an SPD covariance of a step and hypothesis the filter has reached."""
         d, step = self.params.dim, counters["step"]
         if "jitter.steps" not in state:
             return deque(), None
@@ -331,6 +331,7 @@ class FilterState:
         values = _state_array(state["jitter.values"], "jitter.values", np.float64)
         if (steps.ndim != 1 or values.shape != steps.shape or np.any(np.diff(steps) <= 0)
                 or np.any(steps > step) or np.any(steps <= step - self.params.jitter_span)
+                or np.any(steps < 2)  # a jitter takes two steps
                 or not np.all(np.isfinite(values) & (values >= 0))):
             raise DataError(f"TCAFF state: jitter.steps must increase within the last "
                             f"jitter_span = {self.params.jitter_span} steps of step {step}, "

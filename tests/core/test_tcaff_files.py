@@ -130,6 +130,7 @@ def _first(key: str, value):
 @pytest.mark.parametrize(("tamper", "message"), [
     (_first("jitter.steps", 10**6), "jitter.steps must increase within the last"),
     (_first("jitter.steps", -5), "jitter.steps must increase within the last"),
+    (_first("jitter.steps", 1), "jitter.steps must increase within the last"),
     (_first("jitter.values", -1.0), "one finite value >= 0 each"),
     (_first("jitter.values", np.nan), "one finite value >= 0 each"),
     (lambda s: s.__setitem__("jitter.values", s["jitter.values"][1:]),
