@@ -225,50 +225,53 @@ class SlidingWindow:
         """Marginalise `keys` where gtsam's marginalisation of leaves refused them, in a new
         solver: the factors on them (`self._active`'s and the earlier `marginals`, by index)
         are linearised at the linearisation point and the keys eliminated from them; the other
-        factors and what that elimination leaves on the variables that stay (as linear
-        factors fixed at that point, as gtsam's own marginal factors are) make the new
-        solver. Its estimate starts from the same linearisation point."""
+        factors and what that elimination leaves on the variables that stay (linear factors
+        that hold that point) make the new solver. Its estimate starts from the same point."""
         theta = self._isam.getLinearizationPoint()  # the failed call leaves it whole
-        marginals = self._pointed(marginals, theta)
         leaving = set(keys)
+        earlier = self._pointed(marginals, theta)
         on_leaving = gtsam.NonlinearFactorGraph()
-        kept: list[tuple[str, int, object]] = []  # ("active" | "marginal", old index, factor)
-        for kind, index, factor in [*(("active", i, f.factor) for i, f in self._active.items()),
-                                    *(("marginal", i, m) for i, m in marginals.items())]:
-            if leaving.isdisjoint(factor.keys()):
-                kept.append((kind, index, factor))
-            else:
+        for factor in [*(f.factor for f in self._active.values()), *earlier]:
+            if not leaving.isdisjoint(factor.keys()):
                 on_leaving.add(factor)
         _, remaining = on_leaving.linearize(theta).eliminatePartialMultifrontal(
             gtsam.Ordering(list(keys)))
-        new_marginals = gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, theta)
+        new = gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, theta)
+        self._rebuild({i: f for i, f in self._active.items() if leaving.isdisjoint(f.keys)},
+                      [*(m for m in earlier if leaving.isdisjoint(m.keys())),
+                       *(new.at(n) for n in range(new.size()))], theta, leaving)
+
+    def _rebuild(self, active: dict[int, _Factor], marginals: list, point: gtsam.Values,
+                 without: set[int]) -> dict[int, int]:
+        """A new solver holding the factors `active` (by index) and the marginal factors
+        `marginals`, from the values of `point` but those of the variables `without`;
+        `_active`, `_marginal` and `_free` index its factors from then on. Returns each
+        factor's new index by its index in `active`."""
+        values = gtsam.Values(point)
+        for key in without:
+            if values.exists(key):
+                values.erase(key)
         graph = gtsam.NonlinearFactorGraph()
-        for _, _, factor in kept:
+        for f in active.values():
+            graph.add(f.factor)
+        for factor in marginals:
             graph.add(factor)
-        graph.push_back(new_marginals)
-        values = gtsam.Values()
-        for key in theta.keys():
-            if key not in leaving:
-                values.insert(key, theta.atPose2(key) if self._planar else theta.atPose3(key))
         self._new_solver(self._isam.params())
         indices = self._commit(graph, values, [])
-        remap = {(kind, index): new for (kind, index, _), new in zip(kept, indices[:len(kept)],
-                                                                   strict=True)}
-        self._active = {remap["active", i]: f for i, f in self._active.items()
-                        if ("active", i) in remap}
-        self._marginal = ({remap["marginal", i] for i in marginals if ("marginal", i) in remap}
-                          | set(indices[len(kept):]))
-        self._free = {chain: remap["active", i] for chain, i in self._free.items()
-                      if ("active", i) in remap}
+        remap = dict(zip(active, indices[:len(active)], strict=True))
+        self._active = {remap[i]: f for i, f in active.items()}
+        self._marginal = set(indices[len(active):])
+        self._free = {chain: remap[i] for chain, i in self._free.items() if i in remap}
+        return remap
 
     @staticmethod
-    def _pointed(marginals: dict, point: gtsam.Values) -> dict:
+    def _pointed(marginals: dict, point: gtsam.Values) -> list:
         """The marginal factors of what left (by index) as linear factors that hold the
         linearisation point `point` of their variables, for a new solver: gtsam's own hold
         none, their variables being fixed in the solver that made them, and a new solver would
         relinearise those variables under them."""
-        return {i: gtsam.LinearContainerFactor(m.linearize(point), point)
-                for i, m in marginals.items()}
+        return [gtsam.LinearContainerFactor(m.linearize(point), point)
+                for m in marginals.values()]
 
     def _forget(self) -> None:
         """Forget the steps that left beyond the latest `GraphParams.history` of them, and the
@@ -302,25 +305,10 @@ class SlidingWindow:
                    leaving: list[int]) -> None:
         """After a failed update: a new solver holding the factors and values of the graph
         before it (gtsam's own is unusable after an exception)."""
-        new_keys = set(self._pending_values.keys())
-        theta = gtsam.Values()
         point = (self._isam.getLinearizationPoint() if self._settled_from is None
                  else self._settled_from)
-        for key in point.keys():
-            if key not in new_keys:
-                theta.insert(key, point.atPose2(key) if self._planar else point.atPose3(key))
-        kept = [*self._active.items(), *gone]
-        graph = gtsam.NonlinearFactorGraph()
-        for _, f in kept:
-            graph.add(f.factor)
-        for factor in self._pointed(marginals, point).values():
-            graph.add(factor)
-        self._new_solver(self._isam.params())
-        indices = self._commit(graph, theta, [])
-        remap = dict(zip([i for i, _ in kept] + list(marginals), indices, strict=True))
-        self._active = {remap[i]: f for i, f in kept}
-        self._marginal = {remap[i] for i in marginals}
-        self._free = {chain: remap[i] for chain, i in self._free.items()}
+        remap = self._rebuild({**self._active, **dict(gone)}, self._pointed(marginals, point),
+                              point, set(self._pending_values.keys()))
         for index, f in gone:
             self._count(f, remap[index], +1)
         for rank in leaving:

@@ -95,9 +95,9 @@ class SharedStages:
     def __init__(self, setup: RunSetup, methods: MethodsConfig) -> None:
         settings = setup.run.settings
         self.setup = setup
-        self.checked = feeding(methods.aligner_params(settings.kappa),
-                               methods.tcaff_params(False, settings.window))
-        self.tcaff_params = fed_by(methods.tcaff_params(False, settings.window), self.checked)
+        tcaff_params = methods.tcaff_params(False, settings.window)
+        self.checked = feeding(methods.aligner_params(settings.kappa), tcaff_params)
+        self.tcaff_params = fed_by(tcaff_params, self.checked)
         self.aligner = FrameAligner(unchecked(self.checked))
         # checks beyond the residual need a search of their own; the residual alone filters
         # the unchecked candidates
