@@ -48,9 +48,11 @@ from .inputs import real_array, shown
 from .params import TCAFFParams, _given_or_default
 
 # write_snapshot is the module's for its callers (a node writes snapshots on another thread)
-from .tcaff_state import FilterState, _not_spd, write_snapshot  # noqa: F401
+from .tcaff_state import JITTER_CAP, FilterState, _not_spd, write_snapshot  # noqa: F401
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
+
+_FLOAT_MAX = float(np.finfo(float).max)
 
 log = logging.getLogger(__name__)
 
@@ -499,7 +501,10 @@ class TCAFF(FilterState):
             if last is not None and last[0] == self.step - 1 and last[1] == estimate.hypothesis:
                 distance = mahalanobis_to(z[None], R[None], last[2], last[3],
                                           self._model.angular)[0]
-                jitter.append((self.step, float(distance) / prm.dim))
+                value = float(distance) / prm.dim
+                # beyond the cap (and for a distance that overflows) the two disagree wildly,
+                # which is all the record needs to say
+                jitter.append((self.step, value if value <= JITTER_CAP else JITTER_CAP))
             self._last_taken = (self.step, estimate.hypothesis, z.copy(), R.copy())
         while jitter and jitter[0][0] <= self.step - prm.jitter_span:
             jitter.popleft()
@@ -511,7 +516,12 @@ class TCAFF(FilterState):
         if estimate is None or not self._jitter or reference is None:
             return estimate
         scale = sum(value for _, value in self._jitter) / (len(self._jitter) * reference)
-        return estimate if scale <= 1.0 else replace(estimate, P=estimate.P * scale)
+        if scale <= 1.0:
+            return estimate
+        largest = float(np.abs(estimate.P).max())
+        if scale * largest > _FLOAT_MAX / 2.0:  # no further than the largest finite covariance
+            scale = max(1.0, _FLOAT_MAX / 2.0 / largest)
+        return replace(estimate, P=estimate.P * scale)
 
     def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
         """The main tree's estimate, or None while `withhold_contested` or `report_after`

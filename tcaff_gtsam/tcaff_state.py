@@ -31,6 +31,9 @@ if TYPE_CHECKING:
 
 __all__ = ["FilterState", "write_snapshot"]
 
+#: the largest jitter a pair of measurements records (`TCAFFParams.jitter_reference`)
+JITTER_CAP = 1e6
+
 
 class FilterState:
     """The state of a `TCAFF` filter as arrays, for a node that restarts where it stopped.
@@ -95,10 +98,13 @@ class FilterState:
         Raises:
             DataError: missing entries, arrays of the wrong kind or shape, or values no filter
                 reaches: non-finite states, costs or measurements; covariances that are not
-                symmetric positive definite; negative counters or steps since a measurement,
-                counters of 2^62 or more; tree ids out of range (main tree ids other than the
-                hypothesis counter, exploring ids not below the next id or not grouped);
-                measurement choices before the first step or beyond the step's measurements.
+                symmetric positive definite; negative counters, steps since a measurement
+                below 0 or beyond the step, counters of 2^62 or more; hypotheses at step 0;
+                tree ids out of range (main tree ids other than the hypothesis counter,
+                exploring ids not below the next id or not grouped); measurement choices
+                before the first step or beyond the step's measurements; jitters beyond
+                `JITTER_CAP`, object counts of 2^31 or more. Anything else that fails while
+                a checked state is restored, with the filter's own state restored.
         """
         if not isinstance(state, Mapping):
             raise DataError(f"TCAFF state: must be a mapping of names to arrays, got "
@@ -174,25 +180,35 @@ class FilterState:
                     for c, (o, n) in enumerate(zip(objects, known, strict=True))):
                 raise DataError("TCAFF state: the stored objects do not match the steps' "
                                 "measurements")
-        for c, value in counters.items():
-            setattr(self, c, value)
-        self._main, self._explore, self._rival = (trees.get(n) for n in self._TREES)
-        bounds = np.r_[0, np.cumsum(sizes)]
-        self._bank = deque(((bank_zs[a:b], bank_Rs[a:b]) for a, b in pairwise(bounds)),
-                           maxlen=self.params.window + 1)
-        self._evidence = deque(evidence, maxlen=self._columns)
-        self._sizes = deque([-1] * len(evidence) if steps is None else steps.tolist(),
-                            maxlen=self._columns)
-        self._objects = deque(objects if objects is not None else [None] * len(evidence),
-                              maxlen=self._columns)
-        self._dormant, self._dormant_age, self._dormant_peak = dormant
-        self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
-        # a filter without a reference keeps no record (it would never trim one)
-        self._jitter, self._last_taken = ((jitter, last_taken)
-                                          if self.params.jitter_reference is not None
-                                          else (deque(), None))
-        self._held = self._jittered(self._main_estimate())
-        self._estimate = self._reported(self._held)
+        if counters["step"] == 0 and (dormant[0] is not None or counters["hypothesis"]
+                                      or counters["_next_tree"]):
+            raise DataError("TCAFF state: hypotheses at step 0, before any measurement")
+        before = self.state_dict()
+        try:
+            for c, value in counters.items():
+                setattr(self, c, value)
+            self._main, self._explore, self._rival = (trees.get(n) for n in self._TREES)
+            bounds = np.r_[0, np.cumsum(sizes)]
+            self._bank = deque(((bank_zs[a:b], bank_Rs[a:b]) for a, b in pairwise(bounds)),
+                               maxlen=self.params.window + 1)
+            self._evidence = deque(evidence, maxlen=self._columns)
+            self._sizes = deque([-1] * len(evidence) if steps is None else steps.tolist(),
+                                maxlen=self._columns)
+            self._objects = deque(objects if objects is not None else [None] * len(evidence),
+                                  maxlen=self._columns)
+            self._dormant, self._dormant_age, self._dormant_peak = dormant
+            self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
+            # a filter without a reference keeps no record (it would never trim one)
+            self._jitter, self._last_taken = ((jitter, last_taken)
+                                              if self.params.jitter_reference is not None
+                                              else (deque(), None))
+            self._held = self._jittered(self._main_estimate())
+            self._estimate = self._reported(self._held)
+        except Exception as exc:  # a state the checks above missed: the filter as it was
+            self.reset()
+            self.load_state_dict(before)
+            raise DataError(f"TCAFF state: could not be restored ({type(exc).__name__}: "
+                            f"{exc}); the filter is as it was") from None
 
     def _check_values(self, counters: dict[str, int], trees: dict[str, Leaves],
                       sizes: np.ndarray, bank_zs: np.ndarray, bank_Rs: np.ndarray,
@@ -235,12 +251,15 @@ class FilterState:
         limit = np.where(known < 0, np.iinfo(np.int32).max, known)
         if "main" not in trees and "rival" in trees:
             raise DataError("TCAFF state: a rival without a main tree")
+        if step == 0 and ("main" in trees or len(trees["explore"])):
+            raise DataError("TCAFF state: hypotheses at step 0, before any measurement")
         for name, leaves in trees.items():
             _check_covariances(f"{name}.x", leaves.x, f"{name}.P", leaves.P)
             if not np.all(np.isfinite(leaves.edge)):
                 raise DataError(f"TCAFF state: {name}.edge holds non-finite costs")
-            if np.any(leaves.since < 0):
-                raise DataError(f"TCAFF state: {name}.since holds negative step counts")
+            if np.any(leaves.since < 0) or np.any(leaves.since > step):
+                raise DataError(f"TCAFF state: {name}.since holds step counts below 0 or "
+                                f"beyond step = {step}")
             choice = leaves.choice
             # before its root a path holds BEFORE_ROOT, from the root on a choice (>= -1)
             rooted = choice >= NO_MEASUREMENT
@@ -307,6 +326,7 @@ class FilterState:
         counts = _state_array(state["objects.counts"], "objects.counts", np.int64)
         if (sizes.ndim != 1 or sizes.size > self._columns or np.any(sizes < -1)
                 or counts.shape != (sizes[sizes > 0].sum(),) or np.any(counts < 0)
+                or np.any(counts >= 2**31)  # as `update` takes them
                 or (steps is not None and (steps.shape != sizes.shape or np.any(
                     (sizes >= 0) & (steps >= 0) & (sizes != steps))))):
             raise DataError("TCAFF state: the stored objects do not match objects.sizes and "
@@ -331,11 +351,15 @@ class FilterState:
         values = _state_array(state["jitter.values"], "jitter.values", np.float64)
         if (steps.ndim != 1 or values.shape != steps.shape or np.any(np.diff(steps) <= 0)
                 or np.any(steps > step) or np.any(steps <= step - self.params.jitter_span)
-                or np.any(steps < 2)  # a jitter takes two steps
-                or not np.all(np.isfinite(values) & (values >= 0))):
+                or np.any(steps < 2)):  # a jitter takes two steps
             raise DataError(f"TCAFF state: jitter.steps must increase within the last "
                             f"jitter_span = {self.params.jitter_span} steps of step {step}, "
-                            f"one finite value >= 0 each in jitter.values")
+                            f"from step 2, one value each in jitter.values; got steps "
+                            f"{steps.tolist()[:8]} and values of shape {values.shape}")
+        bad = np.flatnonzero(~((values >= 0) & (values <= JITTER_CAP)))  # NaN too
+        if bad.size:
+            raise DataError(f"TCAFF state: jitter.values[{bad[0]}] = {values[bad[0]]!r} is not "
+                            f"a jitter the filter records (in [0, {JITTER_CAP:g}])")
         jitter = deque(zip(steps.tolist(), values.tolist(), strict=True))
         if "jitter.last" not in state:
             return jitter, None

@@ -87,7 +87,9 @@ def _set(key, index, value):
     (_set("main.P", (0, 0, 1), 5.0), "main.P holds a covariance that is not symmetric"),
     (_set("main.P", (0, 0, 0), 0.0), r"main.P\[0\] is not positive definite"),
     (_set("main.edge", (0, 4), np.nan), "main.edge holds non-finite costs"),
-    (_set("main.since", 0, -1), "main.since holds negative step counts"),
+    (_set("main.since", 0, -1), "main.since holds step counts below 0 or beyond step"),
+    # numba's since + 1 would wrap round to a negative count
+    (_set("main.since", 0, 2**63 - 1), "main.since holds step counts below 0 or beyond step"),
     (lambda s: s.__setitem__("step", np.array(-3)), "step = -3 must be >= 0"),
     (lambda s: s.__setitem__("_next_tree", np.array(-1)), "_next_tree = -1 must be >= 0"),
     (lambda s: s.__setitem__("_fresh", s["step"] + 1), "_fresh = .* is after step"),
@@ -131,10 +133,12 @@ def _first(key: str, value):
     (_first("jitter.steps", 10**6), "jitter.steps must increase within the last"),
     (_first("jitter.steps", -5), "jitter.steps must increase within the last"),
     (_first("jitter.steps", 1), "jitter.steps must increase within the last"),
-    (_first("jitter.values", -1.0), "one finite value >= 0 each"),
-    (_first("jitter.values", np.nan), "one finite value >= 0 each"),
+    (_first("jitter.values", -1.0), r"jitter.values\[0\] = .*-1.0.* is not a jitter"),
+    (_first("jitter.values", np.nan), r"jitter.values\[0\] = .*nan.* is not a jitter"),
+    # a finite value beyond what the filter records would scale P to inf
+    (_first("jitter.values", 1e308), r"jitter.values\[0\] = .*1e\+308.* is not a jitter"),
     (lambda s: s.__setitem__("jitter.values", s["jitter.values"][1:]),
-     "one finite value >= 0 each"),
+     "one value each in jitter.values"),
     (_first("jitter.last", 10**6), r"jitter.last must be \(step, hypothesis\)"),
     (lambda s: s.__setitem__("jitter.last_R", -np.eye(3)), r"jitter.last_R a \(3, 3\) SPD"),
     (lambda s: s.__setitem__("jitter.last_z", np.zeros(2)), r"jitter.last_z a finite \(3,\)"),
@@ -148,6 +152,97 @@ def test_a_tampered_jitter_record_is_refused(tamper, message):
     with pytest.raises(DataError, match=f"^TCAFF state: .*{message}"):
         target.load_state_dict(state)
     assert target.step == 0 and target.estimate is None
+
+
+def _same_state(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_hypotheses_before_the_first_step_are_refused_and_a_running_filter_left_alone():
+    """Each entry of such a state is a legal one; together they used to pass every check and
+    raise an IndexError half-way through restoring them."""
+    target = a_running_filter()
+    before, estimate = target.state_dict(), target.estimate
+    state = {key: value.copy() for key, value in a_running_filter().state_dict().items()}
+    state.update(step=np.array(0), _fresh=np.array(0))
+    for key in ("evidence.sizes", "evidence.counts", "steps.sizes", "objects.sizes",
+                "objects.counts"):
+        state[key] = np.zeros(0, np.int64)
+    state["evidence.pairs"] = np.zeros((0, 2), np.int64)
+    for tree in ("main", "explore"):
+        state[f"{tree}.since"] = np.zeros_like(state[f"{tree}.since"])
+        choice = np.full_like(state[f"{tree}.choice"], -2)
+        choice[:, -1] = -1
+        state[f"{tree}.choice"] = choice
+    with pytest.raises(DataError, match="hypotheses at step 0, before any measurement"):
+        target.load_state_dict(state)
+    assert _same_state(target.state_dict(), before) and target.estimate is estimate
+
+
+def test_a_load_that_fails_after_its_checks_leaves_the_filter_as_it_was(monkeypatch):
+    """Whatever the checks miss and fails while the state is being restored: a DataError,
+    and the running filter as it was (the state it saved itself restored)."""
+    target = a_running_filter(TCAFFParams(jitter_reference=0.05))
+    before = target.state_dict()
+    held = target.held
+    other = a_running_filter(TCAFFParams(jitter_reference=0.05), steps=30).state_dict()
+    calls = []
+
+    def failing(self, estimate):
+        calls.append(1)
+        if len(calls) == 1:
+            raise IndexError("a state no check foresaw")
+        return estimate
+
+    monkeypatch.setattr(TCAFF, "_reported", failing)
+    with pytest.raises(DataError, match=r"could not be restored .*IndexError.* the filter "
+                                        r"is as it was"):
+        target.load_state_dict(other)
+    assert _same_state(target.state_dict(), before)
+    np.testing.assert_array_equal(target.held.P, held.P)
+
+
+def test_measurements_far_apart_record_a_capped_jitter_and_a_finite_covariance():
+    """A jitter that overflows (consecutive measurements 1e200 apart) is recorded at the cap:
+    the reported covariance stays finite, and the filter's own state loads again."""
+    from tcaff_gtsam.tcaff_state import JITTER_CAP
+
+    params = TCAFFParams(jitter_reference=0.05)
+    filt = a_running_filter(params)
+    state = filt.state_dict()
+    assert "jitter.last" in state
+    state["jitter.last_z"] = state["jitter.last_z"] + 1e200
+    filt.load_state_dict(state)
+    z = filt.held.x[None]
+    filt.update(z, np.broadcast_to(R_CONSTANT, (1, 3, 3)))
+    assert filt.held.measurement == 0
+    assert filt._jitter[-1] == (filt.step, JITTER_CAP)
+    assert np.all(np.isfinite(filt.held.P)) and np.all(np.linalg.eigvalsh(filt.held.P) > 0)
+    TCAFF(params).load_state_dict(filt.state_dict())
+
+
+def test_the_jitter_never_scales_a_covariance_past_the_largest_float():
+    params = TCAFFParams(jitter_reference=0.05)
+    state = a_running_filter(params).state_dict()
+    state["main.P"] = state["main.P"] * 1e305
+    state["jitter.values"] = np.full_like(state["jitter.values"], 1e6)
+    filt = TCAFF(params)
+    filt.load_state_dict(state)
+    unscaled = filt._main_estimate().P
+    assert np.all(np.isfinite(filt.held.P))
+    assert np.all(np.abs(filt.held.P) >= np.abs(unscaled))  # never shrunk either
+
+
+def test_object_counts_update_would_refuse_are_refused_in_a_state():
+    filt = TCAFF()
+    for _ in range(3):
+        filt.update(np.zeros((2, 3)), np.broadcast_to(R_CONSTANT, (2, 3, 3)), objects=[5, 7])
+    state = filt.state_dict()
+    TCAFF().load_state_dict(state)
+    assert state["objects.counts"].size
+    state["objects.counts"] = np.full_like(state["objects.counts"], 2**31)
+    with pytest.raises(DataError, match="stored objects do not match"):
+        TCAFF().load_state_dict(state)
 
 
 def test_a_jitter_record_loaded_into_a_filter_without_a_reference_is_dropped():
