@@ -155,6 +155,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         self._abandoned: dict[tuple[int, int], _Abandoned] = {}
         # this step's TCAFF estimates, and pairs whose hypothesis the cycle check holds out
         self._given: dict[tuple[int, int], AlignmentEstimate] = {}
+        self._given_step: int | None = None  # the step of `_given`'s estimates
         self._suspended: dict[tuple[int, int], _Suspended] = {}
         # the three as the last update that succeeded left them: what a failed one restores
         self._switches = _copied_switches(self._hypothesis, self._abandoned, self._suspended)
@@ -356,8 +357,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             raise DataError(f"update: {len(skipped)} queued alignments refer to step "
                             f"{skipped[0].step}, which was skipped; they were dropped")
         if step is not None:
-            if self._steps and self._keeps_joints:
-                self._latest_joint(self._steps[-1])  # the latest step's, before it stops being so
             self._add_step(step)
         # alignments for later steps wait in the queue until their step is committed
         now, later = [], []
@@ -394,21 +393,27 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._settle(touched)
             self._mark_stale(gone, restored, newest)
             joints = self._leaving_joints(leaving)
+            if self._keeps_joints and self._steps:
+                # the latest step's joint, which it keeps when the next step comes: computed
+                # here, so that a graph whose marginals gtsam cannot compute rolls back
+                self._joints.pop(self._steps[-1], None)
+                self._latest_joint(self._steps[-1])
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             if stale is not None:
                 self._removed, self._stale = stale
-            self._roll_back(gone, marginals, step, leaving)
             hypothesis, abandoned, suspended = self._switches
             # copied again: the snapshot must serve a failure of the next update too
             self._hypothesis, self._abandoned, _ = _copied_switches(hypothesis, abandoned, {})
             self._suspended = {pair: held_out for pair, (held_out, _) in suspended.items()}
             for held_out, n in suspended.values():
                 del held_out.factors[n:]
-            self._forget_keyframes(set(self._pending_values.keys()))
+            pending = set(self._pending_values.keys())
+            self._forget_keyframes(pending)
             dropped, self._queued = self._queued, later
             self._pending_values, self._to_remove = gtsam.Values(), []
             tags = [q.tag for q in dropped if q.tag and q.tag[0] != "free"]
             reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            self._roll_back(gone, marginals, step, leaving, pending)  # last: it can raise
             raise DataError(f"update: gtsam could not solve the graph with the {len(dropped)} "
                             f"factors queued for this update ({reason}); they were dropped and "
                             f"the graph is as it was before (tagged among them: {tags[:5]})"
@@ -418,8 +423,6 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._count(q, index, +1)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
         self._marginalise(leaving, joints, marginals)
-        if self._steps:  # the latest step's joint changed: computed again when it is needed
-            self._joints.pop(self._steps[-1], None)
         self._switches = _copied_switches(self._hypothesis, self._abandoned, self._suspended)
 
     def _mark_stale(self, gone: list[tuple[int, _Factor]], restored: list[_Factor],

@@ -33,7 +33,8 @@ class GraphReadout:
             marginal now); a step that left the horizon keeps the one it left with.
         Raises:
             DataError: unknown robot, a step that has not been committed, or one forgotten
-                (`GraphParams.history`).
+                (`GraphParams.history`); a covariance gtsam cannot compute (a graph of
+                near-singular covariances).
         """
         self._check_robot("i", i)
         self._check_robot("j", j)
@@ -53,13 +54,19 @@ class GraphReadout:
             return T, None
         if i == j:
             return T, np.zeros((self._n_param, self._n_param))
-        every = self._kept_joint(step)
+        try:
+            every = self._kept_joint(step)
+            if every is None:
+                joint = self._isam.jointMarginalCovariance(
+                    gtsam.KeyVector([ki, kj])).fullMatrix()
+        except RuntimeError as exc:  # the graph stays as it is: its estimates can be read
+            raise DataError(f"alignment: gtsam could not compute the covariance of step "
+                            f"{step} ({str(exc).strip()[:80]}); read the alignment with "
+                            f"covariance=False") from None
         if every is not None:
             n = 3 if self._planar else 6
             rows = np.r_[i * n:(i + 1) * n, j * n:(j + 1) * n]
             joint = every[np.ix_(rows, rows)]
-        else:
-            joint = self._isam.jointMarginalCovariance(gtsam.KeyVector([ki, kj])).fullMatrix()
         Ad_inv = self._pose(np.linalg.inv(T)).AdjointMap()
         J = np.hstack([-Ad_inv, np.eye(Ad_inv.shape[0])])
         return T, self._params_cov(T, J @ joint @ J.T)

@@ -131,7 +131,12 @@ class HypothesisFactors:
         if not isinstance(estimate, AlignmentEstimate):
             raise DataError(f"add_tcaff_estimate: estimate must be an AlignmentEstimate or "
                             f"None, got {shown(estimate)}")
-        _check_index("add_tcaff_estimate: step", step, _ROBOT_SHIFT)
+        step = _check_index("add_tcaff_estimate: step", step, _ROBOT_SHIFT)
+        if self._given_step is not None and step != self._given_step:
+            # the cycle check tests one step's estimates, and a failed update restores the
+            # switches as they were before that step's
+            raise DataError(f"add_tcaff_estimate: step {step}, but the estimates given since "
+                            f"the last update are of step {self._given_step}; update first")
         x = np.asarray(estimate.x)
         if not (x.shape == (3,) and np.isfinite(x).all()):
             raise DataError(f"add_tcaff_estimate: estimate needs a finite x (3,), got x = "
@@ -155,7 +160,7 @@ class HypothesisFactors:
             m = estimate.measurement
             self.add_alignment(step, i, j, zs[m], Rs[m], hypothesis=estimate.hypothesis)
         pair = (int(i), int(j))
-        self._given[pair] = estimate
+        self._given[pair], self._given_step = estimate, step
         previous = self._hypothesis.get(pair)
         current = estimate.hypothesis
         waiting = self._abandoned.get(pair)
@@ -193,7 +198,7 @@ class HypothesisFactors:
         those of held-out hypotheses (kept aside), and the kept-aside factors of hypotheses it
         keeps again, to be committed as they were weighed.
         """
-        given, self._given = self._given, {}
+        given, self._given, self._given_step = self._given, {}, None
         if not self.params.cycle_check or (len(given) < 3 and not self._suspended):
             return queued, []
         # the robots of this step's estimates, numbered from 0: a team of only those

@@ -11,6 +11,7 @@ from bisect import bisect_left
 import gtsam
 import numpy as np
 
+from .errors import DataError
 from .graph_inputs import (
     _a_key,
     _components,
@@ -207,10 +208,12 @@ class SlidingWindow:
             return
         try:
             marginal, deleted = self._isam.marginalizeLeavesWithIndices(_key_list(keys))
-        except ValueError:
-            # gtsam refuses: a keyframe linked to one of another robot that stays can share a
-            # clique with it above a clique that leaves whole (its ordering groups keyframes
-            # by the step added after them, not by what they are linked to)
+        except (ValueError, RuntimeError):
+            # gtsam refuses ("not unused"): a keyframe linked to one of another robot that
+            # stays can share a clique with it above a clique that leaves whole (its ordering
+            # groups keyframes by the step added after them, not by what they are linked to);
+            # or the partial elimination of such a clique fails. Either way it throws before
+            # it changes the solver, and marginalising in a new one is right whatever the cause
             self._marginalise_rebuilt(keys, marginals)
             return
         active = self._active
@@ -256,8 +259,22 @@ class SlidingWindow:
             graph.add(f.factor)
         for factor in marginals:
             graph.add(factor)
-        self._new_solver(self._isam.params())
-        indices = self._commit(graph, values, [])
+        old, params = self._isam, self._isam.params()
+        try:
+            self._new_solver(params)
+            indices = self._commit(graph, values, [])
+        except RuntimeError:
+            # a system Cholesky finds indeterminate (near-singular covariances): QR factorises
+            # it, more slowly, in this solver from then on
+            params.setFactorization("QR")
+            try:
+                self._new_solver(params)
+                indices = self._commit(graph, values, [])
+            except RuntimeError as exc:
+                self._isam = old
+                raise DataError(f"InterRobotGraph: gtsam could not solve the graph again in a "
+                                f"new solver ({str(exc).strip()[:80]}); the graph cannot be "
+                                f"used further") from None
         remap = dict(zip(active, indices[:len(active)], strict=True))
         self._active = {remap[i]: f for i, f in active.items()}
         self._marginal = set(indices[len(active):])
@@ -302,15 +319,10 @@ class SlidingWindow:
                     self._last_keyframe[robot] = before
 
     def _roll_back(self, gone: list[tuple[int, _Factor]], marginals: dict, step: int | None,
-                   leaving: list[int]) -> None:
-        """After a failed update: a new solver holding the factors and values of the graph
-        before it (gtsam's own is unusable after an exception)."""
-        point = (self._isam.getLinearizationPoint() if self._settled_from is None
-                 else self._settled_from)
-        remap = self._rebuild({**self._active, **dict(gone)}, self._pointed(marginals, point),
-                              point, set(self._pending_values.keys()))
-        for index, f in gone:
-            self._count(f, remap[index], +1)
+                   leaving: list[int], pending: set[int]) -> None:
+        """After a failed update: the steps and keyframes as they were, then a new solver
+        holding the factors and values of the graph before it but the variables `pending`
+        (gtsam's own is unusable after an exception)."""
         for rank in leaving:
             for key in self._keyframes_at.get(rank, []):
                 robot, index = _keyframe_of(key)
@@ -319,6 +331,12 @@ class SlidingWindow:
         if step is not None:
             self._steps.pop()
             self._step_set.discard(step)
+        point = (self._isam.getLinearizationPoint() if self._settled_from is None
+                 else self._settled_from)
+        remap = self._rebuild({**self._active, **dict(gone)}, self._pointed(marginals, point),
+                              point, pending)
+        for index, f in gone:
+            self._count(f, remap[index], +1)
 
     def _settle(self, keys: set[int]) -> None:
         """Extra iterations while a variable the update touched is still far from its

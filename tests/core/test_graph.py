@@ -918,7 +918,13 @@ def test_a_keyframe_that_leaves_linked_to_one_that_stays_is_marginalised():
     assert t_err < 1e-3 and th_err < 1e-2
 
 
-def test_a_marginalisation_gtsam_refuses_at_every_step_gives_what_its_own_gives(monkeypatch):
+@pytest.mark.parametrize("refusal", [
+    ValueError("Asking to remove variables from the variable index that are not unused"),
+    # the partial elimination of a clique failing inside gtsam's marginalisation
+    RuntimeError("Indeterminate linear system detected while working near variable"),
+])
+def test_a_marginalisation_gtsam_refuses_at_every_step_gives_what_its_own_gives(monkeypatch,
+                                                                               refusal):
     """The graph's own marginalisation (`_marginalise_rebuilt`), forced at every step by a
     gtsam that refuses every marginalisation of leaves, with the marginal factors of earlier
     steps in the graph and a failed update rolled back among them: the same estimates as
@@ -928,8 +934,7 @@ def test_a_marginalisation_gtsam_refuses_at_every_step_gives_what_its_own_gives(
     keyframe_team_run(normal, steps)
 
     def refuse(self, keys):
-        raise ValueError("Asking to remove variables from the variable index that are not "
-                         "unused")
+        raise refusal
 
     monkeypatch.setattr(gtsam.ISAM2, "marginalizeLeavesWithIndices", refuse)
     forced = InterRobotGraph(2, GraphParams(horizon=horizon))
@@ -1014,6 +1019,128 @@ def test_an_update_gtsam_cannot_solve_is_rolled_back(horizon):
     graph.add_alignment(15, 0, 1, [1.0, 2.0, 0.3], R)
     graph.update(15)
     assert pose_error(se2_from_params([1.0, 2.0, 0.3]), graph.alignment(0, 1)[0])[0] < 1e-3
+
+
+def _failing_isam_updates(monkeypatch, n: int) -> None:
+    """Make the next n calls of gtsam's ISAM2.update raise as an indeterminate system does."""
+    original, left = gtsam.ISAM2.update, [n]
+
+    def update(self, *args):
+        if left[0]:
+            left[0] -= 1
+            raise RuntimeError("Indeterminate linear system detected while working near "
+                               "variable")
+        return original(self, *args)
+
+    monkeypatch.setattr(gtsam.ISAM2, "update", update)
+
+
+@pytest.mark.parametrize("horizon", [None, 4])
+def test_a_roll_back_whose_first_solve_fails_solves_again_by_qr(monkeypatch, horizon):
+    """The update fails, and so does solving the graph before it again (Cholesky on
+    near-singular covariances): the roll-back solves it by QR, and the graph is the one
+    before the update, steps, horizon and all, and goes on. It used to leave the failed
+    step in, the factors queued and every later call raising IndexError."""
+    graph = InterRobotGraph(3, GraphParams(horizon=horizon))
+    for k in range(8):
+        graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
+        graph.add_alignment(k, 1, 2, [-1.0, 0.5, 0.1], R)
+        graph.update(k)
+    before = graph.alignment(0, 1), graph.alignment(1, 2, 5)
+    _failing_isam_updates(monkeypatch, 2)
+    graph.add_alignment(8, 0, 1, [1.0, 2.0, 0.3], R)
+    with pytest.raises(DataError, match="as it was before"):
+        graph.update(8)
+    assert graph.steps == list(range(8))
+    assert graph._isam.params().getFactorization() == "QR"
+    for (T, cov), (T_was, cov_was) in zip((graph.alignment(0, 1), graph.alignment(1, 2, 5)),
+                                          before, strict=True):
+        np.testing.assert_allclose(T, T_was, atol=1e-6)
+        np.testing.assert_allclose(cov, cov_was, atol=1e-9)
+    graph.add_alignment(8, 0, 1, [1.0, 2.0, 0.3], R)
+    graph.update(8)
+    assert pose_error(se2_from_params([1.0, 2.0, 0.3]), graph.alignment(0, 1, 8)[0])[0] < 1e-3
+
+
+def test_a_graph_gtsam_cannot_solve_again_says_so(monkeypatch):
+    """Neither factorisation solves the graph before a failed update again: a DataError that
+    says the graph cannot be used, not a RuntimeError from deep inside the roll-back."""
+    graph = InterRobotGraph(2)
+    for k in range(3):
+        graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
+        graph.update(k)
+    _failing_isam_updates(monkeypatch, 3)
+    graph.add_alignment(3, 0, 1, [1.0, 2.0, 0.3], R)
+    with pytest.raises(DataError, match=r"could not solve the graph again .* cannot be used"):
+        graph.update(3)
+    assert graph.steps == [0, 1, 2]
+
+
+def test_an_update_whose_latest_covariance_gtsam_cannot_compute_is_rolled_back(monkeypatch):
+    """With a horizon the latest step's joint covariance is computed with the update that
+    commits it: where gtsam cannot compute it, that update is rolled back, rather than every
+    later update and read raising gtsam's RuntimeError."""
+    graph = InterRobotGraph(3, GraphParams(horizon=5))
+    for k in range(6):
+        graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
+        graph.add_alignment(k, 1, 2, [-1.0, 0.5, 0.1], R)
+        graph.update(k)
+    before = graph.alignment(0, 2)
+    original = gtsam.ISAM2.jointMarginalCovariance
+    failing = [True]
+
+    def joint(self, keys):
+        if failing[0]:
+            failing[0] = False
+            raise RuntimeError("Indeterminate linear system detected while working near "
+                               "variable")
+        return original(self, keys)
+
+    monkeypatch.setattr(gtsam.ISAM2, "jointMarginalCovariance", joint)
+    graph.add_alignment(6, 0, 1, [1.0, 2.0, 0.3], R)
+    with pytest.raises(DataError, match="as it was before"):
+        graph.update(6)
+    assert graph.steps == list(range(6))
+    np.testing.assert_allclose(graph.alignment(0, 2)[1], before[1], atol=1e-9)
+    graph.add_alignment(6, 0, 1, [1.0, 2.0, 0.3], R)
+    graph.update(6)
+    assert graph.steps[-1] == 6
+
+
+def test_a_covariance_gtsam_cannot_compute_is_a_data_error_and_the_graph_goes_on(monkeypatch):
+    """Read when asked for (no horizon, smoothed past covariances): gtsam's failure is the
+    project's error, and the graph stays as it was."""
+    graph = InterRobotGraph(2, GraphParams(past_covariance="smoothed"))
+    for k in range(3):
+        graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
+        graph.update(k)
+
+    def joint(self, keys):
+        raise RuntimeError("Indeterminate linear system detected while working near variable")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(gtsam.ISAM2, "jointMarginalCovariance", joint)
+        with pytest.raises(DataError, match="could not compute the covariance of step 2"):
+            graph.alignment(0, 1)
+        T, cov = graph.alignment(0, 1, covariance=False)
+        assert cov is None
+    np.testing.assert_allclose(graph.alignment(0, 1)[0], T)
+
+
+def test_tcaff_estimates_of_a_second_step_before_an_update_are_refused():
+    """The cycle check tests one step's estimates together, and a failed update restores the
+    switches as they were before that step's: estimates of the next step wait for the
+    update."""
+    graph = InterRobotGraph(3)
+    x = se2_to_params(truth(0, 1))
+    graph.add_tcaff_estimate(4, 0, 1, estimate(x, True), x[None], R[None])
+    graph.add_tcaff_estimate(4, 1, 2, estimate(x, True), x[None], R[None])
+    with pytest.raises(DataError, match="step 5, but the estimates given since the last "
+                                        "update are of step 4; update first"):
+        graph.add_tcaff_estimate(5, 0, 1, estimate(x, True), x[None], R[None])
+    assert len(graph._queued) == 2  # nothing of step 5 was queued
+    graph.update(4)
+    graph.add_tcaff_estimate(5, 0, 1, estimate(x, True), x[None], R[None])
 
 
 @pytest.mark.parametrize("cov, t, match", [
