@@ -173,13 +173,15 @@ class RobotNode:
                 team over ROS 2's default middleware).
             state_dir: each pair's filter is saved there after each step (`TCAFF.snapshot`,
                 written on a thread of its own; counters "states_saved", "save_errors") and
-                restored from there on start; None: nothing saved.
+                restored from there on start; None: nothing saved. A saved filter that
+                cannot be read (a corrupt file, one of other parameters' shapes) is logged,
+                counted ("restore_errors") and kept beside as "<file>.refused", and its pair
+                starts afresh: the robot's node comes up either way.
             team_params, on_team: with `NodeParams.team_consistency`, the settings of the
                 team consistency, and a callback given every TeamMessage the node publishes
                 (on the worker thread).
         Raises:
             ConfigError: bad names, a team of fewer than two robots, bad parameters.
-            DataError: a saved filter that cannot be read.
         """
         self.robot = check_name("--robot", robot)
         self.team = check_name("--team", team)
@@ -526,8 +528,17 @@ class RobotNode:
         for name in sorted(self.members):
             path = self._state_path(name)
             if path.exists():
+                try:
+                    restored = TCAFF.load(path)
+                except DataError as exc:
+                    aside = path.with_name(path.name + ".refused")
+                    path.replace(aside)
+                    self.counters["restore_errors"] += 1
+                    log.error("%s: the saved filter of %s was refused (%s); kept as %s, the "
+                              "pair starts afresh", self.robot, name, exc, aside)
+                    continue
                 nb = self._neighbour(name)
-                nb.aligner.filter = TCAFF.load(path)
+                nb.aligner.filter = restored
                 nb.unconfirmed = True
                 log.info("%s: restored the filter of %s from %s", self.robot, name, path)
 

@@ -159,6 +159,29 @@ def aligned_and_closed(tmp_path: Path, state: Path):
     return held
 
 
+def test_a_saved_filter_that_cannot_be_read_is_set_aside_and_the_pair_starts_afresh(
+        tmp_path: Path) -> None:
+    """A corrupt state file does not keep the robot's node from coming up: it is kept beside
+    as .refused, counted, and the pair is aligned again from its new maps."""
+    state = tmp_path / "state"
+    aligned_and_closed(tmp_path, state)
+    saved = state / "r0-r1.npz"
+    good = saved.read_bytes()
+    saved.write_bytes(good[: len(good) // 2])
+    again = Team(tmp_path, state)
+    try:
+        assert again.node.counters["restore_errors"] == 1
+        assert (state / "r0-r1.npz.refused").read_bytes() == good[: len(good) // 2]
+        for k in range(12):
+            again.ego(40.0 + k)
+            again.send(k, 40.0 + k, boot=2)
+        assert again.got[0].step == 1  # a new filter, not the saved one
+        assert again.got[-1].accepted
+        np.testing.assert_allclose(again.got[-1].x, TRUE, atol=0.05)
+    finally:
+        again.close()
+
+
 def test_a_restarted_node_resumes_from_its_saved_filters(tmp_path: Path) -> None:
     state = tmp_path / "state"
     held = aligned_and_closed(tmp_path, state)
