@@ -5,6 +5,7 @@ RGB-D sequence evaluation (7-Scenes, TUM RGB-D), each naming the method set that
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -84,8 +85,19 @@ class KimeraMultiConfig(_Model):
     @field_validator("robots")
     @classmethod
     def _robots(cls, value: list[str]) -> list[str]:
-        if len(set(value)) != len(value) or not all(value):
-            raise ValueError(f"robots must be distinct non-empty names, got {value}")
+        # a name goes into the bags' glob and into file names: no pattern or path in it
+        if (len(set(value)) != len(value)
+                or not all(re.fullmatch(r"[A-Za-z0-9_.-]+", name) for name in value)):
+            raise ValueError(f"robots must be distinct names of letters, digits, '_', '.' "
+                             f"and '-', got {value}")
+        return value
+
+    @field_validator("bags")
+    @classmethod
+    def _bags(cls, value: str) -> str:
+        if "{robot}" not in value or value.startswith(("/", "~")) or ".." in value.split("/"):
+            raise ValueError(f"bags must be a glob relative to --data that holds {{robot}} "
+                             f"(each robot its own bags), got {value!r}")
         return value
 
 

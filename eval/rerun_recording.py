@@ -206,7 +206,7 @@ def record(path: Path, jobs: Iterable[JobResult], reference: int = 0,
     Raises:
         ConfigError: rerun-sdk missing or of another release, a reference robot or method the
             jobs do not have.
-        DataError: the file cannot be written.
+        DataError: the file cannot be written; a job whose saved arrays disagree.
     """
     rr = check_rerun()
     path = Path(path)
@@ -223,14 +223,20 @@ def record(path: Path, jobs: Iterable[JobResult], reference: int = 0,
         stream.save(path)
     except Exception as exc:  # rerun raises its own errors for unwritable paths
         raise DataError(f"{path}: cannot write a recording ({exc})") from None
-    for job, job_method in zip(jobs, shown, strict=True):
-        writer = _Writer(rr, stream, job, reference, job_method)
-        writer.world()
-        writer.robots()
-        writer.aligned()
-        writer.errors()
-    stream.flush()
-    stream.disconnect()
+    try:
+        for job, job_method in zip(jobs, shown, strict=True):
+            writer = _Writer(rr, stream, job, reference, job_method)
+            try:
+                writer.world()
+                writer.robots()
+                writer.aligned()
+                writer.errors()
+            except (IndexError, ValueError, KeyError) as exc:
+                raise DataError(f"{job.stem}: its saved arrays disagree with each other "
+                                f"({type(exc).__name__}: {exc}); not a run as saved") from None
+    finally:  # what was recorded before stays readable
+        stream.flush()
+        stream.disconnect()
     if not path.is_file():
         raise DataError(f"{path}: the recording could not be written")
     return path

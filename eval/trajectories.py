@@ -260,10 +260,23 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
     `results/trajectories/`; returns the folders written.
 
     Raises:
-        ConfigError: an unknown format or reference robot.
-        DataError: the folder holds no saved job, or a job's files are unreadable.
+        ConfigError: an unknown format or reference robot (of any job; the ROS 2 bag holds
+            every pair and needs none, but a robot index that no job has is refused there
+            too).
+        DataError: the folder holds no saved job, a job's files are unreadable, or the
+            files cannot be written (a file where a folder goes, a full disk).
     """
     if fmt not in FORMATS:
         raise ConfigError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
     write = {"tum": write_tum, "g2o": write_g2o, "rosbag2": write_rosbag2}[fmt]
-    return [write(Path(results), job, reference) for job in load_saved(results)]
+    jobs = load_saved(results)
+    for job in jobs:  # before anything is written
+        check_reference(job, reference)
+    written = []
+    for job in jobs:
+        try:
+            written.append(write(Path(results), job, reference))
+        except OSError as exc:  # the folders of the jobs written before stay
+            raise DataError(f"{job.stem}: its {fmt} files could not be written under "
+                            f"{Path(results) / 'trajectories'} ({exc})") from None
+    return written

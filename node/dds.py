@@ -225,6 +225,7 @@ class DdsTransport:
                  "domain_id", domain_id, "must be an int in 0..232")
         _announce_often()
         import rclpy
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
         from rclpy.node import Node
         from rclpy.signals import SignalHandlerOptions
 
@@ -235,8 +236,12 @@ class DdsTransport:
         args = [] if self.params_file is None else ["--ros-args", "--params-file",
                                                     str(self.params_file)]
         # the node's process handles SIGINT / SIGTERM itself (and closes the node)
-        rclpy.init(args=args, context=context, domain_id=domain_id,
-                   signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            rclpy.init(args=args, context=context, domain_id=domain_id,
+                       signal_handler_options=SignalHandlerOptions.NO)
+        except _rclpy.RCLError as exc:  # a params file rcl cannot parse, say
+            raise ConfigError(f"--params-file {str(self.params_file)!r}: ROS 2 refused to start "
+                              f"with it ({str(exc).strip().splitlines()[0]})") from None
         self._context = context
         try:
             self._ros = Node("tcaff", namespace=f"/{robot}", context=context)

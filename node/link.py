@@ -171,10 +171,22 @@ class Link:
         return config
 
     def open(self, team: str | None = None, robots: tuple[str, ...] = ()):
-        """An open zenoh.Session (with `identities`, of `team`'s `robots`)."""
+        """An open zenoh.Session (with `identities`, of `team`'s `robots`).
+
+        Raises:
+            ConfigError: Zenoh cannot open it (a --listen port in use, a host it cannot
+                resolve), naming the endpoints.
+        """
         import zenoh
 
-        return zenoh.open(self.config(team, robots))
+        config = self.config(team, robots)
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError as exc:
+            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else "no reason given"
+            raise ConfigError(f"--listen {list(self.listen)} / --connect "
+                              f"{list(self.connect)}: Zenoh cannot open the session "
+                              f"({reason})") from None
 
 
 def warn_shared_certificate(certificate: Path, robot: str) -> None:

@@ -181,7 +181,8 @@ class RobotNode:
                 team consistency, and a callback given every TeamMessage the node publishes
                 (on the worker thread).
         Raises:
-            ConfigError: bad names, a team of fewer than two robots, bad parameters.
+            ConfigError: bad names, a team of fewer than two robots, bad parameters, a
+                state_dir that is not a folder.
         """
         self.robot = check_name("--robot", robot)
         self.team = check_name("--team", team)
@@ -524,7 +525,11 @@ class RobotNode:
     def _restore(self) -> None:
         if self._state_dir is None:
             return
-        self._state_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            self._state_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # a file where the folder goes, no permission
+            raise ConfigError(f"state_dir {str(self._state_dir)!r}: not a folder the node can "
+                              f"save to ({exc.strerror or exc})") from None
         for name in sorted(self.members):
             path = self._state_path(name)
             if path.exists():

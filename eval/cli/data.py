@@ -148,6 +148,13 @@ def kimera_multi(
     _record(rerun, [recorded.job])
 
 
+def _whole(text: str) -> bool:
+    """Whether `text` (spaces aside) is a whole number of ASCII digits (str.isdigit also takes
+    superscripts, which int() refuses)."""
+    text = text.strip()
+    return text.isascii() and text.isdigit()
+
+
 def _parse_pairs(text: str | None) -> list[tuple[int, int]] | None:
     """`--pairs 1:2,2:1` as directed pairs of robot subjects."""
     from tcaff_gtsam.errors import ConfigError
@@ -157,7 +164,7 @@ def _parse_pairs(text: str | None) -> list[tuple[int, int]] | None:
     pairs = []
     for token in text.split(","):
         parts = token.strip().split(":")
-        if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        if len(parts) != 2 or not all(_whole(p) for p in parts):
             raise ConfigError(f"--pairs {text!r}: expected robot pairs like 1:2,2:1, got "
                               f"{token.strip()!r}")
         pairs.append((int(parts[0]), int(parts[1])))
@@ -289,7 +296,7 @@ def _parse_ranges(text: str | None, n_data: int) -> list[tuple[int | None, int |
     ranges = []
     for token in text.split(","):
         parts = token.strip().split(":")
-        ok = len(parts) == 2 and all(p.strip() == "" or p.strip().isdigit() for p in parts)
+        ok = len(parts) == 2 and all(p.strip() == "" or _whole(p) for p in parts)
         if not ok:
             raise ConfigError(f"--robots {text!r}: expected frame ranges like 0:500,500:1000, "
                               f"got {token.strip()!r}")
@@ -351,7 +358,8 @@ def rgbd(
         help="Gravity's direction in the sequence's world frame, like 0,0,-1, for a folder "
              "without gravity-direction.txt (TUM: else from accelerometer.txt).")] = None,
     fps: Annotated[float, typer.Option(
-        help="7-Scenes frames per second (its files hold no time stamps).")] = 30.0,
+        help="7-Scenes frames per second, 1 to 1000 (its files hold no time stamps).")
+    ] = 30.0,
     config: Annotated[str, typer.Option(
         help=f"An RGB-D evaluation YAML, or a shipped one: {_shipped('rgbd')}.")
     ] = "default",
@@ -383,8 +391,9 @@ def rgbd(
     _check_recording(rerun)
     if rate is not None and not (math.isfinite(rate) and rate > 0):
         _refuse("--rate", rate, "must be a finite number > 0 frames per second")
-    if not (math.isfinite(fps) and fps > 0):
-        _refuse("--fps", fps, "must be a finite number > 0 frames per second")
+    if not (math.isfinite(fps) and 1.0 <= fps <= 1000.0):
+        # below one frame a second most 1 Hz exchanges would see no new frame: a slip
+        _refuse("--fps", fps, "must be between 1 and 1000 frames per second")
     seeds = _check_seeds(seed)
     import numpy as np
     from rich.markup import escape

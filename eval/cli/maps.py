@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 # The align-maps defaults are the library's own; params needs numpy only.
+from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.params import FrameAlignerParams
 
 from .common import (
@@ -32,6 +33,8 @@ if TYPE_CHECKING:
     from tcaff_gtsam.frame_aligner import AlignmentMeasurement
 
 _ALIGNER = FrameAlignerParams()
+#: most drives `advise-kappa` simulates (each a few seconds)
+MAX_ADVICE_SEEDS = 100
 
 
 def _candidates_table(title: str, candidates: list[AlignmentMeasurement]) -> Table:
@@ -155,6 +158,10 @@ def make_maps(
     if not (math.isfinite(noise) and noise >= 0):
         _refuse("--noise", noise, "must be a finite number >= 0 metres")
     _writable_folder(out_dir, "OUT_DIR")
+    for name in ("ego.npz", "other.npz", "truth.json"):
+        if (out_dir / name).is_dir():
+            _refuse("OUT_DIR", str(out_dir), f"holds a folder {name}, where the file goes",
+                    DataError)
     pair = overlapping_maps(np.random.default_rng(seed), objects, overlap, noise,
                             clutter=clutter)
     pair.ego.save(out_dir / "ego.npz")
@@ -182,7 +189,8 @@ def advise_kappa(
         help="CLIPPER's epsilon, m: the maps must stay consistent within it."
     )] = _ALIGNER.clipper.epsilon,
     minutes: Annotated[float, typer.Option(help="Length of each simulated drive.")] = 20.0,
-    seeds: Annotated[int, typer.Option(help="Drives (and drifts) to simulate.")] = 3,
+    seeds: Annotated[int, typer.Option(
+        help=f"Drives (and drifts) to simulate, 1 to {MAX_ADVICE_SEEDS}.")] = 3,
     csv: Annotated[Path | None, typer.Option(
         help="Also write the table (span, RMS per seed, worst) to this CSV file.")] = None,
 ) -> None:
@@ -210,9 +218,11 @@ def advise_kappa(
     if not (math.isfinite(minutes) and SPANS[-1] / 60.0 <= minutes <= 600.0):
         _refuse("--minutes", minutes, f"must be between {SPANS[-1] / 60.0:g} (the longest "
                 "span tried) and 600")
-    if seeds < 1:
-        _refuse("--seeds", seeds, "must be an int >= 1")
+    if not 1 <= seeds <= MAX_ADVICE_SEEDS:
+        _refuse("--seeds", seeds, f"must be an int in [1, {MAX_ADVICE_SEEDS}]")
     if csv is not None:
+        if csv.is_dir():
+            _refuse("--csv", str(csv), "is a folder, not a file", DataError)
         _writable_folder(csv.parent, "--csv's folder")
     rms = []
     for seed in range(seeds):
@@ -231,8 +241,12 @@ def advise_kappa(
     console.print(_keep_numbers_whole(table))
     if csv is not None:
         header = "span_s," + ",".join(f"rms_seed{s}_m" for s in range(seeds)) + ",worst_m"
-        np.savetxt(csv, np.column_stack([SPANS, *rms, worst]), delimiter=",", header=header,
-                   comments="", fmt="%.6g")
+        try:
+            np.savetxt(csv, np.column_stack([SPANS, *rms, worst]), delimiter=",",
+                       header=header, comments="", fmt="%.6g")
+        except OSError as exc:  # the table above is printed: only the file is lost
+            _refuse("--csv", str(csv), f"could not be written ({exc.strerror or exc})",
+                    DataError)
     if advice.kappa is None:
         console.print(f"kappa: no span keeps the maps within epsilon / 2 ({worst[0]:.3f} m "
                       f"at {SPANS[0]:g} s already): the maps disagree with themselves; better "

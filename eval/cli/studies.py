@@ -235,7 +235,8 @@ def study(
         help=f"Method set: a YAML path or a shipped name ({_shipped('methods')}).")] = None,
     seeds: Annotated[int | None, typer.Option(
         help="Run seeds 0 .. N-1 instead of the config's.", min=1)] = None,
-    workers: Annotated[int | None, typer.Option(help="Parallel processes.", min=1)] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Parallel processes, 1 to 64.", min=1, max=64)] = None,
     output: Annotated[Path | None, typer.Option(
         help="Folder for results/<timestamp>/ and the results/latest link.")] = None,
     duration: Annotated[float | None, typer.Option(
@@ -273,7 +274,7 @@ def _capped(study_config: StudyConfig, duration: float | None) -> StudyConfig:
 @app.command()
 def demo(
     output: Annotated[Path, typer.Option(help="Folder for the results.")] = Path("results"),
-    workers: Annotated[int, typer.Option(help="Parallel processes.", min=1)] = 2,
+    workers: Annotated[int, typer.Option(help="Parallel processes, 1 to 64.", min=1, max=64)] = 2,
     duration: Annotated[float | None, typer.Option(
         help="Cap every scenario's duration (seconds), for a quick look.")] = None,
 ) -> None:
@@ -312,7 +313,8 @@ def sweep(
     seeds: Annotated[int | None, typer.Option(
         help="Run seeds 0 .. N-1 instead of the sweep's (or its study's).", min=1)] = None,
     workers: Annotated[int | None, typer.Option(
-        help="Local parallel processes (default: the study's).", min=1)] = None,
+        help="Local parallel processes, 1 to 64 (default: the study's).", min=1, max=64)
+    ] = None,
     output: Annotated[Path | None, typer.Option(
         help="Folder for <sweep name>/ (default: the sweep's output).")] = None,
     duration: Annotated[float | None, typer.Option(

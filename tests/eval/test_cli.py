@@ -594,3 +594,68 @@ def test_negative_seeds_and_a_zero_frame_rate_are_refused_in_one_line(args, tcaf
     """Before any data is read or process started, naming the option (a negative seed used
     to end in numpy's ValueError deep inside the random generator)."""
     one_line_error(tcaff_main(*args), args[-2])
+
+
+# -- inputs that used to end in a raw traceback, a hang or a wrong exit status ------------------
+
+
+def test_advise_kappa_refuses_a_csv_it_cannot_write_and_too_many_drives(tmp_path, tcaff_main):
+    folder = tmp_path / "a_folder"
+    folder.mkdir()
+    one_line_error(tcaff_main("advise-kappa", "--seeds", "1", "--minutes", "5", "--csv",
+                              str(folder)), "--csv", "is a folder")
+    # printed first, then written: the table is shown, the file's failure named
+    done = tcaff_main("advise-kappa", "--seeds", "1", "--minutes", "5", "--csv", "/dev/full")
+    assert done.returncode == 2 and "span [s]" in done.stdout
+    assert done.stderr.strip().startswith("error: --csv '/dev/full': could not be written")
+    one_line_error(tcaff_main("advise-kappa", "--seeds", "1000000000000", "--minutes", "5"),
+                   "--seeds", "[1, 100]")
+
+
+def test_make_maps_refuses_a_folder_where_a_file_goes(tmp_path, tcaff_main):
+    (tmp_path / "truth.json").mkdir()
+    one_line_error(tcaff_main("make-maps", str(tmp_path)), "OUT_DIR", "truth.json")
+    assert not (tmp_path / "ego.npz").exists()  # refused before anything is written
+
+
+@pytest.mark.parametrize(("command", "args", "option"), [
+    # str.isdigit takes superscripts, int() does not
+    ("mrclam", ["--pairs", "1:\u00b2"], "--pairs"),
+    ("rgbd", ["--robots", "0:\u00b2,0:5"], "--robots"),
+    # a span of 40 frames at 1e-3 frames a second: 40 000 exchanges of one map
+    ("rgbd", ["--fps", "1e-3"], "--fps"), ("rgbd", ["--fps", "1e-300"], "--fps"),
+])
+def test_dataset_options_a_user_can_mistype_are_named(tmp_path, tcaff_main, command, args,
+                                                      option):
+    data = tmp_path / "data"
+    data.mkdir()
+    line = one_line_error(tcaff_main(command, "--data", str(data), "--output",
+                                     str(tmp_path / "out"), *args), option)
+    assert line.startswith(f"error: {option} ")
+
+
+@pytest.mark.parametrize(("args", "option"), [
+    (["--start-at", "nan"], "--start-at"), (["--start-at", "1e15"], "--start-at"),
+    (["--clock-offset", "1e300"], "--clock-offset"), (["--clock-offset", "nan"],
+                                                        "--clock-offset")])
+def test_node_times_are_checked_before_it_starts(tmp_path, tcaff_main, args, option):
+    line = one_line_error(tcaff_main("node", "--robot", "r0", "--scenario", "indoor_return",
+                                     "--output", str(tmp_path / "out"), *args), option)
+    assert line.startswith(f"error: {option} ")
+
+
+def test_node_refuses_a_state_that_is_a_file(tmp_path, tcaff_main):
+    taken = tmp_path / "state"
+    taken.write_text("keep me")
+    one_line_error(tcaff_main("node", "--robot", "r0", "--scenario", "indoor_return",
+                              "--output", str(tmp_path / "out"), "--state", str(taken)),
+                   "--state")
+    assert taken.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("command", ["demo", "sweep"])
+def test_workers_beyond_the_limit_are_refused_as_the_option(tmp_path, tcaff_main, command):
+    args = ["demo"] if command == "demo" else ["sweep", "tau_window"]
+    done = tcaff_main(*args, "--workers", "1000", "--output", str(tmp_path / "out"))
+    assert done.returncode == 2
+    assert "--workers" in done.stderr and "64" in done.stderr

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -293,3 +294,24 @@ def test_the_scoring_thresholds_reach_the_metrics(tmp_path):
                                                    "overlap_gap_steps": 3,
                                                    "judge_hold": 12.5}}))
     assert thresholds_of(load_methods(str(path))) == Thresholds(0.5, np.radians(2.0), 3, 12.5)
+
+
+@pytest.mark.parametrize(("change", "words"), [
+    # names go into the bags' glob and into file names
+    ({"robots": ["*", "acl_jackal2"]}, "robots must be distinct names"),
+    ({"robots": ["a/b", "acl_jackal2"]}, "robots must be distinct names"),
+    ({"robots": ["acl_jackal2", "acl_jackal2"]}, "robots must be distinct names"),
+    # pathlib's glob refuses absolute patterns with NotImplementedError
+    ({"bags": "/etc/*{robot}*.bag"}, "bags must be a glob relative to --data"),
+    ({"bags": "../*{robot}*.bag"}, "bags must be a glob relative to --data"),
+    # every robot would map every bag
+    ({"bags": "*.bag"}, "bags must be a glob relative to --data that holds {robot}"),
+])
+def test_a_kimera_test_refuses_names_and_globs_that_are_not_one_robots(tmp_path, change, words):
+    from tcaff_gtsam.eval.config import load_kimera_multi
+
+    base = yaml.safe_load(load_kimera_multi("same_direction").model_dump_json())
+    path = tmp_path / "test.yaml"
+    path.write_text(yaml.safe_dump({**base, **change}))
+    with pytest.raises(ConfigError, match=re.escape(words)):
+        load_kimera_multi(path)

@@ -219,3 +219,14 @@ def test_nees_series_where_the_job_kept_covariances(job, tmp_path):
     old = JobResult("old", None, job.pairs,
                     {k: v for k, v in job.arrays.items() if not k.startswith("cov_")})
     assert not any("/nees/" in e for e in read_back(record(tmp_path / "old.rrd", [old])))
+
+
+def test_a_run_whose_saved_arrays_disagree_is_a_data_error(job, tmp_path):
+    """A run file edited or written by something else: the candidates' steps and values of
+    one pair of different lengths. It used to end in an IndexError deep in the drawing."""
+    arrays = dict(job.arrays)
+    key = next(k for k in arrays if k.startswith("cand_z_"))
+    arrays[key] = arrays[key][:0]
+    odd = JobResult("odd", None, job.pairs, arrays)
+    with pytest.raises(DataError, match="odd: its saved arrays disagree"):
+        record(tmp_path / "odd.rrd", [odd])

@@ -209,3 +209,25 @@ def test_export_command_one_line_errors(tmp_path, monkeypatch, capsys):
         assert exited.value.code == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and named in err, err
+
+
+@pytest.mark.parametrize("fmt", ["tum", "g2o", "rosbag2"])
+def test_export_refuses_a_reference_no_job_has_before_writing(tmp_path, fmt):
+    """It used to end in an IndexError after making the folder (tum, g2o), or be ignored
+    (rosbag2)."""
+    make_job(5).save(tmp_path / "runs")
+    with pytest.raises(ConfigError, match="reference 9"):
+        export(tmp_path, fmt, 9)
+    assert not (tmp_path / "trajectories").exists()
+
+
+@pytest.mark.parametrize("fmt", ["tum", "rosbag2"])
+def test_export_into_a_file_where_its_folder_goes_is_a_data_error(tmp_path, fmt):
+    job = make_job(5)
+    job.save(tmp_path / "runs")
+    taken = tmp_path / "trajectories" / job.stem
+    taken.parent.mkdir()
+    taken.write_text("keep me")
+    with pytest.raises(DataError, match=f"its {fmt} files could not be written"):
+        export(tmp_path, fmt)
+    assert taken.read_text() == "keep me"

@@ -65,3 +65,19 @@ def test_help_explains_the_team_commands() -> None:
                          env={"COLUMNS": "200", "PATH": ""}, check=True).stdout
     for command in ("node", "team", "listen"):
         assert command in out
+
+
+def test_a_listen_port_in_use_is_named_not_a_zenoh_error() -> None:
+    import socket
+
+    from tcaff_gtsam.node.link import Link
+
+    from tcaff_gtsam.errors import ConfigError
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(ConfigError, match=rf"--listen \['127.0.0.1:{port}'\] / --connect "
+                                              rf"\[\]: Zenoh cannot open the session"):
+            Link(listen=(f"127.0.0.1:{port}",)).open()

@@ -37,7 +37,7 @@ live = pytest.mark.skipif(bool(_missing or _no_namespace),
                                  f"{_missing or _no_namespace}")
 
 #: a domain per test, none the other tests of the suite use
-DOMAINS = {"team": 41, "objects": 42}
+DOMAINS = {"team": 41, "objects": 42, "params": 43}
 
 
 def start_isolated(script: str, args: list[str], domain_id: int) -> subprocess.Popen:
@@ -393,6 +393,33 @@ def test_dds_options_are_refused_in_one_line(tmp_path: Path, tcaff_main) -> None
     if _missing:  # without ROS 2 a DDS node says what to install
         with pytest.raises(ConfigError, match=r"tcaff-gtsam\[ros2\]"):
             RobotNode("r0", "t", ["r0", "r1"], DdsTransport(), NodeParams())
+
+
+BAD_PARAMS = """
+import sys
+from tcaff_gtsam.errors import ConfigError
+from tcaff_gtsam.node.dds import DdsTransport
+try:
+    DdsTransport(sys.argv[1]).start("r0", int(sys.argv[2]))
+except ConfigError as exc:
+    print(exc)
+    sys.exit(3)
+"""
+
+
+@live
+def test_a_params_file_ros_2_cannot_parse_is_named(tmp_path: Path) -> None:
+    """rcl refuses it as the node starts: the project's error naming the file, not rclpy's
+    RCLError."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("kappa: 20\n/r0/tcaff: {ros__parameters: {kappa: 20}}\n")
+    proc = start_isolated(BAD_PARAMS, [str(bad), str(DOMAINS["params"])], DOMAINS["params"])
+    try:
+        out, err = proc.communicate(timeout=60)
+    finally:
+        stop(proc)
+    assert proc.returncode == 3, err
+    assert out.startswith(f"--params-file {str(bad)!r}: ROS 2 refused to start with it"), out
 
 
 @pytest.mark.parametrize(("given", "expected"), [
