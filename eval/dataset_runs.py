@@ -231,6 +231,12 @@ def _saved(folder: Path, name: str, fingerprint: str, methods: MethodsConfig,
         return None
     if job.info.get("fingerprint") != fingerprint:
         return None
+    if job.metrics:  # the tables written before the job: one of them spoilt since, run again
+        try:
+            json.loads((folder / "metrics.json").read_text())
+        except (OSError, ValueError) as exc:
+            log.warning("%s: results not reusable (metrics.json: %s); running again", name, exc)
+            return None
     summary = (summarize([job], estimate_names(methods), thresholds_of(methods))[name]
                if job.metrics else {})
     if figures and job.metrics and not (folder / "figures").is_dir():

@@ -21,6 +21,7 @@ import json
 import logging
 import os
 import traceback
+import zipfile
 from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -189,11 +190,26 @@ def _write_atomic(path: Path, text: str) -> None:
 
 
 def _job_done(folder: Path) -> bool:
-    return (folder / "job.json").is_file()
+    """Whether the job in `folder` is done: its job.json names its files and its arrays
+    are a whole archive. One that is not is run again now (its job.json removed)."""
+    marker = folder / "job.json"
+    if not marker.is_file():
+        return False
+    try:
+        stem = json.loads(marker.read_text())["stem"]
+        if zipfile.is_zipfile(folder / f"{stem}.npz") and (folder / f"{stem}.json").is_file():
+            return True
+        reason = "its files are missing or cut short"
+    except (ValueError, KeyError, TypeError, OSError) as exc:
+        reason = f"{type(exc).__name__}: {exc}"
+    log.warning("%s: unreadable (%s), run again", folder, reason)
+    marker.unlink(missing_ok=True)
+    return False
 
 
 def jobs_to_run(plan: SweepPlan, folder: Path) -> list[str]:
-    """The hashes of the plan's jobs not done yet in the sweep's `folder`."""
+    """The hashes of the plan's jobs not done yet in the sweep's `folder` (or whose saved
+    files are unreadable)."""
     return [h for h in plan.jobs if not _job_done(folder / "jobs" / h)]
 
 

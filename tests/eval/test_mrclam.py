@@ -324,6 +324,11 @@ def test_command_scores_every_pair_and_resumes(dataset, tmp_path):
     again = CliRunner().invoke(app, [*args, "--no-figures"])
     assert again.exit_code == 0, again.output
     assert again.output.count("reused") == 2
+    # a table spoilt since is written again, not reused with the spoilt file left in place
+    (tmp_path / names[1] / "metrics.json").write_text("{not json")
+    mended = CliRunner().invoke(app, [*args, "--no-figures"])
+    assert mended.exit_code == 0 and mended.output.count("reused") == 1, mended.output
+    json.loads((tmp_path / names[1] / "metrics.json").read_text())
     other = CliRunner().invoke(app, [*args, "--kappa", "10", "--no-figures"])
     assert other.exit_code == 0 and "reused" not in other.output
     # the figures, of two pairs (drawing all 20 pairs' takes most of a run's time) and one
