@@ -117,13 +117,15 @@ def kimera_multi(
         test = test.model_copy(update={"methods": load_methods(methods)})
     console.print(f"Kimera-Multi test [bold]{escape(test.name)}[/]: robots "
                   f"{', '.join(test.robots)}; data {data}")
-    start = time.perf_counter()
+    start, began = time.perf_counter(), time.time()
     try:
         with _bars() as bars:
             outcome = run_kimera_multi(test, data, output, resume, figures, _kimera_bars(bars))
     except TcaffError:
         maps = output / test.name / "maps"
-        saved = sorted(p.stem for p in maps.glob("*.npz")) if maps.is_dir() else []
+        # only what this run mapped: older maps say nothing about it
+        saved = (sorted(p.stem for p in maps.glob("*.npz") if p.stat().st_mtime >= began)
+                 if maps.is_dir() else [])
         if saved:
             err_console.print(f"the maps of {', '.join(saved)} are saved in {maps}; a rerun "
                               f"reuses them")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 from pathlib import Path
 
@@ -427,3 +428,16 @@ def test_a_damaged_saved_map_is_mapped_again_with_a_warning(sequence, mapped, tm
     assert "no reusable maps of sparkal2" in caplog.text
     np.testing.assert_array_equal(again.recorded.job.arrays["est_tcaff"],
                                   first.recorded.job.arrays["est_tcaff"])
+
+
+def test_a_failed_run_does_not_claim_maps_an_earlier_run_left(tmp_path, tcaff_main):
+    """The note that a rerun reuses the maps is for maps this run made, not older ones."""
+    maps = tmp_path / "out" / "same_direction" / "maps"
+    maps.mkdir(parents=True)
+    old = maps / "acl_jackal2.npz"
+    old.write_bytes(b"an earlier run's")
+    os.utime(old, (0, 0))
+    done = tcaff_main("kimera-multi", "--data", str(tmp_path / "missing"), "--output",
+                      str(tmp_path / "out"))
+    assert done.returncode == 2
+    assert "a rerun reuses them" not in done.stderr, done.stderr
