@@ -70,6 +70,9 @@ def _aligner_params(kappa: float, dim: int, solutions: int, min_associations: in
                        min_associations=min_associations, covariance=covariance,
                        clipper=replace(_ALIGNER.clipper, seed=seed), repeat_inflation=0.0)
     except ParameterError as exc:
+        if exc.name == "max_associations":  # checked against --min-associations
+            _refuse("--min-associations", min_associations,
+                    f"must be at most {_ALIGNER.max_associations}")
         if exc.name not in _ALIGNER_OPTIONS:
             raise
         _refuse(_ALIGNER_OPTIONS[exc.name], exc.value, exc.rule)

@@ -424,6 +424,8 @@ def maps(tmp_path_factory):
 @pytest.mark.parametrize(("args", "option"), [
     (["--seed", "-1"], "--seed"), (["--kappa", "nan"], "--kappa"),
     (["--solutions", "0"], "--solutions"), (["--min-associations", "0"], "--min-associations"),
+    # refused by max_associations' rule, an aligner field the command has no option for
+    (["--min-associations", "100000"], "--min-associations"),
     (["--covariance", "bogus"], "--covariance"), (["--now", "inf"], "--now")])
 def test_align_maps_options_are_named(maps, tcaff_main, args, option):
     line = one_line_error(tcaff_main("align-maps", *maps, *args), option)
