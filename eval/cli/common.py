@@ -159,6 +159,26 @@ def _check_duration(duration: float | None) -> None:
         _refuse("--duration", duration, "must be a finite number of seconds >= 1")
 
 
+def _check_speed(speed: float) -> None:
+    if not (math.isfinite(speed) and speed > 0):
+        _refuse("--speed", speed, "must be a finite number > 0 (run seconds per wall second)")
+
+
+#: the latest wall time (epoch s, the year 2286) and the largest clock offset a node takes
+MAX_EPOCH = 1e10
+
+
+def _check_clock(start_at: float | None, clock_offset: float) -> None:
+    """A node's --start-at (None, or a wall time) and --clock-offset, refused when beyond
+    any clock."""
+    if start_at is not None and not (math.isfinite(start_at) and 0 <= start_at <= MAX_EPOCH):
+        _refuse("--start-at", start_at, f"must be a wall time in epoch seconds, 0 to "
+                f"{MAX_EPOCH:g}")
+    if not (math.isfinite(clock_offset) and abs(clock_offset) <= MAX_EPOCH):
+        _refuse("--clock-offset", clock_offset, f"must be a finite number of seconds within "
+                f"+-{MAX_EPOCH:g}")
+
+
 def _writable_folder(path: Path, option: str) -> None:
     """Check, before any work starts, that `path` is a folder results can be written to,
     making it when missing; a `DataError` naming `option` otherwise."""

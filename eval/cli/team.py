@@ -17,8 +17,10 @@ import typer
 from .common import (
     _add_columns,
     _bars,
+    _check_clock,
     _check_duration,
     _check_seeds,
+    _check_speed,
     _console,
     _keep_numbers_whole,
     _refuse,
@@ -45,8 +47,6 @@ class Ros2Transport(str, Enum):
 _ROS2_HELP = ("'dds': an rclpy node on the environment's middleware, maps and alignments on "
               "ROS 2 topics alone (docs/ros2.md); 'zenoh': the Zenoh team, also publishing "
               "rmw_zenoh-layout topics (docs/team.md#ros-2).")
-#: the latest wall time (epoch s, the year 2286) and the largest clock offset a node takes
-MAX_EPOCH = 1e10
 _DOMAIN_HELP = "The ROS 2 domain (ROS_DOMAIN_ID) of those topics, 0 to 232."
 _PARAMS_FILE_HELP = ("With --ros2 dds: a ROS 2 parameters YAML for /<robot>/tcaff (kappa, "
                      "silence, queue, team_consistency, health_period).")
@@ -116,11 +116,6 @@ def _simulated(scenario: str, seed: int, duration: float | None):
     if duration is not None:
         config = override(config, "--duration", duration=min(duration, config.duration))
     return simulate(config, seed)
-
-
-def _check_speed(speed: float) -> None:
-    if not (math.isfinite(speed) and speed > 0):
-        _refuse("--speed", speed, "must be a finite number > 0 (run seconds per wall second)")
 
 
 @app.command()
@@ -213,14 +208,9 @@ def node(
     _check_domain(domain_id)
     _check_speed(speed)
     _check_seeds([seed])  # before the endpoints are checked: the run is made after them
-    if start_at is not None and not (math.isfinite(start_at) and 0 <= start_at <= MAX_EPOCH):
-        _refuse("--start-at", start_at, f"must be a wall time in epoch seconds, 0 to "
-                f"{MAX_EPOCH:g}")
-    if not (math.isfinite(clock_offset) and abs(clock_offset) <= MAX_EPOCH):
-        _refuse("--clock-offset", clock_offset, f"must be a finite number of seconds within "
-                f"+-{MAX_EPOCH:g}")
-    if state is not None and state.exists() and not state.is_dir():
-        _refuse("--state", str(state), "exists and is not a folder")
+    _check_clock(start_at, clock_offset)
+    if state is not None:
+        _writable_folder(state, "--state")
     if drop_seed < 0:
         _refuse("--drop-seed", drop_seed, "must be an int >= 0")
     if ros2 is None and ros2_objects:
