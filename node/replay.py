@@ -74,9 +74,14 @@ class RobotReplay:
                                 ("centroids", "widths", "heights", "last_seen")))
                     for k in range(len(sizes))]
             window = int(data["window"])
-            return cls(tuple(str(r) for r in data["robots"]), int(data["robot"]),
-                       data["times"].astype(float), maps, float(data["kappa"]),
-                       None if window < 0 else window)
+            times = data["times"].astype(float)
+            # checked here, not when the first exchange is due after the team is awaited
+            if (times.shape != (len(maps),) or not np.all(np.isfinite(times))
+                    or np.any(np.diff(times) <= 0)):
+                raise ValueError(f"its {times.size} times must be finite and increasing, one "
+                                 f"per map ({len(maps)})")
+            return cls(tuple(str(r) for r in data["robots"]), int(data["robot"]), times, maps,
+                       float(data["kappa"]), None if window < 0 else window)
         except (KeyError, ValueError, TypeError) as exc:
             raise DataError(f"{path}: not a robot replay ({exc})") from None
 

@@ -81,3 +81,23 @@ def test_a_listen_port_in_use_is_named_not_a_zenoh_error() -> None:
         with pytest.raises(ConfigError, match=rf"--listen \['127.0.0.1:{port}'\] / --connect "
                                               rf"\[\]: Zenoh cannot open the session"):
             Link(listen=(f"127.0.0.1:{port}",)).open()
+
+
+@pytest.mark.parametrize("times", [[0.0, float("nan"), 2.0], [0.0, 2.0, 1.0], [0.0, 1.0]])
+def test_a_replay_whose_times_cannot_be_a_schedule_is_refused_on_load(tmp_path, times) -> None:
+    """Refused when read, not after a node has waited for its team and reached the first
+    exchange due (it waited two minutes before)."""
+    import numpy as np
+    from tcaff_gtsam.node.replay import RobotReplay
+
+    from tcaff_gtsam import ObjectMap
+    from tcaff_gtsam.errors import DataError
+
+    maps = [ObjectMap(np.zeros((1, 3)), np.ones(1), np.ones(1), np.zeros(1))] * 3
+    good = RobotReplay(("r0", "r1"), 0, np.array([0.0, 1.0, 2.0]), maps, 20.0, None)
+    good.save(tmp_path / "good.npz")
+    RobotReplay.load(tmp_path / "good.npz")
+    bad = RobotReplay(("r0", "r1"), 0, np.array(times), maps, 20.0, None)
+    bad.save(tmp_path / "bad.npz")
+    with pytest.raises(DataError, match="times must be finite and increasing, one per map"):
+        RobotReplay.load(tmp_path / "bad.npz")
