@@ -73,6 +73,15 @@ class TlsFiles:
                 raise ConfigError(f"--tls-{name.replace('certificate', 'cert')} {str(path)!r}: "
                                   f"no such file")
             object.__setattr__(self, name, path)
+        # read now, as Zenoh reads them only when a link opens (a listener with garbage files
+        # used to run unlinked and exit 0)
+        try:
+            ssl.create_default_context(cafile=str(self.ca)).load_cert_chain(
+                str(self.certificate), str(self.key))
+        except (ssl.SSLError, OSError, ValueError) as exc:
+            raise ConfigError(f"--tls-ca/--tls-cert/--tls-key {str(self.ca)!r}, "
+                              f"{str(self.certificate)!r}, {str(self.key)!r}: not a PEM "
+                              f"certificate authority, certificate and its key ({exc})") from None
 
 
 def common_name(certificate: Path) -> str | None:

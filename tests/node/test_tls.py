@@ -118,6 +118,20 @@ def test_missing_certificate_files_are_refused(tmp_path: Path) -> None:
         TlsFiles(tmp_path / "ca.pem", tmp_path / "node.pem", tmp_path / "node.key")
 
 
+def test_files_that_are_not_the_certificates_are_refused_when_given(certs, tmp_path) -> None:
+    """Zenoh reads them only when a link opens: a listener given garbage ran unlinked."""
+    garbage = tmp_path / "garbage.pem"
+    garbage.write_text("not a pem")
+    r0, r1 = certs["r0"], certs["r1"]
+    for files in ((garbage, r0.certificate, r0.key), (r0.ca, garbage, r0.key),
+                  (r0.ca, r0.certificate, garbage),
+                  (r0.ca, r0.certificate, r1.key)):  # a key of another certificate
+        with pytest.raises(ConfigError, match="not a PEM certificate authority, certificate "
+                                              "and its key"):
+            TlsFiles(*files)
+    TlsFiles(r0.ca, r0.certificate, r0.key)
+
+
 @pytest.mark.parametrize("identities", [True, None, False])
 def test_a_team_certificate_of_r3_cannot_publish_r1s_map(certs, identities) -> None:
     """With identities, r0 takes r1's map only from r1's certificate: r3's certificate, of the
