@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.errors import ConfigError, DataError, reason
 from tcaff_gtsam.params import _finite, _int_at_least, _require
 
 from .ros2 import (
@@ -241,7 +241,7 @@ class DdsTransport:
                        signal_handler_options=SignalHandlerOptions.NO)
         except _rclpy.RCLError as exc:  # a params file rcl cannot parse, say
             raise ConfigError(f"--params-file {str(self.params_file)!r}: ROS 2 refused to start "
-                              f"with it ({str(exc).strip().splitlines()[0]})") from None
+                              f"with it ({reason(exc)})") from None
         self._context = context
         try:
             self._ros = Node("tcaff", namespace=f"/{robot}", context=context)

@@ -16,7 +16,7 @@ import ssl
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from tcaff_gtsam.errors import ConfigError
+from tcaff_gtsam.errors import ConfigError, reason
 
 __all__ = ["Link", "TlsFiles", "alignment_key", "alive_key", "check_name", "common_name",
            "identity_rules", "map_key", "team_key", "team_keys"]
@@ -192,10 +192,9 @@ class Link:
         try:
             return zenoh.open(config)
         except zenoh.ZError as exc:
-            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else "no reason given"
             raise ConfigError(f"--listen {list(self.listen)} / --connect "
                               f"{list(self.connect)}: Zenoh cannot open the session "
-                              f"({reason})") from None
+                              f"({reason(exc)})") from None
 
 
 def warn_shared_certificate(certificate: Path, robot: str) -> None:

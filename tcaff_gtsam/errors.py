@@ -17,3 +17,10 @@ class ConfigError(TcaffError, ValueError):
 
 class ModelError(TcaffError):
     """A model file is missing or does not have the expected signature."""
+
+
+def reason(exc: BaseException) -> str:
+    """The first line of what `exc` says (gtsam's messages begin with a newline and run on),
+    or its type's name when it says nothing: for an error of ours that names its cause."""
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__

@@ -41,7 +41,7 @@ from collections import Counter, defaultdict
 import gtsam
 import numpy as np
 
-from .errors import ConfigError, DataError
+from .errors import ConfigError, DataError, reason
 from .geometry import (
     _se2_from_params,
     _se2_to_params,
@@ -396,8 +396,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             if self._keeps_joints and self._steps:
                 # the latest step's joint, which it keeps when the next step comes: computed
                 # here, so that a graph whose marginals gtsam cannot compute rolls back
-                self._joints.pop(self._steps[-1], None)
-                self._latest_joint(self._steps[-1])
+                self._joints[self._steps[-1]] = self._joint(self._steps[-1])
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             if stale is not None:
                 self._removed, self._stale = stale
@@ -412,12 +411,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             dropped, self._queued = self._queued, later
             self._pending_values, self._to_remove = gtsam.Values(), []
             tags = [q.tag for q in dropped if q.tag and q.tag[0] != "free"]
-            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             self._roll_back(gone, marginals, step, leaving, pending)  # last: it can raise
             raise DataError(f"update: gtsam could not solve the graph with the {len(dropped)} "
-                            f"factors queued for this update ({reason}); they were dropped and "
-                            f"the graph is as it was before (tagged among them: {tags[:5]})"
-                            ) from None
+                            f"factors queued for this update ({reason(exc)}); they were dropped "
+                            f"and the graph is as it was before (tagged among them: "
+                            f"{tags[:5]})") from None
         for q, index in zip(self._queued, indices, strict=True):
             self._active[index] = q
             self._count(q, index, +1)

@@ -9,7 +9,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from .errors import DataError
+from .errors import DataError, reason
 from .graph_inputs import _components, alignment_key
 from .inputs import output_path
 
@@ -61,7 +61,7 @@ class GraphReadout:
                     gtsam.KeyVector([ki, kj])).fullMatrix()
         except RuntimeError as exc:  # the graph stays as it is: its estimates can be read
             raise DataError(f"alignment: gtsam could not compute the covariance of step "
-                            f"{step} ({str(exc).strip()[:80]}); read the alignment with "
+                            f"{step} ({reason(exc)}); read the alignment with "
                             f"covariance=False") from None
         if every is not None:
             n = 3 if self._planar else 6

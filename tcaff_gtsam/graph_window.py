@@ -11,7 +11,7 @@ from bisect import bisect_left
 import gtsam
 import numpy as np
 
-from .errors import DataError
+from .errors import DataError, reason
 from .graph_inputs import (
     _a_key,
     _components,
@@ -36,9 +36,9 @@ class SlidingWindow:
 
     def _latest_joint(self, step: int) -> np.ndarray:
         """The joint of the latest step as it is now, kept until the graph changes (with a
-        horizon or `past_covariance="causal"`): the first read of the step computes it (a
-        caller reading every pair pays for one joint, not a marginal per pair), else the
-        update that adds the next step, which keeps it as the step's causal joint."""
+        horizon or `past_covariance="causal"`): the update that commits the step computes it
+        (and keeps it as the step's causal joint when the next comes); a read computes it
+        where none is kept (after an update that failed computing it)."""
         joint = self._joints.get(step)
         if joint is None:
             joint = self._joints[step] = self._joint(step)
@@ -273,7 +273,7 @@ class SlidingWindow:
             except RuntimeError as exc:
                 self._isam = old
                 raise DataError(f"InterRobotGraph: gtsam could not solve the graph again in a "
-                                f"new solver ({str(exc).strip()[:80]}); the graph cannot be "
+                                f"new solver ({reason(exc)}); the graph cannot be "
                                 f"used further") from None
         remap = dict(zip(active, indices[:len(active)], strict=True))
         self._active = {remap[i]: f for i, f in active.items()}

@@ -52,7 +52,8 @@ from .tcaff_state import JITTER_CAP, FilterState, _not_spd, write_snapshot  # no
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
 
-_FLOAT_MAX = float(np.finfo(float).max)
+#: the largest entry a reported covariance is scaled to (half the largest float)
+_LARGEST_ENTRY = float(np.finfo(float).max) / 2.0
 
 log = logging.getLogger(__name__)
 
@@ -519,8 +520,8 @@ class TCAFF(FilterState):
         if scale <= 1.0:
             return estimate
         largest = float(np.abs(estimate.P).max())
-        if scale * largest > _FLOAT_MAX / 2.0:  # no further than the largest finite covariance
-            scale = max(1.0, _FLOAT_MAX / 2.0 / largest)
+        if scale * largest > _LARGEST_ENTRY:
+            scale = max(1.0, _LARGEST_ENTRY / largest)
         return replace(estimate, P=estimate.P * scale)
 
     def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:

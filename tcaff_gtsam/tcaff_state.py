@@ -180,7 +180,8 @@ class FilterState:
                     for c, (o, n) in enumerate(zip(objects, known, strict=True))):
                 raise DataError("TCAFF state: the stored objects do not match the steps' "
                                 "measurements")
-        if counters["step"] == 0 and (dormant[0] is not None or counters["hypothesis"]
+        if counters["step"] == 0 and ("main" in trees or len(trees["explore"])
+                                      or dormant[0] is not None or counters["hypothesis"]
                                       or counters["_next_tree"]):
             raise DataError("TCAFF state: hypotheses at step 0, before any measurement")
         before = self.state_dict()
@@ -251,8 +252,6 @@ class FilterState:
         limit = np.where(known < 0, np.iinfo(np.int32).max, known)
         if "main" not in trees and "rival" in trees:
             raise DataError("TCAFF state: a rival without a main tree")
-        if step == 0 and ("main" in trees or len(trees["explore"])):
-            raise DataError("TCAFF state: hypotheses at step 0, before any measurement")
         for name, leaves in trees.items():
             _check_covariances(f"{name}.x", leaves.x, f"{name}.P", leaves.P)
             if not np.all(np.isfinite(leaves.edge)):
@@ -342,7 +341,7 @@ class FilterState:
         """The jitter record of a `state_dict` and the latest measurement of the main
         hypothesis (empty and None in states saved before they were recorded); DataError
         when the steps are not increasing, from step 2, within the last `jitter_span`
-        steps, the values not finite and >= 0, or the measurement not a finite state with
+        steps, the values outside [0, JITTER_CAP], or the measurement not a finite state with
         an SPD covariance of a step and hypothesis the filter has reached."""
         d, step = self.params.dim, counters["step"]
         if "jitter.steps" not in state:

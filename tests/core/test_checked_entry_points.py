@@ -105,3 +105,15 @@ def test_a_path_that_cannot_be_written_is_a_data_error(tmp_path):
     assert output_path("x", str(tmp_path / "m.npz")) == tmp_path / "m.npz"
     with pytest.raises(DataError, match="shown: limit must be an int >= 4"):
         shown(1, None)
+
+
+def test_the_reason_of_a_foreign_error_is_its_first_line_or_its_kind():
+    """What errors of ours quote of gtsam's, Zenoh's or rcl's: gtsam's start with a newline
+    and run on over lines."""
+    from tcaff_gtsam.errors import reason
+
+    assert reason(RuntimeError("\nIndeterminate linear system detected while working near "
+                               "variable\n1 (Symbol: a1).\n\nThrown when...")) == (
+        "Indeterminate linear system detected while working near variable")
+    assert reason(RuntimeError("")) == "RuntimeError"
+    assert reason(OSError("  \n ")) == "OSError"
