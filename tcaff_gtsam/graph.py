@@ -365,7 +365,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         now, restored = self._cycle_checked(
             self._shared_maps_weighed(now) if self.params.shared_maps else now)
         self._queued = now + restored
-        leaving = self._leaving(step)
+        leaving, kept = self._leaving(step)
         self._fix_gauge()
         if not self._queued and not self._to_remove:
             self._queued = later
@@ -389,7 +389,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         marginals = {i: factors.at(i) for i in self._marginal}
         stale = (dict(self._removed), set(self._stale)) if gone or restored else None
         try:
-            indices = self._commit(graph, self._pending_values, self._to_remove, removed_keys)
+            indices = self._commit(graph, self._pending_values, self._to_remove,
+                                   removed_keys | kept)
             self._settle(touched)
             self._mark_stale(gone, restored, newest)
             joints = self._leaving_joints(leaving)

@@ -36,9 +36,8 @@ class KeyframeFactors:
         keyframes are linked to the previous one by the odometry between them.
 
         With `GraphParams.horizon`, a keyframe leaves the graph with the step of the first
-        `update(step)` after it was added. A keyframe whose predecessor has left starts its
-        robot's chain again, as a first keyframe does: nothing in the graph would still hold
-        the odometry between them.
+        `update(step)` after it was added, except a robot's latest: it stays until the next
+        is added, so that the odometry between them has both to act on.
 
         Args:
             T_o_b: (3, 3) SE(2) or (4, 4) SE(3) matrix.
@@ -54,9 +53,7 @@ class KeyframeFactors:
         if last is not None and index <= last:
             raise DataError(f"add_keyframe: robot {robot} index {index} is not after {last}")
         frames = self._keyframes[robot]
-        if last not in frames:  # the first, or its predecessor left the graph
-            for link in [link for link in self._links if ("X", robot) in link]:
-                del self._links[link]  # what linked the chain that left went with it
+        if last is None:
             if robot == 0:  # robot 0's odometry frame is the common frame
                 self._insert(key, T)
                 self._queue_prior(key, T, (self.params.anchor_sigma,) * 2)

@@ -14,12 +14,10 @@ import numpy as np
 from .errors import DataError, reason
 from .graph_inputs import (
     _a_key,
-    _components,
     _Factor,
     _key_list,
     _keyframe_of,
     _step_of,
-    _x_key,
 )
 
 __all__ = ["SlidingWindow"]
@@ -66,36 +64,42 @@ class SlidingWindow:
         self._isam = gtsam.ISAM2(isam_params)
 
     def _solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-               remove: list[int], removed_keys=()) -> gtsam.ISAM2Result:
+               remove: list[int], reelim=()) -> gtsam.ISAM2Result:
         """One iSAM2 update. With a horizon, the part of the Bayes tree it eliminates again is
         ordered by the variables' groups (the rank of their step), so that no variable has a
         newer one below it: what leaves is then always a set of leaves, and marginalising it
         touches only their cliques (gtsam's fixed-lag smoother instead eliminates the whole
-        path from them to the root, the whole horizon, every time). `removed_keys`: the
-        variables of the factors `remove` lists."""
+        path from them to the root, the whole horizon, every time). `reelim`: variables to
+        eliminate again whatever the new factors touch: those of the removed factors (the
+        prediction leaves them out) and keyframes whose group changed (`_leaving`)."""
         if self.params.horizon is None:
             return self._isam.update(graph, values, remove)
         update = gtsam.ISAM2UpdateParams()
         update.removeFactorIndices = remove
-        if remove:  # the prediction leaves out the variables of removed factors
-            update.extraReelimKeys = _key_list(removed_keys)
+        if reelim:
+            update.extraReelimKeys = _key_list(reelim)
         affected, batch = self._isam.predictUpdateInfo(graph, values, update)
         affected = ([*self._isam.getLinearizationPoint().keys(), *values.keys()] if batch
                     else list(affected))
+        return self._ordered_update(graph, values, update, affected)
+
+    def _ordered_update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                        update: gtsam.ISAM2UpdateParams, keys) -> gtsam.ISAM2Result:
+        """iSAM2's update with `keys`, the variables it eliminates, ordered by their groups."""
         # ccolamd wants the groups numbered from 0 without gaps
-        groups = [self._group(key) for key in affected]
+        groups = [self._group(key) for key in keys]
         dense = {g: n for n, g in enumerate(sorted(set(groups)))}
         constrained = gtsam.KeyGroupMap()  # the attribute keeps a copy: fill it first
-        for key, g in zip(affected, groups, strict=True):
+        for key, g in zip(keys, groups, strict=True):
             constrained.insert2(key, dense[g])
         update.constrainedKeys = constrained
         return self._isam.update(graph, values, update)
 
     def _commit(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                remove: list[int], removed_keys=()) -> list[int]:
-        """New factors, new values, removals (and their factors' variables); the new
-        factors' indices."""
-        return list(self._solve(graph, values, remove, removed_keys).getNewFactorsIndices())
+                remove: list[int], reelim=()) -> list[int]:
+        """New factors, new values, removals and variables to eliminate again (`_solve`); the
+        new factors' indices."""
+        return list(self._solve(graph, values, remove, reelim).getNewFactorsIndices())
 
     def _group(self, key: int) -> int:
         """Elimination group of a variable: the rank in self._steps of its step (for a
@@ -123,42 +127,38 @@ class SlidingWindow:
         order, and `_left` holds the latest of those that left."""
         return self._n_left - len(self._left)
 
-    def _leaving(self, step: int | None) -> list[int]:
+    def _leaving(self, step: int | None) -> tuple[list[int], set[int]]:
         """With a horizon: the ranks (in self._steps) of the steps the update to `step` lets
-        leave. Gauge priors on what leaves are moved to the latest step first (a prior
-        marginalised into the graph could never be removed when the robots connect)."""
+        leave, and the keyframes that stay though their step leaves: each robot's latest, kept
+        until its successor comes, so that the odometry to it always has its predecessor to act
+        on (one keyframe more per robot at most; a chain that restarted instead would leave the
+        robots tied to robot 0 through it free). They join the newest step's group and are
+        eliminated again. Gauge priors on what leaves are moved to the latest step first (a
+        prior marginalised into the graph could never be removed when the robots connect)."""
         horizon = self.params.horizon
         if horizon is None or step is None:
-            return []
-        first = self._n_left
+            return [], set()
+        first, newest = self._n_left, len(self._steps) - 1
+        kept = set()
         while self._n_left < len(self._steps) and self._steps[self._n_left] <= step - horizon:
-            # a keyframe held only by the gauge prior moved below leaves with no factor
-            # (iSAM2 drops it), so its estimate is kept now; `_marginalise` updates it
-            for key in self._keyframes_at.get(self._n_left, []):
+            at = self._keyframes_at.get(self._n_left, [])
+            for key in list(at):
                 robot, index = _keyframe_of(key)
-                self._left_keyframes[robot][index] = self._value(key)
+                if self._last_keyframe[robot] == index:
+                    at.remove(key)
+                    self._keyframes_at[newest].append(key)
+                    self._keyframe_rank[key] = newest
+                    kept.add(key)
+                else:
+                    # a keyframe held only by the gauge prior moved below leaves with no
+                    # factor (iSAM2 drops it), so its estimate is kept now; `_marginalise`
+                    # updates it
+                    self._left_keyframes[robot][index] = self._value(key)
             self._n_left += 1
-        leaving = [(chain, index) for chain, index in self._free.items()
-                   if index not in self._to_remove
-                   and self._has_left(self._active[index].keys[0])]
-        if leaving:
-            # a group of chains that leaves whole takes its prior along: removed, it would
-            # leave the group's last variables free while they are marginalised
-            whole = self._leaving_whole()
-            self._to_remove.extend(index for chain, index in leaving if chain not in whole)
-        return list(range(first, self._n_left))
-
-    def _leaving_whole(self) -> set[tuple]:
-        """The chains whose whole group of linked chains (committed or queued links) leaves
-        with this update: chains of keyframes only (a robot's alignments go on with every
-        step), each with its last keyframe gone."""
-        links = [*self._links, *(q.link for q in self._queued if q.link)]
-        chains = {chain for link in links for chain in link}
-        chains |= {("X", robot) for robot in self._last_keyframe}
-        root = _components(chains, links)
-        staying = {root(c) for c in chains
-                   if c[0] == "A" or not self._has_left(_x_key(c[1], self._last_keyframe[c[1]]))}
-        return {c for c in chains if root(c) not in staying}
+        self._to_remove.extend(index for chain, index in self._free.items()
+                               if index not in self._to_remove
+                               and self._has_left(self._active[index].keys[0]))
+        return list(range(first, self._n_left)), kept
 
     def _leaving_joints(self, ranks: list[int]) -> dict[int, np.ndarray]:
         """The joint each step at `ranks` leaves with, by step: the one kept by the update that
@@ -180,6 +180,9 @@ class SlidingWindow:
         those steps that the cycle check holds out can never come back: dropped.
         `marginals`: the marginal factors of what left before, by index (a refused
         marginalisation drops them from gtsam's graph)."""
+        if self._converge():  # a new solver, with marginal factors of its own
+            factors = self._isam.getFactorsUnsafe()
+            marginals = {i: factors.at(i) for i in self._marginal}
         if ranks and self._suspended:
             gone = {self._steps[rank] for rank in ranks}
             for held_out in self._suspended.values():
@@ -223,6 +226,88 @@ class SlidingWindow:
         self._marginal.update(marginal)
         if self._free:
             self._free = {chain: i for chain, i in self._free.items() if i in active}
+
+    def _converge(self) -> bool:
+        """After a big correction (`_settle` iterated) or while a variable of a marginal
+        factor is `settle_threshold` from its linearisation point, a new solver from the
+        current estimate, iterated until no variable is `relinearize_threshold` from its
+        linearisation point; returns whether that was done. gtsam never relinearises the
+        variables of its marginal factors: a group of keyframe chains that joins robot 0
+        after its first keyframes left moves by metres and radians, while the factors on its
+        fixed variables stay linearised where they were. And iSAM2's partial check does not
+        descend below a clique that converged, where the horizon's ordering puts the oldest
+        variables. In the new solver the marginal factors hold their linearisation point,
+        moved with their variables where they hold relative information only (`_moved`).
+        Where gtsam fails on the way the graph keeps its solver as it was."""
+        if self.params.horizon is None:  # nothing is marginalised, nothing fixed
+            return False
+        isam = self._isam
+        delta = isam.getDelta()
+        fixed = [key for key in isam.getFixedVariables() if delta.exists(key)]
+        far = float(np.abs(delta.vector(fixed)).max()) if fixed else 0.0
+        if self._settled_from is None and far < self.params.settle_threshold:
+            return False
+        theta, estimate = isam.getLinearizationPoint(), isam.calculateEstimate()
+        factors = isam.getFactorsUnsafe()
+        moved = [self._moved(factors.at(i), theta, estimate) for i in self._marginal]
+        before = (isam, self._active, self._marginal, self._free)
+        threshold = self.params.relinearize_threshold
+        try:
+            self._rebuild(dict(self._active), moved, estimate, set())
+            for _ in range(self.params.max_iterations):
+                if np.abs(self._isam.getDelta().vector()).max() < threshold:
+                    break
+                self._relinearise_all()
+        except (DataError, RuntimeError):
+            self._isam, self._active, self._marginal, self._free = before
+            return False
+        return True
+
+    def _moved(self, marginal, theta: gtsam.Values, estimate: gtsam.Values):
+        """A marginal factor (linear about `theta`) as a linear factor holding its
+        linearisation point, that point moved rigidly onto `estimate` where the factor holds
+        relative information only (no more information on a rigid motion of its variables
+        than a gauge prior gives: a group of chains free of robot 0's anchor when it was
+        made). Between-factors see relative poses only, so the moved factor is the same linear
+        factor, where the old point reads a rigid move of the group as a violation of it,
+        badly so for large rotations."""
+        linear = marginal.linearize(theta)
+        keys = list(linear.keys())
+        pose = (lambda values, key: values.atPose2(key)) if self._planar else (
+            lambda values, key: values.atPose3(key))
+        before = [pose(theta, key) for key in keys]
+        # a rigid motion G of the group moves each variable's tangent by Ad(X^-1) G's
+        V = np.vstack([X.inverse().AdjointMap() for X in before])
+        on_motion = V.T @ linear.information() @ V
+        if np.linalg.eigvalsh(on_motion).max() <= 1.0 / min(self.params.free_sigmas) ** 2:
+            G = self._rigid_motion(before, [pose(estimate, key) for key in keys])
+            before = [G.compose(X) for X in before]
+        point = gtsam.Values()
+        for key, X in zip(keys, before, strict=True):
+            point.insert(key, X)
+        return gtsam.LinearContainerFactor(linear, point)
+
+    def _rigid_motion(self, before: list, after: list):
+        """G with G before[i] ~ after[i] (gtsam poses): least squares in the plane, the first
+        pair's in 3D."""
+        if not self._planar:
+            return after[0].compose(before[0].inverse())
+        turns = [a.theta() - b.theta() for a, b in zip(after, before, strict=True)]
+        theta = float(np.arctan2(np.mean(np.sin(turns)), np.mean(np.cos(turns))))
+        c, s = np.cos(theta), np.sin(theta)
+        R = np.array([[c, -s], [s, c]])
+        t = np.mean([a.translation() - R @ b.translation()
+                     for a, b in zip(after, before, strict=True)], axis=0)
+        return gtsam.Pose2(float(t[0]), float(t[1]), theta)
+
+    def _relinearise_all(self) -> None:
+        """One iSAM2 iteration, in the horizon's order, relinearising every variable that is
+        `relinearize_threshold` from its linearisation point (its delta solved in full first,
+        whatever `relinearize_skip`)."""
+        update = gtsam.ISAM2UpdateParams()
+        update.forceFullSolve = update.force_relinearize = True
+        self._ordered_update(gtsam.NonlinearFactorGraph(), gtsam.Values(), update,
+                             list(self._isam.getLinearizationPoint().keys()))
 
     def _marginalise_rebuilt(self, keys: list[int], marginals: dict) -> None:
         """Marginalise `keys` where gtsam's marginalisation of leaves refused them, in a new
@@ -311,8 +396,8 @@ class SlidingWindow:
                 frames = self._keyframes[robot]
                 del frames[index]
                 self._keyframes_at[self._keyframe_rank.pop(key)].remove(key)
-                before = max(frames, default=max(self._left_keyframes[robot],
-                                                 default=self._forgotten_keyframe.get(robot)))
+                # a robot's latest keyframe stays in the graph (`_leaving`)
+                before = max(frames, default=None)
                 if before is None:
                     del self._last_keyframe[robot]
                 else:
