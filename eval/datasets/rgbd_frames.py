@@ -22,6 +22,8 @@ from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.geometry import se3_from_rt
 
+from .image_files import read_image
+
 __all__ = ["PRIMESENSE", "RealFrame", "load_folder", "load_nyu", "load_redwood", "load_tum"]
 
 #: Kinect v1 / PrimeSense default intrinsics (525, 525, 319.5, 239.5) at 640 x 480.
@@ -56,15 +58,8 @@ class RealFrame:
     T_body_camera: np.ndarray
 
 
-def _read(path: Path, flags: int) -> np.ndarray:
-    image = cv2.imread(str(path), flags)
-    if image is None:
-        raise DataError(f"cannot read the image {path}")
-    return image
-
-
 def _rgb(path: Path) -> np.ndarray:
-    return np.ascontiguousarray(_read(path, cv2.IMREAD_COLOR)[..., ::-1])
+    return np.ascontiguousarray(read_image(path, cv2.IMREAD_COLOR)[..., ::-1])
 
 
 def load_tum(folder: Path | str) -> RealFrame:
@@ -72,7 +67,7 @@ def load_tum(folder: Path | str) -> RealFrame:
     intrinsics. The frame carries no pose; the camera, handheld over a desk, looks 25 degrees
     down from 1.7 m (from the floor plane seen in the frame)."""
     folder = Path(folder)
-    depth = _read(folder / "TUM_depth.png", cv2.IMREAD_UNCHANGED)
+    depth = read_image(folder / "TUM_depth.png", cv2.IMREAD_UNCHANGED)
     if depth.dtype != np.uint16:
         raise DataError(f"{folder / 'TUM_depth.png'}: expected 16-bit depth, got {depth.dtype}")
     return RealFrame("TUM", _rgb(folder / "TUM_color.png"),
@@ -85,7 +80,7 @@ def load_nyu(folder: Path | str) -> RealFrame:
     pose; the camera looks 15 degrees down from 1.6 m (from the floor plane seen in the
     frame)."""
     folder = Path(folder)
-    raw = _read(folder / "NYU_depth.pgm", cv2.IMREAD_UNCHANGED)
+    raw = read_image(folder / "NYU_depth.pgm", cv2.IMREAD_UNCHANGED)
     if raw.dtype != np.uint16:
         raise DataError(f"{folder / 'NYU_depth.pgm'}: expected 16-bit disparity, got {raw.dtype}")
     # OpenCV hands back the 16-bit samples with the file's (big-endian) byte order
@@ -123,7 +118,7 @@ def load_redwood(folder: Path | str) -> list[RealFrame]:
         raise DataError(f"{folder}: {len(colours)} colour and {len(depths)} depth images "
                         f"for {len(poses)} poses")
     for d_path, c_path, T_world_gl in zip(depths, colours, poses, strict=False):
-        depth = _read(d_path, cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0
+        depth = read_image(d_path, cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0
         R_level_camera = _level(R_zup_yup @ T_world_gl[:3, :3] @ R_gl_optical)
         frames.append(RealFrame(f"redwood_{d_path.stem}", _rgb(c_path), depth, camera,
                                 se3_from_rt(R_level_camera, (0.0, 0.0, REDWOOD_HEIGHT))))

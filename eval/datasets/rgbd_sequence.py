@@ -26,8 +26,8 @@ the direction of gravity in it. Depth stays in raw units (`depth_scale` per metr
 Loading reads the text files and the sizes of the first colour and depth images (from their
 headers); `RgbdSequence.read` decodes a frame's images. Anything wrong (a missing file, a row
 with the wrong number of columns, a non-number, a non-finite value, a time stamp that repeats
-or goes backwards, an image that does not exist, a pose that is not rigid) is a `DataError`
-naming the file and, for text tables, the line.
+or goes backwards, an image that does not exist or is cut short, a pose that is not rigid) is
+a `DataError` naming the file and, for text tables, the line (for images, the frame).
 
     seq = read_sequence("../shared/data/rgbd/7scenes_redkitchen")
     rgb, depth = seq.read(0)           # depth / seq.depth_scale: metres
@@ -52,6 +52,7 @@ from tcaff_gtsam.mapping.camera import PinholeCamera, rigid_transform
 
 from tcaff_gtsam.errors import ConfigError, DataError
 
+from .image_files import read_image
 from .text_tables import data_lines, number, read_table, read_text
 
 __all__ = [
@@ -140,8 +141,8 @@ class RgbdSequence:
         (position, 0..F-1), with (H, W) the camera's.
 
         Raises:
-            DataError: k not a position of a frame; an image missing, unreadable, of the
-                wrong dtype, channels or size (naming the file).
+            DataError: k not a position of a frame; an image missing, unreadable, cut short,
+                of the wrong dtype, channels or size (naming the file and the frame id).
         """
         try:
             position = operator.index(k)
@@ -150,8 +151,11 @@ class RgbdSequence:
         if position is None or isinstance(k, bool) or not 0 <= position < len(self):
             raise DataError(f"k = {k!r}: must be a frame position, an int in 0..{len(self) - 1}"
                             f" ({len(self)} frames)")
-        rgb = _read_color(self.color_paths[position], self.camera)
-        depth = _read_depth(self.depth_paths[position], self.camera)
+        try:
+            rgb = _read_color(self.color_paths[position], self.camera)
+            depth = _read_depth(self.depth_paths[position], self.camera)
+        except DataError as exc:
+            raise DataError(f"{exc} (frame {self.frame_ids[position]})") from None
         if self.layout == "7scenes":
             depth[depth == _NO_DEPTH_7SCENES] = 0
         return rgb, depth
@@ -357,15 +361,6 @@ def _camera(folder: Path, default: tuple[float, float, float, float], default_na
         raise DataError(f"{path}: {exc}") from None
 
 
-def _read_image(path: Path, what: str) -> np.ndarray:
-    if not path.is_file():
-        raise DataError(f"{path}: no such {what} image")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise DataError(f"{path}: cannot read the {what} image (not an image OpenCV decodes)")
-    return image
-
-
 def _check_size(path: Path, image: np.ndarray, camera: PinholeCamera, what: str) -> None:
     if image.shape[:2] != camera.shape:
         raise DataError(f"{path}: the {what} image is {image.shape[1]} x {image.shape[0]} "
@@ -373,7 +368,7 @@ def _check_size(path: Path, image: np.ndarray, camera: PinholeCamera, what: str)
 
 
 def _read_color(path: Path, camera: PinholeCamera) -> np.ndarray:
-    image = _read_image(path, "colour")
+    image = read_image(path, what="colour image")
     if image.dtype != np.uint8:
         raise DataError(f"{path}: the colour image has dtype {image.dtype}; expected uint8")
     if image.ndim != 3 or image.shape[2] not in (3, 4):
@@ -385,7 +380,7 @@ def _read_color(path: Path, camera: PinholeCamera) -> np.ndarray:
 
 
 def _read_depth(path: Path, camera: PinholeCamera) -> np.ndarray:
-    image = _read_image(path, "depth")
+    image = read_image(path, what="depth image")
     if image.dtype != np.uint16 or image.ndim != 2:
         raise DataError(f"{path}: the depth image is {image.dtype} with shape {image.shape}; "
                         "expected one channel of uint16")

@@ -1,8 +1,10 @@
-"""The RGB-D sequence loaders (7-Scenes and TUM RGB-D layouts), on small folders the tests
-write in each format and on the real 7-Scenes sequence in ../shared when it is there."""
+"""The RGB-D sequence loaders (7-Scenes and TUM RGB-D layouts) and the single real frames'
+(Redwood), on small folders the tests write in each format and on the real 7-Scenes sequence
+in ../shared when it is there."""
 
 from __future__ import annotations
 
+import json
 import math
 import tempfile
 import time
@@ -11,10 +13,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from tcaff_gtsam.eval.datasets import rgbd_sequence as rs
+from tcaff_gtsam.eval.datasets.rgbd_frames import load_redwood
 
 from tcaff_gtsam.errors import DataError
 
@@ -267,6 +270,42 @@ def test_read_refuses_missing_unreadable_and_wrong_images(tmp_path):
         with pytest.raises(DataError, match=message) as info:
             seq.read(k)
         assert str(info.value).startswith(f"{path}: ")
+
+
+@FAST
+@given(kind=st.sampled_from(["color.jpg", "color.png", "depth.png"]),
+       share=st.floats(0.0, 1.0, exclude_max=True))
+@example(kind="color.jpg", share=0.5)
+def test_read_refuses_an_image_cut_short_at_any_byte(kind, share):
+    """cv2.imread decodes a JPEG cut short with its missing rows grey (libjpeg only warns);
+    an image cut anywhere is refused, naming the file and the frame."""
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_7scenes(Path(tmp) / "cut", some_poses([0, 5]), small=True,
+                               color_ext="jpg" if kind == "color.jpg" else "png")
+        seq = rs.read_7scenes(folder)
+        path = folder / f"frame-000005.{kind}"
+        data = path.read_bytes()
+        path.write_bytes(data[:int(share * len(data))])
+        with pytest.raises(DataError) as info:
+            seq.read(1)
+        seq.read(0)  # the frame whole
+    assert str(info.value).startswith(f"{path}: ") and str(info.value).endswith("(frame 5)")
+
+
+def test_redwood_frames_refuse_a_jpeg_cut_short(tmp_path):
+    for kind in ("color", "depth"):
+        (tmp_path / kind).mkdir()
+    K = [58.5, 0.0, 0.0, 0.0, 58.5, 0.0, 32.0, 24.0, 1.0]  # by column
+    (tmp_path / "camera_primesense.json").write_text(
+        json.dumps({"width": 64, "height": 48, "intrinsic_matrix": K}))
+    (tmp_path / "odometry.log").write_text("0 0 1\n" + pose_text(np.eye(4), "%g") + "\n")
+    colour = png(np.random.default_rng(0).integers(0, 256, (48, 64, 3), np.uint8), ".jpg")
+    (tmp_path / "color" / "00000.jpg").write_bytes(colour)
+    (tmp_path / "depth" / "00000.png").write_bytes(png(np.full((48, 64), 1500, np.uint16)))
+    assert load_redwood(tmp_path)[0].rgb.shape == (48, 64, 3)
+    (tmp_path / "color" / "00000.jpg").write_bytes(colour[:-100])
+    with pytest.raises(DataError, match=r"00000\.jpg: the image is cut short"):
+        load_redwood(tmp_path)
 
 
 # -- TUM RGB-D ---------------------------------------------------------------------------------
