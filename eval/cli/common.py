@@ -1,14 +1,16 @@
 """The shared part of the `tcaff` command line: the typer `app` every command module registers
 on, the stdout and stderr consoles, the tables of numbers (`_table`, `_add_columns`,
-`_keep_numbers_whole`, the pooled study table several commands print), the progress bars, and
-the checks of common options (`_refuse`, `_check_seeds`, `_check_duration`, `_writable_folder`,
-`_check_recording`). Like the rest of the command line it imports only typer when loaded;
-everything else is imported by the function that uses it.
+`_keep_numbers_whole`, the pooled study table several commands print), the progress bars, the
+checks of common options (`_refuse`, `_check_seeds`, `_check_duration`, `_writable_folder`,
+`_check_recording`) and the error a `tcaff` process it started wrote last (`_last_error`).
+Like the rest of the command line it imports only typer when loaded; everything else is
+imported by the function that uses it.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -194,6 +196,23 @@ def _writable_folder(path: Path, option: str) -> None:
             pass
     except OSError as exc:
         _refuse(option, str(path), f"not a writable folder ({exc.strerror or exc})", DataError)
+
+
+def _last_error(log: Path, code: int | None) -> str:
+    """Why a `tcaff` process whose output went to the file `log` ended with exit status `code`
+    (None: stopped while still running): the last line `main` wrote as "error: ..." (a refusal,
+    without that prefix), else its last line (a traceback's exception), else the status."""
+    if code is None:
+        return "still running when the run should have ended; stopped"
+    try:
+        with open(log, "rb") as file:  # its end only: a long run's log may be large
+            file.seek(max(file.seek(0, os.SEEK_END) - 16384, 0))
+            lines = [line.strip() for line in file.read().decode(errors="replace").splitlines()]
+    except OSError:
+        lines = []
+    refusals = [line.removeprefix("error: ") for line in lines if line.startswith("error: ")]
+    said = refusals or [line for line in lines if line]
+    return said[-1] if said else f"exit status {code}, nothing written to {log}"
 
 
 _RERUN_HELP = ("Also write a Rerun recording of the runs to this .rrd file (needs the extra viz); "

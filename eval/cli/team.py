@@ -23,6 +23,7 @@ from .common import (
     _check_speed,
     _console,
     _keep_numbers_whole,
+    _last_error,
     _refuse,
     _shipped,
     _table,
@@ -33,8 +34,6 @@ from .data import _kimera_bars
 
 if TYPE_CHECKING:
     from rich.table import Table
-
-
 
 
 class Ros2Transport(str, Enum):
@@ -329,14 +328,11 @@ def _named(run, names: tuple[str, ...]) -> str:
 
 
 def _mrclam_run(data: Path, seed: int, duration: float | None):
-    """The UTIAS MRCLAM data set in `data` as a recorded run (default settings, VIO-like
-    odometry drawn with `seed`)."""
-    _check_seeds([seed])
+    """The UTIAS MRCLAM data set in `data` as a run: default settings, VIO-like odometry."""
     from ..config import load_mrclam
     from ..dataset_runs import load_mrclam_run
     from ..datasets import mrclam
 
-    _check_duration(duration)
     config = load_mrclam("default")
     return load_mrclam_run(mrclam.read_dataset(data), config, config.odometry, seed,
                            duration or None)
@@ -441,7 +437,7 @@ def team(
                   f"Watch with: {watch}", soft_wrap=True)
     procs = start_team(argvs, output / "logs")
     codes = wait_team(procs, 180 + len(run.times) / speed)
-    failed = [f"r{k}" for k, c in enumerate(codes) if c != 0]
+    failed = [k for k, c in enumerate(codes) if c != 0]
     console.print(_team_table(run, output, robot_names(n)))
     if team_consistency:
         console.print(_team_table(run, output, robot_names(n), team=True))
@@ -454,7 +450,11 @@ def team(
     if failed:
         from tcaff_gtsam.errors import TcaffError
 
-        raise TcaffError(f"nodes {', '.join(failed)} failed; see {output / 'logs'}")
+        logs = output / "logs"  # start_team wrote node k's output to node<k>.log there
+        for k in failed:
+            _console(stderr=True).print(f"r{k}: {_last_error(logs / f'node{k}.log', codes[k])}",
+                                        soft_wrap=True, markup=False)
+        raise TcaffError(f"nodes {', '.join(f'r{k}' for k in failed)} failed; see {logs}")
     console.print(f"results: {output}")
 
 

@@ -60,6 +60,40 @@ def test_bad_options_end_in_one_line_and_status_2(tmp_path: Path, monkeypatch, c
     assert len(lines) == 1 and words in lines[0], stderr
 
 
+def test_team_prints_each_failing_nodes_own_error(tmp_path: Path, monkeypatch, capsys) -> None:
+    """A node's refusal went to its log only; the team's user saw just that it failed. Each
+    node here is refused an option of its own (its drop seed), before it links."""
+    from tcaff_gtsam.node import run
+
+    node_argv = run.node_argv
+    monkeypatch.setattr(run, "node_argv", lambda replay, robot, *args, **kwargs: [
+        *node_argv(replay, robot, *args, **kwargs), "--drop-seed", str(-1 - robot)])
+    monkeypatch.setattr(sys, "argv", ["tcaff", "team", "--scenario", "indoor_return",
+                                      "--duration", "5", "--output", str(tmp_path)])
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert exited.value.code == 2
+    assert lines == ["r0: --drop-seed -1: must be an int >= 0",
+                     "r1: --drop-seed -2: must be an int >= 0",
+                     f"error: nodes r0, r1 failed; see {tmp_path / 'logs'}"]
+
+
+@pytest.mark.parametrize(("log", "code", "said"), [
+    ("starting\nTraceback (most recent call last):\n  ...\nOSError: disk full\n\n", 1,
+     "OSError: disk full"),
+    ("error: --robot 'r9': the run's robots are r0, r1\nWARN zenoh: session closed\n", 2,
+     "--robot 'r9': the run's robots are r0, r1"),
+    ("", -9, "exit status -9, nothing written to"),
+    (None, None, "still running when the run should have ended; stopped"),
+])
+def test_last_error_of_a_node_log(tmp_path: Path, log, code, said) -> None:
+    path = tmp_path / "node0.log"
+    if log is not None:
+        path.write_text(log)
+    assert cli.common._last_error(path, code).startswith(said)
+
+
 def test_help_explains_the_team_commands() -> None:
     out = subprocess.run([TCAFF, "--help"], capture_output=True, text=True,
                          env={"COLUMNS": "200", "PATH": ""}, check=True).stdout
