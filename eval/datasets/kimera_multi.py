@@ -487,6 +487,20 @@ def _bag_paths(config: KimeraMultiConfig, robot: str, data: Path) -> list[Path]:
     return paths
 
 
+def _ground_truth_path(config: KimeraMultiConfig, robot: str, data: Path) -> Path:
+    """Where `robot`'s ground-truth CSV is in `data` (a robot without one is not scored).
+
+    Raises:
+        DataError: something other than a file is there (a folder, a FIFO).
+    """
+    path = data / config.ground_truth.replace("{robot}", robot)
+    if path.exists() and not path.is_file():
+        kind = "a folder" if path.is_dir() else "not a regular file"
+        raise DataError(f"{path}: {kind}, not the ground-truth CSV of robot {robot} "
+                        f"(ground_truth {config.ground_truth!r} of the config)")
+    return path
+
+
 def _fingerprint(config: KimeraMultiConfig, robot: str, paths: list[Path], gt: Path) -> str:
     """Changes when anything that shapes the robot's maps changes."""
     files = [(p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in paths]
@@ -503,10 +517,11 @@ def map_robot(config: KimeraMultiConfig, robot: str, data: Path,
     """Map one robot's bags and record its map at every whole second of ROS time.
 
     Raises:
-        DataError: missing or damaged bags, missing topics, bad messages.
+        DataError: missing or damaged bags, missing topics, bad messages, a ground truth that
+            is not a file or not a valid CSV (a missing one is warned about).
     """
     paths = _bag_paths(config, robot, data)
-    gt_path = data / config.ground_truth.replace("{robot}", robot)
+    gt_path = _ground_truth_path(config, robot, data)
     truth = read_ground_truth(gt_path) if gt_path.is_file() else None
     if truth is None:
         log.warning("robot %s: no ground truth at %s; its alignments are not scored", robot,
@@ -578,20 +593,22 @@ def load_run(config: KimeraMultiConfig, data: Path, maps_folder: Path, resume: b
     Returns:
         The run, every robot's mapping, and the robots whose saved maps were reused.
     Raises:
-        DataError: `data` is not a folder, a robot's data cannot be read, or the robots'
+        DataError: `data` is not a folder, a robot's ground truth is not a file (checked
+            before any robot is mapped), a robot's data cannot be read, or the robots'
             recordings share no exchange.
     """
     progress = progress or KimeraProgress()
     data = Path(data)
     if not data.is_dir():
         raise DataError(f"--data {data}: not a folder")
+    # all checked before the first robot's bags are mapped, which takes minutes
+    truths = {robot: _ground_truth_path(config, robot, data) for robot in config.robots}
     mappings, reused = [], []
     for robot in config.robots:
         saved = RobotMapping.load(maps_folder, robot) if resume else None
         if saved is not None:
             paths = _bag_paths(config, robot, data)
-            gt = data / config.ground_truth.replace("{robot}", robot)
-            if saved.fingerprint == _fingerprint(config, robot, paths, gt):
+            if saved.fingerprint == _fingerprint(config, robot, paths, truths[robot]):
                 progress.robot(robot, True)
                 mappings.append(saved)
                 reused.append(robot)

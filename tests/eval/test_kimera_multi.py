@@ -396,6 +396,18 @@ def test_missing_bags_and_data_folder_raise(tmp_path):
         run_kimera_multi(config, tmp_path, tmp_path / "out")
 
 
+@pytest.mark.parametrize("make", [Path.mkdir, os.mkfifo], ids=["folder", "fifo"])
+def test_a_ground_truth_that_is_not_a_file_is_named_before_any_robot_is_mapped(tmp_path, make):
+    """It was taken for a missing ground truth: a warning, and the run went on unscored."""
+    config = load_kimera_multi("same_direction")
+    gt = tmp_path / f"{config.robots[1]}_gt_odom.csv"
+    make(gt)
+    kind = "a folder" if gt.is_dir() else "not a regular file"
+    with pytest.raises(DataError, match=f"^{gt}: {kind}, not the ground-truth CSV of robot "
+                                        f"{config.robots[1]} "):
+        run_kimera_multi(config, tmp_path, tmp_path / "out")  # no robot has bags here
+
+
 def test_recorded_run_checks_its_shapes():
     with pytest.raises(DataError, match="one map per exchange"):
         RecordedRun("t", RunSettings(15.0), np.arange(3.0), [[EMPTY] * 3, [EMPTY] * 2],
