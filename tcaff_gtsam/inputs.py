@@ -151,6 +151,10 @@ def output_path(owner: str, path) -> Path:
 
 #: deflate expands at most about 1032:1; a member claiming more is corrupt
 _MAX_EXPANSION = 1100
+#: the dtype kinds the archives hold: real numbers (int, unsigned, float) and text (names,
+#: parameters as JSON). Others are refused here, bool above all: the loaders' casts take it as
+#: 0 and 1 without a word (boolean centroids would be aligned).
+_STORED_KINDS = frozenset("iufUS")
 _READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error,
                 NotImplementedError, RuntimeError, KeyError, IndexError, OverflowError,
                 SyntaxError, MemoryError)
@@ -161,14 +165,15 @@ def read_npz(path: str | Path, what: str) -> dict[str, np.ndarray]:
 
     Refuses, before reading anything, a path that is not a regular file (a FIFO would block
     forever), and, before reading an array, one whose header declares more data than the
-    archive holds (a tampered shape would make numpy allocate it).
+    archive holds (a tampered shape would make numpy allocate it) or a dtype other than real
+    numbers and text (bool, complex, dates, records, Python objects).
 
     Args:
         path: the archive.
         what: what the file should hold, for the messages ("map", "TCAFF filter").
     Raises:
         DataError: a path that is no path, a file missing, not a regular file, not an npz
-            archive, corrupt or truncated.
+            archive, corrupt or truncated, or an array of another dtype (naming the array).
     """
     try:
         path = Path(path)
@@ -228,9 +233,8 @@ def _read_members(file, size: int, path: Path, what: str) -> dict[str, np.ndarra
                                else fmt.read_array_header_2_0)
                 shape, _, dtype = read_header(stream)
                 header = stream.tell()
-            if dtype.hasobject:
-                raise DataError(f"{path}: array {name!r} holds Python objects; a {what} "
-                                f"file holds numbers only")
+            if dtype.kind not in _STORED_KINDS:
+                raise DataError(f"{path}: array {name!r} has dtype {dtype}, not real numbers")
             declared = math.prod(shape) * dtype.itemsize
             if declared != member.file_size - header:
                 raise DataError(f"{path}: corrupt {what} archive, array {name!r} declares "

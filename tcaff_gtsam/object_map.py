@@ -231,16 +231,20 @@ class ObjectMap:
         """Read a map written by `save`.
 
         Raises:
-            DataError: the file is missing, not a regular file (a FIFO, a folder), empty,
-                truncated, corrupt (an array header declaring more data than the file holds
-                included), not an npz archive, or holds invalid maps (complex, non-finite, ...).
+            DataError: naming the file: it is missing, not a regular file (a FIFO, a folder),
+                empty, truncated, corrupt (an array header declaring more data than the file
+                holds included), not an npz archive, holds arrays of a dtype other than real
+                numbers (bool, complex, ...) or invalid maps (shapes, non-finite, ...).
         """
         data = read_npz(path, "map")
         missing = [name for name in _FIELDS if name not in data]
         if missing:
             raise DataError(f"{path}: not an ObjectMap file, missing arrays {missing} "
                             f"(has {sorted(data)})")
-        return cls(**{name: data[name] for name in _ALL_FIELDS if name in data})
+        try:
+            return cls(**{name: data[name] for name in _ALL_FIELDS if name in data})
+        except DataError as exc:
+            raise DataError(f"{path}: {exc}") from None
 
 
 def as_object_map(owner: str, name: str, value) -> ObjectMap:

@@ -474,11 +474,29 @@ def test_complex_values_are_refused_not_cast(field, value):
         ObjectMap(**kwargs)
 
 
-def test_a_map_file_with_complex_centroids_is_a_data_error(tmp_path):
-    path = tmp_path / "complex.npz"
-    kwargs = valid_kwargs(2)
-    np.savez(path, **{**kwargs, "centroids": kwargs["centroids"] * (1 + 1j)})
-    with pytest.raises(DataError, match=field_error("centroids") + " must be real numbers"):
+@settings(max_examples=30, deadline=None)
+@given(field=st.sampled_from([*FIELDS, "descriptors"]),
+       dtype=st.sampled_from(["bool", "complex128", "datetime64[s]", "timedelta64[ms]", "V8"]),
+       n=st.integers(0, 4))
+def test_a_map_file_with_an_array_of_another_dtype_names_the_file_array_and_dtype(
+        tmp_path_factory, field, dtype, n):
+    """numpy casts booleans to 0 and 1 without a word (a map of boolean centroids was
+    aligned), and drops an imaginary part with a warning."""
+    path = tmp_path_factory.mktemp("dtype") / "map.npz"
+    arrays = {**valid_kwargs(n), "descriptors": np.ones((n, 1))}
+    arrays[field] = np.zeros(np.shape(arrays[field]), dtype)
+    np.savez(path, **arrays)
+    with pytest.raises(DataError) as info:
+        ObjectMap.load(path)
+    assert str(info.value) == (f"{path}: array {field!r} has dtype {np.dtype(dtype)}, not "
+                               f"real numbers")
+
+
+def test_a_map_file_with_invalid_contents_names_the_file(tmp_path):
+    path = tmp_path / "flat.npz"
+    np.savez(path, **{**valid_kwargs(2), "centroids": np.zeros((2, 2))})
+    with pytest.raises(DataError, match=f"^{re.escape(str(path))}: " + field_error("centroids")
+                       + re.escape(" must have shape (k, 3), got (2, 2)")):
         ObjectMap.load(path)
 
 

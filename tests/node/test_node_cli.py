@@ -135,3 +135,22 @@ def test_a_replay_whose_times_cannot_be_a_schedule_is_refused_on_load(tmp_path, 
     bad.save(tmp_path / "bad.npz")
     with pytest.raises(DataError, match="times must be finite and increasing, one per map"):
         RobotReplay.load(tmp_path / "bad.npz")
+
+
+@pytest.mark.parametrize("name", ["times", "sizes"])
+def test_a_replay_of_boolean_numbers_is_refused_naming_the_array(tmp_path, name) -> None:
+    """numpy took them as 0 and 1: times [False, True] made a schedule."""
+    import numpy as np
+    from tcaff_gtsam.node.replay import RobotReplay
+
+    from tcaff_gtsam import ObjectMap
+    from tcaff_gtsam.errors import DataError
+
+    maps = [ObjectMap(np.zeros((1, 3)), np.ones(1), np.ones(1), np.zeros(1))] * 2
+    RobotReplay(("r0", "r1"), 0, np.array([0.0, 1.0]), maps, 20.0, None).save(
+        tmp_path / "good.npz")
+    with np.load(tmp_path / "good.npz") as data:
+        arrays = {key: data[key] for key in data.files}
+    np.savez(tmp_path / "bad.npz", **{**arrays, name: arrays[name].astype(bool)})
+    with pytest.raises(DataError, match=f"bad.npz: array '{name}' has dtype bool, not real"):
+        RobotReplay.load(tmp_path / "bad.npz")
