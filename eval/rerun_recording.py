@@ -36,7 +36,13 @@ from tcaff_gtsam.geometry import invert, se2_from_params
 
 from .metrics import step_errors, step_nees
 from .results import JobResult
-from .trajectories import check_reference, estimate_streams, frame_alignment, robot_names
+from .trajectories import (
+    check_odometry,
+    check_reference,
+    estimate_streams,
+    frame_alignment,
+    robot_names,
+)
 
 __all__ = ["RERUN_VERSION", "check_rerun", "record"]
 
@@ -206,7 +212,8 @@ def record(path: Path, jobs: Iterable[JobResult], reference: int = 0,
     Raises:
         ConfigError: rerun-sdk missing or of another release, a reference robot or method the
             jobs do not have.
-        DataError: the file cannot be written; a job whose saved arrays disagree.
+        DataError: the file cannot be written; a job whose odometry is not finite (as
+            `trajectories.export` refuses it) or whose saved arrays disagree.
     """
     rr = check_rerun()
     path = Path(path)
@@ -215,6 +222,7 @@ def record(path: Path, jobs: Iterable[JobResult], reference: int = 0,
         raise DataError(f"{path}: no runs to record")
     for job in jobs:
         check_reference(job, reference)
+        check_odometry(job)
     shown = [_shown_method(job, method) for job in jobs]
     if path.is_dir() or not path.parent.is_dir():
         raise DataError(f"{path}: not a file in an existing folder")

@@ -48,6 +48,18 @@ def check_reference(job: JobResult, reference: int) -> None:
                           f"({job.stem} has {n} robots)")
 
 
+def check_odometry(job: JobResult) -> None:
+    """DataError unless every robot's odometry (poses_odom) is finite at every step: each
+    robot's path is placed in another's frame through it."""
+    finite = np.isfinite(job.arrays["poses_odom"]).all(axis=2)
+    if not finite.all():
+        r, s = (int(k) for k in np.argwhere(~finite)[0])
+        raise DataError(f"{job.stem}: poses_odom, the robots' odometry, is not finite for robot "
+                        f"{robot_names(job)[r]} at step {s} "
+                        f"({job.arrays['poses_odom'][r, s].tolist()}; {(~finite).sum()} of "
+                        f"{finite.size} poses): the paths cannot be placed through it")
+
+
 def robot_paths(job: JobResult, stream: str, reference: int = 0
                 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Every robot's path in the reference robot's odometry frame, through a method's estimates
@@ -263,8 +275,9 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
         ConfigError: an unknown format or reference robot (of any job; the ROS 2 bag holds
             every pair and needs none, but a robot index that no job has is refused there
             too).
-        DataError: the folder holds no saved job, a job's files are unreadable, or the
-            files cannot be written (a file where a folder goes, a full disk).
+        DataError: the folder holds no saved job, a job's files are unreadable, its
+            odometry is not finite (tum, g2o: its paths are placed through it), or the files
+            cannot be written (a file where a folder goes, a full disk).
     """
     if fmt not in FORMATS:
         raise ConfigError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
@@ -272,6 +285,8 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
     jobs = load_saved(results)
     for job in jobs:  # before anything is written
         check_reference(job, reference)
+        if fmt != "rosbag2":  # the bag holds the alignments alone
+            check_odometry(job)
     written = []
     for job in jobs:
         try:

@@ -4,17 +4,21 @@ counts."""
 from __future__ import annotations
 
 import collections
+import re
 import sys
 
 import numpy as np
 import pytest
 import rerun as rr
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.config import load_methods, load_scenario
 from tcaff_gtsam.eval.jobs import evaluate_simulated
 from tcaff_gtsam.eval.rerun_recording import check_rerun, record
 from tcaff_gtsam.eval.results import JobResult
 from tcaff_gtsam.eval.sim.simulate import SimRun, simulate
+from tcaff_gtsam.eval.trajectories import export
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_error, se2_from_params
@@ -139,6 +143,30 @@ def test_bad_input_is_refused_before_a_file_is_made(job, tmp_path):
     with pytest.raises(DataError, match="existing folder"):
         record(tmp_path / "missing" / "a.rrd", [job])
     assert not (tmp_path / "a.rrd").exists()
+
+
+@settings(max_examples=20, deadline=None)
+@given(robot=st.integers(0, 1), step=st.integers(0, 10**6), column=st.integers(0, 2),
+       value=st.sampled_from([np.nan, np.inf, -np.inf]), truth=st.booleans())
+def test_a_run_whose_odometry_is_not_finite_is_refused_as_export_refuses_it(
+        job, tmp_path_factory, robot, step, column, value, truth):
+    """view drew such a run when it had no truth; export refused it in a check of the
+    geometry that named neither the run nor the array."""
+    arrays = {k: v.copy() for k, v in job.arrays.items()}
+    step %= arrays["poses_odom"].shape[1]
+    arrays["poses_odom"][robot, step, column] = value
+    if not truth:
+        arrays["poses_true"][:], arrays["truth"][:] = np.nan, np.nan
+    bad = JobResult(job.name, job.seed, job.pairs, arrays)
+    folder = tmp_path_factory.mktemp("odometry")
+    bad.save(folder)
+    message = re.escape(f"{bad.stem}: poses_odom, the robots' odometry, is not finite for "
+                        f"robot {robot} at step {step} (")
+    with pytest.raises(DataError, match=message):
+        record(folder / "run.rrd", [bad])
+    with pytest.raises(DataError, match=message):
+        export(folder)
+    assert not (folder / "run.rrd").exists() and not (folder / "trajectories").exists()
 
 
 def test_missing_rerun_says_how_to_install_it(monkeypatch):
