@@ -20,6 +20,7 @@ from .common import (
     _console,
     _keep_numbers_whole,
     _record,
+    _refuse,
     _shipped,
     _since_start,
     _summary_table,
@@ -32,7 +33,7 @@ if TYPE_CHECKING:
     from rich.progress import Progress as RichProgress
     from rich.table import Table
 
-    from ..config import StudyConfig, SweepConfig
+    from ..config import ScenarioConfig, StudyConfig, SweepConfig
     from ..executor import Executor
 
 
@@ -201,6 +202,27 @@ _LocalClusterOption = Annotated[int | None, typer.Option(
     rich_help_panel="Where jobs run")]
 
 
+def _picked_scenarios(values: list[str] | None) -> list[ScenarioConfig] | None:
+    """The scenarios -s/--scenario picked (None: none given), loaded here so that a scenario
+    given twice, by one name or by another that loads it again, is refused naming the option
+    (the study's own check would blame its YAML file)."""
+    if not values:
+        return None
+    from ..config import load_scenario
+
+    first: dict[str, str] = {}  # scenario name -> the value that picked it
+    scenarios = []
+    for value in values:
+        scenario = load_scenario(value)
+        if scenario.name in first:
+            again = "" if first[scenario.name] == value else f" (first as {first[scenario.name]!r})"
+            _refuse("-s/--scenario", value, f"picks scenario {scenario.name} a second time"
+                    f"{again}; each scenario runs once")
+        first[scenario.name] = value
+        scenarios.append(scenario)
+    return scenarios
+
+
 def _executor(workers: int, scheduler: str | None, local_cluster: int | None):
     """Where the jobs run: local processes, or Dask by --scheduler or --local-cluster."""
     from tcaff_gtsam.errors import ConfigError
@@ -252,7 +274,7 @@ def study(
         _writable_folder(output, "--output")
     from ..config import load_study
 
-    overrides = {"scenarios": scenario or None, "methods": methods,
+    overrides = {"scenarios": _picked_scenarios(scenario), "methods": methods,
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
     study_config = load_study(config, {k: v for k, v in overrides.items() if v is not None})
@@ -331,8 +353,8 @@ def sweep(
 
     sweep_config, study_config = load_sweep(config)
     if scenario:
-        study_config = resolve_study(study_config.model_copy(update={"scenarios": scenario}),
-                                     strict=False)
+        study_config = resolve_study(study_config.model_copy(
+            update={"scenarios": _picked_scenarios(scenario)}), strict=False)
     updates = {"seeds": None if seeds is None else list(range(seeds)), "workers": workers}
     study_config = _capped(study_config.model_copy(
         update={k: v for k, v in updates.items() if v is not None}), duration)

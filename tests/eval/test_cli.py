@@ -353,6 +353,20 @@ def test_a_duplicate_yaml_key_is_named_in_one_line(tmp_path, tcaff_main, where):
     assert f"duplicate key {key!r}" in line
 
 
+@pytest.mark.parametrize("command", ["study", "sweep"])
+@pytest.mark.parametrize("again", ["indoor_return", "indoor_return.yaml"])
+def test_a_scenario_picked_twice_names_the_option(tmp_path, tcaff_main, command, again):
+    """The study's check that its scenarios' names are distinct blamed its YAML file (the
+    sweep's study), where the scenario came twice from the command line."""
+    if again.endswith(".yaml"):
+        again = str(CONFIG_DIR / "scenarios" / again)
+    config = {"study": "demo", "sweep": "tau_window"}[command]
+    line = one_line_error(tcaff_main(command, config, "-s", "indoor_return", "-s", again,
+                                     "--output", str(tmp_path)), "-s/--scenario", repr(again))
+    assert "picks scenario indoor_return a second time" in line
+    assert not any(tmp_path.iterdir())  # refused before anything ran
+
+
 def test_the_loader_refuses_duplicates_but_keeps_merges():
     import yaml
     from tcaff_gtsam.eval.config import UniqueKeyLoader
