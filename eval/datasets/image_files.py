@@ -3,9 +3,9 @@ refused with a `DataError` naming the file.
 
 `cv2.imread` decodes a JPEG that was cut short (an interrupted download or copy) without
 failing: libjpeg only prints "Premature end of JPEG file" and OpenCV fills the missing rows
-grey. So a file is read whole, a JPEG that does not end with its end-of-image marker is
-refused, and the bytes are decoded from memory. PNG, PPM and PGM files cut short fail to
-decode and are refused as unreadable.
+grey. So a file is read whole, a JPEG that does not end with its end-of-image marker (zero
+bytes of padding after it aside) is refused, and the bytes are decoded from memory. PNG, PPM
+and PGM files cut short fail to decode and are refused as unreadable.
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ def read_image(path: Path, flags: int = cv2.IMREAD_UNCHANGED, what: str = "image
         data = path.read_bytes()
     except OSError as exc:
         raise DataError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
-    if data.startswith(_JPEG_START) and not data.endswith(_JPEG_END):
+    # some writers pad a JPEG with zero bytes after its end-of-image marker
+    if data.startswith(_JPEG_START) and not data.rstrip(b"\x00").endswith(_JPEG_END):
         raise DataError(f"{path}: the {what} is cut short: a JPEG file of {len(data)} bytes "
                         "that does not end with the end-of-image marker")
     try:

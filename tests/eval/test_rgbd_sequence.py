@@ -303,6 +303,8 @@ def test_redwood_frames_refuse_a_jpeg_cut_short(tmp_path):
     (tmp_path / "color" / "00000.jpg").write_bytes(colour)
     (tmp_path / "depth" / "00000.png").write_bytes(png(np.full((48, 64), 1500, np.uint16)))
     assert load_redwood(tmp_path)[0].rgb.shape == (48, 64, 3)
+    (tmp_path / "color" / "00000.jpg").write_bytes(colour + bytes(16))  # padded: whole
+    assert load_redwood(tmp_path)[0].rgb.shape == (48, 64, 3)
     (tmp_path / "color" / "00000.jpg").write_bytes(colour[:-100])
     with pytest.raises(DataError, match=r"00000\.jpg: the image is cut short"):
         load_redwood(tmp_path)
