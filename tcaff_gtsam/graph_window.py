@@ -239,29 +239,33 @@ class SlidingWindow:
         variables. In the new solver the marginal factors hold their linearisation point,
         moved with their variables where they hold relative information only (`_moved`).
         Where gtsam fails on the way the graph keeps its solver as it was."""
-        if self.params.horizon is None:  # nothing is marginalised, nothing fixed
+        if self._settled_from is None and self._fixed_far() < self.params.settle_threshold:
             return False
         isam = self._isam
-        delta = isam.getDelta()
-        fixed = [key for key in isam.getFixedVariables() if delta.exists(key)]
-        far = float(np.abs(delta.vector(fixed)).max()) if fixed else 0.0
-        if self._settled_from is None and far < self.params.settle_threshold:
-            return False
-        theta, estimate = isam.getLinearizationPoint(), isam.calculateEstimate()
-        factors = isam.getFactorsUnsafe()
-        moved = [self._moved(factors.at(i), theta, estimate) for i in self._marginal]
         before = (isam, self._active, self._marginal, self._free)
         threshold = self.params.relinearize_threshold
         try:
+            theta, estimate = isam.getLinearizationPoint(), isam.calculateEstimate()
+            factors = isam.getFactorsUnsafe()
+            moved = [self._moved(factors.at(i), theta, estimate) for i in self._marginal]
             self._rebuild(dict(self._active), moved, estimate, set())
             for _ in range(self.params.max_iterations):
                 if np.abs(self._isam.getDelta().vector()).max() < threshold:
                     break
                 self._relinearise_all()
-        except (DataError, RuntimeError):
+        except (DataError, RuntimeError, ValueError, IndexError):  # gtsam's, all of them
             self._isam, self._active, self._marginal, self._free = before
             return False
         return True
+
+    def _fixed_far(self) -> float:
+        """How far (m or rad) the variable of a marginal factor furthest from its
+        linearisation point is from it (0 without a horizon): gtsam never relinearises them."""
+        if self.params.horizon is None:
+            return 0.0
+        delta = self._isam.getDelta()
+        fixed = [key for key in self._isam.getFixedVariables() if delta.exists(key)]
+        return float(np.abs(delta.vector(fixed)).max()) if fixed else 0.0
 
     def _moved(self, marginal, theta: gtsam.Values, estimate: gtsam.Values):
         """A marginal factor (linear about `theta`) as a linear factor holding its
@@ -351,15 +355,18 @@ class SlidingWindow:
         except RuntimeError:
             # a system Cholesky finds indeterminate (near-singular covariances): QR factorises
             # it, more slowly, in this solver from then on
+            factorization = params.getFactorization()
             params.setFactorization("QR")
             try:
-                self._new_solver(params)
+                self._new_solver(params)  # gtsam's solver keeps a copy of its parameters
                 indices = self._commit(graph, values, [])
             except RuntimeError as exc:
                 self._isam = old
                 raise DataError(f"InterRobotGraph: gtsam could not solve the graph again in a "
                                 f"new solver ({reason(exc)}); the graph cannot be "
                                 f"used further") from None
+            finally:  # `params` is the old solver's own (gtsam gives it by reference)
+                params.setFactorization(factorization)
         remap = dict(zip(active, indices[:len(active)], strict=True))
         self._active = {remap[i]: f for i, f in active.items()}
         self._marginal = set(indices[len(active):])
