@@ -297,15 +297,20 @@ class DdsTransport:
                             self._objects(object_map_of_cloud))
         self._health = self._publisher(HEALTH_TOPIC, HEALTH_TYPE, False)
         self._ros.create_timer(self.health_period, self._report)
+        from rclpy.task import Future
+
+        # done by `close`: the executor's wait wakes for it, whatever the spin thread is doing
+        self._closing = Future()
         self._spinner = threading.Thread(target=self._spin, name=f"tcaff-dds-{node.robot}",
                                          daemon=True)
         self._spinner.start()
 
     def _spin(self) -> None:
+        """Run the callbacks until `close` (or the context is shut down)."""
         from rclpy.executors import ExternalShutdownException
 
         try:
-            self._executor.spin()
+            self._executor.spin_until_future_complete(self._closing)
         except ExternalShutdownException:  # the context was shut down: the node is closing
             pass
 
@@ -438,21 +443,30 @@ class DdsTransport:
             time.sleep(0.05)
 
     def close(self) -> None:
+        """Stop the spin thread, then destroy the ROS node and the context (and with it the
+        DDS participant); again: nothing.
+
+        The spin thread ends first, with the executor whole: rclpy's `Executor.shutdown`
+        destroys the executor's wake-up at once, without waiting for the thread, whose next
+        wait could then end only when the health timer fired (past the join's bound with a
+        `health_period` over 5 s)."""
         if self._context is None:
             return
         context, self._context = self._context, None
         try:
+            if hasattr(self, "_spinner"):
+                self._closing.set_result(None)
+                self._spinner.join(timeout=5)
             if hasattr(self, "_executor"):
                 self._executor.shutdown(timeout_sec=5)
             if hasattr(self, "_ros"):
                 self._ros.destroy_node()
         finally:
             context.try_shutdown()
-        if hasattr(self, "_spinner"):
-            self._spinner.join(timeout=5)
+            context.destroy()
         # a later `start` makes everything anew, none of it on the closed context
         self._publishers.clear()
         self._maps.clear()
         self._reported.clear()
-        for name in ("_executor", "_ros", "_spinner"):
+        for name in ("_executor", "_ros", "_spinner", "_closing"):
             self.__dict__.pop(name, None)

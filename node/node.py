@@ -283,17 +283,26 @@ class RobotNode:
 
     def wait_idle(self, timeout: float = 10.0) -> bool:
         """Block until every message received so far is handled; False on timeout."""
+        deadline = time.monotonic() + timeout
         self._idle.clear()
-        self._inbox.put(("idle",))
-        return self._idle.wait(timeout)
+        try:  # a full queue waits for the worker too
+            self._inbox.put(("idle",), timeout=timeout)
+        except queue.Full:
+            return False
+        return self._idle.wait(max(deadline - time.monotonic(), 0.0))
 
     def close(self) -> None:
-        """Stop the worker (after what is queued) and close the session; again: nothing."""
+        """Stop the worker (after what is queued; 30 s at most) and close the session; again:
+        nothing."""
         if self._closed:
             return
         self._closed = True
-        self._inbox.put(None)
-        self._worker.join(timeout=30)
+        deadline = time.monotonic() + 30.0
+        try:  # a worker stuck on a full queue is left behind, as one still busy at the deadline
+            self._inbox.put(None, timeout=30.0)
+        except queue.Full:
+            pass
+        self._worker.join(timeout=max(deadline - time.monotonic(), 0.0))
         if self._saver is not None:
             self._saver.close()
         self._transport.close()

@@ -154,3 +154,50 @@ def test_a_replay_of_boolean_numbers_is_refused_naming_the_array(tmp_path, name)
     np.savez(tmp_path / "bad.npz", **{**arrays, name: arrays[name].astype(bool)})
     with pytest.raises(DataError, match=f"bad.npz: array '{name}' has dtype bool, not real"):
         RobotReplay.load(tmp_path / "bad.npz")
+
+
+#: in a process of its own: a node's stop event (`node.run._node_files`, what `tcaff node`
+#: waits on) is waited on again and again, and SIGTERM arrives at the k-th line the wait runs
+#: (of the wait and what it calls), for every k; prints the wait's answer for each
+SIGNAL_IN_THE_WAIT = """
+import signal, sys
+from pathlib import Path
+from tcaff_gtsam.node.run import _node_files
+
+answers = []
+for k in range(1000):
+    with _node_files("r0", Path(sys.argv[1]), False) as (stop, _, _):
+        wait, lines = type(stop).wait.__code__, []
+
+        def tracer(frame, event, arg):
+            if frame.f_code is not wait and not lines:
+                return None  # outside the wait
+            def line(frame, event, arg):
+                if event == "line":
+                    lines.append(frame.f_lineno)
+                    if len(lines) == k + 1:
+                        signal.raise_signal(signal.SIGTERM)  # handled here and now
+                return line
+            return line
+
+        sys.settrace(tracer)
+        try:
+            answers.append(stop.wait(1.0))
+        finally:
+            sys.settrace(None)
+        if len(lines) <= k:  # every line of the wait has had its signal
+            break
+print(answers[:-1])
+"""
+
+
+def test_a_node_stops_on_sigterm_wherever_its_main_thread_is_in_the_wait(tmp_path: Path
+                                                                         ) -> None:
+    """A signal handler runs on the main thread between two of its bytecodes, inside the wait
+    for the stop event too: the handler must not take a lock that the wait holds (a
+    `threading.Event`'s did, and the node then ignored SIGTERM for good)."""
+    done = subprocess.run([sys.executable, "-c", SIGNAL_IN_THE_WAIT, str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr[-2000:]
+    answers = ast.literal_eval(done.stdout)
+    assert answers and all(answers), answers

@@ -382,6 +382,62 @@ def test_a_restarted_node_reports_no_hypothesis_it_has_not_reconfirmed(tmp_path:
     assert confirmed and confirmed[0].hypothesis == held.hypothesis
 
 
+class Alone:
+    """A transport that sends nothing and hears nothing: the node by itself, in memory."""
+
+    def configure(self, robot, params):
+        return params
+
+    def open(self, node) -> None:
+        pass
+
+    def put_map(self, message, recent) -> None:
+        pass
+
+    def put_alignment(self, message) -> None:
+        pass
+
+    def put_team(self, message) -> None:
+        pass
+
+    def present(self, timeout):
+        return set()
+
+    def close(self) -> None:
+        pass
+
+
+def test_waiting_for_a_stuck_worker_behind_a_full_queue_ends_at_its_timeout() -> None:
+    """A node's stop waits for its worker within bounds: `wait_idle` gives up at its timeout
+    when the worker is stuck in a step and the queue is full behind it (it waited for a free
+    place in the queue without a bound)."""
+    node = RobotNode("r0", "team", ["r0", "r1"], Alone(), NodeParams(queue=1))
+    stepping, release = threading.Event(), threading.Event()
+    step = node._ego_step
+
+    def stuck(*args) -> None:
+        stepping.set()
+        release.wait()
+        step(*args)
+
+    node._ego_step = stuck
+    maps = ObjectMap(np.zeros((1, 3)), np.ones(1), np.ones(1), np.zeros(1))
+    try:
+        node.publish(0.0, maps)
+        assert stepping.wait(60)
+        node.publish(1.0, maps)  # the queue's one place
+        answers: list[bool] = []
+        waiting = threading.Thread(target=lambda: answers.append(node.wait_idle(0.2)),
+                                   daemon=True)
+        waiting.start()
+        waiting.join(60)  # catches a hang only
+        assert answers == [False]
+    finally:
+        release.set()
+        node.close()
+    assert node.counters["maps_sent"] == 2 and not node.counters["errors"]
+
+
 def test_a_lossy_link_loses_the_same_maps_in_every_process() -> None:
     """Which map `drop_share` loses is fixed by (seed, sender, seq): the same in another
     process (another hash seed) and whatever order the maps come in, and about the share
