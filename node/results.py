@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.inputs import output_path
 
 from .messages import AlignmentMessage, TeamMessage
 
@@ -31,9 +32,14 @@ class AlignmentCsv:
     per row so that a killed node keeps its rows."""
 
     def __init__(self, path: str | Path, columns: tuple[str, ...] = COLUMNS) -> None:
-        path = Path(path)
-        fresh = not path.exists() or path.stat().st_size == 0
-        self._file = open(path, "a", newline="")
+        """Raises:
+            DataError: naming the file: a folder, in a missing folder, or not writable."""
+        path = output_path("AlignmentCsv", path)
+        try:
+            fresh = not path.exists() or path.stat().st_size == 0
+            self._file = open(path, "a", newline="")
+        except OSError as exc:
+            raise DataError(f"AlignmentCsv: cannot write {path} ({exc.strerror or exc})") from None
         self._rows = csv.writer(self._file)
         if fresh:
             self._rows.writerow(columns)

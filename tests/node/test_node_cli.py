@@ -60,6 +60,22 @@ def test_bad_options_end_in_one_line_and_status_2(tmp_path: Path, monkeypatch, c
     assert len(lines) == 1 and words in lines[0], stderr
 
 
+def test_a_node_whose_alignments_file_is_a_folder_is_refused_naming_it(
+        tmp_path: Path, monkeypatch, capsys) -> None:
+    """Before anything starts (it ended in a raw IsADirectoryError traceback)."""
+    (tmp_path / "r0.csv").mkdir()
+    monkeypatch.setattr(sys, "argv", ["tcaff", "node", "--robot", "r0", "--scenario",
+                                      "four_robots", "--listen", "127.0.0.1:7447", "--output",
+                                      str(tmp_path)])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exited:
+        cli.main()
+    stderr = capsys.readouterr().err
+    assert exited.value.code == 2, stderr
+    lines = stderr.strip().splitlines()
+    assert lines == [f"error: AlignmentCsv: {tmp_path / 'r0.csv'} is a folder, not a file"]
+
+
 def test_team_prints_each_failing_nodes_own_error(tmp_path: Path, monkeypatch, capsys) -> None:
     """A node's refusal went to its log only; the team's user saw just that it failed. Each
     node here is refused an option of its own (its drop seed), before it links."""
