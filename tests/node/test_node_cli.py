@@ -50,6 +50,11 @@ def test_bad_options_end_in_one_line_and_status_2(tmp_path: Path, monkeypatch, c
     interpreter's start)."""
     argv = ["tcaff", *args, *(["--output", str(tmp_path)] if args[0] != "listen" else [])]
     monkeypatch.chdir(tmp_path)
+    assert words in refused(argv, monkeypatch, capsys)
+
+
+def refused(argv: list[str], monkeypatch, capsys) -> str:
+    """The one line of stderr `tcaff` run with `argv` in this process ends with (status 2)."""
     monkeypatch.setattr(sys, "argv", argv)
     capsys.readouterr()
     with pytest.raises(SystemExit) as exited:
@@ -57,23 +62,18 @@ def test_bad_options_end_in_one_line_and_status_2(tmp_path: Path, monkeypatch, c
     stderr = capsys.readouterr().err
     assert exited.value.code == 2, stderr
     lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and words in lines[0], stderr
+    assert len(lines) == 1, stderr
+    return lines[0]
 
 
 def test_a_node_whose_alignments_file_is_a_folder_is_refused_naming_it(
         tmp_path: Path, monkeypatch, capsys) -> None:
     """Before anything starts (it ended in a raw IsADirectoryError traceback)."""
     (tmp_path / "r0.csv").mkdir()
-    monkeypatch.setattr(sys, "argv", ["tcaff", "node", "--robot", "r0", "--scenario",
-                                      "four_robots", "--listen", "127.0.0.1:7447", "--output",
-                                      str(tmp_path)])
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as exited:
-        cli.main()
-    stderr = capsys.readouterr().err
-    assert exited.value.code == 2, stderr
-    lines = stderr.strip().splitlines()
-    assert lines == [f"error: AlignmentCsv: {tmp_path / 'r0.csv'} is a folder, not a file"]
+    argv = ["tcaff", "node", "--robot", "r0", "--scenario", "four_robots", "--listen",
+            "127.0.0.1:7447", "--output", str(tmp_path)]
+    assert refused(argv, monkeypatch, capsys) == (
+        f"error: AlignmentCsv: {tmp_path / 'r0.csv'} is a folder, not a file")
 
 
 def test_team_prints_each_failing_nodes_own_error(tmp_path: Path, monkeypatch, capsys) -> None:
