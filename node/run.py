@@ -70,8 +70,10 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
             node.wait_idle(60.0)
             timing = {"cpu_share": (time.process_time() - cpu) / max(time.time() - began, 1e-9)}
         finally:
-            node.close()
-            _write_outcome(output / f"{robot}.json", node, start, timing)
+            try:
+                node.close()
+            finally:  # a close that fails still leaves the results
+                _write_outcome(output / f"{robot}.json", node, start, timing)
     return node
 
 
@@ -92,8 +94,10 @@ def live_node(robot: str, team: str, members: list[str], link: Link, params: Nod
             stop.wait(duration)
             node.wait_idle(60.0)
         finally:
-            node.close()
-            _write_outcome(output / f"{robot}.json", node, start, {})
+            try:
+                node.close()
+            finally:  # a close that fails still leaves the results
+                _write_outcome(output / f"{robot}.json", node, start, {})
     return node
 
 

@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode
 from tcaff_gtsam.node.node import _draw
-from tcaff_gtsam.node.replay import MAX_TEAM, robot_names
-from tcaff_gtsam.node.run import free_ports
+from tcaff_gtsam.node.replay import MAX_TEAM, RobotReplay, robot_names
+from tcaff_gtsam.node.run import free_ports, replay_node
 
 from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
@@ -476,3 +477,62 @@ def test_a_team_is_at_most_max_team_robots(n):
         with pytest.raises(ParameterError) as info:
             call(n)
         assert str(info.value).startswith(f"{owner}.n = {n!r}: must be an int in [0, {MAX_TEAM}]")
+
+
+class TimedOutSession:
+    """A Zenoh session whose close closes it, then raises as Zenoh's close does when it gives
+    up on a link it cannot flush (a peer frozen with the link's buffers full)."""
+
+    def __init__(self, session) -> None:
+        self.session = session
+
+    def __getattr__(self, name: str):
+        return getattr(self.session, name)
+
+    def close(self) -> None:
+        self.session.close()
+        raise zenoh.ZError("close operation timed out!")
+
+
+def test_a_zenoh_session_that_does_not_close_cleanly_still_lets_the_node_close() -> None:
+    """Zenoh's close raises after some 10 s on a link it cannot flush: the node's close logs
+    it and ends (it raised, and a node stopped by SIGTERM then lost its results)."""
+    port = free_ports(1)[0]
+    node = RobotNode("r0", "closing", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",)))
+    session = node._transport._session
+    node._transport._session = TimedOutSession(session)
+    node.close()
+    assert session.is_closed()
+    node.close()  # again: nothing
+
+
+class FailsToClose(Alone):
+    def close(self) -> None:
+        raise RuntimeError("the transport failed to close")
+
+
+def test_a_node_whose_close_fails_still_writes_its_results(tmp_path: Path) -> None:
+    """A replaying node writes its counters when its close fails too (they were written only
+    after a close that succeeded), and the failure is not hidden."""
+    n = 4
+    maps = [ObjectMap(np.zeros((n, 3)), np.ones(n), np.ones(n), np.full(n, t))
+            for t in range(3)]
+    source = RobotReplay(("r0", "r1"), 0, np.arange(3.0), maps, kappa=20.0)
+    failed: list[BaseException] = []
+
+    def run() -> None:  # off the main thread: no signal handlers, no frozen heap
+        try:
+            # the exchanges 3, 4 and 5 s from now: at least the last is sent, however long
+            # the kernels take to load
+            replay_node(source, "closing", FailsToClose(), NodeParams(), time.time() + 3.0,
+                        tmp_path)
+        except RuntimeError as exc:
+            failed.append(exc)
+
+    runner = threading.Thread(target=run, daemon=True)
+    runner.start()
+    runner.join(120)  # catches a hang only
+    assert not runner.is_alive()
+    assert [str(exc) for exc in failed] == ["the transport failed to close"]
+    outcome = json.loads((tmp_path / "r0.json").read_text())
+    assert outcome["maps_sent"] >= 1
