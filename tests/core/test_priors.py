@@ -58,14 +58,17 @@ def colours(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 def twin_clusters(rng: np.random.Generator, z: np.ndarray, with_descriptors: bool = True):
-    """Two clusters of 5 objects, the second a copy of the first (shape, sizes, heights)
-    10 m away but of other colours; the other robot sees only the first cluster, from its
-    own frame (T_oi_oj = z), its objects listed in shuffled order. Geometry and size alone
-    admit two alignments, 10 m apart."""
+    """Two clusters of 5 objects spread in both directions, the second a copy of the first
+    (shape, sizes, heights) 10 m away but of other colours; the other robot sees only the
+    first cluster, from its own frame (T_oi_oj = z), its objects listed in shuffled order.
+    Geometry and size alone admit two alignments, 10 m apart."""
     while True:
         cluster = rng.uniform(-1.5, 1.5, (5, 2))
         gaps = np.linalg.norm(cluster[:, None] - cluster[None], axis=-1)
-        if gaps[np.triu_indices(5, 1)].min() > 0.8:
+        # spread across its narrowest axis well past the aligner's `min_spread` (0.25 m): a
+        # cluster nearly on a line is refused whatever its colours (seed 92 drew 0.24 m)
+        narrowest = np.sqrt(np.linalg.eigvalsh(np.cov(cluster.T, bias=True))[0])
+        if gaps[np.triu_indices(5, 1)].min() > 0.8 and narrowest > 0.4:
             break
     xy = np.vstack([cluster, cluster + np.array([10.0, 0.0])])
     widths = np.tile(rng.uniform(0.3, 0.8, 5), 2)
