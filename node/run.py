@@ -13,7 +13,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -70,10 +70,7 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
             node.wait_idle(60.0)
             timing = {"cpu_share": (time.process_time() - cpu) / max(time.time() - began, 1e-9)}
         finally:
-            try:
-                node.close()
-            finally:  # a close that fails still leaves the results
-                _write_outcome(output / f"{robot}.json", node, start, timing)
+            _close(node, output / f"{robot}.json", start, timing)
     return node
 
 
@@ -94,10 +91,7 @@ def live_node(robot: str, team: str, members: list[str], link: Link, params: Nod
             stop.wait(duration)
             node.wait_idle(60.0)
         finally:
-            try:
-                node.close()
-            finally:  # a close that fails still leaves the results
-                _write_outcome(output / f"{robot}.json", node, start, {})
+            _close(node, output / f"{robot}.json", start, {})
     return node
 
 
@@ -143,23 +137,19 @@ def _node_files(robot: str, output: Path, team_consistency: bool
     handlers are restored after), and the CSV writers of its alignments (and team
     alignments), closed after."""
     output.mkdir(parents=True, exist_ok=True)
-    rows = AlignmentCsv(output / f"{robot}.csv")
-    team_rows = (AlignmentCsv(output / f"{robot}.team.csv", TEAM_COLUMNS)
-                 if team_consistency else None)
-    stop = _StopEvent()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            previous[sig] = signal.signal(sig, lambda *_: stop.set())
-    try:
+    with ExitStack() as opened:  # what opened is closed, also when the next fails to open
+        rows = AlignmentCsv(output / f"{robot}.csv")
+        opened.callback(rows.close)
+        team_rows = None
+        if team_consistency:
+            team_rows = AlignmentCsv(output / f"{robot}.team.csv", TEAM_COLUMNS)
+            opened.callback(team_rows.close)
+        stop = _StopEvent()
+        opened.callback(stop.close)
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                opened.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
         yield stop, rows, team_rows
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        stop.close()
-        rows.close()
-        if team_rows is not None:
-            team_rows.close()
 
 
 def _freeze_heap() -> None:
@@ -174,6 +164,16 @@ def _freeze_heap() -> None:
     """
     if threading.current_thread() is threading.main_thread():
         gc.freeze()
+
+
+def _close(node: RobotNode, path: Path, start: float | None, timing: dict[str, float]
+           ) -> None:
+    """Close `node`, then write its outcome to `path` (`_write_outcome`), also when the close
+    fails: its results stay, and the failure is raised after."""
+    try:
+        node.close()
+    finally:
+        _write_outcome(path, node, start, timing)
 
 
 def _write_outcome(path: Path, node: RobotNode, start: float | None,
@@ -275,7 +275,8 @@ def save_replays(run, folder: Path) -> list[Path]:
 
 
 def start_team(argvs: list[list[str]], log_dir: Path) -> list[subprocess.Popen]:
-    """Start each node command, its output in `<log_dir>/<k>.log`."""
+    """Start each node command, its output in `<log_dir>/node<k>.log` (what `tcaff team`
+    quotes a failed node's error from)."""
     log_dir.mkdir(parents=True, exist_ok=True)
     procs = []
     for k, argv in enumerate(argvs):

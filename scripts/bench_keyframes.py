@@ -29,6 +29,7 @@ import numpy as np
 from tcaff_gtsam.eval.sim.keyframe_teams import keyframe_team, play
 
 from tcaff_gtsam import GraphParams, InterRobotGraph, TcaffError
+from tcaff_gtsam.errors import reason
 from tcaff_gtsam.geometry import se2_error
 
 THRESHOLDS = (1e-3, 1e-2, 0.1, 1.0)
@@ -93,17 +94,18 @@ def one(seed: int) -> dict:
                 play(converged, op)
                 continue
             tied = tied_to_robot_0(n, links)
-            # keyframes that had left before: the graph's own record tells them (a benchmark)
-            left = {r: set(poses(bounded, r)) - set(bounded._keyframes[r]) for r in tied}
+            # the keyframes that left and the poses they left with: the graph's own record
+            left = {r: set(bounded._left_keyframes[r]) for r in tied}
             start = time.perf_counter()
             play(bounded, op)
             seconds += time.perf_counter() - start
             play(converged, op)
             for r in tied:
-                reference = poses(converged, r)
-                for m, T in poses(bounded, r).items():
-                    if m not in bounded._keyframes[r] and m not in left[r]:  # left now
-                        worst["left"] = max(worst["left"], difference(reference[m], T))
+                now_left = bounded._left_keyframes[r]
+                if fresh := now_left.keys() - left[r]:
+                    reference = poses(converged, r)
+                    worst["left"] = max(worst["left"], *(difference(reference[m], now_left[m])
+                                                         for m in fresh))
         for r in tied_to_robot_0(n, links):
             reference = poses(converged, r)
             for m, T in poses(bounded, r).items():
@@ -114,7 +116,7 @@ def one(seed: int) -> dict:
                                             bounded.alignment(i, i + 1, last)[0])
                                  for i in range(n - 1))
     except TcaffError as exc:
-        return {"seed": seed, "error": str(exc).splitlines()[0][:160]}
+        return {"seed": seed, "error": reason(exc)}
     return {"seed": seed, **worst, "ms_per_update": 1e3 * seconds / team.steps}
 
 

@@ -421,6 +421,9 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._active[index] = q
             self._count(q, index, +1)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
+        if self._converge():  # a new solver, with marginal factors of its own
+            factors = self._isam.getFactorsUnsafe()
+            marginals = {i: factors.at(i) for i in self._marginal}
         self._marginalise(leaving, joints, marginals)
         self._switches = _copied_switches(self._hypothesis, self._abandoned, self._suspended)
 
@@ -502,9 +505,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         alignments). Runs before each iSAM2 update, so priors come and go with the factors
         (a first alignment, a removed hypothesis) in the same update."""
         chains = self._a_chains if self._steps else frozenset()
-        if self._last_keyframe:
-            chains = chains | {("X", r) for r, last in self._last_keyframe.items()
-                               if not self._has_left(_x_key(r, last))}
+        # a robot's latest keyframe never leaves (`_leaving`)
+        chains = chains | {("X", robot) for robot in self._last_keyframe}
         removing = self._to_remove
         dropped = Counter(self._active[i].link for i in removing if self._active[i].link)
         # pairs of chains with committed factors between them

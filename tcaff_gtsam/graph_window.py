@@ -149,11 +149,6 @@ class SlidingWindow:
                     self._keyframes_at[newest].append(key)
                     self._keyframe_rank[key] = newest
                     kept.add(key)
-                else:
-                    # a keyframe held only by the gauge prior moved below leaves with no
-                    # factor (iSAM2 drops it), so its estimate is kept now; `_marginalise`
-                    # updates it
-                    self._left_keyframes[robot][index] = self._value(key)
             self._n_left += 1
         self._to_remove.extend(index for chain, index in self._free.items()
                                if index not in self._to_remove
@@ -180,9 +175,6 @@ class SlidingWindow:
         those steps that the cycle check holds out can never come back: dropped.
         `marginals`: the marginal factors of what left before, by index (a refused
         marginalisation drops them from gtsam's graph)."""
-        if self._converge():  # a new solver, with marginal factors of its own
-            factors = self._isam.getFactorsUnsafe()
-            marginals = {i: factors.at(i) for i in self._marginal}
         if ranks and self._suspended:
             gone = {self._steps[rank] for rank in ranks}
             for held_out in self._suspended.values():
@@ -277,8 +269,7 @@ class SlidingWindow:
         badly so for large rotations."""
         linear = marginal.linearize(theta)
         keys = list(linear.keys())
-        pose = (lambda values, key: values.atPose2(key)) if self._planar else (
-            lambda values, key: values.atPose3(key))
+        pose = gtsam.Values.atPose2 if self._planar else gtsam.Values.atPose3
         before = [pose(theta, key) for key in keys]
         # a rigid motion G of the group moves each variable's tangent by Ad(X^-1) G's
         V = np.vstack([X.inverse().AdjointMap() for X in before])
@@ -415,10 +406,6 @@ class SlidingWindow:
         """After a failed update: the steps and keyframes as they were, then a new solver
         holding the factors and values of the graph before it but the variables `pending`
         (gtsam's own is unusable after an exception)."""
-        for rank in leaving:
-            for key in self._keyframes_at.get(rank, []):
-                robot, index = _keyframe_of(key)
-                del self._left_keyframes[robot][index]
         self._n_left -= len(leaving)
         if step is not None:
             self._steps.pop()

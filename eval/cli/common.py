@@ -162,6 +162,7 @@ def _check_duration(duration: float | None) -> None:
 
 
 def _check_speed(speed: float) -> None:
+    """`--speed`: a finite number of run seconds per wall second, > 0."""
     if not (math.isfinite(speed) and speed > 0):
         _refuse("--speed", speed, "must be a finite number > 0 (run seconds per wall second)")
 
