@@ -388,7 +388,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         # the marginal factors of what left (a roll-back needs them)
         marginals = {i: factors.at(i) for i in self._marginal}
         stale = (dict(self._removed), set(self._stale)) if gone or restored else None
-        try:
+        pending = set(self._pending_values.keys())
+        factorization = self._isam.params().getFactorization()
+        before = None  # the point the graph before the update is solved from again
+
+        def apply() -> tuple[list[int], dict[int, np.ndarray]]:
             indices = self._commit(graph, self._pending_values, self._to_remove,
                                    removed_keys | kept)
             self._settle(touched)
@@ -398,7 +402,31 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
                 # the latest step's joint, which it keeps when the next step comes: computed
                 # here, so that a graph whose marginals gtsam cannot compute rolls back
                 self._joints[self._steps[-1]] = self._joint(self._steps[-1])
+            return indices, joints
+
+        try:
+            try:
+                indices, joints = apply()
+                if factorization == "QR":
+                    self._check_agreement(self._queued)
+            except RuntimeError:
+                if factorization != "CHOLESKY":
+                    raise
+                # Cholesky works on the square of the system and finds a consistent one
+                # indeterminate where its information spans some eight orders of magnitude
+                # (odometry sure to 1e-4 under a gauge prior of 1, variances of 1e6 for
+                # "unknown"); QR does not. Solved by QR, an update is kept unless its factors
+                # contradict each other, which Cholesky's failure also stood for.
+                before = self._restart_point(pending)
+                gone = self._refactorised(gone, marginals, before)
+                self._settled_from = None
+                if stale is not None:
+                    self._removed, self._stale = dict(stale[0]), set(stale[1])
+                indices, joints = apply()
+                self._check_agreement(self._queued)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
+            # the roll-back factorises as the graph did before (the failed solver's own)
+            self._isam.params().setFactorization(factorization)
             if stale is not None:
                 self._removed, self._stale = stale
             hypothesis, abandoned, suspended = self._switches
@@ -407,12 +435,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._suspended = {pair: held_out for pair, (held_out, _) in suspended.items()}
             for held_out, n in suspended.values():
                 del held_out.factors[n:]
-            pending = set(self._pending_values.keys())
             self._forget_keyframes(pending)
             dropped, self._queued = self._queued, later
             self._pending_values, self._to_remove = gtsam.Values(), []
             tags = [q.tag for q in dropped if q.tag and q.tag[0] != "free"]
-            self._roll_back(gone, marginals, step, leaving, pending)  # last: it can raise
+            self._roll_back(gone, marginals, step, leaving, pending, before)  # last: it can raise
             raise DataError(f"update: gtsam could not solve the graph with the {len(dropped)} "
                             f"factors queued for this update ({reason(exc)}); they were dropped "
                             f"and the graph is as it was before (tagged among them: "

@@ -6,6 +6,7 @@ update."""
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_left
 
 import gtsam
@@ -21,6 +22,10 @@ from .graph_inputs import (
 )
 
 __all__ = ["SlidingWindow"]
+
+#: the squared whitened error past which an update solved by QR holds factors that contradict
+#: each other (1000 standard deviations: past any noise model's tail)
+_CONTRADICTION = 1e6
 
 
 class SlidingWindow:
@@ -325,11 +330,16 @@ class SlidingWindow:
                        *(new.at(n) for n in range(new.size()))], theta, leaving)
 
     def _rebuild(self, active: dict[int, _Factor], marginals: list, point: gtsam.Values,
-                 without: set[int]) -> dict[int, int]:
+                 without: set[int], qr_only: bool = False) -> dict[int, int]:
         """A new solver holding the factors `active` (by index) and the marginal factors
         `marginals`, from the values of `point` but those of the variables `without`;
         `_active`, `_marginal` and `_free` index its factors from then on. Returns each
-        factor's new index by its index in `active`."""
+        factor's new index by its index in `active`.
+
+        It factorises as the solver before it did, and where that fails by QR (a system
+        Cholesky finds indeterminate: near-singular covariances), more slowly, from then on;
+        a DataError where neither solves it. `qr_only`: by QR alone, and gtsam's RuntimeError
+        where that fails. Either way the graph keeps the solver before it when it fails."""
         values = gtsam.Values(point)
         for key in without:
             if values.exists(key):
@@ -340,24 +350,26 @@ class SlidingWindow:
         for factor in marginals:
             graph.add(factor)
         old, params = self._isam, self._isam.params()
+        factorization = params.getFactorization()
+        attempts = ("QR",) if qr_only else tuple(dict.fromkeys((factorization, "QR")))
         try:
-            self._new_solver(params)
-            indices = self._commit(graph, values, [])
-        except RuntimeError:
-            # a system Cholesky finds indeterminate (near-singular covariances): QR factorises
-            # it, more slowly, in this solver from then on
-            factorization = params.getFactorization()
-            params.setFactorization("QR")
-            try:
-                self._new_solver(params)  # gtsam's solver keeps a copy of its parameters
-                indices = self._commit(graph, values, [])
-            except RuntimeError as exc:
-                self._isam = old
-                raise DataError(f"InterRobotGraph: gtsam could not solve the graph again in a "
-                                f"new solver ({reason(exc)}); the graph cannot be "
-                                f"used further") from None
-            finally:  # `params` is the old solver's own (gtsam gives it by reference)
-                params.setFactorization(factorization)
+            for attempt in attempts:
+                params.setFactorization(attempt)
+                try:
+                    self._new_solver(params)  # gtsam's solver keeps a copy of its parameters
+                    indices = self._commit(graph, values, [])
+                    break
+                except RuntimeError as exc:
+                    if attempt != attempts[-1]:
+                        continue
+                    self._isam = old
+                    if qr_only:
+                        raise
+                    raise DataError(f"InterRobotGraph: gtsam could not solve the graph again "
+                                    f"in a new solver ({reason(exc)}); the graph cannot be "
+                                    f"used further") from None
+        finally:  # `params` is the old solver's own (gtsam gives it by reference)
+            params.setFactorization(factorization)
         remap = dict(zip(active, indices[:len(active)], strict=True))
         self._active = {remap[i]: f for i, f in active.items()}
         self._marginal = set(indices[len(active):])
@@ -401,21 +413,58 @@ class SlidingWindow:
                 else:
                     self._last_keyframe[robot] = before
 
+    def _restart_point(self, pending: set[int]) -> gtsam.Values:
+        """The point a failed update solves the graph before it again from: where `_settle`
+        started, else the solver's linearisation point, without the new variables `pending`
+        (gtsam's solver is unusable after an exception, but its point can be read)."""
+        point = gtsam.Values(self._isam.getLinearizationPoint() if self._settled_from is None
+                             else self._settled_from)
+        for key in pending:
+            if point.exists(key):
+                point.erase(key)
+        return point
+
     def _roll_back(self, gone: list[tuple[int, _Factor]], marginals: dict, step: int | None,
-                   leaving: list[int], pending: set[int]) -> None:
+                   leaving: list[int], pending: set[int], point: gtsam.Values | None) -> None:
         """After a failed update: the steps and keyframes as they were, then a new solver
-        holding the factors and values of the graph before it but the variables `pending`
-        (gtsam's own is unusable after an exception)."""
+        holding the factors of the graph before it at `point` (`_restart_point` when None)."""
         self._n_left -= len(leaving)
         if step is not None:
             self._steps.pop()
             self._step_set.discard(step)
-        point = (self._isam.getLinearizationPoint() if self._settled_from is None
-                 else self._settled_from)
+        if point is None:
+            point = self._restart_point(pending)
         remap = self._rebuild({**self._active, **dict(gone)}, self._pointed(marginals, point),
-                              point, pending)
+                              point, set())
         for index, f in gone:
             self._count(f, remap[index], +1)
+
+    def _refactorised(self, gone: list[tuple[int, _Factor]], marginals: dict,
+                      point: gtsam.Values) -> list[tuple[int, _Factor]]:
+        """After Cholesky failed on an update: a new solver that factorises by QR from then on,
+        holding the graph before the update at `point`, and the update's removals indexed in
+        it. Returns `gone`, the factors the update removes, by their new indices."""
+        remap = self._rebuild({**self._active, **dict(gone)}, self._pointed(marginals, point),
+                              point, set(), qr_only=True)
+        gone = [(remap[index], self._active.pop(remap[index])) for index, _ in gone]
+        self._to_remove = [index for index, _ in gone]
+        return gone
+
+    def _check_agreement(self, factors: list[_Factor]) -> None:
+        """RuntimeError where a factor of `factors` is left more than `_CONTRADICTION` from
+        its measurement by the solution (its squared whitened error; robust factors their
+        loss): factors that contradict each other, which least squares by QR averages into
+        a solution far from every one of them."""
+        estimate = gtsam.Values()
+        get = (self._isam.calculateEstimatePose2 if self._planar
+               else self._isam.calculateEstimatePose3)
+        for key in {key for f in factors for key in f.keys}:
+            estimate.insert(key, get(key))
+        worst = max((2.0 * f.factor.error(estimate) for f in factors), default=0.0)
+        if not worst <= _CONTRADICTION:
+            raise RuntimeError(f"the update's factors contradict each other: solved by QR, "
+                               f"one is left {math.sqrt(worst):.3g} standard deviations from "
+                               f"its measurement")
 
     def _settle(self, keys: set[int]) -> None:
         """Extra iterations while a variable the update touched is still far from its

@@ -21,6 +21,7 @@ from tcaff_gtsam.geometry import (
     se2_error,
     se2_from_params,
     se2_to_params,
+    se2_to_se3,
     se3_from_xyz_yaw,
     wrap_angle,
 )
@@ -1116,17 +1117,17 @@ def _failing_isam_updates(monkeypatch, n: int) -> None:
 
 @pytest.mark.parametrize("horizon", [None, 4])
 def test_a_roll_back_whose_first_solve_fails_solves_again_by_qr(monkeypatch, horizon):
-    """The update fails, and so does solving the graph before it again (Cholesky on
-    near-singular covariances): the roll-back solves it by QR, and the graph is the one
-    before the update, steps, horizon and all, and goes on. It used to leave the failed
-    step in, the factors queued and every later call raising IndexError."""
+    """The update fails by Cholesky and by QR, and so does solving the graph before it again
+    by Cholesky (near-singular covariances): the roll-back solves it by QR, and the graph is
+    the one before the update, steps, horizon and all, and goes on. It used to leave the
+    failed step in, the factors queued and every later call raising IndexError."""
     graph = InterRobotGraph(3, GraphParams(horizon=horizon))
     for k in range(8):
         graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
         graph.add_alignment(k, 1, 2, [-1.0, 0.5, 0.1], R)
         graph.update(k)
     before = graph.alignment(0, 1), graph.alignment(1, 2, 5)
-    _failing_isam_updates(monkeypatch, 2)
+    _failing_isam_updates(monkeypatch, 3)
     graph.add_alignment(8, 0, 1, [1.0, 2.0, 0.3], R)
     with pytest.raises(DataError, match="as it was before"):
         graph.update(8)
@@ -1148,17 +1149,101 @@ def test_a_graph_gtsam_cannot_solve_again_says_so(monkeypatch):
     for k in range(3):
         graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
         graph.update(k)
-    _failing_isam_updates(monkeypatch, 3)
+    _failing_isam_updates(monkeypatch, 4)
     graph.add_alignment(3, 0, 1, [1.0, 2.0, 0.3], R)
     with pytest.raises(DataError, match=r"could not solve the graph again .* cannot be used"):
         graph.update(3)
     assert graph.steps == [0, 1, 2]
 
 
+def _sure_odometry_team(dim: int, variances, steps: int, rng) -> tuple:
+    """Two robots driving arcs, each keyframe chained by odometry with `variances` (gtsam's
+    tangent order), tied by noise-free keyframe alignments from step 3; the graph after each
+    step's update, and each robot's true keyframe poses in robot 0's frame."""
+    graph = InterRobotGraph(2, GraphParams(dim=dim))
+    T_o0_o1 = se2_from_params([*rng.uniform(-5, 5, 2), rng.uniform(-3, 3)])
+    moves = [se2_from_params([rng.uniform(0.2, 0.6), 0.0, rng.uniform(-0.2, 0.2)])
+             for _ in range(2)]
+    lift = (lambda T: T) if dim == 2 else se2_to_se3
+    T_o_b, truth = [np.eye(3), np.eye(3)], {0: [], 1: []}
+    C = np.diag([0.01, 0.01, 3e-4] if dim == 2 else [0.01, 0.01, 0.01, 3e-4])
+    for k in range(steps):
+        for r in range(2):
+            T_o_b[r] = T_o_b[r] @ moves[r] if k else T_o_b[r]
+            graph.add_keyframe(r, k, lift(T_o_b[r]), np.diag(variances) if k else None)
+            truth[r].append(lift((T_o0_o1 if r else np.eye(3)) @ T_o_b[r]))
+        if k >= 3:
+            graph.add_keyframe_alignment(0, k, 1, k, lift(T_o0_o1), C)
+        graph.update(k)
+    return graph, truth
+
+
+@pytest.mark.parametrize("dim, variances", [
+    (2, [1e-8, 1e-8, 1e-8]),                          # sure to 0.1 mm and 0.006 deg
+    (3, [1e-9, 1e-9, 1e-4, 1e-4, 1e-4, 1e-9]),        # roll, pitch and z "fixed"
+    (3, [1e6, 1e6, 1e-4, 1e-4, 1e-4, 1e6]),           # roll, pitch and z "unknown"
+])
+def test_odometry_sure_of_some_directions_is_solved_by_qr(dim, variances):
+    """Odometry whose covariance spans many orders of magnitude (as ROS odometry declares
+    what it does not measure) is a system Cholesky finds indeterminate under a gauge prior of
+    1: every update failed. The graph now solves it by QR, from then on, and exactly."""
+    graph, truth = _sure_odometry_team(dim, variances, 8, np.random.default_rng(0))
+    assert graph._isam.params().getFactorization() == "QR"
+    for r in range(2):
+        np.testing.assert_allclose(graph.trajectory(r)[1], truth[r], atol=1e-6)
+    # and on QR, factors that contradict each other are still refused
+    lift = (lambda T: T) if dim == 2 else se2_to_se3
+    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
+        graph.add_between(keyframe_key(0, 7), keyframe_key(1, 7), lift(se2_from_params(T)),
+                          np.eye(3 if dim == 2 else 6) * 1e-30, robust=False)
+    with pytest.raises(DataError, match="contradict each other"):
+        graph.update(8)
+    assert graph._isam.params().getFactorization() == "QR"
+    for r in range(2):
+        np.testing.assert_allclose(graph.trajectory(r)[1], truth[r], atol=1e-6)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), sure=st.floats(-13.5, 5.5),
+       which=st.lists(st.booleans(), min_size=6, max_size=6))
+def test_keyframe_chains_of_any_declared_odometry_are_solved(seed, sure, which):
+    """Any odometry covariance the checks let through, with some directions sure or unknown
+    to 10^sure m^2 or rad^2: no update fails and the keyframes are where they are."""
+    variances = [10.0**sure if w else 1e-4 for w in which]
+    graph, truth = _sure_odometry_team(3, variances, 6, np.random.default_rng(seed))
+    for r in range(2):
+        np.testing.assert_allclose(graph.trajectory(r)[1], truth[r], atol=1e-5)
+
+
+def test_contradicting_factors_solved_by_qr_are_refused():
+    """Two rigid factors 9 km apart: Cholesky finds the system indeterminate, and QR's
+    least squares puts the alignment some 1e29 m away. The update is refused as before, the
+    graph's estimate and factorisation are as they were, and it goes on."""
+    graph = InterRobotGraph(2)
+    for k in range(3):
+        graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
+        graph.update(k)
+    before = graph.alignment(0, 1)
+    for T in ([9e3, 9e3, 3.0], [-9e3, -9e3, -3.0]):
+        graph.add_between(alignment_key(0, 2), alignment_key(1, 2), se2_from_params(T),
+                          np.diag([1e-30] * 3), robust=False)
+    with pytest.raises(DataError, match="contradict each other: solved by QR, one is left "
+                                        r"[0-9.e+]+ standard deviations"):
+        graph.update(3)
+    assert graph.steps == [0, 1, 2]
+    assert graph._isam.params().getFactorization() == "CHOLESKY"
+    for got, was in zip(graph.alignment(0, 1), before, strict=True):
+        np.testing.assert_allclose(got, was, atol=1e-12)
+    graph.add_alignment(3, 0, 1, [1.0, 2.0, 0.3], R)
+    graph.update(3)
+    np.testing.assert_allclose(graph.alignment(0, 1)[0], se2_from_params([1.0, 2.0, 0.3]),
+                               atol=1e-6)
+
+
 def test_an_update_whose_latest_covariance_gtsam_cannot_compute_is_rolled_back(monkeypatch):
     """With a horizon the latest step's joint covariance is computed with the update that
-    commits it: where gtsam cannot compute it, that update is rolled back, rather than every
-    later update and read raising gtsam's RuntimeError."""
+    commits it: where gtsam cannot compute it (by Cholesky, nor by QR), that update is rolled
+    back, rather than every later update and read raising gtsam's RuntimeError."""
     graph = InterRobotGraph(3, GraphParams(horizon=5))
     for k in range(6):
         graph.add_alignment(k, 0, 1, [1.0, 2.0, 0.3], R)
@@ -1166,11 +1251,11 @@ def test_an_update_whose_latest_covariance_gtsam_cannot_compute_is_rolled_back(m
         graph.update(k)
     before = graph.alignment(0, 2)
     original = gtsam.ISAM2.jointMarginalCovariance
-    failing = [True]
+    failing = [2]
 
     def joint(self, keys):
         if failing[0]:
-            failing[0] = False
+            failing[0] -= 1
             raise RuntimeError("Indeterminate linear system detected while working near "
                                "variable")
         return original(self, keys)
