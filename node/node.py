@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 import os
 import queue
 import random
@@ -225,6 +226,7 @@ class RobotNode:
             self._waiting_lock = threading.Lock()
             self._ros2_last: float | None = None  # the latest ROS 2 map's time
             self._closed = False
+            self._finished: bool | None = None  # `finish`'s answer, once called
             self._ego: dict[int, tuple[float, ObjectMap]] = {}
             # seq, stamp, perf_counter() when it was published
             self._ego_latest: tuple[int, float, float] | None = None
@@ -241,7 +243,8 @@ class RobotNode:
 
     # -- the pipeline's side ------------------------------------------------------------------
 
-    def publish(self, t: float, object_map: ObjectMap, seq: int | None = None) -> None:
+    def publish(self, t: float, object_map: ObjectMap, seq: int | None = None,
+                cancel: Callable[[], bool] | None = None) -> None:
         """Send the robot's map at time `t` (s, the clock of its `last_seen`) and align the
         neighbours' maps that wait for it.
 
@@ -249,12 +252,17 @@ class RobotNode:
             object_map: the map in the robot's odometry frame; objects seen kappa or more
                 seconds before t are left out.
             seq: the exchange counter (a replay's exchange index); None: one more than the last.
+            cancel: while the worker's queue is full (a worker stuck or far behind), the map
+                waits for a place in it until `cancel()` is true (asked every 0.05 s; None:
+                as long as it takes); it is then not aligned (counted "dropped_overflow"),
+                though it went out to the team.
         Raises:
             DataError: t not finite, not an ObjectMap, seq not after the previous one.
         """
-        self._publish(t, object_map, seq, block=True)
+        self._publish(t, object_map, seq, block=True, cancel=cancel)
 
-    def _publish(self, t: float, object_map: ObjectMap, seq: int | None, block: bool) -> None:
+    def _publish(self, t: float, object_map: ObjectMap, seq: int | None, block: bool,
+                 cancel: Callable[[], bool] | None = None) -> None:
         object_map = as_object_map("RobotNode.publish", "object_map", object_map)
         t = finite_time("RobotNode.publish", "t", t)
         with self._publishing:  # the pipeline's thread, or the transport's with ros2_objects
@@ -268,43 +276,65 @@ class RobotNode:
             self.counters["maps_sent"] += 1
             self._seq = seq + 1
             item = ("ego", seq, t, recent, time.perf_counter())
-            if block:
+            if block and cancel is None:
                 self._inbox.put(item)
-            else:  # never block the transport's thread
-                try:
-                    self._inbox.put_nowait(item)
-                except queue.Full:
-                    self.drop("overflow", "queue full (own map)")
+            elif not _until(lambda s: _put(self._inbox, item, s), math.inf if block else 0.0,
+                            cancel):  # never block the transport's thread
+                self.drop("overflow", "queue full (own map)")
 
     def present(self, timeout: float = 1.0) -> set[str]:
         """The team members whose nodes are up and linked to this one (Zenoh liveliness, or
         over DDS a publisher of the member's map)."""
         return self._transport.present(timeout) & self.members
 
-    def wait_idle(self, timeout: float = 10.0) -> bool:
-        """Block until every message received so far is handled; False on timeout."""
+    def wait_idle(self, timeout: float = 10.0, cancel: Callable[[], bool] | None = None
+                  ) -> bool:
+        """Block until every message received so far is handled; False after `timeout` s, or
+        once `cancel()` is true (asked every 0.05 s; a node told to stop now)."""
         deadline = time.monotonic() + timeout
         self._idle.clear()
-        try:  # a full queue waits for the worker too
-            self._inbox.put(("idle",), timeout=timeout)
-        except queue.Full:
-            return False
-        return self._idle.wait(max(deadline - time.monotonic(), 0.0))
+        # a full queue waits for the worker too
+        return (_until(lambda s: _put(self._inbox, ("idle",), s), timeout, cancel)
+                and _until(self._idle.wait, deadline - time.monotonic(), cancel))
 
-    def close(self) -> None:
-        """Stop the worker (after what is queued; 30 s at most) and close the session; again:
-        nothing."""
+    def finish(self, timeout: float = 30.0, cancel: Callable[[], bool] | None = None) -> bool:
+        """Let the worker handle what is queued and end, and the saver write the filters
+        waiting to be saved: within `timeout` s in all, or until `cancel()` is true (asked
+        every 0.05 s). The session stays open (`close` closes it); again: the first answer.
+
+        Returns:
+            True when both ended. False: the stop was cut short (a worker stuck in a step,
+            a step longer than what was left); the worker and the saver are left to the
+            process's exit (daemon threads) with what they hold (`queued`).
+        """
+        if self._finished is None:
+            deadline = time.monotonic() + timeout
+
+            def left() -> float:
+                return max(deadline - time.monotonic(), 0.0)
+
+            self._finished = (
+                _until(lambda s: _put(self._inbox, None, s), left(), cancel)
+                and _until(lambda s: _joined(self._worker, s), left(), cancel))
+            if self._saver is not None:  # the filters of steps made are results too: its
+                # writes take milliseconds, and it gets a moment even past a stuck worker
+                saved = self._saver.close(max(left(), _SAVER_LEAST), cancel)
+                self._finished = saved and self._finished
+        return self._finished
+
+    def queued(self) -> int:
+        """Maps and alignments received (or published) and not yet handled by the worker; the
+        one it is handling not counted."""
+        waiting = list(self._inbox.queue)  # a copy: the transport's threads add to it
+        return sum(item is not None and item[0] != "idle" for item in waiting)
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Stop the worker (after what is queued, `finish`; `timeout` s at most, unless
+        `finish` was called before) and close the session; again: nothing."""
         if self._closed:
             return
         self._closed = True
-        deadline = time.monotonic() + 30.0
-        try:  # a worker stuck on a full queue is left behind, as one still busy at the deadline
-            self._inbox.put(None, timeout=30.0)
-        except queue.Full:
-            pass
-        self._worker.join(timeout=max(deadline - time.monotonic(), 0.0))
-        if self._saver is not None:
-            self._saver.close()
+        self.finish(timeout)
         self._transport.close()
 
     def __enter__(self) -> RobotNode:
@@ -595,12 +625,50 @@ class _Saver:
                     self._counters["save_errors"] += 1
                     log.warning("%s: could not save %s: %s", self._robot, path, exc)
 
-    def close(self) -> None:
-        """Write what is pending, then stop."""
+    def close(self, timeout: float = 60.0, cancel: Callable[[], bool] | None = None) -> bool:
+        """Write what is pending, then stop: within `timeout` s, or until `cancel()` is true
+        (asked every 0.05 s). False: not all written then (the thread is left to the
+        process's exit; a file it is writing is renamed into place only once whole)."""
         with self._wake:
             self._stopping = True
             self._wake.notify()
-        self._thread.join(timeout=60)
+        return _until(lambda s: _joined(self._thread, s), timeout, cancel)
+
+
+#: s the saver gets to end in `RobotNode.finish` whatever is left of its timeout
+_SAVER_LEAST = 0.1
+#: s between two questions to a wait's `cancel`
+_CANCEL_POLL = 0.05
+
+
+def _until(done: Callable[[float], bool], timeout: float,
+           cancel: Callable[[], bool] | None = None) -> bool:
+    """Call `done(s)`, a wait of at most s seconds that returns whether its thing happened,
+    until it does (True), `timeout` s have passed or `cancel()` is true (False). With `cancel`
+    the waits are at most `_CANCEL_POLL` s each: a signal handler cannot end a wait, it can
+    only make `cancel` true."""
+    deadline = time.monotonic() + max(timeout, 0.0)
+    while True:
+        left = max(deadline - time.monotonic(), 0.0)
+        if done(left if cancel is None else min(left, _CANCEL_POLL)):
+            return True
+        if left <= 0.0 or (cancel is not None and cancel()):
+            return False
+
+
+def _put(inbox: queue.Queue, item, timeout: float) -> bool:
+    """Put `item` in `inbox` if a place frees within `timeout` s (0: only if one is free)."""
+    try:
+        inbox.put(item, timeout=timeout) if timeout > 0 else inbox.put_nowait(item)
+        return True
+    except queue.Full:
+        return False
+
+
+def _joined(thread: threading.Thread, timeout: float) -> bool:
+    """Whether `thread` ended within `timeout` s."""
+    thread.join(timeout)
+    return not thread.is_alive()
 
 
 def _after(t: float | None) -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import os
 import select
 import signal
@@ -19,35 +20,60 @@ from pathlib import Path
 
 import numpy as np
 
-from tcaff_gtsam.params import FrameAlignerParams, TCAFFParams, _int_at_least, _require
+from tcaff_gtsam.params import (
+    FrameAlignerParams,
+    TCAFFParams,
+    _finite,
+    _int_at_least,
+    _require,
+)
 from tcaff_gtsam.precompile import compile_kernels
 
 from .link import Link, TlsFiles
-from .node import NodeParams, RobotNode
+from .node import NodeParams, RobotNode, _joined, _until
 from .replay import MAX_TEAM, RobotReplay, replay, robot_names, run_replay
 from .results import TEAM_COLUMNS, AlignmentCsv, write_counters
 
-__all__ = ["free_ports", "live_node", "node_argv", "replay_node", "save_replays", "start_team",
-           "wait_team"]
+__all__ = ["STOP_TIMEOUT", "free_ports", "live_node", "node_argv", "replay_node", "save_replays",
+           "start_team", "wait_team"]
 
 log = logging.getLogger(__name__)
+
+#: s from SIGTERM or SIGINT to a node's results written (`tcaff node --stop-timeout`), its
+#: worker and saver finished or left; its session then gets what is left, `_CLOSE_LEAST` s at
+#: least. Well within ROS 2 launch's 5 s from SIGINT to SIGTERM (and 5 s more to SIGKILL),
+#: on a busy machine too
+STOP_TIMEOUT = 2.0
+#: s a node waits for its worker and saver at the end of a run that no signal stopped
+_FINISH_TIMEOUT = 30.0
+#: s its session gets to close after the results are written, whatever is left of the budget:
+#: a healthy close (0.1 s on a loaded machine) withdraws the node from its team cleanly
+_CLOSE_LEAST = 0.5
 
 
 def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
                 start: float | None, output: Path, clock_offset: float = 0.0,
                 state_dir: Path | None = None,
-                progress: Callable[[int, int], None] | None = None) -> RobotNode:
+                progress: Callable[[int, int], None] | None = None,
+                stop_timeout: float = STOP_TIMEOUT) -> RobotNode:
     """Run the node of `source`'s robot until its last exchange (or SIGTERM / SIGINT).
 
     Args:
         start: wall time (epoch s) of the run's first exchange; None: 1 s after every robot
             of the run is up and linked (or `TEAM_WAIT` s have passed).
+        stop_timeout: s from SIGTERM or SIGINT to the results written, what the worker
+            has not finished by then left (see `_close`); a second signal ends the stop's
+            waits at once.
     Writes `<output>/<robot>.csv` (every alignment, as made), with team consistency
     `<output>/<robot>.team.csv` (every team alignment), and `<output>/<robot>.json` (the start,
     then also the node's counters at the end, its share of one core over the replay and the
     latency from a neighbour's map arriving to its alignment going out). Returns the closed
     node.
+
+    Raises:
+        ParameterError: stop_timeout not a number > 0.
     """
+    _check_stop_timeout("replay_node", stop_timeout)
     robot = source.robots[source.robot]
     params = replace(params, kappa=source.kappa)
     tcaff = None if source.window is None else TCAFFParams(window=source.window)
@@ -63,23 +89,26 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
                 start = _team_start(node, stop)
             write_counters(output / f"{robot}.json", {"start": start})
             cpu, began = time.process_time(), time.time()
-            replay(source, node.publish, start, params.speed, clock_offset, stop, progress)
+            # a full queue behind a stuck worker must not keep the stop waiting
+            replay(source, lambda t, object_map, k: node.publish(t, object_map, k, stop.is_set),
+                   start, params.speed, clock_offset, stop, progress)
             if not stop.is_set():
                 # the neighbours' last maps are still on their way
                 stop.wait(min(2.0, 2.0 / params.speed) + 0.2)
-            node.wait_idle(60.0)
+            node.wait_idle(60.0, lambda: stop.over(stop_timeout))
             timing = {"cpu_share": (time.process_time() - cpu) / max(time.time() - began, 1e-9)}
         finally:
-            _close(node, output / f"{robot}.json", start, timing)
+            _close(node, output / f"{robot}.json", start, timing, stop, stop_timeout)
     return node
 
 
 def live_node(robot: str, team: str, members: list[str], link: Link, params: NodeParams,
-              output: Path, state_dir: Path | None = None, duration: float | None = None
-              ) -> RobotNode:
+              output: Path, state_dir: Path | None = None, duration: float | None = None,
+              stop_timeout: float = STOP_TIMEOUT) -> RobotNode:
     """Run a node that takes its robot's maps from the ROS 2 topic /<robot>/tcaff/objects
     (`params.ros2_objects`) until SIGTERM / SIGINT or `duration` s; writes what `replay_node`
-    writes (without the share of a core). Returns the closed node."""
+    writes (without the share of a core), stops as it does. Returns the closed node."""
+    _check_stop_timeout("live_node", stop_timeout)
     with _node_files(robot, output, params.team_consistency) as (stop, rows, team_rows):
         compile_kernels()
         node = RobotNode(robot, team, members, link, params, on_alignment=rows.write,
@@ -89,9 +118,9 @@ def live_node(robot: str, team: str, members: list[str], link: Link, params: Nod
         try:
             write_counters(output / f"{robot}.json", {"start": start})
             stop.wait(duration)
-            node.wait_idle(60.0)
+            node.wait_idle(60.0, lambda: stop.over(stop_timeout))
         finally:
-            _close(node, output / f"{robot}.json", start, {})
+            _close(node, output / f"{robot}.json", start, {}, stop, stop_timeout)
     return node
 
 
@@ -103,21 +132,41 @@ class _StopEvent:
     `set` waits for that lock forever (the process then ignores every further SIGTERM). Here
     `set` takes no lock: it writes a byte to a pipe, and `wait` waits for the pipe to be
     readable; the byte is never read, so every later `wait` returns at once. The methods are
-    the `threading.Event` ones that `replay` and `_team_start` use.
+    the `threading.Event` ones that `replay` and `_team_start` use, and the stop's budget:
+    `over` and `left`, counted from the first `set`, and spent at once by a second (the
+    second signal of a supervisor losing patience).
+
+    Attributes:
+        at: `time.monotonic()` of the first `set` (None: not set).
+        times: how many times it was set.
     """
 
     def __init__(self) -> None:
         self._read, self._write = os.pipe()
         os.set_blocking(self._write, False)  # a signal handler never blocks
         self._set = False
+        self.at: float | None = None
+        self.times = 0
 
     def set(self) -> None:
+        self.times += 1
         if not self._set:
+            self.at = time.monotonic()
             self._set = True
             os.write(self._write, b"\0")
 
     def is_set(self) -> bool:
         return self._set
+
+    def left(self, budget: float) -> float:
+        """s left of `budget` s from the first `set` (inf before it; 0 after a second)."""
+        if self.at is None:
+            return math.inf
+        return 0.0 if self.times > 1 else max(self.at + budget - time.monotonic(), 0.0)
+
+    def over(self, budget: float) -> bool:
+        """Whether `budget` s have passed since the first `set`, or it was set again."""
+        return self.left(budget) <= 0.0
 
     def wait(self, timeout: float | None = None) -> bool:
         """True once set; waits up to `timeout` s (None: until set) for that."""
@@ -166,14 +215,54 @@ def _freeze_heap() -> None:
         gc.freeze()
 
 
-def _close(node: RobotNode, path: Path, start: float | None, timing: dict[str, float]
-           ) -> None:
-    """Close `node`, then write its outcome to `path` (`_write_outcome`), also when the close
-    fails: its results stay, and the failure is raised after."""
+def _check_stop_timeout(owner: str, stop_timeout: float) -> None:
+    _require(_finite(stop_timeout) and stop_timeout > 0, owner, "stop_timeout", stop_timeout,
+             "must be a number > 0 (s)")
+
+
+def _close(node: RobotNode, path: Path, start: float | None, timing: dict[str, float],
+           stop: _StopEvent, stop_timeout: float) -> None:
+    """Stop `node` within `stop_timeout` s of the stop signal (a second ends every wait at
+    once): its worker finishes what it has received and its filters are saved
+    (`RobotNode.finish`), then its outcome goes to `path` (`_write_outcome`), then its session
+    closes (`_close_session`). A stop cut short (a worker stuck in a step) writes what is
+    known, with "stop_cut_short" 1 and "stop_unhandled", the messages left unhandled. The
+    outcome is written whatever the finishing raises, and before the session's close, which
+    may take long (Zenoh gives up on a frozen peer after some 10 s); a failure of the close is
+    raised after."""
+    finished = False
     try:
-        node.close()
+        finished = node.finish(min(stop.left(stop_timeout), _FINISH_TIMEOUT),
+                               lambda: stop.over(stop_timeout))
     finally:
-        _write_outcome(path, node, start, timing)
+        ending = {} if finished else {"stop_cut_short": 1, "stop_unhandled": node.queued()}
+        if stop.at is not None:
+            ending["stop_s"] = time.monotonic() - stop.at
+        _write_outcome(path, node, start, timing | ending)
+    least = time.monotonic() + _CLOSE_LEAST
+    _close_session(node, lambda: stop.times > 1 or (stop.over(stop_timeout)
+                                                    and time.monotonic() > least))
+
+
+def _close_session(node: RobotNode, cancel: Callable[[], bool]) -> None:
+    """Close `node` (its session; its worker has finished or been left) on a thread, waiting
+    until it is closed or `cancel()` is true; a session left closing is logged, and the
+    process's exit ends it. A failure of the close is raised here."""
+    failed: list[BaseException] = []
+
+    def close() -> None:
+        try:
+            node.close()
+        except BaseException as exc:  # raised on the caller's thread
+            failed.append(exc)
+
+    closing = threading.Thread(target=close, name=f"tcaff-close-{node.robot}", daemon=True)
+    closing.start()
+    if not _until(lambda s: _joined(closing, s), math.inf, cancel):
+        log.warning("%s: its session is still closing; the node stops without waiting for "
+                    "it (its results are written)", node.robot)
+    if failed:
+        raise failed[0]
 
 
 def _write_outcome(path: Path, node: RobotNode, start: float | None,

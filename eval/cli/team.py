@@ -10,30 +10,25 @@ import atexit
 import math
 from enum import Enum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import typer
 
 from .common import (
-    _add_columns,
     _bars,
     _check_clock,
     _check_duration,
     _check_seeds,
     _check_speed,
     _console,
-    _keep_numbers_whole,
     _last_error,
     _refuse,
     _shipped,
-    _table,
     _writable_folder,
     app,
 )
 from .data import _kimera_bars
-
-if TYPE_CHECKING:
-    from rich.table import Table
+from .team_table import _team_table
 
 
 class Ros2Transport(str, Enum):
@@ -176,6 +171,12 @@ def node(
     ] = False,
     members: Annotated[str | None, typer.Option(
         help="With --ros2-objects: every robot of the team, like r0,r1,r2.")] = None,
+    stop_timeout: Annotated[float, typer.Option(
+        help="s from SIGTERM or SIGINT to <robot>.json written: what the node has received "
+             "is handled and its filters saved within it, else what is known is written, "
+             "marked stop_cut_short; its session then gets what is left, 0.5 s at least. A "
+             "second signal cuts the stop short at once. ROS 2 launch sends SIGTERM 5 s "
+             "after SIGINT, SIGKILL 5 s later.")] = 2.0,
 ) -> None:
     """One robot of a live team: publishes its maps, aligns to every neighbour's.
 
@@ -208,6 +209,8 @@ def node(
     _check_speed(speed)
     _check_seeds([seed])  # before the endpoints are checked: the run is made after them
     _check_clock(start_at, clock_offset)
+    if not (math.isfinite(stop_timeout) and stop_timeout > 0):
+        _refuse("--stop-timeout", stop_timeout, "must be a finite number > 0 (s)")
     if state is not None:
         _writable_folder(state, "--state")
     if drop_seed < 0:
@@ -230,7 +233,8 @@ def node(
                         domain_id=domain_id, ros2_objects=ros2_objects)
     _writable_folder(output, "--output")
     if ros2_objects:
-        node_ = live_node(robot, team, team_robots, link, params, output, state, duration)
+        node_ = live_node(robot, team, team_robots, link, params, output, state, duration,
+                          stop_timeout)
         print(f"{robot}: " + ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items())))
         return
     if replay is not None:
@@ -244,61 +248,10 @@ def node(
         if robot not in names:
             _refuse("--robot", robot, f"the run's robots are {_named(run, names)}")
         source = run_replay(run, names.index(robot), names)
-    node_ = replay_node(source, team, link, params, start_at, output, clock_offset, state)
+    node_ = replay_node(source, team, link, params, start_at, output, clock_offset, state,
+                        stop_timeout=stop_timeout)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items()))
     print(f"{robot}: {counts}")
-
-
-def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -> Table:
-    """Per directed pair: alignments made, accepted share, final and median error (the team
-    alignments of `<robot>.team.csv` when `team`, with the share chained through a robot)."""
-    import json
-
-    import numpy as np
-    from tcaff_gtsam.node.results import COLUMNS, TEAM_COLUMNS, read_alignments
-
-    from tcaff_gtsam.errors import DataError
-    from tcaff_gtsam.geometry import se2_to_params, wrap_angle
-
-    table = _table("Per directed pair: the team-consistent alignments against the truth" if team
-                   else "Per directed pair: the node's alignments against the truth")
-    _add_columns(table, ("pair", "steps", "accepted", *(("chained",) if team else ()),
-                         "median error [m, deg]", "last error [m, deg]"))
-    for i, robot in enumerate(names):
-        try:
-            rows = (read_alignments(output / f"{robot}.team.csv", TEAM_COLUMNS) if team
-                    else read_alignments(output / f"{robot}.csv", COLUMNS))
-        except DataError:
-            continue
-        for j, other in enumerate(names):
-            mine = rows["neighbour"] == other
-            if i == j or not mine.any():
-                continue
-            seq = rows["seq"][mine].astype(int)
-            accepted = rows["accepted"][mine] == 1
-            truth = se2_to_params(run.T_true(i, j)[seq])
-            x = np.column_stack([rows[c][mine] for c in ("x", "y", "theta")])
-            dt = np.linalg.norm(x[:, :2] - truth[:, :2], axis=1)
-            dh = np.degrees(np.abs(wrap_angle(x[:, 2] - truth[:, 2])))
-            scored = accepted & np.isfinite(dt)  # a recorded run may lack the truth
-            med = (f"{np.median(dt[scored]):.2f}, {np.median(dh[scored]):.1f}"
-                   if scored.any() else "-")
-            last = f"{dt[-1]:.2f}, {dh[-1]:.1f}" if scored[-1] else "-"
-            chained = ([f"{100 * (rows['via'][mine][accepted] != '').mean():.0f} %"
-                        if accepted.any() else "-"] if team else [])
-            table.add_row(f"{robot}->{other}", str(mine.sum()),
-                          f"{100 * accepted.mean():.0f} %", *chained, med, last)
-    late = {"dropped_stale": 0, "silent_steps": 0}
-    for robot in names:
-        path = output / f"{robot}.json"
-        counters = json.loads(path.read_text()) if path.exists() else {}
-        for key in late:
-            late[key] += counters.get(key, 0)
-    if any(late.values()) and not team:
-        table.caption = (f"{late['dropped_stale']} maps came too late and "
-                         f"{late['silent_steps']} steps had no neighbour's map: the team fell "
-                         f"behind its schedule (try a lower --speed) or lost maps")
-    return _keep_numbers_whole(table)
 
 
 def _kimera_run(data: Path, test: str, duration: float | None, maps: Path):

@@ -40,6 +40,8 @@ def test_layers_import_one_way(folder, above) -> None:
     (["node", "--robot", "r0", "--listen", "127.0.0.1:7447"],
      "--scenario/--kimera/--replay [None, None, None]: give exactly one"),
     (["team", "--scenario", "four_robots", "--speed", "nan"], "--speed nan"),
+    (["node", "--robot", "r0", "--scenario", "four_robots", "--stop-timeout", "0"],
+     "--stop-timeout 0.0: must be a finite number > 0 (s)"),
     (["team", "--kimera", "missing"], "--kimera 'missing': must be a folder"),
     (["team", "--scenario", "four_robots", "--kimera", "."], "give exactly one"),
     (["listen", "--team", "a/b", "--connect", "127.0.0.1:7447"], "--team 'a/b'"),

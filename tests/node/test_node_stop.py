@@ -1,0 +1,275 @@
+"""How a node stops: SIGTERM and SIGINT alike (ROS 2 launch sends SIGINT, then SIGTERM, then
+SIGKILL), within a budget whatever its worker is doing, and with its results whole whenever
+the process is killed.
+
+The live tests run two `tcaff node` processes of a team over loopback, r0's worker stuck in
+its third filter update (after two steps, whose results are done); they are marked
+`realtime`. Their waits are hang guards, not paces the tests expect.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tcaff_gtsam.node import NodeParams, RobotNode
+from tcaff_gtsam.node.replay import RobotReplay
+from tcaff_gtsam.node.results import read_alignments
+from tcaff_gtsam.node.run import free_ports, node_argv
+
+from tcaff_gtsam import ObjectMap
+from tcaff_gtsam.geometry import se2_from_params
+
+#: hang guard of the waits below (s): a failure, not a pace the tests expect
+_HANG = 90.0
+
+#: a `tcaff node` whose worker's filter updates past the first `after` never return;
+#: argv: marker file (written when the worker gets stuck), after, then tcaff's arguments
+STUCK_NODE = """
+import sys, threading
+from pathlib import Path
+from tcaff_gtsam.pairwise import PairwiseAligner
+
+marker, after = Path(sys.argv[1]), int(sys.argv[2])
+update, calls = PairwiseAligner.update, [0]
+
+def update_then_stick(self, *args, **kwargs):
+    if threading.current_thread().name.startswith("tcaff-node-"):  # not the kernels' warm-up
+        calls[0] += 1
+    if calls[0] > after:
+        marker.write_text("stuck")
+        threading.Event().wait()
+    return update(self, *args, **kwargs)
+
+PairwiseAligner.update = update_then_stick
+from tcaff_gtsam.eval.cli import main
+sys.argv = ["tcaff", *sys.argv[3:]]
+main()
+"""
+
+#: filter updates r0 makes before its worker sticks
+DONE = 2
+
+
+def replays(folder: Path, exchanges: int = 120) -> list[Path]:
+    """Replays of r0 and r1 at 1 Hz: 30 objects both see."""
+    rng = np.random.default_rng(5)
+    n = 30
+    xy = rng.uniform(-10, 10, (n, 2))
+    sizes = rng.uniform(0.3, 1.5, n)
+    T = se2_from_params([3.0, -2.0, 0.4])
+    in_r1 = (np.linalg.inv(T) @ np.c_[xy, np.ones(n)].T).T[:, :2]
+    times = np.arange(float(exchanges))
+    paths = []
+    for k, points in enumerate((xy, in_r1)):
+        maps = [ObjectMap(np.c_[points, np.zeros(n)], sizes, sizes, np.full(n, t))
+                for t in times]
+        paths.append(folder / f"r{k}.npz")
+        RobotReplay(("r0", "r1"), k, times, maps, kappa=20.0).save(paths[-1])
+    return paths
+
+
+class Alone:
+    """A transport that sends nothing and hears nothing: the node by itself, in memory."""
+
+    def configure(self, robot, params):
+        return params
+
+    def open(self, node) -> None:
+        pass
+
+    def put_map(self, message, recent) -> None:
+        pass
+
+    def put_alignment(self, message) -> None:
+        pass
+
+    def put_team(self, message) -> None:
+        pass
+
+    def present(self, timeout):
+        return set()
+
+    def close(self) -> None:
+        pass
+
+
+class StuckTeam:
+    """r1, and r0 whose worker sticks in its third update; `stuck()` waits until it has."""
+
+    def __init__(self, folder: Path, *r0_options: str) -> None:
+        self.out = folder / "out"
+        self.marker = folder / "stuck"
+        paths = replays(folder)
+        ports = free_ports(2)
+        argvs = [node_argv(paths[k], k, 2, "stopping", ports, None, self.out)
+                 for k in range(2)]
+        argvs[0] = [sys.executable, "-c", STUCK_NODE, str(self.marker), str(DONE),
+                    *argvs[0][3:], *r0_options]
+        self.logs = [folder / f"node{k}.log" for k in range(2)]
+        self.procs = []
+        for argv, log in zip(argvs, self.logs, strict=True):
+            with open(log, "wb") as file:
+                self.procs.append(subprocess.Popen(argv, stdout=file, stderr=subprocess.STDOUT))
+
+    def stuck(self) -> None:
+        deadline = time.monotonic() + _HANG
+        while not self.marker.exists():
+            assert self.procs[0].poll() is None, self.logs[0].read_text()[-3000:]
+            assert time.monotonic() < deadline, "r0's worker never got to its third update"
+            time.sleep(0.05)
+
+    def stopped(self) -> int:
+        """r0's exit status (a hang guard's TimeoutExpired if it does not exit)."""
+        return self.procs[0].wait(_HANG)
+
+    def close(self) -> None:
+        for proc in self.procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
+@pytest.fixture
+def stuck_team(tmp_path: Path):
+    teams: list[StuckTeam] = []
+
+    def make(*r0_options: str) -> StuckTeam:
+        teams.append(StuckTeam(tmp_path, *r0_options))
+        return teams[-1]
+
+    yield make
+    for team in teams:
+        team.close()
+
+
+def assert_results_of_the_finished_steps(out: Path) -> dict:
+    """r0's JSON holds its counters: the steps made before the worker stuck, as its CSV
+    rows, and the stop noted as cut short. Returns it."""
+    outcome = json.loads((out / "r0.json").read_text())
+    assert outcome["aligned"] == DONE, outcome
+    assert len(read_alignments(out / "r0.csv")["seq"]) == DONE
+    assert outcome["maps_sent"] >= DONE and outcome["maps_received"] >= DONE, outcome
+    assert outcome["stop_cut_short"] == 1 and outcome["stop_unhandled"] >= 0, outcome
+    assert not (out / "r0.json.partial").exists()
+    return outcome
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize("first", [signal.SIGTERM, signal.SIGINT], ids=lambda s: s.name)
+def test_a_node_whose_worker_is_stuck_writes_its_results_and_exits_when_stopped(
+        stuck_team, first: signal.Signals) -> None:
+    """SIGTERM (systemd's) and SIGINT (ROS 2 launch's first) alike: r0 stops with its worker
+    stuck in a step, writes the results of the steps it made, noting the stop cut short, and
+    exits by itself (it used to wait for the worker 90 s, past launch's SIGKILL)."""
+    team = stuck_team()
+    team.stuck()
+    team.procs[0].send_signal(first)
+    assert team.stopped() == 0, team.logs[0].read_text()[-3000:]
+    assert_results_of_the_finished_steps(team.out)
+
+
+@pytest.mark.realtime
+def test_a_second_signal_cuts_the_stop_short(stuck_team) -> None:
+    """With a budget longer than the hang guard, a second signal (launch's SIGTERM after its
+    SIGINT) ends the stop's waits at once: the results are written and the node exits."""
+    team = stuck_team("--stop-timeout", "3600")
+    team.stuck()
+    team.procs[0].send_signal(signal.SIGINT)
+    time.sleep(0.5)  # inside the stop (or not yet: two signals before it are the same)
+    team.procs[0].send_signal(signal.SIGTERM)
+    assert team.stopped() == 0, team.logs[0].read_text()[-3000:]
+    assert_results_of_the_finished_steps(team.out)
+
+
+def test_a_stuck_worker_leaves_finish_at_its_timeout_with_what_it_holds() -> None:
+    """`finish` gives up on a worker stuck in a step and says so, counting what it left
+    unhandled; a replay's publish behind the full queue gives up when told to, the map not
+    aligned and counted."""
+    node = RobotNode("r0", "team", ["r0", "r1"], Alone(), NodeParams(queue=2))
+    stepping, release = threading.Event(), threading.Event()
+    step = node._ego_step
+
+    def stuck(*args) -> None:
+        stepping.set()
+        release.wait()
+        step(*args)
+
+    node._ego_step = stuck
+    maps = ObjectMap(np.zeros((1, 3)), np.ones(1), np.ones(1), np.zeros(1))
+    try:
+        node.publish(0.0, maps)
+        assert stepping.wait(_HANG)
+        node.publish(1.0, maps)
+        node.publish(2.0, maps)  # the queue's two places
+        node.publish(3.0, maps, cancel=lambda: True)
+        assert node.counters["dropped_overflow"] == 1
+        answers: list[bool] = []
+        finishing = threading.Thread(target=lambda: answers.append(node.finish(0.2)),
+                                     daemon=True)
+        finishing.start()
+        finishing.join(_HANG)  # catches a hang only
+        assert answers == [False]
+        assert node.queued() == 2
+        assert node.finish(_HANG) is False  # the first answer, at once
+    finally:
+        release.set()
+        node.close()
+    assert node.counters["maps_sent"] == 4
+
+
+#: in a process of its own: the results are written again and again, and the writer is
+#: killed (SIGKILL, in a forked child) at the k-th event (call, line, return) of the write,
+#: for every k; prints whether every file left behind was the old or the new results whole
+KILLED_WHILE_WRITING = """
+import json, os, signal, sys
+from pathlib import Path
+from tcaff_gtsam.node.results import write_counters
+
+path = Path(sys.argv[1]) / "r0.json"
+old, new = {"start": 1.0}, {"start": 1.0, "maps_sent": 7, "aligned": 5}
+whole = []
+for k in range(100000):
+    path.write_text(json.dumps(old))
+    pid = os.fork()
+    if pid == 0:
+        events = [0]
+
+        def tracer(frame, event, arg):
+            events[0] += 1
+            if events[0] == k + 1:
+                os.kill(os.getpid(), signal.SIGKILL)
+            return tracer
+
+        sys.settrace(tracer)
+        write_counters(path, new)
+        sys.settrace(None)
+        os._exit(0)
+    _, status = os.waitpid(pid, 0)
+    try:
+        whole.append(json.loads(path.read_text()) in (old, new))
+    except ValueError:
+        whole.append(False)
+    if os.WIFEXITED(status):  # every event of the write has had its kill
+        break
+print(whole)
+"""
+
+
+def test_results_are_whole_wherever_the_writer_is_killed(tmp_path: Path) -> None:
+    """A node's JSON is written aside and renamed: a SIGKILL at any moment of the write
+    leaves the old results or the new, never an empty or cut file (it was written in
+    place)."""
+    done = subprocess.run([sys.executable, "-c", KILLED_WHILE_WRITING, str(tmp_path)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    whole = ast.literal_eval(done.stdout)
+    assert len(whole) > 5 and all(whole), whole
