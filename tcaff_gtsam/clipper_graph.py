@@ -16,7 +16,7 @@ import numpy as np
 from scipy import sparse
 
 from .errors import DataError
-from .inputs import index_pairs, kernel_array, real_array, shown
+from .inputs import MAX_COORDINATE, index_pairs, kernel_array, real_array, shown
 from .params import (
     ClipperParams,
     _finite,
@@ -25,6 +25,10 @@ from .params import (
 )
 
 __all__ = ["ConsistencyGraph", "consistency_graph"]
+
+#: the largest affinity weight or prior: the solver's products of weights overflow, and it
+#: returns no clique, from about 1e154 on
+MAX_AFFINITY = 1e100
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,10 +79,12 @@ class ConsistencyGraph:
         for name, values, shape in (("weights", weights, (n_entries,)), ("diag", diag, (m,))):
             if values.shape != shape:
                 raise DataError(f"{o}: {name} must have shape {shape}, got {values.shape}")
-            bad = ~(values >= 0) | (values == np.inf)  # NaN fails >= 0
+            bad = ~((values >= 0) & (values <= MAX_AFFINITY))  # NaN fails both
             if bad.any():
-                raise DataError(f"{o}: {name} must be finite numbers >= 0, got "
-                                f"{values[bad][0]} at index {int(np.flatnonzero(bad)[0])}")
+                i = int(np.flatnonzero(bad)[0])
+                rule = (f"at most {MAX_AFFINITY:g}" if np.isfinite(values[i]) and values[i] > 0
+                        else "finite numbers >= 0")
+                raise DataError(f"{o}: {name} must be {rule}, got {values[i]} at index {i}")
         self._store(associations, indptr, indices, weights, diag)
 
     def _store(self, *arrays: np.ndarray) -> None:
@@ -405,24 +411,35 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
     ego_points = real_array(o, "ego_points", ego_points)
     other_points = real_array(o, "other_points", other_points)
     associations = index_pairs(o, "associations", associations)
-    if (ego_points.ndim != 2 or other_points.ndim != 2 or ego_points.shape[1] not in (2, 3)
-            or other_points.shape[1] != ego_points.shape[1]):
-        raise DataError(f"consistency_graph: points must be (n, 2) or (n, 3) in both maps, "
-                        f"got {ego_points.shape} and {other_points.shape}")
-    if not (np.all(np.isfinite(ego_points)) and np.all(np.isfinite(other_points))):
-        raise DataError("consistency_graph: points must be finite")
+    for name, arr in (("ego_points", ego_points), ("other_points", other_points)):
+        if arr.ndim != 2 or arr.shape[1] not in (2, 3):
+            raise DataError(f"consistency_graph: {name} must be (n, 2) or (n, 3) points, got "
+                            f"shape {arr.shape}")
+    if other_points.shape[1] != ego_points.shape[1]:
+        raise DataError(f"consistency_graph: ego_points and other_points must have as many "
+                        f"coordinates, got shapes {ego_points.shape} and {other_points.shape}")
+    for name, arr in (("ego_points", ego_points), ("other_points", other_points)):
+        # NaN fails the comparison; beyond MAX_COORDINATE squared distances overflow
+        bad = ~(np.abs(arr) <= MAX_COORDINATE)
+        if bad.any():
+            i, j = (int(k) for k in np.argwhere(bad)[0])
+            raise DataError(f"consistency_graph: {name} must be finite coordinates within "
+                            f"{MAX_COORDINATE:g} m, got {arr[i, j]} at [{i}, {j}]")
     m = associations.shape[0]
-    if m and (associations.min() < 0 or associations[:, 0].max() >= len(ego_points)
-              or associations[:, 1].max() >= len(other_points)):
-        raise DataError(f"consistency_graph: association indices out of range for maps of "
-                        f"{len(ego_points)} and {len(other_points)} points")
+    for side, name in enumerate(("ego_points", "other_points")):
+        n = len(ego_points if side == 0 else other_points)
+        if m and associations[:, side].max() >= n:
+            i = int(np.argmax(associations[:, side]))
+            raise DataError(f"consistency_graph: associations[{i}, {side}] = "
+                            f"{associations[i, side]} is out of range for {name} of {n} "
+                            f"points")
     if prior is None:
         diag = np.ones(m)
     else:
         diag = real_array(o, "prior", prior)
-        if diag.shape != (m,) or not np.all(np.isfinite(diag)) or np.any(diag < 0):
-            raise DataError(f"consistency_graph: prior must be ({m},) finite and >= 0, "
-                            f"got shape {diag.shape}")
+        if diag.shape != (m,) or not ((diag >= 0) & (diag <= MAX_AFFINITY)).all():
+            raise DataError(f"consistency_graph: prior must be ({m},) finite numbers in "
+                            f"[0, {MAX_AFFINITY:g}], got {shown(diag)}")
     sizes = (len(ego_points), len(other_points))
     z = _per_object(o, "z", z, sizes)
     extents = _per_object(o, "vertical_extents", vertical_extents, sizes)

@@ -261,7 +261,7 @@ class TCAFFParams(_ByValue):
         for name in ("p_no_measurement", "gate_probability"):
             value = getattr(self, name)
             _require(_real(value) and 0 < value < 1, o, name, value, "must be in (0, 1)")
-        _require(_real(self.tau) and math.isfinite(self.tau), o, "tau", self.tau,
+        _require(_finite(self.tau), o, "tau", self.tau,
                  "must be a finite number (nats)")
         angles = self.angle_indices
         if isinstance(angles, np.ndarray) and angles.ndim == 1:

@@ -203,9 +203,11 @@ class FrameAligner:
                                                                               other_past)
         if held is not None:
             held = real_array(o, "held", held)
-            if held.shape != (3,) or not np.all(np.isfinite(held)):
-                raise DataError(f"{o}: held must be None or a finite (3,) (x, y, theta), got "
-                                f"{shown(held)}")
+            # NaN fails the comparison; a translation beyond the coordinates a registration
+            # takes would overflow the guided search's distances
+            if held.shape != (3,) or not (np.abs(held) <= MAX_COORDINATE).all():
+                raise DataError(f"{o}: held must be None or a finite (3,) (x, y, theta) within "
+                                f"{MAX_COORDINATE:g} m and rad, got {shown(held)}")
         if not isinstance(guided, (bool, np.bool_)):
             raise DataError(f"{o}: guided must be True or False, got {shown(guided)}")
         prm = self.params
@@ -396,9 +398,14 @@ class FrameAligner:
                                            prm.mno_downweight) if len(s)]
         if not solutions:
             return []
-        in_range = (np.abs(p_all).max() <= MAX_COORDINATE
-                    and np.abs(q_all).max() <= MAX_COORDINATE
-                    and 1.0 / prm.weight_offset <= MAX_WEIGHT)
+        for side, points in (("ego", p_all), ("other", q_all)):
+            largest = np.abs(points).max()
+            if not largest <= MAX_COORDINATE:
+                raise DataError(f"FrameAligner.measurements: {side}'s objects must lie within "
+                                f"{MAX_COORDINATE:g} m of its origin to be registered, got a "
+                                f"coordinate of magnitude {largest:.3g} (weighted_arun's "
+                                f"bound)")
+        in_range = 1.0 / prm.weight_offset <= MAX_WEIGHT
         arun = _weighted_arun if in_range else weighted_arun
         best = max(s.score for s in solutions)
         counting = prm.min_inliers is not None or prm.check_ambiguity

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DataError
-from .inputs import real_array
+from .inputs import MAX_COORDINATE, real_array
 from .object_map import ObjectMap, as_object_map
 from .params import _finite, _int_at_least, _require
 
@@ -55,9 +55,14 @@ class ObjectIdentities:
         xy = np.array(real_array("ObjectIdentities.update", "xy", xy))  # a copy: it is kept
         if xy.size == 0:
             xy = xy.reshape(0, 2)
-        if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
-            raise DataError(f"ObjectIdentities.update: xy must be a finite (n, 2) array, got "
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            raise DataError(f"ObjectIdentities.update: xy must be an (n, 2) array, got "
                             f"shape {xy.shape}")
+        bad = ~(np.abs(xy) <= MAX_COORDINATE)  # NaN fails the comparison
+        if bad.any():
+            i, j = (int(k) for k in np.argwhere(bad)[0])
+            raise DataError(f"ObjectIdentities.update: xy must be finite coordinates within "
+                            f"{MAX_COORDINATE:g} m, got {xy[i, j]} at [{i}, {j}]")
         self._exchange += 1
         n = xy.shape[0]
         ids = np.full(n, -1, np.int64)

@@ -20,6 +20,12 @@ from .params import _real
 
 __all__ = ["finite_time", "index_pairs", "output_path", "read_npz", "real_array", "shown"]
 
+#: metres; coordinates beyond this are no robot's odometry (and squared sums of them overflow
+#: long before they would stop being rounding noise)
+MAX_COORDINATE = 1e9
+#: the largest entry of a covariance: the square of MAX_COORDINATE, (m^2 or rad^2)
+MAX_VARIANCE = MAX_COORDINATE**2
+
 
 def shown(value, limit: int = 60) -> str:
     """A short repr of a rejected value for an error message (arrays by shape and dtype), at
@@ -61,9 +67,10 @@ def finite_time(owner: str, name: str, value) -> float:
 
 
 def real_array(owner: str, name: str, value) -> np.ndarray:
-    """`value` as a float64 array (not copied when it already is one). Numbers only: complex
-    values, strings, bytes and other objects are refused rather than cast (numpy would drop an
-    imaginary part or parse a string). Shape and finiteness are the caller's to check.
+    """`value` as a float64 array (not copied when it already is one). Numbers only: booleans,
+    complex values, strings, bytes, dates and other objects are refused rather than cast (numpy
+    would take True as 1, drop an imaginary part or parse a string). Shape and finiteness are
+    the caller's to check.
 
     Raises:
         DataError: naming `owner` and `name`.
@@ -72,7 +79,7 @@ def real_array(owner: str, name: str, value) -> np.ndarray:
         return value
     try:
         arr = np.asarray(value)
-        if arr.dtype.kind not in "biuf":
+        if arr.dtype.kind not in "iuf":
             raise TypeError(f"values of dtype {arr.dtype}")
         return arr.astype(np.float64, copy=False)
     except (TypeError, ValueError, OverflowError) as exc:
@@ -125,7 +132,8 @@ def index_pairs(owner: str, name: str, value) -> np.ndarray:
     if arr.size and arr.min() < 0:
         i, j = np.argwhere(arr < 0)[0]
         raise DataError(f"{owner}: {name} must be indices >= 0, got {arr[i, j]} at [{i}, {j}]")
-    if arr.size and arr.max() > np.iinfo(np.int64).max:
+    # compared as floats: a float16 array would overflow casting int64's maximum to its dtype
+    if arr.size and float(arr.max()) >= 2.0**63:
         raise DataError(f"{owner}: {name} holds an index beyond int64, {arr.max()}")
     return arr.astype(np.int64, copy=False)
 

@@ -33,8 +33,10 @@ def object_arrays(prefix: str, centroids, widths, heights, **per_object
         try:
             arr = real_array(prefix, name, value)
         except DataError:
+            kind = getattr(value, "dtype", None)
             raise DataError(f"{prefix}{name} must be real numbers, got "
-                            f"{type(value).__name__} {shown(value)}") from None
+                            f"{type(value).__name__} {shown(value)}"
+                            f"{'' if kind is None else f' of dtype {kind}'}") from None
         return arr.copy() if arr is value else arr
 
     C = as_float("centroids", centroids)
@@ -72,8 +74,10 @@ def _descriptor_array(name: str, value, n: int) -> np.ndarray:
     try:
         arr = np.array(real_array(name, "", value), dtype=np.float64)
     except DataError:
+        kind = getattr(value, "dtype", None)
         raise DataError(f"{name} must be real numbers, got {type(value).__name__} "
-                        f"{shown(value)}") from None
+                        f"{shown(value)}{'' if kind is None else f' of dtype {kind}'}"
+                        ) from None
     if arr.size == 0 and n == 0:
         return arr.reshape(0, max(arr.shape[-1], 1) if arr.ndim == 2 else 1)
     if arr.ndim != 2 or arr.shape[0] != n or arr.shape[1] < 1:

@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 from .association import neighbourhood_agreement, putative_associations  # re-exported
 from .errors import DataError
 from .geometry import _transform_points
-from .inputs import kernel_array, point_array, real_array, shown
+from .inputs import MAX_COORDINATE, kernel_array, point_array, real_array, shown
 from .params import _finite, _require
 
 __all__ = [
@@ -26,9 +26,6 @@ __all__ = [
     "weighted_arun",
 ]
 
-#: metres; coordinates beyond this are no robot's odometry (and squared sums of them overflow
-#: long before they would stop being rounding noise)
-MAX_COORDINATE = 1e9
 #: the largest Arun weight; with coordinates within MAX_COORDINATE no weighted sum overflows
 MAX_WEIGHT = 1e100
 #: object pairs above which mutual inliers are found with k-d trees: the dense distance matrix
@@ -105,16 +102,21 @@ def weighted_arun(p: np.ndarray, q: np.ndarray, weights: np.ndarray | None = Non
     # the problem
     if not ((np.abs(p) <= MAX_COORDINATE).all() and (np.abs(q) <= MAX_COORDINATE).all()
             and (w >= 0).all() and (w <= MAX_WEIGHT).all()):
-        if not (np.isfinite(p).all() and np.isfinite(q).all() and np.isfinite(w).all()):
-            raise DataError("weighted_arun: points and weights must be finite")
+        for name, arr in (("p", p), ("q", q), ("weights", w)):
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                at = tuple(int(i) for i in np.argwhere(bad)[0])
+                raise DataError(f"weighted_arun: {name} must be finite, got {arr[at]} at "
+                                f"{list(at)}")
         if (w < 0).any():
             raise DataError(f"weighted_arun: weights must be >= 0, got min {w.min()}")
         if (w > MAX_WEIGHT).any():
             raise DataError(f"weighted_arun: weights must be <= {MAX_WEIGHT:g}, got "
                             f"{w.max():.3g}")
-        largest = max(float(np.abs(p).max()), float(np.abs(q).max()))
+        name, arr = ("p", p) if np.abs(p).max() > MAX_COORDINATE else ("q", q)
         raise DataError(f"weighted_arun: coordinates must lie within {MAX_COORDINATE:g} "
-                        f"metres of the origin, got one of magnitude {largest:.3g}")
+                        f"metres of the origin, got one of magnitude {np.abs(arr).max():.3g} "
+                        f"in {name}")
     return _weighted_arun(p, q, w)
 
 

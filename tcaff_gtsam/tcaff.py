@@ -44,7 +44,7 @@ from .hypothesis_tree import (
     measurement_costs,
     seed,
 )
-from .inputs import real_array, shown
+from .inputs import MAX_COORDINATE, MAX_VARIANCE, real_array, shown
 from .params import TCAFFParams, _given_or_default
 
 # write_snapshot is the module's for its callers (a node writes snapshots on another thread)
@@ -720,12 +720,16 @@ class TCAFF(FilterState):
         if Rs.shape != (k, d, d):
             raise DataError(f"TCAFF.update: Rs must have shape ({k}, {d}, {d}) to match zs, "
                             f"got {Rs.shape}")
-        if not np.isfinite(zs).all():
-            i, a = np.argwhere(~np.isfinite(zs))[0]
-            raise DataError(f"TCAFF.update: zs[{i}, {a}] = {zs[i, a]} is not finite")
-        if not np.isfinite(Rs).all():
-            i, a, b = np.argwhere(~np.isfinite(Rs))[0]
-            raise DataError(f"TCAFF.update: Rs[{i}, {a}, {b}] = {Rs[i, a, b]} is not finite")
+        # one comparison per array on the usual path (NaN fails it); beyond the bounds the
+        # filter's sums and squares overflow into NaN states
+        if not (np.abs(zs) <= MAX_COORDINATE).all():
+            i, a = np.argwhere(~(np.abs(zs) <= MAX_COORDINATE))[0]
+            why = "not finite" if not np.isfinite(zs[i, a]) else f"beyond {MAX_COORDINATE:g}"
+            raise DataError(f"TCAFF.update: zs[{i}, {a}] = {zs[i, a]} is {why}")
+        if not (np.abs(Rs) <= MAX_VARIANCE).all():
+            i, a, b = np.argwhere(~(np.abs(Rs) <= MAX_VARIANCE))[0]
+            why = "not finite" if not np.isfinite(Rs[i, a, b]) else f"beyond {MAX_VARIANCE:g}"
+            raise DataError(f"TCAFF.update: Rs[{i}, {a}, {b}] = {Rs[i, a, b]} is {why}")
         bad = _not_spd(Rs)
         if bad is not None:
             i, why = bad
@@ -751,12 +755,17 @@ class TCAFF(FilterState):
             if pairs is None:
                 out.append(None)
                 continue
-            arr = np.asarray(pairs)
-            if arr.size == 0:
+            try:
+                arr = np.asarray(pairs)
+            except (TypeError, ValueError):  # ragged nested sequences
+                arr = None
+            if arr is not None and arr.size == 0:
                 arr = arr.reshape(0, 2)
-            if arr.ndim != 2 or arr.shape[1] != 2 or arr.dtype.kind not in "iu":
+            if arr is None or arr.ndim != 2 or arr.shape[1] != 2 or arr.dtype.kind not in "iu":
+                got = (shown(pairs) if arr is None else
+                       f"shape {arr.shape} of {arr.dtype}: {shown(pairs)}")
                 raise DataError(f"TCAFF.update: evidence[{i}] must be an (m, 2) int array of "
-                                f"object-id pairs, got shape {arr.shape} of {arr.dtype}")
+                                f"object-id pairs, got {got}")
             out.append([(int(a), int(b)) for a, b in arr])
         return out
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from .errors import DataError
 from .geometry import _chi2_quantile, _se2_from_params, _wrap_angle
-from .inputs import real_array, shown
+from .inputs import MAX_COORDINATE, MAX_VARIANCE, real_array, shown
 from .params import _int_at_least, _require
 
 __all__ = ["TeamConsistency", "TeamEstimate", "TeamParams"]
@@ -162,24 +162,33 @@ class TeamConsistency:
             if not (isinstance(key, tuple) and len(key) == 2
                     and all(isinstance(r, (int, np.integer)) and not isinstance(r, bool)
                             and 0 <= r < self.n_robots for r in key) and key[0] != key[1]):
-                raise DataError(f"{o}: pair {shown(key)} is not two different robots of 0 to "
-                                f"{self.n_robots - 1}")
+                raise DataError(f"{o}: estimates key {shown(key)} is not a pair of two "
+                                f"different robots of 0 to {self.n_robots - 1}")
             if not (hasattr(est, "x") and hasattr(est, "P")):
-                raise DataError(f"{o}: pair {key}: the estimate must have x and P (an "
+                raise DataError(f"{o}: estimates[{key}] must have x and P (an "
                                 f"AlignmentEstimate), got {shown(est)}")
             x = real_array(o, f"estimates[{key}].x", est.x)
             P = real_array(o, f"estimates[{key}].P", est.P)
             if x.shape != (3,) or P.shape != (3, 3):
-                raise DataError(f"{o}: pair {key}: need a finite x (3,) and P (3, 3), got "
-                                f"shapes {x.shape} and {P.shape}")
+                raise DataError(f"{o}: estimates[{key}] needs a finite x (3,) and P (3, 3), "
+                                f"got shapes {x.shape} and {P.shape}")
             i, j = int(key[0]), int(key[1])
             given[(i, j)] = (x, P)
-        if given:  # finite, checked for all at once
-            finite = (np.isfinite([x for x, _ in given.values()]).all(axis=1)
-                      & np.isfinite([P for _, P in given.values()]).all(axis=(1, 2)))
-            if not finite.all():
-                key = list(given)[int(np.argmin(finite))]
-                raise DataError(f"{o}: pair {key}: need a finite x (3,) and P (3, 3), got "
+        if given:  # checked for all at once; NaN fails every comparison
+            X = np.array([x for x, _ in given.values()])
+            Ps = np.array([P for _, P in given.values()])
+            ok = ((np.abs(X) <= MAX_COORDINATE).all(axis=1)
+                  & (np.abs(Ps) <= MAX_VARIANCE).all(axis=(1, 2)))
+            if ok.all():  # symmetric, then positive definite (what the cycle test inverts)
+                ok = (np.abs(Ps - Ps.transpose(0, 2, 1)) <= 1e-9 * (1.0 + np.abs(Ps))
+                      ).all(axis=(1, 2))
+                if ok.all():
+                    ok = np.linalg.eigvalsh(Ps)[:, 0] > 0
+            if not ok.all():
+                key = list(given)[int(np.argmin(ok))]
+                raise DataError(f"{o}: estimates[{key}] needs x (3,) finite within "
+                                f"{MAX_COORDINATE:g} and P (3, 3) symmetric positive definite "
+                                f"with entries within {MAX_VARIANCE:g}, got "
                                 f"x = {shown(given[key][0])}, P = {shown(given[key][1])}")
         return given
 
@@ -322,8 +331,8 @@ class TeamConsistency:
             if not (isinstance(pair, tuple) and len(pair) == 2
                     and all(isinstance(r, (int, np.integer)) and not isinstance(r, bool)
                             and 0 <= r < n for r in pair) and pair[0] != pair[1]):
-                raise DataError(f"TeamConsistency.update: wanted pair {shown(pair)} is not two "
-                                f"different robots of 0 to {n - 1}")
+                raise DataError(f"TeamConsistency.update: pairs holds {shown(pair)}, not a "
+                                f"wanted pair of two different robots of 0 to {n - 1}")
             wanted.append((int(pair[0]), int(pair[1])))
         return wanted
 

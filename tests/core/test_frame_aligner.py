@@ -215,7 +215,8 @@ def test_maps_beyond_any_odometry_are_a_data_error():
     pair = a_pair()
     far = ObjectMap(pair.other.centroids + np.array([2e9, 0.0, 0.0]), pair.other.widths,
                     pair.other.heights, pair.other.last_seen)
-    with pytest.raises(DataError, match=r"^weighted_arun: coordinates must lie within"):
+    with pytest.raises(DataError, match=r"^FrameAligner\.measurements: other's objects must "
+                                        r"lie within 1e\+09 m"):
         FrameAligner().measurements(pair.ego, far, pair.now)
 
 
