@@ -172,11 +172,9 @@ def node(
     members: Annotated[str | None, typer.Option(
         help="With --ros2-objects: every robot of the team, like r0,r1,r2.")] = None,
     stop_timeout: Annotated[float, typer.Option(
-        help="s from SIGTERM or SIGINT to <robot>.json written: what the node has received "
-             "is handled and its filters saved within it, else what is known is written, "
-             "marked stop_cut_short; its session then gets what is left, 0.5 s at least. A "
-             "second signal cuts the stop short at once. ROS 2 launch sends SIGTERM 5 s "
-             "after SIGINT, SIGKILL 5 s later.")] = 2.0,
+        help="s from SIGTERM or SIGINT to <robot>.json written; past it what is known is "
+             "written, marked stop_cut_short, as after a second signal. ros2 launch sends "
+             "SIGTERM 5 s after SIGINT, SIGKILL 5 s later.")] = 2.0,
 ) -> None:
     """One robot of a live team: publishes its maps, aligns to every neighbour's.
 
