@@ -37,7 +37,6 @@ __all__ = ["truth_topic", "write_bag", "write_team_bag"]
 log = logging.getLogger(__name__)
 
 
-
 def truth_topic(robot: str, neighbour: str) -> str:
     return f"/{robot}/tcaff/truth/{neighbour}"
 

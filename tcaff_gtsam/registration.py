@@ -180,7 +180,6 @@ def _eigenvalues_2x2(sxx: float, syy: float, sxy: float) -> tuple[float, float]:
     return mean - half_gap, mean + half_gap
 
 
-
 def _transform(owner: str, T_a_b, d: int) -> np.ndarray:
     """`T_a_b` as a finite (d+1, d+1) matrix, else DataError."""
     T = real_array(owner, "T_a_b", T_a_b)

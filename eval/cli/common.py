@@ -242,7 +242,6 @@ def _record(path: Path | None, jobs: list) -> None:
     _console().print(f"recording: {path} (open it with: rerun {path})", soft_wrap=True)
 
 
-
 def _bars() -> RichProgress:
     """Progress bars that vanish when done, elapsed time on the right."""
     from rich.progress import (

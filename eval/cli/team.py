@@ -343,6 +343,8 @@ def team(
     _check_domain(domain_id)
     if not (math.isfinite(silence) and silence > 0):
         _refuse("--silence", silence, "must be a finite number > 0 (s of run)")
+    if not (math.isfinite(drop_share) and 0 <= drop_share < 1):  # before any node starts
+        _refuse("--drop-share", drop_share, "must be a number in [0, 1)")
     if bag is not None:  # checked now, not after the run
         if bag.exists():
             _refuse("--bag", str(bag), "exists; a bag is written to a new folder")

@@ -1526,7 +1526,6 @@ def test_an_update_gtsam_cannot_solve_leaves_the_held_out_factors_as_they_were()
                   ) == [*range(10), 11]
 
 
-
 def test_an_update_gtsam_cannot_solve_drops_what_it_held_out():
     """A failed update whose factor of the held-out hypothesis was set aside with it: the
     held-out factors are those of before the update, and its factor is dropped with the

@@ -607,6 +607,7 @@ def test_advise_kappa_refuses_bad_values_in_one_line(args, option, tcaff_main):
     ["node", "--robot", "r0", "--scenario", "four_robots", "--drop-seed", "-2"],
     ["team", "--scenario", "four_robots", "--seed", "-1"],
     ["team", "--scenario", "four_robots", "--silence", "0"],
+    ["team", "--scenario", "four_robots", "--drop-share", "1"],
     ["rgbd", "--data", "missing", "--fps", "0"],
 ], ids=lambda args: f"{args[0]} {args[-2]}")
 def test_negative_seeds_and_a_zero_frame_rate_are_refused_in_one_line(args, tcaff_main):
