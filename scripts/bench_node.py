@@ -85,7 +85,7 @@ def aligner_params(guide_radius: float | None):
     """The node's aligner settings with `guide_radius` (None: every search full)."""
     from tcaff_gtsam import FrameAlignerParams
 
-    return FrameAlignerParams(kappa=1e9, guide_radius=guide_radius)
+    return FrameAlignerParams(kappa=math.inf, guide_radius=guide_radius)
 
 
 def aligner_alone(objects: int, steps: int, warm: int, guide_radius: float | None = None

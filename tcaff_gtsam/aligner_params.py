@@ -11,10 +11,18 @@ import numpy as np
 
 from .errors import DataError
 from .param_checks import (
-    _INT64_MAX,
+    MAX_COORDINATE,
+    MAX_FACTOR,
+    MAX_ITERATIONS,
+    MAX_OBJECTS,
+    MAX_SECONDS,
+    MAX_STEPS,
+    MAX_VARIANCE,
     _ByValue,
+    _count,
     _finite,
     _int_at_least,
+    _number,
     _one_of,
     _real,
     _reals,
@@ -25,6 +33,20 @@ from .param_checks import (
 #: the most MNO-CLIPPER solutions asked for: each holds its (m,) relaxed vector and, with a
 #: downweight, its (m,) start draws; the paper asks for 4
 MAX_SOLUTIONS = 1000
+
+#: metres, the largest per-point noise (`residual_floor`): centroids placed a kilometre apart
+#: from where they are make no map, and a registration of such points with the calibrated
+#: covariance's inflation would give a covariance beyond MAX_VARIANCE
+MAX_POINT_NOISE = 1e3
+
+#: (metres, radians) per square root of a second, the largest odometry drift (`map_drift`): a
+#: metre and 6 degrees in the first second, 60 m and 6 rad after an hour, is no odometry; with
+#: the other settings at their defaults the calibrated covariance stays below MAX_VARIANCE
+MAX_MAP_DRIFT = (1.0, 0.1)
+
+#: the most earlier maps searched for look-alikes in one step (`memory_searches`): each search
+#: costs one to three times the step's own alignment
+MAX_MEMORY_SEARCHES = 1000
 
 
 def constant_alignment_covariance() -> np.ndarray:
@@ -38,14 +60,14 @@ def _alignment_process_noise() -> np.ndarray:
 
 
 def as_map_drift(owner: str, value) -> tuple[float, float]:
-    """`value` as a map drift (metres, radians) per square root of a second, two finite numbers
-    >= 0 whose squares are finite too (the covariance's variances); else a ParameterError of
-    `owner`'s field map_drift."""
+    """`value` as a map drift (metres, radians) per square root of a second, two numbers >= 0,
+    at most MAX_MAP_DRIFT (1 m and 0.1 rad); else a ParameterError of `owner`'s field
+    map_drift."""
     drift = _reals(value)
     _require(drift is not None and len(drift) == 2
-             and all(math.isfinite(v) and v >= 0 and math.isfinite(v * v) for v in drift),
+             and all(0 <= v <= high for v, high in zip(drift, MAX_MAP_DRIFT, strict=True)),
              owner, "map_drift", value, "must be (metres, radians) per square root of a second, "
-             "two finite numbers >= 0 (below 1e154, whose squares are finite)")
+             f"two numbers >= 0 and <= {MAX_MAP_DRIFT} (MAX_MAP_DRIFT)")
     return drift
 
 
@@ -60,15 +82,20 @@ class ClipperParams:
             objective); "threshold" keeps entries above `threshold` * max(u).
         threshold: relative threshold for rounding = "threshold", in (0, 1).
         tol_u: stop an inner ascent when the objective changes by less than this. 1e-6 rather
-            than CLIPPER's 1e-8: the same solutions on our benchmarks, 25 % less time.
-        eps: entries of u (and penalties) below this count as zero.
+            than CLIPPER's 1e-8: the same solutions on our benchmarks, 25 % less time. In
+            (0, 1].
+        eps: entries of u (and penalties) below this count as zero; in (0, 1] (u has unit
+            norm, so 1 already counts every entry as zero).
         beta: backtracking factor of the line search, in (0, 1).
         max_outer, max_inner, max_line_search: iteration caps of homotopy, ascent and line search.
         power_iterations: power-method steps that shape the seeded random start vector (each
             costs a full pass over the graph; more than 5 changed no solution we measured).
-            These four counts are ints below 2**63 (the compiled solver's int64).
+            These four counts are ints of at most 1e6 (`MAX_ITERATIONS`; each iteration
+            costs a pass over the graph).
         seed: seed (an int >= 0, any size: numpy's generator takes them all) of the start
             vector; same seed, same graph -> same solution.
+
+    sigma and epsilon are at most 1e9 m (`MAX_COORDINATE`).
 
     Raises:
         ConfigError (a `ParameterError` naming the field) for values out of range.
@@ -90,24 +117,20 @@ class ClipperParams:
     def __post_init__(self) -> None:
         o = "ClipperParams"
         for name in ("sigma", "epsilon"):
-            value = getattr(self, name)
-            _require(_finite(value) and value > 0, o, name, value,
-                     "must be a finite number > 0 metres")
+            _number(o, name, getattr(self, name), 0, MAX_COORDINATE, "metres", "MAX_COORDINATE",
+                    above=True)
         _require(_one_of(self.rounding, ("size", "threshold")), o, "rounding", self.rounding,
                  "must be 'size' or 'threshold'")
         for name in ("threshold", "beta"):
             value = getattr(self, name)
             _require(_real(value) and 0 < value < 1, o, name, value, "must be in (0, 1)")
         for name in ("tol_u", "eps"):
-            value = getattr(self, name)
-            _require(_real(value) and value > 0, o, name, value, "must be a number > 0")
-        # the compiled solver counts in int64; the seed goes to numpy's generator, which takes
-        # any int >= 0 (a negative one fails there, at solve time)
+            _number(o, name, getattr(self, name), 0, 1, above=True)
         for name, low in (("max_outer", 1), ("max_inner", 1), ("max_line_search", 1),
                           ("power_iterations", 0)):
-            value = getattr(self, name)
-            _require(_int_at_least(value, low) and value <= _INT64_MAX, o, name, value,
-                     f"must be an int in [{low}, 2**63 - 1]")
+            _count(o, name, getattr(self, name), low, MAX_ITERATIONS, "MAX_ITERATIONS")
+        # the seed goes to numpy's generator, which takes any int >= 0 (a negative one fails
+        # there, at solve time): a seed names a stream and is no magnitude, so it has no bound
         _require(_int_at_least(self.seed, 0), o, "seed", self.seed, "must be an int >= 0")
 
 
@@ -280,6 +303,25 @@ class FrameAlignerParams(_ByValue):
         refit: register each candidate again on every pair it explains (the mutual inliers
             within `inlier_radius`) instead of MNO-CLIPPER's clique alone, and take its
             residual and covariance from those pairs.
+
+    Bounds, checked when the object is made (a value beyond one is a `ParameterError` naming
+    the field, as are NaN and, but for kappa, infinities): lengths (size_abs_diff, max_rmse,
+    inlier_radius, min_spread, distinct_translation, confirm_translation, guide_radius,
+    height_epsilon) at most 1e9 m (`MAX_COORDINATE`, the bound of every coordinate the library
+    takes), residual_floor at most 1 km (`MAX_POINT_NOISE`), map_drift at most 1 m and 0.1 rad
+    per square root of a second (`MAX_MAP_DRIFT`; either at its bound, the other settings at
+    their defaults, keeps the calibrated covariance below 1e18, `MAX_VARIANCE`); headings
+    (distinct_heading, confirm_heading) at most pi, which no heading differs by more; kappa
+    and memory_span at most a year, 31 557 600 s (`MAX_SECONDS`; kappa may be inf, no
+    limit), weight_offset at most its square (s^2); the ratios and factors size_ratio,
+    size_partial, residual_prior_dof, epsilon_drift, repeat_inflation and jitter_reference at
+    most 1e6 (`MAX_FACTOR`; the defaults are 0.15 to 4); counts of objects or associations
+    (min_associations, sparse_associations, sparse_objects, max_associations,
+    pairs_per_object, min_inliers, track_min) at most 1e6 (`MAX_OBJECTS`), n_solutions at
+    most 1000 (`MAX_SOLUTIONS`), memory_searches at most 1000 (`MAX_MEMORY_SEARCHES`),
+    full_search_every at most `MAX_STEPS` (a year of steps at 10 Hz); the entries of
+    R_constant and repeat_Q at most 1e18 (`MAX_VARIANCE`) in magnitude. The shares and
+    probabilities are bounded by their ranges.
     """
 
     kappa: float = 20.0
@@ -329,88 +371,71 @@ class FrameAlignerParams(_ByValue):
 
     def __post_init__(self) -> None:
         o = "FrameAlignerParams"
-        _require(_real(self.kappa) and self.kappa > 0, o, "kappa", self.kappa,
-                 "must be a number > 0 seconds")
-        _require(_real(self.size_ratio) and self.size_ratio >= 1, o, "size_ratio",
-                 self.size_ratio, "must be a number >= 1")
-        _require(_real(self.size_abs_diff) and self.size_abs_diff >= 0, o, "size_abs_diff",
-                 self.size_abs_diff, "must be a number >= 0 metres")
-        _require(self.size_partial is None or (_finite(self.size_partial)
-                                                and self.size_partial >= 1),
-                 o, "size_partial", self.size_partial, "must be None or a finite number >= 1")
+        metres = dict(unit="metres", limit="MAX_COORDINATE")
+        _number(o, "kappa", self.kappa, 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True,
+                inf=True)
+        _number(o, "size_ratio", self.size_ratio, 1, MAX_FACTOR, limit="MAX_FACTOR")
+        _number(o, "size_abs_diff", self.size_abs_diff, 0, MAX_COORDINATE, **metres)
+        _number(o, "size_partial", self.size_partial, 1, MAX_FACTOR, limit="MAX_FACTOR",
+                none=True)
         _require(_one_of(self.partial_pairs, ("all", "best", "auto")), o, "partial_pairs",
                  self.partial_pairs, "must be 'all', 'best' or 'auto'")
         _require(_one_of(self.dim, (2, 3)), o, "dim", self.dim, "must be 2 or 3")
         _require(isinstance(self.clipper, ClipperParams), o, "clipper", self.clipper,
                  "must be a ClipperParams")
-        _require(_int_at_least(self.n_solutions, 1) and self.n_solutions <= MAX_SOLUTIONS, o,
-                 "n_solutions", self.n_solutions,
-                 f"must be an int in [1, {MAX_SOLUTIONS}] (MAX_SOLUTIONS)")
+        _count(o, "n_solutions", self.n_solutions, 1, MAX_SOLUTIONS, "MAX_SOLUTIONS")
         _require(_real(self.mno_downweight) and 0 <= self.mno_downweight < 1, o,
                  "mno_downweight", self.mno_downweight, "must be in [0, 1)")
-        _require(_int_at_least(self.min_associations, 2), o,
-                 "min_associations", self.min_associations, "must be an int >= 2")
-        _require(self.sparse_associations is None
-                 or _int_at_least(self.sparse_associations, 2), o, "sparse_associations",
-                 self.sparse_associations, "must be an int >= 2 or None")
-        _require(_int_at_least(self.sparse_objects, 1), o, "sparse_objects",
-                 self.sparse_objects, "must be an int >= 1")
+        objects = dict(high=MAX_OBJECTS, limit="MAX_OBJECTS")
+        _count(o, "min_associations", self.min_associations, 2, **objects)
+        _count(o, "sparse_associations", self.sparse_associations, 2, **objects, none=True)
+        _count(o, "sparse_objects", self.sparse_objects, 1, **objects)
         _require(_real(self.sparse_share) and 0 <= self.sparse_share <= 1, o, "sparse_share",
                  self.sparse_share, "must be in [0, 1]")
-        _require(_int_at_least(self.max_associations, self.min_associations), o,
+        _require(_int_at_least(self.max_associations, self.min_associations, MAX_OBJECTS), o,
                  "max_associations", self.max_associations,
-                 f"must be an int >= min_associations ({self.min_associations})")
-        _require(_int_at_least(self.pairs_per_object, 1), o, "pairs_per_object",
-                 self.pairs_per_object, "must be an int >= 1")
+                 f"must be an int in [min_associations ({self.min_associations}), "
+                 f"{MAX_OBJECTS}] (MAX_OBJECTS)")
+        _count(o, "pairs_per_object", self.pairs_per_object, 1, **objects)
         _require(_real(self.min_score_ratio) and 0 <= self.min_score_ratio <= 1, o,
                  "min_score_ratio", self.min_score_ratio, "must be in [0, 1]")
-        _require(_real(self.weight_offset) and self.weight_offset > 0, o, "weight_offset",
-                 self.weight_offset, "must be a number > 0 seconds^2")
-        _require(self.max_rmse is None or (_real(self.max_rmse) and self.max_rmse > 0), o,
-                 "max_rmse", self.max_rmse, "must be a number > 0 metres or None")
+        # Arun's weights 1 / (weight_offset + age_i age_j): ages of at most MAX_SECONDS
+        _number(o, "weight_offset", self.weight_offset, 0, MAX_SECONDS**2, "seconds^2",
+                "MAX_SECONDS^2", above=True)
+        _number(o, "max_rmse", self.max_rmse, 0, MAX_COORDINATE, **metres, above=True,
+                none=True)
         _require(_one_of(self.covariance, ("constant", "residual", "calibrated")), o,
                  "covariance", self.covariance,
                  "must be 'constant', 'residual' or 'calibrated'")
-        object.__setattr__(self, "R_constant", _spd(self.R_constant, 3, o, "R_constant"))
-        _require(_finite(self.residual_floor) and self.residual_floor > 0, o, "residual_floor",
-                 self.residual_floor, "must be a finite number > 0 metres")
+        object.__setattr__(self, "R_constant",
+                           _spd(self.R_constant, 3, o, "R_constant", MAX_VARIANCE))
+        _number(o, "residual_floor", self.residual_floor, 0, MAX_POINT_NOISE, "metres",
+                "MAX_POINT_NOISE", above=True)
         for name in ("residual_prior_dof", "repeat_inflation", "epsilon_drift"):
-            value = getattr(self, name)
-            _require(_finite(value) and value >= 0, o, name, value,
-                     "must be a finite number >= 0")
+            _number(o, name, getattr(self, name), 0, MAX_FACTOR, limit="MAX_FACTOR")
         object.__setattr__(self, "map_drift", as_map_drift(o, self.map_drift))
-        _require(self.jitter_reference is None or (_finite(self.jitter_reference)
-                                                    and self.jitter_reference > 0), o,
-                 "jitter_reference", self.jitter_reference,
-                 "must be a finite number > 0 or None")
+        _number(o, "jitter_reference", self.jitter_reference, 0, MAX_FACTOR, limit="MAX_FACTOR",
+                above=True, none=True)
         if self.repeat_Q is not None:
-            object.__setattr__(self, "repeat_Q", _spd(self.repeat_Q, 3, o, "repeat_Q"))
-        _require(self.min_inliers is None or _int_at_least(self.min_inliers, 2), o,
-                 "min_inliers", self.min_inliers, "must be an int >= 2 or None")
-        _require(self.track_min is None or _int_at_least(self.track_min, 2), o,
-                 "track_min", self.track_min, "must be an int >= 2 or None")
+            object.__setattr__(self, "repeat_Q",
+                               _spd(self.repeat_Q, 3, o, "repeat_Q", MAX_VARIANCE))
+        _count(o, "min_inliers", self.min_inliers, 2, **objects, none=True)
+        _count(o, "track_min", self.track_min, 2, **objects, none=True)
         _require(isinstance(self.check_ambiguity, bool), o, "check_ambiguity",
                  self.check_ambiguity, "must be True or False")
-        for name in ("inlier_radius", "distinct_translation", "distinct_heading",
-                     "confirm_translation", "confirm_heading"):
-            value = getattr(self, name)
-            _require(_finite(value) and value > 0, o, name, value,
-                     "must be a finite number > 0")
-        _require(_finite(self.min_spread) and self.min_spread >= 0, o, "min_spread",
-                 self.min_spread, "must be a finite number >= 0 metres")
-        _require(_finite(self.memory_span) and self.memory_span >= 0, o,
-                 "memory_span", self.memory_span, "must be a finite number >= 0 seconds")
-        _require(_int_at_least(self.memory_searches, 0), o, "memory_searches",
-                 self.memory_searches, "must be an int >= 0")
-        _require(self.guide_radius is None
-                 or (_finite(self.guide_radius) and self.guide_radius > 0), o, "guide_radius",
-                 self.guide_radius, "must be a finite number > 0 metres or None")
-        _require(_int_at_least(self.full_search_every, 1), o, "full_search_every",
-                 self.full_search_every, "must be an int >= 1")
-        _require(self.height_epsilon is None
-                 or (_finite(self.height_epsilon) and self.height_epsilon > 0), o,
-                 "height_epsilon", self.height_epsilon,
-                 "must be a finite number > 0 metres or None")
+        for name in ("inlier_radius", "distinct_translation", "confirm_translation"):
+            _number(o, name, getattr(self, name), 0, MAX_COORDINATE, **metres, above=True)
+        for name in ("distinct_heading", "confirm_heading"):
+            _number(o, name, getattr(self, name), 0, math.pi, "radians", above=True)
+        _number(o, "min_spread", self.min_spread, 0, MAX_COORDINATE, **metres)
+        _number(o, "memory_span", self.memory_span, 0, MAX_SECONDS, "seconds", "MAX_SECONDS")
+        _count(o, "memory_searches", self.memory_searches, 0, MAX_MEMORY_SEARCHES,
+               "MAX_MEMORY_SEARCHES")
+        _number(o, "guide_radius", self.guide_radius, 0, MAX_COORDINATE, **metres, above=True,
+                none=True)
+        _count(o, "full_search_every", self.full_search_every, 1, MAX_STEPS, "MAX_STEPS")
+        _number(o, "height_epsilon", self.height_epsilon, 0, MAX_COORDINATE, **metres,
+                above=True, none=True)
         _require(_finite(self.descriptor_min) and 0 <= self.descriptor_min <= 1, o,
                  "descriptor_min", self.descriptor_min, "must be in [0, 1]")
         for name in ("descriptor_prior", "refit"):

@@ -15,9 +15,17 @@ from .aligner_params import (
     constant_alignment_covariance,
 )
 from .param_checks import (
+    MAX_COORDINATE,
+    MAX_FACTOR,
+    MAX_NATS,
+    MAX_OBJECTS,
+    MAX_STEPS,
+    MAX_VARIANCE,
+    _bound,
     _ByValue,
-    _finite,
+    _count,
     _int_at_least,
+    _number,
     _one_of,
     _real,
     _reals,
@@ -202,6 +210,20 @@ class TCAFFParams(_ByValue):
             hypothesis seen at two steps of a sparse overlap is not judged as if it had been
             missed at the others. A step that offered measurements elsewhere still charges
             every hypothesis that took none. False: every step charges a miss (the paper).
+
+    Bounds, checked when the object is made (a value beyond one is a `ParameterError` naming
+    the field, as are NaN and infinities): the caps of the trees as above (`MAX_WINDOW`,
+    `MAX_LEAVES`, `MAX_MEASUREMENTS`, and together `MAX_TREE_BYTES`); costs and evidence in
+    nats (tau in [-1e6, 1e6], switch_margin and object_nats in [0, 1e6]) at most 1e6
+    (`MAX_NATS`: a thousand-step window whose every step is as unlikely as the smallest
+    positive float, e^-745); counts of steps (drop_after, switch_after, report_after,
+    recall_for, jitter_span) at most `MAX_STEPS`, 315 576 000 (a year of steps at 10 Hz);
+    counts within a window (min_distinct, switch_support, early_measurements) at most
+    `MAX_WINDOW`, which no path holds more measurements than; object_base at most 1e6
+    (`MAX_OBJECTS`); jitter_reference at most 1e6 (`MAX_FACTOR`); gate_box entries (metres
+    or radians) at most 1e9 (`MAX_COORDINATE`, the bound of every measurement); the entries
+    of Q and P0 at most 1e18 (`MAX_VARIANCE`, the bound of every measurement covariance) in
+    magnitude. Probabilities and shares are bounded by their ranges.
     """
 
     window: int = 8
@@ -242,27 +264,23 @@ class TCAFFParams(_ByValue):
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
-        Q = _spd(self.Q, None, o, "Q")
+        Q = _spd(self.Q, None, o, "Q", MAX_VARIANCE)
         d = Q.shape[0]
         object.__setattr__(self, "Q", Q)
-        object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0"))
+        object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0", MAX_VARIANCE))
         for name, high, limit in (("max_leaves", MAX_LEAVES, "MAX_LEAVES"),
                                   ("explore_max_leaves", MAX_LEAVES, "MAX_LEAVES"),
                                   ("max_children", MAX_MEASUREMENTS, "MAX_MEASUREMENTS"),
                                   ("explore_max_children", MAX_MEASUREMENTS, "MAX_MEASUREMENTS"),
                                   ("max_measurements", MAX_MEASUREMENTS, "MAX_MEASUREMENTS")):
-            value = getattr(self, name)
-            _require(_int_at_least(value, 1) and value <= high, o, name, value,
-                     f"must be an int in [1, {high}] ({limit})")
-        _require(_int_at_least(self.drop_after, 1), o, "drop_after", self.drop_after,
-                 "must be an int >= 1")
-        _require(_int_at_least(self.window, 1) and self.window <= MAX_WINDOW, o, "window",
-                 self.window, f"must be an int in [1, {MAX_WINDOW}] (MAX_WINDOW)")
+            _count(o, name, getattr(self, name), 1, high, limit)
+        steps = dict(high=MAX_STEPS, limit="MAX_STEPS")
+        _count(o, "drop_after", self.drop_after, 1, **steps)
+        _count(o, "window", self.window, 1, MAX_WINDOW, "MAX_WINDOW")
         for name in ("p_no_measurement", "gate_probability"):
             value = getattr(self, name)
             _require(_real(value) and 0 < value < 1, o, name, value, "must be in (0, 1)")
-        _require(_finite(self.tau), o, "tau", self.tau,
-                 "must be a finite number (nats)")
+        _number(o, "tau", self.tau, -MAX_NATS, MAX_NATS, "nats", "MAX_NATS")
         angles = self.angle_indices
         if isinstance(angles, np.ndarray) and angles.ndim == 1:
             angles = angles.tolist()
@@ -274,8 +292,10 @@ class TCAFFParams(_ByValue):
         _require(_one_of(self.gate, ("mahalanobis", "box")), o, "gate", self.gate,
                  "must be 'mahalanobis' or 'box'")
         box = (2.0,) * d if self.gate_box is None else _reals(self.gate_box)
-        _require(box is not None and len(box) == d and all(v > 0 for v in box), o, "gate_box",
-                 self.gate_box, f"must hold {d} numbers > 0, or be None")
+        _require(box is not None and len(box) == d
+                 and all(0 < v <= MAX_COORDINATE for v in box), o, "gate_box", self.gate_box,
+                 f"must hold {d} numbers > 0 and <= {_bound(MAX_COORDINATE)} (MAX_COORDINATE), "
+                 "or be None")
         object.__setattr__(self, "gate_box", box)
         _require(_one_of(self.cost_model, ("paper", "reference")), o, "cost_model",
                  self.cost_model, "must be 'paper' or 'reference'")
@@ -285,22 +305,18 @@ class TCAFFParams(_ByValue):
                  "must be 'branch' or 'reseed'")
         _require(_one_of(self.drop_rule, ("best_path", "window")), o, "drop_rule",
                  self.drop_rule, "must be 'best_path' or 'window'")
-        _require(self.switch_after is None or _int_at_least(self.switch_after, 1), o,
-                 "switch_after", self.switch_after, "must be an int >= 1 or None")
-        _require(_finite(self.switch_margin) and self.switch_margin >= 0, o,
-                 "switch_margin", self.switch_margin, "must be a finite number >= 0 (nats)")
-        _require(_int_at_least(self.min_distinct, 1), o, "min_distinct", self.min_distinct,
-                 "must be an int >= 1")
-        _require(self.switch_support is None or _int_at_least(self.switch_support, 1), o,
-                 "switch_support", self.switch_support, "must be an int >= 1 or None")
+        _count(o, "switch_after", self.switch_after, 1, **steps, none=True)
+        _number(o, "switch_margin", self.switch_margin, 0, MAX_NATS, "nats", "MAX_NATS")
+        window = dict(high=MAX_WINDOW, limit="MAX_WINDOW")
+        _count(o, "min_distinct", self.min_distinct, 1, **window)
+        _count(o, "switch_support", self.switch_support, 1, **window, none=True)
         _require(isinstance(self.switch_stale, bool), o, "switch_stale", self.switch_stale,
                  "must be True or False")
         _require(isinstance(self.withhold_contested, bool), o, "withhold_contested",
                  self.withhold_contested, "must be True or False")
         _require(_real(self.lookalike_share) and 0 <= self.lookalike_share <= 1, o,
                  "lookalike_share", self.lookalike_share, "must be a number in [0, 1]")
-        _require(self.report_after is None or _int_at_least(self.report_after, 1), o,
-                 "report_after", self.report_after, "must be an int >= 1 or None")
+        _count(o, "report_after", self.report_after, 1, **steps, none=True)
         _require(isinstance(self.sequential, bool), o, "sequential", self.sequential,
                  "must be True or False")
         _require(isinstance(self.neutral_empty_steps, bool), o, "neutral_empty_steps",
@@ -308,20 +324,13 @@ class TCAFFParams(_ByValue):
         # the released code's promotion replays a full window, which a young tree has not
         _require(not (self.sequential and self.promotion == "reseed"), o, "sequential",
                  self.sequential, "must be False with promotion='reseed'")
-        _require(_finite(self.object_nats) and self.object_nats >= 0, o, "object_nats",
-                 self.object_nats, "must be a finite number >= 0 (nats)")
-        _require(_int_at_least(self.object_base, 0), o, "object_base", self.object_base,
-                 "must be an int >= 0")
-        _require(_int_at_least(self.early_measurements, 2), o, "early_measurements",
-                 self.early_measurements, "must be an int >= 2")
-        _require(self.recall_for is None or _int_at_least(self.recall_for, 1), o,
-                 "recall_for", self.recall_for, "must be an int >= 1 or None")
-        _require(self.jitter_reference is None or (_finite(self.jitter_reference)
-                                                    and self.jitter_reference > 0), o,
-                 "jitter_reference", self.jitter_reference,
-                 "must be a finite number > 0 or None")
-        _require(_int_at_least(self.jitter_span, 2), o, "jitter_span", self.jitter_span,
-                 "must be an int >= 2")
+        _number(o, "object_nats", self.object_nats, 0, MAX_NATS, "nats", "MAX_NATS")
+        _count(o, "object_base", self.object_base, 0, MAX_OBJECTS, "MAX_OBJECTS")
+        _count(o, "early_measurements", self.early_measurements, 2, **window)
+        _count(o, "recall_for", self.recall_for, 1, **steps, none=True)
+        _number(o, "jitter_reference", self.jitter_reference, 0, MAX_FACTOR, limit="MAX_FACTOR",
+                above=True, none=True)
+        _count(o, "jitter_span", self.jitter_span, 2, **steps)
         caps = ("window", "max_leaves", "max_children", "explore_max_leaves",
                 "explore_max_children", "max_measurements")
         need = self.tree_bytes()

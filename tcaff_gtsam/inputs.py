@@ -16,15 +16,14 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError
+from .param_checks import MAX_COORDINATE, MAX_VARIANCE  # noqa: F401 (the settings' too)
 from .params import _real
 
 __all__ = ["finite_time", "index_pairs", "output_path", "read_npz", "real_array", "shown"]
 
-#: metres; coordinates beyond this are no robot's odometry (and squared sums of them overflow
-#: long before they would stop being rounding noise)
-MAX_COORDINATE = 1e9
-#: the largest entry of a covariance: the square of MAX_COORDINATE, (m^2 or rad^2)
-MAX_VARIANCE = MAX_COORDINATE**2
+# MAX_COORDINATE (metres; coordinates beyond it are no robot's odometry) and MAX_VARIANCE (the
+# largest entry of a covariance, its square) bound the parameters' lengths and covariances too:
+# they are defined with the parameter checks (param_checks) and are the same numbers here.
 
 
 def shown(value, limit: int = 60) -> str:

@@ -35,7 +35,9 @@ class TeamParams:
         cycle_probability: a cycle of three alignments fails when its error's squared
             Mahalanobis distance exceeds the chi-square quantile of 3 degrees of freedom at this
             probability.
-        max_chain: most pair alignments composed into a chained one (2: through one robot).
+        max_chain: most pair alignments composed into a chained one (2: through one robot),
+            at most 1023 (`TeamConsistency.MAX_ROBOTS` - 1: a chain through every robot of
+            the largest team).
         exact_up_to: the largest consistent set is searched exactly over up to this many
             undirected pairs (2^n subsets); larger teams drop the alignment in the most failed
             cycles until none is left.
@@ -50,8 +52,9 @@ class TeamParams:
         p = self.cycle_probability
         _require(isinstance(p, (int, float)) and not isinstance(p, bool) and 0 < p < 1, o,
                  "cycle_probability", p, "must be in (0, 1)")
-        _require(_int_at_least(self.max_chain, 1), o, "max_chain", self.max_chain,
-                 "must be an int >= 1")
+        high = TeamConsistency.MAX_ROBOTS - 1
+        _require(_int_at_least(self.max_chain, 1, high), o, "max_chain", self.max_chain,
+                 f"must be an int in [1, {high}] (TeamConsistency.MAX_ROBOTS - 1)")
         _require(_int_at_least(self.exact_up_to, 0) and self.exact_up_to <= 20, o,
                  "exact_up_to", self.exact_up_to, "must be an int in [0, 20]")
 

@@ -39,6 +39,19 @@ from tcaff_gtsam import (
     putative_associations,
     weighted_arun,
 )
+from tcaff_gtsam.aligner_params import MAX_MAP_DRIFT, MAX_MEMORY_SEARCHES, MAX_POINT_NOISE
+from tcaff_gtsam.filter_params import MAX_WINDOW
+from tcaff_gtsam.param_checks import (
+    MAX_COORDINATE,
+    MAX_FACTOR,
+    MAX_ITERATIONS,
+    MAX_NATS,
+    MAX_OBJECTS,
+    MAX_SECONDS,
+    MAX_STEPS,
+    MAX_VARIANCE,
+    ParameterError,
+)
 from tcaff_gtsam.tcaff import AlignmentEstimate
 
 CHECKS = settings(max_examples=40, deadline=None, derandomize=True,
@@ -457,3 +470,124 @@ def test_parameters_refuse_values_of_the_wrong_kind(data):
         bad = data.draw(st.sampled_from([bad, 10**400]))
     error = refused(lambda: cls(**{name: bad}), name, ConfigError)
     assert getattr(error, "name", name) == name
+
+
+# -- the bounds of every numeric field ----------------------------------------------------------
+
+#: (class, field) -> (kind, low, high, low excluded): the documented range of every numeric field
+#: of the public parameter objects that had no upper bound before ("int", "real", or "vector" /
+#: "matrix" for the entries of a tuple or a covariance). Left out: the fields bounded already,
+#: the probabilities and shares (in (0, 1) or [0, 1]), the trees' caps and n_solutions
+#: (test_requested_sizes.py) and TeamParams.exact_up_to; and ClipperParams.seed: any int >= 0
+#: names a stream.
+M, S, F, N, C, T = MAX_COORDINATE, MAX_SECONDS, MAX_FACTOR, MAX_NATS, MAX_OBJECTS, MAX_STEPS
+BOUNDS = {
+    **{(ClipperParams, name): spec for name, spec in {
+        "sigma": ("real", 0, M, True), "epsilon": ("real", 0, M, True),
+        "tol_u": ("real", 0, 1, True), "eps": ("real", 0, 1, True),
+        "max_outer": ("int", 1, MAX_ITERATIONS, False),
+        "max_inner": ("int", 1, MAX_ITERATIONS, False),
+        "max_line_search": ("int", 1, MAX_ITERATIONS, False),
+        "power_iterations": ("int", 0, MAX_ITERATIONS, False)}.items()},
+    **{(FrameAlignerParams, name): spec for name, spec in {
+        "kappa": ("real", 0, S, True), "size_ratio": ("real", 1, F, False),
+        "size_abs_diff": ("real", 0, M, False), "size_partial": ("real", 1, F, False),
+        "min_associations": ("int", 2, C, False), "sparse_associations": ("int", 2, C, False),
+        "sparse_objects": ("int", 1, C, False), "max_associations": ("int", 5, C, False),
+        "pairs_per_object": ("int", 1, C, False), "weight_offset": ("real", 0, S * S, True),
+        "max_rmse": ("real", 0, M, True), "R_constant": ("matrix", 0, MAX_VARIANCE, True),
+        "residual_floor": ("real", 0, MAX_POINT_NOISE, True),
+        "residual_prior_dof": ("real", 0, F, False),
+        "map_drift": ("vector", 0, MAX_MAP_DRIFT[0], False),
+        "epsilon_drift": ("real", 0, F, False),
+        "repeat_inflation": ("real", 0, F, False), "jitter_reference": ("real", 0, F, True),
+        "repeat_Q": ("matrix", 0, MAX_VARIANCE, True), "min_inliers": ("int", 2, C, False),
+        "inlier_radius": ("real", 0, M, True), "min_spread": ("real", 0, M, False),
+        "distinct_translation": ("real", 0, M, True),
+        "distinct_heading": ("real", 0, math.pi, True), "memory_span": ("real", 0, S, False),
+        "memory_searches": ("int", 0, MAX_MEMORY_SEARCHES, False),
+        "confirm_translation": ("real", 0, M, True),
+        "confirm_heading": ("real", 0, math.pi, True), "track_min": ("int", 2, C, False),
+        "guide_radius": ("real", 0, M, True), "full_search_every": ("int", 1, T, False),
+        "height_epsilon": ("real", 0, M, True)}.items()},
+    **{(TCAFFParams, name): spec for name, spec in {
+        "tau": ("real", -N, N, False), "Q": ("matrix", 0, MAX_VARIANCE, True),
+        "P0": ("matrix", 0, MAX_VARIANCE, True), "gate_box": ("vector", 0, M, True),
+        "drop_after": ("int", 1, T, False), "switch_after": ("int", 1, T, False),
+        "switch_margin": ("real", 0, N, False), "switch_support": ("int", 1, MAX_WINDOW, False),
+        "min_distinct": ("int", 1, MAX_WINDOW, False), "report_after": ("int", 1, T, False),
+        "object_nats": ("real", 0, N, False), "object_base": ("int", 0, C, False),
+        "early_measurements": ("int", 2, MAX_WINDOW, False),
+        "recall_for": ("int", 1, T, False), "jitter_reference": ("real", 0, F, True),
+        "jitter_span": ("int", 2, T, False)}.items()},
+    (TeamParams, "max_chain"): ("int", 1, 1023, False),
+}
+
+#: what a field at the top of its range needs of the others: max_associations is at least
+#: min_associations
+ALONGSIDE = {(FrameAlignerParams, "min_associations"): {"max_associations": MAX_OBJECTS}}
+
+#: the huge values every field refuses by name: floats up to 1e308, ints up to 10**400,
+#: infinities and NaN (kappa takes inf: no limit)
+NONFINITE = (math.inf, -math.inf, math.nan)
+
+
+def as_field(cls, name: str, kind: str, value):
+    """The keyword arguments that give `cls`'s field `name` the number `value` (for a tuple or
+    a covariance, as one of its entries)."""
+    if kind == "vector":
+        value = (value, 0.01) if name == "map_drift" else (1.0, 1.0, value)
+    elif kind == "matrix":
+        value = np.diag([value, 1.0, 1.0])
+    return {name: value, **ALONGSIDE.get((cls, name), {})}
+
+
+@pytest.mark.parametrize(("cls", "name"), list(BOUNDS), ids=lambda x: getattr(x, "__name__", x))
+@CHECKS
+@given(data=st.data())
+def test_every_numeric_field_refuses_huge_values_by_name(cls, name, data):
+    """kappa, size_ratio, size_abs_diff, weight_offset, tol_u and eps at 10**400 raised
+    OverflowError, as did residual_floor and inlier_radius at 1e300 and object_nats and
+    object_base at 2**63; most other fields took 1e300 and failed later, or were refused as
+    another argument (TCAFF.update's Rs)."""
+    kind, low, high, _ = BOUNDS[(cls, name)]
+    if kind == "matrix":  # an entry beyond MAX_VARIANCE; not one of a float's
+        bad = data.draw(st.floats(high, 1e308, exclude_min=True), label="entry")
+    else:
+        huge = [st.floats(high, 1e308, exclude_min=True),
+                st.integers(math.floor(high) + 1, 10**400),
+                st.sampled_from([v for v in NONFINITE
+                                 if not (name == "kappa" and v == math.inf)])]
+        if low < 0:  # tau: as far below
+            huge += [st.floats(-1e308, low, exclude_max=True),
+                     st.integers(-(10**400), math.ceil(low) - 1)]
+        bad = data.draw(st.one_of(huge), label="value")
+    with pytest.raises(ParameterError) as info:
+        cls(**as_field(cls, name, kind, bad))
+    error = info.value
+    assert (error.owner, error.name) == (cls.__name__, name), str(error)
+    assert str(error).startswith(f"{cls.__name__}.{name} = "), str(error)
+
+
+@pytest.mark.parametrize(("cls", "name"), list(BOUNDS), ids=lambda x: getattr(x, "__name__", x))
+@CHECKS
+@given(data=st.data())
+def test_every_numeric_field_takes_any_value_within_its_bound(cls, name, data):
+    """...and the same field takes every value up to its documented bound, the bound itself
+    included; one step past it (the next float, the next int) is refused, as none was
+    before."""
+    kind, low, high, open_low = BOUNDS[(cls, name)]
+    if kind == "int":
+        value = data.draw(st.one_of(st.integers(low, high), st.sampled_from([low, high])))
+        past = high + 1
+    else:
+        values = [st.floats(low, high, exclude_min=open_low), st.just(high)]
+        if math.floor(low) + 1 <= math.floor(high):
+            values.append(st.integers(math.floor(low) + 1, math.floor(high)))
+        value = data.draw(st.one_of(values), label="value")
+        past = math.nextafter(high, math.inf)
+    made = cls(**as_field(cls, name, kind, value))
+    assert isinstance(made, cls)
+    with pytest.raises(ParameterError) as info:
+        cls(**as_field(cls, name, kind, past))
+    assert info.value.name == name, str(info.value)

@@ -158,7 +158,8 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"n_solutions": 0}}},
      "methods.aligner.n_solutions: must be an int in [1, 1000] (MAX_SOLUTIONS) (got 0)"),
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"clipper": {"sigma": "a"}}}},
-     "methods.aligner.clipper.sigma: must be a finite number > 0 metres (got 'a')"),
+     "methods.aligner.clipper.sigma: must be a finite number > 0 and <= 1e9 metres "
+     "(MAX_COORDINATE) (got 'a')"),
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"clipper": 3}}},
      "methods.aligner.clipper: must be a mapping of ClipperParams fields (got 3)"),
     ({"scenarios": ["indoor_return"], "methods": {"aligner": 5}},
@@ -167,10 +168,11 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
      "methods.aligner.kappa: is set per scenario/data set (mapping.kappa), not per method set "
      "(got 5)"),
     ({"scenarios": ["indoor_return"], "methods": {"tcaff": {"tau": None}}},
-     "methods.tcaff.tau: must be a finite number (nats) (got None)"),
+     "methods.tcaff.tau: must be a finite number >= -1e6 and <= 1e6 nats (MAX_NATS) "
+     "(got None)"),
     ({"scenarios": ["indoor_return"], "methods": {"tcaff": {"Q": [[1, 0], [0, -1]]}}},
-     "methods.tcaff.Q: must be a symmetric positive definite (d, d) matrix "
-     "(got [[1, 0], [0, -1]])"),
+     "methods.tcaff.Q: must be a symmetric positive definite (d, d) matrix with entries "
+     "of magnitude <= 1e18 (MAX_VARIANCE) (got [[1, 0], [0, -1]])"),
     ({"scenarios": ["indoor_return"], "methods": {"tcaff": {"bogus": 1}}},
      "methods.tcaff.bogus: Extra inputs are not permitted"),
     ({"scenarios": ["indoor_return"], "methods": {"graph": {"robust": "tukey"}}},
