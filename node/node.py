@@ -22,6 +22,7 @@ from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.inputs import finite_time
 from tcaff_gtsam.object_map import ObjectMap, as_object_map
 from tcaff_gtsam.pairwise import PairwiseAligner
+from tcaff_gtsam.param_checks import MAX_SECONDS, _number
 from tcaff_gtsam.params import (
     FrameAlignerParams,
     TCAFFParams,
@@ -91,7 +92,9 @@ class NodeParams:
 
     def __post_init__(self) -> None:
         o = "NodeParams"
-        for name in ("kappa", "silence", "speed"):
+        # kappa is the node's aligner's: its bound
+        _number(o, "kappa", self.kappa, 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True)
+        for name in ("silence", "speed"):
             value = getattr(self, name)
             _require(_finite(value) and value > 0, o, name, value, "must be a number > 0")
         _require(_finite(self.drop_share) and 0 <= self.drop_share < 1, o, "drop_share",

@@ -231,7 +231,8 @@ def test_publish_refuses_bad_maps(team: Team) -> None:
 
 
 @pytest.mark.parametrize(("field", "value"), [
-    ("kappa", 0), ("silence", float("nan")), ("speed", "1"), ("drop_share", 1.0),
+    ("kappa", 0), ("kappa", 10**400), ("kappa", 4e7), ("silence", float("nan")),
+    ("speed", "1"), ("drop_share", 1.0),
     ("drop_share", "0.1"), ("queue", 0), ("queue", True), ("seed", -1),
     ("lockstep", 1), ("team_consistency", None)])
 def test_bad_node_parameters_are_config_errors_naming_the_field(field, value):
