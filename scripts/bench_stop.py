@@ -30,59 +30,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-from tcaff_gtsam.node.replay import RobotReplay
 from tcaff_gtsam.node.run import free_ports, node_argv
 
-from tcaff_gtsam import ObjectMap
-from tcaff_gtsam.geometry import se2_from_params
-
-#: a `tcaff node` whose worker's filter updates past the first `after` never return (a stuck
-#: worker);
-#: argv: marker file (written when the worker gets stuck), after, then tcaff's arguments
-STUCK_NODE = """
-import sys, threading
-from pathlib import Path
-from tcaff_gtsam.pairwise import PairwiseAligner
-
-marker, after = Path(sys.argv[1]), int(sys.argv[2])
-update, calls = PairwiseAligner.update, [0]
-
-def update_then_stick(self, *args, **kwargs):
-    if threading.current_thread().name.startswith("tcaff-node-"):  # not the kernels' warm-up
-        calls[0] += 1
-    if calls[0] > after:
-        marker.write_text("stuck")
-        threading.Event().wait()
-    return update(self, *args, **kwargs)
-
-PairwiseAligner.update = update_then_stick
-from tcaff_gtsam.eval.cli import main
-sys.argv = ["tcaff", *sys.argv[3:]]
-main()
-"""
-
-#: updates a stuck worker makes before it sticks (its results: these steps)
-STUCK_AFTER = 2
-
-
-def make_replays(folder: Path, exchanges: int = 120) -> list[Path]:
-    """Replays of r0 and r1 at 1 Hz: 30 objects both see, r1's frame moved by (3 m, -2 m,
-    0.4 rad)."""
-    rng = np.random.default_rng(5)
-    n = 30
-    xy = rng.uniform(-10, 10, (n, 2))
-    sizes = rng.uniform(0.3, 1.5, n)
-    T = se2_from_params([3.0, -2.0, 0.4])
-    in_r1 = (np.linalg.inv(T) @ np.c_[xy, np.ones(n)].T).T[:, :2]
-    times = np.arange(float(exchanges))
-    paths = []
-    for k, points in enumerate((xy, in_r1)):
-        maps = [ObjectMap(np.c_[points, np.zeros(n)], sizes, sizes, np.full(n, t))
-                for t in times]
-        paths.append(folder / f"r{k}.npz")
-        RobotReplay(("r0", "r1"), k, times, maps, kappa=20.0).save(paths[-1])
-    return paths
+# the tests' stuck node: what is measured here is what they check
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from stuck_node import DONE, STUCK_NODE, replays
 
 
 def _rows(path: Path) -> int:
@@ -106,13 +58,13 @@ def one_stop(folder: Path, stuck: bool, first: signal.Signals, load: int, stop_t
              sigterm_timeout: float, sigkill_timeout: float) -> dict:
     """One team started, r0 stopped as launch stops it; the timings from the first signal."""
     out = folder / "out"
-    replays = make_replays(folder)
+    paths = replays(folder)
     ports = free_ports(2)
     marker = folder / "stuck"
-    argvs = [node_argv(replays[k], k, 2, "stop", ports, None, out) for k in range(2)]
+    argvs = [node_argv(paths[k], k, 2, "stop", ports, None, out) for k in range(2)]
     if stop_timeout is not None:
         argvs[0] += ["--stop-timeout", str(stop_timeout)]
-    after = STUCK_AFTER if stuck else 10**9
+    after = DONE if stuck else 10**9
     argvs[0] = [sys.executable, "-c", STUCK_NODE, str(marker), str(after), *argvs[0][3:]]
     logs = [open(folder / f"node{k}.log", "wb") for k in range(2)]
     procs = [subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
@@ -120,7 +72,7 @@ def one_stop(folder: Path, stuck: bool, first: signal.Signals, load: int, stop_t
     busy: list[subprocess.Popen] = []
     try:
         deadline = time.monotonic() + 180
-        while not (marker.exists() if stuck else _rows(out / "r0.csv") >= STUCK_AFTER + 1):
+        while not (marker.exists() if stuck else _rows(out / "r0.csv") >= DONE + 1):
             if time.monotonic() > deadline or procs[0].poll() is not None:
                 raise RuntimeError(f"r0 never got going; see {folder / 'node0.log'}")
             time.sleep(0.05)

@@ -21,6 +21,7 @@ import pytest
 import zenoh
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
+from stuck_node import ONE_OBJECT, Alone, node_stuck_in_its_first_step
 from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode
 from tcaff_gtsam.node.node import _draw
 from tcaff_gtsam.node.replay import MAX_TEAM, RobotReplay, robot_names
@@ -384,46 +385,12 @@ def test_a_restarted_node_reports_no_hypothesis_it_has_not_reconfirmed(tmp_path:
     assert confirmed and confirmed[0].hypothesis == held.hypothesis
 
 
-class Alone:
-    """A transport that sends nothing and hears nothing: the node by itself, in memory."""
-
-    def configure(self, robot, params):
-        return params
-
-    def open(self, node) -> None:
-        pass
-
-    def put_map(self, message, recent) -> None:
-        pass
-
-    def put_alignment(self, message) -> None:
-        pass
-
-    def put_team(self, message) -> None:
-        pass
-
-    def present(self, timeout):
-        return set()
-
-    def close(self) -> None:
-        pass
-
-
 def test_waiting_for_a_stuck_worker_behind_a_full_queue_ends_at_its_timeout() -> None:
     """A node's stop waits for its worker within bounds: `wait_idle` gives up at its timeout
     when the worker is stuck in a step and the queue is full behind it (it waited for a free
     place in the queue without a bound)."""
-    node = RobotNode("r0", "team", ["r0", "r1"], Alone(), NodeParams(queue=1))
-    stepping, release = threading.Event(), threading.Event()
-    step = node._ego_step
-
-    def stuck(*args) -> None:
-        stepping.set()
-        release.wait()
-        step(*args)
-
-    node._ego_step = stuck
-    maps = ObjectMap(np.zeros((1, 3)), np.ones(1), np.ones(1), np.zeros(1))
+    node, stepping, release = node_stuck_in_its_first_step(1)
+    maps = ONE_OBJECT
     try:
         node.publish(0.0, maps)
         assert stepping.wait(60)
