@@ -63,7 +63,7 @@ test-fast: install
 	$(VENV)/bin/pytest -q -m "not slow"
 
 BENCH_SCRIPTS := bench_startup bench_association bench_tcaff bench_graph bench_team bench_scale \
-	bench_study bench_mapping bench_mot bench_results_io
+	bench_study bench_mapping bench_mot bench_results_io bench_image_files
 BENCH_OUT := docs/benchmarks.md
 
 # Every script's output goes into $(BENCH_OUT) under its own heading with the command, the date

@@ -43,6 +43,7 @@ from tcaff_gtsam.object_map import ObjectMap
 
 from ..config import ExtrinsicsConfig, KimeraMultiConfig, TopicsConfig
 from ..runs import RecordedRun, RunSettings
+from .image_files import JPEG_START, jpeg_defect
 
 __all__ = [
     "CameraCalibration",
@@ -177,10 +178,19 @@ def _camera(msg, topic: str) -> PinholeCamera:
     return PinholeCamera.from_K(K.reshape(3, 3), int(msg.width), int(msg.height))
 
 
-def _decode_color(msg, topic: str, t: float) -> np.ndarray:
-    bgr = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_COLOR)
+def _decode_color(msg, topic: str, t: float, index: int) -> np.ndarray:
+    """The (H, W, 3) RGB image of a CompressedImage message, the topic's `index`-th (from 0,
+    in the bags' time order). OpenCV's imdecode refuses a JPEG whose bytes simply end, but
+    decodes one cut short and padded (with zeros, as a driver's fixed-size buffer can be) and
+    makes up the rest of its rows, so a JPEG is walked to its end-of-image marker first
+    (`jpeg_defect`); other formats (PNG) fail to decode when cut short."""
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if data[:2].tobytes() == JPEG_START and (defect := jpeg_defect(data.tobytes())) is not None:
+        raise DataError(f"{topic} message {index} at t = {t:.3f} s: the colour image {defect}")
+    bgr = cv2.imdecode(data, cv2.IMREAD_COLOR)
     if bgr is None:
-        raise DataError(f"{topic} at t = {t:.3f} s: cannot decode the {msg.format!r} image")
+        raise DataError(f"{topic} message {index} at t = {t:.3f} s: cannot decode the "
+                        f"{msg.format!r} image")
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
@@ -307,20 +317,26 @@ class RobotBags:
             tolerance: seconds; colour frames with no depth image this close are skipped.
             start, stop: seconds, only frames in [start, stop).
         Frames outside the odometry's time span are skipped. Only kept frames are decoded.
+        Raises:
+            DataError: a kept colour image that is a JPEG cut short (`image_files.jpeg_defect`)
+                or that OpenCV cannot decode, naming its topic, its index on the topic (from 0,
+                in the bags' time order) and its time; depth that is not 16UC1 or whose bytes do
+                not hold its rows.
         """
         if stride < 1 or tolerance < 0 or (rate is not None and rate <= 0):
             raise DataError(f"frames: stride = {stride} must be >= 1, tolerance = {tolerance} "
                             f">= 0 and rate = {rate} > 0 or None")
         odometry = PoseTrack(*self.odometry())
         odom_times = odometry.times
-        # (t, msg): colour images waiting for a depth image after them, and recent depth
-        # images; bounded, so that a topic that stops cannot fill the memory
+        # (t, index on the colour topic, msg): colour images waiting for a depth image after
+        # them, and (t, msg): recent depth images; bounded, so that a topic that stops cannot
+        # fill the memory
         colors: deque = deque(maxlen=64)
         depths: deque = deque(maxlen=64)
-        next_due, counted = -np.inf, 0
+        next_due, counted, color_index = -np.inf, 0, -1
         skipped = {"no depth": 0, "no odometry": 0}
 
-        def pair(t: float, color) -> RgbdFrame | None:
+        def pair(t: float, index: int, color) -> RgbdFrame | None:
             nonlocal next_due, counted
             best = min(depths, key=lambda d: abs(d[0] - t), default=None)
             if best is None or abs(best[0] - t) > tolerance:
@@ -336,13 +352,13 @@ class RobotBags:
             if (counted - 1) % stride:
                 return None
             T, _ = odometry([t])
-            return RgbdFrame(t, _decode_color(color, self.topics["color"], t),
+            return RgbdFrame(t, _decode_color(color, self.topics["color"], t, index),
                              _decode_depth(best[1], self.topics["depth"], best[0]), T[0])
 
         def ready(latest_depth: float) -> Iterator[RgbdFrame]:
             while colors and (latest_depth - colors[0][0] > tolerance):
-                t, color = colors.popleft()
-                frame = pair(t, color)
+                t, index, color = colors.popleft()
+                frame = pair(t, index, color)
                 if frame is not None:
                     yield frame
                 # depth images too old for the next colour frame are no longer needed
@@ -351,10 +367,11 @@ class RobotBags:
 
         for role, msg in self._messages("color", "depth"):
             t = _stamp(msg)
+            color_index += role == "color"
             if (start is not None and t < start) or (stop is not None and t >= stop):
                 continue
             if role == "color":
-                colors.append((t, msg))
+                colors.append((t, color_index, msg))
             else:
                 depths.append((t, msg))
                 yield from ready(t)
