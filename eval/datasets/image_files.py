@@ -85,6 +85,9 @@ def jpeg_defect(data: bytes) -> str | None:
                     f"{name} segment at byte {at - 1}")
         length = data[at + 1] << 8 | data[at + 2]  # big-endian, counting its own 2 bytes
         if length < 2:
+            if not data[at + 1:].strip(b"\0"):  # cut after the marker, padded with zeros
+                return (f"is cut short: a JPEG of {n} bytes whose {name} marker at byte "
+                        f"{at - 1} is followed by zeros only")
             return (f"is not a valid JPEG: its {name} segment at byte {at - 1} gives a length "
                     f"of {length}")
         pos = at + 1 + length
