@@ -408,7 +408,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             try:
                 indices, joints = apply()
                 if factorization == "QR":
-                    self._check_agreement(self._queued)
+                    self._check_agreement()
             except RuntimeError:
                 if factorization != "CHOLESKY":
                     raise
@@ -423,7 +423,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
                 if stale is not None:
                     self._removed, self._stale = dict(stale[0]), set(stale[1])
                 indices, joints = apply()
-                self._check_agreement(self._queued)
+                self._check_agreement()
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             # the roll-back factorises as the graph did before (the failed solver's own)
             self._isam.params().setFactorization(factorization)

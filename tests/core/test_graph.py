@@ -1215,6 +1215,28 @@ def test_keyframe_chains_of_any_declared_odometry_are_solved(seed, sure, which):
         np.testing.assert_allclose(graph.trajectory(r)[1], truth[r], atol=1e-5)
 
 
+def test_a_graph_on_qr_takes_a_jump_of_an_alignment():
+    """A graph factorised by QR (robot 2's odometry sure to 1e-9) with Gaussian alignment
+    factors: a TCAFF switch to an alignment 580 m away leaves the drift between the steps
+    thousands of standard deviations from its zero, which is the drift's to give, not a
+    contradiction; the switch is taken as on Cholesky."""
+    graph = InterRobotGraph(3, GraphParams(robust="none"))
+    x01, x12 = np.array([1.0, 2.0, 0.3]), np.array([-1.0, 0.5, 0.1])
+    jump = np.array([500.0, -300.0, 2.0])
+    for k in range(30):
+        graph.add_keyframe(2, k, se2_from_params([0.5 * k, 0.0, 0.1 * k]),
+                           np.diag([1e-9] * 3) if k else None)
+        x = x01 + (jump if k >= 20 else 0.0)
+        graph.add_tcaff_estimate(k, 0, 1, estimate(x, True, 2 if k >= 20 else 1), x[None],
+                                 R[None])
+        graph.add_tcaff_estimate(k, 1, 2, estimate(x12, True), x12[None], R[None])
+        graph.update(k)
+    assert graph._isam.params().getFactorization() == "QR"
+    np.testing.assert_allclose(se2_to_params(graph.alignment(0, 1)[0]),
+                               [x01[0] + jump[0], x01[1] + jump[1], x01[2] + jump[2]],
+                               atol=1e-6)
+
+
 def test_contradicting_factors_solved_by_qr_are_refused():
     """Two rigid factors 9 km apart: Cholesky finds the system indeterminate, and QR's
     least squares puts the alignment some 1e29 m away. The update is refused as before, the
