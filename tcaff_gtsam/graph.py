@@ -392,10 +392,12 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         factorization = self._isam.params().getFactorization()
         before = None  # the point the graph before the update is solved from again
 
-        def apply() -> tuple[list[int], dict[int, np.ndarray]]:
+        def apply(checked: bool) -> tuple[list[int], dict[int, np.ndarray]]:
             indices = self._commit(graph, self._pending_values, self._to_remove,
                                    removed_keys | kept)
             self._settle(touched)
+            if checked:  # before any covariance is kept from a solution that may be refused
+                self._check_agreement()
             self._mark_stale(gone, restored, newest)
             joints = self._leaving_joints(leaving)
             if self._keeps_joints and self._steps:
@@ -406,9 +408,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
 
         try:
             try:
-                indices, joints = apply()
-                if factorization == "QR":
-                    self._check_agreement()
+                indices, joints = apply(factorization == "QR")
             except RuntimeError:
                 if factorization != "CHOLESKY":
                     raise
@@ -422,8 +422,7 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
                 self._settled_from = None
                 if stale is not None:
                     self._removed, self._stale = dict(stale[0]), set(stale[1])
-                indices, joints = apply()
-                self._check_agreement()
+                indices, joints = apply(True)
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             # the roll-back factorises as the graph did before (the failed solver's own)
             self._isam.params().setFactorization(factorization)

@@ -1156,11 +1156,12 @@ def test_a_graph_gtsam_cannot_solve_again_says_so(monkeypatch):
     assert graph.steps == [0, 1, 2]
 
 
-def _sure_odometry_team(dim: int, variances, steps: int, rng) -> tuple:
+def _sure_odometry_team(dim: int, variances, steps: int, rng, **params) -> tuple:
     """Two robots driving arcs, each keyframe chained by odometry with `variances` (gtsam's
-    tangent order), tied by noise-free keyframe alignments from step 3; the graph after each
-    step's update, and each robot's true keyframe poses in robot 0's frame."""
-    graph = InterRobotGraph(2, GraphParams(dim=dim))
+    tangent order), tied by noise-free keyframe alignments from step 3; the graph (of
+    `GraphParams(dim=dim, **params)`) after each step's update, and each robot's true keyframe
+    poses in robot 0's frame."""
+    graph = InterRobotGraph(2, GraphParams(dim=dim, **params))
     T_o0_o1 = se2_from_params([*rng.uniform(-5, 5, 2), rng.uniform(-3, 3)])
     moves = [se2_from_params([rng.uniform(0.2, 0.6), 0.0, rng.uniform(-0.2, 0.2)])
              for _ in range(2)]
@@ -1260,6 +1261,35 @@ def test_contradicting_factors_solved_by_qr_are_refused():
     graph.update(3)
     np.testing.assert_allclose(graph.alignment(0, 1)[0], se2_from_params([1.0, 2.0, 0.3]),
                                atol=1e-6)
+
+
+@pytest.mark.parametrize("params", [{"horizon": 5}, {"past_covariance": "causal"}])
+@pytest.mark.parametrize("qr_before", [True, False])
+def test_an_update_refused_by_qr_keeps_the_covariances_it_had(params, qr_before):
+    """Two alignments 2 km apart, each sure to 1e-10 m, on a graph solved by QR (or that
+    Cholesky cannot solve, then solved by QR): refused as contradicting. The latest step's
+    covariance, kept with a horizon or causal past covariances, is the one before, not the
+    refused solution's (kept until the next update: orders of magnitude smaller); a refused
+    step keeps none."""
+    if qr_before:
+        graph, _ = _sure_odometry_team(2, [1e-8] * 3, 8, np.random.default_rng(0), **params)
+        assert graph._isam.params().getFactorization() == "QR"
+        step = 7
+    else:
+        graph = InterRobotGraph(2, GraphParams(**params))
+        for step in range(3):
+            graph.add_alignment(step, 0, 1, [1.0, 2.0, 0.3], R)
+            graph.update(step)
+    before = graph.alignment(0, 1)
+    joints = set(graph._joints)
+    for at in (step, step + 1):
+        for x in (1e3, -1e3):
+            graph.add_alignment(at, 0, 1, [x, 0.0, 0.0], np.eye(3) * 1e-20)
+        with pytest.raises(DataError, match="contradict each other"):
+            graph.update(None if at == step else at)
+        for got, was in zip(graph.alignment(0, 1), before, strict=True):
+            np.testing.assert_allclose(got, was, rtol=1e-9, atol=1e-12)
+        assert set(graph._joints) == joints
 
 
 def test_an_update_whose_latest_covariance_gtsam_cannot_compute_is_rolled_back(monkeypatch):
