@@ -133,7 +133,9 @@ def replay(source: RobotReplay, publish: Callable[[float, ObjectMap, int], None]
     for k in range(first, len(due)):
         t, object_map = source.times[k], source.maps[k]
         wait = due[k] - time.time()
-        if wait > 0 and stop.wait(wait):
+        # asked also when behind the schedule (a publish that waited on a full queue):
+        # otherwise a stopped replay would publish every exchange left
+        if stop.is_set() or (wait > 0 and stop.wait(wait)):
             break
         if clock_offset:
             object_map = ObjectMap(object_map.centroids, object_map.widths, object_map.heights,

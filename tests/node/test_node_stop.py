@@ -18,8 +18,10 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from stuck_node import DONE, ONE_OBJECT, STUCK_NODE, node_stuck_in_its_first_step, replays
+from tcaff_gtsam.node.replay import RobotReplay, replay
 from tcaff_gtsam.node.results import read_alignments
 from tcaff_gtsam.node.run import free_ports, node_argv
 
@@ -139,6 +141,25 @@ def test_a_stuck_worker_leaves_finish_at_its_timeout_with_what_it_holds() -> Non
         release.set()
         node.close()
     assert node.counters["maps_sent"] == 4
+
+
+def test_a_replay_behind_its_schedule_ends_when_stopped() -> None:
+    """A replay behind its schedule (a publish that waited on the full queue of a stuck
+    worker, at a speed of many exchanges a second) publishes nothing once stopped: it used to
+    ask the stop only while waiting for an exchange's time, and so published every exchange
+    left, each after a wait on the full queue (a stop of 24 s with 470 left)."""
+    times = np.arange(50.0)
+    source = RobotReplay(("r0", "r1"), 0, times, [ONE_OBJECT] * len(times), kappa=20.0)
+    stop = threading.Event()
+    published: list[int] = []
+
+    def publish(t: float, object_map, k: int) -> None:
+        published.append(k)
+        stop.set()  # the signal comes while the first map waits for a place
+
+    # every exchange due at once, a moment from now: behind the schedule after the first
+    done = replay(source, publish, time.time() + 0.01, 1e12, stop=stop)
+    assert published == [0] and done == 1
 
 
 #: in a process of its own: the results are written again and again, and the writer is
