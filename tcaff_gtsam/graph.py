@@ -447,7 +447,8 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._active[index] = q
             self._count(q, index, +1)
         self._queued, self._pending_values, self._to_remove = later, gtsam.Values(), []
-        if self._converge():  # a new solver, with marginal factors of its own
+        # a new solver (by QR, or converged), with marginal factors of its own
+        if self._converge() or before is not None:
             factors = self._isam.getFactorsUnsafe()
             marginals = {i: factors.at(i) for i in self._marginal}
         self._marginalise(leaving, joints, marginals)

@@ -6,7 +6,6 @@ update."""
 
 from __future__ import annotations
 
-import math
 from bisect import bisect_left
 
 import gtsam
@@ -465,8 +464,8 @@ class SlidingWindow:
         worst = max((2.0 * f.factor.error(estimate) for f in self._queued), default=0.0)
         if not worst <= _CONTRADICTION:
             raise RuntimeError(f"the update's factors contradict each other: solved by QR, "
-                               f"one is left {math.sqrt(worst):.3g} standard deviations from "
-                               f"its measurement")
+                               f"one is left with a squared whitened error of {worst:.3g}, "
+                               f"past {_CONTRADICTION:.0e}")
 
     def _settle(self, keys: set[int]) -> None:
         """Extra iterations while a variable the update touched is still far from its
