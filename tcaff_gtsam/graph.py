@@ -69,7 +69,7 @@ from .graph_inputs import (
 from .graph_keyframes import KeyframeFactors
 from .graph_output import GraphReadout
 from .graph_tcaff import HypothesisFactors, _Abandoned, _copied_switches, _Suspended
-from .graph_window import SlidingWindow
+from .graph_window import SlidingWindow, _Contradiction
 from .inputs import real_array, shown
 from .params import GraphParams, _given_or_default, _int_at_least
 from .tcaff import AlignmentEstimate
@@ -338,10 +338,12 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         Raises:
             DataError: `step` is not after the last committed step, a queued alignment refers
                 to a step that neither exists nor is `step`, or gtsam could not solve the graph
-                with the queued factors (they are dropped, and the graph holds the factors,
-                hypotheses, pending switches and held-out hypotheses it held before; its
-                estimate is solved again from them, from their linearisation point, and can
-                move where the graph holds contradicting alignments).
+                with the queued factors, by Cholesky nor by QR, or its solution leaves one of
+                them a million standard deviations off (rigid factors at odds). The queued
+                factors are then dropped, and the graph holds the factors, hypotheses,
+                pending switches and held-out hypotheses it held before; its estimate is
+                solved again from them, from their linearisation point, and can move where
+                the graph holds contradicting alignments.
         """
         if step is not None:
             step = _check_index("update: step", step, _ROBOT_SHIFT)
@@ -392,12 +394,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
         factorization = self._isam.params().getFactorization()
         before = None  # the point the graph before the update is solved from again
 
-        def apply(checked: bool) -> tuple[list[int], dict[int, np.ndarray]]:
+        def apply() -> tuple[list[int], dict[int, np.ndarray]]:
             indices = self._commit(graph, self._pending_values, self._to_remove,
                                    removed_keys | kept)
             self._settle(touched)
-            if checked:  # before any covariance is kept from a solution that may be refused
-                self._check_agreement()
+            self._check_agreement()  # before any covariance is kept from a refused solution
             self._mark_stale(gone, restored, newest)
             joints = self._leaving_joints(leaving)
             if self._keeps_joints and self._steps:
@@ -408,21 +409,22 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
 
         try:
             try:
-                indices, joints = apply(factorization == "QR")
+                indices, joints = apply()
+            except _Contradiction:
+                raise
             except RuntimeError:
                 if factorization != "CHOLESKY":
                     raise
                 # Cholesky works on the square of the system and finds a consistent one
                 # indeterminate where its information spans some eight orders of magnitude
                 # (odometry sure to 1e-4 under a gauge prior of 1, variances of 1e6 for
-                # "unknown"); QR does not. Solved by QR, an update is kept unless its factors
-                # contradict each other, which Cholesky's failure also stood for.
+                # "unknown"); QR does not
                 before = self._restart_point(pending)
                 gone = self._refactorised(gone, marginals, before)
                 self._settled_from = None
                 if stale is not None:
                     self._removed, self._stale = dict(stale[0]), set(stale[1])
-                indices, joints = apply(True)
+                indices, joints = apply()
         except RuntimeError as exc:  # gtsam could not solve it: back to the graph before
             # the roll-back factorises as the graph did before (the failed solver's own)
             self._isam.params().setFactorization(factorization)

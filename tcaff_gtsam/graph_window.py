@@ -22,11 +22,16 @@ from .graph_inputs import (
 
 __all__ = ["SlidingWindow"]
 
-#: the squared whitened error past which an update solved by QR holds rigid factors at odds
-#: (a million standard deviations). A least-squares compromise between Gaussian factors is
-#: not one: a switch of hypotheses leaves its alignments thousands of standard deviations off
-#: for a while, on Cholesky too; two rigid factors (1e-6 m) 9 km apart are left 1e10 off.
+#: the squared whitened error past which an update holds rigid factors at odds (a million
+#: standard deviations). A least-squares compromise between Gaussian factors is not one: a
+#: switch of hypotheses leaves its alignments thousands of standard deviations off for a
+#: while; two rigid factors (1e-6 m) 9 km apart are left 1e10 off.
 _CONTRADICTION = 1e12
+
+
+class _Contradiction(RuntimeError):
+    """An update's factors at odds (`SlidingWindow._check_agreement`): refused as one gtsam
+    cannot solve, without trying another factorisation."""
 
 
 class SlidingWindow:
@@ -452,10 +457,11 @@ class SlidingWindow:
         return gone
 
     def _check_agreement(self) -> None:
-        """RuntimeError where a factor the update brings is left more than a million standard
-        deviations from its measurement by the solution (`_CONTRADICTION`, its squared
-        whitened error; robust factors their loss): rigid factors at odds, which least squares
-        by QR averages into a solution far from every one of them."""
+        """`_Contradiction` where a factor the update brings is left more than a million
+        standard deviations from its measurement by the solution (`_CONTRADICTION`, its
+        squared whitened error; robust factors twice their loss): rigid factors at odds.
+        Cholesky usually fails on them, but not always, and QR's least squares averages them
+        into a solution far from every one of them (anywhere up to 1e29 m away)."""
         estimate = gtsam.Values()
         get = (self._isam.calculateEstimatePose2 if self._planar
                else self._isam.calculateEstimatePose3)
@@ -463,9 +469,9 @@ class SlidingWindow:
             estimate.insert(key, get(key))
         worst = max((2.0 * f.factor.error(estimate) for f in self._queued), default=0.0)
         if not worst <= _CONTRADICTION:
-            raise RuntimeError(f"the update's factors contradict each other: solved by QR, "
-                               f"one is left with a squared whitened error of {worst:.3g}, "
-                               f"past {_CONTRADICTION:.0e}")
+            raise _Contradiction(f"the update's factors contradict each other: one is left "
+                                 f"with a squared whitened error of {worst:.3g}, past "
+                                 f"{_CONTRADICTION:.0e}")
 
     def _settle(self, keys: set[int]) -> None:
         """Extra iterations while a variable the update touched is still far from its
