@@ -50,7 +50,8 @@ class NodeParams:
     """How a node treats its team.
 
     Attributes:
-        kappa: s, only objects seen within kappa are published.
+        kappa: s, only objects seen within kappa are published; at most a year
+            (`MAX_SECONDS`), or inf (every object), as `FrameAlignerParams.kappa`.
         silence: s on the ego clock: a neighbour whose latest map is older steps its filter
             without measurements at each ego map, so that its estimate holds and then drops as
             TCAFF drops an unsupported hypothesis.
@@ -92,8 +93,9 @@ class NodeParams:
 
     def __post_init__(self) -> None:
         o = "NodeParams"
-        # kappa is the node's aligner's: its bound
-        _number(o, "kappa", self.kappa, 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True)
+        # kappa is the node's aligner's: its bound, inf (no limit) included
+        _number(o, "kappa", self.kappa, 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True,
+                inf=True)
         for name in ("silence", "speed"):
             value = getattr(self, name)
             _require(_finite(value) and value > 0, o, name, value, "must be a number > 0")

@@ -115,7 +115,7 @@ def serve(port: int, objects: int, rate: float, guide_radius: float | None) -> N
     mine, _, widths, heights = scene(objects)
     compile_kernels()
     node = RobotNode("r0", "bench", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",)),
-                     NodeParams(kappa=1e9), aligner_params(guide_radius))
+                     NodeParams(kappa=math.inf), aligner_params(guide_radius))
     stop = threading.Event()
     threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
     t0 = time.time()

@@ -7,6 +7,7 @@ The node and the neighbour's sender are two Zenoh sessions linked over TCP on 12
 from __future__ import annotations
 
 import json
+import math
 import os
 import queue
 import subprocess
@@ -30,7 +31,8 @@ from tcaff_gtsam.node.run import free_ports, replay_node
 from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params
-from tcaff_gtsam.params import ParameterError
+from tcaff_gtsam.param_checks import MAX_SECONDS
+from tcaff_gtsam.params import FrameAlignerParams, ParameterError
 
 TRUE = np.array([2.0, -1.0, 0.4])  # T_r0_r1 as (x, y, theta)
 
@@ -239,6 +241,21 @@ def test_publish_refuses_bad_maps(team: Team) -> None:
 def test_bad_node_parameters_are_config_errors_naming_the_field(field, value):
     with pytest.raises(ConfigError, match=field):
         NodeParams(**{field: value})
+
+
+@pytest.mark.parametrize("kappa", [math.inf, MAX_SECONDS, 1e-3, 20, 4e7, 10**400, 0, -1.0,
+                                   -math.inf, math.nan, True])
+def test_a_nodes_kappa_has_its_aligners_range(kappa):
+    """A node takes the kappa its aligner (built from it) takes, inf (publish every object)
+    included, and refuses the others by its own field: inf was refused, which
+    scripts/bench_node.py's node, given 1e9 s, ran into once kappa was bounded by a year."""
+    try:
+        aligner = FrameAlignerParams(kappa=kappa)
+    except ParameterError:
+        with pytest.raises(ParameterError, match=r"^NodeParams\.kappa = "):
+            NodeParams(kappa=kappa)
+    else:
+        assert FrameAlignerParams(kappa=NodeParams(kappa=kappa).kappa) == aligner
 
 
 def test_a_late_ego_map_never_turns_a_pairs_clock_back(tmp_path: Path) -> None:
