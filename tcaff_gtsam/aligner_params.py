@@ -44,6 +44,11 @@ MAX_POINT_NOISE = 1e3
 #: the other settings at their defaults the calibrated covariance stays below MAX_VARIANCE
 MAX_MAP_DRIFT = (1.0, 0.1)
 
+#: metres, the narrowest affinity kernel (`ClipperParams.sigma`): its 1 / (2 sigma^2) overflows
+#: below about 1e-154 m, where pairs that agree exactly got NaN weights, and 2 sigma^2 is zero
+#: (a ZeroDivisionError) below about 1e-162 m; no map places objects to a nanometre
+MIN_SIGMA = 1e-9
+
 #: the most earlier maps searched for look-alikes in one step (`memory_searches`): each search
 #: costs one to three times the step's own alignment
 MAX_MEMORY_SEARCHES = 1000
@@ -95,7 +100,8 @@ class ClipperParams:
         seed: seed (an int >= 0, any size: numpy's generator takes them all) of the start
             vector; same seed, same graph -> same solution.
 
-    sigma and epsilon are at most 1e9 m (`MAX_COORDINATE`).
+    sigma and epsilon are at most 1e9 m (`MAX_COORDINATE`); sigma is at least 1e-9 m
+    (`MIN_SIGMA`).
 
     Raises:
         ConfigError (a `ParameterError` naming the field) for values out of range.
@@ -116,9 +122,10 @@ class ClipperParams:
 
     def __post_init__(self) -> None:
         o = "ClipperParams"
-        for name in ("sigma", "epsilon"):
-            _number(o, name, getattr(self, name), 0, MAX_COORDINATE, "metres", "MAX_COORDINATE",
-                    above=True)
+        _number(o, "sigma", self.sigma, MIN_SIGMA, MAX_COORDINATE, "metres",
+                "MIN_SIGMA, MAX_COORDINATE")
+        _number(o, "epsilon", self.epsilon, 0, MAX_COORDINATE, "metres", "MAX_COORDINATE",
+                above=True)
         _require(_one_of(self.rounding, ("size", "threshold")), o, "rounding", self.rounding,
                  "must be 'size' or 'threshold'")
         for name in ("threshold", "beta"):

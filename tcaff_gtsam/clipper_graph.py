@@ -15,8 +15,10 @@ import numba
 import numpy as np
 from scipy import sparse
 
+from .aligner_params import MIN_SIGMA
 from .errors import DataError
 from .inputs import MAX_COORDINATE, index_pairs, kernel_array, real_array, shown
+from .param_checks import _bound
 from .params import (
     ClipperParams,
     _finite,
@@ -383,7 +385,7 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
         ego_points: (n1, d) metres, d = 2 (x, y) or 3, in the ego robot's odometry frame.
         other_points: (n2, d) metres, in the other robot's odometry frame.
         associations: (m, 2) int (ego index, other index).
-        epsilon, sigma: metres, finite and > 0.
+        epsilon, sigma: metres, finite, epsilon > 0 and sigma >= 1e-9 (`MIN_SIGMA`).
         prior: optional (m,) non-negative prior weight per association (affinity diagonal).
         z: optional ((n1,), (n2,)) metres, each object's centre's height above its frame's
             origin (along gravity).
@@ -392,17 +394,19 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
             (`ObjectMap.heights`), with z.
 
     Raises:
-        ConfigError: epsilon, sigma or height_epsilon not a finite number > 0, or z and
-            height_epsilon not given together.
+        ConfigError: epsilon or height_epsilon not a finite number > 0, sigma not a finite
+            number >= MIN_SIGMA, or z and height_epsilon not given together.
         DataError: points, associations, prior, z or vertical_extents of the wrong shape or
             out of range, not real numbers (complex ones included), or associations that are
             not whole numbers: an (m, 3) array is refused, not read as pairs, and 1.5 is not
             truncated to 1.
     """
     o = "consistency_graph"
-    for name, value in (("epsilon", epsilon), ("sigma", sigma)):
-        _require(_finite(value) and value > 0, o, name, value,
-                 "must be a finite number > 0 metres")
+    _require(_finite(epsilon) and epsilon > 0, o, "epsilon", epsilon,
+             "must be a finite number > 0 metres")
+    # below MIN_SIGMA the kernel's 1 / (2 sigma^2) overflows into NaN weights (or divides by 0)
+    _require(_finite(sigma) and sigma >= MIN_SIGMA, o, "sigma", sigma,
+             f"must be a finite number >= {_bound(MIN_SIGMA)} metres (MIN_SIGMA)")
     _require((z is None) == (height_epsilon is None), o, "height_epsilon",
              height_epsilon, "must be given with z, and only with it")
     if height_epsilon is not None:

@@ -39,7 +39,12 @@ from tcaff_gtsam import (
     putative_associations,
     weighted_arun,
 )
-from tcaff_gtsam.aligner_params import MAX_MAP_DRIFT, MAX_MEMORY_SEARCHES, MAX_POINT_NOISE
+from tcaff_gtsam.aligner_params import (
+    MAX_MAP_DRIFT,
+    MAX_MEMORY_SEARCHES,
+    MAX_POINT_NOISE,
+    MIN_SIGMA,
+)
 from tcaff_gtsam.filter_params import MAX_WINDOW
 from tcaff_gtsam.param_checks import (
     MAX_COORDINATE,
@@ -483,7 +488,7 @@ def test_parameters_refuse_values_of_the_wrong_kind(data):
 M, S, F, N, C, T = MAX_COORDINATE, MAX_SECONDS, MAX_FACTOR, MAX_NATS, MAX_OBJECTS, MAX_STEPS
 BOUNDS = {
     **{(ClipperParams, name): spec for name, spec in {
-        "sigma": ("real", 0, M, True), "epsilon": ("real", 0, M, True),
+        "sigma": ("real", MIN_SIGMA, M, False), "epsilon": ("real", 0, M, True),
         "tol_u": ("real", 0, 1, True), "eps": ("real", 0, 1, True),
         "max_outer": ("int", 1, MAX_ITERATIONS, False),
         "max_inner": ("int", 1, MAX_ITERATIONS, False),

@@ -19,6 +19,7 @@ from tcaff_gtsam import (
     consistency_graph,
     mno_clipper,
 )
+from tcaff_gtsam.aligner_params import MIN_SIGMA
 from tcaff_gtsam.geometry import invert, se2_from_params, transform_points
 from tcaff_gtsam.registration import weighted_arun
 
@@ -191,6 +192,23 @@ def test_graph_parameters_are_config_errors(name, value):
     p = np.zeros((3, 2))
     with pytest.raises(ConfigError, match=f"consistency_graph.{name} = "):
         consistency_graph(p, p, np.array([[0, 0]]), **{name: value})
+
+
+@pytest.mark.parametrize("sigma", [1e-10, 1e-156, 1e-170, 5e-324])
+def test_a_kernel_too_narrow_to_compute_is_refused_by_name(sigma):
+    """sigma below MIN_SIGMA (a nanometre): from about 1e-154 m the kernel's 1 / (2 sigma^2)
+    overflowed and pairs that agree exactly got NaN weights (52 of this graph's
+    weights, and CLIPPER a clique of one), from about 1e-162 m consistency_graph and every
+    FrameAligner search raised ZeroDivisionError."""
+    p = np.random.default_rng(0).uniform(0.0, 5.0, (6, 2))
+    pairs = np.argwhere(np.ones((6, 6), bool))
+    with pytest.raises(ConfigError, match=r"^consistency_graph\.sigma = "):
+        consistency_graph(p, p + 1.0, pairs, sigma=sigma)
+    with pytest.raises(ConfigError, match=r"^ClipperParams\.sigma = "):
+        ClipperParams(sigma=sigma)
+    graph = consistency_graph(p, p + 1.0, pairs, sigma=MIN_SIGMA)
+    assert np.isfinite(graph.weights).all() and len(clipper_solve(graph)) == 6
+    assert ClipperParams(sigma=MIN_SIGMA).sigma == MIN_SIGMA
 
 
 def test_mno_scores_use_the_original_affinity():

@@ -76,7 +76,8 @@ def test_none_and_bools_only_where_the_field_takes_them(cls, name, value):
 @pytest.mark.parametrize(("make", "message"), [
     (lambda: TCAFFParams(tau=None), "TCAFFParams.tau = None: must be a finite number"),
     (lambda: TCAFFParams(tau="8"), "TCAFFParams.tau = '8': must be a finite number"),
-    (lambda: ClipperParams(sigma="a"), "ClipperParams.sigma = 'a': must be a finite number > 0"),
+    (lambda: ClipperParams(sigma="a"),
+     "ClipperParams.sigma = 'a': must be a finite number >= 1e-9"),
     (lambda: FrameAlignerParams(kappa=None), "FrameAlignerParams.kappa = None: must be a number"),
     (lambda: ClipperParams(seed=-1), "ClipperParams.seed = -1: must be an int >= 0"),
     (lambda: FrameAlignerParams(dim=2.0), "FrameAlignerParams.dim = 2.0: must be 2 or 3"),

@@ -158,8 +158,8 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"n_solutions": 0}}},
      "methods.aligner.n_solutions: must be an int in [1, 1000] (MAX_SOLUTIONS) (got 0)"),
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"clipper": {"sigma": "a"}}}},
-     "methods.aligner.clipper.sigma: must be a finite number > 0 and <= 1e9 metres "
-     "(MAX_COORDINATE) (got 'a')"),
+     "methods.aligner.clipper.sigma: must be a finite number >= 1e-9 and <= 1e9 metres "
+     "(MIN_SIGMA, MAX_COORDINATE) (got 'a')"),
     ({"scenarios": ["indoor_return"], "methods": {"aligner": {"clipper": 3}}},
      "methods.aligner.clipper: must be a mapping of ClipperParams fields (got 3)"),
     ({"scenarios": ["indoor_return"], "methods": {"aligner": 5}},
