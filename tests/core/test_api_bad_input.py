@@ -596,3 +596,13 @@ def test_every_numeric_field_takes_any_value_within_its_bound(cls, name, data):
     with pytest.raises(ParameterError) as info:
         cls(**as_field(cls, name, kind, past))
     assert info.value.name == name, str(info.value)
+
+
+def test_map_drift_bounds_its_heading_part_too():
+    """The table above draws map_drift's metres; its radians have their own bound, 0.1."""
+    metres, radians = MAX_MAP_DRIFT
+    assert FrameAlignerParams(map_drift=(metres, radians)).map_drift == (metres, radians)
+    for drift in ((0.0, math.nextafter(radians, math.inf)), (0.0, 1.0), (0.0, math.inf)):
+        with pytest.raises(ParameterError) as info:
+            FrameAlignerParams(map_drift=drift)
+        assert info.value.name == "map_drift", str(info.value)

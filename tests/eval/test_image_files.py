@@ -165,6 +165,44 @@ def test_a_jpeg_cut_at_any_byte_before_its_end_is_refused(tmp_path, pair):
             assert "the colour image is cut short" in message, size
 
 
+def header_markers(jpeg: bytes) -> list[int]:
+    """Where the markers of the segments before the first scan are, its SOS included."""
+    at, found = 2, []
+    while True:
+        found.append(at)
+        if jpeg[at + 1] == 0xDA:
+            return found
+        at += 2 + int.from_bytes(jpeg[at + 2:at + 4], "big")
+
+
+@pytest.mark.parametrize("progressive", [0, 1])
+def test_fill_bytes_before_markers_are_skipped(tmp_path, progressive):
+    """0xFF fill bytes may precede any marker (ITU T.81 B.1.1.2): before each segment and
+    before the end-of-image marker, the JPEG is read as encoded, not taken for a segment of
+    code 0xFF."""
+    image = np.random.default_rng(4).integers(0, 256, (24, 32, 3), np.uint8)
+    jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_PROGRESSIVE, progressive,
+                                        cv2.IMWRITE_JPEG_RST_INTERVAL, 2])[1].tobytes()
+    filled = bytearray(jpeg)
+    for at in reversed([*header_markers(jpeg), len(jpeg) - 2]):
+        filled[at:at] = b"\xff" * 3
+    path = tmp_path / "filled.jpg"
+    path.write_bytes(bytes(filled))
+    assert np.array_equal(read_image(path), decoded(jpeg))
+
+
+def test_a_jpeg_cut_right_after_a_marker_and_padded_with_zeros_is_cut_short(tmp_path):
+    """Cut after a segment's marker, the zeros of the padding read as a segment length of 0:
+    called cut short, not an invalid JPEG."""
+    jpeg = colour_images(1)[0]
+    path = tmp_path / "cut.jpg"
+    for at in header_markers(jpeg):
+        path.write_bytes(jpeg[:at + 2] + bytes(4096))
+        with pytest.raises(DataError, match=r"the image is cut short: .* is followed by zeros "
+                                            r"only$"):
+            read_image(path)
+
+
 # -- Kimera-like bags ---------------------------------------------------------------------------
 
 ROBOT, T0 = "r0", kb.T0_NS
