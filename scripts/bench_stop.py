@@ -1,11 +1,13 @@
 """How a node stops under ROS 2 launch: signal -> results written -> exit.
 
 A team of two `tcaff node` processes (r0, r1) replays 30-object maps at 1 Hz over Zenoh on
-loopback. Once r0 has aligned a few of r1's maps, r0 is stopped the way `ros2 launch` stops a
-process: the first signal (--first: SIGINT, launch's, or SIGTERM, systemd's), SIGTERM
---sigterm-timeout s later if it still runs, SIGKILL --sigkill-timeout s after that (launch's
-defaults: 5 and 5). Timed from the first signal: when r0's `<robot>.json` holds its results
-(its counters, not only its start) and when the process has exited.
+loopback (--ros2 dds: over ROS 2 DDS, the whole run inside a network namespace that holds only
+loopback, which needs root). Once r0 has aligned a few of r1's maps, r0 is stopped the way
+`ros2 launch` stops a process: the first signal (--first: SIGINT, launch's, or SIGTERM,
+systemd's), SIGTERM --sigterm-timeout s later if it still runs, SIGKILL --sigkill-timeout s
+after that (launch's defaults: 5 and 5). Timed from the first signal: when r0's
+`<robot>.json` holds its results (its counters, not only its start) and when the process has
+exited.
 
 Each case runs with r0's worker healthy and with it stuck: r0's third filter update never
 returns (a long update, a frozen callback), while its results so far are done. And each runs
@@ -14,6 +16,7 @@ team runs). Prints one row per case, with the range over --repeats runs.
 
     python scripts/bench_stop.py [--repeats 2] [--load 10] [--stop-timeout S]
                                  [--workers healthy stuck] [--first SIGINT SIGTERM]
+                                 [--ros2 zenoh|dds]
 
 --stop-timeout is passed to the node (the node's own default when not given; a node without
 the option must be run without it).
@@ -24,12 +27,14 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from tcaff_gtsam.node.dds import isolated
 from tcaff_gtsam.node.run import free_ports, node_argv
 
 # the tests' stuck node: what is measured here is what they check
@@ -55,13 +60,16 @@ def _results(path: Path) -> dict | None:
 
 
 def one_stop(folder: Path, stuck: bool, first: signal.Signals, load: int, stop_timeout,
-             sigterm_timeout: float, sigkill_timeout: float) -> dict:
-    """One team started, r0 stopped as launch stops it; the timings from the first signal."""
+             sigterm_timeout: float, sigkill_timeout: float, dds_domain: int | None) -> dict:
+    """One team started, r0 stopped as launch stops it; the timings from the first signal.
+    With `dds_domain`, the nodes talk ROS 2 DDS in that domain (the script is then run in a
+    loopback-only namespace: see --ros2)."""
     out = folder / "out"
     paths = replays(folder)
     ports = free_ports(2)
     marker = folder / "stuck"
-    argvs = [node_argv(paths[k], k, 2, "stop", ports, None, out) for k in range(2)]
+    argvs = [node_argv(paths[k], k, 2, "stop", ports, None, out, domain_id=dds_domain,
+                       ros2="dds" if dds_domain is not None else "zenoh") for k in range(2)]
     if stop_timeout is not None:
         argvs[0] += ["--stop-timeout", str(stop_timeout)]
     after = DONE if stuck else 10**9
@@ -146,7 +154,20 @@ def main() -> None:
                         choices=["SIGINT", "SIGTERM"])
     parser.add_argument("--sigterm-timeout", type=float, default=5.0)
     parser.add_argument("--sigkill-timeout", type=float, default=5.0)
+    parser.add_argument("--ros2", choices=["zenoh", "dds"], default="zenoh",
+                        help="dds: the nodes on ROS 2 DDS, the whole run inside a network "
+                             "namespace holding only loopback (unshare -n, as root)")
+    parser.add_argument("--in-namespace", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    dds_domain = None
+    if args.ros2 == "dds":
+        dds_domain = 71  # a domain of its own
+        if not args.in_namespace:  # again, inside the namespace: no DDS packet leaves it
+            argv, env = isolated([sys.executable, __file__, *sys.argv[1:], "--in-namespace"],
+                                 dds_domain)
+            sys.exit(subprocess.run(argv, env=env).returncode)
+        if [name for _, name in socket.if_nameindex()] != ["lo"]:
+            sys.exit("--ros2 dds: this network namespace holds more than loopback")
     print("| r0's worker | busy processes | first signal | results written [s] | exit [s] "
           "| ended (signals -> exit code) | cut short noted | aligned / CSV rows |")
     print("|---|---|---|---|---|---|---|---|")
@@ -159,7 +180,8 @@ def main() -> None:
                                                      dir="/tmp") as folder:
                         runs.append(one_stop(Path(folder), worker == "stuck",
                                              signal.Signals[first], load, args.stop_timeout,
-                                             args.sigterm_timeout, args.sigkill_timeout))
+                                             args.sigterm_timeout, args.sigkill_timeout,
+                                             dds_domain))
                 ended = ", ".join(sorted({_ended(r) for r in runs}))
                 noted = f"{sum(r['cut_short'] for r in runs)} of {len(runs)}"
                 counts = ", ".join(f"{r['aligned']} / {r['rows']}" for r in runs)
