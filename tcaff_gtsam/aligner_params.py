@@ -17,7 +17,6 @@ from .param_checks import (
     MAX_OBJECTS,
     MAX_SECONDS,
     MAX_STEPS,
-    MAX_VARIANCE,
     _ByValue,
     _count,
     _finite,
@@ -415,7 +414,7 @@ class FrameAlignerParams(_ByValue):
                  "covariance", self.covariance,
                  "must be 'constant', 'residual' or 'calibrated'")
         object.__setattr__(self, "R_constant",
-                           _spd(self.R_constant, 3, o, "R_constant", MAX_VARIANCE))
+                           _spd(self.R_constant, 3, o, "R_constant", bounded=True))
         _number(o, "residual_floor", self.residual_floor, 0, MAX_POINT_NOISE, "metres",
                 "MAX_POINT_NOISE", above=True)
         for name in ("residual_prior_dof", "repeat_inflation", "epsilon_drift"):
@@ -425,7 +424,7 @@ class FrameAlignerParams(_ByValue):
                 above=True, none=True)
         if self.repeat_Q is not None:
             object.__setattr__(self, "repeat_Q",
-                               _spd(self.repeat_Q, 3, o, "repeat_Q", MAX_VARIANCE))
+                               _spd(self.repeat_Q, 3, o, "repeat_Q", bounded=True))
         _count(o, "min_inliers", self.min_inliers, 2, **objects, none=True)
         _count(o, "track_min", self.track_min, 2, **objects, none=True)
         _require(isinstance(self.check_ambiguity, bool), o, "check_ambiguity",

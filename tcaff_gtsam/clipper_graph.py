@@ -17,8 +17,8 @@ from scipy import sparse
 
 from .aligner_params import MIN_SIGMA
 from .errors import DataError
-from .inputs import MAX_COORDINATE, index_pairs, kernel_array, real_array, shown
-from .param_checks import _bound
+from .inputs import check_within, index_pairs, kernel_array, real_array, shown
+from .param_checks import MAX_COORDINATE, _bound
 from .params import (
     ClipperParams,
     _finite,
@@ -422,13 +422,8 @@ def consistency_graph(ego_points: np.ndarray, other_points: np.ndarray,
     if other_points.shape[1] != ego_points.shape[1]:
         raise DataError(f"consistency_graph: ego_points and other_points must have as many "
                         f"coordinates, got shapes {ego_points.shape} and {other_points.shape}")
-    for name, arr in (("ego_points", ego_points), ("other_points", other_points)):
-        # NaN fails the comparison; beyond MAX_COORDINATE squared distances overflow
-        bad = ~(np.abs(arr) <= MAX_COORDINATE)
-        if bad.any():
-            i, j = (int(k) for k in np.argwhere(bad)[0])
-            raise DataError(f"consistency_graph: {name} must be finite coordinates within "
-                            f"{MAX_COORDINATE:g} m, got {arr[i, j]} at [{i}, {j}]")
+    check_within(o, "ego_points", ego_points, MAX_COORDINATE, "m")
+    check_within(o, "other_points", other_points, MAX_COORDINATE, "m")
     m = associations.shape[0]
     for side, name in enumerate(("ego_points", "other_points")):
         n = len(ego_points if side == 0 else other_points)

@@ -20,7 +20,6 @@ from .param_checks import (
     MAX_NATS,
     MAX_OBJECTS,
     MAX_STEPS,
-    MAX_VARIANCE,
     _bound,
     _ByValue,
     _count,
@@ -264,10 +263,10 @@ class TCAFFParams(_ByValue):
 
     def __post_init__(self) -> None:
         o = "TCAFFParams"
-        Q = _spd(self.Q, None, o, "Q", MAX_VARIANCE)
+        Q = _spd(self.Q, None, o, "Q", bounded=True)
         d = Q.shape[0]
         object.__setattr__(self, "Q", Q)
-        object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0", MAX_VARIANCE))
+        object.__setattr__(self, "P0", _spd(self.P0, d, o, "P0", bounded=True))
         for name, high, limit in (("max_leaves", MAX_LEAVES, "MAX_LEAVES"),
                                   ("explore_max_leaves", MAX_LEAVES, "MAX_LEAVES"),
                                   ("max_children", MAX_MEASUREMENTS, "MAX_MEASUREMENTS"),

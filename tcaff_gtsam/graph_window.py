@@ -419,6 +419,13 @@ class SlidingWindow:
                 else:
                     self._last_keyframe[robot] = before
 
+    def _rebuild_before(self, gone: list[tuple[int, _Factor]], marginals: dict,
+                        point: gtsam.Values, qr_only: bool = False) -> dict[int, int]:
+        """`_rebuild` of the graph before an update at `point`: its factors, those the update
+        removes (`gone`) with them, and the marginal factors of what left (`marginals`)."""
+        return self._rebuild({**self._active, **dict(gone)}, self._pointed(marginals, point),
+                             point, set(), qr_only)
+
     def _restart_point(self, pending: set[int]) -> gtsam.Values:
         """The point a failed update solves the graph before it again from: where `_settle`
         started, else the solver's linearisation point, without the new variables `pending`
@@ -440,8 +447,7 @@ class SlidingWindow:
             self._step_set.discard(step)
         if point is None:
             point = self._restart_point(pending)
-        remap = self._rebuild({**self._active, **dict(gone)}, self._pointed(marginals, point),
-                              point, set())
+        remap = self._rebuild_before(gone, marginals, point)
         for index, f in gone:
             self._count(f, remap[index], +1)
 
@@ -450,8 +456,7 @@ class SlidingWindow:
         """After Cholesky failed on an update: a new solver that factorises by QR from then on,
         holding the graph before the update at `point`, and the update's removals indexed in
         it. Returns `gone`, the factors the update removes, by their new indices."""
-        remap = self._rebuild({**self._active, **dict(gone)}, self._pointed(marginals, point),
-                              point, set(), qr_only=True)
+        remap = self._rebuild_before(gone, marginals, point, qr_only=True)
         gone = [(remap[index], self._active.pop(remap[index])) for index, _ in gone]
         self._to_remove = [index for index, _ in gone]
         return gone

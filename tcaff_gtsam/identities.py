@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import DataError
-from .inputs import MAX_COORDINATE, real_array
+from .inputs import check_within, real_array
 from .object_map import ObjectMap, as_object_map
+from .param_checks import MAX_COORDINATE
 from .params import _finite, _int_at_least, _require
 
 __all__ = ["ObjectIdentities", "recent_ids"]
@@ -58,11 +59,7 @@ class ObjectIdentities:
         if xy.ndim != 2 or xy.shape[1] != 2:
             raise DataError(f"ObjectIdentities.update: xy must be an (n, 2) array, got "
                             f"shape {xy.shape}")
-        bad = ~(np.abs(xy) <= MAX_COORDINATE)  # NaN fails the comparison
-        if bad.any():
-            i, j = (int(k) for k in np.argwhere(bad)[0])
-            raise DataError(f"ObjectIdentities.update: xy must be finite coordinates within "
-                            f"{MAX_COORDINATE:g} m, got {xy[i, j]} at [{i}, {j}]")
+        check_within("ObjectIdentities.update", "xy", xy, MAX_COORDINATE, "m")
         self._exchange += 1
         n = xy.shape[0]
         ids = np.full(n, -1, np.int64)

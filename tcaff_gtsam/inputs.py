@@ -16,14 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError
-from .param_checks import MAX_COORDINATE, MAX_VARIANCE  # noqa: F401 (the settings' too)
 from .params import _real
 
 __all__ = ["finite_time", "index_pairs", "output_path", "read_npz", "real_array", "shown"]
-
-# MAX_COORDINATE (metres; coordinates beyond it are no robot's odometry) and MAX_VARIANCE (the
-# largest entry of a covariance, its square) bound the parameters' lengths and covariances too:
-# they are defined with the parameter checks (param_checks) and are the same numbers here.
 
 
 def shown(value, limit: int = 60) -> str:
@@ -84,6 +79,19 @@ def real_array(owner: str, name: str, value) -> np.ndarray:
     except (TypeError, ValueError, OverflowError) as exc:
         raise DataError(f"{owner}: {name} must be real numbers, got {shown(value)} ({exc})"
                         ) from None
+
+
+def check_within(owner: str, name: str, arr: np.ndarray, bound: float, unit: str = "") -> None:
+    """DataError naming the first entry of `arr` that is not finite or beyond `bound` in
+    magnitude (`param_checks.MAX_COORDINATE`, `MAX_VARIANCE`: past them sums and squares
+    overflow). One comparison on the usual path: NaN fails it."""
+    within = np.abs(arr) <= bound
+    if not within.all():
+        at = tuple(int(k) for k in np.argwhere(~within)[0])
+        value = arr[at]
+        why = (f"beyond {bound:g}{' ' + unit if unit else ''}" if np.isfinite(value)
+               else "not finite")
+        raise DataError(f"{owner}: {name}[{', '.join(map(str, at))}] = {value} is {why}")
 
 
 def point_array(owner: str, name: str, value, d: int | None = None) -> np.ndarray:

@@ -155,11 +155,10 @@ def _reals(value) -> tuple[float, ...] | None:
         return None
 
 
-def _spd(matrix, d: int | None, owner: str, name: str,
-         largest: float | None = None) -> np.ndarray:
+def _spd(matrix, d: int | None, owner: str, name: str, bounded: bool = False) -> np.ndarray:
     """`matrix` as a new float (d, d) array if it is a symmetric positive definite matrix of
-    real numbers (d None: of any size >= 1) whose entries are at most `largest` in magnitude
-    (None: any finite); else `ParameterError`."""
+    real numbers (d None: of any size >= 1), with `bounded` entries of magnitude at most
+    MAX_VARIANCE (else any finite); else `ParameterError`."""
     try:
         M = np.array(matrix) if isinstance(matrix, (tuple, list, np.ndarray)) else None
     except ValueError:  # ragged nested lists
@@ -169,11 +168,11 @@ def _spd(matrix, d: int | None, owner: str, name: str,
     if ok:
         # + 0.0 turns -0.0 into 0.0, so matrices equal by value are equal byte for byte
         M = M.astype(float) + 0.0
-        ok = (bool(np.all(np.isfinite(M))) and (largest is None or np.abs(M).max() <= largest)
+        ok = (bool(np.all(np.isfinite(M))) and (not bounded or np.abs(M).max() <= MAX_VARIANCE)
               and np.allclose(M, M.T) and bool(np.all(np.linalg.eigvalsh(M) > 0)))
     size = "(d, d)" if d is None else f"({d}, {d})"
-    entries = ("" if largest is None else f" with entries of magnitude <= {_bound(largest)}"
-               + (" (MAX_VARIANCE)" if largest == MAX_VARIANCE else ""))
+    entries = (f" with entries of magnitude <= {_bound(MAX_VARIANCE)} (MAX_VARIANCE)"
+               if bounded else "")
     _require(ok, owner, name, matrix,
              f"must be a symmetric positive definite {size} matrix{entries}")
     return M

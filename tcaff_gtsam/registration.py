@@ -13,7 +13,8 @@ from scipy.spatial import cKDTree
 from .association import neighbourhood_agreement, putative_associations  # re-exported
 from .errors import DataError
 from .geometry import _transform_points
-from .inputs import MAX_COORDINATE, kernel_array, point_array, real_array, shown
+from .inputs import kernel_array, point_array, real_array, shown
+from .param_checks import MAX_COORDINATE
 from .params import _finite, _require
 
 __all__ = [

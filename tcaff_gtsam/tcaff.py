@@ -44,7 +44,8 @@ from .hypothesis_tree import (
     measurement_costs,
     seed,
 )
-from .inputs import MAX_COORDINATE, MAX_VARIANCE, real_array, shown
+from .inputs import check_within, real_array, shown
+from .param_checks import MAX_COORDINATE, MAX_VARIANCE
 from .params import TCAFFParams, _given_or_default
 
 # write_snapshot is the module's for its callers (a node writes snapshots on another thread)
@@ -720,16 +721,9 @@ class TCAFF(FilterState):
         if Rs.shape != (k, d, d):
             raise DataError(f"TCAFF.update: Rs must have shape ({k}, {d}, {d}) to match zs, "
                             f"got {Rs.shape}")
-        # one comparison per array on the usual path (NaN fails it); beyond the bounds the
-        # filter's sums and squares overflow into NaN states
-        if not (np.abs(zs) <= MAX_COORDINATE).all():
-            i, a = np.argwhere(~(np.abs(zs) <= MAX_COORDINATE))[0]
-            why = "not finite" if not np.isfinite(zs[i, a]) else f"beyond {MAX_COORDINATE:g}"
-            raise DataError(f"TCAFF.update: zs[{i}, {a}] = {zs[i, a]} is {why}")
-        if not (np.abs(Rs) <= MAX_VARIANCE).all():
-            i, a, b = np.argwhere(~(np.abs(Rs) <= MAX_VARIANCE))[0]
-            why = "not finite" if not np.isfinite(Rs[i, a, b]) else f"beyond {MAX_VARIANCE:g}"
-            raise DataError(f"TCAFF.update: Rs[{i}, {a}, {b}] = {Rs[i, a, b]} is {why}")
+        # beyond the bounds the filter's sums and squares overflow into NaN states
+        check_within("TCAFF.update", "zs", zs, MAX_COORDINATE)
+        check_within("TCAFF.update", "Rs", Rs, MAX_VARIANCE)
         bad = _not_spd(Rs)
         if bad is not None:
             i, why = bad

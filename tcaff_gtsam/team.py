@@ -21,8 +21,10 @@ import numpy as np
 
 from .errors import DataError
 from .geometry import _chi2_quantile, _se2_from_params, _wrap_angle
-from .inputs import MAX_COORDINATE, MAX_VARIANCE, real_array, shown
+from .inputs import real_array, shown
+from .param_checks import MAX_COORDINATE, MAX_VARIANCE
 from .params import _int_at_least, _require
+from .tcaff_state import _not_spd
 
 __all__ = ["TeamConsistency", "TeamEstimate", "TeamParams"]
 
@@ -182,13 +184,12 @@ class TeamConsistency:
             Ps = np.array([P for _, P in given.values()])
             ok = ((np.abs(X) <= MAX_COORDINATE).all(axis=1)
                   & (np.abs(Ps) <= MAX_VARIANCE).all(axis=(1, 2)))
-            if ok.all():  # symmetric, then positive definite (what the cycle test inverts)
-                ok = (np.abs(Ps - Ps.transpose(0, 2, 1)) <= 1e-9 * (1.0 + np.abs(Ps))
-                      ).all(axis=(1, 2))
-                if ok.all():
-                    ok = np.linalg.eigvalsh(Ps)[:, 0] > 0
-            if not ok.all():
-                key = list(given)[int(np.argmin(ok))]
+            first = None if ok.all() else int(np.argmin(ok))
+            # symmetric positive definite: what the cycle test inverts
+            if first is None and (not_spd := _not_spd(Ps)) is not None:
+                first = not_spd[0]
+            if first is not None:
+                key = list(given)[first]
                 raise DataError(f"{o}: estimates[{key}] needs x (3,) finite within "
                                 f"{MAX_COORDINATE:g} and P (3, 3) symmetric positive definite "
                                 f"with entries within {MAX_VARIANCE:g}, got "
