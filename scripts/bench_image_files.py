@@ -31,15 +31,15 @@ def old_defect(data: bytes) -> str | None:
     return None if data.rstrip(b"\x00").endswith(b"\xff\xd9") else "cut short"
 
 
-def new_defect(data: bytes) -> str | None:
-    return jpeg_defect(data)
+def checked(data: bytes, check: Callable[[bytes], str | None]) -> None:
+    if data.startswith(JPEG_START) and check(data) is not None:
+        raise RuntimeError("a whole image refused")
 
 
 def read_with(check: Callable[[bytes], str | None], path: Path) -> np.ndarray:
     """`read_image`'s steps with `check` in place of its own (the error paths left out)."""
     data = path.read_bytes()
-    if data.startswith(JPEG_START) and check(data) is not None:
-        raise RuntimeError(f"{path}: refused")
+    checked(data, check)
     return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
 
 
@@ -56,11 +56,6 @@ def per_item_us(works: list[Callable[[object], object]], items: list, repeat: in
                 work(item)
             times.append((time.perf_counter() - start) / len(items))
     return [1e6 * statistics.median(times) for times in means]
-
-
-def checked(data: bytes, check: Callable[[bytes], str | None]) -> None:
-    if data.startswith(JPEG_START) and check(data) is not None:
-        raise RuntimeError("a whole image refused")
 
 
 def main() -> None:
@@ -80,13 +75,13 @@ def main() -> None:
 
     def row(name: str, blobs: list[bytes], paths: list[Path] | None) -> None:
         old, new = per_item_us([lambda d: checked(d, old_defect),
-                                lambda d: checked(d, new_defect)], blobs, args.repeat)
+                                lambda d: checked(d, jpeg_defect)], blobs, args.repeat)
         arrays = [np.frombuffer(d, np.uint8) for d in blobs]
         decode, = per_item_us([lambda a: cv2.imdecode(a, cv2.IMREAD_UNCHANGED)], arrays,
                               args.repeat)
         if paths:
             before, after = per_item_us([lambda p: read_with(old_defect, p),
-                                         lambda p: read_with(new_defect, p)], paths,
+                                         lambda p: read_with(jpeg_defect, p)], paths,
                                         args.repeat)
             reads = f"{before:13.0f}{after:12.0f}{100 * (after - before) / before:+7.1f}%"
         else:

@@ -31,6 +31,7 @@ from tcaff_gtsam.eval.sim.keyframe_teams import keyframe_team, play
 from tcaff_gtsam import GraphParams, InterRobotGraph, TcaffError
 from tcaff_gtsam.errors import reason
 from tcaff_gtsam.geometry import se2_error
+from tcaff_gtsam.graph_inputs import _components
 
 THRESHOLDS = (1e-3, 1e-2, 0.1, 1.0)
 
@@ -67,14 +68,8 @@ def poses(graph: InterRobotGraph, robot: int) -> dict[int, np.ndarray]:
 
 def tied_to_robot_0(n: int, links: list[tuple[int, int]]) -> set[int]:
     """The robots whose keyframe chains `links` connect to robot 0's."""
-    tied, grown = {0}, True
-    while grown:
-        grown = False
-        for i, j in links:
-            if (i in tied) != (j in tied):
-                tied |= {i, j}
-                grown = True
-    return tied
+    root = _components(range(n), links)
+    return {r for r in range(n) if root(r) == root(0)}
 
 
 def one(seed: int) -> dict:
@@ -89,7 +84,8 @@ def one(seed: int) -> dict:
     try:
         for op in team.ops:
             if op[0] != "update":
-                links += [(op[1], op[3])] if op[0] == "link" else []
+                if op[0] == "link":
+                    links.append((op[1], op[3]))
                 play(bounded, op)
                 play(converged, op)
                 continue

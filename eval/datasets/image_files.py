@@ -26,9 +26,10 @@ __all__ = ["JPEG_START", "jpeg_defect", "read_image"]
 
 JPEG_START = b"\xff\xd8"  # the start-of-image marker (SOI) every JPEG begins with
 _EOI, _SOS, _SOI, _TEM = 0xD9, 0xDA, 0xD8, 0x01  # marker codes (the byte after 0xFF)
-_SOF = {code: f"SOF{code - 0xC0}" for code in range(0xC0, 0xD0) if code not in (0xC4, 0xC8, 0xCC)}
 _NAMES = {0xC4: "DHT", 0xCC: "DAC", 0xDA: "SOS", 0xDB: "DQT", 0xDC: "DNL", 0xDD: "DRI",
-          0xDE: "DHP", 0xDF: "EXP", 0xFE: "COM", **_SOF,
+          0xDE: "DHP", 0xDF: "EXP", 0xFE: "COM",
+          **{code: f"SOF{code - 0xC0}" for code in range(0xC0, 0xD0)
+             if code not in (0xC4, 0xC8, 0xCC)},
           **{code: f"APP{code - 0xE0}" for code in range(0xE0, 0xF0)}}
 
 # A marker: 0xFF followed by a code other than 0x00, 0xD0-0xD7 and 0xFF. Inside entropy-coded
@@ -40,13 +41,6 @@ _NAMES = {0xC4: "DHT", 0xCC: "DAC", 0xDA: "SOS", 0xDB: "DQT", 0xDC: "DNL", 0xDD:
 # baseline JPEG and 100-130 us per progressive one with restart markers every 8 MCUs, where a
 # loop of bytes.find over the 0xFF bytes took 23 and 730 us (scripts/bench_image_files.py).
 _MARKER = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
-
-
-def _marker_after(data: bytes, pos: int) -> int:
-    """The index of the code byte of the first marker at or after `pos`, or -1 if `data`
-    ends first."""
-    found = _MARKER.search(data, pos)
-    return -1 if found is None else found.end() - 1
 
 
 def jpeg_defect(data: bytes) -> str | None:
@@ -65,10 +59,11 @@ def jpeg_defect(data: bytes) -> str | None:
     n = len(data)
     pos, scans, where = len(JPEG_START), 0, "after its start-of-image marker"
     while True:
-        at = _marker_after(data, pos)
-        if at < 0:
+        found = _MARKER.search(data, pos)  # the next marker at or after pos
+        if found is None:
             return (f"is cut short: a JPEG of {n} bytes that ends {where}, before its "
                     "end-of-image marker")
+        at = found.end() - 1  # its code byte
         code = data[at]
         if code == _EOI:
             return None
@@ -121,8 +116,8 @@ def read_image(path: Path, flags: int = cv2.IMREAD_UNCHANGED, what: str = "image
     if data.startswith(JPEG_START) and (defect := jpeg_defect(data)) is not None:
         raise DataError(f"{path}: the {what} {defect}")
     try:
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
-    except cv2.error:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    except cv2.error:  # an empty file among others
         image = None
     if image is None:
         raise DataError(f"{path}: cannot read the {what} (not an image OpenCV decodes)")

@@ -58,7 +58,7 @@ def keyframe_team(seed: int) -> KeyframeTeam:
     motion = [se2_from_params([rng.uniform(0.2, 0.6), 0.0, rng.uniform(-0.08, 0.08)])
               for _ in range(n)]
     body, odometry = [np.eye(3)] * n, [np.eye(3)] * n
-    keyframes: list[dict] = [{} for _ in range(n)]  # index -> (step, true pose, odometry pose)
+    keyframes: list[list] = [[] for _ in range(n)]  # by index: (step, true pose, odometry pose)
     ops: list[tuple] = []
     for k in range(steps):
         for r in range(n):
@@ -68,7 +68,7 @@ def keyframe_team(seed: int) -> KeyframeTeam:
                     rng.normal(0.0, ODOMETRY_NOISE))
             if k % interval[r] == 0:
                 m = len(keyframes[r])
-                keyframes[r][m] = (k, frames[r] @ body[r], odometry[r])
+                keyframes[r].append((k, frames[r] @ body[r], odometry[r]))
                 cov = np.diag((ODOMETRY_NOISE * np.sqrt(interval[r])) ** 2) if m else None
                 ops.append(("keyframe", r, m, odometry[r], cov))
         for i in range(n - 1):
@@ -76,8 +76,8 @@ def keyframe_team(seed: int) -> KeyframeTeam:
                         _measured(np.linalg.inv(frames[i]) @ frames[i + 1], rng)))
         for _ in range(int(rng.integers(0, 3))):
             i, j = (int(r) for r in rng.choice(n, 2, replace=False))
-            recent = [[m for m in sorted(keyframes[r])[-3:] if keyframes[r][m][0] >= k - horizon]
-                      for r in (i, j)]
+            recent = [[m for m in range(len(keyframes[r]))[-3:]
+                       if keyframes[r][m][0] >= k - horizon] for r in (i, j)]
             if recent[0] and recent[1]:
                 mi, mj = int(rng.choice(recent[0])), int(rng.choice(recent[1]))
                 (_, Xi, Oi), (_, Xj, Oj) = keyframes[i][mi], keyframes[j][mj]

@@ -69,24 +69,22 @@ def jpegs(draw, max_side: int = 40) -> tuple[bytes, bytes]:
     image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if grey else image
     quality, progressive = draw(st.integers(50, 95)), draw(st.booleans())
     restart = draw(st.sampled_from([0, 1, 3]))  # MCUs between restart markers (0: none)
-    exif = draw(st.booleans())
+    exif = Image.Exif() if draw(st.booleans()) else None
+    if exif is not None:
+        exif[0x010F] = "Maker"
     if draw(st.sampled_from(["opencv", "pillow"])) == "opencv":
         params = [cv2.IMWRITE_JPEG_QUALITY, quality, cv2.IMWRITE_JPEG_PROGRESSIVE,
                   int(progressive), cv2.IMWRITE_JPEG_RST_INTERVAL, restart]
         jpeg = cv2.imencode(".jpg", image, params)[1].tobytes()
-        if exif:  # an Exif APP1 (the maker only) after the JFIF APP0
-            exif_data = Image.Exif()
-            exif_data[0x010F] = "Maker"
+        if exif is not None:  # an Exif APP1 (the maker only) after the JFIF APP0
             at = 4 + int.from_bytes(jpeg[4:6], "big")
-            jpeg = jpeg[:at] + segment(0xE1, b"Exif\x00\x00" + exif_data.tobytes()) + jpeg[at:]
+            jpeg = jpeg[:at] + segment(0xE1, b"Exif\x00\x00" + exif.tobytes()) + jpeg[at:]
     else:
         options = {"quality": quality, "progressive": progressive}
         if restart:
             options["restart_marker_blocks"] = restart
-        if exif:
-            exif_data = Image.Exif()
-            exif_data[0x010F] = "Maker"
-            options["exif"] = exif_data.tobytes()
+        if exif is not None:
+            options["exif"] = exif.tobytes()
         buffer = io.BytesIO()
         Image.fromarray(image if grey else image[..., ::-1]).save(buffer, "JPEG", **options)
         jpeg = buffer.getvalue()
