@@ -202,18 +202,20 @@ _LocalClusterOption = Annotated[int | None, typer.Option(
     rich_help_panel="Where jobs run")]
 
 
-def _picked_scenarios(values: list[str] | None) -> list[ScenarioConfig] | None:
+def _picked_scenarios(values: list[str] | None, near: Path | None = None
+                      ) -> list[ScenarioConfig] | None:
     """The scenarios -s/--scenario picked (None: none given), loaded here so that a scenario
     given twice, by one name or by another that loads it again, is refused naming the option
-    (the study's own check would blame its YAML file)."""
+    (the study's own check would blame its YAML file). A relative YAML path is taken from the
+    folder `near` (the study file's) when the file is there, else from the current folder."""
     if not values:
         return None
-    from ..config import load_scenario
+    from ..config import _near, load_scenario
 
     first: dict[str, str] = {}  # scenario name -> the value that picked it
     scenarios = []
     for value in values:
-        scenario = load_scenario(value)
+        scenario = load_scenario(_near(value, near))
         if scenario.name in first:
             again = "" if first[scenario.name] == value else f" (first as {first[scenario.name]!r})"
             _refuse("-s/--scenario", value, f"picks scenario {scenario.name} a second time"
@@ -272,9 +274,10 @@ def study(
     _check_recording(rerun)
     if output is not None:  # checked before the configs' imports: a mistake is told at once
         _writable_folder(output, "--output")
-    from ..config import load_study
+    from ..config import _resolve, load_study
 
-    overrides = {"scenarios": _picked_scenarios(scenario), "methods": methods,
+    overrides = {"scenarios": _picked_scenarios(scenario, _resolve(config, "studies").parent),
+                 "methods": methods,
                  "seeds": None if seeds is None else list(range(seeds)), "workers": workers,
                  "output": None if output is None else str(output)}
     study_config = load_study(config, {k: v for k, v in overrides.items() if v is not None})

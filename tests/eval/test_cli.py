@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import shutil
 import subprocess
 import sys
 import warnings
@@ -351,6 +352,21 @@ def test_a_duplicate_yaml_key_is_named_in_one_line(tmp_path, tcaff_main, where):
     line = one_line_error(tcaff_main(*args), str(bad), "duplicate key")
     key = {"study": "workers", "scenario": "duration", "methods": "methods"}[where]
     assert f"duplicate key {key!r}" in line
+
+
+def test_a_scenario_picked_beside_the_study_file_is_found(tmp_path, tcaff_main, monkeypatch):
+    """`study FOLDER/st.yaml -s near.yaml` takes near.yaml from the study file's folder, as the
+    study's own list does (picked twice here, so that it is refused once loaded, naming -s,
+    rather than run); from the current folder only, it was "no such config file"."""
+    folder = tmp_path / "studies"
+    folder.mkdir()
+    shutil.copy(CONFIG_DIR / "studies" / "demo.yaml", folder / "st.yaml")
+    shutil.copy(CONFIG_DIR / "scenarios" / "indoor_return.yaml", folder / "near.yaml")
+    monkeypatch.chdir(tmp_path)
+    line = one_line_error(tcaff_main("study", str(folder / "st.yaml"), "-s", "near.yaml",
+                                     "-s", "near.yaml", "--output", str(tmp_path)),
+                          "-s/--scenario")
+    assert "picks scenario indoor_return a second time" in line
 
 
 @pytest.mark.parametrize("command", ["study", "sweep"])
