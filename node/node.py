@@ -333,13 +333,13 @@ class RobotNode:
         waiting = list(self._inbox.queue)  # a copy: the transport's threads add to it
         return sum(item is not None and item[0] != "idle" for item in waiting)
 
-    def close(self, timeout: float = 30.0) -> None:
-        """Stop the worker (after what is queued, `finish`; `timeout` s at most, unless
-        `finish` was called before) and close the session; again: nothing."""
+    def close(self) -> None:
+        """Stop the worker (after what is queued, `finish`, unless it was called before) and
+        close the session; again: nothing."""
         if self._closed:
             return
         self._closed = True
-        self.finish(timeout)
+        self.finish()
         self._transport.close()
 
     def __enter__(self) -> RobotNode:
@@ -630,7 +630,7 @@ class _Saver:
                     self._counters["save_errors"] += 1
                     log.warning("%s: could not save %s: %s", self._robot, path, exc)
 
-    def close(self, timeout: float = 60.0, cancel: Callable[[], bool] | None = None) -> bool:
+    def close(self, timeout: float, cancel: Callable[[], bool] | None) -> bool:
         """Write what is pending, then stop: within `timeout` s, or until `cancel()` is true
         (asked every 0.05 s). False: not all written then (the thread is left to the
         process's exit; a file it is writing is renamed into place only once whole)."""
@@ -664,7 +664,7 @@ def _until(done: Callable[[float], bool], timeout: float,
 def _put(inbox: queue.Queue, item, timeout: float) -> bool:
     """Put `item` in `inbox` if a place frees within `timeout` s (0: only if one is free)."""
     try:
-        inbox.put(item, timeout=timeout) if timeout > 0 else inbox.put_nowait(item)
+        inbox.put(item, timeout=timeout)
         return True
     except queue.Full:
         return False

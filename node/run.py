@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +79,8 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
     params = replace(params, kappa=source.kappa)
     tcaff = None if source.window is None else TCAFFParams(window=source.window)
     aligner = FrameAlignerParams(kappa=source.kappa)
-    with _node_files(robot, output, params.team_consistency) as (stop, rows, team_rows):
+    with _node_files(robot, output, params.team_consistency, stop_timeout
+                     ) as (stop, rows, team_rows):
         compile_kernels()  # so that the first exchanges are not late
         node = RobotNode(robot, team, list(source.robots), link, params, aligner, tcaff,
                          rows.write, state_dir, on_team=team_rows and team_rows.write)
@@ -90,15 +92,15 @@ def replay_node(source: RobotReplay, team: str, link: Link, params: NodeParams,
             write_counters(output / f"{robot}.json", {"start": start})
             cpu, began = time.process_time(), time.time()
             # a full queue behind a stuck worker must not keep the stop waiting
-            replay(source, lambda t, object_map, k: node.publish(t, object_map, k, stop.is_set),
-                   start, params.speed, clock_offset, stop, progress)
+            replay(source, partial(node.publish, cancel=stop.is_set), start, params.speed,
+                   clock_offset, stop, progress)
             if not stop.is_set():
                 # the neighbours' last maps are still on their way
                 stop.wait(min(2.0, 2.0 / params.speed) + 0.2)
-            node.wait_idle(60.0, lambda: stop.over(stop_timeout))
+            node.wait_idle(60.0, stop.over)
             timing = {"cpu_share": (time.process_time() - cpu) / max(time.time() - began, 1e-9)}
         finally:
-            _close(node, output / f"{robot}.json", start, timing, stop, stop_timeout)
+            _close(node, output / f"{robot}.json", start, timing, stop)
     return node
 
 
@@ -109,7 +111,8 @@ def live_node(robot: str, team: str, members: list[str], link: Link, params: Nod
     (`params.ros2_objects`) until SIGTERM / SIGINT or `duration` s; writes what `replay_node`
     writes (without the share of a core), stops as it does. Returns the closed node."""
     _check_stop_timeout("live_node", stop_timeout)
-    with _node_files(robot, output, params.team_consistency) as (stop, rows, team_rows):
+    with _node_files(robot, output, params.team_consistency, stop_timeout
+                     ) as (stop, rows, team_rows):
         compile_kernels()
         node = RobotNode(robot, team, members, link, params, on_alignment=rows.write,
                          state_dir=state_dir, on_team=team_rows and team_rows.write)
@@ -118,9 +121,9 @@ def live_node(robot: str, team: str, members: list[str], link: Link, params: Nod
         try:
             write_counters(output / f"{robot}.json", {"start": start})
             stop.wait(duration)
-            node.wait_idle(60.0, lambda: stop.over(stop_timeout))
+            node.wait_idle(60.0, stop.over)
         finally:
-            _close(node, output / f"{robot}.json", start, {}, stop, stop_timeout)
+            _close(node, output / f"{robot}.json", start, {}, stop)
     return node
 
 
@@ -132,47 +135,46 @@ class _StopEvent:
     `set` waits for that lock forever (the process then ignores every further SIGTERM). Here
     `set` takes no lock: it writes a byte to a pipe, and `wait` waits for the pipe to be
     readable; the byte is never read, so every later `wait` returns at once. The methods are
-    the `threading.Event` ones that `replay` and `_team_start` use, and the stop's budget:
-    `over` and `left`, counted from the first `set`, and spent at once by a second (the
-    second signal of a supervisor losing patience).
+    the `threading.Event` ones that `replay` and `_team_start` use, and the stop's budget of
+    `budget` s: `over` and `left`, counted from the first `set`, and spent at once by a second
+    (the second signal of a supervisor losing patience).
 
     Attributes:
         at: `time.monotonic()` of the first `set` (None: not set).
         times: how many times it was set.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, budget: float) -> None:
         self._read, self._write = os.pipe()
         os.set_blocking(self._write, False)  # a signal handler never blocks
-        self._set = False
+        self._budget = budget
         self.at: float | None = None
         self.times = 0
 
     def set(self) -> None:
         self.times += 1
-        if not self._set:
+        if self.at is None:
             self.at = time.monotonic()
-            self._set = True
             os.write(self._write, b"\0")
 
     def is_set(self) -> bool:
-        return self._set
+        return self.at is not None
 
-    def left(self, budget: float) -> float:
-        """s left of `budget` s from the first `set` (inf before it; 0 after a second)."""
+    def left(self) -> float:
+        """s left of the budget (inf before the first `set`; 0 after a second)."""
         if self.at is None:
             return math.inf
-        return 0.0 if self.times > 1 else max(self.at + budget - time.monotonic(), 0.0)
+        return 0.0 if self.times > 1 else max(self.at + self._budget - time.monotonic(), 0.0)
 
-    def over(self, budget: float) -> bool:
-        """Whether `budget` s have passed since the first `set`, or it was set again."""
-        return self.left(budget) <= 0.0
+    def over(self) -> bool:
+        """Whether the budget has passed since the first `set`, or it was set again."""
+        return self.left() <= 0.0
 
     def wait(self, timeout: float | None = None) -> bool:
         """True once set; waits up to `timeout` s (None: until set) for that."""
-        if not self._set:
+        if not self.is_set():
             select.select([self._read], [], [], None if timeout is None else max(timeout, 0.0))
-        return self._set
+        return self.is_set()
 
     def close(self) -> None:
         os.close(self._read)
@@ -180,11 +182,11 @@ class _StopEvent:
 
 
 @contextmanager
-def _node_files(robot: str, output: Path, team_consistency: bool
+def _node_files(robot: str, output: Path, team_consistency: bool, stop_timeout: float
                 ) -> Iterator[tuple[_StopEvent, AlignmentCsv, AlignmentCsv | None]]:
-    """A node process's stop event, set by SIGTERM / SIGINT while inside (the previous
-    handlers are restored after), and the CSV writers of its alignments (and team
-    alignments), closed after."""
+    """A node process's stop event (its budget `stop_timeout` s), set by SIGTERM / SIGINT
+    while inside (the previous handlers are restored after), and the CSV writers of its
+    alignments (and team alignments), closed after."""
     output.mkdir(parents=True, exist_ok=True)
     with ExitStack() as opened:  # what opened is closed, also when the next fails to open
         rows = AlignmentCsv(output / f"{robot}.csv")
@@ -193,7 +195,7 @@ def _node_files(robot: str, output: Path, team_consistency: bool
         if team_consistency:
             team_rows = AlignmentCsv(output / f"{robot}.team.csv", TEAM_COLUMNS)
             opened.callback(team_rows.close)
-        stop = _StopEvent()
+        stop = _StopEvent(stop_timeout)
         opened.callback(stop.close)
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGTERM, signal.SIGINT):
@@ -221,8 +223,8 @@ def _check_stop_timeout(owner: str, stop_timeout: float) -> None:
 
 
 def _close(node: RobotNode, path: Path, start: float | None, timing: dict[str, float],
-           stop: _StopEvent, stop_timeout: float) -> None:
-    """Stop `node` within `stop_timeout` s of the stop signal (a second ends every wait at
+           stop: _StopEvent) -> None:
+    """Stop `node` within the stop's budget from its signal (a second ends every wait at
     once): its worker finishes what it has received and its filters are saved
     (`RobotNode.finish`), then its outcome goes to `path` (`_write_outcome`), then its session
     closes (`_close_session`). A stop cut short (a worker stuck in a step) writes what is
@@ -232,16 +234,14 @@ def _close(node: RobotNode, path: Path, start: float | None, timing: dict[str, f
     raised after."""
     finished = False
     try:
-        finished = node.finish(min(stop.left(stop_timeout), _FINISH_TIMEOUT),
-                               lambda: stop.over(stop_timeout))
+        finished = node.finish(min(stop.left(), _FINISH_TIMEOUT), stop.over)
     finally:
         ending = {} if finished else {"stop_cut_short": 1, "stop_unhandled": node.queued()}
         if stop.at is not None:
             ending["stop_s"] = time.monotonic() - stop.at
         _write_outcome(path, node, start, timing | ending)
     least = time.monotonic() + _CLOSE_LEAST
-    _close_session(node, lambda: stop.times > 1 or (stop.over(stop_timeout)
-                                                    and time.monotonic() > least))
+    _close_session(node, lambda: stop.times > 1 or (stop.over() and time.monotonic() > least))
 
 
 def _close_session(node: RobotNode, cancel: Callable[[], bool]) -> None:

@@ -39,7 +39,7 @@ from tcaff_gtsam.node.run import free_ports, node_argv
 
 # the tests' stuck node: what is measured here is what they check
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from stuck_node import DONE, STUCK_NODE, replays
+from stuck_node import DONE, replays, stuck_argv
 
 
 def _rows(path: Path) -> int:
@@ -72,8 +72,7 @@ def one_stop(folder: Path, stuck: bool, first: signal.Signals, load: int, stop_t
                        ros2="dds" if dds_domain is not None else "zenoh") for k in range(2)]
     if stop_timeout is not None:
         argvs[0] += ["--stop-timeout", str(stop_timeout)]
-    after = DONE if stuck else 10**9
-    argvs[0] = [sys.executable, "-c", STUCK_NODE, str(marker), str(after), *argvs[0][3:]]
+    argvs[0] = stuck_argv(argvs[0], marker, DONE if stuck else 10**9)
     logs = [open(folder / f"node{k}.log", "wb") for k in range(2)]
     procs = [subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
              for argv, log in zip(argvs, logs, strict=True)]

@@ -4,6 +4,7 @@ plays, and a transport that links a node to nobody."""
 
 from __future__ import annotations
 
+import sys
 import threading
 from pathlib import Path
 
@@ -40,6 +41,12 @@ main()
 
 #: filter updates a stuck node's worker makes before it sticks (its results: these steps)
 DONE = 2
+
+
+def stuck_argv(argv: list[str], marker: Path, after: int = DONE) -> list[str]:
+    """`argv`, a `tcaff node` command line of `node_argv`, run as `STUCK_NODE`: its filter
+    updates past the first `after` never return, `marker` written when the worker sticks."""
+    return [sys.executable, "-c", STUCK_NODE, str(marker), str(after), *argv[3:]]
 
 
 def replays(folder: Path, exchanges: int = 120) -> list[Path]:

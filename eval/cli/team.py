@@ -403,10 +403,10 @@ def team(
     if failed:
         from tcaff_gtsam.errors import TcaffError
 
-        logs = output / "logs"  # start_team wrote node k's output to node<k>.log there
-        for k in failed:
-            _console(stderr=True).print(f"r{k}: {_last_error(logs / f'node{k}.log', codes[k])}",
-                                        soft_wrap=True, markup=False)
+        logs, err_console = output / "logs", _console(stderr=True)
+        for k in failed:  # start_team wrote node k's output to node<k>.log in logs
+            err_console.print(f"r{k}: {_last_error(logs / f'node{k}.log', codes[k])}",
+                              soft_wrap=True, markup=False)
         raise TcaffError(f"nodes {', '.join(f'r{k}' for k in failed)} failed; see {logs}")
     console.print(f"results: {output}")
 

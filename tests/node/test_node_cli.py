@@ -184,7 +184,7 @@ from tcaff_gtsam.node.run import _node_files
 
 answers = []
 for k in range(1000):
-    with _node_files("r0", Path(sys.argv[1]), False) as (stop, _, _):
+    with _node_files("r0", Path(sys.argv[1]), False, 2.0) as (stop, _, _):
         wait, lines = type(stop).wait.__code__, []
 
         def tracer(frame, event, arg):

@@ -407,11 +407,10 @@ def test_waiting_for_a_stuck_worker_behind_a_full_queue_ends_at_its_timeout() ->
     when the worker is stuck in a step and the queue is full behind it (it waited for a free
     place in the queue without a bound)."""
     node, stepping, release = node_stuck_in_its_first_step(1)
-    maps = ONE_OBJECT
     try:
-        node.publish(0.0, maps)
+        node.publish(0.0, ONE_OBJECT)
         assert stepping.wait(60)
-        node.publish(1.0, maps)  # the queue's one place
+        node.publish(1.0, ONE_OBJECT)  # the queue's one place
         answers: list[bool] = []
         waiting = threading.Thread(target=lambda: answers.append(node.wait_idle(0.2)),
                                    daemon=True)

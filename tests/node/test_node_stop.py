@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from stuck_node import DONE, ONE_OBJECT, STUCK_NODE, node_stuck_in_its_first_step, replays
+from stuck_node import DONE, ONE_OBJECT, node_stuck_in_its_first_step, replays, stuck_argv
 from tcaff_gtsam.node.replay import RobotReplay, replay
 from tcaff_gtsam.node.results import read_alignments
 from tcaff_gtsam.node.run import free_ports, node_argv
@@ -38,8 +38,7 @@ class StuckTeam:
         ports = free_ports(2)
         argvs = [node_argv(paths[k], k, 2, "stopping", ports, None, self.out)
                  for k in range(2)]
-        argvs[0] = [sys.executable, "-c", STUCK_NODE, str(self.marker), str(DONE),
-                    *argvs[0][3:], *r0_options]
+        argvs[0] = stuck_argv([*argvs[0], *r0_options], self.marker)
         self.logs = [folder / f"node{k}.log" for k in range(2)]
         self.procs = []
         for argv, log in zip(argvs, self.logs, strict=True):
@@ -121,13 +120,12 @@ def test_a_stuck_worker_leaves_finish_at_its_timeout_with_what_it_holds() -> Non
     unhandled; a replay's publish behind the full queue gives up when told to, the map not
     aligned and counted."""
     node, stepping, release = node_stuck_in_its_first_step(2)
-    maps = ONE_OBJECT
     try:
-        node.publish(0.0, maps)
+        node.publish(0.0, ONE_OBJECT)
         assert stepping.wait(_HANG)
-        node.publish(1.0, maps)
-        node.publish(2.0, maps)  # the queue's two places
-        node.publish(3.0, maps, cancel=lambda: True)
+        node.publish(1.0, ONE_OBJECT)
+        node.publish(2.0, ONE_OBJECT)  # the queue's two places
+        node.publish(3.0, ONE_OBJECT, cancel=lambda: True)
         assert node.counters["dropped_overflow"] == 1
         answers: list[bool] = []
         finishing = threading.Thread(target=lambda: answers.append(node.finish(0.2)),
@@ -136,7 +134,9 @@ def test_a_stuck_worker_leaves_finish_at_its_timeout_with_what_it_holds() -> Non
         finishing.join(_HANG)  # catches a hang only
         assert answers == [False]
         assert node.queued() == 2
+        asked = time.monotonic()
         assert node.finish(_HANG) is False  # the first answer, at once
+        assert time.monotonic() - asked < _HANG / 2
     finally:
         release.set()
         node.close()
