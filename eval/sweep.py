@@ -19,7 +19,6 @@ import hashlib
 import itertools
 import json
 import logging
-import os
 import traceback
 import zipfile
 from collections.abc import Callable
@@ -31,6 +30,7 @@ from typing import Any
 import yaml
 
 from tcaff_gtsam.errors import ConfigError, DataError
+from tcaff_gtsam.inputs import write_whole
 
 from .config import MethodsConfig, StudyConfig, SweepConfig, apply_settings
 from .executor import Executor, JobSpec, Progress, job_runner
@@ -182,13 +182,6 @@ def _resolve_point(study: StudyConfig, settings: dict[str, Any], source: str) ->
     return [JobSpec(s, methods, seed) for s in scenarios for seed in study.seeds]  # type: ignore[arg-type]
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    """Write a file whole or not at all (a crash leaves no half-written marker)."""
-    partial = path.with_name(path.name + ".partial")
-    partial.write_text(text)
-    os.replace(partial, path)
-
-
 def _job_done(folder: Path) -> bool:
     """Whether the job in `folder` is done: its job.json names its files and its arrays
     are a whole archive. One that is not is run again now (its job.json removed)."""
@@ -249,7 +242,7 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
         except OSError as exc:
             raise DataError(f"output {str(folder)!r}: cannot make the sweep's folder "
                             f"({exc.strerror or exc})") from None
-        _write_atomic(folder / "sweep.yaml", yaml.safe_dump(
+        write_whole(folder / "sweep.yaml", yaml.safe_dump(
             {"sweep": sweep.model_dump(mode="json", exclude={"study"}),
              "study": study.model_dump(mode="json")}, sort_keys=False))
 
@@ -258,7 +251,7 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
             where = jobs_folder / todo[key]
             job.save(where)
             (where / "failed.json").unlink(missing_ok=True)
-            _write_atomic(where / "job.json", json.dumps(_job_record(todo[key], specs[key],
+            write_whole(where / "job.json", json.dumps(_job_record(todo[key], specs[key],
                                                                      job.stem), indent=1))
             ran += 1
             progress.finish(key, True)
@@ -274,7 +267,7 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
             failed.append(record)
             where = jobs_folder / todo[key]
             where.mkdir(exist_ok=True)
-            _write_atomic(where / "failed.json", json.dumps(record, indent=1))
+            write_whole(where / "failed.json", json.dumps(record, indent=1))
             progress.finish(key, False)
 
         point_of = {h: point for point, hashes in reversed(list(zip(

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.inputs import output_path
+from tcaff_gtsam.inputs import output_path, write_whole
 
 from .messages import AlignmentMessage, TeamMessage
 
@@ -84,10 +83,7 @@ def read_alignments(path: str | Path, columns: tuple[str, ...] = COLUMNS
 def write_counters(path: str | Path, counters: dict[str, float]) -> None:
     """The node's counters (and timings) as JSON, written aside (`<path>.partial`) and renamed
     over `path`: a process killed while writing (SIGKILL) leaves the previous file whole."""
-    path = Path(path)
-    partial = path.with_name(path.name + ".partial")
-    partial.write_text(json.dumps(dict(sorted(counters.items())), indent=1) + "\n")
-    os.replace(partial, path)
+    write_whole(Path(path), json.dumps(dict(sorted(counters.items())), indent=1) + "\n")
 
 
 def row_covariance(rows: dict[str, np.ndarray], k: int) -> np.ndarray:

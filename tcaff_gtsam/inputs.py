@@ -145,6 +145,14 @@ def index_pairs(owner: str, name: str, value) -> np.ndarray:
     return arr.astype(np.int64, copy=False)
 
 
+def write_whole(path: Path, text: str) -> None:
+    """Write `text` to `path` whole or not at all: aside (`<path>.partial`), then renamed over
+    it, so that a process killed while writing (SIGKILL, a crash) leaves the previous file whole."""
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(text)
+    os.replace(partial, path)
+
+
 def output_path(owner: str, path) -> Path:
     """`path` as a Path to write a file to: a str or path-like naming no folder, in a folder
     that exists.
