@@ -281,13 +281,16 @@ TEAM_WAIT = 120.0
 
 
 def _team_start(node: RobotNode, stop: _StopEvent) -> float:
-    """1 s after every member is present; `TEAM_WAIT` s at most."""
+    """1 s after every member is present; `TEAM_WAIT` s at most (or the stop)."""
     deadline = time.monotonic() + TEAM_WAIT
     while (missing := node.members - node.present()) and time.monotonic() < deadline:
         if stop.wait(0.1):
+            log.info("%s: stopped while waiting for %s", node.robot,
+                     ", ".join(sorted(missing)))
             break
-    if missing:
-        log.warning("%s: starting without %s", node.robot, ", ".join(sorted(missing)))
+    else:
+        if missing:
+            log.warning("%s: starting without %s", node.robot, ", ".join(sorted(missing)))
     return time.time() + 1.0
 
 

@@ -89,6 +89,7 @@ from tcaff_gtsam.eval.metrics import NEES_95, NEES_997, Thresholds, step_errors,
 from tcaff_gtsam.eval.runs import directed_pairs
 
 from tcaff_gtsam import FrameAlignerParams, PairwiseAligner, TCAFFParams
+from tcaff_gtsam.aligner_params import MAX_MAP_DRIFT
 from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -227,6 +228,13 @@ def truth_rates(run) -> tuple[float, float]:
     return math.sqrt(Q[0, 0] / step), math.sqrt(Q[2, 2] / step)
 
 
+def _map_drift(drift: tuple[float, float]) -> tuple[float, float]:
+    """(d_t, d_theta) within `MAX_MAP_DRIFT`, the most `FrameAlignerParams.map_drift` takes: a
+    scenario's odometry may drift faster (its own bounds allow 1.4 m and 0.25 rad per square
+    root of a second between two robots), and the model then takes the bound."""
+    return (min(drift[0], MAX_MAP_DRIFT[0]), min(drift[1], MAX_MAP_DRIFT[1]))
+
+
 def declared_drift(run, source: Source, default: tuple[float, float]) -> tuple[float, float]:
     """`map_drift` from the odometries' own specification, as a user who knows them would set
     it: two robots' random walks (d_t, d_theta) combine to (hypot(d_t_i, d_t_j),
@@ -268,15 +276,16 @@ MODELS: dict[str, Model] = {
     # the same with the filter's Q (and the aligner's repeat_Q) set to the run's true drift
     "calibrated+Q": lambda a, f, run, source: _with_Q(a, f, truth_drift(run)),
     # the same R with the map drift set to the run's true drift; the filter's Q as it is
-    "calibrated+drift": lambda a, f, run, source: (replace(_mode(a, "calibrated"),
-                                                           map_drift=truth_rates(run)), f),
+    "calibrated+drift": lambda a, f, run, source: (replace(
+        _mode(a, "calibrated"), map_drift=_map_drift(truth_rates(run))), f),
     # R's map drift from what each robot's odometry declares (no truth)
     "calibrated+declared": lambda a, f, run, source: (replace(
-        _mode(a, "calibrated"), map_drift=declared_drift(run, source, a.map_drift)), f),
+        _mode(a, "calibrated"), map_drift=_map_drift(declared_drift(run, source, a.map_drift))),
+        f),
     # ... only where it exceeds the default's, part by part
     "calibrated+declared-max": lambda a, f, run, source: (replace(
-        _mode(a, "calibrated"), map_drift=tuple(np.maximum(
-            declared_drift(run, source, a.map_drift), a.map_drift).tolist())), f),
+        _mode(a, "calibrated"), map_drift=_map_drift(tuple(np.maximum(
+            declared_drift(run, source, a.map_drift), a.map_drift).tolist()))), f),
 }
 
 

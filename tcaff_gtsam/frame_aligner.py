@@ -39,7 +39,7 @@ from .covariance import (
     calibrated_covariance,
     residual_covariance,
 )
-from .errors import DataError
+from .errors import ConfigError, DataError
 from .geometry import (
     _se2_from_params,
     _se2_to_params,
@@ -49,6 +49,7 @@ from .geometry import (
 )
 from .inputs import finite_time, real_array, shown
 from .object_map import _ALL_FIELDS, ObjectMap, as_object_map
+from .param_checks import MAX_VARIANCE
 from .params import (
     FrameAlignerParams,
     _given_or_default,
@@ -195,6 +196,8 @@ class FrameAligner:
                 ObjectMap); held neither None nor a finite (3,) array; guided not a bool; or a
                 registration the maps make impossible (coordinates beyond
                 `registration.MAX_COORDINATE`).
+            ConfigError: a candidate's covariance beyond `MAX_VARIANCE` (settings such as a
+                year-long kappa with the largest map_drift, for objects that far out).
         """
         o = "FrameAligner.measurements"
         ego, other = as_object_map(o, "ego", ego), as_object_map(o, "other", other)
@@ -308,19 +311,42 @@ class FrameAligner:
 
     def _covariance(self, T2: np.ndarray, p: np.ndarray, q: np.ndarray, w: np.ndarray
                     ) -> np.ndarray:
-        """R (3, 3) of a registered alignment T2 of q onto p (k, dim) with weights w."""
+        """R (3, 3) of a registered alignment T2 of q onto p (k, dim) with weights w.
+
+        Raises:
+            ConfigError: R beyond what a filter takes (an entry above `MAX_VARIANCE` or not
+                finite), naming the settings that, with objects that far from the ego frame's
+                origin, made it so.
+        """
         prm = self.params
         if prm.covariance == "constant":
             return prm.R_constant.copy()
-        if prm.covariance == "calibrated":
-            span = prm.kappa
-            if not math.isfinite(span):
-                # maps that keep every object: the span is the oldest association's, its age
-                # the geometric mean of its two objects' (w = 1 / (offset + age_i age_j))
-                span = float(np.sqrt(np.maximum(1.0 / w - prm.weight_offset, 0.0)).max())
-            return _calibrated_covariance(T2, p[:, :2], q[:, :2], w, span, prm.residual_floor,
-                                          *self._calibrated_settings())
-        return _residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below
+            if prm.covariance == "calibrated":
+                span = prm.kappa
+                if not math.isfinite(span):
+                    # maps that keep every object: the span is the oldest association's, its
+                    # age the geometric mean of its two objects' (w = 1 / (offset + age_i
+                    # age_j))
+                    span = float(np.sqrt(np.maximum(1.0 / w - prm.weight_offset, 0.0)).max())
+                R = _calibrated_covariance(T2, p[:, :2], q[:, :2], w, span,
+                                           prm.residual_floor, *self._calibrated_settings())
+            else:
+                R = _residual_covariance(T2, p[:, :2], q[:, :2], w, prm.residual_floor)
+        if not np.abs(R).max() <= MAX_VARIANCE:  # NaN fails it too
+            settings = f"residual_floor = {prm.residual_floor:g} m"
+            if prm.covariance == "calibrated":
+                Q = "TCAFF's default" if prm.repeat_Q is None else np.diag(prm.repeat_Q)
+                settings = (f"kappa = {prm.kappa:g} s, map_drift = {prm.map_drift}, "
+                            f"{settings}, repeat_inflation = {prm.repeat_inflation:g} and "
+                            f"repeat_Q's diagonal {Q}")
+            raise ConfigError(
+                f"FrameAligner: a candidate's covariance reaches {np.abs(R).max():.3g}, beyond "
+                f"{MAX_VARIANCE:g} (MAX_VARIANCE), from covariance = {prm.covariance!r} with "
+                f"{settings}, the objects up to {np.abs(p[:, :2]).max():.3g} m from the ego "
+                f"frame's origin: lower these settings, or give coordinates in metres near "
+                f"the robots")
+        return R
 
     def _epsilon(self, ages_ego: np.ndarray, ages_other: np.ndarray) -> float:
         """Metres, CLIPPER's epsilon widened for the maps' drift over their span

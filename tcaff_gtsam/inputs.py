@@ -147,9 +147,14 @@ def index_pairs(owner: str, name: str, value) -> np.ndarray:
 
 def write_whole(path: Path, text: str) -> None:
     """Write `text` to `path` whole or not at all: aside (`<path>.partial`), then renamed over
-    it, so that a process killed while writing (SIGKILL, a crash) leaves the previous file whole."""
+    it, so that a process killed while writing (SIGKILL, a crash) leaves the previous file whole.
+    The bytes reach the disk before the rename, so that a robot whose power is cut just after
+    finds the new file whole rather than empty (file systems may write the rename first)."""
     partial = path.with_name(path.name + ".partial")
-    partial.write_text(text)
+    with open(partial, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
     os.replace(partial, path)
 
 

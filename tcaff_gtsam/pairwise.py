@@ -267,8 +267,10 @@ class PairwiseAligner:
         Raises:
             DataError: t not a finite number (a string, None, an array, NaN) or not later than
                 the previous step's; a map that is not an ObjectMap; or maps the aligner
-                cannot register (see `FrameAligner.measurements`). A call that raises leaves
-                the aligner as it was: the same t may be given again.
+                cannot register (see `FrameAligner.measurements`).
+            ConfigError: aligner settings that give a candidate a covariance beyond
+                `MAX_VARIANCE` (see `FrameAligner.measurements`).
+            A call that raises leaves the aligner as it was: the same t may be given again.
         """
         o = "PairwiseAligner.update"
         t = finite_time(o, "t", t)

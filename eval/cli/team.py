@@ -174,7 +174,8 @@ def node(
     stop_timeout: Annotated[float, typer.Option(
         help="s from SIGTERM or SIGINT to <robot>.json written; past it what is known is "
              "written, marked stop_cut_short, as after a second signal. ros2 launch sends "
-             "SIGTERM 5 s after SIGINT, SIGKILL 5 s later.")] = 2.0,
+             "SIGTERM 5 s after SIGINT, SIGKILL 5 s later.")] = 2.0,  # node.run.STOP_TIMEOUT,
+    # not imported: the node's modules load Zenoh, which `tcaff --help` should not wait for
 ) -> None:
     """One robot of a live team: publishes its maps, aligns to every neighbour's.
 

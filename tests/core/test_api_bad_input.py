@@ -606,3 +606,20 @@ def test_map_drift_bounds_its_heading_part_too():
         with pytest.raises(ParameterError) as info:
             FrameAlignerParams(map_drift=drift)
         assert info.value.name == "map_drift", str(info.value)
+
+
+@pytest.mark.parametrize("settings", [
+    dict(kappa=MAX_SECONDS, map_drift=MAX_MAP_DRIFT),
+    dict(repeat_inflation=MAX_FACTOR, repeat_Q=np.eye(3) * 1e-22),
+], ids=["kappa and drift", "inflation and Q"])
+def test_settings_that_together_overflow_a_covariance_are_named(settings):
+    """Each field within its bound, together they put a candidate's R past MAX_VARIANCE: the
+    aligner names its settings (the filter used to refuse `Rs`, which the user never gave),
+    and a refused step leaves the pair's filter as it was."""
+    pair = PairwiseAligner(FrameAlignerParams(**settings))
+    with pytest.raises(ConfigError) as info:
+        pair.update(NOW, EGO, OTHER)
+    message = str(info.value)
+    assert "MAX_VARIANCE" in message and "repeat_inflation" in message, message
+    assert all(name in message for name in settings), message
+    same_state(pair.filter, PairwiseAligner().filter)

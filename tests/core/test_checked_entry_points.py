@@ -24,7 +24,7 @@ from tcaff_gtsam.geometry import (
     transform_points_batch,
     wrap_angle,
 )
-from tcaff_gtsam.inputs import output_path, shown
+from tcaff_gtsam.inputs import output_path, shown, write_whole
 from tcaff_gtsam.pairwise import admitted, evidence_of
 from tcaff_gtsam.registration import mutual_inliers, registration_rmse, spread
 
@@ -105,6 +105,20 @@ def test_a_path_that_cannot_be_written_is_a_data_error(tmp_path):
     assert output_path("x", str(tmp_path / "m.npz")) == tmp_path / "m.npz"
     with pytest.raises(DataError, match="shown: limit must be an int >= 4"):
         shown(1, None)
+
+
+@given(st.text(max_size=50), st.text(min_size=1, max_size=50))
+@settings(max_examples=50, deadline=None)
+def test_a_file_is_written_whole_or_left_as_it_was(tmp_path_factory, old, new):
+    """`write_whole` replaces a file by all of the new text (UTF-8, whatever the locale) or,
+    when writing fails part way (a character no encoding writes), leaves the old one."""
+    path = tmp_path_factory.mktemp("whole") / "results.json"
+    write_whole(path, old)
+    write_whole(path, new)
+    assert path.read_text(encoding="utf-8") == new
+    with pytest.raises(UnicodeEncodeError):
+        write_whole(path, new + "\ud800")  # a lone surrogate: written up to it, then refused
+    assert path.read_text(encoding="utf-8") == new
 
 
 def test_the_reason_of_a_foreign_error_is_its_first_line_or_its_kind():

@@ -219,3 +219,14 @@ def test_a_node_stops_on_sigterm_wherever_its_main_thread_is_in_the_wait(tmp_pat
     assert done.returncode == 0, done.stderr[-2000:]
     answers = ast.literal_eval(done.stdout)
     assert answers and all(answers), answers
+
+
+def test_the_node_command_stops_within_the_library_s_default() -> None:
+    """--stop-timeout's default is `replay_node`'s (written twice to keep the CLI's start
+    light)."""
+    import inspect
+
+    from tcaff_gtsam.eval.cli.team import node
+    from tcaff_gtsam.node.run import STOP_TIMEOUT
+
+    assert inspect.signature(node).parameters["stop_timeout"].default == STOP_TIMEOUT

@@ -26,7 +26,7 @@ from stuck_node import ONE_OBJECT, Alone, node_stuck_in_its_first_step
 from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode
 from tcaff_gtsam.node.node import _draw
 from tcaff_gtsam.node.replay import MAX_TEAM, RobotReplay, robot_names
-from tcaff_gtsam.node.run import free_ports, replay_node
+from tcaff_gtsam.node.run import _StopEvent, _team_start, free_ports, replay_node
 
 from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
@@ -488,6 +488,22 @@ def test_a_zenoh_session_that_does_not_close_cleanly_still_lets_the_node_close()
     node.close()
     assert session.is_closed()
     node.close()  # again: nothing
+
+
+def test_a_node_stopped_while_waiting_for_its_team_says_so(caplog) -> None:
+    """A stop while the team assembles ends the wait, and the log says the node was stopped,
+    not that it starts without the robots it was waiting for."""
+    port = free_ports(1)[0]
+    node = RobotNode("r0", "waiting", ["r0", "r1"], Link(listen=(f"127.0.0.1:{port}",)))
+    try:
+        stop = _StopEvent(2.0)
+        stop.set()
+        with caplog.at_level("INFO", logger="tcaff_gtsam.node.run"):
+            _team_start(node, stop)
+    finally:
+        node.close()
+    said = [record.getMessage() for record in caplog.records]
+    assert said == ["r0: stopped while waiting for r1"], said
 
 
 class FailsToClose(Alone):
