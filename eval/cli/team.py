@@ -234,7 +234,7 @@ def node(
     if ros2_objects:
         node_ = live_node(robot, team, team_robots, link, params, output, state, duration,
                           stop_timeout)
-        print(f"{robot}: " + ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items())))
+        print(_counted(robot, node_.counters))
         return
     if replay is not None:
         source = RobotReplay.load(replay)
@@ -249,8 +249,13 @@ def node(
         source = run_replay(run, names.index(robot), names)
     node_ = replay_node(source, team, link, params, start_at, output, clock_offset, state,
                         stop_timeout=stop_timeout)
-    counts = ", ".join(f"{k} {v}" for k, v in sorted(node_.counters.items()))
-    print(f"{robot}: {counts}")
+    print(_counted(robot, node_.counters))
+
+
+def _counted(robot: str, counters: dict[str, int]) -> str:
+    """A node's last line: its counters, or that it stopped before it counted anything."""
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(counters.items()))
+    return f"{robot}: {counts or 'stopped before its first exchange'}"
 
 
 def _kimera_run(data: Path, test: str, duration: float | None, maps: Path):
