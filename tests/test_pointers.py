@@ -96,3 +96,23 @@ def test_each_command_summary_is_one_line(name):
     over several lines breaks mid-sentence there."""
     summary = get_command(app).commands[name].help.strip().split("\n\n")[0]
     assert "\n" not in summary and len(summary) <= 110, summary
+
+
+def test_the_docs_examples_import_what_exists():
+    """Each `from tcaff_gtsam... import name` of the README's and the docs' Python examples
+    names a module and a name that exist (an example imported a class renamed long before)."""
+    import ast
+    import importlib.util
+
+    missing = []
+    for page in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        for block in re.findall(r"```python\n(.*?)```", page.read_text(), flags=re.S):
+            for node in ast.walk(ast.parse(block)):
+                if not (isinstance(node, ast.ImportFrom) and node.module
+                        and node.module.split(".")[0] == "tcaff_gtsam"):
+                    continue
+                module = importlib.import_module(node.module)
+                missing += [f"{page.name}: from {node.module} import {alias.name}"
+                            for alias in node.names if not hasattr(module, alias.name)
+                            and importlib.util.find_spec(f"{node.module}.{alias.name}") is None]
+    assert not missing, missing

@@ -27,9 +27,9 @@ def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -
     _add_columns(table, ("pair", "steps", "accepted", *(("chained",) if team else ()),
                          "median error [m, deg]", "last error [m, deg]"))
     for i, robot in enumerate(names):
+        path = output / (f"{robot}.team.csv" if team else f"{robot}.csv")
         try:
-            rows = (read_alignments(output / f"{robot}.team.csv", TEAM_COLUMNS) if team
-                    else read_alignments(output / f"{robot}.csv", COLUMNS))
+            rows = read_alignments(path, TEAM_COLUMNS if team else COLUMNS)
         except DataError:
             continue
         for j, other in enumerate(names):
@@ -37,6 +37,9 @@ def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -
             if i == j or not mine.any():
                 continue
             seq = rows["seq"][mine].astype(int)
+            if seq.size and not 0 <= seq.min() <= seq.max() < len(run.times):
+                raise DataError(f"{path}: exchange {seq.max()} of {other} is not "
+                                f"one of this run's {len(run.times)} (a different run's rows)")
             accepted = rows["accepted"][mine] == 1
             truth = se2_to_params(run.T_true(i, j)[seq])
             x = np.column_stack([rows[c][mine] for c in ("x", "y", "theta")])

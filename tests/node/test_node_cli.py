@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from tcaff_gtsam.eval import cli
 
@@ -230,3 +231,46 @@ def test_the_node_command_stops_within_the_library_s_default() -> None:
     from tcaff_gtsam.node.run import STOP_TIMEOUT
 
     assert inspect.signature(node).parameters["stop_timeout"].default == STOP_TIMEOUT
+
+
+def test_a_team_run_replaces_the_previous_runs_results(tmp_path: Path, monkeypatch,
+                                                       capsys) -> None:
+    """The nodes append to their CSVs (to carry on after a restart): a second run into the
+    folder added its rows to the first's, and one of more exchanges crashed the table. The
+    run's nodes fail at once here (a bad drop seed), so what is left is what the team kept."""
+    from tcaff_gtsam.node import run
+
+    old = ["r0.csv", "r0.json", "r2.team.csv", "r3.json", "logs/node3.log", "replay/r3.npz"]
+    for name in [*old, "maps/r0.npz", "notes.csv"]:
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text("a previous run's\n")
+    node_argv = run.node_argv
+    monkeypatch.setattr(run, "node_argv", lambda *args, **kwargs: [
+        *node_argv(*args, **kwargs), "--drop-seed", "-1"])
+    monkeypatch.setattr(sys, "argv", ["tcaff", "team", "--scenario", "indoor_return",
+                                      "--duration", "5", "--output", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        cli.main()
+    said = capsys.readouterr().out
+    assert f"replacing the previous run's results in {tmp_path} ({len(old)} files)" in said
+    assert not any((tmp_path / name).exists() for name in old)
+    # the Kimera maps a later run reuses, and what the team did not write, are kept
+    assert (tmp_path / "maps/r0.npz").exists() and (tmp_path / "notes.csv").exists()
+
+
+def test_the_team_table_refuses_rows_of_another_run(tmp_path: Path) -> None:
+    from tcaff_gtsam.eval.cli.team import _simulated
+    from tcaff_gtsam.eval.cli.team_table import _team_table
+    from tcaff_gtsam.node.messages import AlignmentMessage
+    from tcaff_gtsam.node.results import AlignmentCsv
+
+    from tcaff_gtsam import DataError
+
+    sim = _simulated("indoor_return", 0, 5.0)
+    rows = AlignmentCsv(tmp_path / "r0.csv")
+    rows.write(AlignmentMessage("r0", 0, len(sim.times), 1.0, "r1", 0, 1.0, 0, 0, True,
+                                np.zeros(3), np.eye(3)))
+    rows.close()
+    with pytest.raises(DataError, match=f"exchange {len(sim.times)} of r1 is not one of this "
+                                        f"run's {len(sim.times)}"):
+        _team_table(sim, tmp_path, ("r0", "r1"))
