@@ -30,7 +30,8 @@ class GraphReadout:
             earlier step, with `GraphParams.past_covariance = "causal"` (the default), the
             marginal it had while it was the latest, unless a factor it counted (of its step
             or an earlier one) has been removed for good since (then, and with "smoothed", its
-            marginal now); a step that left the horizon keeps the one it left with.
+            marginal now); a step that left the horizon keeps the one it left with. Robots not
+            `connected`: T is arbitrary and the covariance infinite on its diagonal.
         Raises:
             DataError: unknown robot, a step that has not been committed, or one forgotten
                 (`GraphParams.history`); a covariance gtsam cannot compute (a graph of
@@ -54,6 +55,10 @@ class GraphReadout:
             return T, None
         if i == j:
             return T, np.zeros((self._n_param, self._n_param))
+        if not self.connected(i, j):
+            # only the gauge priors hold them: T is arbitrary, and the priors' 1 m and 1 rad
+            # would be taken for an uncertainty by whoever weighs it
+            return T, np.diag(np.full(self._n_param, np.inf))
         try:
             every = self._kept_joint(step)
             if every is None:
@@ -74,7 +79,7 @@ class GraphReadout:
     def connected(self, i: int, j: int) -> bool:
         """Whether committed alignment factors link robots i and j (directly or through other
         robots). When they do not, `alignment(i, j)` is only the gauge's guess: its value is
-        arbitrary and its covariance huge."""
+        arbitrary and its covariance infinite."""
         self._check_robot("i", i)
         self._check_robot("j", j)
         root = _components(self._a_chains, (link for link, n in self._links.items() if n > 0))

@@ -267,4 +267,6 @@ class HypothesisFactors:
         residual = np.asarray(estimate.x, dtype=float) - x
         residual[2] = math.remainder(residual[2], 2 * math.pi)
         S = P + np.asarray(estimate.P, dtype=float)
+        if not np.isfinite(S).all():  # an alignment the graph does not know agrees with none
+            return False
         return float(residual @ np.linalg.solve(S, residual)) <= _AGREE_CHI2

@@ -599,6 +599,21 @@ def test_connected_follows_committed_alignments_through_other_robots():
         graph.connected(0, 3)
 
 
+def test_robots_the_graph_does_not_link_have_an_infinite_covariance():
+    """Only the gauge priors hold them: their 1 m and 1 rad were reported as the alignment's
+    covariance, identity within a metre, whatever the truth."""
+    _, truth = team()
+    graph = InterRobotGraph(3)
+    graph.update(0)
+    graph.add_alignment(1, 0, 1, truth[(0, 1)], R)
+    graph.update(1)
+    for step in (0, 1):
+        assert np.isfinite(graph.alignment(0, 1, step)[1]).all()
+        for i, j in ((0, 2), (2, 1)):
+            cov = graph.alignment(i, j, step)[1]
+            assert np.isinf(np.diag(cov)).all() and (cov[~np.eye(3, dtype=bool)] == 0).all()
+
+
 # -- long runs and a graph that cannot be broken --------------------------------------------------
 
 
