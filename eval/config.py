@@ -138,7 +138,10 @@ def _resolve(ref: str, folder: str) -> Path:
         kind = {"scenarios": "scenario", "methods": "method set", "studies": "study",
                 "kimera_multi": "Kimera-Multi test", "mrclam": "MRCLAM evaluation",
                 "rgbd": "RGB-D evaluation", "sweeps": "sweep"}[folder]
-        raise ConfigError(f"no {kind} config named {ref!r}; shipped: {', '.join(names)}")
+        found = (f" ({ref} is a folder; a config is a .yaml file)" if path.is_dir() else
+                 f" ({ref} is not a .yaml file)" if path.exists() else "")
+        raise ConfigError(f"no {kind} config named {ref!r}{found}; shipped: "
+                          f"{', '.join(names)}")
     return shipped
 
 

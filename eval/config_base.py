@@ -29,6 +29,10 @@ from pydantic import (
 from tcaff_gtsam.errors import ConfigError
 from tcaff_gtsam.params import ParameterError
 
+#: a name that becomes a file or folder name: letters, digits, '_', '.' and '-', not dots alone
+#: ('.' and '..' name folders that exist: results would be written beside or above --output)
+FILE_NAME = r"^[A-Za-z0-9_.-]*[A-Za-z0-9_-][A-Za-z0-9_.-]*$"
+
 
 def _check_drift(value: tuple[float, float] | None) -> tuple[float, float] | None:
     if value is not None and not (value[0] > 0 and value[1] > 0):
@@ -248,7 +252,8 @@ class UniqueKeyLoader(yaml.SafeLoader):
 
 def _read_yaml(path: Path) -> Any:
     if not path.is_file():
-        raise ConfigError(f"{path}: no such config file")
+        raise ConfigError(f"{path}: " + ("a folder, not a config file" if path.is_dir()
+                                         else "no such config file"))
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -268,6 +273,8 @@ def _read_yaml(path: Path) -> Any:
 
 
 def _validate(model: type[_Model], data: Any, source: str) -> Any:
+    if data is None:
+        raise ConfigError(f"{source}: the config is empty; expected a mapping of keys")
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping of keys, got {type(data).__name__}")
     try:

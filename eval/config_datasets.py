@@ -14,7 +14,7 @@ from tcaff_gtsam.mapping.mapper import MapperParams
 from tcaff_gtsam.errors import ConfigError
 from tcaff_gtsam.params import TCAFFParams
 
-from .config_base import GraphDrift, _Model, _rule_of
+from .config_base import FILE_NAME, GraphDrift, _Model, _rule_of
 from .config_methods import MethodsConfig, ThresholdConfig
 from .config_scenario import MappingConfig
 
@@ -61,7 +61,7 @@ class TopicsConfig(_Model):
 class KimeraMultiConfig(_Model):
     """One Kimera-Multi test: which robots' bags to map and align, and how."""
 
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    name: str = Field(min_length=1, pattern=FILE_NAME)
     description: str = ""
     robots: list[str] = Field(min_length=2)
     bags: str = Field("*{robot}*.bag", description=(
@@ -87,7 +87,7 @@ class KimeraMultiConfig(_Model):
     def _robots(cls, value: list[str]) -> list[str]:
         # a name goes into the bags' glob and into file names: no pattern or path in it
         if (len(set(value)) != len(value)
-                or not all(re.fullmatch(r"[A-Za-z0-9_.-]+", name) for name in value)):
+                or not all(re.fullmatch(FILE_NAME, name) for name in value)):
             raise ValueError(f"robots must be distinct names of letters, digits, '_', '.' "
                              f"and '-', got {value}")
         return value

@@ -12,7 +12,7 @@ from tcaff_gtsam.mapping.mapper import MapperParams
 
 from tcaff_gtsam.params import TCAFFParams
 
-from .config_base import GraphDrift, _Model, _params, _rule_of
+from .config_base import FILE_NAME, GraphDrift, _Model, _params, _rule_of
 from .sim.maps import MAX_OBJECTS
 from .tracker import TrackerParams
 
@@ -237,7 +237,7 @@ class PedestriansConfig(_Model):
 class ScenarioConfig(_Model):
     """One simulated world, its robots and their sensors."""
 
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    name: str = Field(min_length=1, pattern=FILE_NAME)
     description: str = ""
     duration: float = Field(ge=1, le=MAX_DURATION,
                             description="s, at least one 1 Hz map exchange")

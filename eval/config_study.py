@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 from pydantic import Field, field_validator, model_validator
 
-from .config_base import _Model
+from .config_base import FILE_NAME, _Model
 from .config_methods import MethodsConfig
 from .config_scenario import MAX_DURATION, ScenarioConfig
 
@@ -17,7 +17,7 @@ from .config_scenario import MAX_DURATION, ScenarioConfig
 class StudyConfig(_Model):
     """Scenarios x methods x seeds."""
 
-    name: str = Field("study", min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    name: str = Field("study", min_length=1, pattern=FILE_NAME)
     scenarios: list[str | ScenarioConfig] = Field(min_length=1)
     methods: str | MethodsConfig = "default"
     seeds: list[int] = Field(default_factory=lambda: [0], min_length=1)
@@ -48,7 +48,7 @@ class SweepConfig(_Model):
     parameters). The study as given (no parameter changed) is the default point.
     """
 
-    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    name: str = Field(min_length=1, pattern=FILE_NAME)
     description: str = ""
     study: str | StudyConfig = Field(description="the base study: shipped name, path or inline")
     grid: dict[str, list[Any]] | None = Field(None, description="path -> values, every combination")

@@ -170,7 +170,8 @@ def _folder(folder) -> Path:
     except TypeError:
         raise DataError(f"folder = {folder!r}: must be a path") from None
     if not path.is_dir():
-        raise DataError(f"{path}: no such folder")
+        raise DataError(f"{path}: " + ("a file, not a folder" if path.exists()
+                                       else "no such folder"))
     return path
 
 

@@ -195,8 +195,12 @@ SCENARIO = {"name": "s", "duration": 10, "layout": {"kind": "indoor_return"}}
      "methods.thresholds.judge_hold: Input should be greater than or equal to 0"),
     ({"scenarios": ["indoor_return"], "methods": {"thresholds": {"overlap_gap_steps": True}}},
      "methods.thresholds.overlap_gap_steps: must be a number, not true/false"),
+    # a name becomes a folder: '.' and '..' would put the results beside or above --output
+    ({"name": "..", "scenarios": ["indoor_return"]}, "name: String should match pattern"),
+    ({"name": ".", "scenarios": ["indoor_return"]}, "name: String should match pattern"),
     ("scenarios: [\n", "not valid YAML"),
     ("- just\n- a list\n", "expected a mapping of keys, got list"),
+    ("", "the config is empty; expected a mapping of keys"),
 ])
 def test_bad_configs_name_the_key(tmp_path, data, expected):
     with pytest.raises(ConfigError) as info:
@@ -303,6 +307,7 @@ def test_the_scoring_thresholds_reach_the_metrics(tmp_path):
     ({"robots": ["*", "acl_jackal2"]}, "robots must be distinct names"),
     ({"robots": ["a/b", "acl_jackal2"]}, "robots must be distinct names"),
     ({"robots": ["acl_jackal2", "acl_jackal2"]}, "robots must be distinct names"),
+    ({"robots": ["..", "acl_jackal2"]}, "robots must be distinct names"),
     # pathlib's glob refuses absolute patterns with NotImplementedError
     ({"bags": "/etc/*{robot}*.bag"}, "bags must be a glob relative to --data"),
     ({"bags": "../*{robot}*.bag"}, "bags must be a glob relative to --data"),
