@@ -95,8 +95,10 @@ class TeamListener:
                 err = self.error(m)
                 row.append("-" if err is None else f"{err[0]:.2f}, {err[1]:.1f}")
             table.add_row(*row)
+        notes = [] if items else [f"no alignment of team {self.team!r} heard yet"]
         if self.dropped:
-            table.caption = "dropped: " + ", ".join(f"{k} {v}" for k, v in self.dropped.items())
+            notes.append("dropped: " + ", ".join(f"{k} {v}" for k, v in self.dropped.items()))
+        table.caption = "; ".join(notes) or None
         return table
 
     def close(self) -> None:

@@ -116,3 +116,12 @@ def test_the_docs_examples_import_what_exists():
                             for alias in node.names if not hasattr(module, alias.name)
                             and importlib.util.find_spec(f"{node.module}.{alias.name}") is None]
     assert not missing, missing
+
+
+@pytest.mark.parametrize("name", sorted(get_command(app).commands))
+def test_help_texts_show_their_brackets(name):
+    """The help is drawn as rich markup, which takes `[viz]` for a style and drops it
+    ("pip install 'tcaff-gtsam'"): a bracket the reader should see is escaped, `\\[viz]`."""
+    command = get_command(app).commands[name]
+    for text in [command.help or "", *(getattr(p, "help", None) or "" for p in command.params)]:
+        assert not re.findall(r"(?<!\\)\[[a-z/][^\]\n]*\]", text), text

@@ -29,7 +29,7 @@ def view(
     The world, each robot's map over time, the paths, the candidates, the accepted alignment
     and the truth on one timeline, and the errors over time.
 
-    Needs the optional extra viz (pip install 'tcaff-gtsam[viz]'); open the file with
+    Needs the optional extra viz (pip install 'tcaff-gtsam\\[viz]'); open the file with
     `rerun FILE.rrd`. Runs saved before the maps were kept show no maps.
     """
     from ..rerun_recording import record

@@ -478,3 +478,9 @@ def listen(
                     break
         except KeyboardInterrupt:
             pass
+        heard = bool(listener.latest)
+    if not heard:
+        _console(stderr=True).print(
+            f"heard no alignment of team {team_name!r} in {listener.elapsed():.0f} s: is a "
+            f"node of the team running, and reachable through --connect / --listen?",
+            soft_wrap=True, markup=False)

@@ -24,6 +24,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from stuck_node import ONE_OBJECT, Alone, node_stuck_in_its_first_step
 from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode
+from tcaff_gtsam.node.listener import TeamListener
 from tcaff_gtsam.node.node import _draw
 from tcaff_gtsam.node.replay import MAX_TEAM, RobotReplay, robot_names
 from tcaff_gtsam.node.run import _StopEvent, _team_start, free_ports, replay_node
@@ -504,6 +505,14 @@ def test_a_node_stopped_while_waiting_for_its_team_says_so(caplog) -> None:
         node.close()
     said = [record.getMessage() for record in caplog.records]
     assert said == ["r0: stopped while waiting for r1"], said
+
+
+def test_a_listener_that_hears_nothing_says_so() -> None:
+    """Its table was empty and silent: a wrong --team or port looked like a quiet team."""
+    port = free_ports(1)[0]
+    with TeamListener("quiet", Link(listen=(f"127.0.0.1:{port}",))) as listener:
+        table = listener.table()
+    assert table.row_count == 0 and table.caption == "no alignment of team 'quiet' heard yet"
 
 
 class FailsToClose(Alone):
