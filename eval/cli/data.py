@@ -239,6 +239,8 @@ def mrclam(
     from rich.markup import escape
 
     _check_duration(duration)
+    if kappa is not None and not (math.isfinite(kappa) and kappa > 0):
+        _refuse("--kappa", kappa, "must be a finite number > 0 (s)")
     _check_recording(rerun)
     seeds = _check_seeds(seed)
     _writable_folder(output, "--output")

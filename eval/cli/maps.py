@@ -151,11 +151,14 @@ def make_maps(
 
     from tcaff_gtsam.geometry import se2_to_params
 
-    from ..sim.maps import overlapping_maps
+    from ..sim.maps import MAX_OBJECTS, overlapping_maps
 
     for option, count in (("--objects", objects), ("--clutter", clutter), ("--seed", seed)):
         if count < 0:
             _refuse(option, count, "must be an int >= 0")
+    for option, count in (("--objects", objects), ("--clutter", clutter)):
+        if count > MAX_OBJECTS:
+            _refuse(option, count, f"the simulator makes at most {MAX_OBJECTS} objects per map")
     if not (math.isfinite(overlap) and 0 <= overlap <= 1):
         _refuse("--overlap", overlap, "must be a share in [0, 1]")
     if not (math.isfinite(noise) and noise >= 0):
@@ -254,6 +257,9 @@ def advise_kappa(
         console.print(f"kappa: no span keeps the maps within epsilon / 2 ({worst[0]:.3f} m "
                       f"at {SPANS[0]:g} s already): the maps disagree with themselves; better "
                       f"odometry or a wider epsilon is needed")
+    elif advice.kappa == SPANS[-1]:  # the longest span tried: longer ones may do as well
+        console.print(f"kappa: {advice.kappa:g} s or more (the longest span tried; "
+                      f"FrameAlignerParams(kappa=...) and MapperParams(kappa=...))")
     else:
         console.print(f"kappa: {advice.kappa:g} s (FrameAlignerParams(kappa=...) and "
                       f"MapperParams(kappa=...))")

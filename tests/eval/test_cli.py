@@ -440,7 +440,8 @@ def test_an_output_that_cannot_be_a_folder_is_refused_first(tmp_path, tcaff_main
 @pytest.mark.parametrize(("args", "option"), [
     (["--noise", "-1"], "--noise"), (["--noise", "nan"], "--noise"),
     (["--overlap", "1.5"], "--overlap"), (["--objects", "-1"], "--objects"),
-    (["--clutter", "-2"], "--clutter"), (["--seed", "-1"], "--seed")])
+    (["--clutter", "-2"], "--clutter"), (["--seed", "-1"], "--seed"),
+    (["--objects", "1000000"], "--objects"), (["--clutter", "10001"], "--clutter")])
 def test_make_maps_options_are_checked(tmp_path, tcaff_main, args, option):
     line = one_line_error(tcaff_main("make-maps", str(tmp_path / "maps"), *args), option)
     assert line.startswith(f"error: {option} ")
@@ -606,6 +607,9 @@ def test_advise_kappa_prints_the_table_writes_it_and_follows_the_drift(tmp_path)
     fast = runner.invoke(app, ["advise-kappa", "--seeds", "1", "--minutes", "6",
                                "--heading-rw", "60"])
     assert "kappa: no span keeps the maps within epsilon / 2" in " ".join(fast.output.split())
+    still = runner.invoke(app, ["advise-kappa", "--seeds", "1", "--minutes", "6", "--speed",
+                                "0"])  # a robot that stays put: every span is within the bound
+    assert "kappa: 300 s or more (the longest span tried" in " ".join(still.output.split())
 
 
 @pytest.mark.parametrize(("args", "option"), [
@@ -657,6 +661,7 @@ def test_make_maps_refuses_a_folder_where_a_file_goes(tmp_path, tcaff_main):
 @pytest.mark.parametrize(("command", "args", "option"), [
     # str.isdigit takes superscripts, int() does not
     ("mrclam", ["--pairs", "1:\u00b2"], "--pairs"),
+    ("mrclam", ["--kappa", "-3"], "--kappa"), ("mrclam", ["--kappa", "nan"], "--kappa"),
     ("rgbd", ["--robots", "0:\u00b2,0:5"], "--robots"),
     # a span of 40 frames at 1e-3 frames a second: 40 000 exchanges of one map
     ("rgbd", ["--fps", "1e-3"], "--fps"), ("rgbd", ["--fps", "1e-300"], "--fps"),
