@@ -232,7 +232,10 @@ def decode(payload: bytes, max_bytes: int | None = None
         MessageError: `oversized` beyond `max_bytes` (refused before it is read); `version`
             for another version of this format; `malformed` for anything else: another magic,
             kind, a truncated or overlong payload, a name that is not UTF-8, non-finite
-            numbers, negative sizes or ages, a covariance that is not symmetric positive
+            numbers, negative sizes or ages; an accepted alignment whose estimate
+            `TeamConsistency` would refuse (`tcaff_gtsam.team.usable_estimates`: x within
+            1e9, P symmetric positive definite with entries within 1e18), an accepted team
+            alignment whose x is not finite or whose P is not symmetric positive
             semi-definite. `max_bytes` None: `MAX_BYTES`.
     """
     if max_bytes is None:
@@ -272,29 +275,51 @@ def decode(payload: bytes, max_bytes: int | None = None
         _finished(read)
         if accepted not in (0, 1):
             raise MessageError("malformed", f"accepted {accepted}")
-        x, P = _estimate(bool(accepted), numbers)
+        x, P = _estimate(bool(accepted), numbers, team=True)
         return TeamMessage(sender, boot, seq, stamp, neighbour, via, bool(accepted), x, P)
     nseq, nstamp, step, hypothesis, accepted, *numbers = read.unpack(_ALIGN, "alignment")
     _finished(read)
     if accepted not in (0, 1) or step < 0 or not math.isfinite(nstamp):
         raise MessageError("malformed", f"accepted {accepted}, step {step}, neighbour stamp "
                                         f"{nstamp}")
-    x, P = _estimate(bool(accepted), numbers)
+    x, P = _estimate(bool(accepted), numbers, team=False)
     return AlignmentMessage(sender, boot, seq, stamp, neighbour, nseq, nstamp, step,
                             hypothesis, bool(accepted), x, P)
 
 
-def _estimate(accepted: bool, numbers: list[float]) -> tuple[np.ndarray, np.ndarray]:
-    """x (3,) and the symmetric P (3, 3) of an alignment's nine numbers, checked."""
+def _estimate(accepted: bool, numbers: list[float], team: bool
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """x (3,) and the symmetric P (3, 3) of an alignment's nine numbers, checked: an accepted
+    alignment's as `TeamConsistency` checks its input (the node hands it to it), an accepted
+    team alignment's (`team`, composed along a chain: beyond those bounds by rights) finite
+    and positive semi-definite."""
     x = np.array(numbers[:3])
     P = np.zeros((3, 3))
     P[_UPPER] = numbers[3:]
     P = P + np.triu(P, 1).T
-    if accepted and not (np.isfinite(x).all() and np.isfinite(P).all()
-                         and np.linalg.eigvalsh(P).min() >= -1e-12):
-        raise MessageError("malformed", "an accepted alignment needs a finite x and a "
-                                        "positive semi-definite P")
+    if not accepted:
+        return x, P
+    if team:
+        if not (np.isfinite(x).all() and np.isfinite(P).all()
+                and np.linalg.eigvalsh(P).min() >= -1e-12):
+            raise MessageError("malformed", "an accepted team alignment needs a finite x and "
+                                            "a positive semi-definite P")
+    elif not _usable(x, P):
+        from tcaff_gtsam.team import ESTIMATE_RULE
+
+        raise MessageError("malformed", f"an accepted alignment needs {ESTIMATE_RULE}, got "
+                                        f"x = {x.tolist()}, P = {P[_UPPER].tolist()} (upper "
+                                        f"triangle)")
     return x, P
+
+
+def _usable(x: np.ndarray, P: np.ndarray) -> bool:
+    """Whether `TeamConsistency` takes the estimate x (3,), P (3, 3)."""
+    # imported on first use: it loads numba, which a process that only reads messages
+    # (`tcaff listen`, the bag tools) would otherwise load on start
+    from tcaff_gtsam.team import usable_estimates
+
+    return bool(usable_estimates(x[None], P[None])[0])
 
 
 def _finished(read: _Reader) -> None:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.inputs import finite_time
+from tcaff_gtsam.inputs import finite_time, shown
 from tcaff_gtsam.object_map import ObjectMap, as_object_map
 from tcaff_gtsam.pairwise import PairwiseAligner
 from tcaff_gtsam.param_checks import MAX_SECONDS, _number
@@ -31,7 +31,7 @@ from tcaff_gtsam.params import (
     _require,
 )
 from tcaff_gtsam.tcaff import TCAFF, write_snapshot
-from tcaff_gtsam.team import TeamConsistency, TeamParams
+from tcaff_gtsam.team import ESTIMATE_RULE, TeamConsistency, TeamParams, usable_estimates
 
 from .link import Link, check_name
 from .messages import AlignmentMessage, MapMessage, MessageError, TeamMessage
@@ -152,9 +152,12 @@ class RobotNode:
             "early" (a neighbour's map before this robot's first) and "errors" (a step that
             failed, logged with its traceback; the node goes on); with team consistency also
             "alignments_heard" (other robots'), "team_rejected" (steps whose own accepted
-            alignment failed the team's cycles) and "team_chained" (steps whose team alignment
-            is chained through another robot); "withheld_restored" (steps of a filter restored
-            from `state_dir` whose hypothesis no new map had confirmed yet: reported as none);
+            alignment failed the team's cycles), "team_chained" (steps whose team alignment
+            is chained through another robot) and "team_unusable" (alignments the team
+            consistency cannot take, left out of its steps and logged: another robot's once,
+            then forgotten, the node's own at each step); "withheld_restored" (steps of a
+            filter restored from `state_dir` whose hypothesis no new map had confirmed yet:
+            reported as none);
             with ROS 2, "ros2_sent" (maps and alignments published there) and "ros2_errors"
             (ones that could not be, logged).
         latest: neighbour -> the latest AlignmentMessage of that pair.
@@ -541,6 +544,7 @@ class RobotNode:
                      if m.accepted and arrived >= horizon}
         estimates |= {(index[self.robot], index[b]): m for b, m in self.latest.items()
                       if m.accepted}
+        self._leave_out_unusable(estimates)
         i, j = index[self.robot], index[name]
         est = self._team.update(estimates, [(i, j)]).get((i, j))
         if self.latest[name].accepted and (min(i, j), max(i, j)) in self._team.rejected:
@@ -556,6 +560,23 @@ class RobotNode:
         self.team_latest[name] = out
         if self._on_team is not None:
             self._on_team(out)
+
+    def _leave_out_unusable(self, estimates: dict[tuple[int, int], AlignmentMessage]) -> None:
+        """Take out of `estimates` what `TeamConsistency.update` would refuse, which would
+        make it refuse the whole step; another robot's alignment is forgotten too."""
+        if not estimates:
+            return
+        keys = list(estimates)
+        usable = usable_estimates(np.array([estimates[k].x for k in keys], dtype=float),
+                                  np.array([estimates[k].P for k in keys], dtype=float))
+        for key in (k for k, ok in zip(keys, usable.tolist(), strict=True) if not ok):
+            m = estimates.pop(key)
+            if self._heard.get((m.sender, m.neighbour), (None,))[0] is m:
+                del self._heard[(m.sender, m.neighbour)]
+            self.counters["team_unusable"] += 1
+            log.warning("%s: left out the alignment of %s to %s from the team consistency: it "
+                        "needs %s, got x = %s, P = %s", self.robot, m.sender, m.neighbour,
+                        ESTIMATE_RULE, shown(m.x), shown(m.P))
 
     # -- restarts -----------------------------------------------------------------------------
 

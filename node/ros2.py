@@ -52,7 +52,7 @@ import numpy as np
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap
 
-from .messages import MAX_OBJECTS, AlignmentMessage, MapMessage, MessageError, TeamMessage
+from .messages import MAX_OBJECTS, AlignmentMessage, MapMessage, MessageError, TeamMessage, _usable
 
 __all__ = ["ALIGNMENT_TYPE", "CLOUD_FIELDS", "CLOUD_TYPE", "HEALTH_TYPE", "MAP_TYPE",
            "Ros2Bridge", "alignment_of", "alignment_topic", "attachment", "check_ros_name",
@@ -355,21 +355,27 @@ def object_map_of_cloud(message) -> tuple[float, ObjectMap]:
 
 def alignment_of(message, sender: str, neighbour: str) -> AlignmentMessage:
     """Another robot's accepted alignment as the team consistency takes it, from the
-    PoseWithCovarianceStamped it published on `alignment_topic(sender, neighbour)`: x = (x,
-    y, yaw of the pose), P its covariance's rows and columns 0, 1 and 5; boot, seq, step,
-    hypothesis and the neighbour's map are not on the topic (0; its stamp NaN).
+    PoseWithCovarianceStamped it published on `alignment_topic(sender, neighbour)`: x = (x
+    [m], y [m], yaw [rad] of the pose), P (3, 3) its covariance's rows and columns 0, 1 and 5;
+    boot, seq, step, hypothesis and the neighbour's map are not on the topic (0; its stamp
+    NaN).
 
     Raises:
-        MessageError: a pose or covariance that is not finite.
+        MessageError ("malformed"): an estimate `TeamConsistency` would refuse
+            (`tcaff_gtsam.team.usable_estimates`: x within 1e9, P symmetric positive
+            definite with entries within 1e18).
     """
     pose = message.pose.pose
     q = pose.orientation
     x = np.array([pose.position.x, pose.position.y,
                   np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y**2 + q.z**2))])
     P = np.asarray(message.pose.covariance, dtype=float).reshape(6, 6)[np.ix_(_XY_YAW, _XY_YAW)]
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
-        raise MessageError("malformed", f"an alignment of {sender} to {neighbour} that is not "
-                                        f"finite")
+    if not _usable(x, P):
+        from tcaff_gtsam.team import ESTIMATE_RULE
+
+        raise MessageError("malformed", f"an alignment of {sender} to {neighbour} needs "
+                                        f"{ESTIMATE_RULE}, got x = {x.tolist()}, "
+                                        f"P = {P.tolist()}")
     stamp = message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
     return AlignmentMessage(sender, 0, 0, stamp, neighbour, 0, np.nan, 0, 0, True, x, P)
 

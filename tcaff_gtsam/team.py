@@ -29,6 +29,32 @@ from .tcaff_state import _not_spd
 __all__ = ["TeamConsistency", "TeamEstimate", "TeamParams"]
 
 
+#: what `TeamConsistency.update` requires of an estimate (`usable_estimates`)
+ESTIMATE_RULE = (f"x (3,) finite within {MAX_COORDINATE:g} and P (3, 3) symmetric positive "
+                 f"definite with entries within {MAX_VARIANCE:g}")
+
+
+def usable_estimates(x: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(m,) bool: which of m estimates `TeamConsistency.update` takes (`ESTIMATE_RULE`).
+
+    Args:
+        x: (m, 3) (x [m], y [m], theta [rad]), each within MAX_COORDINATE.
+        P: (m, 3, 3) covariances, symmetric positive definite (the cycle test inverts them)
+            with entries within MAX_VARIANCE. NaN fails both.
+    The one test of an estimate, for the team consistency and for the messages that feed it
+    (`node.messages.decode`, `node.ros2.alignment_of`).
+    """
+    ok = ((np.abs(x) <= MAX_COORDINATE).all(axis=1)
+          & (np.abs(P) <= MAX_VARIANCE).all(axis=(1, 2)))
+    rest = np.flatnonzero(ok)
+    # one pass over all of them on the usual path; after a failure, again over the others (the
+    # first asymmetric one is found before any that is not positive definite)
+    while len(rest) and (bad := _not_spd(P[rest])) is not None:
+        ok[rest[bad[0]]] = False
+        rest = np.delete(rest, bad[0])
+    return ok
+
+
 @dataclass(frozen=True)
 class TeamParams:
     """Settings of `TeamConsistency`.
@@ -179,20 +205,12 @@ class TeamConsistency:
                                 f"got shapes {x.shape} and {P.shape}")
             i, j = int(key[0]), int(key[1])
             given[(i, j)] = (x, P)
-        if given:  # checked for all at once; NaN fails every comparison
-            X = np.array([x for x, _ in given.values()])
-            Ps = np.array([P for _, P in given.values()])
-            ok = ((np.abs(X) <= MAX_COORDINATE).all(axis=1)
-                  & (np.abs(Ps) <= MAX_VARIANCE).all(axis=(1, 2)))
-            first = None if ok.all() else int(np.argmin(ok))
-            # symmetric positive definite: what the cycle test inverts
-            if first is None and (not_spd := _not_spd(Ps)) is not None:
-                first = not_spd[0]
-            if first is not None:
-                key = list(given)[first]
-                raise DataError(f"{o}: estimates[{key}] needs x (3,) finite within "
-                                f"{MAX_COORDINATE:g} and P (3, 3) symmetric positive definite "
-                                f"with entries within {MAX_VARIANCE:g}, got "
+        if given:  # checked for all at once
+            ok = usable_estimates(np.array([x for x, _ in given.values()]),
+                                  np.array([P for _, P in given.values()]))
+            if not ok.all():
+                key = list(given)[int(np.argmin(ok))]
+                raise DataError(f"{o}: estimates[{key}] needs {ESTIMATE_RULE}, got "
                                 f"x = {shown(given[key][0])}, P = {shown(given[key][1])}")
         return given
 

@@ -6,7 +6,7 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from tcaff_gtsam.node.messages import (
@@ -20,8 +20,9 @@ from tcaff_gtsam.node.messages import (
     encode,
 )
 
-from tcaff_gtsam import ObjectMap
+from tcaff_gtsam import ObjectMap, TeamConsistency
 from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.team import usable_estimates
 
 names = st.text(alphabet=st.characters(codec="utf-8", exclude_categories=("Cs",)),
                 min_size=1, max_size=16).filter(lambda s: 1 <= len(s.encode()) <= 64)
@@ -169,10 +170,69 @@ def test_an_oversized_payload_is_refused_before_it_is_read() -> None:
 
 def test_an_accepted_alignment_needs_a_covariance() -> None:
     bad = alignment(P=np.diag([1.0, -1.0, 1.0]))
-    with pytest.raises(MessageError, match="positive semi-definite"):
+    with pytest.raises(MessageError, match="symmetric positive definite"):
         decode(encode(bad))
-    with pytest.raises(MessageError, match="finite x"):
+    with pytest.raises(MessageError, match=r"x \(3,\) finite"):
         decode(encode(alignment(P=np.full((3, 3), np.nan))))
+
+
+#: numbers of an estimate, the edges of what the team consistency takes among them
+edgy = st.one_of(st.floats(-10, 10), st.floats(allow_nan=True, allow_infinity=True),
+                 st.sampled_from([0.0, -0.0, 1e-300, 1e9, -1e9, 1.0000001e9, 1e18, -1e18,
+                                  1.0000001e18]))
+
+
+def _team_takes(x: np.ndarray, P: np.ndarray) -> bool:
+    """Whether TeamConsistency.update takes the estimate (x, P) of pair (1, 2)."""
+    estimate = AlignmentMessage("r1", 1, 1, 10.0, "r2", 1, 9.0, 3, 1, True, x, P)
+    try:
+        TeamConsistency(3).update({(1, 2): estimate}, [(0, 1)])
+    except DataError:
+        return False
+    return True
+
+
+@settings(max_examples=300, deadline=None)
+@given(x=st.lists(edgy, min_size=3, max_size=3), upper=st.lists(edgy, min_size=6, max_size=6),
+       scale=st.sampled_from([None, 0.0, 1.0, 2e18, -3.0]))
+@example(x=[1.0, 2.0, 0.3], upper=[0.0] * 6, scale=None)  # P = 0
+@example(x=[2e9, 2.0, 0.3], upper=[1.0, 0, 0, 1.0, 0, 1.0], scale=None)
+@example(x=[1.0, 2.0, 0.3], upper=[2e18, 0, 0, 2e18, 0, 2e18], scale=None)
+def test_an_accepted_alignment_decodes_exactly_when_the_team_consistency_takes_it(
+        x, upper, scale) -> None:
+    """A node hands every accepted alignment it hears to TeamConsistency.update, which used
+    to refuse ones decode had let in (P = 0, |x| > 1e9, P beyond 1e18), and with them every
+    later team step."""
+    x = np.array(x)
+    P = np.zeros((3, 3))
+    P[np.triu_indices(3)] = upper
+    P = P + np.triu(P, 1).T
+    if scale is not None:  # well-formed and not, beside the raw draws
+        P = scale * np.diag([0.1, 0.2, 0.01])
+    try:
+        back = decode(encode(AlignmentMessage("r1", 1, 1, 10.0, "r2", 1, 9.0, 3, 1, True, x,
+                                              P)))
+    except MessageError as exc:
+        assert exc.reason == "malformed"
+        assert not _team_takes(x, P)
+    else:
+        assert _team_takes(back.x, back.P)
+        np.testing.assert_array_equal(back.P, P)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(st.lists(edgy, min_size=3, max_size=3),
+                          st.sampled_from([1.0, 0.0, -1.0, 1e19, np.nan]),
+                          st.booleans()), min_size=1, max_size=6))
+def test_usable_estimates_marks_each_estimate_as_the_team_consistency_judges_it_alone(
+        drawn) -> None:
+    """Every estimate judged, also those after the first that fails (a node leaves only the
+    unusable ones out of its team step)."""
+    X = np.array([x for x, _, _ in drawn])
+    P = np.array([s * np.diag([0.1, 0.2, 0.01]) + (np.triu(np.ones((3, 3)), 1) * 0.01 if skew
+                                                   else 0.0) for _, s, skew in drawn])
+    np.testing.assert_array_equal(usable_estimates(X, P),
+                                  [_team_takes(x, p) for x, p in zip(X, P, strict=True)])
 
 
 @pytest.mark.parametrize(("message", "words"), [

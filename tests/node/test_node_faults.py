@@ -23,7 +23,7 @@ import zenoh
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from stuck_node import ONE_OBJECT, Alone, node_stuck_in_its_first_step
-from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode
+from tcaff_gtsam.node import AlignmentMessage, Link, MapMessage, NodeParams, RobotNode, encode
 from tcaff_gtsam.node.listener import TeamListener
 from tcaff_gtsam.node.node import _draw
 from tcaff_gtsam.node.replay import MAX_TEAM, RobotReplay, robot_names
@@ -545,3 +545,29 @@ def test_a_node_whose_close_fails_still_writes_its_results(tmp_path: Path) -> No
     assert [str(exc) for exc in failed] == ["the transport failed to close"]
     outcome = json.loads((tmp_path / "r0.json").read_text())
     assert outcome["maps_sent"] >= 1
+
+
+def test_an_alignment_the_team_consistency_cannot_take_is_left_out_of_its_steps() -> None:
+    """One such alignment of another robot, held for `silence` s, made TeamConsistency refuse
+    every team step (counted as errors): no team alignment went out meanwhile. It is left out
+    and counted once; the steps go on."""
+    published = []
+    node = RobotNode("r0", "team", ["r0", "r1", "r2"], Alone(),
+                     NodeParams(team_consistency=True, silence=1e6), on_team=published.append)
+    try:
+        # an alignment of r1 to r2 the wire would refuse (P = 0), handed on as a transport
+        # whose decoder let it through would
+        unusable = AlignmentMessage("r1", 1, 1, 10.0, "r2", 1, 9.0, 3, 1, True,
+                                    np.array([1.0, 2.0, 0.3]), np.zeros((3, 3)))
+        node.arrived("alignment", "test/r1/alignment/r2", lambda: unusable)
+        for k in range(3):
+            node.publish(float(k), ONE_OBJECT)
+            r1 = MapMessage("r1", 1, k, float(k), ONE_OBJECT.centroids, ONE_OBJECT.widths,
+                            ONE_OBJECT.heights, np.zeros(1))
+            node.arrived("map", "test/r1/map", lambda r1=r1: r1)
+            assert node.wait_idle()
+        assert [(m.neighbour, m.seq) for m in published] == [("r1", 0), ("r1", 1), ("r1", 2)]
+        c = node.counters
+        assert (c["errors"], c["team_unusable"], c["alignments_heard"]) == (0, 1, 1)
+    finally:
+        node.close()

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pamoja import ros2 as pamoja
 from tcaff_gtsam.node import Link, MapMessage, NodeParams, RobotNode, encode, ros2
@@ -24,7 +24,7 @@ from tcaff_gtsam.node.messages import AlignmentMessage, MessageError, TeamMessag
 from tcaff_gtsam.node.results import TEAM_COLUMNS, AlignmentCsv
 from tcaff_gtsam.node.run import free_ports
 
-from tcaff_gtsam import ObjectMap
+from tcaff_gtsam import ObjectMap, TeamConsistency
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params
 from tcaff_gtsam.params import ParameterError
@@ -183,6 +183,46 @@ def test_bytes_that_are_no_marker_array_are_refused():
                                              ros2.MAP_TYPE), ros2.MAP_TYPE)
     with pytest.raises(DataError, match="no map time"):
         ros2.object_map_of(empty)
+
+
+#: numbers of an estimate, the edges of what the team consistency takes among them
+edgy = st.one_of(st.floats(-10, 10), st.floats(allow_nan=True, allow_infinity=True),
+                 st.sampled_from([0.0, 1e-300, 1e9, -1.0000001e9, 1e18, -1.0000001e18]))
+
+
+@PROPS
+@given(xy=st.lists(edgy, min_size=2, max_size=2), yaw=st.floats(-3.1, 3.1),
+       entries=st.lists(edgy, min_size=9, max_size=9), spd=st.booleans())
+@example(xy=[1.0, 2.0], yaw=0.3, entries=[-1.0, 0, 0, 0, -1.0, 0, 0, 0, -1.0], spd=False)
+@example(xy=[1.0, 2.0], yaw=0.3, entries=[1.0, 0.5, 0, 0, 1.0, 0, 0, 0, 1.0], spd=False)
+def test_an_alignment_topic_is_taken_exactly_when_the_team_consistency_takes_it(xy, yaw,
+                                                                                 entries, spd):
+    """A DDS node hands every alignment it hears to TeamConsistency.update, which used to
+    refuse negative or asymmetric covariances alignment_of had let in, and with them every
+    later team step."""
+    x = np.array([*xy, yaw])
+    P = np.array(entries).reshape(3, 3)
+    if spd:  # well-formed ones too, beside the raw draws
+        P = np.diag(np.abs(P.diagonal())) + np.eye(3)
+    message = ros2.pose_message(5.0, "r0/odom", x, P)
+    taken = ros2.alignment_of(message, "r0", "r1") if _team_takes(x, P) else None
+    if taken is None:
+        with pytest.raises(MessageError) as caught:
+            ros2.alignment_of(message, "r0", "r1")
+        assert caught.value.reason == "malformed"
+    else:
+        np.testing.assert_array_equal(taken.P, P)
+        np.testing.assert_allclose(taken.x, x, atol=1e-12)
+
+
+def _team_takes(x: np.ndarray, P: np.ndarray) -> bool:
+    """Whether TeamConsistency.update takes the estimate (x, P) of pair (0, 1)."""
+    estimate = AlignmentMessage("r0", 0, 0, 5.0, "r1", 0, np.nan, 0, 0, True, x, P)
+    try:
+        TeamConsistency(3).update({(0, 1): estimate})
+    except DataError:
+        return False
+    return True
 
 
 # -- a live node --------------------------------------------------------------------------------
