@@ -79,6 +79,9 @@ _ATTACHMENT = struct.Struct("<qqB16s")
 _MARKER_ADD, _MARKER_DELETEALL, _CYLINDER = 0, 3, 3
 #: yaw's row and column in ROS's 6 x 6 pose covariance, after x and y
 _XY_YAW = np.array([0, 1, 5])
+#: how far a quaternion's squared norm may be from 1: tf2's tolerance, past which it refuses
+#: a transform
+_UNIT_TOLERANCE = 0.01
 
 
 @cache
@@ -278,12 +281,13 @@ def object_map_of(message) -> tuple[float, ObjectMap]:
 
 def exchange_of(message, sender: str) -> MapMessage:
     """A neighbour's map as the team exchanges it, from the MarkerArray `sender` published
-    (`map_message`): seq the DELETEALL marker's id, boot its text (0 when not a number), the
+    (`map_message`): seq the DELETEALL marker's id, boot its text (0 when not a decimal
+    number of ASCII digits below 2**32: a map of another publisher, which has none), the
     objects' ages from their stamps.
 
     Raises:
-        MessageError: no DELETEALL marker (no exchange counter), too many objects, or objects
-            no ObjectMap holds ("malformed", "oversized").
+        MessageError: no DELETEALL marker (no exchange counter) or a negative id, too many
+            objects, or objects no ObjectMap holds ("malformed", "oversized").
     """
     cleared = [m for m in message.markers if m.action == _MARKER_DELETEALL]
     if not cleared:
@@ -296,9 +300,14 @@ def exchange_of(message, sender: str) -> MapMessage:
         t, object_map = object_map_of(message)
     except DataError as exc:
         raise MessageError("malformed", str(exc)) from None
+    seq = int(cleared[-1].id)
+    if seq < 0:
+        raise MessageError("malformed", f"a map whose DELETEALL marker's id, its exchange "
+                                        f"counter, is {seq}")
     text = cleared[-1].text
-    boot = int(text) if text.isdigit() and int(text) < 2**32 else 0
-    return MapMessage(sender, boot, int(cleared[-1].id), t, object_map.centroids,
+    # ASCII only: str.isdigit() is true of '²', which int() refuses
+    boot = int(text) if text.isascii() and text.isdigit() and int(text) < 2**32 else 0
+    return MapMessage(sender, boot, seq, t, object_map.centroids,
                       object_map.widths, object_map.heights,
                       np.maximum(t - object_map.last_seen, 0.0))
 
@@ -361,14 +370,24 @@ def alignment_of(message, sender: str, neighbour: str) -> AlignmentMessage:
     NaN).
 
     Raises:
-        MessageError ("malformed"): an estimate `TeamConsistency` would refuse
+        MessageError ("malformed"): an orientation that is not a unit quaternion (within
+            tf2's tolerance), or an estimate `TeamConsistency` would refuse
             (`tcaff_gtsam.team.usable_estimates`: x within 1e9, P symmetric positive
             definite with entries within 1e18).
     """
     pose = message.pose.pose
-    q = pose.orientation
+    o = pose.orientation
+    q = np.array([o.x, o.y, o.z, o.w], dtype=float)
+    # bounded first: squares of huge components overflow
+    if not (np.all(np.abs(q) <= 2.0) and abs(q @ q - 1.0) <= _UNIT_TOLERANCE):
+        raise MessageError("malformed", f"an alignment of {sender} to {neighbour} whose "
+                                        f"orientation {q.tolist()} (x, y, z, w) is not a unit "
+                                        f"quaternion")
+    qx, qy, qz, qw = q
+    # the yaw of the rotation q / |q|: both arguments scale with |q|^2
     x = np.array([pose.position.x, pose.position.y,
-                  np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y**2 + q.z**2))])
+                  np.arctan2(2 * (qw * qz + qx * qy), qw**2 + qx**2 - qy**2 - qz**2)],
+                 dtype=float)
     P = np.asarray(message.pose.covariance, dtype=float).reshape(6, 6)[np.ix_(_XY_YAW, _XY_YAW)]
     if not _usable(x, P):
         from tcaff_gtsam.team import ESTIMATE_RULE

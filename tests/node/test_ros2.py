@@ -215,6 +215,48 @@ def test_an_alignment_topic_is_taken_exactly_when_the_team_consistency_takes_it(
         np.testing.assert_allclose(taken.x, x, atol=1e-12)
 
 
+@PROPS
+@given(q=st.lists(st.one_of(st.floats(-1.1, 1.1), st.floats(allow_nan=True, allow_infinity=True),
+                            st.sampled_from([0.0, 1e200, -1e200])), min_size=4, max_size=4))
+@example(q=[0.0, 0.0, 1e200, 1e200])  # squared: OverflowError
+@example(q=[0.0, 0.0, np.sin(0.15), np.cos(0.15)])
+@example(q=[0.0, 0.0, 1.004 * np.sin(2.5), 1.004 * np.cos(2.5)])  # within tf2's tolerance
+def test_an_alignments_orientation_is_a_unit_quaternion_or_the_message_is_malformed(q):
+    message = ros2.pose_message(5.0, "r0/odom", np.array([1.0, 2.0, 0.3]), np.eye(3))
+    o = message.pose.pose.orientation
+    o.x, o.y, o.z, o.w = q
+    unit = bool(np.all(np.abs(q) <= 1.1)) and abs(np.dot(q, q) - 1.0) <= 0.01
+    if not unit:
+        with pytest.raises(MessageError) as caught:
+            ros2.alignment_of(message, "r0", "r1")
+        assert caught.value.reason == "malformed"
+        return
+    x, y, z, w = np.array(q) / np.linalg.norm(q)  # the rotation it stands for
+    yaw = ros2.alignment_of(message, "r0", "r1").x[2]
+    assert yaw == pytest.approx(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)),
+                                abs=1e-12)
+
+
+@PROPS
+@given(text=st.text(st.characters(exclude_categories=("Cs",)), max_size=12),
+       seq=st.integers(-2**31, 2**31 - 1))
+@example(text="\u00b2", seq=3)   # '²': a digit to str.isdigit, not to int()
+@example(text="4000000000", seq=-1)
+def test_a_maps_exchange_counter_and_boot_number_are_read_or_the_map_is_malformed(text, seq):
+    m = ObjectMap(np.zeros((1, 3)), np.ones(1), np.ones(1), np.full(1, 9.0))
+    sent = ros2.map_message(10.0, "r1/odom", m, boot=0)
+    sent.markers[0].id, sent.markers[0].text = seq, text
+    message = ros2.read_message(ros2.serialize(sent, ros2.MAP_TYPE), ros2.MAP_TYPE)
+    if seq < 0:
+        with pytest.raises(MessageError, match="exchange counter, is -") as caught:
+            ros2.exchange_of(message, "r1")
+        assert caught.value.reason == "malformed"
+        return
+    exchange = ros2.exchange_of(message, "r1")
+    decimal = text.isascii() and text.isdigit() and int(text) < 2**32
+    assert (exchange.seq, exchange.boot) == (seq, int(text) if decimal else 0)
+
+
 def _team_takes(x: np.ndarray, P: np.ndarray) -> bool:
     """Whether TeamConsistency.update takes the estimate (x, P) of pair (0, 1)."""
     estimate = AlignmentMessage("r0", 0, 0, 5.0, "r1", 0, np.nan, 0, 0, True, x, P)
