@@ -17,13 +17,16 @@ puts the objects on its own clock. float32 keeps 1e-6 relative precision, below 
 measurement noise.
 
 An alignment then holds: neighbour u8 + UTF-8, neighbour_seq u32 (the neighbour's map it used),
-neighbour_stamp f64 (that map's stamp on the neighbour's clock), step u32 (the pair's filter
-updates so far), hypothesis i32 (-1 with no estimate), accepted u8, x, y, theta f64 (T_oi_oj)
-and the six upper-triangle entries of its 3x3 covariance, f64 (NaN when not accepted).
+neighbour_stamp f64 (that map's stamp on the neighbour's clock), step i32 (the pair's filter
+updates so far, >= 0), hypothesis i32 (the main tree's id, >= 0; -1 exactly when there is no
+estimate), accepted u8 (0 or 1), x, y, theta f64 (T_oi_oj) and the six upper-triangle entries
+of its 3x3 covariance, f64. A not accepted alignment has no estimate: its nine numbers are NaN
+(any other is refused, not ignored: only a damaged or forged message holds one).
 
 A team alignment (what the node's team consistency selects for a pair) then holds: neighbour
 u8 + UTF-8, via u8 (the robots it is chained through, 0 for the pair's own alignment) and as
-many names (u8 + UTF-8 each), accepted u8, x, y, theta f64 and the covariance's upper triangle.
+many names (u8 + UTF-8 each), accepted u8, x, y, theta f64 and the covariance's upper triangle
+(NaN when not accepted, as an alignment's).
 """
 
 from __future__ import annotations
@@ -110,9 +113,10 @@ class AlignmentMessage:
     Attributes:
         sender: the ego robot i; neighbour: robot j; seq: the ego map's seq; stamp: s, ego clock.
         neighbour_seq, neighbour_stamp: the neighbour's map used (stamp on its clock).
-        step: the pair's filter updates so far; hypothesis: the filter's main tree (-1: none).
+        step: the pair's filter updates so far; hypothesis: the filter's main tree (-1: none,
+            exactly when not accepted).
         accepted: the filter holds an estimate; x: (3,) (x [m], y [m], theta [rad]) of T_oi_oj;
-        P: (3, 3) its covariance (NaN when not accepted).
+        P: (3, 3) its covariance (both NaN when not accepted: `encode` sends NaN).
     """
 
     sender: str
@@ -138,7 +142,8 @@ class TeamMessage:
             seq; stamp: s, ego clock.
         via: the robots between i and j of a chained alignment, () for the pair's own.
         accepted: the team has an alignment of the pair; x: (3,) (x [m], y [m], theta [rad])
-            of T_oi_oj; P: (3, 3) its covariance (NaN when not accepted).
+            of T_oi_oj; P: (3, 3) its covariance (both NaN when not accepted: `encode` sends
+            NaN).
     """
 
     sender: str
@@ -165,12 +170,21 @@ def _u32(name: str, value: int) -> int:
     return value
 
 
+def _i32(name: str, value: int, low: int) -> int:
+    if not low <= value < 2**31:
+        raise DataError(f"{name} = {value}: must be in [{low}, 2**31 - 1] (32 bits signed)")
+    return value
+
+
 def encode(message: MapMessage | AlignmentMessage | TeamMessage) -> bytes:
     """The bytes of a message.
 
+    A message that is not accepted is sent without its estimate: NaN for x and P.
+
     Raises:
-        DataError: a name longer than 64 bytes (or empty), counters beyond 32 bits, a stamp
-            that is not finite, or a map of more than `MAX_OBJECTS` objects.
+        DataError: a name longer than 64 bytes (or empty), counters beyond 32 bits (a step
+            below 0, a hypothesis below -1), a stamp that is not finite, or a map of more
+            than `MAX_OBJECTS` objects.
     """
     kind = {MapMessage: MAP, AlignmentMessage: ALIGNMENT, TeamMessage: TEAM}[type(message)]
     if not math.isfinite(message.stamp):
@@ -185,17 +199,24 @@ def encode(message: MapMessage | AlignmentMessage | TeamMessage) -> bytes:
         body = np.column_stack([message.centroids, message.widths, message.heights,
                                 message.ages]).astype(_OBJECT)
         return head + _N.pack(n) + body.tobytes()
-    P = np.asarray(message.P, dtype=float)[_UPPER]
+    if message.accepted:
+        x, P = np.asarray(message.x, dtype=float), np.asarray(message.P, dtype=float)[_UPPER]
+    else:
+        x, P = np.full(3, np.nan), np.full(6, np.nan)
     if kind == TEAM:
         if len(message.via) > 255:
             raise DataError(f"via holds {len(message.via)} robots, at most 255")
         return (head + _name(message.neighbour) + bytes([len(message.via)])
                 + b"".join(map(_name, message.via))
-                + _ESTIMATE.pack(int(message.accepted), *np.asarray(message.x, dtype=float), *P))
+                + _ESTIMATE.pack(int(message.accepted), *x, *P))
+    if not math.isfinite(message.neighbour_stamp):
+        raise DataError(f"neighbour_stamp = {message.neighbour_stamp}: must be a finite number "
+                        f"of seconds")
+    hypothesis = -1 if not message.accepted else _i32("hypothesis", message.hypothesis, 0)
     return (head + _name(message.neighbour)
             + _ALIGN.pack(_u32("neighbour_seq", message.neighbour_seq),
-                          message.neighbour_stamp, message.step, message.hypothesis,
-                          int(message.accepted), *np.asarray(message.x, dtype=float), *P))
+                          message.neighbour_stamp, _i32("step", message.step, 0), hypothesis,
+                          int(message.accepted), *x, *P))
 
 
 class _Reader:
@@ -232,7 +253,9 @@ def decode(payload: bytes, max_bytes: int | None = None
         MessageError: `oversized` beyond `max_bytes` (refused before it is read); `version`
             for another version of this format; `malformed` for anything else: another magic,
             kind, a truncated or overlong payload, a name that is not UTF-8, non-finite
-            numbers, negative sizes or ages; an accepted alignment whose estimate
+            numbers, negative sizes or ages, a negative step, a hypothesis other than -1
+            without an estimate or below 0 with one, a not accepted alignment whose x or P
+            is not NaN; an accepted alignment whose estimate
             `TeamConsistency` would refuse (`tcaff_gtsam.team.usable_estimates`: x within
             1e9, P symmetric positive definite with entries within 1e18), an accepted team
             alignment whose x is not finite or whose P is not symmetric positive
@@ -279,9 +302,10 @@ def decode(payload: bytes, max_bytes: int | None = None
         return TeamMessage(sender, boot, seq, stamp, neighbour, via, bool(accepted), x, P)
     nseq, nstamp, step, hypothesis, accepted, *numbers = read.unpack(_ALIGN, "alignment")
     _finished(read)
-    if accepted not in (0, 1) or step < 0 or not math.isfinite(nstamp):
-        raise MessageError("malformed", f"accepted {accepted}, step {step}, neighbour stamp "
-                                        f"{nstamp}")
+    if (accepted not in (0, 1) or step < 0 or not math.isfinite(nstamp)
+            or hypothesis < (0 if accepted else -1) or (not accepted and hypothesis != -1)):
+        raise MessageError("malformed", f"accepted {accepted}, step {step}, hypothesis "
+                                        f"{hypothesis}, neighbour stamp {nstamp}")
     x, P = _estimate(bool(accepted), numbers, team=False)
     return AlignmentMessage(sender, boot, seq, stamp, neighbour, nseq, nstamp, step,
                             hypothesis, bool(accepted), x, P)
@@ -298,6 +322,10 @@ def _estimate(accepted: bool, numbers: list[float], team: bool
     P[_UPPER] = numbers[3:]
     P = P + np.triu(P, 1).T
     if not accepted:
+        if not (np.isnan(x).all() and np.isnan(P).all()):
+            raise MessageError("malformed", f"an alignment that is not accepted holds an "
+                                            f"estimate, x = {x.tolist()}, P = "
+                                            f"{P[_UPPER].tolist()} (upper triangle), not NaN")
         return x, P
     if team:
         if not (np.isfinite(x).all() and np.isfinite(P).all()

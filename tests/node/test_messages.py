@@ -235,9 +235,79 @@ def test_usable_estimates_marks_each_estimate_as_the_team_consistency_judges_it_
                                   [_team_takes(x, p) for x, p in zip(X, P, strict=True)])
 
 
+#: where an alignment of r0 to r1 (`alignment()`) holds its hypothesis, accepted flag and
+#: the nine numbers of its estimate: after the header (25 bytes with sender r0), the
+#: neighbour (3), its seq (4), stamp (8) and the step (4)
+_HYPOTHESIS, _ACCEPTED, _NUMBERS = 44, 48, 49
+
+
+def _alignment_bytes(accepted: int, hypothesis: int, numbers) -> bytes:
+    """`alignment()`'s bytes with these fields in place of its own."""
+    m = alignment()
+    payload = bytearray(encode(m))
+    # the layout patched is the encoder's
+    assert len(payload) == _NUMBERS + 72 and struct.unpack_from("<iB9d", payload, _HYPOTHESIS) \
+        == (m.hypothesis, 1, *m.x, *m.P[np.triu_indices(3)])
+    struct.pack_into("<iB9d", payload, _HYPOTHESIS, hypothesis, accepted, *numbers)
+    return bytes(payload)
+
+
+@settings(max_examples=200, deadline=None)
+@given(accepted=st.booleans(), hypothesis=st.integers(-2**31, 2**31 - 1))
+@example(accepted=True, hypothesis=-7)
+@example(accepted=False, hypothesis=-7)
+@example(accepted=False, hypothesis=3)
+@example(accepted=True, hypothesis=-1)
+def test_a_hypothesis_is_minus_one_exactly_when_there_is_no_estimate(accepted, hypothesis
+                                                                     ) -> None:
+    numbers = [1.0, -2.0, 0.3, 0.1, 0.0, 0.0, 0.2, 0.0, 0.01] if accepted else [np.nan] * 9
+    payload = _alignment_bytes(int(accepted), hypothesis, numbers)
+    if (hypothesis >= 0) if accepted else (hypothesis == -1):
+        assert decode(payload).hypothesis == hypothesis
+    else:
+        with pytest.raises(MessageError, match=f"hypothesis {hypothesis}") as caught:
+            decode(payload)
+        assert caught.value.reason == "malformed"
+
+
+@settings(max_examples=200, deadline=None)
+@given(numbers=st.lists(st.one_of(st.just(np.nan), st.floats(allow_nan=False)), min_size=9,
+                        max_size=9))
+@example(numbers=[np.nan] * 3 + [-3.0, 0.0, 0.0, -3.0, 0.0, -3.0])  # P = -3 I
+@example(numbers=[np.nan] * 9)
+def test_an_alignment_that_is_not_accepted_holds_nan_for_its_estimate(numbers) -> None:
+    """The format says NaN; any other number is a damaged or forged message, not one to keep
+    and show (it was let through whatever it held)."""
+    payload = _alignment_bytes(0, -1, numbers)
+    if np.isnan(numbers).all():
+        back = decode(payload)
+        assert not back.accepted and np.isnan(back.x).all() and np.isnan(back.P).all()
+    else:
+        with pytest.raises(MessageError, match="not accepted holds an estimate") as caught:
+            decode(payload)
+        assert caught.value.reason == "malformed"
+
+
+def test_an_alignment_that_is_not_accepted_is_sent_without_its_estimate() -> None:
+    back = decode(encode(alignment(False, -3.0 * np.eye(3))))
+    assert not back.accepted and back.hypothesis == -1
+    assert np.isnan(back.x).all() and np.isnan(back.P).all()
+    team = decode(encode(TeamMessage("r0", 1, 2, 3.0, "r2", ("r1",), False, np.zeros(3),
+                                     np.eye(3))))
+    assert np.isnan(team.x).all() and np.isnan(team.P).all()
+
+
 @pytest.mark.parametrize(("message", "words"), [
     (MapMessage("x" * 65, 0, 0, 0.0, np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0)),
      "1 to 64 bytes"),
+    (AlignmentMessage("r0", 0, 0, 0.0, "r1", 0, 0.0, 2**31, 1, True, np.zeros(3), np.eye(3)),
+     "step = 2147483648"),
+    (AlignmentMessage("r0", 0, 0, 0.0, "r1", 0, 0.0, -1, 1, True, np.zeros(3), np.eye(3)),
+     "step = -1"),
+    (AlignmentMessage("r0", 0, 0, 0.0, "r1", 0, 0.0, 1, -7, True, np.zeros(3), np.eye(3)),
+     "hypothesis = -7"),
+    (AlignmentMessage("r0", 0, 0, 0.0, "r1", 0, float("nan"), 1, 1, True, np.zeros(3),
+                      np.eye(3)), "neighbour_stamp = nan"),
     (MapMessage("r", 2**32, 0, 0.0, np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0)),
      "boot = 4294967296"),
     (MapMessage("r", 0, 0, float("inf"), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
