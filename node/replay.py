@@ -16,15 +16,22 @@ from pathlib import Path
 import numpy as np
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.inputs import read_npz
+from tcaff_gtsam.filter_params import MAX_WINDOW
+from tcaff_gtsam.inputs import read_npz, shown
 from tcaff_gtsam.object_map import ObjectMap
+from tcaff_gtsam.param_checks import MAX_SECONDS, _count, _number
 from tcaff_gtsam.params import _int_at_least, _require
+
+from .link import check_name
 
 __all__ = ["MAX_TEAM", "RobotReplay", "replay", "robot_names", "run_replay"]
 
 #: the most robots a team run on one machine has (`TeamConsistency.MAX_ROBOTS`): each robot's
 #: node holds a port of its own (`run.free_ports`)
 MAX_TEAM = 1024
+#: the arrays of a saved replay besides its objects', and its objects' (`ObjectMap`'s order)
+_REPLAY_ARRAYS = ("robots", "robot", "times", "sizes", "kappa", "window")
+_OBJECT_ARRAYS = ("centroids", "widths", "heights", "last_seen")
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,29 +68,78 @@ class RobotReplay:
         """Read a replay written by `save`.
 
         Raises:
-            DataError: the file is missing, corrupt or not a replay.
+            DataError: the file is missing, corrupt or not a replay, naming the file and the
+                field: robots not 2 to MAX_TEAM distinct robot names; robot not an int index
+                of them; times not finite increasing numbers, at least one, one per map; sizes
+                not ints >= 0 that share out the objects' arrays exactly; a map no ObjectMap
+                holds; kappa or window outside what the node's aligner and TCAFF take
+                (kappa > 0 s and at most a year, or inf; window an int in 1..MAX_WINDOW, or
+                -1 for the preset's). Numbers stored as text are refused, not parsed.
         """
         data = read_npz(path, "robot replay")
+        missing = [name for name in (*_REPLAY_ARRAYS, *_OBJECT_ARRAYS) if name not in data]
+        if missing:
+            raise DataError(f"{path}: not a robot replay (no {', '.join(missing)})")
+
+        def refuse(name: str, rule: str) -> DataError:
+            return DataError(f"{path}: not a robot replay: {name} = {shown(data[name])} {rule}")
+
+        def field(check, name: str, *args, **kwargs):
+            """The scalar `name`, checked as `check` (a parameter check) checks a setting."""
+            value = data[name].item() if data[name].ndim == 0 else data[name]
+            try:
+                check("RobotReplay", name, value, *args, **kwargs)
+            except ConfigError as exc:
+                raise DataError(f"{path}: not a robot replay ({exc})") from None
+            return value
+
+        robots = data["robots"]
+        if robots.dtype.kind != "U" or robots.ndim != 1 or not 2 <= len(robots) <= MAX_TEAM:
+            raise refuse("robots", f"must be 2 to {MAX_TEAM} (MAX_TEAM) robot names")
+        names = tuple(str(r) for r in robots)
         try:
-            sizes = data["sizes"].astype(np.int64)
-            cuts = np.cumsum(sizes)[:-1]
-            parts = {name: np.split(data[name].reshape(-1, 3) if name == "centroids"
-                                    else data[name], cuts)
-                     for name in ("centroids", "widths", "heights", "last_seen")}
-            maps = [ObjectMap(*(parts[name][k] for name in
-                                ("centroids", "widths", "heights", "last_seen")))
-                    for k in range(len(sizes))]
-            window = int(data["window"])
-            times = data["times"].astype(float)
-            # checked here, not when the first exchange is due after the team is awaited
-            if (times.shape != (len(maps),) or not np.all(np.isfinite(times))
-                    or np.any(np.diff(times) <= 0)):
-                raise ValueError(f"its {times.size} times must be finite and increasing, one "
-                                 f"per map ({len(maps)})")
-            return cls(tuple(str(r) for r in data["robots"]), int(data["robot"]), times, maps,
-                       float(data["kappa"]), None if window < 0 else window)
-        except (KeyError, ValueError, TypeError) as exc:
-            raise DataError(f"{path}: not a robot replay ({exc})") from None
+            for name in names:
+                check_name("robot name", name)
+        except ConfigError as exc:
+            raise DataError(f"{path}: not a robot replay: robots holds {exc}") from None
+        if len(set(names)) != len(names):
+            raise refuse("robots", "must be distinct names")
+        robot = field(_count, "robot", 0, len(names) - 1)
+        # the node's aligner's kappa: inf is no limit
+        kappa = field(_number, "kappa", 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True,
+                      inf=True)
+        stored = data["window"]
+        preset = stored.shape == () and stored.dtype.kind in "iu" and stored == -1  # None
+        window = None if preset else field(_count, "window", 1, MAX_WINDOW, "MAX_WINDOW")
+
+        centroids = data["centroids"]
+        if centroids.ndim != 2 or centroids.shape[1] != 3:
+            raise refuse("centroids", "must have shape (n, 3), one row per object")
+        n = len(centroids)
+        for name in _OBJECT_ARRAYS[1:]:
+            if data[name].shape != (n,):
+                raise refuse(name, f"must have shape ({n},), one per object")
+        sizes, times = data["sizes"], data["times"]
+        # each size at most n: their sum cannot wrap around
+        if sizes.dtype.kind not in "iu" or sizes.ndim != 1 or np.any((sizes < 0) | (sizes > n)) \
+                or sizes.sum() != n:
+            raise refuse("sizes", f"must be one int >= 0 per map, the objects of each, "
+                                  f"summing to the {n} objects stored")
+        # checked here, not when the first exchange is due after the team is awaited
+        if (times.dtype.kind not in "iuf" or times.shape != sizes.shape or not len(times)
+                or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0)):
+            raise refuse("times", f"(its {times.size} times must be finite and increasing, "
+                                  f"one per map ({len(sizes)}), at least one)")
+        cuts = np.cumsum(sizes)[:-1]
+        parts = {name: np.split(data[name], cuts) for name in _OBJECT_ARRAYS}
+        maps = []
+        for k in range(len(sizes)):
+            try:
+                maps.append(ObjectMap(*(parts[name][k] for name in _OBJECT_ARRAYS)))
+            except DataError as exc:
+                raise DataError(f"{path}: not a robot replay: map {k}: {exc}") from None
+        return cls(names, int(robot), times.astype(float), maps,
+                   float(kappa), None if window is None else int(window))
 
 
 def run_replay(run, robot: int, names: tuple[str, ...] | None = None) -> RobotReplay:

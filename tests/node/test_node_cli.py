@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from tcaff_gtsam.eval import cli
 
 REPO = Path(__file__).resolve().parents[2]
@@ -173,6 +175,88 @@ def test_a_replay_of_boolean_numbers_is_refused_naming_the_array(tmp_path, name)
     np.savez(tmp_path / "bad.npz", **{**arrays, name: arrays[name].astype(bool)})
     with pytest.raises(DataError, match=f"bad.npz: array '{name}' has dtype bool, not real"):
         RobotReplay.load(tmp_path / "bad.npz")
+
+
+def _replay_arrays(tmp_path: Path) -> dict:
+    """The arrays `RobotReplay.save` writes of a replay of three maps of 1, 2 and 3 objects."""
+    from tcaff_gtsam.node.replay import RobotReplay
+
+    from tcaff_gtsam import ObjectMap
+
+    maps = [ObjectMap(np.full((k, 3), float(k)), np.ones(k), np.ones(k), np.full(k, float(k)))
+            for k in (1, 2, 3)]
+    RobotReplay(("r0", "r1", "r2"), 1, np.arange(3.0), maps, 20.0, 8).save(
+        tmp_path / "good.npz")
+    with np.load(tmp_path / "good.npz") as data:
+        return {key: data[key] for key in data.files}
+
+
+@pytest.mark.parametrize(("field", "value", "words"), [
+    ("robot", 5, "robot = 5: must be an int in [0, 2]"),      # IndexError when its node ran
+    ("robot", -1, "robot = -1"),                               # silently the last robot
+    ("robot", 1.0, "robot = 1.0"),
+    ("kappa", np.nan, "kappa = nan"), ("kappa", 0.0, "kappa = 0.0"),
+    ("kappa", -2.0, "kappa = -2.0"), ("kappa", np.array("10"), "kappa = '10'"),
+    ("window", 0, "window = 0"), ("window", 8.0, "window = 8.0"),
+    ("robots", np.array(["r0", "r1", "r0"]), "robots = array(['r0', 'r1', 'r0']"),
+    ("robots", np.array(["r0", "", "r2"]), "robots holds robot name ''"),
+    ("times", np.array(["0", "1", "2"]), "times = array(['0', '1', '2']"),
+    ("sizes", np.array([-1, 5, 2]), "sizes = array([-1, 5, 2])"),      # regrouped objects
+    ("sizes", np.array([2, 3, 100]), "sizes = array([ 2, 3, 100])"),   # cut the last short
+    ("sizes", np.array([1.0, 2.0, 3.0]), "sizes = array([1., 2., 3.])"),
+    ("centroids", np.zeros(18), "centroids = array of shape (18,)"),
+    ("widths", np.ones(5), "widths = array([1., 1., 1., 1., 1.])"),
+])
+def test_a_broken_replay_is_refused_on_load_naming_the_file_and_field(
+        tmp_path, field, value, words) -> None:
+    from tcaff_gtsam.node.replay import RobotReplay
+
+    from tcaff_gtsam.errors import DataError
+
+    np.savez(tmp_path / "bad.npz", **{**_replay_arrays(tmp_path), field: value})
+    with pytest.raises(DataError) as caught:
+        RobotReplay.load(tmp_path / "bad.npz")
+    said = str(caught.value)
+    assert said.startswith(f"{tmp_path / 'bad.npz'}: not a robot replay") and words in said
+    assert said.count("not a robot replay") == 1  # not wrapped twice
+
+
+#: values a damaged or hand-made replay may hold in place of a field's
+_stored = st.one_of(
+    st.integers(-3, 8), st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=3),
+    st.lists(st.integers(-3, 8), max_size=7).map(np.array),
+    st.lists(st.floats(-5, 30), max_size=7).map(lambda v: np.array(v, dtype=float)),
+    st.lists(st.text(max_size=3), max_size=4).map(np.array))
+
+
+@settings(max_examples=150, deadline=None)
+@given(field=st.sampled_from(["robots", "robot", "times", "sizes", "kappa", "window",
+                              "centroids", "widths", "heights", "last_seen"]),
+       value=_stored)
+def test_a_replay_loads_as_what_it_stores_or_is_refused_naming_its_file(tmp_path_factory,
+                                                                        field, value) -> None:
+    """What loads is a replay a node can run: a robot of its team, each object in the map
+    the sizes say, a kappa and window the aligner takes."""
+    from tcaff_gtsam.node.replay import MAX_TEAM, RobotReplay
+
+    from tcaff_gtsam.errors import DataError
+
+    folder = tmp_path_factory.mktemp("replay")
+    arrays = {**_replay_arrays(folder), field: value}
+    np.savez(folder / "bad.npz", **arrays)
+    try:
+        r = RobotReplay.load(folder / "bad.npz")
+    except DataError as exc:
+        assert str(exc).startswith(f"{folder / 'bad.npz'}: not a robot replay"), exc
+        return
+    assert 2 <= len(r.robots) <= MAX_TEAM and len(set(r.robots)) == len(r.robots)
+    assert all(r.robots) and 0 <= r.robot < len(r.robots) and r.robot == arrays["robot"]
+    assert r.kappa > 0 and r.kappa == arrays["kappa"]
+    assert r.window is None or 1 <= r.window <= 1000
+    assert len(r.times) == len(r.maps) >= 1 and np.all(np.diff(r.times) > 0)
+    np.testing.assert_array_equal([len(m) for m in r.maps], arrays["sizes"])
+    np.testing.assert_array_equal(np.concatenate([m.centroids for m in r.maps]),
+                                  arrays["centroids"])
 
 
 #: in a process of its own: a node's stop event (`node.run._node_files`, what `tcaff node`
