@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
+import logging
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.inputs import output_path, write_whole
+from tcaff_gtsam.inputs import output_path, shown, write_whole
 
 from .messages import AlignmentMessage, TeamMessage
 
@@ -24,18 +28,23 @@ TEAM_COLUMNS = ("robot", "neighbour", "seq", "stamp", "via", *_ESTIMATE)
 _TEXT = ("robot", "neighbour", "via")
 _UPPER = np.triu_indices(3)
 _COVARIANCE = _ESTIMATE[4:]  # the upper triangle's columns, row by row
+log = logging.getLogger(__name__)
 
 
 class AlignmentCsv:
     """Appends each AlignmentMessage (or, given `TEAM_COLUMNS`, each TeamMessage) to a CSV
     file (x, y in metres, theta in radians, P the upper triangle of the covariance), flushed
-    per row so that a killed node keeps its rows."""
+    per row so that a killed node keeps its rows. A row a killed writer left cut short at the
+    end of the file is taken off first (logged), so that a restarted node's rows do not run
+    on from it."""
 
     def __init__(self, path: str | Path, columns: tuple[str, ...] = COLUMNS) -> None:
         """Raises:
             DataError: naming the file: a folder, in a missing folder, or not writable."""
         path = output_path("AlignmentCsv", path)
         try:
+            if path.is_file():
+                _drop_cut_row(path)
             fresh = not path.exists() or path.stat().st_size == 0
             self._file = open(path, "a", newline="")
         except OSError as exc:
@@ -58,26 +67,99 @@ class AlignmentCsv:
         self._file.close()
 
 
+def _drop_cut_row(path: Path) -> None:
+    """Truncate the regular file `path` after its last line end: what follows is a row its
+    writer had not finished."""
+    with open(path, "rb+") as file:
+        end = at = file.seek(0, os.SEEK_END)
+        keep = 0
+        while at > 0:  # back from the end a block at a time: rows are short, files long
+            start = max(at - 4096, 0)
+            file.seek(start)
+            found = file.read(at - start).rfind(b"\n")
+            if found >= 0:
+                keep = start + found + 1
+                break
+            at = start
+        if keep < end:
+            log.warning("%s: its last line was a row cut short (its writer stopped mid-row); "
+                        "taken off before appending", path)
+            file.truncate(keep)
+
+
 def read_alignments(path: str | Path, columns: tuple[str, ...] = COLUMNS
                     ) -> dict[str, np.ndarray]:
     """The columns of an alignments CSV as arrays (names as text, the rest numbers).
 
+    A last line without its line end is a row its writer had not finished (a node killed
+    mid-write: `AlignmentCsv` appends and flushes row by row); it is left out, with a
+    warning, and the rows before it are read.
+
     Raises:
-        DataError: the file is missing or its header is not `columns`.
+        DataError: naming the file: missing, or not a regular file (a FIFO would block the
+            read), or its header not `columns`; and the line: bytes that are not UTF-8, a
+            row of another number of fields (a blank line), a number column that holds no
+            number, a field past csv's limit (128 KiB).
     """
+    raw = _read_regular(path)
+    # the writer ends each row with its line end: after the last one, a row cut short
+    end = raw.rfind(b"\n") + 1
+    if end < len(raw):
+        log.warning("%s: its last line is a row cut short (its writer stopped mid-row); "
+                    "left out", path)
     try:
-        with open(path, newline="") as file:
-            rows = list(csv.reader(file))
+        text = raw[:end].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise DataError(f"{path}: line {line} is not UTF-8 text, not an alignments CSV"
+                        ) from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header = next(reader, [])
+    if tuple(header) != columns:
+        raise DataError(f"{path}: not an alignments CSV (header {shown(header, 200)})")
+    numbers = [c for c, name in enumerate(columns) if name not in _TEXT]
+    rows = []
+    try:
+        for row in reader:
+            line = reader.line_num
+            if len(row) != len(columns):
+                raise DataError(f"{path}: line {line} has {len(row)} fields, the header "
+                                f"{len(columns)}")
+            for c in numbers:
+                try:
+                    row[c] = float(row[c])
+                except ValueError:
+                    raise DataError(f"{path}: line {line}: {columns[c]} = {shown(row[c])} is "
+                                    f"not a number") from None
+            rows.append(row)
+    except csv.Error as exc:  # a field past the limit
+        raise DataError(f"{path}: line {reader.line_num}: {exc}") from None
+    return {name: np.array([row[c] for row in rows], dtype=str if name in _TEXT else float)
+            for c, name in enumerate(columns)}
+
+
+def _read_regular(path: str | Path) -> bytes:
+    """The bytes of `path`, refused (DataError) unless it is a regular file: it is checked
+    before the file is opened, and opened without waiting, as a FIFO would make a reader
+    wait for a writer forever."""
+    def regular(mode: int) -> None:
+        if not stat.S_ISREG(mode):
+            raise DataError(f"{path}: not a regular file (a folder, FIFO or device), not an "
+                            f"alignments CSV")
+
+    try:
+        regular(os.stat(path).st_mode)
+        # and should one be swapped in now, O_NONBLOCK keeps the open from waiting
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as exc:
-        raise DataError(f"{path}: cannot read alignments ({exc.strerror})") from None
-    if not rows or tuple(rows[0]) != columns:
-        raise DataError(f"{path}: not an alignments CSV (header {rows[:1]})")
-    table = np.array(rows[1:], dtype=object).reshape(-1, len(columns))
-    out: dict[str, np.ndarray] = {}
-    for c, name in enumerate(columns):
-        column = table[:, c]
-        out[name] = column.astype(str) if name in _TEXT else column.astype(float)
-    return out
+        raise DataError(f"{path}: cannot read alignments ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "rb") as file:
+        regular(os.fstat(file.fileno()).st_mode)
+        try:
+            return file.read()
+        except OSError as exc:
+            raise DataError(f"{path}: cannot read alignments ({exc.strerror or exc})"
+                            ) from None
 
 
 def write_counters(path: str | Path, counters: dict[str, float]) -> None:
