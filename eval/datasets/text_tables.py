@@ -3,16 +3,21 @@ groundtruth.txt and accelerometer.txt, 7-Scenes' camera-intrinsics.txt, MRCLAM's
 
 A `#` starts a comment that runs to the end of its line; lines left blank by that are skipped;
 every other line is one row. Lines are counted as an editor counts them (by "\\n" only), so the
-line numbers in errors are the ones a reader opens the file at.
+line numbers in errors are the ones a reader opens the file at. `read_text` and `read_json`
+read a whole file of other text.
 
 Anything wrong is a `DataError` naming the file, and the line for a bad row: a missing or
-unreadable file (not UTF-8 text: a binary or truncated download), a row with the wrong number
-of columns, a field that is not a number, a non-finite value, and no rows where some are needed.
+unreadable file (a folder, FIFO or device; not UTF-8 text: a binary or truncated download), a
+row with the wrong number of columns, a field that is not a number, a non-finite value, and no
+rows where some are needed.
 """
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import stat
 from pathlib import Path
 from typing import NamedTuple
 
@@ -20,7 +25,7 @@ import numpy as np
 
 from tcaff_gtsam.errors import DataError
 
-__all__ = ["TextTable", "data_lines", "number", "read_table", "read_text"]
+__all__ = ["TextTable", "data_lines", "number", "read_json", "read_table", "read_text"]
 
 
 class TextTable(NamedTuple):
@@ -41,14 +46,42 @@ def read_text(path: Path, what: str = "file") -> str:
     """The text of `path`; `what` names it in the error ("file", "image list", ...).
 
     Raises:
-        DataError: no such file; a folder, an unreadable or a non-UTF-8 file.
+        DataError: no such file; a folder, FIFO or device (refused before it is opened: a
+            FIFO would block the read forever), an unreadable or a non-UTF-8 file.
     """
+    path = Path(path)
     try:
-        return Path(path).read_text(encoding="utf-8")
+        _regular(path, os.stat(path))
+        # and should a FIFO be swapped in now, O_NONBLOCK keeps the open from waiting for a
+        # writer
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(fd, "rb") as file:
+            _regular(path, os.fstat(file.fileno()))
+            data = file.read()
+        return data.decode("utf-8")
     except FileNotFoundError:
         raise DataError(f"{path}: no such {what}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read ({exc})") from exc
+    except (OSError, UnicodeDecodeError, ValueError) as exc:  # ValueError: a NUL in the path
+        raise DataError(f"{path}: cannot read ({exc})") from None
+
+
+def _regular(path: Path, info: os.stat_result) -> None:
+    if not stat.S_ISREG(info.st_mode):
+        raise OSError("not a regular file: a folder, FIFO or device")
+
+
+def read_json(path: Path, what: str = "file"):
+    """The JSON value `path` holds; `what` names it in the error.
+
+    Raises:
+        DataError: as `read_text`; not JSON, or nested too deep for the parser.
+    """
+    text = read_text(path, what)
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise DataError(f"{path}: not a {what}: not JSON ({type(exc).__name__}: {exc})"
+                        ) from None
 
 
 def data_lines(path: Path) -> tuple[list[int], list[str]]:

@@ -3,14 +3,18 @@ DataError naming file and line for anything corrupt."""
 
 from __future__ import annotations
 
+import os
 import re
 import tempfile
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from tcaff_gtsam.eval.datasets import text_tables
 from tcaff_gtsam.eval.datasets.text_tables import data_lines, read_table
 
 from tcaff_gtsam.errors import DataError
@@ -104,3 +108,51 @@ def test_a_corrupted_field_names_file_line_and_field(table, comments, at, corrup
         with pytest.raises(DataError) as info:
             read_table(path, 3)
     assert str(info.value).startswith(f"{path}:{row_lines[r]}: {words}")
+
+
+@contextmanager
+def fifo_holding(path: Path, text: str):
+    """A FIFO at `path` that gives `text` to whatever opens it to read, as a file would: a
+    reader that opens it reads `text` and then its end, instead of waiting for ever (a thread
+    writes it once the reader is there). On exit a reader that never came is stood in for, so
+    that the thread ends."""
+    os.mkfifo(path)
+
+    def write() -> None:
+        with open(path, "w") as fifo:  # waits for a reader
+            fifo.write(text)
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    try:
+        yield path
+    finally:
+        stand_in = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        writer.join()
+        os.close(stand_in)
+
+
+def test_a_fifo_is_refused_before_it_is_opened(tmp_path):
+    """A FIFO in place of a text file used to be opened and read: with no writer that waits for
+    ever; here the FIFO gives a valid table to a reader, so that opening it is what is seen."""
+    with fifo_holding(tmp_path / "table.txt", "1 2\n3 4\n") as fifo:
+        with pytest.raises(DataError, match=re.escape(f"{fifo}: cannot read (not a regular "
+                                                      "file: a folder, FIFO or device)")):
+            read_table(fifo, 2)
+    with fifo_holding(tmp_path / "value.json", "[1, 2]") as fifo:
+        with pytest.raises(DataError, match="not a regular file"):
+            text_tables.read_json(fifo)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.text(max_size=40), st.integers(0, 100_000))
+def test_any_json_text_is_a_value_or_a_data_error_naming_the_file(text, depth):
+    """Text that is not JSON, or JSON nested deeper than the parser's recursion (a
+    RecursionError out of json.loads), is a DataError naming the file."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "v.json"
+        path.write_text("[" * depth + text + "]" * depth, encoding="utf-8")
+        try:
+            text_tables.read_json(path, "thing")
+        except DataError as exc:
+            assert str(exc).startswith(f"{path}: not a thing: not JSON")
