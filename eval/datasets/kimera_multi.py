@@ -19,6 +19,7 @@ w first. All times here are float seconds of ROS time.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import logging
 import math
@@ -44,6 +45,8 @@ from tcaff_gtsam.object_map import ObjectMap
 from ..config import ExtrinsicsConfig, KimeraMultiConfig, TopicsConfig
 from ..runs import RecordedRun, RunSettings
 from .image_files import JPEG_START, jpeg_defect
+from .rgbd_sequence import QUATERNION_TOL
+from .text_tables import read_text
 
 __all__ = [
     "CameraCalibration",
@@ -106,18 +109,18 @@ def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     Returns:
         times (n,) seconds, strictly increasing, and T_map_body (n, 4, 4).
     Raises:
-        DataError: missing file, wrong header, bad rows, non-finite values, zero quaternions
-        or stamps that do not increase.
+        DataError: missing file (or a folder, FIFO or device), wrong header, bad rows,
+        non-finite values, quaternions that are zero or not of unit norm (off by more than
+        `QUATERNION_TOL`: a pose file holds unit quaternions, rounding aside), or stamps that
+        do not increase.
     """
     path = Path(path)
+    text = read_text(path, "ground-truth file")
+    header, _, body = text.partition("\n")
+    if header.strip().replace(" ", "") != GT_HEADER:
+        raise DataError(f"{path}: header is {header.strip()!r}, expected {GT_HEADER!r}")
     try:
-        with open(path) as file:
-            header = file.readline().strip()
-            if header.replace(" ", "") != GT_HEADER:
-                raise DataError(f"{path}: header is {header!r}, expected {GT_HEADER!r}")
-            rows = np.loadtxt(file, delimiter=",", dtype=np.float64, ndmin=2)
-    except OSError as err:
-        raise DataError(f"{path}: cannot read the ground truth: {err}") from err
+        rows = np.loadtxt(io.StringIO(body), delimiter=",", dtype=np.float64, ndmin=2)
     except ValueError as err:
         raise DataError(f"{path}: bad ground-truth row: {err}") from err
     if rows.shape[0] == 0 or rows.shape[1] != 8:
@@ -125,10 +128,19 @@ def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     bad = np.flatnonzero(~np.all(np.isfinite(rows), axis=1))
     if bad.size:
         raise DataError(f"{path}: row {bad[0] + 2} has non-finite values: {rows[bad[0]]}")
-    norms = np.linalg.norm(rows[:, 4:8], axis=1)
+    q = rows[:, 4:8]
+    # scaled by the largest component first: the norm of 1e200s would overflow
+    peak = np.abs(q).max(axis=1)
+    norms = np.linalg.norm(q / np.where(peak > 0, peak, 1.0)[:, None], axis=1) * peak
     if np.any(norms < 1e-6):
         k = int(np.argmin(norms))
         raise DataError(f"{path}: row {k + 2} has a zero quaternion")
+    off = np.flatnonzero(~(np.abs(norms - 1.0) <= QUATERNION_TOL))
+    if off.size:
+        k = int(off[0])
+        raise DataError(f"{path}: row {k + 2}: the quaternion (qw qx qy qz) has norm "
+                        f"{norms[k]:.6g}, not 1 (within {QUATERNION_TOL:g}): "
+                        f"{rows[k].tolist()}")
     times = rows[:, 0] * 1e-9
     if np.any(np.diff(times) <= 0):
         k = int(np.flatnonzero(np.diff(times) <= 0)[0])

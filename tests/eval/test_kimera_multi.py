@@ -7,11 +7,12 @@ import json
 import math
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from tcaff_gtsam.eval.cli import app
@@ -33,6 +34,7 @@ from tcaff_gtsam.eval.datasets.kimera_multi import (
 from tcaff_gtsam.eval.methods import run_methods
 from tcaff_gtsam.eval.runs import RecordedRun, RunSettings
 from tcaff_gtsam.mapping.camera import T_body_camera
+from test_text_tables import fifo_holding
 from typer.testing import CliRunner
 
 from tcaff_gtsam.errors import ConfigError, DataError
@@ -81,8 +83,42 @@ def test_bad_ground_truth_raises_data_error(tmp_path, text, match):
 
 
 def test_missing_ground_truth_raises_data_error(tmp_path):
-    with pytest.raises(DataError, match="cannot read"):
+    with pytest.raises(DataError, match=r"none\.csv: no such ground-truth file"):
         read_ground_truth(tmp_path / "none.csv")
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(-320, 300), st.floats(0.5, 2.0), st.integers(0, 3))
+@example(200, 1.0, 0)
+def test_a_ground_truth_quaternion_of_another_norm_is_named(exponent, mantissa, row):
+    """A quaternion of 1e200s overflowed its norm and became an all-zero rotation, which
+    PoseTrack refused in a ValueError; quaternions are read as unit ones (rounding aside)."""
+    stamps = 1_634_000_000_000_000_000 + np.arange(4) * 100_000_000
+    q = Rotation.from_euler("z", 0.3).as_quat()  # x y z w
+    scale = mantissa * 10.0**exponent
+    rows = [f"{t},1,2,3," + ",".join(repr(float(v)) for v in
+                                     (np.roll(q, 1) * (scale if k == row else 1.0)))
+            for k, t in enumerate(stamps)]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "r_gt_odom.csv"
+        path.write_text(GT_HEADER + "\n" + "\n".join(rows) + "\n")
+        if abs(scale - 1.0) <= 1e-2:
+            times, T = read_ground_truth(path)
+            PoseTrack(times, T)(times[0])
+        elif scale < 1e-6:
+            with pytest.raises(DataError, match=f"row {row + 2} has a zero quaternion"):
+                read_ground_truth(path)
+        else:
+            with pytest.raises(DataError, match=rf"row {row + 2}: the quaternion \(qw qx qy "
+                                                r"qz\) has norm .*, not 1 \(within 0.01\)"):
+                read_ground_truth(path)
+
+
+def test_a_ground_truth_fifo_is_refused_before_it_is_opened(tmp_path):
+    """It waited for ever for a writer; here the FIFO holds a whole ground truth."""
+    with fifo_holding(tmp_path / "r_gt_odom.csv", GT_HEADER + "\n1,0,0,0,1,0,0,0\n") as fifo:
+        with pytest.raises(DataError, match=f"{fifo}: cannot read .*not a regular file"):
+            read_ground_truth(fifo)
 
 
 @settings(max_examples=50, deadline=None)
