@@ -29,6 +29,7 @@ from tcaff_gtsam.geometry import se2_from_params
 
 from .config import KimeraMultiConfig, MethodsConfig, MrclamConfig, RgbdConfig
 from .datasets import kimera_multi, mrclam, rgbd_robots
+from .datasets.text_tables import read_json
 from .jobs import evaluate
 from .metrics import NEES_95, NEES_997, Thresholds, step_errors, step_nees
 from .registry import METHODS, describe, estimate_names, shown_streams
@@ -233,8 +234,8 @@ def _saved(folder: Path, name: str, fingerprint: str, methods: MethodsConfig,
         return None
     if job.metrics:  # the tables written before the job: one of them spoilt since, run again
         try:
-            json.loads((folder / "metrics.json").read_text())
-        except (OSError, ValueError) as exc:
+            read_json(folder / "metrics.json", "metrics table")
+        except DataError as exc:
             log.warning("%s: results not reusable (metrics.json: %s); running again", name, exc)
             return None
     summary = (summarize([job], estimate_names(methods), thresholds_of(methods))[name]

@@ -3,14 +3,14 @@
 A job is one run (a simulated scenario and seed, or a recorded data set) with every method's
 estimate of every directed pair at every exchange. `JobResult.save` writes it as
 `<stem>.npz` (the arrays) and `<stem>.json` (the scores); the stem is `<scenario>-seed<seed>` for
-a simulated run and the data set's name for a recorded one.
+a simulated run and the data set's name for a recorded one. `JobResult.load` checks both files
+(`check_saved`) before anything reads them.
 """
 
 from __future__ import annotations
 
 import csv
 import json
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,14 +18,19 @@ import numpy as np
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params
+from tcaff_gtsam.inputs import check_within, index_pairs, read_npz, real_array, shown
+from tcaff_gtsam.param_checks import MAX_COORDINATE, MAX_VARIANCE
 
 from .config import MethodsConfig
+from .datasets.text_tables import read_json
 from .metrics import PairTrace, Thresholds, pair_metrics, pooled_metrics
 from .mot import COUNTS
 from .registry import describe
 
 __all__ = [
+    "MAX_CLOCK",
     "JobResult",
+    "check_saved",
     "load_saved",
     "pool",
     "score",
@@ -117,20 +122,177 @@ class JobResult:
 
     @classmethod
     def load(cls, folder: Path, stem: str) -> JobResult:
-        """A job written by `save`.
+        """A job written by `save`, checked (see `check_saved`).
 
         Raises:
-            DataError: the files are missing, truncated or not a saved job.
+            DataError: the files are missing, not regular files, truncated or not a saved
+                job, naming the file and the key or array that is wrong.
         """
-        try:
-            meta = json.loads((folder / f"{stem}.json").read_text())
-            with np.load(folder / f"{stem}.npz") as data:
-                arrays = {k: data[k] for k in data.files}
-            return cls(meta["name"], meta["seed"], [tuple(p) for p in meta["pairs"]], arrays,
-                       meta["metrics"], meta["seconds"], meta["mot"], meta.get("info", {}))
-        except (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
-            raise DataError(f"{folder / stem}.*: not a saved job ({type(exc).__name__}: "
-                            f"{exc})") from exc
+        json_path, npz_path = Path(folder) / f"{stem}.json", Path(folder) / f"{stem}.npz"
+        meta = read_json(json_path, "saved job")
+        arrays = read_npz(npz_path, "job", bools=True)
+        return check_saved(str(json_path), str(npz_path), meta, arrays)
+
+
+#: s, the largest magnitude of a saved job's clock (its times + t0): ROS 2 bags stamp messages
+#: in int64 nanoseconds, which end at 9.2e9 s (the year 2262)
+MAX_CLOCK = 9e9
+#: the JSON entries of a saved job and the type each holds (`info` may be left out)
+_META = {"name": str, "seed": (int, type(None)), "pairs": list, "metrics": dict,
+         "seconds": dict, "mot": dict, "info": dict}
+
+
+def check_saved(json_name: str, npz_name: str, meta, arrays: dict[str, np.ndarray]
+                ) -> JobResult:
+    """The job whose `<stem>.json` holds `meta` and whose `<stem>.npz` holds `arrays`, checked
+    as far as the reports, exports and figures read it: every entry of the JSON of its type
+    (name a file name, seed an int >= 0 or null, pairs [i, j] of distinct robots, each once),
+    every array real numbers (overlap bool) of the shape `JobResult.arrays` gives with n robots
+    (poses_odom), S steps (times) and P pairs, no infinity (NaN marks a missing value; the
+    odometry is left to the exports to name), times finite, increasing and within `MAX_CLOCK` s.
+
+    Raises:
+        DataError: naming the file (`json_name`, `npz_name`) and the key or array.
+    """
+    if not isinstance(meta, dict):
+        raise DataError(f"{json_name}: not a saved job (a JSON object), got {shown(meta)}")
+    for key, kind in _META.items():
+        if key not in meta and key != "info":
+            raise DataError(f"{json_name}: no {key!r}, not a saved job")
+        value = meta.get(key, {})
+        if not isinstance(value, kind) or isinstance(value, bool):
+            raise DataError(f"{json_name}: {key} must be a JSON "
+                            f"{'int >= 0 or null' if key == 'seed' else kind.__name__}, got "
+                            f"{shown(value)}")
+    name, seed = meta["name"], meta["seed"]
+    if name in ("", ".", "..") or Path(name).name != name or "\0" in name:
+        raise DataError(f"{json_name}: name must be a file name, got {shown(name)}")
+    if seed is not None and seed < 0:
+        raise DataError(f"{json_name}: seed must be an int >= 0 or null, got {seed}")
+    for key, value in meta["seconds"].items():
+        if not (_number(value) and 0 <= value <= MAX_CLOCK):
+            raise DataError(f"{json_name}: seconds.{key} must be seconds >= 0, got "
+                            f"{shown(value)}")
+    for key, by_pair in meta["metrics"].items():
+        if not (isinstance(by_pair, dict) and all(isinstance(r, dict) for r in by_pair.values())):
+            raise DataError(f"{json_name}: metrics.{key} must map pairs to reports, got "
+                            f"{shown(by_pair)}")
+    for key, summary in meta["mot"].items():
+        if not (isinstance(summary, dict) and isinstance(summary.get("robots"), list)
+                and (summary.get("mota") is None or _number(summary["mota"]))):
+            raise DataError(f"{json_name}: mot.{key} must hold a mota (a number or null) and "
+                            f"robots (a list), got {shown(summary)}")
+
+    def array(key: str, dims: str, shape: tuple[int | None, ...], bound: float,
+              missing=np.isnan) -> np.ndarray:
+        """arrays[key], real numbers of `shape` (None: any length) named `dims`, each
+        `missing` or within `bound`."""
+        if key not in arrays:
+            raise DataError(f"{npz_name}: no array {key!r}, not a saved job")
+        value = real_array(npz_name, f"array {key!r}", arrays[key])
+        if value.ndim != len(shape) or any(want is not None and got != want
+                                           for got, want in zip(value.shape, shape, strict=True)):
+            sizes = ", ".join("*" if n is None else str(n) for n in shape)
+            raise DataError(f"{npz_name}: array {key!r} has shape {value.shape}, expected "
+                            f"{dims} = ({sizes}{',' if len(shape) == 1 else ''})")
+        check_within(npz_name, key, np.where(missing(value), 0.0, value), bound)
+        return value
+
+    def counts(key: str, dims: str, shape: tuple[int | None, ...]) -> np.ndarray:
+        """arrays[key], integers >= 0 of `shape`."""
+        value = array(key, dims, shape, np.inf)
+        if arrays[key].dtype.kind not in "iu" or (value < 0).any():
+            raise DataError(f"{npz_name}: array {key!r} must hold integers >= 0, got "
+                            f"{shown(arrays[key])}")
+        return arrays[key]
+
+    for key, value in arrays.items():
+        if value.dtype.kind == "b" and key != "overlap":
+            raise DataError(f"{npz_name}: array {key!r} must hold numbers, got bool")
+    S = len(array("times", "(S,)", (None,), MAX_CLOCK))
+    times = arrays["times"]
+    if S == 0 or np.isnan(times).any() or (np.diff(times) <= 0).any():
+        raise DataError(f"{npz_name}: array 'times' must be finite seconds that increase, got "
+                        f"{shown(times)}")
+    if "t0" in arrays:
+        t0 = array("t0", "()", (), MAX_CLOCK)
+        if np.isnan(t0) or not np.all(np.abs(times + t0) <= MAX_CLOCK):
+            raise DataError(f"{npz_name}: array 't0' = {t0} puts the times beyond "
+                            f"{MAX_CLOCK:g} s or is not finite")
+    # odometry that is not finite is named by the exports that place paths through it
+    # (`trajectories.check_odometry`), and left to them
+    n = len(array("poses_odom", "(n, S, 3)", (None, S, 3), MAX_COORDINATE,
+                  lambda v: ~np.isfinite(v)))
+    array("poses_true", "(n, S, 3)", (n, S, 3), MAX_COORDINATE)
+    pairs = index_pairs(json_name, "pairs", meta["pairs"])
+    repeated = len({tuple(p) for p in pairs.tolist()}) < len(pairs)
+    if not len(pairs) or repeated or (pairs >= n).any() or (pairs[:, 0] == pairs[:, 1]).any():
+        raise DataError(f"{json_name}: pairs must be [i, j] of two of the {n} robots of "
+                        f"{npz_name} (0..{n - 1}), each pair once, got {shown(meta['pairs'])}")
+    P = len(pairs)
+    array("truth", "(P, S, 3)", (P, S, 3), MAX_COORDINATE)
+    for key in arrays:
+        if key.startswith("est_"):
+            array(key, "(P, S, 3)", (P, S, 3), MAX_COORDINATE)
+        elif key.startswith("cov_"):
+            if f"est_{key.removeprefix('cov_')}" not in arrays:
+                raise DataError(f"{npz_name}: array {key!r} without "
+                                f"'est_{key.removeprefix('cov_')}'")
+            array(key, "(P, S, 3, 3)", (P, S, 3, 3), MAX_VARIANCE)
+        elif key == "overlap":
+            if arrays[key].dtype.kind != "b" or arrays[key].shape != (P, S):
+                raise DataError(f"{npz_name}: array 'overlap' must be (P, S) = ({P}, {S}) "
+                                f"bool, got {shown(arrays[key])}")
+        elif key.startswith("cand_steps_") or key.startswith("cand_z_"):
+            p = key.rsplit("_", 1)[1]
+            if p not in {str(k) for k in range(P)} or not {f"cand_steps_{p}",
+                                                           f"cand_z_{p}"} <= arrays.keys():
+                raise DataError(f"{npz_name}: array {key!r}: the candidates of a pair 0..{P - 1}"
+                                f" are cand_steps_<pair> and cand_z_<pair> together")
+            if key.startswith("cand_steps_"):
+                steps = counts(key, "(M,)", (None,))
+                if (steps >= S).any():
+                    raise DataError(f"{npz_name}: array {key!r} holds a step beyond the "
+                                    f"{S} steps")
+                array(f"cand_z_{p}", "(M, 3)", (len(steps), 3), MAX_COORDINATE)
+        elif key.startswith("map_"):
+            r = key.rsplit("_", 1)[1]
+            if r not in {str(k) for k in range(n)} or not {
+                    f"map_xy_{r}", f"map_widths_{r}", f"map_counts_{r}"} <= arrays.keys():
+                raise DataError(f"{npz_name}: array {key!r}: the map of a robot 0..{n - 1} is "
+                                f"map_xy_<r>, map_widths_<r> and map_counts_<r> together")
+            if key.startswith("map_counts_"):
+                N = int(counts(key, "(S,)", (S,)).sum())
+                array(f"map_xy_{r}", "(N, 2)", (N, 2), MAX_COORDINATE)
+                array(f"map_widths_{r}", "(N,)", (N,), MAX_COORDINATE)
+    if "world_xy" in arrays or "world_widths" in arrays:
+        m = len(array("world_xy", "(m, 2)", (None, 2), MAX_COORDINATE))
+        array("world_widths", "(m,)", (m,), MAX_COORDINATE)
+    if "walls" in arrays:
+        array("walls", "(w, 2, 2)", (None, 2, 2), MAX_COORDINATE)
+    mot = meta["mot"]
+    if mot or any(key.startswith("mot_") for key in arrays):
+        F = len(array("mot_times", "(F,)", (None,), MAX_CLOCK))
+        array("mot_window", "()", (), MAX_CLOCK)
+        for method in mot:
+            if f"mot_counts_{method}" not in arrays:
+                raise DataError(f"{npz_name}: no array 'mot_counts_{method}' for the "
+                                f"tracking results of {method} in {json_name}")
+        for key in arrays:
+            if key.startswith("mot_counts_"):
+                counts(key, "(n, F, 4)", (n, F, len(COUNTS)))
+    info = meta.get("info", {})
+    robots = info.get("robots")
+    if robots is not None and not (isinstance(robots, list) and len(robots) == n
+                                   and all(isinstance(r, str) for r in robots)):
+        raise DataError(f"{json_name}: info.robots must name the {n} robots, got "
+                        f"{shown(robots)}")
+    return JobResult(name, seed, [(int(i), int(j)) for i, j in pairs], arrays, meta["metrics"],
+                     meta["seconds"], mot, info)
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _judged(stream: str) -> bool:

@@ -5,7 +5,8 @@ configuration (scenario, method set, seed) and written to `<output>/<sweep>/jobs
 soon as it finishes; `job.json`, written last, marks it done. A rerun of the sweep skips the
 jobs already done, so a sweep resumes after Ctrl-C or a crash, and a sweep given more values
 runs only the new jobs. Points that resolve to the same configuration share their jobs. A job
-that raises leaves `failed.json` (error and traceback) and is tried again by the next run.
+that raises leaves `failed.json` (error and traceback) and is tried again by the next run, and
+so does a done job whose saved files the report cannot read (edited or damaged since).
 
 The report pools each point's jobs (every scenario, seed and directed pair) into one row per
 point: sweep.csv (a row per point and method), sweep.json (also per scenario), and figures:
@@ -30,9 +31,10 @@ from typing import Any
 import yaml
 
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.inputs import write_whole
+from tcaff_gtsam.inputs import shown, write_whole
 
 from .config import MethodsConfig, StudyConfig, SweepConfig, apply_settings
+from .datasets.text_tables import read_json
 from .executor import Executor, JobSpec, Progress, job_runner
 from .registry import estimate_names
 from .results import JobResult, pool, summarize, thresholds_of, write_csv
@@ -86,7 +88,8 @@ class SweepOutcome:
         plan: the points and jobs.
         reused: jobs done by an earlier run and skipped.
         ran: jobs finished by this run.
-        failed: jobs that raised in this run: hash, scenario, seed, error, traceback.
+        failed: jobs that raised in this run, and done jobs whose saved files could not be
+            read (each runs again next time): hash, scenario, seed, error, traceback.
         interrupted: Ctrl-C stopped the run (the report covers the jobs done by then).
         rows: the report, one row per point and method (as in sweep.csv).
     """
@@ -182,6 +185,20 @@ def _resolve_point(study: StudyConfig, settings: dict[str, Any], source: str) ->
     return [JobSpec(s, methods, seed) for s in scenarios for seed in study.seeds]  # type: ignore[arg-type]
 
 
+def _stem(folder: Path) -> str:
+    """The stem of the job files in `folder`, from its job.json.
+
+    Raises:
+        DataError: job.json unreadable, or naming no file of the folder.
+    """
+    record = read_json(folder / "job.json", "job record")
+    stem = record.get("stem") if isinstance(record, dict) else None
+    if not isinstance(stem, str) or stem in ("", ".", "..") or Path(stem).name != stem:
+        raise DataError(f"{folder / 'job.json'}: stem must name the job's files, got "
+                        f"{shown(stem)}")
+    return stem
+
+
 def _job_done(folder: Path) -> bool:
     """Whether the job in `folder` is done: its job.json names its files and its arrays
     are a whole archive. One that is not is run again now (its job.json removed)."""
@@ -189,12 +206,14 @@ def _job_done(folder: Path) -> bool:
     if not marker.is_file():
         return False
     try:
-        stem = json.loads(marker.read_text())["stem"]
-        if zipfile.is_zipfile(folder / f"{stem}.npz") and (folder / f"{stem}.json").is_file():
+        stem = _stem(folder)
+        npz = folder / f"{stem}.npz"
+        # is_file first: is_zipfile would open a FIFO, and wait for a writer
+        if npz.is_file() and zipfile.is_zipfile(npz) and (folder / f"{stem}.json").is_file():
             return True
         reason = "its files are missing or cut short"
-    except (ValueError, KeyError, TypeError, OSError) as exc:
-        reason = f"{type(exc).__name__}: {exc}"
+    except (DataError, OSError) as exc:
+        reason = str(exc)
     log.warning("%s: unreadable (%s), run again", folder, reason)
     marker.unlink(missing_ok=True)
     return False
@@ -261,13 +280,7 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
         def fail(key: int, exc: BaseException) -> None:
             spec = specs[key]
             log.error("%s (%s) failed: %s", spec.label, todo[key], exc)
-            record = {"hash": todo[key], "scenario": spec.scenario.name, "seed": spec.seed,
-                      "error": f"{type(exc).__name__}: {exc}",
-                      "traceback": "".join(traceback.format_exception(exc))}
-            failed.append(record)
-            where = jobs_folder / todo[key]
-            where.mkdir(exist_ok=True)
-            write_whole(where / "failed.json", json.dumps(record, indent=1))
+            failed.append(_failure(jobs_folder / todo[key], todo[key], spec, exc))
             progress.finish(key, False)
 
         point_of = {h: point for point, hashes in reversed(list(zip(
@@ -280,7 +293,7 @@ def run_sweep(sweep: SweepConfig, study: StudyConfig, executor: Executor | None 
         except KeyboardInterrupt:
             interrupted = True
             log.info("interrupted: reporting the %d finished jobs", reused + ran)
-    rows = _report(folder, sweep, study, plan, interrupted, figures)
+    rows = _report(folder, sweep, study, plan, interrupted, figures, failed)
     return SweepOutcome(folder, plan, reused, ran, failed, interrupted, rows)
 
 
@@ -290,31 +303,74 @@ def _job_record(digest: str, spec: JobSpec, stem: str) -> dict:
                        "methods": spec.methods.model_dump(mode="json")}}
 
 
+def _failure(where: Path, digest: str, spec: JobSpec, exc: BaseException) -> dict:
+    """The record of a job that failed, also written to `where`/failed.json."""
+    record = {"hash": digest, "scenario": spec.scenario.name, "seed": spec.seed,
+              "error": f"{type(exc).__name__}: {exc}",
+              "traceback": "".join(traceback.format_exception(exc))}
+    where.mkdir(exist_ok=True)
+    write_whole(where / "failed.json", json.dumps(record, indent=1))
+    return record
+
+
 def _load_job(folder: Path) -> JobResult | None:
-    """A finished job of the sweep, or None when it is not done (or unreadable: it then runs
-    again next time)."""
+    """A finished job of the sweep, or None when it is not done.
+
+    Raises:
+        DataError: its files are unreadable; its job.json is removed, so that it runs again
+            next time.
+    """
+    if not (folder / "job.json").is_file():
+        return None
     try:
-        stem = json.loads((folder / "job.json").read_text())["stem"]
-        return JobResult.load(folder, stem)
-    except FileNotFoundError:
-        return None
-    except (DataError, ValueError, KeyError, TypeError, OSError) as exc:
-        log.warning("%s: unreadable, left out and run again next time (%s)", folder, exc)
+        return JobResult.load(folder, _stem(folder))
+    except DataError:
         (folder / "job.json").unlink(missing_ok=True)
+        raise
+
+
+def _failed_before(folder: Path, digest: str, spec: JobSpec) -> dict | None:
+    """The failed.json of a job not done, or None when it has none; one that cannot be read
+    (cut short by hand, say) still names the job."""
+    path = folder / "failed.json"
+    if not path.exists():
         return None
+    try:
+        record = read_json(path, "job failure record")
+        if isinstance(record, dict):
+            return record
+        raise DataError(f"{path}: not a job failure record (a JSON object), got "
+                        f"{shown(record)}")
+    except DataError as exc:
+        return {"hash": digest, "scenario": spec.scenario.name, "seed": spec.seed,
+                "error": f"its failure record is unreadable: {exc}"}
 
 
 def _report(folder: Path, sweep: SweepConfig, study: StudyConfig, plan: SweepPlan,
-            interrupted: bool, figures: bool) -> list[dict]:
+            interrupted: bool, figures: bool, failed: list[dict]) -> list[dict]:
     """Pool each point's finished jobs; write sweep.csv, sweep.json (with every job that
-    failed and is not done since) and the figures."""
+    failed and is not done since) and the figures. A finished job whose files cannot be read
+    is reported as failed (added to `failed`) and runs again next time."""
     methods: MethodsConfig = study.methods  # type: ignore[assignment]
     names = estimate_names(methods)
     thresholds = thresholds_of(methods)
+    unreadable: set[str] = set()
+
+    def load(digest: str) -> JobResult | None:
+        where = folder / "jobs" / digest
+        try:
+            return None if digest in unreadable else _load_job(where)
+        except DataError as exc:
+            log.error("%s: its saved files are unreadable, left out and run again next time "
+                      "(%s)", where, exc)
+            unreadable.add(digest)
+            failed.append(_failure(where, digest, plan.jobs[digest], exc))
+            return None
+
     rows: list[dict] = []
     points_json = []
     for index, (point, hashes) in enumerate(zip(plan.points, plan.point_jobs, strict=True)):
-        jobs = [job for h in hashes if (job := _load_job(folder / "jobs" / h)) is not None]
+        jobs = [job for h in hashes if (job := load(h)) is not None]
         head = {"point": index, **{p: _text(v) for p, v in point.values.items()},
                 "default": point.default, "jobs": len(hashes), "jobs_done": len(jobs)}
         pooled = pool(jobs, names, thresholds) if jobs else {m: {} for m in names}
@@ -323,12 +379,12 @@ def _report(folder: Path, sweep: SweepConfig, study: StudyConfig, plan: SweepPla
                             "default": point.default, "jobs": hashes,
                             "jobs_done": len(jobs), "pooled": pooled,
                             "by_scenario": summarize(jobs, names, thresholds) if jobs else {}})
-    failures = [folder / "jobs" / h / "failed.json" for h in plan.jobs
+    failures = [_failed_before(folder / "jobs" / h, h, spec) for h, spec in plan.jobs.items()
                 if not _job_done(folder / "jobs" / h)]
-    failed = [json.loads(f.read_text()) for f in failures if f.is_file()]
+    failed_json = [record for record in failures if record is not None]
     (folder / "sweep.json").write_text(json.dumps({
         "sweep": sweep.name, "parameters": sweep.parameters, "method": sweep.method,
-        "interrupted": interrupted, "failed": failed, "points": points_json}, indent=1))
+        "interrupted": interrupted, "failed": failed_json, "points": points_json}, indent=1))
     write_csv(folder / "sweep.csv", rows)
     if figures:
         from . import plots

@@ -233,7 +233,8 @@ def write_rosbag2(root: Path, job: JobResult, reference: int = 0) -> Path:
     were kept). `reference` is unused: every pair is written.
 
     Raises:
-        DataError: robot or method names that become the same topic name, or times before 0.
+        DataError: robot or method names that become the same topic name, or times a ROS 2
+            stamp cannot hold (before 0 s, from 2**31 s on), naming the job.
     """
     import shutil
 
@@ -256,8 +257,11 @@ def write_rosbag2(root: Path, job: JobResult, reference: int = 0) -> Path:
             for s in np.flatnonzero(np.all(np.isfinite(values), axis=1)):
                 t = float(times[s])
                 P = np.zeros((3, 3)) if covariances is None else covariances[p, s]
-                messages.append((ns(t), topic, ALIGNMENT_TYPE, pose_message(
-                    t, f"{names[i]}/odom", values[s], P)))
+                try:
+                    messages.append((ns(t), topic, ALIGNMENT_TYPE, pose_message(
+                        t, f"{names[i]}/odom", values[s], P)))
+                except DataError as exc:  # a time ROS 2 cannot stamp
+                    raise DataError(f"{job.stem}: {exc}") from None
     folder = root / "trajectories" / job.stem / "rosbag2"
     if folder.exists():
         shutil.rmtree(folder)

@@ -188,7 +188,7 @@ _READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error,
                 SyntaxError, MemoryError)
 
 
-def read_npz(path: str | Path, what: str) -> dict[str, np.ndarray]:
+def read_npz(path: str | Path, what: str, *, bools: bool = False) -> dict[str, np.ndarray]:
     """Every array of an npz archive (`np.savez`, compressed or not), without pickles.
 
     Refuses, before reading anything, a path that is not a regular file (a FIFO would block
@@ -199,6 +199,7 @@ def read_npz(path: str | Path, what: str) -> dict[str, np.ndarray]:
     Args:
         path: the archive.
         what: what the file should hold, for the messages ("map", "TCAFF filter").
+        bools: also take bool arrays, for a caller that checks which arrays may be masks.
     Raises:
         DataError: a path that is no path, a file missing, not a regular file, not an npz
             archive, corrupt or truncated, or an array of another dtype (naming the array).
@@ -232,7 +233,8 @@ def read_npz(path: str | Path, what: str) -> dict[str, np.ndarray]:
         raise
     with file:
         try:
-            return _read_members(file, info.st_size, path, what)
+            return _read_members(file, info.st_size, path, what,
+                                 _STORED_KINDS | {"b"} if bools else _STORED_KINDS)
         except DataError:
             raise
         except _READ_ERRORS as exc:
@@ -240,7 +242,8 @@ def read_npz(path: str | Path, what: str) -> dict[str, np.ndarray]:
                             ) from None
 
 
-def _read_members(file, size: int, path: Path, what: str) -> dict[str, np.ndarray]:
+def _read_members(file, size: int, path: Path, what: str, kinds: frozenset[str]
+                  ) -> dict[str, np.ndarray]:
     fmt = np.lib.format
     arrays = {}
     with zipfile.ZipFile(file) as archive:
@@ -261,7 +264,7 @@ def _read_members(file, size: int, path: Path, what: str) -> dict[str, np.ndarra
                                else fmt.read_array_header_2_0)
                 shape, _, dtype = read_header(stream)
                 header = stream.tell()
-            if dtype.kind not in _STORED_KINDS:
+            if dtype.kind not in kinds:
                 raise DataError(f"{path}: array {name!r} has dtype {dtype}, not real numbers")
             declared = math.prod(shape) * dtype.itemsize
             if declared != member.file_size - header:

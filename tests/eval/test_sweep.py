@@ -332,3 +332,70 @@ def test_the_command_line_reports_lost_workers_and_the_jobs_run_again(capsys, mo
     assert "worker lost: tcp://127.0.0.1:40002 (held no job)" in out
     assert progress.summary() == ("2 Dask worker(s) lost during the run; 2 job(s) run again "
                                   "on other workers")
+
+
+def test_a_done_job_whose_files_cannot_be_read_is_reported_and_run_again(tmp_path):
+    """A job file nested too deep for the parser (or otherwise not a saved job) used to end the
+    sweep in a RecursionError before its report; now the report is written with the other
+    jobs' results, names the job as failed, and the next run runs it again."""
+    sweep, study = tau_sweep(tmp_path, (8.0,)), base_study(seeds=(0,))
+    first = run_sweep(sweep, study, figures=False)
+    assert first.ran == 2 and not first.failed
+    spoilt, kept = sorted((first.folder / "jobs").iterdir())
+    stem = json.loads((spoilt / "job.json").read_text())["stem"]
+    (spoilt / f"{stem}.json").write_text("[" * 100_000 + "]" * 100_000)
+    second = run_sweep(sweep, study, figures=False)
+    assert second.ran == 0 and second.reused == 2
+    assert [f["hash"] for f in second.failed] == [spoilt.name]
+    error = second.failed[0]["error"]
+    assert error.startswith(f"DataError: {spoilt / stem}.json: not a saved job: not JSON "
+                            "(RecursionError")
+    report = json.loads((second.folder / "sweep.json").read_text())
+    assert [f["error"] for f in report["failed"]] == [error]
+    assert [p["jobs_done"] for p in report["points"]] == [1]  # the other job's results stay
+    assert (kept / "job.json").is_file() and not (spoilt / "job.json").exists()
+    third = run_sweep(sweep, study, figures=False)
+    assert third.ran == 1 and third.reused == 1 and not third.failed
+    assert json.loads((third.folder / "sweep.json").read_text())["failed"] == []
+
+
+def test_a_job_record_nested_too_deep_is_run_again_now(tmp_path):
+    """job.json, the mark of a done job: unreadable, the job is not done (it was a
+    RecursionError that ended the sweep)."""
+    sweep, study = tau_sweep(tmp_path, (8.0,)), base_study(seeds=(0,))
+    first = run_sweep(sweep, study, figures=False)
+    marker = sorted((first.folder / "jobs").iterdir())[0] / "job.json"
+    marker.write_text("[" * 100_000 + "]" * 100_000)
+    again = run_sweep(sweep, study, figures=False)
+    assert again.ran == 1 and again.reused == 1 and not again.failed
+    assert json.loads(marker.read_text())["hash"] == marker.parent.name
+
+
+def test_a_failure_record_cut_short_still_names_its_job(tmp_path, monkeypatch):
+    """A failed.json cut short by hand ended the report in a JSONDecodeError."""
+    real = jobs_module.simulate
+
+    def simulate(scenario, seed, progress=None):
+        if scenario.name == "ambiguous_grid":
+            raise RuntimeError("sensor exploded")
+        return real(scenario, seed, progress)
+
+    monkeypatch.setattr(jobs_module, "simulate", simulate)
+    sweep, study = tau_sweep(tmp_path, (8.0,)), base_study(seeds=(0,))
+    first = run_sweep(sweep, study, figures=False)
+    (failed,) = first.failed
+    record = first.folder / "jobs" / failed["hash"] / "failed.json"
+    record.write_text(record.read_text()[:12])
+
+    def interrupted(scenario, seed, progress=None):  # Ctrl-C before the job runs again
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jobs_module, "simulate", interrupted)
+    second = run_sweep(sweep, study, figures=False)
+    assert second.interrupted
+    (listed,) = json.loads((second.folder / "sweep.json").read_text())["failed"]
+    assert listed["hash"] == failed["hash"]
+    assert (listed["scenario"], listed["seed"]) == ("ambiguous_grid", 0)
+    assert listed["error"].startswith(f"its failure record is unreadable: {record}: not a job "
+                                      "failure record: not JSON")
+

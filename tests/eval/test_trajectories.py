@@ -4,6 +4,8 @@ and evo's own command line reproducing the table's APE."""
 from __future__ import annotations
 
 import csv
+import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -16,10 +18,12 @@ from evo.core import sync
 from evo.tools.file_interface import read_tum_trajectory_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from tcaff_gtsam.eval import cli
 from tcaff_gtsam.eval.metrics import Thresholds
 from tcaff_gtsam.eval.results import JobResult, score, write_tables
 from tcaff_gtsam.eval.trajectories import TRUTH, export, robot_paths, write_g2o, write_tum
+from test_text_tables import fifo_holding
 
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params
@@ -231,3 +235,160 @@ def test_export_into_a_file_where_its_folder_goes_is_a_data_error(tmp_path, fmt)
     with pytest.raises(DataError, match=f"its {fmt} files could not be written"):
         export(tmp_path, fmt)
     assert taken.read_text() == "keep me"
+
+
+# -- saved jobs that are not what `JobResult.save` writes ------------------------------------------
+
+
+def _save_altered(folder: Path, meta=None, arrays=None, text: str | None = None) -> JobResult:
+    """make_job(5) saved into `folder`, its JSON entries updated by `meta` (a key mapped to
+    DROP is removed) or replaced by `text`, its arrays updated by `arrays` (DROP removes)."""
+    job = make_job(5)
+    job.save(folder)
+    json_path, npz_path = folder / f"{job.stem}.json", folder / f"{job.stem}.npz"
+    saved = json.loads(json_path.read_text())
+    for key, value in (meta or {}).items():
+        saved.pop(key) if value is DROP else saved.__setitem__(key, value)
+    json_path.write_text(json.dumps(saved) if text is None else text)
+    if arrays:
+        with np.load(npz_path) as data:
+            kept = dict(data)
+        for key, value in arrays.items():
+            kept.pop(key) if value is DROP else kept.__setitem__(key, value)
+        np.savez(npz_path, **kept)
+    return job
+
+
+DROP = object()
+S, P = 25, len(PAIRS)  # make_job's steps and pairs (3 robots)
+
+
+@pytest.mark.parametrize(("meta", "arrays", "text", "file", "words"), [
+    (None, None, "[" * 100_000 + "]" * 100_000, "json", "not JSON (RecursionError"),
+    (None, None, '{"name": "walk", "seed": 0, "pa', "json", "not JSON (JSONDecodeError"),
+    (None, None, "[]", "json", "not a saved job (a JSON object), got []"),
+    ({"pairs": [[0, 5]]}, None, None, "json", "pairs must be [i, j] of two of the 3 robots"),
+    ({"pairs": [[0, 1], [0, 1]]}, None, None, "json", "each pair once"),
+    ({"pairs": [[1, 1]]}, None, None, "json", "pairs must be [i, j] of two"),
+    ({"pairs": "ab"}, None, None, "json", "pairs must be a JSON list, got 'ab'"),
+    ({"pairs": [[0, 1, 2]]}, None, None, "json", "pairs must be an (m, 2) array"),
+    ({"pairs": [[0, "1"]]}, None, None, "json", "pairs must be an (m, 2) array of integer"),
+    ({"info": []}, None, None, "json", "info must be a JSON dict, got []"),
+    ({"info": {"robots": ["a"]}}, None, None, "json", "info.robots must name the 3 robots"),
+    ({"name": 5}, None, None, "json", "name must be a JSON str, got 5"),
+    ({"name": "../up"}, None, None, "json", "name must be a file name, got '../up'"),
+    ({"seed": 1.5}, None, None, "json", "seed must be a JSON int >= 0 or null, got 1.5"),
+    ({"seed": True}, None, None, "json", "seed must be a JSON int >= 0 or null, got True"),
+    ({"seed": -1}, None, None, "json", "seed must be an int >= 0 or null, got -1"),
+    ({"metrics": DROP}, None, None, "json", "no 'metrics', not a saved job"),
+    ({"seconds": {"noisy": "fast"}}, None, None, "json", "seconds.noisy must be seconds"),
+    ({"metrics": {"noisy": [1]}}, None, None, "json", "metrics.noisy must map pairs to"),
+    ({"mot": {"noisy": {"mota": 1}}}, None, None, "json", "mot.noisy must hold a mota"),
+    (None, {"times": DROP}, None, "npz", "no array 'times', not a saved job"),
+    (None, {"truth": DROP}, None, "npz", "no array 'truth', not a saved job"),
+    (None, {"poses_odom": DROP}, None, "npz", "no array 'poses_odom', not a saved job"),
+    (None, {"times": np.array(3.0)}, None, "npz", "array 'times' has shape (), expected (S,)"),
+    (None, {"times": np.zeros(S)}, None, "npz", "array 'times' must be finite seconds that "
+                                                "increase"),
+    (None, {"times": 1e300 + np.arange(S) * 1e290}, None, "npz", "times[0] = 1e+300 is beyond"),
+    (None, {"t0": np.array(9e9 - 10)}, None, "npz", "array 't0' = 8999999990.0 puts the times "
+                                                    "beyond"),
+    (None, {"poses_odom": np.zeros(3 * S * 3)}, None, "npz",
+     f"array 'poses_odom' has shape ({3 * S * 3},), expected (n, S, 3) = (*, {S}, 3)"),
+    (None, {"truth": np.zeros((S, P, 3))}, None, "npz",
+     f"array 'truth' has shape ({S}, {P}, 3), expected (P, S, 3) = ({P}, {S}, 3)"),
+    (None, {"truth": np.full((P, S, 3), "x")}, None, "npz", "array 'truth' must be real "
+                                                           "numbers"),
+    (None, {"truth": np.full((P, S, 3), np.inf)}, None, "npz", "truth[0, 0, 0] = inf is not "
+                                                              "finite"),
+    (None, {"est_noisy": np.zeros((P, S))}, None, "npz", "array 'est_noisy' has shape"),
+    (None, {"cov_noisy": np.zeros((P, S, 3))}, None, "npz", "array 'cov_noisy' has shape"),
+    (None, {"cov_other": np.zeros((P, S, 3, 3))}, None, "npz", "'cov_other' without "
+                                                              "'est_other'"),
+    (None, {"poses_true": np.ones((3, S, 3), dtype=bool)}, None, "npz",
+     "array 'poses_true' must hold numbers, got bool"),
+    (None, {"overlap": np.ones((P, S))}, None, "npz", "array 'overlap' must be (P, S)"),
+    (None, {"cand_steps_0": np.array([0, S])}, None, "npz", "the candidates of a pair"),
+    (None, {"cand_steps_0": np.array([0, S]), "cand_z_0": np.zeros((2, 3))}, None, "npz",
+     f"array 'cand_steps_0' holds a step beyond the {S} steps"),
+    (None, {"map_counts_0": np.ones(S, dtype=np.int32), "map_xy_0": np.zeros((S, 2)),
+            "map_widths_0": np.zeros(S - 1)}, None, "npz", "array 'map_widths_0' has shape"),
+])
+def test_a_saved_job_that_is_not_one_is_a_data_error_naming_file_and_entry(
+        tmp_path, meta, arrays, text, file, words):
+    """Each used to load, and fail later deep in an export (RecursionError, IndexError,
+    AttributeError, KeyError, AxisError, OverflowError in a bag's time stamps, gtsam's
+    RuntimeError) or be taken as it was (pairs 'ab', a name that is no file name, a seed
+    1.5)."""
+    job = _save_altered(tmp_path, meta, arrays, text)
+    with pytest.raises(DataError) as info:
+        JobResult.load(tmp_path, job.stem)
+    assert str(info.value).startswith(f"{tmp_path / job.stem}.{file}: ")
+    assert words in str(info.value)
+    for fmt in ("tum", "rosbag2"):
+        with pytest.raises(DataError, match=re.escape(words)):
+            export(tmp_path, fmt)
+    assert not (tmp_path / "trajectories").exists()
+
+
+#: JSON values of any shape, for the entries of a job's JSON
+JSON_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=4),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=3), inner,
+                                                                max_size=3),
+    max_leaves=8)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_any_altered_saved_job_exports_or_is_a_data_error(tmp_path_factory, data):
+    """One JSON entry replaced by any JSON value, or one array by any array (shape, dtype,
+    values): the job loads and exports in every format, or loading it is a DataError naming
+    the file."""
+    folder = tmp_path_factory.mktemp("altered")
+    if data.draw(st.booleans(), "alter the JSON"):
+        key = data.draw(st.sampled_from(["name", "seed", "pairs", "metrics", "seconds", "mot",
+                                         "info"]), "key")
+        change = {"meta": {key: data.draw(JSON_VALUES, "value")}}
+    else:
+        key = data.draw(st.sampled_from(["times", "t0", "poses_true", "poses_odom", "truth",
+                                         "est_noisy", "cov_noisy", "overlap"]), "array")
+        shape = data.draw(st.sampled_from([(), (S,), (P, S), (3, S, 3), (P, S, 3), (S, P, 3),
+                                           (P, S, 3, 3), (2, S, 3)]), "shape")
+        dtype = data.draw(st.sampled_from([np.float64, np.float32, np.int64, np.bool_, "U2"]))
+        value = data.draw(arrays(dtype, shape, elements=None if dtype == "U2" else
+                                 st.floats(-1e300, 1e300) if dtype in (np.float64,)
+                                 else None), "values")
+        change = {"arrays": {key: value}}
+    job = _save_altered(folder, **change)
+    try:
+        JobResult.load(folder, job.stem)
+    except DataError as exc:
+        assert str(exc).startswith(f"{folder / job.stem}.")
+        return
+    for fmt in ("tum", "g2o", "rosbag2"):
+        try:
+            export(folder, fmt)
+        except DataError as exc:  # a stream of non-finite odometry, a name ROS 2 cannot take
+            assert job.stem in str(exc) or str(folder) in str(exc)
+
+
+def test_a_saved_job_whose_json_is_a_fifo_is_refused_before_it_is_opened(tmp_path):
+    job = make_job(5)
+    job.save(tmp_path)
+    text = (tmp_path / f"{job.stem}.json").read_text()
+    (tmp_path / f"{job.stem}.json").unlink()
+    with fifo_holding(tmp_path / f"{job.stem}.json", text):
+        with pytest.raises(DataError, match="not a regular file"):
+            JobResult.load(tmp_path, job.stem)
+
+
+def test_a_recorded_run_whose_saved_job_is_not_one_is_run_again(tmp_path):
+    """A data set's run is reused when its saved job has the same fingerprint: `"info": []`
+    (or anything not a saved job) was an AttributeError reading the fingerprint; it is run
+    again."""
+    from tcaff_gtsam.eval.config import MethodsConfig
+    from tcaff_gtsam.eval.dataset_runs import _saved
+
+    job = _save_altered(tmp_path, {"info": []})
+    assert _saved(tmp_path, job.stem, "fingerprint", MethodsConfig(), figures=False) is None
