@@ -9,7 +9,6 @@ files are the ones Open3D's test data carries (see the README beside them).
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,12 +16,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import open3d as o3d
-from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera
+from tcaff_gtsam.mapping.camera import PinholeCamera, T_body_camera, rigid_transform
 
-from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se3_from_rt
+from tcaff_gtsam.inputs import real_array, shown
 
 from .image_files import read_image
+from .text_tables import data_lines, number, read_json
 
 __all__ = ["PRIMESENSE", "RealFrame", "load_folder", "load_nyu", "load_redwood", "load_tum"]
 
@@ -96,16 +97,17 @@ def load_nyu(folder: Path | str) -> RealFrame:
 
 def load_redwood(folder: Path | str) -> list[RealFrame]:
     """The frames of a Redwood sequence folder (`color/`, `depth/` in millimetres,
-    `camera_primesense.json`, `odometry.log` with y-up world poses), in order."""
+    `camera_primesense.json`, `odometry.log` with y-up world poses), in order.
+
+    Raises:
+        DataError: naming the file: either file missing or unreadable, a camera file that is
+            not JSON of width, height and a 3 x 3 intrinsic_matrix (by column) of a camera, a
+            log that is not blocks of a line of 3 ids and 4 rows of 4 numbers of a rigid
+            transform; more images than poses; an image missing or unreadable.
+    """
     folder = Path(folder)
-    intr = json.loads((folder / "camera_primesense.json").read_text())
-    K = np.asarray(intr["intrinsic_matrix"], dtype=float).reshape(3, 3).T  # stored by column
-    camera = PinholeCamera.from_K(K, int(intr["width"]), int(intr["height"]))
-    rows = (folder / "odometry.log").read_text().split("\n")
-    poses = []
-    numbers = [line.split() for line in rows if line.strip()]
-    for i in range(0, len(numbers) - 4, 5):
-        poses.append(np.array(numbers[i + 1:i + 5], dtype=float))
+    camera = _redwood_camera(folder / "camera_primesense.json")
+    poses = _redwood_poses(folder / "odometry.log")
     # The log's camera axes are OpenGL's (x right, y up, z backwards): its first pose, the
     # identity, shows an upright, level view in the y-up world. Optical = GL turned about x.
     R_gl_optical = np.diag([1.0, -1.0, -1.0])
@@ -114,15 +116,55 @@ def load_redwood(folder: Path | str) -> list[RealFrame]:
     frames = []
     depths = sorted((folder / "depth").glob("*.png"))
     colours = sorted((folder / "color").glob("*.jpg"))
-    if len(depths) != len(colours) or len(depths) > len(poses):
-        raise DataError(f"{folder}: {len(colours)} colour and {len(depths)} depth images "
-                        f"for {len(poses)} poses")
+    if len(depths) != len(colours):
+        raise DataError(f"{folder}: {len(colours)} colour and {len(depths)} depth images")
+    if len(depths) > len(poses):
+        raise DataError(f"{folder / 'odometry.log'}: {len(poses)} poses for {len(depths)} "
+                        "frames")
     for d_path, c_path, T_world_gl in zip(depths, colours, poses, strict=False):
         depth = read_image(d_path, cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0
         R_level_camera = _level(R_zup_yup @ T_world_gl[:3, :3] @ R_gl_optical)
         frames.append(RealFrame(f"redwood_{d_path.stem}", _rgb(c_path), depth, camera,
                                 se3_from_rt(R_level_camera, (0.0, 0.0, REDWOOD_HEIGHT))))
     return frames
+
+
+def _redwood_camera(path: Path) -> PinholeCamera:
+    """Open3D's camera intrinsic JSON: width, height and intrinsic_matrix, K by column."""
+    intrinsics = read_json(path, "camera file")
+    keys = ("width", "height", "intrinsic_matrix")
+    if not (isinstance(intrinsics, dict) and set(keys) <= intrinsics.keys()):
+        raise DataError(f"{path}: expected a JSON object of {', '.join(keys)}, got "
+                        f"{shown(intrinsics)}")
+    K = real_array(str(path), "intrinsic_matrix", intrinsics["intrinsic_matrix"])
+    if K.shape != (9,) or not np.isfinite(K).all():
+        raise DataError(f"{path}: intrinsic_matrix must be 9 finite numbers (K by column), got "
+                        f"{shown(intrinsics['intrinsic_matrix'])}")
+    try:
+        return PinholeCamera.from_K(K.reshape(3, 3).T, intrinsics["width"],
+                                    intrinsics["height"])
+    except ConfigError as exc:
+        raise DataError(f"{path}: not a camera ({exc})") from None
+
+
+def _redwood_poses(path: Path) -> list[np.ndarray]:
+    """A trajectory log: per frame a line of 3 ids, then 4 rows of 4 numbers, T_world_camera."""
+    lines, texts = data_lines(path)
+    if len(texts) % 5:
+        raise DataError(f"{path}: expected blocks of 5 lines (3 ids, then 4 rows of a pose), "
+                        f"got {len(texts)} lines")
+    poses = []
+    for k in range(0, len(texts), 5):
+        if len(texts[k].split()) != 3:
+            raise DataError(f"{path}:{lines[k]}: expected 3 ids, got {texts[k]!r}")
+        rows = []
+        for line, text in zip(lines[k + 1:k + 5], texts[k + 1:k + 5], strict=True):
+            fields = text.split()
+            if len(fields) != 4:
+                raise DataError(f"{path}:{line}: expected a row of 4 numbers, got {text!r}")
+            rows.append([number(path, line, f, text) for f in fields])
+        poses.append(rigid_transform(f"{path}:{lines[k + 1]}: the pose", rows, DataError))
+    return poses
 
 
 def _level(R_world_camera: np.ndarray) -> np.ndarray:

@@ -57,6 +57,7 @@ from .text_tables import data_lines, number, read_table, read_text
 
 __all__ = [
     "MAX_ACCEL_SCATTER_DEG",
+    "MAX_FRAME_NUMBER",
     "MAX_TRUTH_GAP",
     "QUATERNION_TOL",
     "SEVEN_SCENES_INTRINSICS",
@@ -84,6 +85,8 @@ TUM_INTRINSICS = {
 MAX_TRUTH_GAP = 0.1
 #: the largest | |q| - 1 | of a ground-truth quaternion taken as rounding and normalised
 QUATERNION_TOL = 1e-2
+#: the largest 7-Scenes frame number (its files number six digits): a year of frames at 30 fps
+MAX_FRAME_NUMBER = 999_999_999
 #: degrees; accelerometer readings rotated into the world whose median angle to their mean is
 #: larger than this do not agree, so they are not in the camera's axes
 MAX_ACCEL_SCATTER_DEG = 10.0
@@ -234,7 +237,7 @@ class _Listing:
         if parent not in self._names:
             try:
                 self._names[parent] = {e.name for e in os.scandir(parent) if e.is_file()}
-            except OSError:
+            except (OSError, ValueError):  # ValueError: a NUL in the name
                 self._names[parent] = set()
         return path.name in self._names[parent]
 
@@ -322,7 +325,8 @@ def _image_size(path: Path) -> tuple[int, int]:
             return image.size
     except FileNotFoundError:
         raise DataError(f"{path}: no such image") from None
-    except (OSError, UnidentifiedImageError, SyntaxError, ValueError) as exc:
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError,
+            Image.DecompressionBombError) as exc:  # a header claiming billions of pixels
         raise DataError(f"{path}: cannot read the image ({exc})") from exc
 
 
@@ -427,6 +431,9 @@ def read_7scenes(folder, gravity=None, fps: float = 30.0) -> RgbdSequence:
             raise DataError(f"{folder / entry}: expected a frame number of digits after "
                             f"'frame-', got {number!r}")
         n = int(number)
+        if n > MAX_FRAME_NUMBER:
+            raise DataError(f"{folder / entry}: frame number {number} is beyond "
+                            f"{MAX_FRAME_NUMBER} (a year of frames at 30 fps)")
         if n in files[kind]:
             raise DataError(f"{folder / entry}: frame {n} again ({files[kind][n].name} has the "
                             "same number); frame numbers must be unique")
@@ -538,15 +545,18 @@ def _gravity_from_accelerometer(path: Path, truth: tuple[np.ndarray, Rotation, n
                         f"at most {MAX_TRUTH_GAP:g} s apart), so gravity is unknown; put its "
                         f"direction in the world frame in {path.parent / 'gravity-direction.txt'}"
                         " or pass the `gravity` argument")
-    # at rest an accelerometer reads the reaction to gravity: up, so gravity is -a
-    down = -np.einsum("kij,kj->ki", T[usable, :3, :3], rows[usable, 1:4])
-    mean = _unit(down.mean(axis=0))
+    # at rest an accelerometer reads the reaction to gravity: up, so gravity is -a. Scaled by
+    # the largest reading (all of them alike: the mean's direction stays) or each by its own
+    # (the directions), the rotations and the sum cannot overflow
+    R, a = T[usable, :3, :3], rows[usable, 1:4]
+    mean = _unit(-np.einsum("kij,kj->ki", R, a / np.abs(a).max()).mean(axis=0))
+    down = -np.einsum("kij,kj->ki", R, a / np.abs(a).max(axis=1, keepdims=True))
     directions = down / np.linalg.norm(down, axis=1, keepdims=True)
     if mean is None:
         scatter = 180.0
     else:
         scatter = float(np.degrees(np.median(np.arccos(np.clip(directions @ mean, -1, 1)))))
-    if scatter > MAX_ACCEL_SCATTER_DEG:
+    if not scatter <= MAX_ACCEL_SCATTER_DEG:
         raise DataError(f"{path}: the accelerometer readings do not agree in the world frame "
                         f"(median angle to their mean {scatter:.1f} deg, at most "
                         f"{MAX_ACCEL_SCATTER_DEG:g}), so their axes are not the colour "

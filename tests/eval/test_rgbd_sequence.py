@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import struct
 import tempfile
 import time
+import zlib
 from pathlib import Path
 
 import cv2
@@ -18,6 +21,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from tcaff_gtsam.eval.datasets import rgbd_sequence as rs
 from tcaff_gtsam.eval.datasets.rgbd_frames import load_redwood
+from test_text_tables import fifo_holding
 
 from tcaff_gtsam.errors import DataError
 
@@ -649,3 +653,176 @@ def test_real_7scenes_redkitchen():
     assert rgb.shape == (480, 640, 3) and rgb.dtype == np.uint8
     assert depth.shape == (480, 640) and depth.dtype == np.uint16
     assert 0.5 < np.mean(depth > 0) < 1.0 and depth.max() < 65535
+
+
+# -- files that are not what the layouts hold ------------------------------------------------------
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.one_of(st.integers(1_000_000_000, 10**40),
+                 st.integers(19, 60).map(lambda n: int("9" * n))),
+       st.integers(0, 3))
+@example(int("9" * 19), 0)
+def test_7scenes_a_frame_number_past_the_largest_is_named(number, zeros):
+    """A frame renamed frame-99...9 (19 nines or more) was an OverflowError making the frame
+    ids; a smaller number past MAX_FRAME_NUMBER made times past a year of frames. The largest
+    is read."""
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_7scenes(Path(tmp) / "s", some_poses([0, 5]))
+        digits = "0" * zeros + str(number)
+        for kind in ("color.png", "depth.png", "pose.txt"):
+            (folder / f"frame-000005.{kind}").rename(folder / f"frame-{digits}.{kind}")
+        with pytest.raises(DataError, match=rf"frame-{digits}\.\w+\.\w+: frame number {digits} "
+                                            r"is beyond 999999999"):
+            rs.read_7scenes(folder)
+        for kind in ("color.png", "depth.png", "pose.txt"):
+            (folder / f"frame-{digits}.{kind}").rename(folder / f"frame-999999999.{kind}")
+        assert rs.read_7scenes(folder).frame_ids.tolist() == [0, 999_999_999]
+
+
+def png_header(width: int, height: int) -> bytes:
+    """A PNG claiming width x height RGB pixels in its header, its data empty."""
+    def chunk(kind: bytes, body: bytes = b"") -> bytes:
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body)))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT") + chunk(b"IEND")
+
+
+@pytest.mark.parametrize("kind", ["color.png", "depth.png"])
+@pytest.mark.parametrize("side", [100_000, 2**31 - 1])
+def test_an_image_header_claiming_billions_of_pixels_is_named(tmp_path, kind, side):
+    """Pillow refuses to open it (DecompressionBombError), which the loader let through."""
+    folder = write_7scenes(tmp_path / "s", some_poses([0, 5]))
+    (folder / f"frame-000000.{kind}").write_bytes(png_header(side, side))
+    with pytest.raises(DataError, match=rf"frame-000000\.{kind}: cannot read the image"):
+        rs.read_7scenes(folder)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 29), st.integers(0, 12), st.sampled_from(["rgb.txt", "depth.txt"]))
+def test_tum_an_image_name_holding_a_nul_is_no_such_image(row, at, listing):
+    """'rg\\x00b/0.png' in a list was a ValueError (embedded null byte) out of the listing of
+    its folder."""
+    with tempfile.TemporaryDirectory() as tmp:
+        folder, _ = standard_tum(Path(tmp) / "t")
+        path = folder / listing
+        lines = path.read_text().split("\n")
+        number = HEADER_LINES + row % (len(lines) - HEADER_LINES - 1)
+        stamp_text, name = lines[number].split()
+        name = name[:at % len(name)] + "\x00" + name[at % len(name):]
+        lines[number] = f"{stamp_text} {name}"
+        path.write_text("\n".join(lines))
+        with pytest.raises(DataError, match=rf"{listing}:{number + 1}: no such image"):
+            rs.read_tum(folder)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(-300, 306))
+@example(306)
+def test_tum_gravity_from_readings_of_any_size(exponent):
+    """Readings near the float limit overflowed rotated and summed, and gravity came out
+    [nan nan nan] without a word; readings of any size point the same way."""
+    with tempfile.TemporaryDirectory() as tmp:
+        folder, _ = standard_tum(Path(tmp) / "t")
+        rows = []
+        for t in (stamp(T0 + o) for o in np.arange(-0.2, 1.0, 0.01)):
+            a = truth_pose(t)[:3, :3].T @ (-GRAVITY) * 10.0**exponent
+            rows.append(f"{t:.6f} " + " ".join(repr(float(v)) for v in a))
+        (folder / "accelerometer.txt").write_text(TUM_HEADER + "\n".join(rows) + "\n")
+        np.testing.assert_allclose(rs.read_tum(folder).gravity, GRAVITY, atol=1e-6)
+
+
+def test_tum_readings_at_the_float_limit_give_the_direction_of_small_ones(tmp_path):
+    """'0 -1e308 1e308' gave gravity [nan nan nan]: it is the direction '0 -1 1' gives."""
+    folder, _ = standard_tum(tmp_path / "t")
+    times = [stamp(T0 + o) for o in np.arange(-0.2, 1.0, 0.01)]
+    gravity = []
+    for reading in ("0 -1 1", "0 -1e308 1e308"):
+        (folder / "accelerometer.txt").write_text(
+            TUM_HEADER + "\n".join(f"{t:.6f} {reading}" for t in times) + "\n")
+        gravity.append(rs.read_tum(folder).gravity)
+    np.testing.assert_allclose(gravity[1], gravity[0], atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["gravity-direction.txt", "frame-000005.pose.txt",
+                                  "camera-intrinsics.txt"])
+def test_7scenes_a_fifo_for_a_text_file_is_refused_before_it_is_opened(tmp_path, name):
+    """It waited for ever for a writer; here the FIFO holds what the file would."""
+    folder = write_7scenes(tmp_path / "s", some_poses([0, 5]))
+    text = (folder / name).read_text() if (folder / name).exists() else (
+        "585 0 320\n0 585 240\n0 0 1\n")
+    (folder / name).unlink(missing_ok=True)
+    with fifo_holding(folder / name, text):
+        with pytest.raises(DataError, match=f"{folder / name}: cannot read .*not a regular "
+                                            "file"):
+            rs.read_7scenes(folder)
+
+
+# -- Redwood -----------------------------------------------------------------------------------
+
+
+def write_redwood(folder: Path) -> Path:
+    """One 64 x 48 frame with its camera file and log (the identity pose)."""
+    for kind in ("color", "depth"):
+        (folder / kind).mkdir(parents=True)
+    K = [58.5, 0.0, 0.0, 0.0, 58.5, 0.0, 32.0, 24.0, 1.0]  # by column
+    (folder / "camera_primesense.json").write_text(
+        json.dumps({"width": 64, "height": 48, "intrinsic_matrix": K}))
+    (folder / "odometry.log").write_text("0 0 1\n" + pose_text(np.eye(4), "%g") + "\n")
+    (folder / "color" / "00000.jpg").write_bytes(png(np.zeros((48, 64, 3), np.uint8), ".jpg"))
+    (folder / "depth" / "00000.png").write_bytes(png(np.full((48, 64), 1500, np.uint16)))
+    return folder
+
+
+@pytest.mark.parametrize(("file", "text", "words"), [
+    ("camera_primesense.json", None, "no such camera file"),
+    ("camera_primesense.json", '{"width": 64, "height": 4', "not a camera file: not JSON"),
+    ("camera_primesense.json", "[]", "expected a JSON object of width, height, "
+                                     "intrinsic_matrix, got []"),
+    ("camera_primesense.json", '{"width": 64, "height": 48}', "expected a JSON object"),
+    ("camera_primesense.json", '{"width": 64, "height": 48, "intrinsic_matrix": '
+                               '[58.5, 0, 0, 0, 58.5, 0, 32, 24]}', "must be 9 finite numbers"),
+    ("camera_primesense.json", '{"width": 64, "height": 48, "intrinsic_matrix": '
+                               '[58.5, 0, 0, 0, 58.5, 0, 32, 24, "a"]}', "must be real numbers"),
+    ("camera_primesense.json", '{"width": "x", "height": 48, "intrinsic_matrix": '
+                               '[58.5, 0, 0, 0, 58.5, 0, 32, 24, 1]}', "not a camera"),
+    ("camera_primesense.json", '{"width": 64, "height": 48, "intrinsic_matrix": '
+                               '[-1, 0, 0, 0, 58.5, 0, 32, 24, 1]}', "not a camera"),
+    ("odometry.log", None, "no such file"),
+    ("odometry.log", "0 0 1\n1 0 0 0\n0 1 0\n0 0 1 0\n0 0 0 1\n",
+     "odometry.log:3: expected a row of 4 numbers"),
+    ("odometry.log", "0 0 1\n1 0 0 0\n0 1 0 x\n0 0 1 0\n0 0 0 1\n",
+     "odometry.log:3: not a number: 'x'"),
+    ("odometry.log", "0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n", "blocks of 5 lines"),
+    ("odometry.log", "0 0\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", "odometry.log:1: expected 3 "
+                                                                  "ids"),
+    ("odometry.log", "0 0 1\n2 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n", "not a rigid transform"),
+])
+def test_redwood_files_that_are_not_its_files_are_named(tmp_path, file, text, words):
+    """Each was an exception of Python's or numpy's (FileNotFoundError, JSONDecodeError,
+    TypeError, KeyError, ValueError) naming neither the file nor what it lacks."""
+    folder = write_redwood(tmp_path / "r")
+    if text is None:
+        (folder / file).unlink()
+    else:
+        (folder / file).write_text(text)
+    with pytest.raises(DataError, match=re.escape(words)) as info:
+        load_redwood(folder)
+    assert str(info.value).startswith(str(folder / file))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.sampled_from(["camera_primesense.json", "odometry.log"]), st.integers(0, 10**6))
+def test_redwood_files_cut_anywhere_load_or_name_the_file(file, cut):
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = write_redwood(Path(tmp) / "r")
+        raw = (folder / file).read_bytes()
+        (folder / file).write_bytes(raw[:cut % (len(raw) + 1)])
+        try:
+            frames = load_redwood(folder)
+        except DataError as exc:
+            assert str(exc).startswith(str(folder / file))
+        else:
+            assert len(frames) == 1 and np.isfinite(frames[0].T_body_camera).all()
