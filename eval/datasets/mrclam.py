@@ -29,7 +29,8 @@ Unix seconds):
 Rows the published data sets are known to hold and that cannot be used are skipped and counted
 in `MrclamData.skipped` (sightings of a barcode in no table: data set 6 has six). Anything else
 wrong (a missing file, a short or non-numeric row, a non-finite value, times that go backwards,
-no usable rows) is a `DataError` naming the file and line.
+a subject outside 1-20, no usable rows, odometry and truth that share more than `MAX_SPAN`) is
+a `DataError` naming the file and line.
 """
 
 from __future__ import annotations
@@ -52,6 +53,12 @@ __all__ = ["LANDMARK_SIZE", "MrclamData", "RobotRecord", "load_run", "map_drift"
 
 ROBOTS = range(1, 6)        # subjects
 LANDMARKS = range(6, 21)    # subjects
+SUBJECTS = range(1, 21)
+#: s, the longest time the robots' odometry and truth may share. The data sets last minutes
+#: (data set 6: 15); a span of more than a day comes from a stray time stamp (a row of another
+#: day), and its 1 Hz maps and 10 Hz VIO-like odometry would fill the memory (a span of 1e9 s
+#: asks for 7 GiB in one array) long before anything is aligned
+MAX_SPAN = 86_400.0
 #: width and height [m] given to every landmark of a map (the tubes are identical)
 LANDMARK_SIZE = (0.2, 0.5)
 _VIO_STEP = 0.1  # s between the truth samples the VIO-like odometry integrates
@@ -104,10 +111,13 @@ class MrclamData:
         return start, end
 
 
-def _timed(path: Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
+def _timed(path: Path, columns: int, bounds: list[tuple]) -> np.ndarray:
+    """The rows of a file of times, with its first and last time (and their lines) appended
+    to `bounds`."""
     rows, lines, _ = read_table(path, columns)
     _check_times(path, rows[:, 0], lines)
-    return rows, lines
+    bounds.append((path.name, lines[0], rows[0, 0], lines[-1], rows[-1, 0]))
+    return rows
 
 
 def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
@@ -128,9 +138,11 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
     codes, lines, _ = read_table(path, 2)
     subject_of = {}
     for (subject, barcode), line in zip(codes, lines, strict=True):
-        if subject != int(subject) or barcode != int(barcode) or barcode in subject_of:
+        if (subject not in SUBJECTS or barcode != int(barcode)
+                or int(barcode) in subject_of):
             raise DataError(f"{path}:{line}: expected a subject and a new barcode, got "
-                            f"{subject:g} {barcode:g}")
+                            f"{subject:g} {barcode:g} (subjects are {SUBJECTS.start}-"
+                            f"{SUBJECTS.stop - 1})")
         subject_of[int(barcode)] = int(subject)
     path = folder / "Landmark_Groundtruth.dat"
     table = read_table(path, 5, empty_ok=True).rows
@@ -139,9 +151,10 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
         raise DataError(f"{path}: no landmark (subjects {LANDMARKS.start}-{LANDMARKS.stop - 1})")
     unknown = 0
     records = {}
+    bounds = []  # (file name, first line, first time, last line, last time)
     for robot in robots:
-        odometry, _ = _timed(folder / f"Robot{robot}_Odometry.dat", 3)
-        truth, _ = _timed(folder / f"Robot{robot}_Groundtruth.dat", 4)
+        odometry, truth = (_timed(folder / f"Robot{robot}_{kind}.dat", columns, bounds)
+                           for kind, columns in (("Odometry", 3), ("Groundtruth", 4)))
         path = folder / f"Robot{robot}_Measurement.dat"
         seen, lines, _ = read_table(path, 4, empty_ok=True)
         _check_times(path, seen[:, 0], lines)
@@ -158,6 +171,13 @@ def read_dataset(folder: Path, robots: list[int] | None = None) -> MrclamData:
     skipped = {"sightings of unknown barcodes": unknown} if unknown else {}
     data = MrclamData(folder, landmarks, records, skipped)
     start, end = data.span
+    if end - start > MAX_SPAN:
+        first = max(bounds, key=lambda b: b[2])  # the latest start, and the earliest end
+        last = min(bounds, key=lambda b: b[4])
+        raise DataError(f"{folder}: the robots' odometry and truth share {end - start:.4g} s, "
+                        f"more than a day ({MAX_SPAN:g} s), from {first[0]}:{first[1]} "
+                        f"({start:.13g} s) to {last[0]}:{last[3]} ({end:.13g} s): a time stamp "
+                        "is wrong")
     if end - start < 1.0:
         raise DataError(f"{folder}: the robots' odometry and truth share less than a second "
                         f"({start:.3f} to {end:.3f} s)")

@@ -406,3 +406,32 @@ def test_the_graph_links_a_pair_run_in_one_direction_only(dataset):
     assert tcaff.sum() >= 5 and causal.sum() >= tcaff.sum() - 2
     err = runs.estimates["tcaff_isam2_smoothed"][0, tcaff, :2] - runs.truth[0, tcaff, :2]
     assert np.abs(err).max() < 0.1
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.one_of(st.floats(allow_nan=False, allow_infinity=False).filter(
+    lambda s: s not in range(1, 21)), st.integers(21, 10**30), st.integers(-10**30, 0)))
+def test_a_subject_outside_the_twenty_is_named(dataset, tmp_path_factory, subject):
+    """A subject of 1e20 was an OverflowError making the subjects of the sightings."""
+    folder = damaged(dataset, tmp_path_factory.mktemp("subject"),
+                     "Barcodes.dat", replace_line(7, f"{subject!r}\t28\n"))
+    with pytest.raises(DataError, match=r"Barcodes.dat:8: expected a subject and a new barcode"
+                                        r", got .* 28 \(subjects are 1-20\)"):
+        mrclam.read_dataset(folder)
+
+
+@pytest.mark.parametrize("later", [86_400.0, 1e9, 1e300])
+def test_a_stray_row_a_day_later_in_every_file_is_named(dataset, tmp_path, later):
+    """Every robot's odometry and truth ending in a row a day (or 1e9 s) on was read, and the
+    run then asked for 7 GiB at once (MemoryError; 1e300 s: ValueError, maximum size)."""
+    folder = damaged(dataset, tmp_path, "Barcodes.dat", lambda lines: lines)
+    for robot in range(1, 6):
+        for kind, row in (("Odometry", "\t0.0\t0.0\n"), ("Groundtruth", "\t0.0\t0.0\t0.0\n")):
+            path = folder / f"Robot{robot}_{kind}.dat"
+            lines = path.read_text().splitlines(keepends=True)
+            last = float(lines[-1].split()[0])
+            path.write_text("".join(lines) + f"{last + later!r}{row}")
+    with pytest.raises(DataError, match=r"odometry and truth share .* s, more than a day "
+                                        r"\(86400 s\), from Robot\d_\w+\.dat:\d+ \(.* s\) to "
+                                        r"Robot\d_\w+\.dat:\d+ \(.* s\): a time stamp is wrong"):
+        mrclam.read_dataset(folder)
