@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, Field, field_validator, model_validator
+from pydantic import AfterValidator, ConfigDict, Field, field_validator, model_validator
 from tcaff_gtsam.mapping.mapper import MapperParams
 
 from tcaff_gtsam.params import TCAFFParams
@@ -27,20 +27,27 @@ MAX_IMAGE_SIDE = 4096
 #: million waypoints (`sim.motion.MAX_WAYPOINTS`)
 MAX_SPEED = 20.0
 
-#: the longest side of a room, an outdoor path or a separation, and the most false detections
-#: per frame a sensor makes on average
+#: the longest side of a room, an outdoor path or a separation, a sensor's range and noise,
+#: and the most false detections per frame a sensor makes on average
 MAX_METRES = 10_000.0
 MAX_FALSE_PER_FRAME = 100.0
 
 
-class OdometryDrift(_Model):
+class _Scenario(_Model):
+    """A part of a scenario: no number may be infinite or NaN (YAML's .inf and .nan), which
+    the simulator cannot draw from (pydantic takes them where a bound is only below)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+
+class OdometryDrift(_Scenario):
     """VIO-like drift: random walks of the odometry heading and position."""
 
     heading_rw_deg: float = Field(0.05, ge=0, le=10, description="deg per sqrt(s)")
     position_rw: float = Field(0.01, ge=0, le=1, description="m per sqrt(s), per axis")
 
 
-class _Detector(_Model):
+class _Detector(_Scenario):
     """A detector with a field of view between range_min and range_max (set by subclasses)."""
 
     @model_validator(mode="after")
@@ -55,11 +62,13 @@ class SensorConfig(_Detector):
     """Object detections of a forward-looking RGB-D camera after segmentation and lifting."""
 
     fov_deg: float = Field(90.0, gt=0, le=360)
-    range_min: float = Field(0.3, ge=0, description="m")
-    range_max: float = Field(6.0, gt=0, description="m")
+    range_min: float = Field(0.3, ge=0, le=MAX_METRES, description="m")
+    range_max: float = Field(6.0, gt=0, le=MAX_METRES, description="m")
     p_detect: float = Field(0.8, gt=0, le=1, description="chance to detect a visible object")
-    centroid_noise: float = Field(0.05, ge=0, description="m, std per axis at zero range")
-    centroid_noise_per_m: float = Field(0.01, ge=0, description="m of std per m of range")
+    centroid_noise: float = Field(0.05, ge=0, le=MAX_METRES,
+                                  description="m, std per axis at zero range")
+    centroid_noise_per_m: float = Field(0.01, ge=0, le=MAX_METRES,
+                                        description="m of std per m of range")
     size_noise: float = Field(0.1, ge=0, le=1, description="relative std of width and height")
     partial_view: float = Field(0.6, gt=0, le=1,
                                 description="smallest share of an extent a view shows")
@@ -67,23 +76,23 @@ class SensorConfig(_Detector):
                                    description="mean false segments per frame")
 
 
-class CameraConfig(_Model):
+class CameraConfig(_Scenario):
     """A rendered RGB-D camera: when a scenario has one, every frame is ray-cast and mapped by
     the real front end (depth segmenter, lifting, tracker) instead of the object-level sensor."""
 
     width: int = Field(320, ge=32, le=MAX_IMAGE_SIDE, description="pixels")
     height: int = Field(240, ge=32, le=MAX_IMAGE_SIDE, description="pixels")
     hfov_deg: float = Field(87.0, gt=10, lt=170, description="horizontal field of view")
-    mount_height: float = Field(0.6, gt=0, description="m above the floor")
+    mount_height: float = Field(0.6, gt=0, le=MAX_METRES, description="m above the floor")
     pitch_deg: float = Field(5.0, ge=-45, le=45, description="deg looking down")
     depth_noise: float = Field(0.0025, ge=0, le=0.1,
                                description="m of depth std at 1 m; grows with range squared")
-    depth_max: float = Field(6.0, gt=0.5, description="m, farthest depth return")
-    clearance: float = Field(0.4, ge=0, description=(
+    depth_max: float = Field(6.0, gt=0.5, le=MAX_METRES, description="m, farthest depth return")
+    clearance: float = Field(0.4, ge=0, le=MAX_METRES, description=(
         "m; objects closer than this to a robot's path are left out so no camera enters one"))
 
 
-class MappingConfig(_Model):
+class MappingConfig(_Scenario):
     """The object mapper each robot runs, and the window of recent objects it shares."""
 
     nu: Annotated[int, _rule_of(MapperParams, "nu")] = Field(
@@ -95,7 +104,7 @@ class MappingConfig(_Model):
                               description="Hz of detections, at least the 1 Hz map exchange")
 
 
-class IndoorReturnLayout(_Model):
+class IndoorReturnLayout(_Scenario):
     """Two robots in a square room of boxes; robot 1 leaves for another room and comes back."""
 
     kind: Literal["indoor_return"]
@@ -117,7 +126,7 @@ class IndoorReturnLayout(_Model):
         return self
 
 
-class PathLayout(_Model):
+class PathLayout(_Scenario):
     """Two robots on an outdoor path lined with trees, poles, signs, cars, rocks and benches.
 
     same_direction: robot 1 follows robot 0 `separation` metres behind. opposite_directions:
@@ -150,7 +159,7 @@ class PathLayout(_Model):
         return value
 
 
-class RoomLayout(_Model):
+class RoomLayout(_Scenario):
     """Several robots looping in one room of boxes and furniture."""
 
     kind: Literal["room"]
@@ -160,7 +169,7 @@ class RoomLayout(_Model):
     speed: float = Field(0.5, gt=0, le=MAX_SPEED, description="m/s")
 
 
-class GridLayout(_Model):
+class GridLayout(_Scenario):
     """A regular grid of identical objects, with a few distinct landmarks around it."""
 
     kind: Literal["grid"]
@@ -197,11 +206,12 @@ class PersonDetectorConfig(_Detector):
     some probability, placed with noise that grows with range, plus false detections."""
 
     fov_deg: float = Field(90.0, gt=0, le=360)
-    range_min: float = Field(0.5, ge=0, description="m")
-    range_max: float = Field(8.0, gt=0, description="m")
+    range_min: float = Field(0.5, ge=0, le=MAX_METRES, description="m")
+    range_max: float = Field(8.0, gt=0, le=MAX_METRES, description="m")
     p_detect: float = Field(0.85, gt=0, le=1, description="chance to detect a person in view")
-    noise: float = Field(0.1, ge=0, description="m, position std per axis at zero range")
-    noise_per_m: float = Field(0.02, ge=0, description="m of std per m of range")
+    noise: float = Field(0.1, ge=0, le=MAX_METRES,
+                         description="m, position std per axis at zero range")
+    noise_per_m: float = Field(0.02, ge=0, le=MAX_METRES, description="m of std per m of range")
     false_per_frame: float = Field(0.3, ge=0, le=MAX_FALSE_PER_FRAME,
                                    description="mean false detections per frame")
 
@@ -209,22 +219,23 @@ class PersonDetectorConfig(_Detector):
 _Tracker = _params(TrackerParams)
 
 
-class PedestriansConfig(_Model):
+class PedestriansConfig(_Scenario):
     """People walking between random waypoints; every robot detects them, shares its
     detections with its neighbours through each method's frame alignment and tracks them."""
 
     count: int = Field(6, ge=1, le=200)
     speed: Range = Field((0.5, 1.2), description="m/s, each leg's speed drawn from this range")
     pause: Range = Field((0.0, 3.0), description="s standing at each waypoint")
-    margin: float = Field(1.0, ge=0, description=(
+    margin: float = Field(1.0, ge=0, le=MAX_METRES, description=(
         "m; waypoints lie in the bounding box of the robots' paths grown by this much"))
     rate: float = Field(5.0, gt=0, le=100, description=(
         "Hz of detections and tracking; must divide mapping.frame_rate"))
     detector: PersonDetectorConfig = PersonDetectorConfig()
     tracker: _Tracker = TrackerParams()
-    match_distance: float = Field(1.0, gt=0, description=(
+    match_distance: float = Field(1.0, gt=0, le=MAX_METRES, description=(
         "m; MOTA counts a track within this distance of a person as tracking them"))
-    mota_window: float = Field(10.0, gt=0, description="s, the rolling MOTA window")
+    mota_window: float = Field(10.0, gt=0, le=MAX_DURATION,
+                               description="s, the rolling MOTA window")
 
     @field_validator("speed")
     @classmethod
@@ -234,7 +245,7 @@ class PedestriansConfig(_Model):
         return value
 
 
-class ScenarioConfig(_Model):
+class ScenarioConfig(_Scenario):
     """One simulated world, its robots and their sensors."""
 
     name: str = Field(min_length=1, pattern=FILE_NAME)

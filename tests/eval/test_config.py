@@ -322,3 +322,35 @@ def test_a_kimera_test_refuses_names_and_globs_that_are_not_one_robots(tmp_path,
     path.write_text(yaml.safe_dump({**base, **change}))
     with pytest.raises(ConfigError, match=re.escape(words)):
         load_kimera_multi(path)
+
+
+@pytest.mark.parametrize(("part", "key", "value"), [
+    ("sensor", "range_max", ".inf"),  # passed, then an OverflowError drawing false detections
+    ("sensor", "centroid_noise", ".inf"),  # refused by the mapper, naming no key
+    ("sensor", "centroid_noise_per_m", ".inf"),
+    ("sensor", "centroid_noise", "1e308"),  # a DataError of the mapper's, as .inf
+    ("camera", "mount_height", ".inf"),
+    ("camera", "depth_max", ".inf"),
+    ("pedestrians", "speed", "[0.5, .inf]"),
+    ("pedestrians", "margin", ".inf"),
+    ("pedestrians", "margin", "1e308"),  # an OverflowError placing the waypoints
+    ("pedestrians", "match_distance", ".inf"),
+    ("pedestrians.detector", "noise", ".inf"),
+    ("mapping", "kappa", ".inf"),
+    (None, "graph_drift", "[.inf, 1.0]"),
+    ("layout", "lateral", "[2.0, .inf]"),
+])
+def test_a_scenario_refuses_numbers_past_what_it_simulates_naming_the_key(tmp_path, part, key,
+                                                                          value):
+    """Infinite (YAML .inf) or huge numbers where a field is bounded only below were taken,
+    and the simulator failed on them, deep inside, or named no key."""
+    data = {"name": "s", "duration": 10, "layout": {"kind": "same_direction"}}
+    node = data
+    for name in part.split(".") if part else []:
+        node = node.setdefault(name, {})
+    node[key] = yaml.safe_load(value)
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(data))
+    where = f"{part}.{key}" if part else key
+    with pytest.raises(ConfigError, match=re.escape(f"s.yaml: {where}")):
+        load_scenario(path)
