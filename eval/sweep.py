@@ -1,12 +1,13 @@
 """Parameter sweeps: a base study run at several parameter points, resumable, with a report.
 
 Every job (one point, one scenario, one seed) is named by a content hash of its resolved
-configuration (scenario, method set, seed) and written to `<output>/<sweep>/jobs/<hash>/` as
-soon as it finishes; `job.json`, written last, marks it done. A rerun of the sweep skips the
-jobs already done, so a sweep resumes after Ctrl-C or a crash, and a sweep given more values
-runs only the new jobs. Points that resolve to the same configuration share their jobs. A job
-that raises leaves `failed.json` (error and traceback) and is tried again by the next run, and
-so does a done job whose saved files the report cannot read (edited or damaged since).
+configuration (scenario, method set, seed; a window left to the TCAFF presets written out as
+theirs) and written to `<output>/<sweep>/jobs/<hash>/` as soon as it finishes; `job.json`,
+written last, marks it done. A rerun of the sweep skips the jobs already done, so a sweep
+resumes after Ctrl-C or a crash, and a sweep given more values runs only the new jobs. Points
+that resolve to the same configuration share their jobs. A job that raises leaves `failed.json`
+(error and traceback) and is tried again by the next run, and so does a done job whose saved
+files the report cannot read (edited or damaged since).
 
 The report pools each point's jobs (every scenario, seed and directed pair) into one row per
 point: sweep.csv (a row per point and method), sweep.json (also per scenario), and figures:
@@ -33,7 +34,7 @@ import yaml
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.inputs import shown, write_whole
 
-from .config import MethodsConfig, StudyConfig, SweepConfig, apply_settings
+from .config import MethodsConfig, ScenarioConfig, StudyConfig, SweepConfig, apply_settings
 from .datasets.text_tables import read_json
 from .executor import Executor, JobSpec, Progress, job_runner
 from .registry import estimate_names
@@ -51,7 +52,8 @@ class SweepPoint:
     Attributes:
         settings: path -> value this point sets (empty for the default point).
         values: path -> the value in effect: the setting, or for the default point the base
-            study's value ("per scenario" where the scenarios differ).
+            study's (a window left to the TCAFF presets: theirs; "per scenario" where the
+            scenarios differ).
         default: the base study unchanged (or a point that resolves to it).
     """
 
@@ -116,10 +118,11 @@ def job_hash(spec: JobSpec) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def _base_value(study: StudyConfig, path: str) -> Any:
-    """The base study's value at a parameter path ("per scenario" where scenarios differ)."""
+def _base_value(specs: list[JobSpec], path: str) -> Any:
+    """The value in effect at a parameter path in the base study's jobs ("per scenario" where
+    scenarios differ)."""
     root, *keys = path.split(".")
-    configs = [study.methods] if root == "methods" else study.scenarios
+    configs = [specs[0].methods] if root == "methods" else [spec.scenario for spec in specs]
     values = []
     for config in configs:
         node: Any = config.model_dump(mode="json")
@@ -127,6 +130,16 @@ def _base_value(study: StudyConfig, path: str) -> Any:
             node = node.get(key) if isinstance(node, dict) else None
         values.append(node)
     return values[0] if all(v == values[0] for v in values) else "per scenario"
+
+
+def _in_effect(scenario: ScenarioConfig, methods: MethodsConfig) -> ScenarioConfig:
+    """`scenario` with the window in effect written out where it leaves it to the TCAFF
+    presets (and they agree on it), so that a point setting that window is the same job as the
+    base study, and the report shows it."""
+    windows = {methods.tcaff_params(reference, None).window for reference in (False, True)}
+    if scenario.window is not None or len(windows) != 1:
+        return scenario
+    return scenario.model_copy(update={"window": windows.pop()})
 
 
 def plan_sweep(sweep: SweepConfig, study: StudyConfig, source: str = "sweep") -> SweepPlan:
@@ -166,7 +179,8 @@ def plan_sweep(sweep: SweepConfig, study: StudyConfig, source: str = "sweep") ->
         point_jobs.append(hashes)
     if not any(p.default for p in points):
         jobs = {**dict(zip(base, base_specs, strict=True)), **jobs}
-        points.insert(0, SweepPoint({}, {p: _base_value(study, p) for p in parameters}, True))
+        points.insert(0, SweepPoint({}, {p: _base_value(base_specs, p) for p in parameters},
+                                    True))
         point_jobs.insert(0, base)
     return SweepPlan(points, jobs, point_jobs)
 
@@ -182,6 +196,7 @@ def _resolve_point(study: StudyConfig, settings: dict[str, Any], source: str) ->
     if part("scenario"):
         scenarios = [apply_settings(s, part("scenario"), source)  # type: ignore[arg-type]
                      for s in scenarios]
+    scenarios = [_in_effect(s, methods) for s in scenarios]  # type: ignore[arg-type]
     return [JobSpec(s, methods, seed) for s in scenarios for seed in study.seeds]  # type: ignore[arg-type]
 
 

@@ -399,3 +399,25 @@ def test_a_failure_record_cut_short_still_names_its_job(tmp_path, monkeypatch):
     assert listed["error"].startswith(f"its failure record is unreadable: {record}: not a job "
                                       "failure record: not JSON")
 
+
+def test_the_default_window_is_shown_and_its_point_shares_the_base_jobs():
+    """A scenario that leaves `window` unset runs the presets' W = 8: the point window 8 is the
+    base study (one row, the same jobs); it was a separate 'window None' row running the
+    same configuration again under another hash."""
+    sweep = SweepConfig(name="w", study="unused", grid={"scenario.window": [4, 8]},
+                        output="unused")
+    plan = plan_sweep(sweep, base_study(seeds=(0,)))
+    assert [(p.values, p.default) for p in plan.points] == [
+        ({"scenario.window": 4}, False), ({"scenario.window": 8}, True)]
+    assert len(plan.jobs) == 4  # 2 points x 2 scenarios
+    tau = plan_sweep(tau_sweep(Path("unused"), (4.0,)), base_study(seeds=(0,)))
+    assert tau.points[0].default
+    assert {spec.scenario.window for spec in tau.jobs.values()} == {8}
+    # where the presets' window is not every scenario's, the default row says so
+    paths = StudyConfig(name="base", scenarios=[short("indoor_return"),
+                                                short("same_direction")],
+                        methods=METHODS, seeds=[0], workers=1)
+    mixed = plan_sweep(sweep, paths)
+    assert mixed.points[0].default and mixed.points[0].values == {
+        "scenario.window": "per scenario"}
+    assert len(mixed.points) == 3
