@@ -7,13 +7,12 @@ import io
 import json
 import logging
 import os
-import stat
 from pathlib import Path
 
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
-from tcaff_gtsam.inputs import output_path, shown, write_whole
+from tcaff_gtsam.inputs import NotRegularFile, open_regular, output_path, shown, write_whole
 
 from .messages import AlignmentMessage, TeamMessage
 
@@ -139,27 +138,16 @@ def read_alignments(path: str | Path, columns: tuple[str, ...] = COLUMNS
 
 
 def _read_regular(path: str | Path) -> bytes:
-    """The bytes of `path`, refused (DataError) unless it is a regular file: it is checked
-    before the file is opened, and opened without waiting, as a FIFO would make a reader
-    wait for a writer forever."""
-    def regular(mode: int) -> None:
-        if not stat.S_ISREG(mode):
-            raise DataError(f"{path}: not a regular file (a folder, FIFO or device), not an "
-                            f"alignments CSV")
-
+    """The bytes of `path`, refused (DataError) unless it is a regular file
+    (`inputs.open_regular`: a FIFO would make a reader wait for a writer forever)."""
     try:
-        regular(os.stat(path).st_mode)
-        # and should one be swapped in now, O_NONBLOCK keeps the open from waiting
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read alignments ({exc.strerror or exc})") from None
-    with os.fdopen(fd, "rb") as file:
-        regular(os.fstat(file.fileno()).st_mode)
-        try:
+        file, _ = open_regular(path)
+        with file:
             return file.read()
-        except OSError as exc:
-            raise DataError(f"{path}: cannot read alignments ({exc.strerror or exc})"
-                            ) from None
+    except NotRegularFile as exc:
+        raise DataError(f"{path}: {exc}, not an alignments CSV") from None
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{path}: cannot read alignments ({exc.strerror or exc})") from None
 
 
 def write_counters(path: str | Path, counters: dict[str, float]) -> None:

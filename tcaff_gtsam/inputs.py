@@ -188,6 +188,37 @@ _READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error,
                 SyntaxError, MemoryError)
 
 
+class NotRegularFile(OSError):
+    """A path that names a folder, FIFO or device where a file's bytes are to be read."""
+
+    def __str__(self) -> str:
+        return "not a regular file (a folder, FIFO or device)"
+
+
+def open_regular(path: str | Path):
+    """`path` opened to read its bytes, with its `os.stat_result`, if it is a regular file.
+
+    It is checked before it is opened, as a FIFO would block the open until a writer came,
+    and again on the file opened (without waiting, O_NONBLOCK), should one be swapped in
+    between.
+
+    Raises:
+        FileNotFoundError; NotRegularFile; another OSError (no permission, ...) or ValueError
+        (a NUL in the path): for the caller to name in its own DataError.
+    """
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        raise NotRegularFile()
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise NotRegularFile()
+        return os.fdopen(fd, "rb"), info
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def read_npz(path: str | Path, what: str, *, bools: bool = False) -> dict[str, np.ndarray]:
     """Every array of an npz archive (`np.savez`, compressed or not), without pickles.
 
@@ -209,28 +240,17 @@ def read_npz(path: str | Path, what: str, *, bools: bool = False) -> dict[str, n
     except TypeError:
         raise DataError(f"the {what} file must be a path, got {shown(path)}") from None
 
-    def regular(info: os.stat_result) -> None:
-        if not stat.S_ISREG(info.st_mode):
-            raise DataError(f"{path}: not a regular file (a folder, FIFO or device), not a "
-                            f"saved {what}")
-
     try:
-        regular(os.stat(path))  # a FIFO is refused before it is opened
-        # and should it be swapped in now, O_NONBLOCK keeps the open from waiting for a writer
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        file, info = open_regular(path)
     except FileNotFoundError:
         raise DataError(f"{path}: no such {what} file") from None
+    except NotRegularFile as exc:
+        raise DataError(f"{path}: {exc}, not a saved {what}") from None
     except (OSError, ValueError) as exc:
         raise DataError(f"{path}: cannot open the {what} file ({exc})") from None
-    try:
-        info = os.fstat(fd)
-        regular(info)
-        if info.st_size == 0:
-            raise DataError(f"{path}: empty file, not a saved {what}")
-        file = os.fdopen(fd, "rb")
-    except BaseException:
-        os.close(fd)
-        raise
+    if info.st_size == 0:
+        file.close()
+        raise DataError(f"{path}: empty file, not a saved {what}")
     with file:
         try:
             return _read_members(file, info.st_size, path, what,

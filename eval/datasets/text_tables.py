@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import stat
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from tcaff_gtsam.errors import DataError
+from tcaff_gtsam.inputs import open_regular
 
 __all__ = ["TextTable", "data_lines", "number", "read_json", "read_table", "read_text"]
 
@@ -51,23 +50,14 @@ def read_text(path: Path, what: str = "file") -> str:
     """
     path = Path(path)
     try:
-        _regular(path, os.stat(path))
-        # and should a FIFO be swapped in now, O_NONBLOCK keeps the open from waiting for a
-        # writer
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-        with os.fdopen(fd, "rb") as file:
-            _regular(path, os.fstat(file.fileno()))
+        file, _ = open_regular(path)
+        with file:
             data = file.read()
         return data.decode("utf-8")
     except FileNotFoundError:
         raise DataError(f"{path}: no such {what}") from None
     except (OSError, UnicodeDecodeError, ValueError) as exc:  # ValueError: a NUL in the path
         raise DataError(f"{path}: cannot read ({exc})") from None
-
-
-def _regular(path: Path, info: os.stat_result) -> None:
-    if not stat.S_ISREG(info.st_mode):
-        raise OSError("not a regular file: a folder, FIFO or device")
 
 
 def read_json(path: Path, what: str = "file"):

@@ -137,7 +137,7 @@ def test_a_fifo_is_refused_before_it_is_opened(tmp_path):
     ever; here the FIFO gives a valid table to a reader, so that opening it is what is seen."""
     with fifo_holding(tmp_path / "table.txt", "1 2\n3 4\n") as fifo:
         with pytest.raises(DataError, match=re.escape(f"{fifo}: cannot read (not a regular "
-                                                      "file: a folder, FIFO or device)")):
+                                                      "file (a folder, FIFO or device))")):
             read_table(fifo, 2)
     with fifo_holding(tmp_path / "value.json", "[1, 2]") as fifo:
         with pytest.raises(DataError, match="not a regular file"):
