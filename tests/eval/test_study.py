@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tcaff_gtsam.eval import jobs as jobs_module
+from failing_runs import fail_simulating
 from tcaff_gtsam.eval.config import MethodsConfig, StudyConfig, load_scenario, load_study
 from tcaff_gtsam.eval.jobs import simulated_job
 from tcaff_gtsam.eval.methods import estimate_names
@@ -129,14 +129,7 @@ def test_interrupted_study_keeps_the_finished_runs(tmp_path):
 
 
 def test_a_failing_run_does_not_lose_the_others(tmp_path, monkeypatch):
-    real = jobs_module.simulate
-
-    def simulate(scenario, seed, progress=None):
-        if scenario.name == "indoor_return":
-            raise RuntimeError("sensor exploded")
-        return real(scenario, seed, progress)
-
-    monkeypatch.setattr(jobs_module, "simulate", simulate)
+    fail_simulating(monkeypatch, "indoor_return")
     cfg = quick_study(tmp_path, [short("indoor_return", 20), short("ambiguous_grid", 20)])
     outcome = run_study(cfg, figures=False)
     assert [f["scenario"] for f in outcome.failed] == ["indoor_return"]

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from failing_runs import fail_simulating
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from tcaff_gtsam.eval import executor as executor_module
@@ -157,14 +158,7 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_jobs(tmp_path):
 
 def test_a_failing_job_is_recorded_the_others_finish_and_a_rerun_retries_it(tmp_path,
                                                                             monkeypatch):
-    real = jobs_module.simulate
-
-    def simulate(scenario, seed, progress=None):
-        if scenario.name == "ambiguous_grid" and seed == 1:
-            raise RuntimeError("sensor exploded")
-        return real(scenario, seed, progress)
-
-    monkeypatch.setattr(jobs_module, "simulate", simulate)
+    real = fail_simulating(monkeypatch, "ambiguous_grid", seed=1)
     sweep, study = tau_sweep(tmp_path, (8.0,)), base_study()
     outcome = run_sweep(sweep, study)
     assert [(f["scenario"], f["seed"]) for f in outcome.failed] == [("ambiguous_grid", 1)]
@@ -373,14 +367,7 @@ def test_a_job_record_nested_too_deep_is_run_again_now(tmp_path):
 
 def test_a_failure_record_cut_short_still_names_its_job(tmp_path, monkeypatch):
     """A failed.json cut short by hand ended the report in a JSONDecodeError."""
-    real = jobs_module.simulate
-
-    def simulate(scenario, seed, progress=None):
-        if scenario.name == "ambiguous_grid":
-            raise RuntimeError("sensor exploded")
-        return real(scenario, seed, progress)
-
-    monkeypatch.setattr(jobs_module, "simulate", simulate)
+    fail_simulating(monkeypatch, "ambiguous_grid")
     sweep, study = tau_sweep(tmp_path, (8.0,)), base_study(seeds=(0,))
     first = run_sweep(sweep, study, figures=False)
     (failed,) = first.failed
