@@ -332,22 +332,21 @@ def _estimate(accepted: bool, numbers: list[float], team: bool
                 and np.linalg.eigvalsh(P).min() >= -1e-12):
             raise MessageError("malformed", "an accepted team alignment needs a finite x and "
                                             "a positive semi-definite P")
-    elif not _usable(x, P):
-        from tcaff_gtsam.team import ESTIMATE_RULE
-
-        raise MessageError("malformed", f"an accepted alignment needs {ESTIMATE_RULE}, got "
-                                        f"x = {x.tolist()}, P = {P[_UPPER].tolist()} (upper "
-                                        f"triangle)")
+    else:
+        check_usable(x, P, "an accepted alignment")
     return x, P
 
 
-def _usable(x: np.ndarray, P: np.ndarray) -> bool:
-    """Whether `TeamConsistency` takes the estimate x (3,), P (3, 3)."""
-    # imported on first use: it loads numba, which a process that only reads messages
-    # (`tcaff listen`, the bag tools) would otherwise load on start
-    from tcaff_gtsam.team import usable_estimates
+def check_usable(x: np.ndarray, P: np.ndarray, what: str) -> None:
+    """Refuse (MessageError "malformed") `what`'s estimate x (3,), P (3, 3) unless
+    `TeamConsistency` takes it (`tcaff_gtsam.team.usable_estimates`)."""
+    # imported here: it loads numba, whose load a process that only reads messages (`tcaff
+    # listen`, the bag tools) then pays at its first accepted alignment, not at its start
+    from tcaff_gtsam.team import ESTIMATE_RULE, usable_estimates
 
-    return bool(usable_estimates(x[None], P[None])[0])
+    if not usable_estimates(x[None], P[None])[0]:
+        raise MessageError("malformed", f"{what} needs {ESTIMATE_RULE}, got x = {x.tolist()}, "
+                                        f"P = {P.tolist()}")
 
 
 def _finished(read: _Reader) -> None:

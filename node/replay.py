@@ -54,10 +54,16 @@ class RobotReplay:
     window: int | None = None
 
     def save(self, path: str | Path) -> None:
-        """Write the replay to an npz archive at exactly `path`."""
+        """Write the replay to an npz archive at exactly `path`.
+
+        Raises:
+            DataError: a replay without exchanges (`load` refuses one: nothing to replay).
+        """
+        if not self.maps:
+            raise DataError(f"{path}: a robot replay needs at least one exchange, got none")
         sizes = np.array([len(m) for m in self.maps], dtype=np.int64)
-        fields = {name: np.concatenate([getattr(m, name) for m in self.maps]) if self.maps
-                  else np.zeros(0) for name in ("centroids", "widths", "heights", "last_seen")}
+        fields = {name: np.concatenate([getattr(m, name) for m in self.maps])
+                  for name in ("centroids", "widths", "heights", "last_seen")}
         with open(Path(path), "wb") as file:
             np.savez(file, robots=np.array(self.robots), robot=self.robot, times=self.times,
                      sizes=sizes, kappa=self.kappa, window=-1 if self.window is None

@@ -35,16 +35,17 @@ class AlignmentCsv:
     file (x, y in metres, theta in radians, P the upper triangle of the covariance), flushed
     per row so that a killed node keeps its rows. A row a killed writer left cut short at the
     end of the file is taken off first (logged), so that a restarted node's rows do not run
-    on from it."""
+    on from it; a file of something else is not appended to."""
 
     def __init__(self, path: str | Path, columns: tuple[str, ...] = COLUMNS) -> None:
         """Raises:
-            DataError: naming the file: a folder, in a missing folder, or not writable."""
+            DataError: naming the file: a folder, in a missing folder, not writable, or one
+                that holds something other than these columns' rows (it is left as it is)."""
         path = output_path("AlignmentCsv", path)
         try:
-            if path.is_file():
-                _drop_cut_row(path)
             fresh = not path.exists() or path.stat().st_size == 0
+            if not fresh:
+                fresh = _ready_to_append(path, columns)
             self._file = open(path, "a", newline="")
         except OSError as exc:
             raise DataError(f"AlignmentCsv: cannot write {path} ({exc.strerror or exc})") from None
@@ -66,24 +67,36 @@ class AlignmentCsv:
         self._file.close()
 
 
-def _drop_cut_row(path: Path) -> None:
-    """Truncate the regular file `path` after its last line end: what follows is a row its
-    writer had not finished."""
+def _whole(raw: bytes) -> int:
+    """How many bytes of a CSV `AlignmentCsv` wrote hold whole rows: up to its last line end,
+    or all of them when they end in a row's carriage return (cut before its line feed). What
+    follows is a row its writer had not finished."""
+    return len(raw) if raw.endswith(b"\r") else raw.rfind(b"\n") + 1
+
+
+def _ready_to_append(path: Path, columns: tuple[str, ...]) -> bool:
+    """Make the non-empty file `path` end with a whole row of `columns` (its writer killed
+    mid-row left one cut short: taken off, logged; one cut before its line feed is ended),
+    so that the rows appended next do not run on from it. Returns whether it is empty now.
+
+    Raises:
+        DataError: the file does not begin with the header of `columns` (left as it is).
+    """
+    raw = _read_regular(path)
+    header = (",".join(columns) + "\r\n").encode()
+    if not (raw.startswith(header) or header.startswith(raw)):  # a header cut short too
+        raise DataError(f"AlignmentCsv: {path} holds something other than alignments "
+                        f"(it begins {shown(raw[:80])}); not appended to")
+    whole = _whole(raw)
     with open(path, "rb+") as file:
-        end = at = file.seek(0, os.SEEK_END)
-        keep = 0
-        while at > 0:  # back from the end a block at a time: rows are short, files long
-            start = max(at - 4096, 0)
-            file.seek(start)
-            found = file.read(at - start).rfind(b"\n")
-            if found >= 0:
-                keep = start + found + 1
-                break
-            at = start
-        if keep < end:
+        if whole < len(raw):
             log.warning("%s: its last line was a row cut short (its writer stopped mid-row); "
                         "taken off before appending", path)
-            file.truncate(keep)
+            file.truncate(whole)
+        elif raw.endswith(b"\r"):
+            file.seek(0, os.SEEK_END)
+            file.write(b"\n")
+    return whole == 0
 
 
 def read_alignments(path: str | Path, columns: tuple[str, ...] = COLUMNS
@@ -101,8 +114,7 @@ def read_alignments(path: str | Path, columns: tuple[str, ...] = COLUMNS
             number, a field past csv's limit (128 KiB).
     """
     raw = _read_regular(path)
-    # the writer ends each row with its line end: after the last one, a row cut short
-    end = raw.rfind(b"\n") + 1
+    end = _whole(raw)
     if end < len(raw):
         log.warning("%s: its last line is a row cut short (its writer stopped mid-row); "
                     "left out", path)

@@ -52,7 +52,14 @@ import numpy as np
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.object_map import ObjectMap
 
-from .messages import MAX_OBJECTS, AlignmentMessage, MapMessage, MessageError, TeamMessage, _usable
+from .messages import (
+    MAX_OBJECTS,
+    AlignmentMessage,
+    MapMessage,
+    MessageError,
+    TeamMessage,
+    check_usable,
+)
 
 __all__ = ["ALIGNMENT_TYPE", "CLOUD_FIELDS", "CLOUD_TYPE", "HEALTH_TYPE", "MAP_TYPE",
            "Ros2Bridge", "alignment_of", "alignment_topic", "attachment", "check_ros_name",
@@ -389,12 +396,7 @@ def alignment_of(message, sender: str, neighbour: str) -> AlignmentMessage:
                   np.arctan2(2 * (qw * qz + qx * qy), qw**2 + qx**2 - qy**2 - qz**2)],
                  dtype=float)
     P = np.asarray(message.pose.covariance, dtype=float).reshape(6, 6)[np.ix_(_XY_YAW, _XY_YAW)]
-    if not _usable(x, P):
-        from tcaff_gtsam.team import ESTIMATE_RULE
-
-        raise MessageError("malformed", f"an alignment of {sender} to {neighbour} needs "
-                                        f"{ESTIMATE_RULE}, got x = {x.tolist()}, "
-                                        f"P = {P.tolist()}")
+    check_usable(x, P, f"an alignment of {sender} to {neighbour}")
     stamp = message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
     return AlignmentMessage(sender, 0, 0, stamp, neighbour, 0, np.nan, 0, 0, True, x, P)
 

@@ -81,7 +81,9 @@ def main() -> None:
         t_filter.append(t1 - t0)
         t_graph.append(t2 - t1)
         for pair, (est, _) in estimates.items():
-            if est is not None:
+            # before its first factor (or with its factors held out) the graph has no
+            # alignment of the pair: its covariance is infinite
+            if est is not None and graph.connected(*pair):
                 kept[pair].append((k, est.T, est.P, *graph.alignment(*pair, k)))
         if (k + 1) % 600 == 0:
             print(f"  step {k + 1}/{args.steps}", flush=True)

@@ -231,8 +231,12 @@ def truth_rates(run) -> tuple[float, float]:
 def _map_drift(drift: tuple[float, float]) -> tuple[float, float]:
     """(d_t, d_theta) within `MAX_MAP_DRIFT`, the most `FrameAlignerParams.map_drift` takes: a
     scenario's odometry may drift faster (its own bounds allow 1.4 m and 0.25 rad per square
-    root of a second between two robots), and the model then takes the bound."""
-    return (min(drift[0], MAX_MAP_DRIFT[0]), min(drift[1], MAX_MAP_DRIFT[1]))
+    root of a second between two robots), and the model then takes the bound, saying so."""
+    bounded = (min(drift[0], MAX_MAP_DRIFT[0]), min(drift[1], MAX_MAP_DRIFT[1]))
+    if bounded != tuple(drift):
+        print(f"note: map_drift {tuple(drift)} taken as {bounded}, MAX_MAP_DRIFT: the rows of "
+              f"this run's drift models hold less drift than the odometry's", flush=True)
+    return bounded
 
 
 def declared_drift(run, source: Source, default: tuple[float, float]) -> tuple[float, float]:

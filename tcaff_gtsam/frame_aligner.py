@@ -316,7 +316,8 @@ class FrameAligner:
         Raises:
             ConfigError: R beyond what a filter takes (an entry above `MAX_VARIANCE` or not
                 finite), naming the settings that, with objects that far from the ego frame's
-                origin, made it so.
+                origin, made it so; a DataError with covariance="residual", whose R the data
+                alone sets.
         """
         prm = self.params
         if prm.covariance == "constant":
@@ -340,7 +341,10 @@ class FrameAligner:
                 settings = (f"kappa = {prm.kappa:g} s, map_drift = {prm.map_drift}, "
                             f"{settings}, repeat_inflation = {prm.repeat_inflation:g} and "
                             f"repeat_Q's diagonal {Q}")
-            raise ConfigError(
+            # the calibrated covariance's size is its settings' (drift over the span, the
+            # inflation); the residual one's is the data's (far or degenerate objects)
+            error = ConfigError if prm.covariance == "calibrated" else DataError
+            raise error(
                 f"FrameAligner: a candidate's covariance reaches {np.abs(R).max():.3g}, beyond "
                 f"{MAX_VARIANCE:g} (MAX_VARIANCE), from covariance = {prm.covariance!r} with "
                 f"{settings}, the objects up to {np.abs(p[:, :2]).max():.3g} m from the ego "

@@ -400,11 +400,11 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._settle(touched)
             self._check_agreement()  # before any covariance is kept from a refused solution
             self._mark_stale(gone, restored, newest)
-            joints = self._leaving_joints(leaving)
+            joints = self._leaving_joints(leaving, self._queued)
             if self._keeps_joints and self._steps:
                 # the latest step's joint, which it keeps when the next step comes: computed
                 # here, so that a graph whose marginals gtsam cannot compute rolls back
-                self._joints[self._steps[-1]] = self._joint(self._steps[-1])
+                self._joints[self._steps[-1]] = self._joint(self._steps[-1], self._queued)
             return indices, joints
 
         try:

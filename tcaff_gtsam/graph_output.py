@@ -30,8 +30,10 @@ class GraphReadout:
             earlier step, with `GraphParams.past_covariance = "causal"` (the default), the
             marginal it had while it was the latest, unless a factor it counted (of its step
             or an earlier one) has been removed for good since (then, and with "smoothed", its
-            marginal now); a step that left the horizon keeps the one it left with. Robots not
-            `connected`: T is arbitrary and the covariance infinite on its diagonal.
+            marginal now); a step that left the horizon keeps the one it left with. Robots that
+            no alignment factor links (`connected` false now, or, for a covariance kept from
+            when the step was the latest, then): T is arbitrary and the covariance infinite on
+            its diagonal.
         Raises:
             DataError: unknown robot, a step that has not been committed, or one forgotten
                 (`GraphParams.history`); a covariance gtsam cannot compute (a graph of
@@ -55,13 +57,15 @@ class GraphReadout:
             return T, None
         if i == j:
             return T, np.zeros((self._n_param, self._n_param))
-        if not self.connected(i, j):
-            # only the gauge priors hold them: T is arbitrary, and the priors' 1 m and 1 rad
-            # would be taken for an uncertainty by whoever weighs it
-            return T, np.diag(np.full(self._n_param, np.inf))
+        # robots no alignment links (now, or when the step's kept joint was computed: NaN
+        # between them, `_joint`) are held by the gauge priors alone: T is arbitrary, and the
+        # priors' 1 m and 1 rad would be taken for an uncertainty by whoever weighs it
+        unknown = T, np.diag(np.full(self._n_param, np.inf))
         try:
             every = self._kept_joint(step)
             if every is None:
+                if not self.connected(i, j):
+                    return unknown
                 joint = self._isam.jointMarginalCovariance(
                     gtsam.KeyVector([ki, kj])).fullMatrix()
         except RuntimeError as exc:  # the graph stays as it is: its estimates can be read
@@ -72,6 +76,8 @@ class GraphReadout:
             n = 3 if self._planar else 6
             rows = np.r_[i * n:(i + 1) * n, j * n:(j + 1) * n]
             joint = every[np.ix_(rows, rows)]
+            if np.isnan(joint).any():
+                return unknown
         Ad_inv = self._pose(np.linalg.inv(T)).AdjointMap()
         J = np.hstack([-Ad_inv, np.eye(Ad_inv.shape[0])])
         return T, self._params_cov(T, J @ joint @ J.T)
@@ -82,8 +88,16 @@ class GraphReadout:
         arbitrary and its covariance infinite."""
         self._check_robot("i", i)
         self._check_robot("j", j)
-        root = _components(self._a_chains, (link for link, n in self._links.items() if n > 0))
-        return root(("A", i)) == root(("A", j))
+        linked = self._linked()
+        return linked[i] == linked[j]
+
+    def _linked(self, committing=()) -> np.ndarray:
+        """(n_robots,) int: robots of one number are linked by committed alignment factors
+        (and by the factors `committing`, which an update is committing)."""
+        links = [link for link, n in self._links.items() if n > 0]
+        root = _components(self._a_chains, links + [q.link for q in committing if q.link])
+        roots = [root(("A", r)) for r in range(self.n_robots)]
+        return np.array([roots.index(each) for each in roots])
 
     def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """T_oi_oj at every committed step from the current (smoothed) solution, except the

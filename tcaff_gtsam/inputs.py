@@ -151,11 +151,15 @@ def write_whole(path: Path, text: str) -> None:
     The bytes reach the disk before the rename, so that a robot whose power is cut just after
     finds the new file whole rather than empty (file systems may write the rename first)."""
     partial = path.with_name(path.name + ".partial")
-    with open(partial, "w", encoding="utf-8", newline="") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(partial, path)
+    try:
+        with open(partial, "w", encoding="utf-8", newline="") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(partial, path)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
 
 
 def output_path(owner: str, path) -> Path:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import atexit
 import math
+import re
+import shutil
 from enum import Enum
 from pathlib import Path
 from typing import Annotated
@@ -312,7 +314,7 @@ def team(
     base_port: Annotated[int, typer.Option(
         help="Robot k listens on 127.0.0.1:<base-port + k>; 0: free ports.")] = 0,
     output: Annotated[Path, typer.Option(
-        help="Folder for every node's CSV, counters, log; a run replaces the previous run's.")
+        help="Folder for every node's CSV, counters, log; a previous run's go to previous/.")
     ] = Path("results/team"),
     drop_share: Annotated[float, typer.Option(
         help="Share of maps each node discards on arrival (a lossy link).")] = 0.0,
@@ -375,7 +377,7 @@ def team(
     ports = free_ports(n) if base_port == 0 or dds else list(range(base_port, base_port + n))
     if not all(0 < p < 65536 for p in ports):
         _refuse("--base-port", base_port, f"ports {ports[0]}..{ports[-1]} must be in 1..65535")
-    replaced = _clear_previous_run(output)
+    replaced = _set_aside_previous_run(output)
     replays = save_replays(run, output / "replay")
     argvs = [node_argv(replays[k], k, n, team_name, ports, None, output, speed, drop_share,
                        tls=tls, silence=silence, team_consistency=team_consistency,
@@ -389,8 +391,8 @@ def team(
                       f"each robot's certificate names it: start such nodes with tcaff node)",
                       soft_wrap=True, style="yellow")
     if replaced:
-        console.print(f"replacing the previous run's results in {output} ({replaced} files)",
-                      soft_wrap=True)
+        console.print(f"the previous run's results ({replaced} files) moved to "
+                      f"{output / 'previous'}", soft_wrap=True)
     console.print(f"robots: {_named(run, robot_names(n))}", soft_wrap=True)
     where = (f"as ROS 2 nodes /r0/tcaff.. in domain {domain_id}" if dds
              else f"on 127.0.0.1:{ports[0]}..{ports[-1]}")
@@ -422,19 +424,26 @@ def team(
     console.print(f"results: {output}")
 
 
-#: what a team run leaves in its --output folder (the Kimera maps in maps/ are kept: a later
-#: run with the same settings reuses them)
-_RUN_FILES = ("r[0-9]*.csv", "r[0-9]*.team.csv", "r[0-9]*.json", "logs/node[0-9]*.log",
-              "replay/r[0-9]*.npz")
+#: what a team run leaves in its --output folder, by folder (the Kimera maps in maps/ are
+#: kept: a later run with the same settings reuses them)
+_RUN_FILES = {".": re.compile(r"r\d+(\.team)?\.csv|r\d+\.json"),
+              "logs": re.compile(r"node\d+\.log"), "replay": re.compile(r"r\d+\.npz")}
 
 
-def _clear_previous_run(output: Path) -> int:
-    """Remove a previous team run's files from `output` (a node appends to its CSV, to carry
-    on after a restart, so a new run into the folder would add to the old one's rows); the
-    number removed."""
-    old = sorted({path for pattern in _RUN_FILES for path in output.glob(pattern)})
-    for path in old:
-        path.unlink()
+def _set_aside_previous_run(output: Path) -> int:
+    """Move a previous team run's files from `output` into `output/previous/` (replacing what
+    an earlier run left there): a node appends to its CSV, to carry on after a restart, so a
+    new run into the folder would add to the old one's rows. Returns how many were moved."""
+    old = [path for folder, name in _RUN_FILES.items() if (output / folder).is_dir()
+           for path in sorted((output / folder).iterdir())
+           if name.fullmatch(path.name) and path.is_file()]
+    if old:
+        previous = output / "previous"
+        shutil.rmtree(previous, ignore_errors=True)
+        for path in old:
+            moved = previous / path.relative_to(output)
+            moved.parent.mkdir(parents=True, exist_ok=True)
+            path.rename(moved)
     return len(old)
 
 

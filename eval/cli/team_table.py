@@ -26,20 +26,22 @@ def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -
                    else "Per directed pair: the node's alignments against the truth")
     _add_columns(table, ("pair", "steps", "accepted", *(("chained",) if team else ()),
                          "median error [m, deg]", "last error [m, deg]"))
+    foreign: list[str] = []
     for i, robot in enumerate(names):
         path = output / (f"{robot}.team.csv" if team else f"{robot}.csv")
         try:
             rows = read_alignments(path, TEAM_COLUMNS if team else COLUMNS)
         except DataError:
             continue
+        seq_all = rows["seq"]
+        if seq_all.size and not 0 <= seq_all.min() <= seq_all.max() < len(run.times):
+            foreign.append(path.name)  # exchanges this run does not have: another run's rows
+            continue
         for j, other in enumerate(names):
             mine = rows["neighbour"] == other
             if i == j or not mine.any():
                 continue
             seq = rows["seq"][mine].astype(int)
-            if seq.size and not 0 <= seq.min() <= seq.max() < len(run.times):
-                raise DataError(f"{path}: exchange {seq.max()} of {other} is not "
-                                f"one of this run's {len(run.times)} (a different run's rows)")
             accepted = rows["accepted"][mine] == 1
             truth = se2_to_params(run.T_true(i, j)[seq])
             x = np.column_stack([rows[c][mine] for c in ("x", "y", "theta")])
@@ -59,8 +61,13 @@ def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -
         counters = json.loads(path.read_text()) if path.exists() else {}
         for key in late:
             late[key] += counters.get(key, 0)
+    notes = []
     if any(late.values()) and not team:
-        table.caption = (f"{late['dropped_stale']} maps came too late and "
-                         f"{late['silent_steps']} steps had no neighbour's map: the team fell "
-                         f"behind its schedule (try a lower --speed) or lost maps")
+        notes.append(f"{late['dropped_stale']} maps came too late and {late['silent_steps']} "
+                     f"steps had no neighbour's map: the team fell behind its schedule (try a "
+                     f"lower --speed) or lost maps")
+    if foreign:
+        notes.append(f"left out {', '.join(foreign)}: exchanges beyond this run's "
+                     f"{len(run.times)} (another run's rows)")
+    table.caption = "; ".join(notes) or None
     return _keep_numbers_whole(table)

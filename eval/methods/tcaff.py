@@ -139,6 +139,9 @@ class GraphRunner:
             if held.size and self.graph.connected(*pair):
                 steps, T = self.graph.alignment_history(*pair)
                 inside = steps[(steps >= held[0]) & (steps <= held[-1])]
-                smoothed[p, inside] = se2_to_params(T[np.isin(steps, inside)])
-                cov = self.covariances["tcaff_isam2_smoothed"]
-                cov[p, inside] = [self.graph.alignment(*pair, k)[1] for k in inside]
+                covs = np.array([self.graph.alignment(*pair, k)[1] for k in inside])
+                # a step whose covariance the graph keeps from before the pair was linked
+                # (`past_covariance="causal"`) has no alignment to report
+                known = np.isfinite(covs).all(axis=(1, 2))
+                smoothed[p, inside[known]] = se2_to_params(T[np.isin(steps, inside[known])])
+                self.covariances["tcaff_isam2_smoothed"][p, inside[known]] = covs[known]

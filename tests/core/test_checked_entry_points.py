@@ -119,6 +119,7 @@ def test_a_file_is_written_whole_or_left_as_it_was(tmp_path_factory, old, new):
     with pytest.raises(UnicodeEncodeError):
         write_whole(path, new + "\ud800")  # a lone surrogate: written up to it, then refused
     assert path.read_bytes().decode("utf-8") == new
+    assert [p.name for p in path.parent.iterdir()] == [path.name]  # nothing left aside
 
 
 def test_the_reason_of_a_foreign_error_is_its_first_line_or_its_kind():

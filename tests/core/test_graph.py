@@ -603,15 +603,21 @@ def test_robots_the_graph_does_not_link_have_an_infinite_covariance():
     """Only the gauge priors hold them: their 1 m and 1 rad were reported as the alignment's
     covariance, identity within a metre, whatever the truth."""
     _, truth = team()
-    graph = InterRobotGraph(3)
-    graph.update(0)
-    graph.add_alignment(1, 0, 1, truth[(0, 1)], R)
-    graph.update(1)
-    for step in (0, 1):
-        assert np.isfinite(graph.alignment(0, 1, step)[1]).all()
+
+    def unknown(cov: np.ndarray) -> bool:
+        return np.isinf(np.diag(cov)).all() and (cov[~np.eye(3, dtype=bool)] == 0).all()
+
+    for past in ("causal", "smoothed"):
+        graph = InterRobotGraph(3, params=GraphParams(past_covariance=past))
+        graph.update(0)
+        assert unknown(graph.alignment(0, 1)[1])
+        graph.add_alignment(1, 0, 1, truth[(0, 1)], R)
+        graph.update(1)
+        assert np.isfinite(graph.alignment(0, 1, 1)[1]).all()
+        # step 0 as it was then (causal), or as the link at step 1 tells of it now (smoothed)
+        assert unknown(graph.alignment(0, 1, 0)[1]) == (past == "causal")
         for i, j in ((0, 2), (2, 1)):
-            cov = graph.alignment(i, j, step)[1]
-            assert np.isinf(np.diag(cov)).all() and (cov[~np.eye(3, dtype=bool)] == 0).all()
+            assert all(unknown(graph.alignment(i, j, step)[1]) for step in (0, 1))
 
 
 # -- long runs and a graph that cannot be broken --------------------------------------------------

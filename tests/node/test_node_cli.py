@@ -156,6 +156,11 @@ def test_a_replay_whose_times_cannot_be_a_schedule_is_refused_on_load(tmp_path, 
     bad.save(tmp_path / "bad.npz")
     with pytest.raises(DataError, match="times must be finite and increasing, one per map"):
         RobotReplay.load(tmp_path / "bad.npz")
+    # without exchanges: refused when saved (it was saved, then refused on load as a map
+    # of the wrong shape)
+    with pytest.raises(DataError, match="a robot replay needs at least one exchange"):
+        RobotReplay(("r0", "r1"), 0, np.zeros(0), [], 20.0, None).save(tmp_path / "none.npz")
+    assert not (tmp_path / "none.npz").exists()
 
 
 @pytest.mark.parametrize("name", ["times", "sizes"])
@@ -317,17 +322,20 @@ def test_the_node_command_stops_within_the_library_s_default() -> None:
     assert inspect.signature(node).parameters["stop_timeout"].default == STOP_TIMEOUT
 
 
-def test_a_team_run_replaces_the_previous_runs_results(tmp_path: Path, monkeypatch,
-                                                       capsys) -> None:
+def test_a_team_run_sets_the_previous_runs_results_aside(tmp_path: Path, monkeypatch,
+                                                         capsys) -> None:
     """The nodes append to their CSVs (to carry on after a restart): a second run into the
     folder added its rows to the first's, and one of more exchanges crashed the table. The
     run's nodes fail at once here (a bad drop seed), so what is left is what the team kept."""
     from tcaff_gtsam.node import run
 
-    old = ["r0.csv", "r0.json", "r2.team.csv", "r3.json", "logs/node3.log", "replay/r3.npz"]
-    for name in [*old, "maps/r0.npz", "notes.csv"]:
+    old = ["r0.csv", "r0.json", "r12.team.csv", "r3.json", "logs/node3.log", "replay/r3.npz"]
+    # what a team run does not write: near misses of its names, and the Kimera maps it reuses
+    kept = ["maps/r0.npz", "notes.csv", "r2d2_notes.csv", "r1-old.json", "r3_summary.team.csv",
+            "replay/r1_backup.npz", "logs/node1.log.1"]
+    for name in [*old, *kept, "previous/r9.csv"]:
         (tmp_path / name).parent.mkdir(exist_ok=True)
-        (tmp_path / name).write_text("a previous run's\n")
+        (tmp_path / name).write_text(f"{name} of a previous run\n")
     node_argv = run.node_argv
     monkeypatch.setattr(run, "node_argv", lambda *args, **kwargs: [
         *node_argv(*args, **kwargs), "--drop-seed", "-1"])
@@ -335,26 +343,31 @@ def test_a_team_run_replaces_the_previous_runs_results(tmp_path: Path, monkeypat
                                       "--duration", "5", "--output", str(tmp_path)])
     with pytest.raises(SystemExit):
         cli.main()
-    said = capsys.readouterr().out
-    assert f"replacing the previous run's results in {tmp_path} ({len(old)} files)" in said
+    said = " ".join(capsys.readouterr().out.split())
+    assert f"the previous run's results ({len(old)} files) moved to {tmp_path / 'previous'}" in said
     assert not any((tmp_path / name).exists() for name in old)
-    # the Kimera maps a later run reuses, and what the team did not write, are kept
-    assert (tmp_path / "maps/r0.npz").exists() and (tmp_path / "notes.csv").exists()
+    assert all((tmp_path / "previous" / name).read_text() == f"{name} of a previous run\n"
+               for name in old)
+    assert not (tmp_path / "previous" / "r9.csv").exists()  # an older run's, replaced
+    assert all((tmp_path / name).exists() for name in kept)
 
 
-def test_the_team_table_refuses_rows_of_another_run(tmp_path: Path) -> None:
+def test_the_team_table_leaves_out_rows_of_another_run(tmp_path: Path) -> None:
+    """Rows of exchanges the run does not have crashed the table (IndexError) after the nodes
+    had run; they are left out, and the caption says so."""
     from tcaff_gtsam.eval.cli.team import _simulated
     from tcaff_gtsam.eval.cli.team_table import _team_table
     from tcaff_gtsam.node.messages import AlignmentMessage
     from tcaff_gtsam.node.results import AlignmentCsv
 
-    from tcaff_gtsam import DataError
-
     sim = _simulated("indoor_return", 0, 5.0)
-    rows = AlignmentCsv(tmp_path / "r0.csv")
-    rows.write(AlignmentMessage("r0", 0, len(sim.times), 1.0, "r1", 0, 1.0, 0, 0, True,
-                                np.zeros(3), np.eye(3)))
-    rows.close()
-    with pytest.raises(DataError, match=f"exchange {len(sim.times)} of r1 is not one of this "
-                                        f"run's {len(sim.times)}"):
-        _team_table(sim, tmp_path, ("r0", "r1"))
+    for robot, seq in (("r0", len(sim.times)), ("r1", 0)):
+        rows = AlignmentCsv(tmp_path / f"{robot}.csv")
+        rows.write(AlignmentMessage(robot, 0, seq, 1.0, "r1" if robot == "r0" else "r0", 0,
+                                    1.0, 0, -1, False, np.full(3, np.nan),
+                                    np.full((3, 3), np.nan)))
+        rows.close()
+    table = _team_table(sim, tmp_path, ("r0", "r1"))
+    assert table.row_count == 1  # r1 -> r0
+    assert table.caption == (f"left out r0.csv: exchanges beyond this run's {len(sim.times)} "
+                             f"(another run's rows)")

@@ -44,7 +44,7 @@ def assert_rows(path: Path, steps: list[int]) -> None:
 @settings(max_examples=60, deadline=None)
 @given(n=st.integers(1, 6), cut=st.floats(0, 1, exclude_max=True), more=st.integers(0, 3))
 @example(n=3, cut=0.95, more=0)   # cut in the last row's last number
-@example(n=3, cut=0.999, more=2)  # between its "\r" and "\n"
+@example(n=3, cut=0.999, more=2)  # between its "\r" and "\n": the row is whole
 def test_a_writer_killed_mid_row_loses_that_row_only_and_a_restarted_one_appends_whole_rows(
         tmp_path_factory, n, cut, more) -> None:
     """The writer appends and flushes row by row: a node killed mid-write leaves a row cut
@@ -56,7 +56,8 @@ def test_a_writer_killed_mid_row_loses_that_row_only_and_a_restarted_one_appends
     header = raw.index(b"\n") + 1
     at = header + int(cut * (len(raw) - header))  # the kill: anywhere after the header
     path.write_bytes(raw[:at])
-    whole = raw[:at].count(b"\n") - 1  # the rows whose line end was written
+    # the rows whose line end was written, or its carriage return (ending the last row)
+    whole = raw[:at].count(b"\n") - 1 + raw[:at].endswith(b"\r")
     assert_rows(path, list(range(whole)))
     written(path, range(n, n + more))  # restarted
     assert_rows(path, [*range(whole), *range(n, n + more)])
@@ -108,3 +109,18 @@ def test_a_team_csv_reads_back_as_written(tmp_path) -> None:
     got = read_alignments(tmp_path / "r0.team.csv", TEAM_COLUMNS)
     assert (got["via"].tolist(), got["seq"].tolist(), got["P_tt"].tolist()) == (
         ["r1"], [4.0], [1.0])
+
+
+def test_a_file_of_something_else_is_not_appended_to(tmp_path) -> None:
+    """A file at the CSV's path that is no alignments CSV (no line end at all, or another
+    header) was cut to nothing and given a header; it is left as it is."""
+    for text in ("notes without a line end", "robot,neighbour,else\r\nr0,r1,3\r\n"):
+        path = tmp_path / "r0.csv"
+        path.write_text(text, newline="")
+        with pytest.raises(DataError, match="holds something other than alignments"):
+            AlignmentCsv(path)
+        assert path.read_bytes().decode() == text
+    written(tmp_path / "cut.csv", range(0))  # a header alone, its line end cut off
+    (tmp_path / "cut.csv").write_bytes((tmp_path / "cut.csv").read_bytes()[:-1])
+    written(tmp_path / "cut.csv", range(2))
+    assert_rows(tmp_path / "cut.csv", [0, 1])
