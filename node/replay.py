@@ -76,9 +76,9 @@ class RobotReplay:
         Raises:
             DataError: the file is missing, corrupt or not a replay, naming the file and the
                 field: robots not 2 to MAX_TEAM distinct robot names; robot not an int index
-                of them; times not finite increasing numbers, at least one, one per map; sizes
-                not ints >= 0 that share out the objects' arrays exactly; a map no ObjectMap
-                holds; kappa or window outside what the node's aligner and TCAFF take
+                of them; times not finite increasing numbers, at least one, one per map,
+                spanning at most a year (`MAX_SECONDS`); sizes not ints >= 0 that share out
+                the objects' arrays exactly; a map no ObjectMap holds; kappa or window outside what the node's aligner and TCAFF take
                 (kappa > 0 s and at most a year, or inf; window an int in 1..MAX_WINDOW, or
                 -1 for the preset's). Numbers stored as text are refused, not parsed.
         """
@@ -133,9 +133,11 @@ class RobotReplay:
                                   f"summing to the {n} objects stored")
         # checked here, not when the first exchange is due after the team is awaited
         if (times.dtype.kind not in "iuf" or times.shape != sizes.shape or not len(times)
-                or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0)):
+                or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0)
+                or times[-1] - times[0] > MAX_SECONDS):  # a schedule the clock can wait for
             raise refuse("times", f"(its {times.size} times must be finite and increasing, "
-                                  f"one per map ({len(sizes)}), at least one)")
+                                  f"one per map ({len(sizes)}), at least one, spanning at "
+                                  f"most a year, MAX_SECONDS)")
         cuts = np.cumsum(sizes)[:-1]
         parts = {name: np.split(data[name], cuts) for name in _OBJECT_ARRAYS}
         maps = []

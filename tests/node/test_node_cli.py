@@ -138,7 +138,8 @@ def test_a_listen_port_in_use_is_named_not_a_zenoh_error() -> None:
             Link(listen=(f"127.0.0.1:{port}",)).open()
 
 
-@pytest.mark.parametrize("times", [[0.0, float("nan"), 2.0], [0.0, 2.0, 1.0], [0.0, 1.0]])
+@pytest.mark.parametrize("times", [[0.0, float("nan"), 2.0], [0.0, 2.0, 1.0], [0.0, 1.0],
+                                   [0.0, 1.0, 1e300]])  # the wait overflowed
 def test_a_replay_whose_times_cannot_be_a_schedule_is_refused_on_load(tmp_path, times) -> None:
     """Refused when read, not after a node has waited for its team and reached the first
     exchange due (it waited two minutes before)."""
