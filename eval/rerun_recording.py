@@ -38,10 +38,10 @@ from .metrics import step_errors, step_nees
 from .results import JobResult
 from .trajectories import (
     check_odometry,
-    check_reference,
     estimate_streams,
     frame_alignment,
     robot_names,
+    with_robot,
 )
 
 __all__ = ["RERUN_VERSION", "check_rerun", "record"]
@@ -210,8 +210,9 @@ def record(path: Path, jobs: Iterable[JobResult], reference: int = 0,
         method: the estimate stream shown as the accepted alignment (default: tcaff, when the
             jobs have it, else their first).
     Raises:
-        ConfigError: rerun-sdk missing or of another release, a reference robot or method the
-            jobs do not have.
+        ConfigError: rerun-sdk missing or of another release, a reference robot no job has
+            (the jobs without it are left out, with a warning) or a method the jobs do not
+            have.
         DataError: the file cannot be written; a job whose odometry is not finite (as
             `trajectories.export` refuses it) or whose saved arrays disagree.
     """
@@ -220,8 +221,8 @@ def record(path: Path, jobs: Iterable[JobResult], reference: int = 0,
     jobs = list(jobs)
     if not jobs:
         raise DataError(f"{path}: no runs to record")
+    jobs = with_robot(jobs, reference)
     for job in jobs:
-        check_reference(job, reference)
         check_odometry(job)
     shown = [_shown_method(job, method) for job in jobs]
     if path.is_dir() or not path.parent.is_dir():

@@ -15,6 +15,7 @@ as `t x y z qx qy qz qw` (evo's TUM writer; planar poses at z = 0, times on the 
 
 from __future__ import annotations
 
+import logging
 import re
 from pathlib import Path
 
@@ -26,8 +27,9 @@ from tcaff_gtsam.geometry import invert, se2_from_params, se2_to_params, se2_to_
 from .results import JobResult, load_saved
 
 __all__ = ["FORMATS", "TRUTH", "export", "frame_alignment", "robot_names", "robot_paths",
-           "write_g2o", "write_rosbag2", "write_tum"]
+           "with_robot", "write_g2o", "write_rosbag2", "write_tum"]
 
+log = logging.getLogger(__name__)
 FORMATS = ("tum", "g2o", "rosbag2")
 TRUTH = "truth"  # the folder of the ground truth, beside the methods'
 
@@ -46,6 +48,31 @@ def check_reference(job: JobResult, reference: int) -> None:
             0 <= reference < n):
         raise ConfigError(f"reference {reference!r}: expected a robot index in 0..{n - 1} "
                           f"({job.stem} has {n} robots)")
+
+
+def with_robot(jobs: list[JobResult], reference: int) -> list[JobResult]:
+    """The jobs that have robot `reference` (a study's runs may have two robots or four),
+    with a warning naming each of the others.
+
+    Raises:
+        ConfigError: no job has it (`check_reference` of the job of the most robots).
+    """
+    def has(job: JobResult) -> bool:
+        try:
+            check_reference(job, reference)
+        except ConfigError:
+            return False
+        return True
+
+    kept = [job for job in jobs if has(job)]
+    if not kept:
+        check_reference(max(jobs, key=lambda job: job.arrays["poses_odom"].shape[0]),
+                        reference)
+    for job in jobs:
+        if not has(job):
+            log.warning("%s: no robot %s, whose frame the paths are put in: skipped",
+                        job.stem, reference)
+    return kept
 
 
 def check_odometry(job: JobResult) -> None:
@@ -275,10 +302,12 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
     `results.load_saved`) as TUM or g2o files, or its alignments as a ROS 2 bag, under
     `results/trajectories/`; returns the folders written.
 
+    A job without the reference robot (a study's run of fewer robots) is skipped, with a
+    warning, in TUM and g2o.
+
     Raises:
-        ConfigError: an unknown format or reference robot (of any job; the ROS 2 bag holds
-            every pair and needs none, but a robot index that no job has is refused there
-            too).
+        ConfigError: an unknown format or a reference robot no job has (the ROS 2 bag holds
+            every pair and needs none, but such an index is refused there too).
         DataError: the folder holds no saved job, a job's files are unreadable, its
             odometry is not finite (tum, g2o: its paths are placed through it), or the files
             cannot be written (a file where a folder goes, a full disk).
@@ -287,9 +316,11 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
         raise ConfigError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
     write = {"tum": write_tum, "g2o": write_g2o, "rosbag2": write_rosbag2}[fmt]
     jobs = load_saved(results)
+    placed = with_robot(jobs, reference)
+    if fmt != "rosbag2":  # the bag holds every pair's alignments, the reference's or not
+        jobs = placed
     for job in jobs:  # before anything is written
-        check_reference(job, reference)
-        if fmt != "rosbag2":  # the bag holds the alignments alone
+        if fmt != "rosbag2":
             check_odometry(job)
     written = []
     for job in jobs:

@@ -78,9 +78,10 @@ class RobotReplay:
                 field: robots not 2 to MAX_TEAM distinct robot names; robot not an int index
                 of them; times not finite increasing numbers, at least one, one per map,
                 spanning at most a year (`MAX_SECONDS`); sizes not ints >= 0 that share out
-                the objects' arrays exactly; a map no ObjectMap holds; kappa or window outside what the node's aligner and TCAFF take
-                (kappa > 0 s and at most a year, or inf; window an int in 1..MAX_WINDOW, or
-                -1 for the preset's). Numbers stored as text are refused, not parsed.
+                the objects' arrays exactly; a map no ObjectMap holds; kappa or window outside
+                what the node's aligner and TCAFF take (kappa > 0 s and at most a year, or
+                inf; window an int in 1..MAX_WINDOW, or -1 for the preset's). Numbers stored
+                as text are refused, not parsed.
         """
         data = read_npz(path, "robot replay")
         missing = [name for name in (*_REPLAY_ARRAYS, *_OBJECT_ARRAYS) if name not in data]

@@ -20,7 +20,8 @@ def view(
     output: Annotated[Path | None, typer.Option(
         help="The recording to write (default: RESULTS/recording.rrd).")] = None,
     reference: Annotated[int, typer.Option(
-        help="The robot (index) the other robots' maps are aligned to.")] = 0,
+        help="The robot (index) the other robots' maps are aligned to; runs without it "
+             "are left out.")] = 0,
     method: Annotated[str | None, typer.Option(
         help="The method whose alignments are shown as accepted (default: tcaff).")] = None,
 ) -> None:
@@ -52,7 +53,8 @@ def export(
                          "method) or rosbag2 (every pair's alignments and the truth as a ROS 2 "
                          "bag, MCAP; see docs/team.md#ros-2).")] = "tum",
     reference: Annotated[int, typer.Option(
-        help="The robot (index) whose odometry frame the paths are expressed in.")] = 0,
+        help="The robot (index) whose odometry frame the paths are expressed in; runs "
+             "without it are left out (but for rosbag2, which holds every pair).")] = 0,
 ) -> None:
     """Write every saved run's trajectories for evo and other tools, under RESULTS/trajectories/.
 

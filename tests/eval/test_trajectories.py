@@ -225,6 +225,24 @@ def test_export_refuses_a_reference_no_job_has_before_writing(tmp_path, fmt):
     assert not (tmp_path / "trajectories").exists()
 
 
+def test_export_skips_the_runs_without_the_reference_robot(tmp_path, caplog):
+    """A study's runs have two to four robots: a reference of the four-robot run's was
+    refused for every run."""
+    three = make_job(5)
+    two = make_job(6)
+    two.name, two.pairs = "pair", [(0, 1), (1, 0)]
+    two.arrays = {name: (value[:2] if name in ("poses_true", "poses_odom", "truth")
+                         or name.startswith(("est_", "cov_")) else value)
+                  for name, value in two.arrays.items()}
+    score(two, ["noisy", "ground_truth"], Thresholds())
+    for job in (three, two):
+        job.save(tmp_path / "runs")
+    (written,) = export(tmp_path, "tum", 2)
+    assert written.parent.name == three.stem
+    assert f"{two.stem}: no robot 2, whose frame the paths are put in: skipped" in caplog.text
+    assert len(export(tmp_path, "rosbag2", 2)) == 2  # every pair: no reference needed
+
+
 @pytest.mark.parametrize("fmt", ["tum", "rosbag2"])
 def test_export_into_a_file_where_its_folder_goes_is_a_data_error(tmp_path, fmt):
     job = make_job(5)
