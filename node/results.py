@@ -50,8 +50,9 @@ class AlignmentCsv:
         except OSError as exc:
             raise DataError(f"AlignmentCsv: cannot write {path} ({exc.strerror or exc})") from None
         self._rows = csv.writer(self._file)
-        if fresh:
+        if fresh:  # on disk at once: a node killed before its first row leaves a CSV of none
             self._rows.writerow(columns)
+            self._file.flush()
 
     def write(self, m: AlignmentMessage | TeamMessage) -> None:
         if isinstance(m, TeamMessage):

@@ -124,3 +124,12 @@ def test_a_file_of_something_else_is_not_appended_to(tmp_path) -> None:
     (tmp_path / "cut.csv").write_bytes((tmp_path / "cut.csv").read_bytes()[:-1])
     written(tmp_path / "cut.csv", range(2))
     assert_rows(tmp_path / "cut.csv", [0, 1])
+
+
+def test_a_writer_killed_before_its_first_row_leaves_a_csv_of_none(tmp_path) -> None:
+    """The header waited in the buffer for the first row: the file of a node killed before it
+    was empty, which reads as no alignments CSV at all."""
+    rows = AlignmentCsv(tmp_path / "r0.csv")  # never closed: the process is killed
+    got = read_alignments(tmp_path / "r0.csv")
+    assert all(len(column) == 0 for column in got.values())
+    rows.close()
