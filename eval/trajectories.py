@@ -50,9 +50,10 @@ def check_reference(job: JobResult, reference: int) -> None:
                           f"({job.stem} has {n} robots)")
 
 
-def with_robot(jobs: list[JobResult], reference: int) -> list[JobResult]:
+def with_robot(jobs: list[JobResult], reference: int, skipping: bool = True
+               ) -> list[JobResult]:
     """The jobs that have robot `reference` (a study's runs may have two robots or four),
-    with a warning naming each of the others.
+    with a warning naming each of the others when the caller is `skipping` them.
 
     Raises:
         ConfigError: no job has it (`check_reference` of the job of the most robots).
@@ -68,7 +69,7 @@ def with_robot(jobs: list[JobResult], reference: int) -> list[JobResult]:
     if not kept:
         check_reference(max(jobs, key=lambda job: job.arrays["poses_odom"].shape[0]),
                         reference)
-    for job in jobs:
+    for job in jobs if skipping else ():
         if not has(job):
             log.warning("%s: no robot %s, whose frame the paths are put in: skipped",
                         job.stem, reference)
@@ -316,8 +317,9 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
         raise ConfigError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
     write = {"tum": write_tum, "g2o": write_g2o, "rosbag2": write_rosbag2}[fmt]
     jobs = load_saved(results)
-    placed = with_robot(jobs, reference)
-    if fmt != "rosbag2":  # the bag holds every pair's alignments, the reference's or not
+    # the bag holds every pair's alignments, the reference's or not
+    placed = with_robot(jobs, reference, skipping=fmt != "rosbag2")
+    if fmt != "rosbag2":
         jobs = placed
     for job in jobs:  # before anything is written
         if fmt != "rosbag2":

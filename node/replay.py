@@ -133,9 +133,11 @@ class RobotReplay:
             raise refuse("sizes", f"must be one int >= 0 per map, the objects of each, "
                                   f"summing to the {n} objects stored")
         # checked here, not when the first exchange is due after the team is awaited
+        seconds = times.astype(float) if times.dtype.kind in "iuf" else times
+        # as floats: a span of int64 times can wrap around
         if (times.dtype.kind not in "iuf" or times.shape != sizes.shape or not len(times)
-                or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0)
-                or times[-1] - times[0] > MAX_SECONDS):  # a schedule the clock can wait for
+                or not np.all(np.isfinite(seconds)) or np.any(np.diff(seconds) <= 0)
+                or seconds[-1] - seconds[0] > MAX_SECONDS):  # a schedule the clock can wait for
             raise refuse("times", f"(its {times.size} times must be finite and increasing, "
                                   f"one per map ({len(sizes)}), at least one, spanning at "
                                   f"most a year, MAX_SECONDS)")
@@ -147,7 +149,7 @@ class RobotReplay:
                 maps.append(ObjectMap(*(parts[name][k] for name in _OBJECT_ARRAYS)))
             except DataError as exc:
                 raise DataError(f"{path}: not a robot replay: map {k}: {exc}") from None
-        return cls(names, int(robot), times.astype(float), maps,
+        return cls(names, int(robot), seconds, maps,
                    float(kappa), None if window is None else int(window))
 
 

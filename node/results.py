@@ -68,11 +68,22 @@ class AlignmentCsv:
         self._file.close()
 
 
-def _whole(raw: bytes) -> int:
-    """How many bytes of a CSV `AlignmentCsv` wrote hold whole rows: up to its last line end,
-    or all of them when they end in a row's carriage return (cut before its line feed). What
-    follows is a row its writer had not finished."""
-    return len(raw) if raw.endswith(b"\r") else raw.rfind(b"\n") + 1
+def _whole(file, size: int) -> int:
+    """How many of the `size` bytes of a CSV `AlignmentCsv` wrote (`file` open to read them)
+    hold whole rows: up to its last line end, or all of them when they end in a row's carriage
+    return (cut before its line feed). What follows is a row its writer had not finished."""
+    at = size
+    while at > 0:  # back from the end a block at a time: rows are short, files long
+        start = max(at - 4096, 0)
+        file.seek(start)
+        block = file.read(at - start)
+        if at == size and block.endswith(b"\r"):
+            return size
+        found = block.rfind(b"\n")
+        if found >= 0:
+            return start + found + 1
+        at = start
+    return 0
 
 
 def _ready_to_append(path: Path, columns: tuple[str, ...]) -> bool:
@@ -83,18 +94,27 @@ def _ready_to_append(path: Path, columns: tuple[str, ...]) -> bool:
     Raises:
         DataError: the file does not begin with the header of `columns` (left as it is).
     """
-    raw = _read_regular(path)
-    header = (",".join(columns) + "\r\n").encode()
-    if not (raw.startswith(header) or header.startswith(raw)):  # a header cut short too
+    header = ",".join(columns).encode()
+    try:
+        file, info = open_regular(path)
+    except NotRegularFile as exc:
+        raise DataError(f"AlignmentCsv: {path}: {exc}") from None
+    with file:
+        head = file.read(len(header) + 2)
+        whole = _whole(file, info.st_size)
+        file.seek(info.st_size - 1)
+        cut_at_line_feed = file.read(1) == b"\r"
+    # the header with its line end as the writer writes it or as a tool that turned it into
+    # "\n" left it, or cut short
+    if not (head.startswith(header + b"\n") or (header + b"\r\n").startswith(head)):
         raise DataError(f"AlignmentCsv: {path} holds something other than alignments "
-                        f"(it begins {shown(raw[:80])}); not appended to")
-    whole = _whole(raw)
+                        f"(it begins {shown(head[:80])}); not appended to")
     with open(path, "rb+") as file:
-        if whole < len(raw):
+        if whole < info.st_size:
             log.warning("%s: its last line was a row cut short (its writer stopped mid-row); "
                         "taken off before appending", path)
             file.truncate(whole)
-        elif raw.endswith(b"\r"):
+        elif cut_at_line_feed:
             file.seek(0, os.SEEK_END)
             file.write(b"\n")
     return whole == 0
@@ -115,7 +135,7 @@ def read_alignments(path: str | Path, columns: tuple[str, ...] = COLUMNS
             number, a field past csv's limit (128 KiB).
     """
     raw = _read_regular(path)
-    end = _whole(raw)
+    end = _whole(io.BytesIO(raw), len(raw))
     if end < len(raw):
         log.warning("%s: its last line is a row cut short (its writer stopped mid-row); "
                     "left out", path)

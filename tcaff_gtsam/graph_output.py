@@ -83,19 +83,23 @@ class GraphReadout:
         return T, self._params_cov(T, J @ joint @ J.T)
 
     def connected(self, i: int, j: int) -> bool:
-        """Whether committed alignment factors link robots i and j (directly or through other
-        robots). When they do not, `alignment(i, j)` is only the gauge's guess: its value is
-        arbitrary and its covariance infinite."""
+        """Whether committed factors link robots i and j: alignments, directly or through other
+        robots or their keyframe chains. When they do not, `alignment(i, j)` is only the
+        gauge's guess: its value is arbitrary and its covariance infinite."""
         self._check_robot("i", i)
         self._check_robot("j", j)
         linked = self._linked()
         return linked[i] == linked[j]
 
     def _linked(self, committing=()) -> np.ndarray:
-        """(n_robots,) int: robots of one number are linked by committed alignment factors
-        (and by the factors `committing`, which an update is committing)."""
+        """(n_robots,) int: robots of one number are linked by committed factors (and by the
+        factors `committing`, which an update is committing): alignments, directly or through
+        other robots or the keyframe chains (robot 0's alignment and keyframe chains, both
+        anchored, count as one)."""
+        chains = self._a_chains | {("X", robot) for robot in self._last_keyframe}
         links = [link for link, n in self._links.items() if n > 0]
-        root = _components(self._a_chains, links + [q.link for q in committing if q.link])
+        links += [q.link for q in committing if q.link] + [(("A", 0), ("X", 0))]
+        root = _components(chains, links)
         roots = [root(("A", r)) for r in range(self.n_robots)]
         return np.array([roots.index(each) for each in roots])
 

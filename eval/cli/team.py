@@ -16,6 +16,8 @@ from typing import Annotated
 
 import typer
 
+from tcaff_gtsam.errors import DataError
+
 from .common import (
     _bars,
     _check_clock,
@@ -431,19 +433,37 @@ _RUN_FILES = {".": re.compile(r"r\d+(\.team)?\.csv|r\d+\.json"),
 
 
 def _set_aside_previous_run(output: Path) -> int:
-    """Move a previous team run's files from `output` into `output/previous/` (replacing what
-    an earlier run left there): a node appends to its CSV, to carry on after a restart, so a
-    new run into the folder would add to the old one's rows. Returns how many were moved."""
-    old = [path for folder, name in _RUN_FILES.items() if (output / folder).is_dir()
-           for path in sorted((output / folder).iterdir())
-           if name.fullmatch(path.name) and path.is_file()]
-    if old:
-        previous = output / "previous"
-        shutil.rmtree(previous, ignore_errors=True)
+    """Move a previous team run's files from `output` into `output/previous/` (replacing the
+    run files an earlier run left there; nothing else in it is touched): a node appends to
+    its CSV, to carry on after a restart, so a new run into the folder would add to the old
+    one's rows. Returns how many were moved.
+
+    Raises:
+        DataError: `previous` is there but is no folder (a file, a link), or a file cannot be
+            moved; what was moved before stays there, the rest where it was.
+    """
+    def run_files(root: Path) -> list[Path]:
+        return [path for folder, name in _RUN_FILES.items() if (root / folder).is_dir()
+                for path in sorted((root / folder).iterdir())
+                if name.fullmatch(path.name) and path.is_file()]
+
+    old = run_files(output)
+    if not old:
+        return 0
+    previous = output / "previous"
+    if previous.is_symlink() or (previous.exists() and not previous.is_dir()):
+        _refuse("--output", str(output), f"holds {previous}, which is no folder: the previous "
+                "run's results are moved there", DataError)
+    try:
+        for path in run_files(previous):
+            path.unlink()
         for path in old:
             moved = previous / path.relative_to(output)
             moved.parent.mkdir(parents=True, exist_ok=True)
-            path.rename(moved)
+            shutil.move(path, moved)
+    except OSError as exc:
+        _refuse("--output", str(output), f"the previous run's results could not be moved to "
+                f"{previous} ({exc})", DataError)
     return len(old)
 
 

@@ -139,7 +139,8 @@ class GraphRunner:
             if held.size and self.graph.connected(*pair):
                 steps, T = self.graph.alignment_history(*pair)
                 inside = steps[(steps >= held[0]) & (steps <= held[-1])]
-                covs = np.array([self.graph.alignment(*pair, k)[1] for k in inside])
+                covs = np.array([self.graph.alignment(*pair, k)[1] for k in inside]
+                                ).reshape(-1, 3, 3)  # none left in the graph's history: (0, 3, 3)
                 # a step whose covariance the graph keeps from before the pair was linked
                 # (`past_covariance="causal"`) has no alignment to report
                 known = np.isfinite(covs).all(axis=(1, 2))

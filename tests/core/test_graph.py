@@ -599,6 +599,25 @@ def test_connected_follows_committed_alignments_through_other_robots():
         graph.connected(0, 3)
 
 
+def test_robots_linked_through_their_keyframe_chains_are_connected():
+    """Keyframes aligned across robots, each robot's chain tied to its alignment variable:
+    gtsam knows the pair to centimetres, and the graph reported it unknown (it looked at the
+    alignment chains alone)."""
+    graph = InterRobotGraph(2)
+    graph.update(0)
+    for robot in (0, 1):
+        graph.add_keyframe(robot, 0, np.eye(3))
+    graph.update(1)
+    graph.add_keyframe_alignment(0, 0, 1, 0, np.eye(3), np.eye(3) * 0.01)
+    for robot in (0, 1):
+        graph.add_between(keyframe_key(robot, 0), alignment_key(robot, 1), np.eye(3),
+                          np.eye(3) * 0.01)
+    assert not graph.connected(0, 1)  # queued, not committed
+    graph.update(2)
+    assert graph.connected(0, 1)
+    assert (np.sqrt(np.diag(graph.alignment(0, 1, 2)[1])) < 0.2).all()
+
+
 def test_robots_the_graph_does_not_link_have_an_infinite_covariance():
     """Only the gauge priors hold them: their 1 m and 1 rad were reported as the alignment's
     covariance, identity within a metre, whatever the truth."""

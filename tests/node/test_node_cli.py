@@ -139,7 +139,8 @@ def test_a_listen_port_in_use_is_named_not_a_zenoh_error() -> None:
 
 
 @pytest.mark.parametrize("times", [[0.0, float("nan"), 2.0], [0.0, 2.0, 1.0], [0.0, 1.0],
-                                   [0.0, 1.0, 1e300]])  # the wait overflowed
+                                   [0.0, 1.0, 1e300],  # the wait overflowed
+                                   np.array([-6e18, 0, 6e18], dtype=np.int64)])  # wraps
 def test_a_replay_whose_times_cannot_be_a_schedule_is_refused_on_load(tmp_path, times) -> None:
     """Refused when read, not after a node has waited for its team and reached the first
     exchange due (it waited two minutes before)."""
@@ -333,7 +334,7 @@ def test_a_team_run_sets_the_previous_runs_results_aside(tmp_path: Path, monkeyp
     old = ["r0.csv", "r0.json", "r12.team.csv", "r3.json", "logs/node3.log", "replay/r3.npz"]
     # what a team run does not write: near misses of its names, and the Kimera maps it reuses
     kept = ["maps/r0.npz", "notes.csv", "r2d2_notes.csv", "r1-old.json", "r3_summary.team.csv",
-            "replay/r1_backup.npz", "logs/node1.log.1"]
+            "replay/r1_backup.npz", "logs/node1.log.1", "previous/notes.txt"]
     for name in [*old, *kept, "previous/r9.csv"]:
         (tmp_path / name).parent.mkdir(exist_ok=True)
         (tmp_path / name).write_text(f"{name} of a previous run\n")
@@ -351,6 +352,18 @@ def test_a_team_run_sets_the_previous_runs_results_aside(tmp_path: Path, monkeyp
                for name in old)
     assert not (tmp_path / "previous" / "r9.csv").exists()  # an older run's, replaced
     assert all((tmp_path / name).exists() for name in kept)
+
+
+def test_a_team_run_refuses_a_previous_that_is_no_folder(tmp_path: Path, monkeypatch,
+                                                         capsys) -> None:
+    (tmp_path / "r0.csv").write_text("a previous run's\n")
+    (tmp_path / "previous").write_text("not a folder\n")
+    argv = ["tcaff", "team", "--scenario", "indoor_return", "--duration", "5", "--output",
+            str(tmp_path)]
+    assert refused(argv, monkeypatch, capsys) == (
+        f"error: --output '{tmp_path}': holds {tmp_path / 'previous'}, which is no folder: the "
+        f"previous run's results are moved there")
+    assert (tmp_path / "r0.csv").read_text() == "a previous run's\n"
 
 
 def test_the_team_table_leaves_out_rows_of_another_run(tmp_path: Path) -> None:

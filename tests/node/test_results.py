@@ -120,6 +120,11 @@ def test_a_file_of_something_else_is_not_appended_to(tmp_path) -> None:
         with pytest.raises(DataError, match="holds something other than alignments"):
             AlignmentCsv(path)
         assert path.read_bytes().decode() == text
+    written(tmp_path / "lf.csv", range(2))  # line ends made "\n" by a tool: appended to
+    (tmp_path / "lf.csv").write_bytes((tmp_path / "lf.csv").read_bytes().replace(b"\r\n",
+                                                                                  b"\n"))
+    written(tmp_path / "lf.csv", range(2, 4))
+    assert_rows(tmp_path / "lf.csv", [0, 1, 2, 3])
     written(tmp_path / "cut.csv", range(0))  # a header alone, its line end cut off
     (tmp_path / "cut.csv").write_bytes((tmp_path / "cut.csv").read_bytes()[:-1])
     written(tmp_path / "cut.csv", range(2))
