@@ -8,15 +8,11 @@ from __future__ import annotations
 
 import atexit
 import math
-import re
-import shutil
 from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
 import typer
-
-from tcaff_gtsam.errors import DataError
 
 from .common import (
     _bars,
@@ -32,7 +28,7 @@ from .common import (
     app,
 )
 from .data import _kimera_bars
-from .team_table import _team_table
+from .team_table import _set_aside_previous_run, _team_table
 
 
 class Ros2Transport(str, Enum):
@@ -424,47 +420,6 @@ def team(
                               soft_wrap=True, markup=False)
         raise TcaffError(f"nodes {', '.join(f'r{k}' for k in failed)} failed; see {logs}")
     console.print(f"results: {output}")
-
-
-#: what a team run leaves in its --output folder, by folder (the Kimera maps in maps/ are
-#: kept: a later run with the same settings reuses them)
-_RUN_FILES = {".": re.compile(r"r\d+(\.team)?\.csv|r\d+\.json"),
-              "logs": re.compile(r"node\d+\.log"), "replay": re.compile(r"r\d+\.npz")}
-
-
-def _set_aside_previous_run(output: Path) -> int:
-    """Move a previous team run's files from `output` into `output/previous/` (replacing the
-    run files an earlier run left there; nothing else in it is touched): a node appends to
-    its CSV, to carry on after a restart, so a new run into the folder would add to the old
-    one's rows. Returns how many were moved.
-
-    Raises:
-        DataError: `previous` is there but is no folder (a file, a link), or a file cannot be
-            moved; what was moved before stays there, the rest where it was.
-    """
-    def run_files(root: Path) -> list[Path]:
-        return [path for folder, name in _RUN_FILES.items() if (root / folder).is_dir()
-                for path in sorted((root / folder).iterdir())
-                if name.fullmatch(path.name) and path.is_file()]
-
-    old = run_files(output)
-    if not old:
-        return 0
-    previous = output / "previous"
-    if previous.is_symlink() or (previous.exists() and not previous.is_dir()):
-        _refuse("--output", str(output), f"holds {previous}, which is no folder: the previous "
-                "run's results are moved there", DataError)
-    try:
-        for path in run_files(previous):
-            path.unlink()
-        for path in old:
-            moved = previous / path.relative_to(output)
-            moved.parent.mkdir(parents=True, exist_ok=True)
-            shutil.move(path, moved)
-    except OSError as exc:
-        _refuse("--output", str(output), f"the previous run's results could not be moved to "
-                f"{previous} ({exc})", DataError)
-    return len(old)
 
 
 @app.command()

@@ -1,13 +1,18 @@
-"""The table `tcaff team` prints of a team run: each directed pair's alignments (or team
-alignments) against the truth."""
+"""What `tcaff team` makes of its output folder: the table of a team run (each directed
+pair's alignments, or team alignments, against the truth), and the previous run's files set
+aside before a new run."""
 
 from __future__ import annotations
 
 import json
+import re
+import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .common import _add_columns, _keep_numbers_whole, _table
+from tcaff_gtsam.errors import DataError
+
+from .common import _add_columns, _keep_numbers_whole, _refuse, _table
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -19,7 +24,6 @@ def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -
     import numpy as np
     from tcaff_gtsam.node.results import COLUMNS, TEAM_COLUMNS, read_alignments
 
-    from tcaff_gtsam.errors import DataError
     from tcaff_gtsam.geometry import se2_to_params, wrap_angle
 
     table = _table("Per directed pair: the team-consistent alignments against the truth" if team
@@ -71,3 +75,44 @@ def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -
                      f"{len(run.times)} (another run's rows)")
     table.caption = "; ".join(notes) or None
     return _keep_numbers_whole(table)
+
+
+#: what a team run leaves in its --output folder, by folder (the Kimera maps in maps/ are
+#: kept: a later run with the same settings reuses them)
+_RUN_FILES = {".": re.compile(r"r\d+(\.team)?\.csv|r\d+\.json"),
+              "logs": re.compile(r"node\d+\.log"), "replay": re.compile(r"r\d+\.npz")}
+
+
+def _set_aside_previous_run(output: Path) -> int:
+    """Move a previous team run's files from `output` into `output/previous/` (replacing the
+    run files an earlier run left there; nothing else in it is touched): a node appends to
+    its CSV, to carry on after a restart, so a new run into the folder would add to the old
+    one's rows. Returns how many were moved.
+
+    Raises:
+        DataError: `previous` is there but is no folder (a file, a link), or a file cannot be
+            moved; what was moved before stays there, the rest where it was.
+    """
+    def run_files(root: Path) -> list[Path]:
+        return [path for folder, name in _RUN_FILES.items() if (root / folder).is_dir()
+                for path in sorted((root / folder).iterdir())
+                if name.fullmatch(path.name) and path.is_file()]
+
+    old = run_files(output)
+    if not old:
+        return 0
+    previous = output / "previous"
+    if previous.is_symlink() or (previous.exists() and not previous.is_dir()):
+        _refuse("--output", str(output), f"holds {previous}, which is no folder: the previous "
+                "run's results are moved there", DataError)
+    try:
+        for path in run_files(previous):
+            path.unlink()
+        for path in old:
+            moved = previous / path.relative_to(output)
+            moved.parent.mkdir(parents=True, exist_ok=True)
+            shutil.move(path, moved)
+    except OSError as exc:
+        _refuse("--output", str(output), f"the previous run's results could not be moved to "
+                f"{previous} ({exc})", DataError)
+    return len(old)
