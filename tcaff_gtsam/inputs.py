@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError
+from .param_checks import MAX_COORDINATE
 from .params import _real
 
 __all__ = ["finite_time", "index_pairs", "output_path", "read_npz", "real_array", "shown"]
@@ -95,14 +96,14 @@ def check_within(owner: str, name: str, arr: np.ndarray, bound: float, unit: str
 
 
 def point_array(owner: str, name: str, value, d: int | None = None) -> np.ndarray:
-    """`value` as finite (k, d) points, d = 2 or 3 (or the given d), else DataError naming
-    `owner` and `name`."""
+    """`value` as (k, d) points, d = 2 or 3 (or the given d), finite and within
+    `MAX_COORDINATE` metres (past it their squares overflow: a spread of 1e160 m came out
+    NaN), else DataError naming `owner` and `name`."""
     arr = real_array(owner, name, value)
     if arr.ndim != 2 or (arr.shape[1] not in (2, 3) if d is None else arr.shape[1] != d):
         raise DataError(f"{owner}: {name} must be (k, {'2 or 3' if d is None else d}) points, "
                         f"got shape {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise DataError(f"{owner}: {name} holds non-finite values")
+    check_within(owner, name, arr, MAX_COORDINATE, "m")
     return arr
 
 

@@ -68,8 +68,11 @@ def test_registration_checks_name_the_argument():
         registration_rmse(np.eye(3), p, p[:, :1])
     with pytest.raises(DataError, match=r"registration_rmse: T_a_b must be a finite \(3, 3\)"):
         registration_rmse(np.eye(4), p, p)
-    with pytest.raises(DataError, match="spread: points holds non-finite values"):
+    with pytest.raises(DataError, match=r"spread: points\[0, 1\] = nan is not finite"):
         spread(np.array([[0.0, np.nan], [1.0, 1.0]]))
+    # beyond MAX_COORDINATE the squares overflow: the spread came out NaN
+    with pytest.raises(DataError, match=r"spread: points\[1, 0\] = 1e\+160 is beyond 1e\+09 m"):
+        spread(np.array([[0.0, 0.0], [1e160, 1.0]]))
     with pytest.raises(DataError, match=r"mutual_inliers: compatible must be a \(3, 3\) bool"):
         mutual_inliers(np.eye(3), p, p, np.ones((3, 3)), 0.5)
     with pytest.raises(DataError, match="mutual_inliers: radius must be a finite number"):
