@@ -19,7 +19,7 @@ import numpy as np
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params
 from tcaff_gtsam.inputs import check_within, index_pairs, read_npz, real_array, shown
-from tcaff_gtsam.param_checks import MAX_COORDINATE, MAX_VARIANCE
+from tcaff_gtsam.param_checks import MAX_COORDINATE, MAX_VARIANCE, _real
 
 from .config import MethodsConfig
 from .datasets.text_tables import read_json
@@ -31,6 +31,7 @@ __all__ = [
     "MAX_CLOCK",
     "JobResult",
     "check_saved",
+    "is_file_name",
     "load_saved",
     "pool",
     "score",
@@ -165,12 +166,12 @@ def check_saved(json_name: str, npz_name: str, meta, arrays: dict[str, np.ndarra
                             f"{'int >= 0 or null' if key == 'seed' else kind.__name__}, got "
                             f"{shown(value)}")
     name, seed = meta["name"], meta["seed"]
-    if name in ("", ".", "..") or Path(name).name != name or "\0" in name:
+    if not is_file_name(name):
         raise DataError(f"{json_name}: name must be a file name, got {shown(name)}")
     if seed is not None and seed < 0:
         raise DataError(f"{json_name}: seed must be an int >= 0 or null, got {seed}")
     for key, value in meta["seconds"].items():
-        if not (_number(value) and 0 <= value <= MAX_CLOCK):
+        if not (_real(value) and 0 <= value <= MAX_CLOCK):
             raise DataError(f"{json_name}: seconds.{key} must be seconds >= 0, got "
                             f"{shown(value)}")
     for key, by_pair in meta["metrics"].items():
@@ -179,7 +180,7 @@ def check_saved(json_name: str, npz_name: str, meta, arrays: dict[str, np.ndarra
                             f"{shown(by_pair)}")
     for key, summary in meta["mot"].items():
         if not (isinstance(summary, dict) and isinstance(summary.get("robots"), list)
-                and (summary.get("mota") is None or _number(summary["mota"]))):
+                and (summary.get("mota") is None or _real(summary["mota"]))):
             raise DataError(f"{json_name}: mot.{key} must hold a mota (a number or null) and "
                             f"robots (a list), got {shown(summary)}")
 
@@ -291,8 +292,9 @@ def check_saved(json_name: str, npz_name: str, meta, arrays: dict[str, np.ndarra
                      meta["seconds"], mot, info)
 
 
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+def is_file_name(text: str) -> bool:
+    """Whether `text` names a file in a folder: no path, not "." or "..", no NUL."""
+    return text not in ("", ".", "..") and Path(text).name == text and "\0" not in text
 
 
 def _judged(stream: str) -> bool:

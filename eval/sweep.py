@@ -38,7 +38,7 @@ from .config import MethodsConfig, ScenarioConfig, StudyConfig, SweepConfig, app
 from .datasets.text_tables import read_json
 from .executor import Executor, JobSpec, Progress, job_runner
 from .registry import estimate_names
-from .results import JobResult, pool, summarize, thresholds_of, write_csv
+from .results import JobResult, is_file_name, pool, summarize, thresholds_of, write_csv
 
 __all__ = ["SweepOutcome", "SweepPlan", "SweepPoint", "job_hash", "jobs_to_run", "plan_sweep",
            "run_sweep"]
@@ -208,7 +208,7 @@ def _stem(folder: Path) -> str:
     """
     record = read_json(folder / "job.json", "job record")
     stem = record.get("stem") if isinstance(record, dict) else None
-    if not isinstance(stem, str) or stem in ("", ".", "..") or Path(stem).name != stem:
+    if not (isinstance(stem, str) and is_file_name(stem)):
         raise DataError(f"{folder / 'job.json'}: stem must name the job's files, got "
                         f"{shown(stem)}")
     return stem
@@ -369,18 +369,20 @@ def _report(folder: Path, sweep: SweepConfig, study: StudyConfig, plan: SweepPla
     methods: MethodsConfig = study.methods  # type: ignore[assignment]
     names = estimate_names(methods)
     thresholds = thresholds_of(methods)
-    unreadable: set[str] = set()
+    loaded: dict[str, JobResult | None] = {}  # by hash: points that share a job load it once
 
     def load(digest: str) -> JobResult | None:
-        where = folder / "jobs" / digest
-        try:
-            return None if digest in unreadable else _load_job(where)
-        except DataError as exc:
-            log.error("%s: its saved files are unreadable, left out and run again next time "
-                      "(%s)", where, exc)
-            unreadable.add(digest)
-            failed.append(_failure(where, digest, plan.jobs[digest], exc))
-            return None
+        """The job when it is done and its files read, else None."""
+        if digest not in loaded:
+            where = folder / "jobs" / digest
+            try:
+                loaded[digest] = _load_job(where)
+            except DataError as exc:
+                log.error("%s: its saved files are unreadable, left out and run again next "
+                          "time (%s)", where, exc)
+                failed.append(_failure(where, digest, plan.jobs[digest], exc))
+                loaded[digest] = None
+        return loaded[digest]
 
     rows: list[dict] = []
     points_json = []
@@ -395,7 +397,7 @@ def _report(folder: Path, sweep: SweepConfig, study: StudyConfig, plan: SweepPla
                             "jobs_done": len(jobs), "pooled": pooled,
                             "by_scenario": summarize(jobs, names, thresholds) if jobs else {}})
     failures = [_failed_before(folder / "jobs" / h, h, spec) for h, spec in plan.jobs.items()
-                if not _job_done(folder / "jobs" / h)]
+                if load(h) is None]
     failed_json = [record for record in failures if record is not None]
     (folder / "sweep.json").write_text(json.dumps({
         "sweep": sweep.name, "parameters": sweep.parameters, "method": sweep.method,

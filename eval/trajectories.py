@@ -65,15 +65,15 @@ def with_robot(jobs: list[JobResult], reference: int, skipping: bool = True
             return False
         return True
 
-    kept = [job for job in jobs if has(job)]
-    if not kept:
+    having = [has(job) for job in jobs]
+    if not any(having):
         check_reference(max(jobs, key=lambda job: job.arrays["poses_odom"].shape[0]),
                         reference)
-    for job in jobs if skipping else ():
-        if not has(job):
+    for job, held in zip(jobs, having, strict=True):
+        if skipping and not held:
             log.warning("%s: no robot %s, whose frame the paths are put in: skipped",
                         job.stem, reference)
-    return kept
+    return [job for job, held in zip(jobs, having, strict=True) if held]
 
 
 def check_odometry(job: JobResult) -> None:
@@ -319,10 +319,9 @@ def export(results: Path, fmt: str = "tum", reference: int = 0) -> list[Path]:
     jobs = load_saved(results)
     # the bag holds every pair's alignments, the reference's or not
     placed = with_robot(jobs, reference, skipping=fmt != "rosbag2")
-    if fmt != "rosbag2":
+    if fmt != "rosbag2":  # the paths are placed through the odometry
         jobs = placed
-    for job in jobs:  # before anything is written
-        if fmt != "rosbag2":
+        for job in jobs:  # before anything is written
             check_odometry(job)
     written = []
     for job in jobs:

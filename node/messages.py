@@ -170,9 +170,9 @@ def _u32(name: str, value: int) -> int:
     return value
 
 
-def _i32(name: str, value: int, low: int) -> int:
-    if not low <= value < 2**31:
-        raise DataError(f"{name} = {value}: must be in [{low}, 2**31 - 1] (32 bits signed)")
+def _i32(name: str, value: int) -> int:
+    if not 0 <= value < 2**31:
+        raise DataError(f"{name} = {value}: must be in [0, 2**31 - 1] (32 bits signed)")
     return value
 
 
@@ -183,8 +183,8 @@ def encode(message: MapMessage | AlignmentMessage | TeamMessage) -> bytes:
 
     Raises:
         DataError: a name longer than 64 bytes (or empty), counters beyond 32 bits (a step
-            below 0, a hypothesis below -1), a stamp that is not finite, or a map of more
-            than `MAX_OBJECTS` objects.
+            below 0, an accepted alignment's hypothesis below 0), a stamp that is not finite,
+            or a map of more than `MAX_OBJECTS` objects.
     """
     kind = {MapMessage: MAP, AlignmentMessage: ALIGNMENT, TeamMessage: TEAM}[type(message)]
     if not math.isfinite(message.stamp):
@@ -212,10 +212,10 @@ def encode(message: MapMessage | AlignmentMessage | TeamMessage) -> bytes:
     if not math.isfinite(message.neighbour_stamp):
         raise DataError(f"neighbour_stamp = {message.neighbour_stamp}: must be a finite number "
                         f"of seconds")
-    hypothesis = -1 if not message.accepted else _i32("hypothesis", message.hypothesis, 0)
+    hypothesis = -1 if not message.accepted else _i32("hypothesis", message.hypothesis)
     return (head + _name(message.neighbour)
             + _ALIGN.pack(_u32("neighbour_seq", message.neighbour_seq),
-                          message.neighbour_stamp, _i32("step", message.step, 0), hypothesis,
+                          message.neighbour_stamp, _i32("step", message.step), hypothesis,
                           int(message.accepted), *x, *P))
 
 
@@ -303,7 +303,7 @@ def decode(payload: bytes, max_bytes: int | None = None
     nseq, nstamp, step, hypothesis, accepted, *numbers = read.unpack(_ALIGN, "alignment")
     _finished(read)
     if (accepted not in (0, 1) or step < 0 or not math.isfinite(nstamp)
-            or hypothesis < (0 if accepted else -1) or (not accepted and hypothesis != -1)):
+            or (hypothesis < 0 if accepted else hypothesis != -1)):
         raise MessageError("malformed", f"accepted {accepted}, step {step}, hypothesis "
                                         f"{hypothesis}, neighbour stamp {nstamp}")
     x, P = _estimate(bool(accepted), numbers, team=False)

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from tcaff_gtsam.aligner_params import _kappa
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.inputs import finite_time, shown
 from tcaff_gtsam.object_map import ObjectMap, as_object_map
 from tcaff_gtsam.pairwise import PairwiseAligner
-from tcaff_gtsam.param_checks import MAX_SECONDS, _number
 from tcaff_gtsam.params import (
     FrameAlignerParams,
     TCAFFParams,
@@ -43,6 +43,8 @@ log = logging.getLogger(__name__)
 
 #: ego maps kept for neighbours' maps of the same exchange arriving late (lockstep)
 _EGO_HISTORY = 8
+#: s `finish` waits for the worker and the saver at the end of a run that no signal stopped
+FINISH_TIMEOUT = 30.0
 
 
 @dataclass(frozen=True)
@@ -93,9 +95,7 @@ class NodeParams:
 
     def __post_init__(self) -> None:
         o = "NodeParams"
-        # kappa is the node's aligner's: its bound, inf (no limit) included
-        _number(o, "kappa", self.kappa, 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True,
-                inf=True)
+        _kappa(o, "kappa", self.kappa)  # the node's aligner's
         for name in ("silence", "speed"):
             value = getattr(self, name)
             _require(_finite(value) and value > 0, o, name, value, "must be a number > 0")
@@ -284,10 +284,8 @@ class RobotNode:
             self.counters["maps_sent"] += 1
             self._seq = seq + 1
             item = ("ego", seq, t, recent, time.perf_counter())
-            if block and cancel is None:
-                self._inbox.put(item)
-            elif not _until(lambda s: _put(self._inbox, item, s), math.inf if block else 0.0,
-                            cancel):  # never block the transport's thread
+            if not _until(lambda s: _put(self._inbox, item, s), math.inf if block else 0.0,
+                          cancel):  # never block the transport's thread
                 self.drop("overflow", "queue full (own map)")
 
     def present(self, timeout: float = 1.0) -> set[str]:
@@ -305,7 +303,8 @@ class RobotNode:
         return (_until(lambda s: _put(self._inbox, ("idle",), s), timeout, cancel)
                 and _until(self._idle.wait, deadline - time.monotonic(), cancel))
 
-    def finish(self, timeout: float = 30.0, cancel: Callable[[], bool] | None = None) -> bool:
+    def finish(self, timeout: float = FINISH_TIMEOUT, cancel: Callable[[], bool] | None = None
+               ) -> bool:
         """Let the worker handle what is queued and end, and the saver write the filters
         waiting to be saved: within `timeout` s in all, or until `cancel()` is true (asked
         every 0.05 s). The session stays open (`close` closes it); again: the first answer.
@@ -667,23 +666,26 @@ _SAVER_LEAST = 0.1
 _CANCEL_POLL = 0.05
 
 
-def _until(done: Callable[[float], bool], timeout: float,
+def _until(done: Callable[[float | None], bool], timeout: float,
            cancel: Callable[[], bool] | None = None) -> bool:
-    """Call `done(s)`, a wait of at most s seconds that returns whether its thing happened,
-    until it does (True), `timeout` s have passed or `cancel()` is true (False). With `cancel`
-    the waits are at most `_CANCEL_POLL` s each: a signal handler cannot end a wait, it can
-    only make `cancel` true."""
+    """Call `done(s)`, a wait of at most s seconds (None: no limit, as the waits of `queue`
+    and `threading` take it) that returns whether its thing happened, until it does (True),
+    `timeout` s have passed or `cancel()` is true (False). With `cancel` the waits are at
+    most `_CANCEL_POLL` s each: a signal handler cannot end a wait, it can only make `cancel`
+    true."""
     deadline = time.monotonic() + max(timeout, 0.0)
     while True:
         left = max(deadline - time.monotonic(), 0.0)
-        if done(left if cancel is None else min(left, _CANCEL_POLL)):
+        wait = left if cancel is None else min(left, _CANCEL_POLL)
+        if done(None if wait == math.inf else wait):
             return True
         if left <= 0.0 or (cancel is not None and cancel()):
             return False
 
 
-def _put(inbox: queue.Queue, item, timeout: float) -> bool:
-    """Put `item` in `inbox` if a place frees within `timeout` s (0: only if one is free)."""
+def _put(inbox: queue.Queue, item, timeout: float | None) -> bool:
+    """Put `item` in `inbox` if a place frees within `timeout` s (0: only if one is free;
+    None: whenever one does)."""
     try:
         inbox.put(item, timeout=timeout)
         return True
@@ -691,8 +693,8 @@ def _put(inbox: queue.Queue, item, timeout: float) -> bool:
         return False
 
 
-def _joined(thread: threading.Thread, timeout: float) -> bool:
-    """Whether `thread` ended within `timeout` s."""
+def _joined(thread: threading.Thread, timeout: float | None) -> bool:
+    """Whether `thread` ended within `timeout` s (None: it is waited for)."""
     thread.join(timeout)
     return not thread.is_alive()
 

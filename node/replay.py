@@ -15,11 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
+from tcaff_gtsam.aligner_params import _kappa
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.filter_params import MAX_WINDOW
 from tcaff_gtsam.inputs import read_npz, shown
 from tcaff_gtsam.object_map import ObjectMap
-from tcaff_gtsam.param_checks import MAX_SECONDS, _count, _number
+from tcaff_gtsam.param_checks import MAX_SECONDS, _count
 from tcaff_gtsam.params import _int_at_least, _require
 
 from .link import check_name
@@ -63,7 +64,7 @@ class RobotReplay:
             raise DataError(f"{path}: a robot replay needs at least one exchange, got none")
         sizes = np.array([len(m) for m in self.maps], dtype=np.int64)
         fields = {name: np.concatenate([getattr(m, name) for m in self.maps])
-                  for name in ("centroids", "widths", "heights", "last_seen")}
+                  for name in _OBJECT_ARRAYS}
         with open(Path(path), "wb") as file:
             np.savez(file, robots=np.array(self.robots), robot=self.robot, times=self.times,
                      sizes=sizes, kappa=self.kappa, window=-1 if self.window is None
@@ -112,9 +113,7 @@ class RobotReplay:
         if len(set(names)) != len(names):
             raise refuse("robots", "must be distinct names")
         robot = field(_count, "robot", 0, len(names) - 1)
-        # the node's aligner's kappa: inf is no limit
-        kappa = field(_number, "kappa", 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True,
-                      inf=True)
+        kappa = field(_kappa, "kappa")  # the node's aligner's
         stored = data["window"]
         preset = stored.shape == () and stored.dtype.kind in "iu" and stored == -1  # None
         window = None if preset else field(_count, "window", 1, MAX_WINDOW, "MAX_WINDOW")

@@ -101,21 +101,21 @@ def _ready_to_append(path: Path, columns: tuple[str, ...]) -> bool:
         raise DataError(f"AlignmentCsv: {path}: {exc}") from None
     with file:
         head = file.read(len(header) + 2)
+        # the header with its line end as the writer writes it or as a tool that turned it
+        # into "\n" left it, or cut short
+        if not (head.startswith(header + b"\n") or (header + b"\r\n").startswith(head)):
+            raise DataError(f"AlignmentCsv: {path} holds something other than alignments "
+                            f"(it begins {shown(head[:80])}); not appended to")
         whole = _whole(file, info.st_size)
-        file.seek(info.st_size - 1)
-        cut_at_line_feed = file.read(1) == b"\r"
-    # the header with its line end as the writer writes it or as a tool that turned it into
-    # "\n" left it, or cut short
-    if not (head.startswith(header + b"\n") or (header + b"\r\n").startswith(head)):
-        raise DataError(f"AlignmentCsv: {path} holds something other than alignments "
-                        f"(it begins {shown(head[:80])}); not appended to")
-    with open(path, "rb+") as file:
-        if whole < info.st_size:
-            log.warning("%s: its last line was a row cut short (its writer stopped mid-row); "
-                        "taken off before appending", path)
-            file.truncate(whole)
-        elif cut_at_line_feed:
-            file.seek(0, os.SEEK_END)
+        if whole == info.st_size:
+            file.seek(whole - 1)
+            ended = file.read(1) == b"\n"  # else its last row's "\r" is there, not its "\n"
+    if whole < info.st_size:
+        log.warning("%s: its last line was a row cut short (its writer stopped mid-row); "
+                    "taken off before appending", path)
+        os.truncate(path, whole)
+    elif not ended:
+        with open(path, "ab") as file:
             file.write(b"\n")
     return whole == 0
 

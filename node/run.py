@@ -31,7 +31,7 @@ from tcaff_gtsam.params import (
 from tcaff_gtsam.precompile import compile_kernels
 
 from .link import Link, TlsFiles
-from .node import NodeParams, RobotNode, _joined, _until
+from .node import FINISH_TIMEOUT, NodeParams, RobotNode, _joined, _until
 from .replay import MAX_TEAM, RobotReplay, replay, robot_names, run_replay
 from .results import TEAM_COLUMNS, AlignmentCsv, write_counters
 
@@ -45,8 +45,6 @@ log = logging.getLogger(__name__)
 #: least. Well within ROS 2 launch's 5 s from SIGINT to SIGTERM (and 5 s more to SIGKILL),
 #: on a busy machine too
 STOP_TIMEOUT = 2.0
-#: s a node waits for its worker and saver at the end of a run that no signal stopped
-_FINISH_TIMEOUT = 30.0
 #: s its session gets to close after the results are written, whatever is left of the budget:
 #: a healthy close (0.1 s on a loaded machine) withdraws the node from its team cleanly
 _CLOSE_LEAST = 0.5
@@ -234,7 +232,7 @@ def _close(node: RobotNode, path: Path, start: float | None, timing: dict[str, f
     raised after."""
     finished = False
     try:
-        finished = node.finish(min(stop.left(), _FINISH_TIMEOUT), stop.over)
+        finished = node.finish(min(stop.left(), FINISH_TIMEOUT), stop.over)
     finally:
         ending = {} if finished else {"stop_cut_short": 1, "stop_unhandled": node.queued()}
         if stop.at is not None:

@@ -35,11 +35,10 @@ import time
 from pathlib import Path
 
 from tcaff_gtsam.node.dds import isolated
-from tcaff_gtsam.node.run import free_ports, node_argv
 
 # the tests' stuck node: what is measured here is what they check
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from stuck_node import DONE, replays, stuck_argv
+from stuck_node import DONE, start_pair
 
 
 def _rows(path: Path) -> int:
@@ -65,17 +64,11 @@ def one_stop(folder: Path, stuck: bool, first: signal.Signals, load: int, stop_t
     With `dds_domain`, the nodes talk ROS 2 DDS in that domain (the script is then run in a
     loopback-only namespace: see --ros2)."""
     out = folder / "out"
-    paths = replays(folder)
-    ports = free_ports(2)
     marker = folder / "stuck"
-    argvs = [node_argv(paths[k], k, 2, "stop", ports, None, out, domain_id=dds_domain,
-                       ros2="dds" if dds_domain is not None else "zenoh") for k in range(2)]
-    if stop_timeout is not None:
-        argvs[0] += ["--stop-timeout", str(stop_timeout)]
-    argvs[0] = stuck_argv(argvs[0], marker, DONE if stuck else 10**9)
-    logs = [open(folder / f"node{k}.log", "wb") for k in range(2)]
-    procs = [subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
-             for argv, log in zip(argvs, logs, strict=True)]
+    procs, _ = start_pair(
+        folder, "stop", marker, DONE if stuck else 10**9,
+        () if stop_timeout is None else ("--stop-timeout", str(stop_timeout)),
+        domain_id=dds_domain, ros2="dds" if dds_domain is not None else "zenoh")
     busy: list[subprocess.Popen] = []
     try:
         deadline = time.monotonic() + 180
@@ -98,14 +91,15 @@ def one_stop(folder: Path, stuck: bool, first: signal.Signals, load: int, stop_t
                 written = now
             if procs[0].poll() is not None:
                 exited = now
-                break
+                continue
             if escalation and now >= escalation[0][0]:
                 sent.append(escalation[0][1].name)
                 procs[0].send_signal(escalation.pop(0)[1])
             time.sleep(0.005)
-        if written is None and _results(out / "r0.json") is not None:
+        outcome = _results(out / "r0.json")
+        if written is None and outcome is not None:
             written = exited
-        outcome = _results(out / "r0.json") or {}
+        outcome = outcome or {}
         return {"written": written, "exited": exited, "code": procs[0].returncode,
                 "signals": sent, "cut_short": bool(outcome.get("stop_cut_short")),
                 "aligned": outcome.get("aligned"), "rows": _rows(out / "r0.csv")}
@@ -121,8 +115,6 @@ def one_stop(folder: Path, stuck: bool, first: signal.Signals, load: int, stop_t
                 except subprocess.TimeoutExpired:
                     proc.kill()
                     proc.wait()
-        for log in logs:
-            log.close()
 
 
 def _span(values: list[float | None]) -> str:

@@ -53,6 +53,13 @@ MIN_SIGMA = 1e-9
 MAX_MEMORY_SEARCHES = 1000
 
 
+def _kappa(owner: str, name: str, value) -> None:
+    """A `ParameterError` unless `value` is a map span: seconds > 0, at most a year
+    (`MAX_SECONDS`), or inf (maps that keep every object). The aligner's, and what a node
+    publishes and a replay holds for it."""
+    _number(owner, name, value, 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True, inf=True)
+
+
 def constant_alignment_covariance() -> np.ndarray:
     """The original code's fixed measurement covariance diag(0.5 m, 0.5 m, 5 deg)^2, (3, 3)."""
     return np.diag([0.5**2, 0.5**2, math.radians(5.0) ** 2])
@@ -378,8 +385,7 @@ class FrameAlignerParams(_ByValue):
     def __post_init__(self) -> None:
         o = "FrameAlignerParams"
         metres = dict(unit="metres", limit="MAX_COORDINATE")
-        _number(o, "kappa", self.kappa, 0, MAX_SECONDS, "seconds", "MAX_SECONDS", above=True,
-                inf=True)
+        _kappa(o, "kappa", self.kappa)
         _number(o, "size_ratio", self.size_ratio, 1, MAX_FACTOR, limit="MAX_FACTOR")
         _number(o, "size_abs_diff", self.size_abs_diff, 0, MAX_COORDINATE, **metres)
         _number(o, "size_partial", self.size_partial, 1, MAX_FACTOR, limit="MAX_FACTOR",

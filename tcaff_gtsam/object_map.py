@@ -30,13 +30,7 @@ def object_arrays(prefix: str, centroids, widths, heights, **per_object
             also for values that are not real numbers (complex, strings, objects).
     """
     def as_float(name: str, value) -> np.ndarray:
-        try:
-            arr = real_array(prefix, name, value)
-        except DataError:
-            kind = getattr(value, "dtype", None)
-            raise DataError(f"{prefix}{name} must be real numbers, got "
-                            f"{type(value).__name__} {shown(value)}"
-                            f"{'' if kind is None else f' of dtype {kind}'}") from None
+        arr = _real_numbers(f"{prefix}{name}", value)
         return arr.copy() if arr is value else arr
 
     C = as_float("centroids", centroids)
@@ -68,16 +62,22 @@ def object_arrays(prefix: str, centroids, widths, heights, **per_object
     return arrays
 
 
+def _real_numbers(label: str, value) -> np.ndarray:
+    """`real_array` of `value`, else DataError "<label> must be real numbers, got ..." with
+    its type, value and dtype."""
+    try:
+        return real_array(label, "", value)
+    except DataError:
+        kind = getattr(value, "dtype", None)
+        raise DataError(f"{label} must be real numbers, got {type(value).__name__} "
+                        f"{shown(value)}{'' if kind is None else f' of dtype {kind}'}"
+                        ) from None
+
+
 def _descriptor_array(name: str, value, n: int) -> np.ndarray:
     """`value` as a float (n, d) copy (d >= 1) of finite numbers >= 0 in rows of unit length;
     else DataError naming `name`, the row and the value."""
-    try:
-        arr = np.array(real_array(name, "", value), dtype=np.float64)
-    except DataError:
-        kind = getattr(value, "dtype", None)
-        raise DataError(f"{name} must be real numbers, got {type(value).__name__} "
-                        f"{shown(value)}{'' if kind is None else f' of dtype {kind}'}"
-                        ) from None
+    arr = np.array(_real_numbers(name, value), dtype=np.float64)
     if arr.size == 0 and n == 0:
         return arr.reshape(0, max(arr.shape[-1], 1) if arr.ndim == 2 else 1)
     if arr.ndim != 2 or arr.shape[0] != n or arr.shape[1] < 1:

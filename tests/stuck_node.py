@@ -4,6 +4,7 @@ plays, and a transport that links a node to nobody."""
 
 from __future__ import annotations
 
+import subprocess
 import sys
 import threading
 from pathlib import Path
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from tcaff_gtsam.node import NodeParams, RobotNode
 from tcaff_gtsam.node.replay import RobotReplay
+from tcaff_gtsam.node.run import free_ports, node_argv
 
 from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.geometry import se2_from_params
@@ -47,6 +49,26 @@ def stuck_argv(argv: list[str], marker: Path, after: int = DONE) -> list[str]:
     """`argv`, a `tcaff node` command line of `node_argv`, run as `STUCK_NODE`: its filter
     updates past the first `after` never return, `marker` written when the worker sticks."""
     return [sys.executable, "-c", STUCK_NODE, str(marker), str(after), *argv[3:]]
+
+
+def start_pair(folder: Path, team: str, marker: Path, after: int = DONE,
+               r0_options: tuple[str, ...] = (), **argv_options
+               ) -> tuple[list[subprocess.Popen], list[Path]]:
+    """r0, stuck past `after` filter updates (`stuck_argv`, with `r0_options` on its command
+    line), and r1 of a team playing `replays(folder)` into `folder`/out, each process's output
+    in `folder`/node<k>.log; `argv_options`: `node_argv`'s (domain_id, ros2). Returns the two
+    processes and their logs."""
+    paths = replays(folder)
+    ports = free_ports(2)
+    argvs = [node_argv(paths[k], k, 2, team, ports, None, folder / "out", **argv_options)
+             for k in range(2)]
+    argvs[0] = stuck_argv([*argvs[0], *r0_options], marker, after)
+    logs = [folder / f"node{k}.log" for k in range(2)]
+    procs = []
+    for argv, log in zip(argvs, logs, strict=True):
+        with open(log, "wb") as file:
+            procs.append(subprocess.Popen(argv, stdout=file, stderr=subprocess.STDOUT))
+    return procs, logs
 
 
 def replays(folder: Path, exchanges: int = 120) -> list[Path]:

@@ -161,10 +161,15 @@ def _check_duration(duration: float | None) -> None:
         _refuse("--duration", duration, "must be a finite number of seconds >= 1")
 
 
+def _check_positive(option: str, value: float | None, unit: str = "") -> None:
+    """`option`: None (not given) or a finite number > 0, of `unit` (words for the message)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        _refuse(option, value, "must be a finite number > 0" + (f" {unit}" if unit else ""))
+
+
 def _check_speed(speed: float) -> None:
     """`--speed`: a finite number of run seconds per wall second, > 0."""
-    if not (math.isfinite(speed) and speed > 0):
-        _refuse("--speed", speed, "must be a finite number > 0 (run seconds per wall second)")
+    _check_positive("--speed", speed, "(run seconds per wall second)")
 
 
 #: the latest wall time (epoch s, the year 2286) and the largest clock offset a node takes

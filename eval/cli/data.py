@@ -18,6 +18,7 @@ from .common import (
     _bars,
     _cell,
     _check_duration,
+    _check_positive,
     _check_recording,
     _check_seeds,
     _console,
@@ -239,8 +240,7 @@ def mrclam(
     from rich.markup import escape
 
     _check_duration(duration)
-    if kappa is not None and not (math.isfinite(kappa) and kappa > 0):
-        _refuse("--kappa", kappa, "must be a finite number > 0 (s)")
+    _check_positive("--kappa", kappa, "(s)")
     _check_recording(rerun)
     seeds = _check_seeds(seed)
     _writable_folder(output, "--output")
@@ -393,8 +393,7 @@ def rgbd(
     import time
 
     _check_recording(rerun)
-    if rate is not None and not (math.isfinite(rate) and rate > 0):
-        _refuse("--rate", rate, "must be a finite number > 0 frames per second")
+    _check_positive("--rate", rate, "frames per second")
     if not (math.isfinite(fps) and 1.0 <= fps <= 1000.0):
         # below one frame a second most 1 Hz exchanges would see no new frame: a slip
         _refuse("--fps", fps, "must be between 1 and 1000 frames per second")

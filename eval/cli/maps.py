@@ -19,6 +19,7 @@ from tcaff_gtsam.params import FrameAlignerParams
 
 from .common import (
     _add_columns,
+    _check_positive,
     _console,
     _keep_numbers_whole,
     _refuse,
@@ -153,12 +154,12 @@ def make_maps(
 
     from ..sim.maps import MAX_OBJECTS, overlapping_maps
 
-    for option, count in (("--objects", objects), ("--clutter", clutter), ("--seed", seed)):
+    for option, count, most in (("--objects", objects, MAX_OBJECTS),
+                                ("--clutter", clutter, MAX_OBJECTS), ("--seed", seed, None)):
         if count < 0:
             _refuse(option, count, "must be an int >= 0")
-    for option, count in (("--objects", objects), ("--clutter", clutter)):
-        if count > MAX_OBJECTS:
-            _refuse(option, count, f"the simulator makes at most {MAX_OBJECTS} objects per map")
+        if most is not None and count > most:
+            _refuse(option, count, f"the simulator makes at most {most} objects per map")
     if not (math.isfinite(overlap) and 0 <= overlap <= 1):
         _refuse("--overlap", overlap, "must be a share in [0, 1]")
     if not (math.isfinite(noise) and noise >= 0):
@@ -219,8 +220,7 @@ def advise_kappa(
                           ("--speed", speed), ("--turn", turn), ("--range", landmark_range)):
         if not (math.isfinite(value) and value >= 0):
             _refuse(option, value, "must be a finite number >= 0")
-    if not (math.isfinite(epsilon) and epsilon > 0):
-        _refuse("--epsilon", epsilon, "must be a finite number > 0")
+    _check_positive("--epsilon", epsilon)
     if not (math.isfinite(minutes) and SPANS[-1] / 60.0 <= minutes <= 600.0):
         _refuse("--minutes", minutes, f"must be between {SPANS[-1] / 60.0:g} (the longest "
                 "span tried) and 600")

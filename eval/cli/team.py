@@ -18,6 +18,7 @@ from .common import (
     _bars,
     _check_clock,
     _check_duration,
+    _check_positive,
     _check_seeds,
     _check_speed,
     _console,
@@ -208,8 +209,7 @@ def node(
     _check_speed(speed)
     _check_seeds([seed])  # before the endpoints are checked: the run is made after them
     _check_clock(start_at, clock_offset)
-    if not (math.isfinite(stop_timeout) and stop_timeout > 0):
-        _refuse("--stop-timeout", stop_timeout, "must be a finite number > 0 (s)")
+    _check_positive("--stop-timeout", stop_timeout, "(s)")
     if state is not None:
         _writable_folder(state, "--state")
     if drop_seed < 0:
@@ -348,8 +348,7 @@ def team(
     _check_seeds([seed])
     _check_duration(duration)
     _check_domain(domain_id)
-    if not (math.isfinite(silence) and silence > 0):
-        _refuse("--silence", silence, "must be a finite number > 0 (s of run)")
+    _check_positive("--silence", silence, "(s of run)")
     if not (math.isfinite(drop_share) and 0 <= drop_share < 1):  # before any node starts
         _refuse("--drop-share", drop_share, "must be a number in [0, 1)")
     if bag is not None:  # checked now, not after the run
@@ -446,8 +445,7 @@ def listen(
     from tcaff_gtsam.node.listener import TeamListener
 
     link = Link(tuple(listen_on or ()), tuple(connect or ()), _tls(tls_ca, tls_cert, tls_key))
-    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
-        _refuse("--seconds", seconds, "must be a finite number > 0")
+    _check_positive("--seconds", seconds)
     truth = None
     if scenario is not None:
         run = _simulated(scenario, seed, None)

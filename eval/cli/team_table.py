@@ -59,14 +59,14 @@ def _team_table(run, output: Path, names: tuple[str, ...], team: bool = False) -
                         if accepted.any() else "-"] if team else [])
             table.add_row(f"{robot}->{other}", str(mine.sum()),
                           f"{100 * accepted.mean():.0f} %", *chained, med, last)
+    notes = []
     late = {"dropped_stale": 0, "silent_steps": 0}
-    for robot in names:
+    for robot in () if team else names:  # the nodes' counters, of their own alignments
         path = output / f"{robot}.json"
         counters = json.loads(path.read_text()) if path.exists() else {}
         for key in late:
             late[key] += counters.get(key, 0)
-    notes = []
-    if any(late.values()) and not team:
+    if any(late.values()):
         notes.append(f"{late['dropped_stale']} maps came too late and {late['silent_steps']} "
                      f"steps had no neighbour's map: the team fell behind its schedule (try a "
                      f"lower --speed) or lost maps")

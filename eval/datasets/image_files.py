@@ -44,8 +44,9 @@ _MARKER = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
 
 
 def jpeg_defect(data: bytes) -> str | None:
-    """None if the JPEG in `data` (beginning with its SOI marker) is whole, else what is
-    wrong with it, as words that follow "the image" ("is cut short: ...").
+    """None if `data` is a whole JPEG or no JPEG at all (other formats: not beginning with the
+    SOI marker), else what is wrong with it, as words that follow "the image" ("is cut
+    short: ...").
 
     The marker segments are walked from the start (ITU T.81 B.2, JFIF): each one that carries
     a length (APPn, DQT, SOFn, DHT, DRI, COM, SOS, ...) is skipped by it, so that an
@@ -56,6 +57,8 @@ def jpeg_defect(data: bytes) -> str | None:
     a segment whose length runs past the end, or at a second SOI marker (the rest cut away
     and another JPEG after it, which OpenCV decodes as the end of the first one's scan).
     """
+    if not data.startswith(JPEG_START):
+        return None
     n = len(data)
     pos, scans, where = len(JPEG_START), 0, "after its start-of-image marker"
     while True:
@@ -113,7 +116,7 @@ def read_image(path: Path, flags: int = cv2.IMREAD_UNCHANGED, what: str = "image
         data = path.read_bytes()
     except OSError as exc:
         raise DataError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
-    if data.startswith(JPEG_START) and (defect := jpeg_defect(data)) is not None:
+    if (defect := jpeg_defect(data)) is not None:
         raise DataError(f"{path}: the {what} {defect}")
     try:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)

@@ -44,8 +44,8 @@ from tcaff_gtsam.object_map import ObjectMap
 
 from ..config import ExtrinsicsConfig, KimeraMultiConfig, TopicsConfig
 from ..runs import RecordedRun, RunSettings
-from .image_files import JPEG_START, jpeg_defect
-from .rgbd_sequence import QUATERNION_TOL
+from .image_files import jpeg_defect
+from .rgbd_sequence import QUATERNION_TOL, quaternion_norms
 from .text_tables import read_text
 
 __all__ = [
@@ -128,10 +128,7 @@ def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     bad = np.flatnonzero(~np.all(np.isfinite(rows), axis=1))
     if bad.size:
         raise DataError(f"{path}: row {bad[0] + 2} has non-finite values: {rows[bad[0]]}")
-    q = rows[:, 4:8]
-    # scaled by the largest component first: the norm of 1e200s would overflow
-    peak = np.abs(q).max(axis=1)
-    norms = np.linalg.norm(q / np.where(peak > 0, peak, 1.0)[:, None], axis=1) * peak
+    norms = quaternion_norms(rows[:, 4:8])
     if np.any(norms < 1e-6):
         k = int(np.argmin(norms))
         raise DataError(f"{path}: row {k + 2} has a zero quaternion")
@@ -197,7 +194,7 @@ def _decode_color(msg, topic: str, t: float, index: int) -> np.ndarray:
     makes up the rest of its rows, so a JPEG is walked to its end-of-image marker first
     (`jpeg_defect`); other formats (PNG) fail to decode when cut short."""
     data = np.asarray(msg.data, dtype=np.uint8)
-    if data[:2].tobytes() == JPEG_START and (defect := jpeg_defect(data.tobytes())) is not None:
+    if (defect := jpeg_defect(data.tobytes())) is not None:
         raise DataError(f"{topic} message {index} at t = {t:.3f} s: the colour image {defect}")
     bgr = cv2.imdecode(data, cv2.IMREAD_COLOR)
     if bgr is None:

@@ -63,6 +63,7 @@ __all__ = [
     "SEVEN_SCENES_INTRINSICS",
     "TUM_INTRINSICS",
     "RgbdSequence",
+    "quaternion_norms",
     "read_7scenes",
     "read_sequence",
     "read_tum",
@@ -521,7 +522,7 @@ def _ground_truth(path: Path) -> tuple[np.ndarray, Rotation, np.ndarray]:
     rows, lines, texts = read_table(path, 8, header)
     _check_increasing(path, rows[:, 0], lines, texts)
     q = rows[:, 4:8]
-    norm = np.linalg.norm(q, axis=1)
+    norm = quaternion_norms(q)
     bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOL)
     if bad.size:
         k = int(bad[0])
@@ -530,6 +531,13 @@ def _ground_truth(path: Path) -> tuple[np.ndarray, Rotation, np.ndarray]:
                         f"{QUATERNION_TOL:g}) ({texts[k]!r})")
     # scipy's order is TUM's: x, y, z, w
     return rows[:, 0], Rotation.from_quat(q / norm[:, None]), rows[:, 1:4]
+
+
+def quaternion_norms(q: np.ndarray) -> np.ndarray:
+    """(n,) norms of the finite quaternions q (n, 4), scaled by each one's largest component
+    first: the norm of 1e200s would overflow (and be taken for inf)."""
+    peak = np.abs(q).max(axis=1)
+    return np.linalg.norm(q / np.where(peak > 0, peak, 1.0)[:, None], axis=1) * peak
 
 
 def _gravity_from_accelerometer(path: Path, truth: tuple[np.ndarray, Rotation, np.ndarray]

@@ -403,7 +403,7 @@ def test_a_saved_job_whose_json_is_a_fifo_is_refused_before_it_is_opened(tmp_pat
             JobResult.load(tmp_path, job.stem)
 
 
-def test_a_recorded_run_whose_saved_job_is_not_one_is_run_again(tmp_path):
+def test_a_recorded_run_whose_saved_job_is_not_one_is_run_again(tmp_path, caplog):
     """A data set's run is reused when its saved job has the same fingerprint: `"info": []`
     (or anything not a saved job) was an AttributeError reading the fingerprint; it is run
     again."""
@@ -412,3 +412,5 @@ def test_a_recorded_run_whose_saved_job_is_not_one_is_run_again(tmp_path):
 
     job = _save_altered(tmp_path, {"info": []})
     assert _saved(tmp_path, job.stem, "fingerprint", MethodsConfig(), figures=False) is None
+    # refused for what it holds, not for a fingerprint no saved job would match
+    assert "results not reusable" in caplog.text and "info must be a JSON dict" in caplog.text

@@ -142,7 +142,6 @@ def test_four_nodes_align_as_the_offline_study_and_drop_bad_messages(tmp_path: P
     shown = [listener.error(m) for m in listener.latest.values() if m.accepted]
     assert shown and all(e[0] < 1.0 for e in shown)
     assert listener.table().row_count == N * (N - 1)
-    assert "heard yet" not in (listener.table().caption or "")
 
 
 @pytest.mark.slow

@@ -19,8 +19,9 @@ from tcaff_gtsam.node.messages import (
     decode,
     encode,
 )
+from team_estimates import edgy, team_takes
 
-from tcaff_gtsam import ObjectMap, TeamConsistency
+from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.errors import DataError
 from tcaff_gtsam.team import usable_estimates
 
@@ -176,22 +177,6 @@ def test_an_accepted_alignment_needs_a_covariance() -> None:
         decode(encode(alignment(P=np.full((3, 3), np.nan))))
 
 
-#: numbers of an estimate, the edges of what the team consistency takes among them
-edgy = st.one_of(st.floats(-10, 10), st.floats(allow_nan=True, allow_infinity=True),
-                 st.sampled_from([0.0, -0.0, 1e-300, 1e9, -1e9, 1.0000001e9, 1e18, -1e18,
-                                  1.0000001e18]))
-
-
-def _team_takes(x: np.ndarray, P: np.ndarray) -> bool:
-    """Whether TeamConsistency.update takes the estimate (x, P) of pair (1, 2)."""
-    estimate = AlignmentMessage("r1", 1, 1, 10.0, "r2", 1, 9.0, 3, 1, True, x, P)
-    try:
-        TeamConsistency(3).update({(1, 2): estimate}, [(0, 1)])
-    except DataError:
-        return False
-    return True
-
-
 @settings(max_examples=300, deadline=None)
 @given(x=st.lists(edgy, min_size=3, max_size=3), upper=st.lists(edgy, min_size=6, max_size=6),
        scale=st.sampled_from([None, 0.0, 1.0, 2e18, -3.0]))
@@ -214,9 +199,9 @@ def test_an_accepted_alignment_decodes_exactly_when_the_team_consistency_takes_i
                                               P)))
     except MessageError as exc:
         assert exc.reason == "malformed"
-        assert not _team_takes(x, P)
+        assert not team_takes(x, P)
     else:
-        assert _team_takes(back.x, back.P)
+        assert team_takes(back.x, back.P)
         np.testing.assert_array_equal(back.P, P)
 
 
@@ -232,7 +217,7 @@ def test_usable_estimates_marks_each_estimate_as_the_team_consistency_judges_it_
     P = np.array([s * np.diag([0.1, 0.2, 0.01]) + (np.triu(np.ones((3, 3)), 1) * 0.01 if skew
                                                    else 0.0) for _, s, skew in drawn])
     np.testing.assert_array_equal(usable_estimates(X, P),
-                                  [_team_takes(x, p) for x, p in zip(X, P, strict=True)])
+                                  [team_takes(x, p) for x, p in zip(X, P, strict=True)])
 
 
 #: where an alignment of r0 to r1 (`alignment()`) holds its hypothesis, accepted flag and

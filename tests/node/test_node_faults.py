@@ -256,7 +256,7 @@ def test_a_nodes_kappa_has_its_aligners_range(kappa):
         with pytest.raises(ParameterError, match=r"^NodeParams\.kappa = "):
             NodeParams(kappa=kappa)
     else:
-        assert FrameAlignerParams(kappa=NodeParams(kappa=kappa).kappa) == aligner
+        assert NodeParams(kappa=kappa).kappa == aligner.kappa
 
 
 def test_a_late_ego_map_never_turns_a_pairs_clock_back(tmp_path: Path) -> None:

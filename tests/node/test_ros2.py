@@ -23,8 +23,9 @@ from tcaff_gtsam.node.bag import truth_topic, write_team_bag
 from tcaff_gtsam.node.messages import AlignmentMessage, MessageError, TeamMessage
 from tcaff_gtsam.node.results import TEAM_COLUMNS, AlignmentCsv
 from tcaff_gtsam.node.run import free_ports
+from team_estimates import edgy, team_takes
 
-from tcaff_gtsam import ObjectMap, TeamConsistency
+from tcaff_gtsam import ObjectMap
 from tcaff_gtsam.errors import ConfigError, DataError
 from tcaff_gtsam.geometry import se2_from_params
 from tcaff_gtsam.params import ParameterError
@@ -185,11 +186,6 @@ def test_bytes_that_are_no_marker_array_are_refused():
         ros2.object_map_of(empty)
 
 
-#: numbers of an estimate, the edges of what the team consistency takes among them
-edgy = st.one_of(st.floats(-10, 10), st.floats(allow_nan=True, allow_infinity=True),
-                 st.sampled_from([0.0, 1e-300, 1e9, -1.0000001e9, 1e18, -1.0000001e18]))
-
-
 @PROPS
 @given(xy=st.lists(edgy, min_size=2, max_size=2), yaw=st.floats(-3.1, 3.1),
        entries=st.lists(edgy, min_size=9, max_size=9), spd=st.booleans())
@@ -205,7 +201,7 @@ def test_an_alignment_topic_is_taken_exactly_when_the_team_consistency_takes_it(
     if spd:  # well-formed ones too, beside the raw draws
         P = np.diag(np.abs(P.diagonal())) + np.eye(3)
     message = ros2.pose_message(5.0, "r0/odom", x, P)
-    taken = ros2.alignment_of(message, "r0", "r1") if _team_takes(x, P) else None
+    taken = ros2.alignment_of(message, "r0", "r1") if team_takes(x, P) else None
     if taken is None:
         with pytest.raises(MessageError) as caught:
             ros2.alignment_of(message, "r0", "r1")
@@ -255,16 +251,6 @@ def test_a_maps_exchange_counter_and_boot_number_are_read_or_the_map_is_malforme
     exchange = ros2.exchange_of(message, "r1")
     decimal = text.isascii() and text.isdigit() and int(text) < 2**32
     assert (exchange.seq, exchange.boot) == (seq, int(text) if decimal else 0)
-
-
-def _team_takes(x: np.ndarray, P: np.ndarray) -> bool:
-    """Whether TeamConsistency.update takes the estimate (x, P) of pair (0, 1)."""
-    estimate = AlignmentMessage("r0", 0, 0, 5.0, "r1", 0, np.nan, 0, 0, True, x, P)
-    try:
-        TeamConsistency(3).update({(0, 1): estimate})
-    except DataError:
-        return False
-    return True
 
 
 # -- a live node --------------------------------------------------------------------------------
