@@ -157,6 +157,9 @@ class TCAFF(FilterState):
         # measurements the main's best path has taken since it came out of a silence of W
         # steps or more, until there are `early_measurements` of them (0: not in such a return)
         self._returning = 0
+        # (step, hypothesis) of a switch away from a main tree in a gap of its measurements,
+        # until the hypothesis switched to is measured at a later step (`_contested`)
+        self._silent_switch: tuple[int, int] | None = None
         # (step, d' (R_a + R_b)^-1 d / d_dim) of consecutive measurements of the main
         # hypothesis over the last `jitter_span` steps, and (step, hypothesis, z, R) of the
         # latest measurement the main hypothesis took (`jitter_reference`)
@@ -262,6 +265,10 @@ class TCAFF(FilterState):
         self._estimate = self._main_estimate()
         if self._estimate is not None:
             self._peak = max(self._peak, self._estimate.n_measurements)
+        switch = self._silent_switch
+        if switch is not None and (self._estimate is None or switch[1] != self.hypothesis or (
+                self.step > switch[0] and self._estimate.measurement >= 0)):
+            self._silent_switch = None
         if prm.switch_stale and self._estimate is not None and self._estimate.measurement >= 0:
             best = int(np.argmin(self._main.cost))
             if self._distinct(self._main.choice[best])[1]:
@@ -485,12 +492,14 @@ class TCAFF(FilterState):
         if self._switch_streak >= prm.switch_after:
             log.debug("step %d: switching from main tree %d (cost %.2f) to one of cost %.2f",
                       self.step, self.hypothesis, main_cost[m], cost[best])
-            if prm.recall_for is not None and (self._main.since[m] >= prm.window
-                                               or self._returning):
+            silent = bool(self._main.since[m] >= prm.window or self._returning)
+            if prm.recall_for is not None and silent:
                 # left in a gap of its measurements, or before a return from one is
                 # confirmed, it is recallable as a dropped one is
                 self._keep_dormant(self._main.take([m]))
             self._accept(complete, best)
+            if silent:
+                self._silent_switch = (self.step, self.hypothesis)
 
     def _record_jitter(self, zs: np.ndarray, Rs: np.ndarray) -> None:
         """Record the jitter of this step's measurement on the main path against the previous
@@ -544,8 +553,10 @@ class TCAFF(FilterState):
         `_outvote_need` times by `_support`, with `switch_support`), or that path took no
         measurement this step while the rival holds more distinct evidence in the window (and
         at least `min_distinct` pieces), or the dormant hypothesis was seen in the last W
-        steps (`_recall`)."""
-        if self._reclaiming:
+        steps (`_recall`), or the main tree replaced one in a gap of its measurements and has
+        not been measured since the step it did (nothing contradicted the one it replaced:
+        a decoy met while the robots were apart is not reported on its lead alone)."""
+        if self._reclaiming or self._silent_switch is not None:
             return True
         main, explore = self._main, self._explore
         m = int(np.argmin(main.cost))

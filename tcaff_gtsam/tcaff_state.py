@@ -81,6 +81,8 @@ class FilterState:
         state["peak"] = np.array(self._peak, dtype=np.int64)
         state["reclaiming"] = np.array(self._reclaiming, dtype=np.int64)
         state["returning"] = np.array(self._returning, dtype=np.int64)
+        if self._silent_switch is not None:
+            state["silent_switch"] = np.array(self._silent_switch, dtype=np.int64)
         state["jitter.steps"] = np.array([k for k, _ in self._jitter], dtype=np.int64)
         state["jitter.values"] = np.array([v for _, v in self._jitter], dtype=np.float64)
         if self._last_taken is not None:
@@ -140,6 +142,7 @@ class FilterState:
                 raise DataError(f"TCAFF state: returning = {returning} must be below "
                                 f"early_measurements = {self.params.early_measurements}, and "
                                 f"0 without a main tree")
+            silent_switch = self._silent_switch_from(state, counters)
             jitter, last_taken = self._jitter_from(state, counters)
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
@@ -199,6 +202,7 @@ class FilterState:
                                   maxlen=self._columns)
             self._dormant, self._dormant_age, self._dormant_peak = dormant
             self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
+            self._silent_switch = silent_switch
             # a filter without a reference keeps no record (it would never trim one)
             self._jitter, self._last_taken = ((jitter, last_taken)
                                               if self.params.jitter_reference is not None
@@ -335,6 +339,25 @@ class FilterState:
             out.append(None if size < 0 else counts[start:start + size])
             start += max(size, 0)
         return out
+
+    def _silent_switch_from(self, state: Mapping, counters: dict[str, int]
+                            ) -> tuple[int, int] | None:
+        """The (step, hypothesis) of a switch from a silent main tree not yet confirmed, or
+        None (absent from states saved before it was recorded); a DataError unless it is of
+        the current main tree, at a step no later than the state's."""
+        if "silent_switch" not in state:
+            return None
+        value = _state_array(state["silent_switch"], "silent_switch", np.int64)
+        if value.shape != (2,):
+            raise DataError(f"TCAFF state: silent_switch must be (step, hypothesis), got "
+                            f"shape {value.shape}")
+        step, hypothesis = (int(v) for v in value)
+        if ("main.x" not in state or hypothesis != counters["hypothesis"]
+                or not 1 <= step <= counters["step"]):
+            raise DataError(f"TCAFF state: silent_switch = ({step}, {hypothesis}) must name "
+                            f"the main tree's hypothesis {counters['hypothesis']} at a step in "
+                            f"[1, {counters['step']}]")
+        return step, hypothesis
 
     def _jitter_from(self, state: Mapping, counters: dict[str, int]
                      ) -> tuple[deque, tuple | None]:

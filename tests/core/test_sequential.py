@@ -226,6 +226,35 @@ def test_a_hypothesis_displaced_in_its_gap_is_recalled_over_the_newcomer(seed):
 
 
 @pytest.mark.parametrize("seed", range(3))
+def test_a_newcomer_that_displaced_an_unseen_hypothesis_waits_for_its_next_measurement(seed):
+    """Nothing contradicted the truth the wrong alignment displaced in its gap, so the switch
+    step does not report the newcomer (`TCAFF.held` has it); its next measurement does, and a
+    filter restored from the switch step's state does the same. Without withholding the
+    switch step reports it."""
+    stream, zs, back = taken_over_in_the_gap(seed)
+    filt = TCAFF()
+    switch = None
+    for t, z in enumerate(zs[:back]):
+        Rs = np.broadcast_to(R, (len(z), 3, 3))
+        est = filt.update(z, Rs)
+        if switch is None and filt.held is not None and filt.held.hypothesis == 2:
+            switch, state = t, filt.state_dict()
+            assert est is None and not correct(filt.held, stream.truth[t])
+            restored = TCAFF()
+            restored.load_state_dict(state)
+        elif switch is not None:
+            again = restored.update(z, Rs)
+            assert (est is None) == (again is None)
+            if est is not None:
+                assert np.array_equal(est.x, again.x)
+            if t == switch + 1:  # measured again (the wrong alignment is seen at every step)
+                assert est is not None and est.hypothesis == 2
+    assert switch is not None, "the wrong alignment takes over in the gap"
+    unheld = feed(TCAFF(replace(TCAFFParams(), withhold_contested=False)), zs[:switch + 1])
+    assert unheld[switch] is not None and not correct(unheld[switch], stream.truth[switch])
+
+
+@pytest.mark.parametrize("seed", range(3))
 def test_the_returning_truth_contests_the_newcomer_through_a_missed_step(seed):
     """The truth returns, is missed at its second step, then seen again: the newcomer that
     displaced it stays withheld through the missed step (a measurement of the dormant

@@ -292,12 +292,14 @@ def wrong_and_recovery(estimates, truth) -> tuple[int, int | None]:
 def test_after_a_jump_the_old_estimate_is_withheld_once_the_new_frame_has_more_evidence():
     W = DISTINCT.window
     withheld = replace(DISTINCT, withhold_contested=True)
-    for seed in range(5):  # seed 4 is the slowest of seeds 0-9 to recover (W + 5)
+    for seed in range(5):  # seed 4 is the slowest of seeds 0-9 to recover (W + 6)
         stream = decoy_stream(np.random.default_rng(seed))
         start = stream.rejoin
         wrong, first = wrong_and_recovery(run_with_evidence(TCAFF(withheld), stream)[start:],
                                           stream.truth[start:])
-        assert wrong <= 3 and first is not None and first <= W + 5, f"seed {seed}"
+        # the old frame, unmeasured through the gap, is replaced in it: the new one is
+        # reported from its first measurement after the switch (W + 3 steps at the least)
+        assert wrong <= 3 and first is not None and first <= W + 6, f"seed {seed}"
         held_on, _ = wrong_and_recovery(run_with_evidence(TCAFF(DISTINCT), stream)[start:],
                                         stream.truth[start:])
         assert held_on >= W, f"seed {seed}"  # without it: the old frame until the switch

@@ -110,6 +110,17 @@ def _set(key, index, value):
      "main.choice holds values beyond int32"),
     (lambda s: s.__setitem__("main.x", s["main.x"] + 1j), "main.x must hold real numbers"),
     (lambda s: s.__setitem__("step", np.array(40.5)), "step must be an integer"),
+    # a switch from a silent main tree is of the main tree, at a step it has seen
+    (lambda s: s.__setitem__("silent_switch", np.array([1, s["hypothesis"] + 1])),
+     r"silent_switch = \(1, .*\) must name the main tree's hypothesis"),
+    (lambda s: s.__setitem__("silent_switch", np.array([0, s["hypothesis"]])),
+     r"silent_switch = \(0, .*\) must name"),
+    (lambda s: s.__setitem__("silent_switch", np.array([s["step"] + 1, s["hypothesis"]])),
+     r"silent_switch = .* at a step in \[1, "),
+    (lambda s: s.__setitem__("silent_switch", np.array([1, 2, 3])),
+     r"silent_switch must be \(step, hypothesis\)"),
+    (lambda s: s.__setitem__("silent_switch", np.array([1.5, 1.0])),
+     "silent_switch must hold integers"),
 ])
 def test_a_tampered_state_is_refused_and_the_filter_left_alone(tamper, message):
     source = a_running_filter()
