@@ -139,7 +139,11 @@ class TCAFFParams(_ByValue):
             hypothesis it gates out has been seen that many more times than the main path
             since its root (the steps since it was first seen), confirmed this step or not.
             Only at steps given object ids (`lookalike_share`). With `recall_for`, also
-            within W steps of a measurement of a dormant hypothesis (`recall_for`).
+            within W steps of a measurement of a dormant hypothesis (`recall_for`). At every
+            step, from a switch away from a main tree in a gap of its measurements (W steps
+            without one, or a return from such a gap not yet confirmed) until the hypothesis
+            switched to is measured at a later step: nothing contradicted the one it
+            replaced.
         lookalike_share: the distinct-evidence rules (`min_distinct`, `switch_stale`,
             `withhold_contested`, `switch_support`) read object ids only at steps whose two
             maps are of look-alikes: `PairwiseAligner` gives ids when at least this share of
