@@ -298,7 +298,7 @@ def test_after_a_jump_the_old_estimate_is_withheld_once_the_new_frame_has_more_e
         wrong, first = wrong_and_recovery(run_with_evidence(TCAFF(withheld), stream)[start:],
                                           stream.truth[start:])
         # the old frame, unmeasured through the gap, is replaced in it: the new one is
-        # reported from its first measurement after the switch (W + 3 steps at the least)
+        # reported from its first measurement after the switch (W + 4 steps at the least)
         assert wrong <= 3 and first is not None and first <= W + 6, f"seed {seed}"
         held_on, _ = wrong_and_recovery(run_with_evidence(TCAFF(DISTINCT), stream)[start:],
                                         stream.truth[start:])
