@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -89,7 +90,8 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
     """Every method over every directed pair of a recorded run; results into `folder`.
 
     Without truth for every robot, the methods that need it are left out and nothing is scored;
-    the estimates are still written.
+    the estimates are still written. What an earlier run left in `folder` is moved aside first
+    (`_set_aside`), once this one's results are computed.
 
     Args:
         header: extra entries of metrics.json (the data set's own facts).
@@ -99,6 +101,7 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
     """
     job, methods = evaluate_run(run, methods, progress, arrays)
     job.info = {"robots": list(run.robot_names), **(info or {})}
+    _set_aside(folder, run.name)
     folder.mkdir(parents=True, exist_ok=True)
     summary: dict[str, dict] = {}
     if job.metrics:
@@ -111,6 +114,40 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
     write_tum(folder, job, streams=shown_streams(methods))  # `tcaff export` writes them all
     job.save(folder)  # last: a saved job means the tables and figures were written
     return RecordedOutcome(folder, job, summary, methods)
+
+
+#: what an evaluation writes into its folder beside its job (`evaluate_recorded`, `run_rgbd`)
+_RESULTS = ("metrics.json", "metrics.csv", "table.md", "walk_report.json", "figures",
+            "trajectories")
+
+
+def _set_aside(folder: Path, name: str) -> None:
+    """Move what an earlier evaluation left in `folder` (its job `name`, tables, figures and
+    trajectories; not a Kimera run's maps, which a run of the same settings reuses) to
+    `<folder's parent>/previous/<folder's name>/`, replacing what an earlier one left there.
+    A run that is not reused (other settings, or told not to resume) then neither writes its
+    tables beside the figures of another nor loses the other's results.
+
+    Raises:
+        DataError: the move failed (naming both folders); what moved stays moved.
+    """
+    found = [folder / item for item in (f"{name}.json", f"{name}.npz", *_RESULTS)
+             if (folder / item).exists()]
+    if not found:
+        return
+    aside = folder.parent / "previous" / folder.name
+    try:
+        if aside.is_symlink() or aside.is_file():
+            aside.unlink()
+        elif aside.exists():
+            shutil.rmtree(aside)
+        aside.mkdir(parents=True)
+        for path in found:
+            shutil.move(path, aside / path.name)
+    except OSError as exc:
+        raise DataError(f"{folder}: an earlier run's results could not be moved to {aside} "
+                        f"({exc})") from None
+    log.warning("%s: an earlier run's results, not reused, moved to %s", name, aside)
 
 
 def _draw(folder: Path, job: JobResult, methods: MethodsConfig) -> None:

@@ -77,7 +77,8 @@ def kimera_multi(
         help=f"A Kimera-Multi test YAML, or a shipped one: {_shipped('kimera_multi')}.")
     ] = "same_direction",
     output: Annotated[Path, typer.Option(
-        help="Results go to OUTPUT/<test name>/.")] = Path("results/kimera_multi"),
+        help="Results go to OUTPUT/<test name>/; an earlier run's to OUTPUT/previous/.")
+    ] = Path("results/kimera_multi"),
     resume: Annotated[bool, typer.Option(
         help="Reuse robots' maps saved by an earlier run with the same settings and bags.")
     ] = True,
@@ -221,7 +222,8 @@ def mrclam(
     duration: Annotated[float | None, typer.Option(
         help="Use only this many seconds of data, for a quick look.")] = None,
     output: Annotated[Path, typer.Option(
-        help="Results go to OUTPUT/<set>-<odometry>[-seed<s>]/.")] = Path("results/mrclam"),
+        help="Results go to OUTPUT/<set>-<odometry>[-seed<s>]/; those a run replaces to "
+             "OUTPUT/previous/.")] = Path("results/mrclam"),
     resume: Annotated[bool, typer.Option(
         help="Reuse the results of an earlier run with the same settings and files.")] = True,
     figures: Annotated[bool, typer.Option(help="Draw the PNG figures.")] = True,
@@ -371,7 +373,8 @@ def rgbd(
         help=f"Method set: a YAML path or a shipped name ({_shipped('methods')}).")] = None,
     output: Annotated[Path, typer.Option(
         help="Results go to OUTPUT/<sequence>[-<ranges>][-<rate>hz][-back]-<odometry>"
-             "[-seed<s>]/ (ranges unless the default ones).")
+             "[-seed<s>]/ (ranges unless the default ones); those a run replaces to "
+             "OUTPUT/previous/.")
     ] = Path("results/rgbd"),
     resume: Annotated[bool, typer.Option(
         help="Reuse the results of an earlier run with the same settings and files.")] = True,

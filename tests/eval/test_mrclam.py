@@ -329,8 +329,19 @@ def test_command_scores_every_pair_and_resumes(dataset, tmp_path):
     mended = CliRunner().invoke(app, [*args, "--no-figures"])
     assert mended.exit_code == 0 and mended.output.count("reused") == 1, mended.output
     json.loads((tmp_path / names[1] / "metrics.json").read_text())
+    # ... the spoilt run's files are set aside, not deleted
+    assert (tmp_path / "previous" / names[1] / "metrics.json").read_text() == "{not json"
+
+    def fingerprint(folder, name):
+        return json.loads((folder / f"{name}.json").read_text())["info"]["fingerprint"]
+
+    before = {name: fingerprint(tmp_path / name, name) for name in names}
     other = CliRunner().invoke(app, [*args, "--kappa", "10", "--no-figures"])
     assert other.exit_code == 0 and "reused" not in other.output
+    for name in names:  # a run of other settings moves the earlier results aside, whole
+        aside = tmp_path / "previous" / name
+        assert fingerprint(aside, name) == before[name] != fingerprint(tmp_path / name, name)
+        assert {p.name for p in aside.iterdir()} == {p.name for p in (tmp_path / name).iterdir()}
     # the figures, of two pairs (drawing all 20 pairs' takes most of a run's time) and one
     # odometry (the other's results are drawn by the same code)
     drawn = CliRunner().invoke(app, [*vio, "--pairs", "1:2,5:4", "--output",
@@ -339,6 +350,36 @@ def test_command_scores_every_pair_and_resumes(dataset, tmp_path):
     figures = {p.name for p in (tmp_path / "drawn" / names[0] / "figures").glob("*.png")}
     assert figures == {"arena.png", "errors_0_1.png", "errors_4_3.png", "candidates_0_1.png",
                        "candidates_4_3.png"}
+
+
+def test_results_not_reused_are_set_aside_whole_and_a_failed_move_is_named(tmp_path):
+    from tcaff_gtsam.eval.dataset_runs import _set_aside
+
+    folder = tmp_path / "run"
+    (folder / "figures").mkdir(parents=True)
+    (folder / "figures" / "arena.png").write_bytes(b"png")
+    for name in ("run.json", "run.npz", "metrics.json", "table.md"):
+        (folder / name).write_text(name)
+    (folder / "maps").mkdir()  # a Kimera run's maps stay: a run of the same settings reuses them
+    _set_aside(folder, "run")
+    aside = tmp_path / "previous" / "run"
+    assert {p.name for p in aside.iterdir()} == {"run.json", "run.npz", "metrics.json",
+                                                 "table.md", "figures"}
+    assert [p.name for p in folder.iterdir()] == ["maps"]
+    (folder / "run.json").write_text("second")
+    _set_aside(folder, "run")  # what an earlier move left is replaced
+    assert [p.name for p in aside.iterdir()] == ["run.json"]
+    assert (aside / "run.json").read_text() == "second"
+    _set_aside(folder, "run")  # nothing left to move: what was moved stays
+    assert (aside / "run.json").read_text() == "second"
+    blocked = tmp_path / "blocked"
+    (blocked / "run").mkdir(parents=True)
+    (blocked / "run" / "run.json").write_text("kept")
+    (blocked / "previous").write_text("a file where the folder goes")
+    with pytest.raises(DataError, match=r"run: an earlier run's results could not be moved to "
+                                        r".*previous/run"):
+        _set_aside(blocked / "run", "run")
+    assert (blocked / "run" / "run.json").read_text() == "kept"
 
 
 def test_command_rejects_bad_options(dataset, tmp_path):
