@@ -352,12 +352,13 @@ def sweep(
     _check_duration(duration)
     if output is not None:
         _writable_folder(output, "--output")
-    from ..config import load_sweep, resolve_study
+    from ..config import _resolve, load_sweep, resolve_study
 
     sweep_config, study_config = load_sweep(config)
-    if scenario:
-        study_config = resolve_study(study_config.model_copy(
-            update={"scenarios": _picked_scenarios(scenario)}), strict=False)
+    if scenario:  # a relative YAML path beside the sweep file, as `study` takes it beside its own
+        picked = _picked_scenarios(scenario, _resolve(config, "sweeps").parent)
+        study_config = resolve_study(study_config.model_copy(update={"scenarios": picked}),
+                                     strict=False)
     updates = {"seeds": None if seeds is None else list(range(seeds)), "workers": workers}
     study_config = _capped(study_config.model_copy(
         update={k: v for k, v in updates.items() if v is not None}), duration)

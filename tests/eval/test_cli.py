@@ -354,16 +354,20 @@ def test_a_duplicate_yaml_key_is_named_in_one_line(tmp_path, tcaff_main, where):
     assert f"duplicate key {key!r}" in line
 
 
-def test_a_scenario_picked_beside_the_study_file_is_found(tmp_path, tcaff_main, monkeypatch):
+@pytest.mark.parametrize(("command", "shipped"), [("study", "studies/demo.yaml"),
+                                                 ("sweep", "sweeps/tau_window.yaml")])
+def test_a_scenario_picked_beside_the_config_file_is_found(tmp_path, tcaff_main, monkeypatch,
+                                                         command, shipped):
     """`study FOLDER/st.yaml -s near.yaml` takes near.yaml from the study file's folder, as the
-    study's own list does (picked twice here, so that it is refused once loaded, naming -s,
-    rather than run); from the current folder only, it was "no such config file"."""
-    folder = tmp_path / "studies"
+    study's own list does, and `sweep FOLDER/sw.yaml -s near.yaml` from the sweep file's
+    (picked twice here, so that it is refused once loaded, naming -s, rather than run); from
+    the current folder only, it was "no such config file"."""
+    folder = tmp_path / "configs"
     folder.mkdir()
-    shutil.copy(CONFIG_DIR / "studies" / "demo.yaml", folder / "st.yaml")
+    shutil.copy(CONFIG_DIR / shipped, folder / "config.yaml")
     shutil.copy(CONFIG_DIR / "scenarios" / "indoor_return.yaml", folder / "near.yaml")
     monkeypatch.chdir(tmp_path)
-    line = one_line_error(tcaff_main("study", str(folder / "st.yaml"), "-s", "near.yaml",
+    line = one_line_error(tcaff_main(command, str(folder / "config.yaml"), "-s", "near.yaml",
                                      "-s", "near.yaml", "--output", str(tmp_path)),
                           "-s/--scenario")
     assert "picks scenario indoor_return a second time" in line
