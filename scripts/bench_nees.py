@@ -52,6 +52,9 @@ and prints one row per data set (seeds pooled) and model:
             its own R): whether R describes one registration's error; meas above R means the
             filter's fusion shrinks P more than it shrinks the error (consecutive
             registrations share most of their error)
+  R_s       the same against one registration's covariance R_s, R without the re-registration
+            inflation (`one_registration`), which is what the filter's P settles at under a
+            run of registrations: 3 where R_s is right (R's NEES is below it by design)
   wrong     share of the estimates off by more than 1 m or 5 deg (false accepts)
   outside   share of those with NEES > 14.16 (outside their 99.7 % ellipse)
   x, y, th  RMS of e_k / sigma_k over the correct estimates (sigma_k = sqrt(P_kk)); 1: honest
@@ -302,12 +305,28 @@ def _with_Q(aligner: FrameAlignerParams, tcaff: TCAFFParams, Q: np.ndarray
 # -- one run -----------------------------------------------------------------------------------
 
 
+def one_registration(R: np.ndarray, Q: np.ndarray, rho: float) -> np.ndarray:
+    """R_s (n, 3, 3) of calibrated covariances R (n, 3, 3) inflated for a filter of drift Q
+    (3, 3): the solution of R = R_s + rho R_s Q^-1 R_s (`calibrated_covariance`, part 3).
+    In Q's whitened frame (Q = L L') B = L^-1 R L^-T and A = L^-1 R_s L^-T share their
+    eigenvectors and B = A + rho A^2, so A's eigenvalues are (sqrt(1 + 4 rho b) - 1) / (2 rho).
+    """
+    if rho == 0:
+        return R
+    L = np.linalg.cholesky(Q)
+    L_inv = np.linalg.inv(L)
+    B = L_inv @ R @ L_inv.T
+    b, v = np.linalg.eigh(0.5 * (B + np.swapaxes(B, -1, -2)))
+    a = (np.sqrt(1.0 + 4.0 * rho * np.clip(b, 0.0, None)) - 1.0) / (2.0 * rho)
+    return L @ ((v * a[..., None, :]) @ np.swapaxes(v, -1, -2)) @ L.T
+
+
 def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
     """Every directed pair of one run under one model: per estimate the error (n, 3), its P
     (n, 3, 3), its NEES and whether it is correct (as the evaluation scores them,
     `metrics.step_nees` and `step_errors` within `Thresholds`), and the NEES of the measurement
-    it took against that measurement's own R (NaN for a held estimate); counts of overlap
-    steps, of those with an estimate and with a correct one."""
+    it took against that measurement's own R and against its R_s (NaN for a held estimate);
+    counts of overlap steps, of those with an estimate and with a correct one."""
     from tcaff_gtsam.precompile import compile_kernels
 
     compile_kernels()
@@ -352,12 +371,17 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
         has = ~np.isnan(x[:, 0])
         ok = limits.correct(step_errors(T_true[has], x[has]))
         measured = ~np.isnan(z[has, 0])
-        taken = np.full(measured.shape, np.nan)
+        taken, taken_s = np.full(measured.shape, np.nan), np.full(measured.shape, np.nan)
         taken[measured] = step_nees(T_true[has][measured], z[has][measured], R[has][measured])
+        fed = pair.aligner.params
+        rho = fed.repeat_inflation if fed.covariance == "calibrated" else 0.0
+        Q = pair.filter.params.Q if fed.repeat_Q is None else fed.repeat_Q
+        taken_s[measured] = step_nees(T_true[has][measured], z[has][measured],
+                                      one_registration(R[has][measured], Q, rho))
         e = x[has] - truth[has]
         e[:, 2] = wrap_angle(e[:, 2])
         parts.append({"errors": e, "P": P[has], "nees": step_nees(T_true[has], x[has], P[has]),
-                      "ok": ok, "held": ~measured, "taken": taken,
+                      "ok": ok, "held": ~measured, "taken": taken, "taken_s": taken_s,
                       "episode": np.full(len(e), f"{source.name} {min(i, j)}-{max(i, j)}"),
                       "jitter": jitter})
         overlap += int(on.sum())
@@ -396,9 +420,9 @@ def mean_interval(values: np.ndarray, episode: np.ndarray, draws: int = 2000
 
 def summary(parts: list[dict]) -> dict:
     """The table's numbers of one data set and model from its runs' `run_source` results."""
-    e, P, values, ok, held, episode, taken = (
+    e, P, values, ok, held, episode, taken, taken_s = (
         np.concatenate([p[key] for p in parts])
-        for key in ("errors", "P", "nees", "ok", "held", "episode", "taken"))
+        for key in ("errors", "P", "nees", "ok", "held", "episode", "taken", "taken_s"))
     overlap = sum(p["overlap"] for p in parts)
     jitter = np.concatenate([p["jitter"] for p in parts])
     out = {"est": len(e), "available": sum(p["available"] for p in parts) / max(overlap, 1),
@@ -414,6 +438,7 @@ def summary(parts: list[dict]) -> dict:
         under=float(np.mean(values < NEES_95)),
         nees_ok=mean_where(values, ~bad), nees_held=mean_where(values, held & ~bad),
         nees_measured=mean_where(values, ~held & ~bad), nees_R=mean_where(taken, ~held & ~bad),
+        nees_Rs=mean_where(taken_s, ~held & ~bad),
         wrong=float(bad.mean()), outside=mean_where(values > NEES_997, bad),
         ratio=(np.sqrt(np.mean((e[~bad] / sigma[~bad]) ** 2, axis=0)) if (~bad).any()
                else np.full(3, math.nan)),
@@ -432,7 +457,8 @@ def print_table(results: list[dict], models: list[str]) -> None:
     print(f"{'data set':26} {'model':19} {'est':>6} {'pairs':>5} {'mean':>7} "
           f"{'95 % of mean':>15} "
           f"{'median':>6} {'<7.81':>6} "
-          f"{'ok mean':>7} {'held':>6} {'meas':>6} {'R':>6} {'wrong':>6} {'outside':>7} "
+          f"{'ok mean':>7} {'held':>6} {'meas':>6} {'R':>6} {'R_s':>6} {'wrong':>6} "
+          f"{'outside':>7} "
           f"{'x':>5} {'y':>5} {'th':>5} "
           f"{'sig m':>6} {'sig deg':>7} {'avail':>6} {'correct':>7} {'jitter':>6}")
     for group in groups:
@@ -444,18 +470,21 @@ def print_table(results: list[dict], models: list[str]) -> None:
             head = f"{group:26} {model:19} {r['est']:6d}"
             tail = f"{r['available']:6.3f} {r['correct']:7.3f} {r['jitter']:6.2f}"
             if not r["est"]:
-                blank = " ".join(f"{'':>{w}}" for w in (15, 6, 6, 7, 6, 6, 6, 6, 7, 5, 5, 5, 6, 7))
+                blank = " ".join(f"{'':>{w}}" for w in (15, 6, 6, 7, 6, 6, 6, 6, 6, 7, 5, 5, 5, 6,
+                                                        7))
                 print(f"{head} {'':>5} {'-':>7} {blank} {tail}")
                 continue
             outside = "-" if math.isnan(r["outside"]) else f"{r['outside']:.2f}"
-            held, measured, R = ("-" if math.isnan(r[key]) else f"{r[key]:.2f}"
-                                 for key in ("nees_held", "nees_measured", "nees_R"))
+            held, measured, R, R_s = ("-" if math.isnan(r[key]) else f"{r[key]:.2f}"
+                                      for key in ("nees_held", "nees_measured", "nees_R",
+                                                  "nees_Rs"))
             x, y, th = r["ratio"]
             lo, hi = r["nees_interval"]
             interval = "-" if math.isnan(lo) else f"{lo:.2f}-{hi:.2f}"
             print(f"{head} {r['episodes']:5d} {r['nees_mean']:7.2f} {interval:>15} "
                   f"{r['nees_median']:6.2f} {r['under']:6.3f} "
-                  f"{r['nees_ok']:7.2f} {held:>6} {measured:>6} {R:>6} {r['wrong']:6.3f} "
+                  f"{r['nees_ok']:7.2f} {held:>6} {measured:>6} {R:>6} {R_s:>6} "
+                  f"{r['wrong']:6.3f} "
                   f"{outside:>7} {x:5.2f} {y:5.2f} "
                   f"{th:5.2f} {math.hypot(*r['sigma'][:2]):6.3f} "
                   f"{math.degrees(r['sigma'][2]):7.2f} {tail}")
