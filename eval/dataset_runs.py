@@ -90,8 +90,8 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
     """Every method over every directed pair of a recorded run; results into `folder`.
 
     Without truth for every robot, the methods that need it are left out and nothing is scored;
-    the estimates are still written. What an earlier run left in `folder` is moved aside first
-    (`_set_aside`), once this one's results are computed.
+    the estimates are still written. What an earlier run left in `folder` is set aside first
+    (`_set_aside`).
 
     Args:
         header: extra entries of metrics.json (the data set's own facts).
@@ -99,9 +99,9 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
             (w, 2, 2) draw the arena).
         info: kept in the job's JSON (`JobResult.info`).
     """
+    _set_aside(folder, run.name)
     job, methods = evaluate_run(run, methods, progress, arrays)
     job.info = {"robots": list(run.robot_names), **(info or {})}
-    _set_aside(folder, run.name)
     folder.mkdir(parents=True, exist_ok=True)
     summary: dict[str, dict] = {}
     if job.metrics:
@@ -116,27 +116,45 @@ def evaluate_recorded(run: RecordedRun, methods: MethodsConfig, folder: Path,
     return RecordedOutcome(folder, job, summary, methods)
 
 
-#: what an evaluation writes into its folder beside its job (`evaluate_recorded`, `run_rgbd`)
+#: what an evaluation writes into its folder beside its job (`evaluate_recorded`, `run_rgbd`),
+#: and the recording `tcaff view` makes of it
 _RESULTS = ("metrics.json", "metrics.csv", "table.md", "walk_report.json", "figures",
-            "trajectories")
+            "trajectories", "recording.rrd")
 
 
 def _set_aside(folder: Path, name: str) -> None:
-    """Move what an earlier evaluation left in `folder` (its job `name`, tables, figures and
-    trajectories; not a Kimera run's maps, which a run of the same settings reuses) to
-    `<folder's parent>/previous/<folder's name>/`, replacing what an earlier one left there.
-    A run that is not reused (other settings, or told not to resume) then neither writes its
-    tables beside the figures of another nor loses the other's results.
+    """Clear `folder` for a new evaluation of the run `name` (one that is not reused: other
+    settings, or told not to resume), keeping a finished one: when the folder holds a job
+    (`<name>.json`, written last), its results (the job, tables, figures, trajectories, a
+    recording; not a Kimera run's maps, which a run of the same settings reuses) move to
+    `<folder's parent>/previous/<folder's name>/`, replacing what an earlier one left there;
+    without one, what an interrupted run left is removed, and `previous` is left as it is. A
+    new run then neither writes its tables beside another's figures nor loses a finished run.
 
     Raises:
-        DataError: the move failed (naming both folders); what moved stays moved.
+        DataError: `previous` is there but is no folder (a file, a link), or a move failed
+            (naming both folders); what moved stays moved.
     """
     found = [folder / item for item in (f"{name}.json", f"{name}.npz", *_RESULTS)
-             if (folder / item).exists()]
+             if (folder / item).exists() or (folder / item).is_symlink()]
     if not found:
         return
-    aside = folder.parent / "previous" / folder.name
+    previous = folder.parent / "previous"
+    aside = previous / folder.name
+    finished = (folder / f"{name}.json").exists()
     try:
+        if not finished:  # no job: an interrupted run's partial results
+            for path in found:
+                if path.is_dir() and not path.is_symlink():
+                    shutil.rmtree(path)
+                else:
+                    path.unlink()
+            log.warning("%s: an interrupted run's partial results removed from %s", name,
+                        folder)
+            return
+        if previous.is_symlink() or (previous.exists() and not previous.is_dir()):
+            raise DataError(f"{folder}: {previous} is no folder; an earlier run's results are "
+                            f"moved there")
         if aside.is_symlink() or aside.is_file():
             aside.unlink()
         elif aside.exists():
@@ -145,8 +163,9 @@ def _set_aside(folder: Path, name: str) -> None:
         for path in found:
             shutil.move(path, aside / path.name)
     except OSError as exc:
-        raise DataError(f"{folder}: an earlier run's results could not be moved to {aside} "
-                        f"({exc})") from None
+        raise DataError(f"{folder}: an earlier run's results could not be set aside "
+                        f"({'moved to ' + str(aside) if finished else 'removed'}: {exc})"
+                        ) from None
     log.warning("%s: an earlier run's results, not reused, moved to %s", name, aside)
 
 

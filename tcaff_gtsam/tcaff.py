@@ -157,8 +157,9 @@ class TCAFF(FilterState):
         # measurements the main's best path has taken since it came out of a silence of W
         # steps or more, until there are `early_measurements` of them (0: not in such a return)
         self._returning = 0
-        # (step, hypothesis) of a switch away from a main tree in a gap of its measurements,
-        # until the hypothesis switched to is measured at a later step (`_contested`)
+        # (step, hypothesis) of a switch away from a main tree in a gap of its measurements
+        # (or from one that so replaced it and was not measured since), until the hypothesis
+        # switched to is measured at a later step (`_contested`)
         self._silent_switch: tuple[int, int] | None = None
         # (step, d' (R_a + R_b)^-1 d / d_dim) of consecutive measurements of the main
         # hypothesis over the last `jitter_span` steps, and (step, hypothesis, z, R) of the
@@ -497,8 +498,11 @@ class TCAFF(FilterState):
                 # left in a gap of its measurements, or before a return from one is
                 # confirmed, it is recallable as a dropped one is
                 self._keep_dormant(self._main.take([m]))
+            # replacing a main tree that itself replaced one in a gap and was not measured
+            # since: the one left in the gap is no more contradicted than before
+            unconfirmed = self._silent_switch is not None
             self._accept(complete, best)
-            if silent:
+            if silent or unconfirmed:
                 self._silent_switch = (self.step, self.hypothesis)
 
     def _record_jitter(self, zs: np.ndarray, Rs: np.ndarray) -> None:

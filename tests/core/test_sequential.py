@@ -240,8 +240,12 @@ def test_a_newcomer_that_displaced_an_unseen_hypothesis_waits_for_its_next_measu
         if switch is None and filt.held is not None and filt.held.hypothesis == 2:
             switch, state = t, filt.state_dict()
             assert est is None and not correct(filt.held, stream.truth[t])
+            assert "silent_switch" in state
             restored = TCAFF()
             restored.load_state_dict(state)
+            again = restored.state_dict()
+            assert again.keys() == state.keys()
+            assert all(np.array_equal(again[key], state[key]) for key in state)
         elif switch is not None:
             again = restored.update(z, Rs)
             assert (est is None) == (again is None)
@@ -252,6 +256,28 @@ def test_a_newcomer_that_displaced_an_unseen_hypothesis_waits_for_its_next_measu
     assert switch is not None, "the wrong alignment takes over in the gap"
     unheld = feed(TCAFF(replace(TCAFFParams(), withhold_contested=False)), zs[:switch + 1])
     assert unheld[switch] is not None and not correct(unheld[switch], stream.truth[switch])
+
+
+def test_a_newcomer_that_replaced_an_unconfirmed_newcomer_waits_too():
+    """The truth is left unseen; A, seen alone, displaces it and is withheld; B displaces A
+    before A is seen again. Nothing has contradicted the truth yet, so B too is withheld until
+    its next measurement (a switch away from A alone, measured less than W steps before, is
+    no switch in a gap)."""
+    rng = np.random.default_rng(0)
+    A, B = TRUTH + np.array([5.0, -3.0, 2.0]), TRUTH + np.array([-6.0, 4.0, -1.5])
+    filt, switched = TCAFF(), {}
+    for t in range(80):
+        zs = [x + rng.normal(0, [0.05, 0.05, 0.005]) for x, seen in (
+            (TRUTH, t < 30), (A, 50 <= t < 60), (B, t >= 53)) if seen]
+        zs = np.array(zs).reshape(-1, 3)
+        est = filt.update(zs, np.broadcast_to(R, (len(zs), 3, 3)))
+        if filt.held is not None and filt.held.hypothesis not in switched:
+            switched[filt.held.hypothesis] = (t, est)
+    assert sorted(switched) == [1, 2, 3]
+    for hypothesis in (2, 3):  # A, then B: neither reported at its switch step ...
+        t, est = switched[hypothesis]
+        assert est is None, f"hypothesis {hypothesis} reported at its switch step {t}"
+    assert filt.estimate is not None and filt.estimate.hypothesis == 3  # ... B once seen again
 
 
 @pytest.mark.parametrize("seed", range(3))

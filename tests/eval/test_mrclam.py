@@ -358,27 +358,39 @@ def test_results_not_reused_are_set_aside_whole_and_a_failed_move_is_named(tmp_p
     folder = tmp_path / "run"
     (folder / "figures").mkdir(parents=True)
     (folder / "figures" / "arena.png").write_bytes(b"png")
-    for name in ("run.json", "run.npz", "metrics.json", "table.md"):
+    for name in ("run.json", "run.npz", "metrics.json", "table.md", "recording.rrd"):
         (folder / name).write_text(name)
     (folder / "maps").mkdir()  # a Kimera run's maps stay: a run of the same settings reuses them
     _set_aside(folder, "run")
     aside = tmp_path / "previous" / "run"
     assert {p.name for p in aside.iterdir()} == {"run.json", "run.npz", "metrics.json",
-                                                 "table.md", "figures"}
+                                                 "table.md", "recording.rrd", "figures"}
     assert [p.name for p in folder.iterdir()] == ["maps"]
     (folder / "run.json").write_text("second")
-    _set_aside(folder, "run")  # what an earlier move left is replaced
+    _set_aside(folder, "run")  # a finished run replaces what an earlier move left
     assert [p.name for p in aside.iterdir()] == ["run.json"]
     assert (aside / "run.json").read_text() == "second"
-    _set_aside(folder, "run")  # nothing left to move: what was moved stays
+    # an interrupted run (no job: it is written last) leaves partial results: they go, and
+    # the finished run set aside before it stays
+    (folder / "figures").mkdir()
+    (folder / "metrics.json").write_text("partial")
+    _set_aside(folder, "run")
+    assert [p.name for p in folder.iterdir()] == ["maps"]
+    assert (aside / "run.json").read_text() == "second"
+    _set_aside(folder, "run")  # nothing left: nothing changes
     assert (aside / "run.json").read_text() == "second"
     blocked = tmp_path / "blocked"
     (blocked / "run").mkdir(parents=True)
     (blocked / "run" / "run.json").write_text("kept")
     (blocked / "previous").write_text("a file where the folder goes")
-    with pytest.raises(DataError, match=r"run: an earlier run's results could not be moved to "
-                                        r".*previous/run"):
+    with pytest.raises(DataError, match=r"run: .*previous is no folder; an earlier run's "
+                                        r"results are moved there"):
         _set_aside(blocked / "run", "run")
+    assert (blocked / "run" / "run.json").read_text() == "kept"
+    (blocked / "previous").unlink()
+    (blocked / "previous").symlink_to(tmp_path / "elsewhere", target_is_directory=True)
+    with pytest.raises(DataError, match="previous is no folder"):
+        _set_aside(blocked / "run", "run")  # a link is not followed to remove its contents
     assert (blocked / "run" / "run.json").read_text() == "kept"
 
 
