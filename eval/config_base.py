@@ -94,6 +94,14 @@ class _Model(BaseModel):
         return data
 
 
+class _Finite(_Model):
+    """A config in which no number may be infinite or NaN (YAML's .inf and .nan): pydantic
+    takes them where a bound is only below, and neither the simulator nor a data set's run
+    can use one (an infinite range, drift or span)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+
 # -- parameter dataclasses as config values ----------------------------------------------------
 
 

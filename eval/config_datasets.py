@@ -14,12 +14,12 @@ from tcaff_gtsam.mapping.mapper import MapperParams
 from tcaff_gtsam.errors import ConfigError
 from tcaff_gtsam.params import TCAFFParams
 
-from .config_base import FILE_NAME, GraphDrift, _Model, _rule_of
+from .config_base import FILE_NAME, GraphDrift, _Finite, _rule_of
 from .config_methods import MethodsConfig, ThresholdConfig
 from .config_scenario import MappingConfig
 
 
-class ExtrinsicsConfig(_Model):
+class ExtrinsicsConfig(_Finite):
     """A sensor frame in a parent frame: `xyz` metres, then `rpy_deg` (roll, pitch, yaw about
     the parent's fixed x, y, z axes, ROS order). `matrix` (16 numbers, row-major 4 x 4) replaces
     both when given."""
@@ -29,7 +29,7 @@ class ExtrinsicsConfig(_Model):
     matrix: list[float] | None = Field(None, min_length=16, max_length=16)
 
 
-class RgbdRigConfig(_Model):
+class RgbdRigConfig(_Finite):
     """The RGB-D camera of a robot in a recorded data set."""
 
     body_color: ExtrinsicsConfig = Field(
@@ -44,7 +44,7 @@ class RgbdRigConfig(_Model):
     depth_scale: float = Field(1000.0, gt=0, description="raw depth units per metre")
 
 
-class TopicsConfig(_Model):
+class TopicsConfig(_Finite):
     """Topic names of one robot; `{robot}` is replaced by its name."""
 
     color: str = "/{robot}/forward/color/image_raw/compressed"
@@ -58,7 +58,7 @@ class TopicsConfig(_Model):
         return {role: topic.replace("{robot}", robot) for role, topic in self}
 
 
-class KimeraMultiConfig(_Model):
+class KimeraMultiConfig(_Finite):
     """One Kimera-Multi test: which robots' bags to map and align, and how."""
 
     name: str = Field(min_length=1, pattern=FILE_NAME)
@@ -101,7 +101,7 @@ class KimeraMultiConfig(_Model):
         return value
 
 
-class VioDriftConfig(_Model):
+class VioDriftConfig(_Finite):
     """Visual-inertial-like odometry made from the true poses: the heading takes a random walk
     and every distance driven is scaled by (1 + e), e drawn once per robot."""
 
@@ -114,7 +114,7 @@ class VioDriftConfig(_Model):
 _MapSpan = Annotated[float, _rule_of(MapperParams, "kappa")]
 
 
-class KappaConfig(_Model):
+class KappaConfig(_Finite):
     """Seconds of sightings a map holds, per odometry. The paper sets kappa by how fast drift
     accumulates: here the longest span, in steps of 30 s, over which the odometry misplaces a
     landmark by at most half of CLIPPER's epsilon of 0.25 m (RMS over robots, times and seeds
@@ -134,7 +134,7 @@ class KappaConfig(_Model):
         return value
 
 
-class MrclamConfig(_Model):
+class MrclamConfig(_Finite):
     """An evaluation on a UTIAS MRCLAM data set: how its sightings become maps and which
     methods align them. Robots, landmarks and truth come from the data set's folder."""
 
@@ -161,7 +161,7 @@ class MrclamConfig(_Model):
         return getattr(self.kappa, odometry)
 
 
-class RgbdConfig(_Model):
+class RgbdConfig(_Finite):
     """An evaluation on recorded RGB-D sequences (7-Scenes or TUM RGB-D folders): how their
     frames become robots' maps and which methods align them. Robots, frames and truth come
     from the folders and the command line."""

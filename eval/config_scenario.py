@@ -7,12 +7,12 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, Field, field_validator, model_validator
 from tcaff_gtsam.mapping.mapper import MapperParams
 
 from tcaff_gtsam.params import TCAFFParams
 
-from .config_base import FILE_NAME, GraphDrift, _Model, _params, _rule_of
+from .config_base import FILE_NAME, GraphDrift, _Finite, _params, _rule_of
 from .sim.maps import MAX_OBJECTS
 from .tracker import TrackerParams
 
@@ -33,21 +33,14 @@ MAX_METRES = 10_000.0
 MAX_FALSE_PER_FRAME = 100.0
 
 
-class _Scenario(_Model):
-    """A part of a scenario: no number may be infinite or NaN (YAML's .inf and .nan), which
-    the simulator cannot draw from (pydantic takes them where a bound is only below)."""
-
-    model_config = ConfigDict(allow_inf_nan=False)
-
-
-class OdometryDrift(_Scenario):
+class OdometryDrift(_Finite):
     """VIO-like drift: random walks of the odometry heading and position."""
 
     heading_rw_deg: float = Field(0.05, ge=0, le=10, description="deg per sqrt(s)")
     position_rw: float = Field(0.01, ge=0, le=1, description="m per sqrt(s), per axis")
 
 
-class _Detector(_Scenario):
+class _Detector(_Finite):
     """A detector with a field of view between range_min and range_max (set by subclasses)."""
 
     @model_validator(mode="after")
@@ -76,7 +69,7 @@ class SensorConfig(_Detector):
                                    description="mean false segments per frame")
 
 
-class CameraConfig(_Scenario):
+class CameraConfig(_Finite):
     """A rendered RGB-D camera: when a scenario has one, every frame is ray-cast and mapped by
     the real front end (depth segmenter, lifting, tracker) instead of the object-level sensor."""
 
@@ -92,7 +85,7 @@ class CameraConfig(_Scenario):
         "m; objects closer than this to a robot's path are left out so no camera enters one"))
 
 
-class MappingConfig(_Scenario):
+class MappingConfig(_Finite):
     """The object mapper each robot runs, and the window of recent objects it shares."""
 
     nu: Annotated[int, _rule_of(MapperParams, "nu")] = Field(
@@ -104,7 +97,7 @@ class MappingConfig(_Scenario):
                               description="Hz of detections, at least the 1 Hz map exchange")
 
 
-class IndoorReturnLayout(_Scenario):
+class IndoorReturnLayout(_Finite):
     """Two robots in a square room of boxes; robot 1 leaves for another room and comes back."""
 
     kind: Literal["indoor_return"]
@@ -126,7 +119,7 @@ class IndoorReturnLayout(_Scenario):
         return self
 
 
-class PathLayout(_Scenario):
+class PathLayout(_Finite):
     """Two robots on an outdoor path lined with trees, poles, signs, cars, rocks and benches.
 
     same_direction: robot 1 follows robot 0 `separation` metres behind. opposite_directions:
@@ -159,7 +152,7 @@ class PathLayout(_Scenario):
         return value
 
 
-class RoomLayout(_Scenario):
+class RoomLayout(_Finite):
     """Several robots looping in one room of boxes and furniture."""
 
     kind: Literal["room"]
@@ -169,7 +162,7 @@ class RoomLayout(_Scenario):
     speed: float = Field(0.5, gt=0, le=MAX_SPEED, description="m/s")
 
 
-class GridLayout(_Scenario):
+class GridLayout(_Finite):
     """A regular grid of identical objects, with a few distinct landmarks around it."""
 
     kind: Literal["grid"]
@@ -219,7 +212,7 @@ class PersonDetectorConfig(_Detector):
 _Tracker = _params(TrackerParams)
 
 
-class PedestriansConfig(_Scenario):
+class PedestriansConfig(_Finite):
     """People walking between random waypoints; every robot detects them, shares its
     detections with its neighbours through each method's frame alignment and tracks them."""
 
@@ -245,7 +238,7 @@ class PedestriansConfig(_Scenario):
         return value
 
 
-class ScenarioConfig(_Scenario):
+class ScenarioConfig(_Finite):
     """One simulated world, its robots and their sensors."""
 
     name: str = Field(min_length=1, pattern=FILE_NAME)

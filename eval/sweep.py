@@ -369,20 +369,27 @@ def _report(folder: Path, sweep: SweepConfig, study: StudyConfig, plan: SweepPla
     methods: MethodsConfig = study.methods  # type: ignore[assignment]
     names = estimate_names(methods)
     thresholds = thresholds_of(methods)
-    loaded: dict[str, JobResult | None] = {}  # by hash: points that share a job load it once
+    # by hash, the jobs not done or whose files cannot be read: every planned job is some
+    # point's, so this is every such job once the points are pooled. The jobs themselves are
+    # not kept: a point's are let go once it is pooled
+    missing: set[str] = set()
 
     def load(digest: str) -> JobResult | None:
-        """The job when it is done and its files read, else None."""
-        if digest not in loaded:
-            where = folder / "jobs" / digest
-            try:
-                loaded[digest] = _load_job(where)
-            except DataError as exc:
-                log.error("%s: its saved files are unreadable, left out and run again next "
-                          "time (%s)", where, exc)
-                failed.append(_failure(where, digest, plan.jobs[digest], exc))
-                loaded[digest] = None
-        return loaded[digest]
+        """The job when it is done and its files read, else None (an unreadable job logged
+        and reported failed once, however many points share it)."""
+        if digest in missing:
+            return None
+        where = folder / "jobs" / digest
+        try:
+            job = _load_job(where)
+        except DataError as exc:
+            log.error("%s: its saved files are unreadable, left out and run again next "
+                      "time (%s)", where, exc)
+            failed.append(_failure(where, digest, plan.jobs[digest], exc))
+            job = None
+        if job is None:
+            missing.add(digest)
+        return job
 
     rows: list[dict] = []
     points_json = []
@@ -397,7 +404,7 @@ def _report(folder: Path, sweep: SweepConfig, study: StudyConfig, plan: SweepPla
                             "jobs_done": len(jobs), "pooled": pooled,
                             "by_scenario": summarize(jobs, names, thresholds) if jobs else {}})
     failures = [_failed_before(folder / "jobs" / h, h, spec) for h, spec in plan.jobs.items()
-                if load(h) is None]
+                if h in missing]
     failed_json = [record for record in failures if record is not None]
     (folder / "sweep.json").write_text(json.dumps({
         "sweep": sweep.name, "parameters": sweep.parameters, "method": sweep.method,

@@ -532,18 +532,24 @@ class RobotNode:
             self.drop(exc.reason, f"on {source}: {exc}")
             return
         self.counters["alignments_heard"] += 1
-        self._heard[(message.sender, message.neighbour)] = (message, arrived)
+        pair = (message.sender, message.neighbour)
+        if message.accepted and not usable_estimates(message.x[None], message.P[None])[0]:
+            # one the transports' decoders let through (they refuse it): it replaces the
+            # pair's older alignment, and is forgotten with it
+            self._heard.pop(pair, None)
+            self._left_out(message)
+            return
+        self._heard[pair] = (message, arrived)
 
     def _team_step(self, name: str, seq: int, t: float) -> None:
         """Publish the team-consistent alignment of the pair (robot, name) just stepped, from
         the node's own latest alignments and the other robots' recent ones."""
         index = {r: k for k, r in enumerate(self._robots)}
         horizon = time.perf_counter() - self.params.silence / self.params.speed
+        own = {(index[self.robot], index[b]): m for b, m in self.latest.items() if m.accepted}
+        self._leave_out_unusable(own)
         estimates = {(index[a], index[b]): m for (a, b), (m, arrived) in self._heard.items()
-                     if m.accepted and arrived >= horizon}
-        estimates |= {(index[self.robot], index[b]): m for b, m in self.latest.items()
-                      if m.accepted}
-        self._leave_out_unusable(estimates)
+                     if m.accepted and arrived >= horizon} | own
         i, j = index[self.robot], index[name]
         est = self._team.update(estimates, [(i, j)]).get((i, j))
         if self.latest[name].accepted and (min(i, j), max(i, j)) in self._team.rejected:
@@ -560,22 +566,24 @@ class RobotNode:
         if self._on_team is not None:
             self._on_team(out)
 
-    def _leave_out_unusable(self, estimates: dict[tuple[int, int], AlignmentMessage]) -> None:
-        """Take out of `estimates` what `TeamConsistency.update` would refuse, which would
-        make it refuse the whole step; another robot's alignment is forgotten too."""
-        if not estimates:
+    def _leave_out_unusable(self, own: dict[tuple[int, int], AlignmentMessage]) -> None:
+        """Take out of the node's `own` accepted alignments what `TeamConsistency.update`
+        would refuse, which would make it refuse the whole step (another robot's are checked
+        once, as they arrive: `_hear`)."""
+        if not own:
             return
-        keys = list(estimates)
-        usable = usable_estimates(np.array([estimates[k].x for k in keys], dtype=float),
-                                  np.array([estimates[k].P for k in keys], dtype=float))
+        keys = list(own)
+        usable = usable_estimates(np.array([own[k].x for k in keys], dtype=float),
+                                  np.array([own[k].P for k in keys], dtype=float))
         for key in (k for k, ok in zip(keys, usable.tolist(), strict=True) if not ok):
-            m = estimates.pop(key)
-            if self._heard.get((m.sender, m.neighbour), (None,))[0] is m:
-                del self._heard[(m.sender, m.neighbour)]
-            self.counters["team_unusable"] += 1
-            log.warning("%s: left out the alignment of %s to %s from the team consistency: it "
-                        "needs %s, got x = %s, P = %s", self.robot, m.sender, m.neighbour,
-                        ESTIMATE_RULE, shown(m.x), shown(m.P))
+            self._left_out(own.pop(key))
+
+    def _left_out(self, m: AlignmentMessage) -> None:
+        """Count and log an alignment the team consistency cannot take."""
+        self.counters["team_unusable"] += 1
+        log.warning("%s: left out the alignment of %s to %s from the team consistency: it "
+                    "needs %s, got x = %s, P = %s", self.robot, m.sender, m.neighbour,
+                    ESTIMATE_RULE, shown(m.x), shown(m.P))
 
     # -- restarts -----------------------------------------------------------------------------
 

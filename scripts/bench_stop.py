@@ -91,7 +91,7 @@ def one_stop(folder: Path, stuck: bool, first: signal.Signals, load: int, stop_t
                 written = now
             if procs[0].poll() is not None:
                 exited = now
-                continue
+                break
             if escalation and now >= escalation[0][0]:
                 sent.append(escalation[0][1].name)
                 procs[0].send_signal(escalation.pop(0)[1])

@@ -400,11 +400,15 @@ class InterRobotGraph(HypothesisFactors, KeyframeFactors, SlidingWindow, GraphRe
             self._settle(touched)
             self._check_agreement()  # before any covariance is kept from a refused solution
             self._mark_stale(gone, restored, newest)
-            joints = self._leaving_joints(leaving, self._queued)
-            if self._keeps_joints and self._steps:
+            # which robots the committed factors and this update's link: one search for every
+            # joint computed here, none when there is none to compute
+            keeps = self._keeps_joints and bool(self._steps)
+            linked = self._linked(self._queued) if leaving or keeps else None
+            joints = self._leaving_joints(leaving, linked)
+            if keeps:
                 # the latest step's joint, which it keeps when the next step comes: computed
                 # here, so that a graph whose marginals gtsam cannot compute rolls back
-                self._joints[self._steps[-1]] = self._joint(self._steps[-1], self._queued)
+                self._joints[self._steps[-1]] = self._joint(self._steps[-1], linked)
             return indices, joints
 
         try:

@@ -100,8 +100,9 @@ class GraphReadout:
         links = [link for link, n in self._links.items() if n > 0]
         links += [q.link for q in committing if q.link] + [(("A", 0), ("X", 0))]
         root = _components(chains, links)
-        roots = [root(("A", r)) for r in range(self.n_robots)]
-        return np.array([roots.index(each) for each in roots])
+        number: dict = {}
+        return np.array([number.setdefault(root(("A", r)), len(number))
+                         for r in range(self.n_robots)])
 
     def alignment_history(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """T_oi_oj at every committed step from the current (smoothed) solution, except the

@@ -38,13 +38,14 @@ class SlidingWindow:
     """The part of `InterRobotGraph` that solves, keeps a horizon of steps and rolls back
     (mixed into it; it uses the graph's own attributes)."""
 
-    def _joint(self, step: int, committing=()) -> np.ndarray:
+    def _joint(self, step: int, linked: np.ndarray | None = None) -> np.ndarray:
         """Joint marginal covariance of every robot's A at `step`, gtsam's tangent order, NaN
-        between robots no alignment factor links (committed, or among the factors an update is
-        `committing`): what `alignment` reads from a joint kept for later as unknown."""
+        between robots no factor links (`linked`, from `_linked`: None, the committed factors
+        alone): what `alignment` reads from a joint kept for later as unknown."""
         keys = [_a_key(r, step) for r in range(self.n_robots)]
         joint = self._isam.jointMarginalCovariance(keys).fullMatrix()
-        linked = self._linked(committing)
+        if linked is None:
+            linked = self._linked()
         apart = linked[:, None] != linked[None, :]
         if apart.any():
             n = joint.shape[0] // self.n_robots
@@ -174,18 +175,17 @@ class SlidingWindow:
                                and self._has_left(self._active[index].keys[0]))
         return list(range(first, self._n_left)), kept
 
-    def _leaving_joints(self, ranks: list[int], committing) -> dict[int, np.ndarray]:
+    def _leaving_joints(self, ranks: list[int], linked: np.ndarray) -> dict[int, np.ndarray]:
         """The joint each step at `ranks` leaves with, by step: the one kept by the update that
         added the next step (a step leaves only after one), unless a removal since made it
-        stale, then the joint as it is now (with the factors the update is `committing`).
+        stale, then the joint as it is now (its robots `linked` as the update leaves them).
         Computed before anything leaves, so that a system gtsam cannot solve for it rolls the
         update back."""
         joints = {}
         for rank in ranks:
             k = self._steps[rank]
             joint = self._joints.get(k)
-            joints[k] = (self._joint(k, committing) if joint is None or k in self._stale
-                         else joint)
+            joints[k] = self._joint(k, linked) if joint is None or k in self._stale else joint
         return joints
 
     def _marginalise(self, ranks: list[int], joints: dict[int, np.ndarray],

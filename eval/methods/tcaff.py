@@ -138,11 +138,12 @@ class GraphRunner:
             held = np.flatnonzero(self.filtered[p])
             if held.size and self.graph.connected(*pair):
                 steps, T = self.graph.alignment_history(*pair)
-                inside = steps[(steps >= held[0]) & (steps <= held[-1])]
+                span = (steps >= held[0]) & (steps <= held[-1])
+                inside = steps[span]
                 covs = np.array([self.graph.alignment(*pair, k)[1] for k in inside]
                                 ).reshape(-1, 3, 3)  # none left in the graph's history: (0, 3, 3)
                 # a step whose covariance the graph keeps from before the pair was linked
                 # (`past_covariance="causal"`) has no alignment to report
                 known = np.isfinite(covs).all(axis=(1, 2))
-                smoothed[p, inside[known]] = se2_to_params(T[np.isin(steps, inside[known])])
+                smoothed[p, inside[known]] = se2_to_params(T[span][known])
                 self.covariances["tcaff_isam2_smoothed"][p, inside[known]] = covs[known]

@@ -354,3 +354,22 @@ def test_a_scenario_refuses_numbers_past_what_it_simulates_naming_the_key(tmp_pa
     where = f"{part}.{key}" if part else key
     with pytest.raises(ConfigError, match=re.escape(f"s.yaml: {where}")):
         load_scenario(path)
+
+
+@pytest.mark.parametrize(("loader", "key", "value"), [
+    ("load_mrclam", "graph_drift", "[.inf, 1.0]"),  # taken, then refused deep in the graph
+    ("load_mrclam", "kappa", ".inf"),
+    ("load_mrclam", "vio", "{heading_rw_deg_per_sqrt_min: .nan}"),
+    ("load_rgbd", "kappa", ".inf"),
+    ("load_kimera_multi", "graph_drift", "[1.0, .inf]"),
+])
+def test_a_data_set_config_refuses_infinite_numbers_naming_the_key(tmp_path, loader, key,
+                                                                   value):
+    """The data sets' configs take no infinity or NaN either, as a scenario's do."""
+    from tcaff_gtsam.eval import config
+
+    path = tmp_path / "d.yaml"
+    path.write_text(f"{key}: {value}\n")
+    with pytest.raises(ConfigError, match=re.escape("d.yaml: ") + f".*{key}[.:]") as info:
+        getattr(config, loader)(path)
+    assert "finite number" in str(info.value)

@@ -61,6 +61,9 @@ def test_a_writer_killed_mid_row_loses_that_row_only_and_a_restarted_one_appends
     assert_rows(path, list(range(whole)))
     written(path, range(n, n + more))  # restarted
     assert_rows(path, [*range(whole), *range(n, n + more)])
+    # a row cut between its "\r" and "\n" got its "\n": no lone carriage return that a
+    # second cut would turn into the end of a whole row
+    assert b"\r" not in path.read_bytes().replace(b"\r\n", b"")
 
 
 @pytest.mark.parametrize(("edit", "words"), [
