@@ -26,6 +26,11 @@ error the next one repeats (what `repeat_inflation` assumes all of):
             last one's error, the NEES of R_s / 3 when none does). This one a filter could
             measure without the truth.
   fresh     step divided by the NEES of R_s / 3: the fresh share itself (needs the truth).
+
+With --by-objects a second table splits each data set's measurements by the number of
+associations k they register (buckets of `K_BUCKETS`): the NEES of z against R_s (mean,
+median, 90th percentile, share under 7.815; chi-square with 3 dof: 3, 2.37, 6.25, 0.95) and
+the mean of e_k^2 / R_s,kk for x, y and theta, whether R_s follows the count of objects.
 """
 
 from __future__ import annotations
@@ -118,6 +123,29 @@ def fit(rows: list[tuple]) -> tuple[float, np.ndarray]:
     return float(whitened(parts.sum(axis=1)).mean()), np.exp(best.x)
 
 
+#: the buckets [low, high) of association counts k that --by-objects splits by
+K_BUCKETS = ((0, 6), (6, 8), (8, 12), (12, 10_000))
+
+
+def by_objects(group: str, rows: list[tuple]) -> None:
+    """Print the --by-objects rows of one data set (see the module's notes)."""
+    e = np.array([r[0] for r in rows])
+    R_s = np.array([r[1] + r[2] + r[3] for r in rows])
+    k = np.array([r[4] for r in rows])
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(R_s, e[..., None])[..., 0])
+    parts = e**2 / np.diagonal(R_s, axis1=1, axis2=2)
+    for low, high in K_BUCKETS:
+        m = (k >= low) & (k < high)
+        if m.sum() < 8:
+            continue
+        v = nees[m]
+        span = f"{low}-{high - 1}" if high < K_BUCKETS[-1][1] else f">= {low}"
+        x, y, th = parts[m].mean(axis=0)
+        print(f"{group:24} {span:>6} {m.sum():>6} {v.mean():>6.2f} {np.median(v):>6.2f} "
+              f"{np.quantile(v, 0.9):>6.2f} {np.mean(v < 7.815):>6.3f} {x:>5.2f} {y:>5.2f} "
+              f"{th:>5.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -127,6 +155,8 @@ def main() -> None:
     parser.add_argument("--sim-seeds", type=int, default=2)
     parser.add_argument("--cache", type=Path, default=Path("results/bench_nees"),
                         help="folder of the cached runs (shared with bench_nees.py)")
+    parser.add_argument("--by-objects", action="store_true",
+                        help="also split each data set's NEES by the association count k")
     args = parser.parse_args()
     frame_aligner._calibrated_covariance = _recording(frame_aligner._calibrated_covariance)
     default = FrameAlignerParams().map_drift
@@ -153,6 +183,11 @@ def main() -> None:
             else math.nan
         print(f"{group:24} {len(rows):>6} {nees:>8.2f} {a:>6.2f} {b_t:>7.2f} {b_theta:>8.2f} "
               f"{ratio:>15} {k:>5.1f} {step:>5.2f} {step / (nees / 3):>5.2f}", flush=True)
+    if args.by_objects:
+        print(f"\n{'data set':24} {'k':>6} {'n':>6} {'mean':>6} {'median':>6} {'p90':>6} "
+              f"{'<7.81':>6} {'x':>5} {'y':>5} {'th':>5}")
+        for group, rows in groups.items():
+            by_objects(group, rows)
 
 
 if __name__ == "__main__":

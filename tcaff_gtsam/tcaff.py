@@ -335,10 +335,11 @@ class TCAFF(FilterState):
         """With no main tree: accept the open exploring hypothesis whose acceptance is
         certain (`TCAFFParams.sequential`): its score (path cost less object support) plus
         the cost of a missed measurement at each of its remaining W - a steps is below tau,
-        its path holds `early_measurements` measurements and `min_distinct` distinct pieces of
-        evidence, every open hypothesis inconsistent with it scores `switch_margin` worse,
-        and it agrees with the dormant hypothesis if there is one. The lowest bound is tried
-        first."""
+        its path holds `early_measurements` measurements and, besides its seed, `min_distinct`
+        distinct pieces of evidence (the seed leaves the window when the tree is W steps old,
+        and the complete path is judged without it), every open hypothesis inconsistent with
+        it scores `switch_margin` worse, and it agrees with the dormant hypothesis if there
+        is one. The lowest bound is tried first."""
         prm = self.params
         explore = self._explore
         if len(explore) == 0:
@@ -354,7 +355,7 @@ class TCAFF(FilterState):
             rivals = ~self._consistent(explore, explore.take([best]))
             if np.any(score[rivals] < score[best] + prm.switch_margin):
                 continue
-            if not self._distinct_enough(explore, best):
+            if not self._distinct_enough(explore, best, without_root=True):
                 continue
             log.debug("step %d: tree %d accepted early, %d steps old (bound %.2f)",
                       self.step, explore.tree[best], age[best], bound[best])
@@ -619,10 +620,17 @@ class TCAFF(FilterState):
         taken = np.count_nonzero(choice[..., -self.params.window:] >= 0, axis=-1)
         return int(taken) if choice.ndim == 1 else taken
 
-    def _distinct_enough(self, leaves: Leaves, index: int) -> bool:
-        """Whether leaf `index`'s path holds `min_distinct` distinct pieces of evidence."""
+    def _distinct_enough(self, leaves: Leaves, index: int, without_root: bool = False) -> bool:
+        """Whether leaf `index`'s path holds `min_distinct` distinct pieces of evidence; with
+        `without_root`, not counting its root (its seed)."""
         need = self.params.min_distinct
-        return need <= 1 or self._distinct(leaves.choice[index])[0] >= need
+        if need <= 1:
+            return True
+        path = leaves.choice[index]
+        if without_root:
+            path = path.copy()
+            path[np.argmax(path >= NO_MEASUREMENT)] = NO_MEASUREMENT
+        return self._distinct(path)[0] >= need
 
     def _distinct(self, path: np.ndarray) -> tuple[int, bool]:
         """Distinct pieces of evidence on a path over the window, and whether the path's

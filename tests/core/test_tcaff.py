@@ -337,15 +337,16 @@ def test_zero_measurements_is_a_normal_step():
     assert filt.step == 2
 
 
-def _two_sightings_then(later_steps):
-    """The truth at the first two steps, then `later_steps` (each a (k, 3) array)."""
+def _three_sightings_then(later_steps):
+    """The truth at the first three steps (a seed and the two measurements `min_distinct`
+    asks of a window), then `later_steps` (each a (k, 3) array)."""
     truth = np.array([3.0, -2.0, 1.0])
-    return [truth[None], truth[None] + 0.05, *later_steps]
+    return [truth[None], truth[None] + 0.05, truth[None] - 0.05, *later_steps]
 
 
 def test_steps_without_any_measurement_do_not_count_against_a_hypothesis():
     W = TCAFFParams().window
-    sparse = _two_sightings_then([np.zeros((0, 3))] * (W + 2))
+    sparse = _three_sightings_then([np.zeros((0, 3))] * (W + 2))
     first = first_estimate(run(TCAFF(), sparse))
     assert first is not None and first <= W + 1
     # the paper charges a missed measurement at every step, with or without measurements
@@ -353,7 +354,7 @@ def test_steps_without_any_measurement_do_not_count_against_a_hypothesis():
     assert first_estimate(run(TCAFF(TCAFFParams.paper()), sparse)) is None
     # a step that offered a measurement elsewhere still counts as a miss
     rng = np.random.default_rng(0)
-    cluttered = _two_sightings_then(
+    cluttered = _three_sightings_then(
         [rng.uniform([-30, -30, -3], [30, 30, 3], (1, 3)) for _ in range(W + 2)])
     assert first_estimate(run(TCAFF(), cluttered)) is None
 
