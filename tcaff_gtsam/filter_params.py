@@ -133,12 +133,14 @@ class TCAFFParams(_ByValue):
             then it only re-matches objects it already used.
         withhold_contested: report no estimate while the main tree's best path took no
             measurement this step and a hypothesis it gates out holds more distinct pieces of
-            evidence in the window than that path does (and at least `min_distinct`): the
-            robots' frames have likely jumped and the old estimate would be wrong until the
-            switch, W + `switch_after` steps later. With `switch_support`, also while a
-            hypothesis it gates out has been seen that many more times than the main path
-            since its root (the steps since it was first seen), confirmed this step or not.
-            Only at steps given object ids (`lookalike_share`). With `recall_for`, also
+            evidence in the window than that path does (and at least `min_distinct`; at a
+            step without ids, where each measurement counts, only while that path holds
+            fewer than `min_distinct` in its window): the robots' frames have likely jumped, or
+            the held alignment was a coincidence, and the old estimate would be wrong until
+            the switch, W + `switch_after` steps later. With `switch_support`, at steps given
+            object ids (`lookalike_share`), also while a hypothesis it gates out has been seen
+            that many more times than the main path since its root (the steps since it was
+            first seen), confirmed this step or not. With `recall_for`, also
             within W steps of a measurement of a dormant hypothesis (`recall_for`). At every
             step, from a switch away from a main tree in a gap of its measurements (W steps
             without one, or a return from such a gap not yet confirmed) until the hypothesis

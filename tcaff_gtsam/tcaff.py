@@ -553,11 +553,12 @@ class TCAFF(FilterState):
         return estimate
 
     def _contested(self) -> bool:
-        """Whether, at a step given object ids, an exploring hypothesis inconsistent with the
-        main tree's best path outvotes it over the steps since the rival's root (seen
+        """Whether an exploring hypothesis inconsistent with the main tree's best path
+        outvotes it over the steps since the rival's root (at a step given object ids: seen
         `_outvote_need` times by `_support`, with `switch_support`), or that path took no
         measurement this step while the rival holds more distinct evidence in the window (and
-        at least `min_distinct` pieces), or the dormant hypothesis was seen in the last W
+        at least `min_distinct` pieces; at a step without ids, only while that path holds
+        fewer than `min_distinct`), or the dormant hypothesis was seen in the last W
         steps (`_recall`), or the main tree replaced one in a gap of its measurements and has
         not been measured since the step it did (nothing contradicted the one it replaced:
         a decoy met while the robots were apart is not reported on its lead alone)."""
@@ -565,11 +566,10 @@ class TCAFF(FilterState):
             return True
         main, explore = self._main, self._explore
         m = int(np.argmin(main.cost))
-        # without object ids this step (maps not of look-alikes) nothing is contested
-        if len(explore) == 0 or self._evidence[-1] is None:
+        if len(explore) == 0:
             return False
         taken = self._taken(explore.choice)
-        if self.params.switch_support is not None:
+        if self._evidence[-1] is not None and self.params.switch_support is not None:
             # over the steps since the rival was first seen: a rival seen more often than the
             # main path since then is contested before its window fills
             need = self._outvote_need(m, self._steps_since_root(explore.choice))
@@ -578,7 +578,12 @@ class TCAFF(FilterState):
                 return True
         if main.since[m] == 0:
             return False
-        need = max(self._distinct(main.choice[m])[0] + 1, self.params.min_distinct)
+        held = self._distinct(main.choice[m])[0]
+        if self._evidence[-1] is None and held >= self.params.min_distinct:
+            # without ids a rival's count is no measure of distinct evidence: a main path
+            # still confirmed in its window is not contested by being seen less often
+            return False
+        need = max(held + 1, self.params.min_distinct)
         return any(self._distinct(explore.choice[r])[0] >= need
                    for r in self._rivals_of(m, taken >= need))
 

@@ -305,6 +305,27 @@ def test_after_a_jump_the_old_estimate_is_withheld_once_the_new_frame_has_more_e
         assert held_on >= W, f"seed {seed}"  # without it: the old frame until the switch
 
 
+def test_a_held_coincidence_is_withheld_once_the_truth_is_measured_without_ids():
+    """Steps without object ids (maps not of look-alikes): a wrong alignment seen for 10
+    steps, then nothing for 12, then the truth at every step. From the truth's second
+    measurement the held wrong estimate, unconfirmed in its window, is contested and
+    withheld, not reported until the switch; the truth comes after it. (A main tree still
+    confirmed in its window is not: test_tcaff.py, the main hypothesis confirmed every other
+    step.)"""
+    truth, wrong = np.array([[4.0, -1.0, 0.7]]), np.array([[-3.0, 5.0, 2.5]])
+    zs = [wrong] * 10 + [np.zeros((0, 3))] * 12 + [truth] * 20
+    W = TCAFFParams().window
+    came = 22  # the truth's first step
+    withheld = run(TCAFF(), zs)
+    assert withheld[came] is not None and np.allclose(withheld[came].x, wrong[0], atol=0.3)
+    assert all(est is None for est in withheld[came + 1:came + W])
+    switched = next(t for t in range(came + 1, len(zs)) if withheld[t] is not None)
+    assert np.allclose(withheld[switched].x, truth[0], atol=0.3)
+    assert all(np.allclose(est.x, truth[0], atol=0.3) for est in withheld[switched:])
+    held_on = run(TCAFF(TCAFFParams(withhold_contested=False)), zs)
+    assert all(np.allclose(est.x, wrong[0], atol=0.3) for est in held_on[came:came + W])
+
+
 def test_a_withheld_estimate_stays_withheld_after_save_and_restore(tmp_path):
     stream = decoy_stream(np.random.default_rng(0))
     filt = TCAFF(replace(DISTINCT, withhold_contested=True))
