@@ -168,9 +168,12 @@ class TCAFFParams(_ByValue):
             steps without a measurement (a its tree's age) is below tau, so that no outcome
             of the remaining steps could keep the paper's rule from accepting it, when its
             path holds `early_measurements` measurements, `min_distinct` distinct pieces of
-            evidence besides its seed (which a complete tree's window no longer holds) and
-            every open hypothesis inconsistent with it scores at least `switch_margin` worse.
-            False: only complete trees are judged (the paper).
+            evidence and every open hypothesis inconsistent with it scores at least
+            `switch_margin` worse. When fewer than `min_distinct` of them are besides its seed
+            (which a complete tree's window no longer holds) the acceptance is provisional
+            (`TCAFF.provisional`): held, not reported until the path holds them, and dropped
+            if its tree turns W steps old first. False: only complete trees are judged (the
+            paper).
         object_nats: nats of evidence per object a measurement explains beyond
             `object_base` (negative below it), given by the `objects` of `TCAFF.update`; a
             path's support is that of its best-supported measurement in the window (a

@@ -286,7 +286,7 @@ class PairwiseAligner:
         measurements = self.aligner.measurements(
             ego_map, other_map, t, ego_memory.snapshots(), other_memory.snapshots(), held,
             guided)
-        kept = admitted(measurements, self.filter.held, prm)
+        kept = admitted(measurements, self.filter.confirmable, prm)
         zs = np.array([m.z for m in kept]).reshape(-1, 3)
         Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
         objects = explained(kept)

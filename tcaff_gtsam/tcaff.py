@@ -161,6 +161,9 @@ class TCAFF(FilterState):
         # (or from one that so replaced it and was not measured since), until the hypothesis
         # switched to is measured at a later step (`_contested`)
         self._silent_switch: tuple[int, int] | None = None
+        # (step accepted, hypothesis) of a main tree accepted early whose path does not hold
+        # what its complete window will be judged by (`_settle_provisional`)
+        self._provisional: tuple[int, int] | None = None
         # (step, d' (R_a + R_b)^-1 d / d_dim) of consecutive measurements of the main
         # hypothesis over the last `jitter_span` steps, and (step, hypothesis, z, R) of the
         # latest measurement the main hypothesis took (`jitter_reference`)
@@ -175,10 +178,23 @@ class TCAFF(FilterState):
         return self._estimate
 
     @property
+    def provisional(self) -> bool:
+        """Whether the main hypothesis was accepted early on evidence its complete window
+        would not yet hold (`_settle_provisional`): held, not reported."""
+        return self._provisional is not None
+
+    @property
+    def confirmable(self) -> AlignmentEstimate | None:
+        """The estimate that a measurement which may only confirm (an ambiguous or tracked
+        candidate, `pairwise.admitted`) may confirm: `held`, but None while the hypothesis is
+        provisional, which only a plain candidate settles."""
+        return None if self._provisional is not None else self._held
+
+    @property
     def held(self) -> AlignmentEstimate | None:
         """The main tree's estimate of the latest step, also while it is not reported
-        (`withhold_contested`, `report_after`): what a measurement may confirm. None while
-        there is no main tree."""
+        (`withhold_contested`, `report_after`, `provisional`): what a search may be guided
+        by. None while there is no main tree."""
         return self._held
 
     @property
@@ -227,7 +243,7 @@ class TCAFF(FilterState):
             self._bank.append((zs, Rs))
         if self._main is not None and self._main_is_stale():
             log.debug("step %d: main tree %d dropped", self.step, self.hypothesis)
-            if prm.recall_for is not None:
+            if prm.recall_for is not None and self._provisional is None:
                 # the best leaf before this step's prediction, as the dormant state of this step
                 best = self._main_best()
                 self._keep_dormant(Leaves(best.x, best.P + prm.Q, best.choice, best.edge,
@@ -263,6 +279,8 @@ class TCAFF(FilterState):
                 and self._consistent(self._main_best(), self._dormant)[0]):
             # the main tree now is the dormant hypothesis (a switch to it): nothing to reclaim
             self._dormant, self._reclaiming = None, False
+        if self._provisional is not None:
+            self._settle_provisional()
         self._estimate = self._main_estimate()
         if self._estimate is not None:
             self._peak = max(self._peak, self._estimate.n_measurements)
@@ -335,11 +353,12 @@ class TCAFF(FilterState):
         """With no main tree: accept the open exploring hypothesis whose acceptance is
         certain (`TCAFFParams.sequential`): its score (path cost less object support) plus
         the cost of a missed measurement at each of its remaining W - a steps is below tau,
-        its path holds `early_measurements` measurements and, besides its seed, `min_distinct`
-        distinct pieces of evidence (the seed leaves the window when the tree is W steps old,
-        and the complete path is judged without it), every open hypothesis inconsistent with
-        it scores `switch_margin` worse, and it agrees with the dormant hypothesis if there
-        is one. The lowest bound is tried first."""
+        its path holds `early_measurements` measurements and `min_distinct` distinct pieces of
+        evidence, every open hypothesis inconsistent with it scores `switch_margin` worse,
+        and it agrees with the dormant hypothesis if there is one. The lowest bound is tried
+        first. Where the path holds fewer than `min_distinct` besides its seed, which leaves
+        the window when the tree is W steps old, the acceptance is provisional
+        (`_settle_provisional`)."""
         prm = self.params
         explore = self._explore
         if len(explore) == 0:
@@ -355,14 +374,41 @@ class TCAFF(FilterState):
             rivals = ~self._consistent(explore, explore.take([best]))
             if np.any(score[rivals] < score[best] + prm.switch_margin):
                 continue
-            if not self._distinct_enough(explore, best, without_root=True):
+            if not self._distinct_enough(explore, best):
                 continue
             log.debug("step %d: tree %d accepted early, %d steps old (bound %.2f)",
                       self.step, explore.tree[best], age[best], bound[best])
             tree = explore.tree[best]
+            judged = self._distinct_enough(explore, best, without_root=True)
             self._accept(explore, int(best))
+            if not judged:
+                self._provisional = (self.step, self.hypothesis)
             self._explore = explore.take(explore.tree != tree)
             return
+
+    def _settle_provisional(self) -> None:
+        """A main tree accepted early on evidence its complete window would not hold (a seed
+        and one distinct measurement besides it) is held but not reported (`_reported`;
+        `held` has it, so an aligner can search near it) until its best path is measured
+        again after the acceptance or holds `min_distinct` distinct pieces of evidence
+        besides its seed; if its tree turns W steps old first, it is dropped, not kept
+        dormant: it never was evidence. A wrong alignment matched at two steps and at none
+        after is then never reported, and a true one seen again within the window is
+        reported from that measurement."""
+        accepted, hypothesis = self._provisional
+        if self._main is None or hypothesis != self.hypothesis:
+            self._provisional = None
+            return
+        best = int(np.argmin(self._main.cost))
+        age = int(self._steps_since_root(self._main.choice[[best]])[0]) - 1
+        young = age < self.params.window  # its seed still in the window
+        again = self.step > accepted and self._main.since[best] == 0
+        if again or self._distinct_enough(self._main, best, without_root=young):
+            self._provisional = None
+        elif not young:
+            log.debug("step %d: provisional hypothesis %d dropped", self.step, hypothesis)
+            self._main, self._rival, self._switch_streak = None, None, 0
+            self._returning, self._provisional = 0, None
 
     def _object_support(self, choice: np.ndarray) -> np.ndarray:
         """(L,) nats of object support of paths (L, W + 2): `object_nats` times the objects
@@ -450,7 +496,7 @@ class TCAFF(FilterState):
         self._switch_streak, self._rival, self._empty_windows = 0, None, 0
         self._fresh = self.step
         self._peak, self._returning = self._dormant_peak, 0
-        self._dormant = None
+        self._dormant, self._provisional = None, None
         self._main = Leaves(x, P, leaf.choice, leaf.edge, leaf.since,
                             np.full(1, self.hypothesis, np.int64))
 
@@ -541,12 +587,14 @@ class TCAFF(FilterState):
 
     def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
         """The main tree's estimate, or None while `withhold_contested` or `report_after`
-        holds it back."""
+        holds it back, or its acceptance is provisional (`_settle_provisional`)."""
         if estimate is None:
             return None
         report_after = self.params.report_after
         if (report_after is not None
                 and self._main.since[np.argmin(self._main.cost)] >= report_after):
+            return None
+        if self._provisional is not None:
             return None
         if self.params.withhold_contested and self._contested():
             return None
@@ -674,6 +722,7 @@ class TCAFF(FilterState):
         self._fresh = self.step
         self._peak = 0
         self._returning = 0
+        self._provisional = None
         in_tree = np.flatnonzero(complete.tree == complete.tree[best])
         tree = complete.take(in_tree)
         best = int(np.searchsorted(in_tree, best))

@@ -83,6 +83,8 @@ class FilterState:
         state["returning"] = np.array(self._returning, dtype=np.int64)
         if self._silent_switch is not None:
             state["silent_switch"] = np.array(self._silent_switch, dtype=np.int64)
+        if self._provisional is not None:
+            state["provisional"] = np.array(self._provisional, dtype=np.int64)
         state["jitter.steps"] = np.array([k for k, _ in self._jitter], dtype=np.int64)
         state["jitter.values"] = np.array([v for _, v in self._jitter], dtype=np.float64)
         if self._last_taken is not None:
@@ -142,7 +144,11 @@ class FilterState:
                 raise DataError(f"TCAFF state: returning = {returning} must be below "
                                 f"early_measurements = {self.params.early_measurements}, and "
                                 f"0 without a main tree")
-            silent_switch = self._silent_switch_from(state, counters)
+            silent_switch = self._main_mark_from(state, counters, "silent_switch", 1)
+            # a provisional acceptance is settled before its tree is W steps old
+            provisional = self._main_mark_from(
+                state, counters, "provisional",
+                max(1, counters["step"] - self.params.window + 1))
             jitter, last_taken = self._jitter_from(state, counters)
         except KeyError as exc:
             raise DataError(f"TCAFF state: missing entry {exc}") from None
@@ -202,7 +208,7 @@ class FilterState:
                                   maxlen=self._columns)
             self._dormant, self._dormant_age, self._dormant_peak = dormant
             self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
-            self._silent_switch = silent_switch
+            self._silent_switch, self._provisional = silent_switch, provisional
             # a filter without a reference keeps no record (it would never trim one)
             self._jitter, self._last_taken = ((jitter, last_taken)
                                               if self.params.jitter_reference is not None
@@ -340,23 +346,25 @@ class FilterState:
             start += max(size, 0)
         return out
 
-    def _silent_switch_from(self, state: Mapping, counters: dict[str, int]
-                            ) -> tuple[int, int] | None:
-        """The (step, hypothesis) of a switch from a silent main tree not yet confirmed, or
-        None (absent from states saved before it was recorded); a DataError unless it is of
-        the current main tree, at a step no later than the state's."""
-        if "silent_switch" not in state:
+    def _main_mark_from(self, state: Mapping, counters: dict[str, int], key: str,
+                        first: int) -> tuple[int, int] | None:
+        """The (step, hypothesis) of `key`, a mark on the main tree (`silent_switch`: a
+        switch from a silent main tree not yet confirmed; `provisional`: an early acceptance
+        not yet settled), or None (absent from states saved before it was recorded); a
+        DataError unless it is of the current main tree, at a step in [first, the
+        state's]."""
+        if key not in state:
             return None
-        value = _state_array(state["silent_switch"], "silent_switch", np.int64)
+        value = _state_array(state[key], key, np.int64)
         if value.shape != (2,):
-            raise DataError(f"TCAFF state: silent_switch must be (step, hypothesis), got "
-                            f"shape {value.shape}")
+            raise DataError(f"TCAFF state: {key} must be (step, hypothesis), got shape "
+                            f"{value.shape}")
         step, hypothesis = (int(v) for v in value)
         if ("main.x" not in state or hypothesis != counters["hypothesis"]
-                or not 1 <= step <= counters["step"]):
-            raise DataError(f"TCAFF state: silent_switch = ({step}, {hypothesis}) must name "
-                            f"the main tree's hypothesis {counters['hypothesis']} at a step in "
-                            f"[1, {counters['step']}]")
+                or not first <= step <= counters["step"]):
+            raise DataError(f"TCAFF state: {key} = ({step}, {hypothesis}) must name the main "
+                            f"tree's hypothesis {counters['hypothesis']} at a step in "
+                            f"[{first}, {counters['step']}]")
         return step, hypothesis
 
     def _jitter_from(self, state: Mapping, counters: dict[str, int]

@@ -162,7 +162,7 @@ class SharedStages:
             start = time.perf_counter()
             if self._filters is None:
                 self._filters = [TCAFF(self.tcaff_params) for _ in self.setup.pairs]
-            kept = admitted(found, self._filters[p].held, self.checked)
+            kept = admitted(found, self._filters[p].confirmable, self.checked)
             zs = np.array([m.z for m in kept]).reshape(-1, 3)
             Rs = np.array([m.R for m in kept]).reshape(-1, 3, 3)
             objects = explained(kept)

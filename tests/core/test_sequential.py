@@ -591,14 +591,48 @@ def test_the_support_of_an_early_acceptance_is_that_of_the_complete_path():
     assert first_with(20, TCAFFParams(neutral_empty_steps=False)) is None
 
 
-def test_a_seed_confirmed_once_is_not_accepted_early_where_the_window_would_refuse_it():
+def test_a_seed_confirmed_once_is_held_but_not_reported_until_the_window_would_take_it():
     """A wrong alignment matched at two steps and then nothing at all (a coincidence of one
-    place): the complete path holds one measurement besides its seed, fewer than
-    `min_distinct`, and the window refuses it; so does the early rule, which judges the path
-    without its seed as the window will. A third measurement makes it evidence."""
+    place): its complete path holds one measurement besides its seed, fewer than
+    `min_distinct`, and the window refuses it. The early rule accepts it provisionally: held
+    (an aligner may search near it), never reported, and dropped, not kept dormant, when its
+    seed is W steps old. Seen again within the window it is reported from that measurement,
+    under the same hypothesis."""
+    once = [[TRUTH]] * 2 + [[]] * 20
     for params in (TCAFFParams(), TCAFFParams(sequential=False)):
-        assert first(feed(TCAFF(params), [[TRUTH]] * 2 + [[]] * 20)) is None
-    assert first(feed(TCAFF(), [[TRUTH]] * 3 + [[]] * 20)) < W
+        assert first(feed(TCAFF(params), once, objects=20)) is None
+    filt = TCAFF()
+    held = []
+    for z in once:
+        feed(filt, [z], objects=20)
+        held.append(filt.held is not None and filt.provisional)
+        # what only confirms (an ambiguous or tracked candidate) does not settle it
+        assert filt.confirmable is None
+    assert held[1:W] == [True] * (W - 1) and not any(held[W:]) and filt.held is None
+    sparse = [[TRUTH]] * 2 + [[], []] + [[TRUTH]] * 3 + [[]] * 10
+    estimates = feed(TCAFF(), sparse, objects=20)
+    assert first(estimates) == 4  # its third measurement, W - 4 steps before the window
+    settled = TCAFF()
+    feed(settled, sparse[:5], objects=20)
+    assert not settled.provisional and settled.confirmable is settled.held is not None
+    assert all(est is not None and est.hypothesis == 1 for est in estimates[4:])
+    assert first(feed(TCAFF(TCAFFParams(sequential=False)), sparse, objects=20)) == W
+
+
+@pytest.mark.parametrize("rest", [[[]] * 12, [[]] * 2 + [[TRUTH]] * 4])
+def test_a_provisional_acceptance_survives_save_and_load(rest):
+    filt = TCAFF()
+    feed(filt, [[TRUTH]] * 2 + [[]], objects=20)
+    assert filt.provisional and filt.estimate is None
+    state = filt.state_dict()
+    assert "provisional" in state
+    restored = TCAFF()
+    restored.load_state_dict(state)
+    assert restored.provisional
+    a, b = feed(filt, rest, objects=20), feed(restored, rest, objects=20)
+    assert [None if e is None else e.x.tolist() for e in a] == \
+        [None if e is None else e.x.tolist() for e in b]
+    assert filt.provisional == restored.provisional
 
 
 @settings(max_examples=100, deadline=None)

@@ -121,6 +121,15 @@ def _set(key, index, value):
      r"silent_switch must be \(step, hypothesis\)"),
     (lambda s: s.__setitem__("silent_switch", np.array([1.5, 1.0])),
      "silent_switch must hold integers"),
+    # a provisional acceptance is of the main tree, seeded within the last W steps
+    (lambda s: s.__setitem__("provisional", np.array([s["step"], s["hypothesis"] + 1])),
+     r"provisional = .* must name the main tree's hypothesis"),
+    (lambda s: s.__setitem__("provisional", np.array([s["step"] - 8, s["hypothesis"]])),
+     r"provisional = .* at a step in \[\d+, "),
+    (lambda s: s.__setitem__("provisional", np.array([s["step"] + 1, s["hypothesis"]])),
+     r"provisional = .* at a step in "),
+    (lambda s: s.__setitem__("provisional", np.array([1])),
+     r"provisional must be \(step, hypothesis\)"),
 ])
 def test_a_tampered_state_is_refused_and_the_filter_left_alone(tamper, message):
     source = a_running_filter()
