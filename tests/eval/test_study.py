@@ -10,7 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from failing_runs import fail_simulating
-from tcaff_gtsam.eval.config import MethodsConfig, StudyConfig, load_scenario, load_study
+from tcaff_gtsam.eval.config import (
+    MethodsConfig,
+    StudyConfig,
+    load_methods,
+    load_scenario,
+    load_study,
+)
 from tcaff_gtsam.eval.jobs import simulated_job
 from tcaff_gtsam.eval.methods import estimate_names
 from tcaff_gtsam.eval.metrics import step_errors
@@ -368,6 +374,35 @@ def test_the_graphs_covariances_are_its_marginals_at_each_step():
     for k in steps[:: max(1, len(steps) // 5)]:
         np.testing.assert_allclose(smoothed[p, k], graph.graph.alignment(*setup.pairs[p], k)[1],
                                    rtol=1e-9, atol=1e-15)
+
+
+def test_the_studys_tcaff_stage_estimates_what_a_pair_aligner_does():
+    """The study's shared stages repeat `PairwiseAligner.update` (search, admit, count,
+    evidence, filter): at every step and pair both give the same estimate. The grid's seed 6
+    holds an early acceptance that stays provisional while ambiguous candidates near it are
+    found, which only a plain candidate may settle (`TCAFF.confirmable`)."""
+    from tcaff_gtsam.eval.methods.stages import RunSetup, SharedStages
+    from tcaff_gtsam.eval.sim.simulate import simulate
+
+    from tcaff_gtsam import PairwiseAligner
+
+    run = simulate(load_scenario("ambiguous_grid"), 6)
+    setup = RunSetup.of(run)
+    stages = SharedStages(setup, load_methods("tcaff_only"))
+    aligners = [PairwiseAligner(stages.checked, stages.tcaff_params) for _ in setup.pairs]
+    reported = provisional = 0
+    for s, t in enumerate(run.times[:30]):
+        stages.begin(s, float(t))
+        for p, (i, j) in enumerate(setup.pairs):
+            staged = stages.tcaff(p)[0]
+            paired = aligners[p].update(float(t), run.maps[i][s], run.maps[j][s])
+            assert (staged is None) == (paired is None), (s, p)
+            if staged is not None:
+                np.testing.assert_array_equal(staged.x, paired.x)
+                reported += 1
+            provisional += any(m.ambiguous for m in aligners[p].measurements) and \
+                aligners[p].filter.provisional
+    assert reported > 0 and provisional > 0
 
 
 def test_the_studys_tcaff_runs_as_a_pair_aligner_does():
