@@ -171,9 +171,9 @@ class TCAFFParams(_ByValue):
             evidence and every open hypothesis inconsistent with it scores at least
             `switch_margin` worse. When fewer than `min_distinct` of them are besides its seed
             (which a complete tree's window no longer holds) the acceptance is provisional
-            (`TCAFF.provisional`): held, not reported until the path holds them, and dropped
-            if its tree turns W steps old first. False: only complete trees are judged (the
-            paper).
+            (`TCAFF.provisional`): held, not reported until the path is measured again or
+            holds them, and dropped if its tree turns W steps old first. False: only complete
+            trees are judged (the paper).
         object_nats: nats of evidence per object a measurement explains beyond
             `object_base` (negative below it), given by the `objects` of `TCAFF.update`; a
             path's support is that of its best-supported measurement in the window (a

@@ -273,14 +273,15 @@ class TCAFF(FilterState):
                 self._recall()
             if self._main is None and prm.sequential:
                 self._accept_early()
+        if self._provisional is not None:
+            self._settle_provisional()
         # a hypothesis accepted in the gap that contradicts the dormant one leaves it
-        # recallable: it has history, the newcomer only its window
-        if (self._main is not None and self._dormant is not None
+        # recallable: it has history, the newcomer only its window (and so does one still
+        # provisional, which may yet be dropped)
+        if (self._main is not None and self._dormant is not None and self._provisional is None
                 and self._consistent(self._main_best(), self._dormant)[0]):
             # the main tree now is the dormant hypothesis (a switch to it): nothing to reclaim
             self._dormant, self._reclaiming = None, False
-        if self._provisional is not None:
-            self._settle_provisional()
         self._estimate = self._main_estimate()
         if self._estimate is not None:
             self._peak = max(self._peak, self._estimate.n_measurements)

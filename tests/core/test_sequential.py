@@ -650,3 +650,35 @@ def test_early_acceptance_never_takes_what_the_window_refuses(pattern):
     window = first(feed(TCAFF(TCAFFParams(sequential=False)), zs))
     if early is not None:
         assert window is not None and early <= window
+
+
+def test_a_dropped_provisional_acceptance_leaves_the_dormant_hypothesis_recallable():
+    """The truth held, then dropped after a gap (dormant); on its return a decoy seen more
+    often blocks the recall, and the truth is accepted early but provisionally, then nothing
+    comes for W steps and the provisional tree is dropped. The dormant hypothesis must still
+    be there: two later sightings recall it and it is reported."""
+    decoy = TRUTH + np.array([25.0, -18.0, 2.0])
+    filt = TCAFF()
+    feed(filt, [[TRUTH]] * 12 + [[]] * 42, objects=20)
+    for zs, objects in (([decoy], [5]), ([decoy, TRUTH], [5, 20]), ([decoy, TRUTH], [5, 20])):
+        filt.update(np.array(zs), np.broadcast_to(R, (len(zs), 3, 3)), None,
+                    np.array(objects))
+        assert filt.estimate is None
+    assert filt.provisional
+    feed(filt, [[]] * (W + 2))
+    assert not filt.provisional and filt.held is None
+    estimates = feed(filt, [[TRUTH]] * 2 + [[]] * 2, objects=20)
+    assert estimates[1] is not None and np.allclose(estimates[1].x, TRUTH, atol=0.3)
+
+
+def test_among_look_alikes_a_repeat_of_the_same_objects_settles_a_provisional_acceptance():
+    """With object ids, a seed (objects 1, 1) and then the same pair (2, 2) at every step:
+    the window, counting distinct evidence without the seed, never accepts it; the early rule
+    accepts it provisionally and reports it once it is measured again (the same objects seen
+    again from the same place: the Kimera-like bags' static scenes)."""
+    zs = [[TRUTH]] * 6 + [[]] * 10
+    ids = [[np.array([[1, 1]])]] + [[np.array([[2, 2]])]] * 5 + [[]] * 10
+    early = feed(TCAFF(), zs, objects=20, evidence=ids)
+    assert first(early) == 2 and all(est is not None for est in early[2:6])
+    assert first(feed(TCAFF(TCAFFParams(sequential=False)), zs, objects=20,
+                      evidence=ids)) is None
