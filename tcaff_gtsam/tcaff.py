@@ -28,11 +28,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .errors import DataError, TcaffError
-from .geometry import _chi2_quantile, _se2_from_params, _wrap_angle
+from .errors import TcaffError
+from .geometry import _chi2_quantile, _se2_from_params
 from .hypothesis_tree import (
     BEFORE_ROOT,
-    NO_MEASUREMENT,
     CostModel,
     Leaves,
     best_per_tree,
@@ -44,12 +43,12 @@ from .hypothesis_tree import (
     measurement_costs,
     seed,
 )
-from .inputs import check_within, real_array, shown
-from .param_checks import MAX_COORDINATE, MAX_VARIANCE
 from .params import TCAFFParams, _given_or_default
+from .tcaff_evidence import EvidenceRules
+from .tcaff_inputs import validated_evidence, validated_measurements, validated_objects
 
 # write_snapshot is the module's for its callers (a node writes snapshots on another thread)
-from .tcaff_state import JITTER_CAP, FilterState, _not_spd, write_snapshot  # noqa: F401
+from .tcaff_state import JITTER_CAP, FilterState, write_snapshot  # noqa: F401
 
 __all__ = ["TCAFF", "AlignmentEstimate"]
 
@@ -91,7 +90,7 @@ class AlignmentEstimate:
         return _se2_from_params(self.x)
 
 
-class TCAFF(FilterState):
+class TCAFF(EvidenceRules, FilterState):
     """The multiple-hypothesis filter for one directed robot pair (or any identity-motion state
     whose measurements may be wrong and are told apart by temporal consistency).
 
@@ -229,9 +228,9 @@ class TCAFF(FilterState):
             DataError: wrong shapes, non-finite values, R not symmetric positive definite,
                 evidence or objects of the wrong length, shape or kind.
         """
-        zs, Rs = self._validated(zs, Rs)
-        evidence = self._validated_evidence(evidence, zs.shape[0])
-        objects = self._validated_objects(objects, zs.shape[0])
+        zs, Rs = validated_measurements(zs, Rs, self.params)
+        evidence = validated_evidence(evidence, zs.shape[0])
+        objects = validated_objects(objects, zs.shape[0])
         prm = self.params
         if zs.shape[0] > prm.max_measurements:
             zs, Rs, evidence, objects = self._capped(zs, Rs, evidence, objects)
@@ -401,43 +400,14 @@ class TCAFF(FilterState):
             self._provisional = None
             return
         best = int(np.argmin(self._main.cost))
-        age = int(self._steps_since_root(self._main.choice[[best]])[0]) - 1
-        young = age < self.params.window  # its seed still in the window
         again = self.step > accepted and self._main.since[best] == 0
-        if again or self._distinct_enough(self._main, best, without_root=young):
+        # (once the seed has left the window, leaving it out changes no count)
+        if again or self._distinct_enough(self._main, best, without_root=True):
             self._provisional = None
-        elif not young:
+        elif self._steps_since_root(self._main.choice[[best]])[0] > self.params.window:
             log.debug("step %d: provisional hypothesis %d dropped", self.step, hypothesis)
             self._main, self._rival, self._switch_streak = None, None, 0
             self._returning, self._provisional = 0, None
-
-    def _object_support(self, choice: np.ndarray) -> np.ndarray:
-        """(L,) nats of object support of paths (L, W + 2): `object_nats` times the objects
-        explained by the path's best-supported measurement in the window, less `object_base`;
-        0 for a path without measurements, or with sequential acceptance off. A path's root
-        (its seed) does not count: it leaves the window when its tree is W steps old, and the
-        support of an early acceptance must be the support the complete path would have."""
-        prm = self.params
-        support = np.zeros(choice.shape[0])
-        if not prm.sequential or choice.shape[0] == 0:
-            return support
-        steps = list(self._objects)
-        offset = self._columns - len(steps)  # columns before the first step seen
-        first = max(self._columns - prm.window, offset)
-        best = np.full(choice.shape[0], -1, np.int64)
-        root = np.argmax(choice >= NO_MEASUREMENT, axis=1)
-        for c in range(first, self._columns):
-            taken = choice[:, c]
-            measured = (taken >= 0) & (root != c)
-            if not measured.any():
-                continue
-            counts = steps[c - offset]
-            n = (np.full(measured.sum(), prm.object_base) if counts is None
-                 else counts[taken[measured]])
-            best[measured] = np.maximum(best[measured], n)
-        has = best >= 0
-        support[has] = prm.object_nats * (best[has] - prm.object_base)
-        return support
 
     def _keep_dormant(self, leaf: Leaves) -> None:
         """Keep the main tree's leaf (one-leaf Leaves) as the dormant hypothesis, with the
@@ -586,129 +556,6 @@ class TCAFF(FilterState):
             scale = max(1.0, _LARGEST_ENTRY / largest)
         return replace(estimate, P=estimate.P * scale)
 
-    def _reported(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
-        """The main tree's estimate, or None while `withhold_contested` or `report_after`
-        holds it back, or its acceptance is provisional (`_settle_provisional`)."""
-        if estimate is None:
-            return None
-        report_after = self.params.report_after
-        if (report_after is not None
-                and self._main.since[np.argmin(self._main.cost)] >= report_after):
-            return None
-        if self._provisional is not None:
-            return None
-        if self.params.withhold_contested and self._contested():
-            return None
-        return estimate
-
-    def _contested(self) -> bool:
-        """Whether an exploring hypothesis inconsistent with the main tree's best path
-        outvotes it over the steps since the rival's root (at a step given object ids: seen
-        `_outvote_need` times by `_support`, with `switch_support`), or that path took no
-        measurement this step while the rival holds more distinct evidence in the window (and
-        at least `min_distinct` pieces; at a step without ids, only while that path holds
-        fewer than `min_distinct`), or the dormant hypothesis was seen in the last W
-        steps (`_recall`), or the main tree replaced one in a gap of its measurements and has
-        not been measured since the step it did (nothing contradicted the one it replaced:
-        a decoy met while the robots were apart is not reported on its lead alone)."""
-        if self._reclaiming or self._silent_switch is not None:
-            return True
-        main, explore = self._main, self._explore
-        m = int(np.argmin(main.cost))
-        if len(explore) == 0:
-            return False
-        taken = self._taken(explore.choice)
-        if self._evidence[-1] is not None and self.params.switch_support is not None:
-            # over the steps since the rival was first seen: a rival seen more often than the
-            # main path since then is contested before its window fills
-            need = self._outvote_need(m, self._steps_since_root(explore.choice))
-            if any(self._support(explore.choice[r]) >= need[r]
-                   for r in self._rivals_of(m, taken >= need)):
-                return True
-        if main.since[m] == 0:
-            return False
-        held = self._distinct(main.choice[m])[0]
-        if self._evidence[-1] is None and held >= self.params.min_distinct:
-            # without ids a rival's count is no measure of distinct evidence: a main path
-            # still confirmed in its window is not contested by being seen less often
-            return False
-        need = max(held + 1, self.params.min_distinct)
-        return any(self._distinct(explore.choice[r])[0] >= need
-                   for r in self._rivals_of(m, taken >= need))
-
-    def _rivals_of(self, m: int, candidates: np.ndarray) -> np.ndarray:
-        """Indices of the open exploring leaves among `candidates` ((L,) bool) that are
-        inconsistent with the main tree's leaf m."""
-        rivals = np.flatnonzero(candidates)
-        if rivals.size == 0:
-            return rivals
-        return rivals[~self._consistent(self._explore.take(rivals), self._main.take([m]))]
-
-    def _outvote_need(self, m: int, span):
-        """How often a rival must be seen (`_support`) over its last `span` steps (an int, or
-        (L,) ints, one per rival; in [1, W]: W for a complete tree, its steps since its root
-        for an open one) to outvote the main tree's leaf m: `switch_support` more times than
-        m's path took a measurement over the same steps (the main path's measurements count
-        as they are: a true alignment re-matching the same objects while the robots stand
-        still is not to be outvoted for it). An int, or (L,) ints, like `span`."""
-        path, prm = self._main.choice[m], self.params
-        seen = np.cumsum(path[::-1][:prm.window] >= 0)  # in the last 1 .. W steps
-        return seen[np.clip(span, 1, prm.window) - 1] + prm.switch_support
-
-    @staticmethod
-    def _steps_since_root(choice: np.ndarray) -> np.ndarray:
-        """(L,) steps of paths (L, W + 2) from their root's step to this one, both counted."""
-        return np.count_nonzero(choice >= NO_MEASUREMENT, axis=1)
-
-    def _support(self, path: np.ndarray) -> int:
-        """How often a rival's hypothesis was seen in the window: its measurements, or one
-        when together they bring fewer than two distinct pieces of evidence (a look-alike
-        cluster re-matched again and again). A path with two or more counts every
-        measurement, repeats included."""
-        distinct = self._distinct(path)[0]
-        return distinct if distinct < 2 else self._taken(path)
-
-    def _taken(self, choice: np.ndarray):
-        """Measurements in the window: (L,) ints for paths (L, W + 2), an int for one path
-        (W + 2,)."""
-        taken = np.count_nonzero(choice[..., -self.params.window:] >= 0, axis=-1)
-        return int(taken) if choice.ndim == 1 else taken
-
-    def _distinct_enough(self, leaves: Leaves, index: int, without_root: bool = False) -> bool:
-        """Whether leaf `index`'s path holds `min_distinct` distinct pieces of evidence; with
-        `without_root`, not counting its root (its seed)."""
-        need = self.params.min_distinct
-        if need <= 1:
-            return True
-        path = leaves.choice[index]
-        if without_root:
-            path = path.copy()
-            path[np.argmax(path >= NO_MEASUREMENT)] = NO_MEASUREMENT
-        return self._distinct(path)[0] >= need
-
-    def _distinct(self, path: np.ndarray) -> tuple[int, bool]:
-        """Distinct pieces of evidence on a path over the window, and whether the path's
-        measurement at the current step is one: a measurement is distinct when one of its
-        pairs joins an ego object and an other object that the path's earlier measurements
-        in the window did not use (a measurement without ids always is)."""
-        evidence = self._evidence
-        offset = self._columns - len(evidence)  # columns before the first step seen
-        used_ego: set[int] = set()
-        used_other: set[int] = set()
-        count, new = 0, False
-        for c in range(max(self._columns - self.params.window, offset), self._columns):
-            j = int(path[c])
-            if j < 0:
-                continue
-            pairs = evidence[c - offset][j] if evidence[c - offset] is not None else None
-            new = pairs is None or any(a not in used_ego and b not in used_other
-                                       for a, b in pairs)
-            count += new
-            if pairs is not None:
-                used_ego.update(a for a, _ in pairs)
-                used_other.update(b for _, b in pairs)
-        return count, bool(new and path[-1] >= 0)
-
     def _consistent(self, leaves: Leaves, other: Leaves) -> np.ndarray:
         """(L,) whether each leaf's state agrees with the single leaf `other`'s (Mahalanobis
         distance under P_a + P_b within the gate of `gate_probability`)."""
@@ -784,73 +631,3 @@ class TCAFF(FilterState):
         path = main.choice[best]
         return AlignmentEstimate(main.x[best].copy(), main.P[best].copy(), float(cost[best]),
                                  self.hypothesis, self.step, self._taken(path), int(path[-1]))
-
-    # -- input and state -----------------------------------------------------------------------
-
-    def _validated(self, zs, Rs) -> tuple[np.ndarray, np.ndarray]:
-        d = self.params.dim
-        zs = real_array("TCAFF.update", "zs", zs)
-        Rs = real_array("TCAFF.update", "Rs", Rs)
-        if zs.size == 0 and Rs.size == 0:
-            return np.empty((0, d)), np.empty((0, d, d))
-        if zs.ndim != 2 or zs.shape[1] != d:
-            raise DataError(f"TCAFF.update: zs must have shape (k, {d}), got {zs.shape}")
-        k = zs.shape[0]
-        if Rs.shape != (k, d, d):
-            raise DataError(f"TCAFF.update: Rs must have shape ({k}, {d}, {d}) to match zs, "
-                            f"got {Rs.shape}")
-        # beyond the bounds the filter's sums and squares overflow into NaN states
-        check_within("TCAFF.update", "zs", zs, MAX_COORDINATE)
-        check_within("TCAFF.update", "Rs", Rs, MAX_VARIANCE)
-        bad = _not_spd(Rs)
-        if bad is not None:
-            i, why = bad
-            shown_R = f": {Rs[i].tolist()}" if why == "symmetric" else ""
-            raise DataError(f"TCAFF.update: Rs[{i}] is not {why}{shown_R}")
-        zs = zs.copy()
-        angles = list(self.params.angle_indices)
-        zs[:, angles] = _wrap_angle(zs[:, angles])
-        return zs, np.ascontiguousarray(Rs)
-
-    @staticmethod
-    def _validated_evidence(evidence, k: int) -> list[list[tuple[int, int]] | None] | None:
-        if evidence is None:
-            return None
-        if isinstance(evidence, (str, bytes)) or not hasattr(evidence, "__len__"):
-            raise DataError(f"TCAFF.update: evidence must be None or a sequence of {k} "
-                            f"entries, got {type(evidence).__name__}")
-        if len(evidence) != k:
-            raise DataError(f"TCAFF.update: evidence has {len(evidence)} entries for {k} "
-                            f"measurements")
-        out: list[list[tuple[int, int]] | None] = []
-        for i, pairs in enumerate(evidence):
-            if pairs is None:
-                out.append(None)
-                continue
-            try:
-                arr = np.asarray(pairs)
-            except (TypeError, ValueError):  # ragged nested sequences
-                arr = None
-            if arr is not None and arr.size == 0:
-                arr = arr.reshape(0, 2)
-            if arr is None or arr.ndim != 2 or arr.shape[1] != 2 or arr.dtype.kind not in "iu":
-                got = (shown(pairs) if arr is None else
-                       f"shape {arr.shape} of {arr.dtype}: {shown(pairs)}")
-                raise DataError(f"TCAFF.update: evidence[{i}] must be an (m, 2) int array of "
-                                f"object-id pairs, got {got}")
-            out.append([(int(a), int(b)) for a, b in arr])
-        return out
-
-    @staticmethod
-    def _validated_objects(objects, k: int) -> np.ndarray | None:
-        if objects is None:
-            return None
-        arr = real_array("TCAFF.update", "objects", objects)
-        if arr.shape != (k,):
-            raise DataError(f"TCAFF.update: objects must have shape ({k},), one count per "
-                            f"measurement, got shape {arr.shape}")
-        if (np.asarray(objects).dtype == bool or not np.all(np.isfinite(arr))
-                or np.any(arr != np.round(arr)) or np.any(arr < 0) or np.any(arr >= 2**31)):
-            raise DataError(f"TCAFF.update: objects must be whole counts in [0, 2**31), got "
-                            f"{shown(objects)}")
-        return arr.astype(np.int64)

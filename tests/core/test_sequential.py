@@ -620,9 +620,10 @@ def test_a_seed_confirmed_once_is_held_but_not_reported_until_the_window_would_t
 
 
 @pytest.mark.parametrize("rest", [[[]] * 12, [[]] * 2 + [[TRUTH]] * 4])
-def test_a_provisional_acceptance_survives_save_and_load(rest):
+@pytest.mark.parametrize("silent", [1, W - 2])  # W - 2: the last step it can be saved
+def test_a_provisional_acceptance_survives_save_and_load(rest, silent):
     filt = TCAFF()
-    feed(filt, [[TRUTH]] * 2 + [[]], objects=20)
+    feed(filt, [[TRUTH]] * 2 + [[]] * silent, objects=20)
     assert filt.provisional and filt.estimate is None
     state = filt.state_dict()
     assert "provisional" in state
