@@ -178,9 +178,11 @@ def gives_ids(aligner: FrameAligner, params: TCAFFParams, ego: ObjectMap, other:
 def guided_search(params: FrameAlignerParams, tcaff: TCAFF, since_full: int) -> bool:
     """Whether a pair's next search may be guided by the alignment its filter holds
     (`FrameAlignerParams.guide_radius`): the filter `tcaff` holds one, no rival hypothesis of
-    the filter is open (`TCAFF.rivalled`: a search near the held alignment would starve it) and
-    fewer than `full_search_every` - 1 steps in a row were guided (`since_full`, counted by
-    the caller: steps since the last step not guided).
+    the filter is open (`TCAFF.rivalled`: a search near the held alignment would starve it),
+    its acceptance is not provisional (`TCAFF.provisional`: a guided step's candidates are
+    judged ambiguous only among themselves, so a decoy would be settled by the search it
+    guides) and fewer than `full_search_every` - 1 steps in a row were guided (`since_full`,
+    counted by the caller: steps since the last step not guided).
 
     Raises:
         ConfigError: params not a FrameAlignerParams; DataError: tcaff not a TCAFF or
@@ -195,7 +197,8 @@ def guided_search(params: FrameAlignerParams, tcaff: TCAFF, since_full: int) -> 
         raise DataError(f"guided_search: since_full must be an int >= 0, got "
                         f"{shown(since_full)}")
     return (params.guide_radius is not None and tcaff.held is not None
-            and since_full + 1 < params.full_search_every and not tcaff.rivalled)
+            and since_full + 1 < params.full_search_every and not tcaff.rivalled
+            and not tcaff.provisional)
 
 
 def _measurements(owner: str, found) -> list[AlignmentMeasurement]:

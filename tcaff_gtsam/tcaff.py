@@ -193,7 +193,8 @@ class TCAFF(EvidenceRules, FilterState):
     def held(self) -> AlignmentEstimate | None:
         """The main tree's estimate of the latest step, also while it is not reported
         (`withhold_contested`, `report_after`, `provisional`): what a search may be guided
-        by. None while there is no main tree."""
+        by once it is not provisional (`pairwise.guided_search`). None while there is no main
+        tree."""
         return self._held
 
     @property
@@ -389,7 +390,7 @@ class TCAFF(EvidenceRules, FilterState):
     def _settle_provisional(self) -> None:
         """A main tree accepted early on evidence its complete window would not hold (a seed
         and one distinct measurement besides it) is held but not reported (`_reported`;
-        `held` has it, so an aligner can search near it) until its best path is measured
+        `held` has it, but no search is guided by it) until its best path is measured
         again after the acceptance or holds `min_distinct` distinct pieces of evidence
         besides its seed; if its tree turns W steps old first, it is dropped, not kept
         dormant: it never was evidence. A wrong alignment matched at two steps and at none

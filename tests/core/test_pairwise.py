@@ -228,6 +228,44 @@ def test_a_switch_from_an_early_decoy_happens_with_guided_search():
     assert not any(guided[first_full:switched])
 
 
+def test_a_provisional_decoy_is_not_settled_by_the_search_it_guides():
+    """A look-alike cluster (the decoy) seen alone for two steps is accepted provisionally;
+    then the truth, twice its objects, appears beside it. A search guided by the decoy would
+    find only the decoy, which would settle it; while it is provisional every step searches in
+    full, where the truth is the decoy's rival, so the decoy is never reported, is dropped at
+    W steps old, and the truth is reported from then on."""
+    rng = np.random.default_rng(3)
+    T_true, T_decoy = se2_from_params([4.0, -7.0, 2.5]), se2_from_params([-6.0, 3.0, -1.0])
+    other = np.column_stack([rng.uniform(0, 25, (30, 2)), np.zeros(30)])
+    widths, heights = rng.uniform(0.3, 1.5, 30), rng.uniform(0.3, 1.5, 30)
+
+    def placed(T, rows):  # the other robot's objects `rows` in the ego frame under T
+        xy = other[rows, :2] @ T[:2, :2].T + T[:2, 2] + rng.normal(0, 0.03, (len(rows), 2))
+        return np.column_stack([xy, np.zeros(len(rows))])
+
+    decoy, everything = np.arange(15), np.arange(30)
+    pa = PairwiseAligner(FrameAlignerParams(guide_radius=2.0))
+    window = pa.filter.params.window
+    estimates, provisional, guided = [], [], []
+    for t in range(20):
+        rows = decoy if t < 2 else np.r_[decoy, everything]
+        ego_xy = placed(T_decoy, decoy) if t < 2 else np.vstack([placed(T_decoy, decoy),
+                                                                  placed(T_true, everything)])
+        ego = ObjectMap(ego_xy, widths[rows], heights[rows], np.full(len(rows), float(t)))
+        theirs = (ObjectMap(other[decoy], widths[decoy], heights[decoy], np.full(15, float(t)))
+                  if t < 2 else ObjectMap(other, widths, heights, np.full(30, float(t))))
+        estimates.append(pa.update(float(t), ego, theirs))
+        provisional.append(pa.filter.provisional)
+        guided.append(pa.guided)
+    assert provisional[1]
+    assert not any(guided[t] for t in range(1, 20) if provisional[t - 1])
+    assert all(e is None or se2_error(T_decoy, e.T)[0] > 1.0 for e in estimates)
+    dropped = provisional.index(False, 1)
+    assert dropped <= 1 + window
+    assert all(e is not None and se2_error(T_true, e.T)[0] < 0.3
+               for e in estimates[dropped + 1:])
+
+
 def test_guided_search_keeps_the_alignment_of_full_search():
     """A held, correct alignment: the guided steps give the estimates the full search does,
     and every one of them found a candidate confirming the hold."""
