@@ -181,47 +181,64 @@ def test_parameters_of_the_wrong_type_are_config_errors(kwargs, field):
         PairwiseAligner(**kwargs)
 
 
-def test_a_switch_from_an_early_decoy_happens_with_guided_search():
-    """First the maps share only a look-alike cluster (the decoy, accepted); then the truth,
-    three times the objects, appears beside it. Guided steps see only the decoy, but a full
-    search comes within `full_search_every` steps, its truth opens a rival hypothesis and every
-    step searches in full until the filter switches to the truth."""
+T_TRUE, T_DECOY = se2_from_params([4.0, -7.0, 2.5]), se2_from_params([-6.0, 3.0, -1.0])
+
+
+def decoy_scene(n_decoy: int):
+    """maps(t, alone) -> (ego, other): the other robot's 30 objects, and the ego robot's view of
+    its first `n_decoy` placed under T_DECOY (a look-alike cluster), with all 30 under T_TRUE
+    beside them unless `alone`; 3 cm of noise, every object seen at t."""
     rng = np.random.default_rng(3)
-    T_true, T_decoy = se2_from_params([4.0, -7.0, 2.5]), se2_from_params([-6.0, 3.0, -1.0])
     other = np.column_stack([rng.uniform(0, 25, (30, 2)), np.zeros(30)])
     widths, heights = rng.uniform(0.3, 1.5, 30), rng.uniform(0.3, 1.5, 30)
+    decoy, everything = np.arange(n_decoy), np.arange(30)
 
     def placed(T, rows):  # the other robot's objects `rows` in the ego frame under T
         xy = other[rows, :2] @ T[:2, :2].T + T[:2, 2] + rng.normal(0, 0.03, (len(rows), 2))
         return np.column_stack([xy, np.zeros(len(rows))])
 
-    decoy, everything = np.arange(10), np.arange(30)
+    def maps(t: float, alone: bool) -> tuple[ObjectMap, ObjectMap]:
+        if alone:
+            return (ObjectMap(placed(T_DECOY, decoy), widths[decoy], heights[decoy],
+                              np.full(n_decoy, t)),
+                    ObjectMap(other[decoy], widths[decoy], heights[decoy], np.full(n_decoy, t)))
+        rows = np.r_[decoy, everything]
+        return (ObjectMap(np.vstack([placed(T_DECOY, decoy), placed(T_TRUE, everything)]),
+                          widths[rows], heights[rows], np.full(len(rows), t)),
+                ObjectMap(other, widths, heights, np.full(30, t)))
+
+    return maps
+
+
+def run_decoy_scene(pa: PairwiseAligner, n_decoy: int, steps: int, alone: int):
+    """`decoy_scene(n_decoy)` through `pa` for `steps` steps at 1 s, the decoy alone for the
+    first `alone`: per step the estimate, the filter's held estimate, whether it is
+    provisional and whether the step was guided, each a list."""
+    maps = decoy_scene(n_decoy)
+    out = []
+    for t in range(steps):
+        estimate = pa.update(float(t), *maps(float(t), alone=t < alone))
+        out.append((estimate, pa.filter.held, pa.filter.provisional, pa.guided))
+    return [list(each) for each in zip(*out, strict=True)]
+
+
+def test_a_switch_from_an_early_decoy_happens_with_guided_search():
+    """First the maps share only a look-alike cluster (the decoy, accepted); then the truth,
+    three times the objects, appears beside it. Guided steps see only the decoy, but a full
+    search comes within `full_search_every` steps, its truth opens a rival hypothesis and every
+    step searches in full until the filter switches to the truth."""
     every = 4
     pa = PairwiseAligner(FrameAlignerParams(guide_radius=2.0, full_search_every=every))
-    estimates, held, guided = [], [], []
-    for t in range(60):
-        if t < 25:  # the ego robot sees the look-alike cluster, the other robot ten objects
-            ego = ObjectMap(placed(T_decoy, decoy), widths[decoy], heights[decoy],
-                            np.full(10, float(t)))
-            theirs = ObjectMap(other[decoy], widths[decoy], heights[decoy],
-                               np.full(10, float(t)))
-        else:
-            rows = np.r_[decoy, everything]
-            ego = ObjectMap(np.vstack([placed(T_decoy, decoy), placed(T_true, everything)]),
-                            widths[rows], heights[rows], np.full(40, float(t)))
-            theirs = ObjectMap(other, widths, heights, np.full(30, float(t)))
-        estimates.append(pa.update(float(t), ego, theirs))
-        held.append(pa.filter.held)
-        guided.append(pa.guided)
-    held_decoy = [e is not None and se2_error(T_decoy, e.T)[0] < 0.3 for e in estimates]
+    estimates, held, _, guided = run_decoy_scene(pa, 10, 60, alone=25)
+    held_decoy = [e is not None and se2_error(T_DECOY, e.T)[0] < 0.3 for e in estimates]
     assert held_decoy[24]
     assert any(guided[:25])  # the decoy was held under guided search ...
     runs = np.diff(np.flatnonzero(np.r_[False, ~np.array(guided), False]))
     assert runs.max() <= every  # ... never more than every - 1 guided steps in a row
-    assert se2_error(T_true, estimates[-1].T)[0] < 0.3
+    assert se2_error(T_TRUE, estimates[-1].T)[0] < 0.3
     # the switch itself: the decoy, unmeasured since the truth appeared, was replaced in a gap
     # of its measurements, so the truth is reported from its next measurement on
-    switched = next(t for t in range(25, 60) if se2_error(T_true, held[t].T)[0] < 0.3)
+    switched = next(t for t in range(25, 60) if se2_error(T_TRUE, held[t].T)[0] < 0.3)
     # the truth opened a rival at the first full search after it appeared: no guided step
     # from then until the switch
     first_full = next(t for t in range(25, 60) if not guided[t])
@@ -234,35 +251,15 @@ def test_a_provisional_decoy_is_not_settled_by_the_search_it_guides():
     find only the decoy, which would settle it; while it is provisional every step searches in
     full, where the truth is the decoy's rival, so the decoy is never reported, is dropped at
     W steps old, and the truth is reported from then on."""
-    rng = np.random.default_rng(3)
-    T_true, T_decoy = se2_from_params([4.0, -7.0, 2.5]), se2_from_params([-6.0, 3.0, -1.0])
-    other = np.column_stack([rng.uniform(0, 25, (30, 2)), np.zeros(30)])
-    widths, heights = rng.uniform(0.3, 1.5, 30), rng.uniform(0.3, 1.5, 30)
-
-    def placed(T, rows):  # the other robot's objects `rows` in the ego frame under T
-        xy = other[rows, :2] @ T[:2, :2].T + T[:2, 2] + rng.normal(0, 0.03, (len(rows), 2))
-        return np.column_stack([xy, np.zeros(len(rows))])
-
-    decoy, everything = np.arange(15), np.arange(30)
     pa = PairwiseAligner(FrameAlignerParams(guide_radius=2.0))
     window = pa.filter.params.window
-    estimates, provisional, guided = [], [], []
-    for t in range(20):
-        rows = decoy if t < 2 else np.r_[decoy, everything]
-        ego_xy = placed(T_decoy, decoy) if t < 2 else np.vstack([placed(T_decoy, decoy),
-                                                                  placed(T_true, everything)])
-        ego = ObjectMap(ego_xy, widths[rows], heights[rows], np.full(len(rows), float(t)))
-        theirs = (ObjectMap(other[decoy], widths[decoy], heights[decoy], np.full(15, float(t)))
-                  if t < 2 else ObjectMap(other, widths, heights, np.full(30, float(t))))
-        estimates.append(pa.update(float(t), ego, theirs))
-        provisional.append(pa.filter.provisional)
-        guided.append(pa.guided)
+    estimates, _, provisional, guided = run_decoy_scene(pa, 15, 20, alone=2)
     assert provisional[1]
     assert not any(guided[t] for t in range(1, 20) if provisional[t - 1])
-    assert all(e is None or se2_error(T_decoy, e.T)[0] > 1.0 for e in estimates)
+    assert all(e is None or se2_error(T_DECOY, e.T)[0] > 1.0 for e in estimates)
     dropped = provisional.index(False, 1)
     assert dropped <= 1 + window
-    assert all(e is not None and se2_error(T_true, e.T)[0] < 0.3
+    assert all(e is not None and se2_error(T_TRUE, e.T)[0] < 0.3
                for e in estimates[dropped + 1:])
 
 
