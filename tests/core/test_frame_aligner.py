@@ -258,15 +258,14 @@ def test_a_guided_search_near_the_truth_finds_the_full_searchs_best_candidate(
     0.5 deg: MNO-CLIPPER on the smaller graph may settle on a clique one or two associations
     different, 9 of 149 random cases, at most 7.5 cm and 0.3 deg apart; seed 4542, found later,
     gives 17 associations, two of them other than the full search's, and as many inliers, 16 cm
-    from the full search's) and explaining as many objects but two at most (seed 113785: 23
-    against 24); the guided step returns only candidates confirming the hold and needs no full
-    search. Unless that other clique lies beyond the confirmation bounds of the hold (seed
-    113785 held 0.37 m from the truth: its guided clique is 0.13 m from the truth on the far
-    side, 0.51 m from the hold): then the step is a full search, whose candidates it returns.
-    At CLIPPER's own epsilon,
-    which the bounds were measured at: widened for the maps' span (`epsilon_drift`, 0.27 m
-    here) seed 4542's guided clique is 21 cm and two inliers off the full search's, while 300
-    seeds held at the truth stay within 1.3 cm either way."""
+    from the full search's) and explaining at most two objects fewer (seed 113785: 23 against
+    24); the guided step returns only candidates confirming the hold and needs no full search.
+    Unless that other clique lies beyond the confirmation bounds of the hold (seed 113785 held
+    0.37 m from the truth: its guided clique is 0.13 m from the truth on the far side, 0.51 m
+    from the hold): then the step is a full search, whose candidates it returns. At CLIPPER's
+    own epsilon, which the bounds were measured at: widened for the maps' span
+    (`epsilon_drift`, 0.27 m here) seed 4542's guided clique is 21 cm and two inliers off the
+    full search's, while 300 seeds held at the truth stay within 1.3 cm either way."""
     rng = np.random.default_rng(seed)
     T_true = se2_from_params([*rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)])
     pair = overlapping_maps(rng, 40, 0.6, 0.05, T_oi_oj=T_true)
