@@ -67,7 +67,7 @@ class AlignmentEstimate:
         P: (d, d) its covariance.
         cost: path cost of the best hypothesis over the window (nats).
         hypothesis: id of the main tree that produced it; it changes when the filter accepts a
-            new main tree (after a drop or a switch).
+            new main tree (after a drop or a switch), not when it recalls a dropped one.
         step: number of updates so far (1 for the first).
         n_measurements: measurements on the best path within the window.
         measurement: index of this step's measurement on the best path, -1 if none.
@@ -459,6 +459,10 @@ class TCAFF(EvidenceRules, FilterState):
                 return
             self._reclaiming = False
             self.hypothesis += 1
+        else:
+            # every id issued since the dormant one was a provisional acceptance, dropped
+            # unreported (a main tree reported in the gap would be the dormant one or the main)
+            self.hypothesis = int(dormant.tree[0])
         x, P = kalman_children(dormant, [0], [0], explore.x[[best]], explore.P[[best]],
                                self._model)
         leaf = explore.take([best])

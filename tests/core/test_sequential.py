@@ -660,7 +660,7 @@ def test_a_dropped_provisional_acceptance_leaves_the_dormant_hypothesis_recallab
     be there: two later sightings recall it and it is reported."""
     decoy = TRUTH + np.array([25.0, -18.0, 2.0])
     filt = TCAFF()
-    feed(filt, [[TRUTH]] * 12 + [[]] * 42, objects=20)
+    held = feed(filt, [[TRUTH]] * 12 + [[]] * 42, objects=20)
     for zs, objects in (([decoy], [5]), ([decoy, TRUTH], [5, 20]), ([decoy, TRUTH], [5, 20])):
         filt.update(np.array(zs), np.broadcast_to(R, (len(zs), 3, 3)), None,
                     np.array(objects))
@@ -670,6 +670,8 @@ def test_a_dropped_provisional_acceptance_leaves_the_dormant_hypothesis_recallab
     assert not filt.provisional and filt.held is None
     estimates = feed(filt, [[TRUTH]] * 2 + [[]] * 2, objects=20)
     assert estimates[1] is not None and np.allclose(estimates[1].x, TRUTH, atol=0.3)
+    # recalled, it is the hypothesis it was: the dropped provisional one's id is never seen
+    assert estimates[1].hypothesis == held[11].hypothesis
 
 
 def test_among_look_alikes_a_repeat_of_the_same_objects_settles_a_provisional_acceptance():
