@@ -653,13 +653,14 @@ def test_early_acceptance_never_takes_what_the_window_refuses(pattern):
         assert window is not None and early <= window
 
 
-def test_a_dropped_provisional_acceptance_leaves_the_dormant_hypothesis_recallable():
+@pytest.mark.parametrize("params", [TCAFFParams(), TCAFFParams(jitter_reference=0.15)])
+def test_a_dropped_provisional_acceptance_leaves_the_dormant_hypothesis_recallable(params):
     """The truth held, then dropped after a gap (dormant); on its return a decoy seen more
     often blocks the recall, and the truth is accepted early but provisionally, then nothing
     comes for W steps and the provisional tree is dropped. The dormant hypothesis must still
     be there: two later sightings recall it and it is reported."""
     decoy = TRUTH + np.array([25.0, -18.0, 2.0])
-    filt = TCAFF()
+    filt = TCAFF(params)
     held = feed(filt, [[TRUTH]] * 12 + [[]] * 42, objects=20)
     for zs, objects in (([decoy], [5]), ([decoy, TRUTH], [5, 20]), ([decoy, TRUTH], [5, 20])):
         filt.update(np.array(zs), np.broadcast_to(R, (len(zs), 3, 3)), None,
@@ -668,10 +669,18 @@ def test_a_dropped_provisional_acceptance_leaves_the_dormant_hypothesis_recallab
     assert filt.provisional
     feed(filt, [[]] * (W + 2))
     assert not filt.provisional and filt.held is None
-    estimates = feed(filt, [[TRUTH]] * 2 + [[]] * 2, objects=20)
+    estimates = feed(filt, [[TRUTH]] * 2, objects=20)
     assert estimates[1] is not None and np.allclose(estimates[1].x, TRUTH, atol=0.3)
     # recalled, it is the hypothesis it was: the dropped provisional one's id is never seen
     assert estimates[1].hypothesis == held[11].hypothesis
+    # and the filter saved at any step from then on loads and goes on the same
+    for zs in [[]] * 2 + [[TRUTH]] * 3:
+        restored = TCAFF(params)
+        restored.load_state_dict(filt.state_dict())
+        ours, theirs = (feed(f, [zs], objects=20)[0] for f in (filt, restored))
+        assert (ours is None) == (theirs is None)
+        assert ours is None or (np.array_equal(ours.x, theirs.x)
+                                and ours.hypothesis == theirs.hypothesis)
 
 
 def test_among_look_alikes_a_repeat_of_the_same_objects_settles_a_provisional_acceptance():
