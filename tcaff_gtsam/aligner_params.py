@@ -294,7 +294,8 @@ class FrameAlignerParams(_ByValue):
             search is full (the paper's and the released code's way).
         full_search_every: with guide_radius set, at least every this many steps of a pair
             search in full (`PairwiseAligner`), so that an alignment elsewhere is still seen;
-            while the filter has a rival hypothesis open every step does (1: always).
+            while the filter has a rival hypothesis open or holds its alignment provisionally
+            every step does (1: always).
         height_epsilon: metres, or None; the gravity prior: two associations (i, j) and
             (k, l) are consistent only when their objects' height differences agree,
             |(z_i - z_k) - (z_j - z_l)| < height_epsilon + s_ij + s_kl, besides their

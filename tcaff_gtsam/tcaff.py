@@ -408,7 +408,8 @@ class TCAFF(EvidenceRules, FilterState):
         elif self._steps_since_root(self._main.choice[[best]])[0] > self.params.window:
             log.debug("step %d: provisional hypothesis %d dropped", self.step, hypothesis)
             self._main, self._rival, self._switch_streak = None, None, 0
-            self._returning, self._provisional = 0, None
+            # nothing is left for the dormant hypothesis to reclaim a place from
+            self._returning, self._provisional, self._reclaiming = 0, None, False
 
     def _keep_dormant(self, leaf: Leaves) -> None:
         """Keep the main tree's leaf (one-leaf Leaves) as the dormant hypothesis, with the
@@ -458,11 +459,12 @@ class TCAFF(EvidenceRules, FilterState):
             if max(self._dormant_peak, int(taken[best])) < main_taken:
                 return
             self._reclaiming = False
-            self.hypothesis += 1
-        else:
-            # every id issued since the dormant one was a provisional acceptance, dropped
-            # unreported (a main tree reported in the gap would be the dormant one or the main)
+        if self._main is None or self._provisional is not None:
+            # every id issued since the dormant one was a provisional acceptance, reported
+            # never (a main tree reported in the gap would be the dormant one or the main)
             self.hypothesis = int(dormant.tree[0])
+        else:
+            self.hypothesis += 1  # the displaced main tree may have been reported
         x, P = kalman_children(dormant, [0], [0], explore.x[[best]], explore.P[[best]],
                                self._model)
         leaf = explore.take([best])
