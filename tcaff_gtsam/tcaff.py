@@ -248,8 +248,7 @@ class TCAFF(EvidenceRules, FilterState):
                 best = self._main_best()
                 self._keep_dormant(Leaves(best.x, best.P + prm.Q, best.choice, best.edge,
                                           best.since, best.tree))
-            self._main, self._rival, self._switch_streak = None, None, 0
-            self._returning = 0
+            self._drop_main()
         elif self._dormant is not None:
             self._age_dormant()
         model = self._model if zs.shape[0] else self._empty_step_model
@@ -396,20 +395,22 @@ class TCAFF(EvidenceRules, FilterState):
         dormant: it never was evidence. A wrong alignment matched at two steps and at none
         after is then never reported, and a true one seen again within the window is
         reported from that measurement."""
-        accepted, hypothesis = self._provisional
-        if self._main is None or hypothesis != self.hypothesis:
-            self._provisional = None
-            return
+        # (every change of the main tree, an acceptance, a recall or a drop, clears the mark)
+        accepted = self._provisional[0]
         best = int(np.argmin(self._main.cost))
         again = self.step > accepted and self._main.since[best] == 0
         # (once the seed has left the window, leaving it out changes no count)
         if again or self._distinct_enough(self._main, best, without_root=True):
             self._provisional = None
         elif self._steps_since_root(self._main.choice[[best]])[0] > self.params.window:
-            log.debug("step %d: provisional hypothesis %d dropped", self.step, hypothesis)
-            self._main, self._rival, self._switch_streak = None, None, 0
-            # nothing is left for the dormant hypothesis to reclaim a place from
-            self._returning, self._provisional, self._reclaiming = 0, None, False
+            log.debug("step %d: provisional hypothesis %d dropped", self.step, self.hypothesis)
+            self._drop_main()
+
+    def _drop_main(self) -> None:
+        """Forget the main tree and what belongs to it: its rival and switch count, the
+        return count, a provisional mark and the recall's claim on its place."""
+        self._main, self._rival, self._switch_streak, self._returning = None, None, 0, 0
+        self._provisional, self._reclaiming = None, False
 
     def _keep_dormant(self, leaf: Leaves) -> None:
         """Keep the main tree's leaf (one-leaf Leaves) as the dormant hypothesis, with the

@@ -595,7 +595,7 @@ def test_a_seed_confirmed_once_is_held_but_not_reported_until_the_window_would_t
     """A wrong alignment matched at two steps and then nothing at all (a coincidence of one
     place): its complete path holds one measurement besides its seed, fewer than
     `min_distinct`, and the window refuses it. The early rule accepts it provisionally: held
-    (an aligner may search near it), never reported, and dropped, not kept dormant, when its
+    (no search is guided by it), never reported, and dropped, not kept dormant, when its
     seed is W steps old. Seen again within the window it is reported from that measurement,
     under the same hypothesis."""
     once = [[TRUTH]] * 2 + [[]] * 20
