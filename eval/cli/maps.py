@@ -36,6 +36,9 @@ if TYPE_CHECKING:
 _ALIGNER = FrameAlignerParams()
 #: most drives `advise-kappa` simulates (each a few seconds)
 MAX_ADVICE_SEEDS = 100
+#: how far `align-maps --now` may lie before the maps' latest `last_seen` (s): two robots'
+#: clocks are a little out of step, but a time on another clock (or in other units) is not
+NOW_TOLERANCE = 1.0
 
 
 def _candidates_table(title: str, candidates: list[AlignmentMeasurement]) -> Table:
@@ -84,7 +87,8 @@ def align_maps(
     ego: Annotated[Path, typer.Argument(help="Ego robot's map (.npz from ObjectMap.save).")],
     other: Annotated[Path, typer.Argument(help="Other robot's map (.npz).")],
     now: Annotated[float | None, typer.Option(
-        help="Current time (s); default: the latest last_seen in either map.")] = None,
+        help="Current time (s); default: the latest last_seen in either map. On the maps' "
+             f"clock: at most {NOW_TOLERANCE:g} s before that latest last_seen.")] = None,
     kappa: Annotated[float, typer.Option(
         help="Use objects seen less than kappa seconds ago.")] = _ALIGNER.kappa,
     dim: Annotated[int, typer.Option(help="Match 2D (x, y) or 3D centroids.")] = _ALIGNER.dim,
@@ -117,9 +121,15 @@ def align_maps(
         _refuse("--now", now, "must be a finite number of seconds")
     params = _aligner_params(kappa, dim, solutions, min_associations, covariance, seed)
     ego_map, other_map = ObjectMap.load(ego), ObjectMap.load(other)
+    stamps = np.r_[ego_map.last_seen, other_map.last_seen]
+    latest = float(stamps.max()) if stamps.size else None
     if now is None:
-        stamps = np.r_[ego_map.last_seen, other_map.last_seen]
-        now = float(stamps.max()) if stamps.size else 0.0
+        now = 0.0 if latest is None else latest
+    elif latest is not None and now < latest - NOW_TOLERANCE:
+        # every object would then count as just seen, whatever kappa says
+        _refuse("--now", now, f"is {latest - now:.6g} s before the latest last_seen of the "
+                f"maps ({latest:.6g} s): a time on their clock is at most "
+                f"{NOW_TOLERANCE:g} s earlier")
     aligner = FrameAligner(params)
     candidates = aligner.measurements(ego_map, other_map, now)
     if as_json:

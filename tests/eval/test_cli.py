@@ -470,6 +470,27 @@ def test_align_maps_options_are_named(maps, tcaff_main, args, option):
     assert line.startswith(f"error: {option} ")
 
 
+def test_align_maps_takes_a_now_on_the_maps_clock_and_refuses_another(maps, tcaff_main):
+    """A --now more than `NOW_TOLERANCE` before the maps' latest last_seen (a time on another
+    clock) used to make every object count as just seen; within it (clocks a little out of
+    step) it finds what the maps' own time does (the objects' ages, and so the weights, differ
+    by that second)."""
+    from tcaff_gtsam.eval.cli.maps import NOW_TOLERANCE
+
+    from tcaff_gtsam.object_map import ObjectMap
+
+    latest = max(float(ObjectMap.load(m).last_seen.max()) for m in maps)
+    own = json.loads(tcaff_main("align-maps", *maps, "--json").stdout)
+    lagging = tcaff_main("align-maps", *maps, "--json", "--now", repr(latest - NOW_TOLERANCE))
+    assert lagging.returncode == 0, lagging.stderr
+    assert own and [c["associations"] for c in json.loads(lagging.stdout)] == [
+        c["associations"] for c in own]
+    for now in (latest - NOW_TOLERANCE - 1e-6, latest - 1e9, 0.0 if latest > 1 else -5.0):
+        line = one_line_error(tcaff_main("align-maps", *maps, "--now", repr(now)), "--now",
+                              "before the latest last_seen")
+        assert line.startswith(f"error: --now {now!r}: is ")
+
+
 def test_align_maps_seed_message():
     from tcaff_gtsam.errors import ConfigError
 
