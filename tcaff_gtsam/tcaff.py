@@ -268,7 +268,9 @@ class TCAFF(EvidenceRules, FilterState):
                 self._consider_switch(complete)
         else:
             self._accept_best(complete)
-            if self._main is None and self._dormant is not None:
+            if self._dormant is not None:
+                # over a tree the window has just accepted too: the dormant hypothesis seen
+                # again this step contests it (or takes its place), as at any later step
                 self._recall()
             if self._main is None and prm.sequential:
                 self._accept_early()

@@ -228,6 +228,27 @@ def test_a_hypothesis_displaced_in_its_gap_is_recalled_over_the_newcomer(seed):
 
 
 @pytest.mark.parametrize("seed", range(3))
+def test_a_window_completed_as_the_dormant_hypothesis_returns_is_not_reported(seed):
+    """With the truth dormant, a wrong alignment seen at four steps in a row (alone, late in
+    the gap) completes its window, and is accepted by it, at the truth's second step back.
+    That step's return contests it, as it would a step later: it is never reported, and the
+    truth is recalled over it at the next step (the wrong one was reported at that step
+    before)."""
+    back = 90
+    wrong = TRUTH + np.array([5.0, -3.0, 2.0])
+    seen = back + 1 - W  # its tree is W steps old at back + 1
+    stream, zs = gap_stream(seed, 60, lambda t: wrong[None] if seen <= t < seen + 4
+                            else np.empty((0, 3)))
+    filt = TCAFF()
+    estimates = feed(filt, zs[:back + 2])
+    assert filt.held is not None and not correct(filt.held, stream.truth[back + 1])
+    assert all(est is None for est in estimates[30 + TCAFFParams().drop_after:])
+    estimates += feed(filt, zs[back + 2:])
+    assert all(est is not None and correct(est, stream.truth[t])
+               for t, est in enumerate(estimates[back + 2:], back + 2))
+
+
+@pytest.mark.parametrize("seed", range(3))
 def test_a_newcomer_that_displaced_an_unseen_hypothesis_waits_for_its_next_measurement(seed):
     """Nothing contradicted the truth the wrong alignment displaced in its gap, so the switch
     step does not report the newcomer (`TCAFF.held` has it); its next measurement does, and a
