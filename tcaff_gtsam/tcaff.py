@@ -268,10 +268,13 @@ class TCAFF(EvidenceRules, FilterState):
                 self._consider_switch(complete)
         else:
             self._accept_best(complete)
-            if self._dormant is not None:
-                # over a tree the window has just accepted too: the dormant hypothesis seen
-                # again this step contests it (or takes its place), as at any later step
+            if self._dormant is not None and self._main is None:
                 self._recall()
+            elif self._dormant is not None:
+                # a tree the window has just accepted is contested by the dormant hypothesis
+                # seen again this step, as a main tree is at any later step (`_recall`); the
+                # dormant one may take its place from the next step, when it is measured again
+                self._reclaiming = bool(self._consistent(self._explore, self._dormant).any())
             if self._main is None and prm.sequential:
                 self._accept_early()
         if self._provisional is not None:

@@ -249,6 +249,40 @@ def test_a_window_completed_as_the_dormant_hypothesis_returns_is_not_reported(se
 
 
 @pytest.mark.parametrize("seed", range(3))
+def test_a_dormant_decoy_seen_as_the_window_accepts_the_truth_only_contests_it(seed):
+    """The mirror image: a wrong alignment, accepted and then dormant after a gap, is seen at
+    two steps, the second the step the truth's window completes (the truth seen three times
+    in it). Its sighting withholds the truth from that step until its tree leaves the window,
+    and it does not take the truth's place though its record is longer: the truth, once
+    reported, is reported at every step after, and the wrong one never again (the code before
+    reported the truth for one step and then withheld it; recalling the wrong one at that step
+    reported it for seven)."""
+    rng = np.random.default_rng(seed)
+    stream = alignment_stream(rng, 130, p_empty=0.0, outliers=(0, 0))
+    wrong = TRUTH + np.array([5.0, -3.0, 2.0])
+    back = 90
+    accepted = back + W  # the truth's window, seeded at back, completes here
+    zs = []
+    for t, z in enumerate(stream.zs):
+        if t < 30:
+            zs.append(wrong[None] + rng.normal(0, [0.05, 0.05, 0.005]))
+        elif t < back or (back < t < accepted - 1 and t != back + 4):
+            zs.append(np.empty((0, 3)))
+        elif t == accepted - 1:
+            zs.append(wrong[None])
+        elif t == accepted:
+            zs.append(np.vstack([z, wrong[None]]))
+        else:
+            zs.append(z)
+    estimates = feed(TCAFF(), zs)
+    dropped = 30 + TCAFFParams().drop_after  # the wrong one is dormant from here
+    reported = [t for t in range(dropped, len(zs)) if estimates[t] is not None]
+    assert reported and reported[0] <= accepted + W
+    assert all(estimates[t] is not None and correct(estimates[t], stream.truth[t])
+               for t in range(reported[0], len(zs)))
+
+
+@pytest.mark.parametrize("seed", range(3))
 def test_a_newcomer_that_displaced_an_unseen_hypothesis_waits_for_its_next_measurement(seed):
     """Nothing contradicted the truth the wrong alignment displaced in its gap, so the switch
     step does not report the newcomer (`TCAFF.held` has it); its next measurement does, and a
