@@ -268,13 +268,12 @@ class TCAFF(EvidenceRules, FilterState):
                 self._consider_switch(complete)
         else:
             self._accept_best(complete)
-            if self._dormant is not None and self._main is None:
+            if self._main is None and self._dormant is not None:
                 self._recall()
             elif self._dormant is not None:
-                # a tree the window has just accepted is contested by the dormant hypothesis
-                # seen again this step, as a main tree is at any later step (`_recall`); the
-                # dormant one may take its place from the next step, when it is measured again
-                self._reclaiming = bool(self._consistent(self._explore, self._dormant).any())
+                # a tree the window has just accepted is contested as any main tree is; the
+                # dormant hypothesis may take its place from its next measurement (`_recall`)
+                self._contest()
             if self._main is None and prm.sequential:
                 self._accept_early()
         if self._provisional is not None:
@@ -432,6 +431,16 @@ class TCAFF(EvidenceRules, FilterState):
         d = self._dormant
         self._dormant = Leaves(d.x, d.P + self.params.Q, d.choice, d.edge, d.since + 1, d.tree)
 
+    def _contest(self) -> np.ndarray:
+        """(L,) whether each open exploring leaf agrees with the dormant hypothesis. Seen
+        again, even once in the last W steps, the dormant hypothesis contests the main tree
+        (`_reclaiming`, so `_contested`): a decoy that displaced it in its gap is not reported
+        on the truth's return."""
+        agree = self._consistent(self._explore, self._dormant)
+        if self._main is not None and agree.any():
+            self._reclaiming = True
+        return agree
+
     def _recall(self) -> None:
         """Make the dormant hypothesis the main tree again once an open exploring hypothesis
         consistent with it has taken `early_measurements` measurements, the latest this step,
@@ -448,11 +457,7 @@ class TCAFF(EvidenceRules, FilterState):
         if len(explore) == 0:
             return
         taken = self._taken(explore.choice)
-        agree = self._consistent(explore, dormant)
-        # seen again, even once in the last W steps, the dormant hypothesis contests the main
-        # one: a decoy that displaced it in its gap is not reported on the truth's return
-        if self._main is not None and agree.any():
-            self._reclaiming = True
+        agree = self._contest()
         confirmed = agree & (taken >= prm.early_measurements)
         fresh = np.flatnonzero(confirmed & (explore.choice[:, -1] >= 0))
         if fresh.size == 0:
