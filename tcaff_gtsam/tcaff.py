@@ -67,7 +67,8 @@ class AlignmentEstimate:
         P: (d, d) its covariance.
         cost: path cost of the best hypothesis over the window (nats).
         hypothesis: id of the main tree that produced it; it changes when the filter accepts a
-            new main tree (after a drop or a switch), not when it recalls a dropped one.
+            new main tree (after a drop or a switch), not when it recalls a dropped one
+            (unless another id was reported since: a reported id is never reused).
         step: number of updates so far (1 for the first).
         n_measurements: measurements on the best path within the window.
         measurement: index of this step's measurement on the best path, -1 if none.
@@ -130,6 +131,7 @@ class TCAFF(EvidenceRules, FilterState):
         d = self.params.dim
         self.step = 0
         self.hypothesis = 0
+        self._highest_reported = 0  # the highest hypothesis id ever reported (0: none)
         self._main: Leaves | None = None
         self._explore = Leaves.empty(d, self._columns)
         self._next_tree = 0
@@ -303,6 +305,8 @@ class TCAFF(EvidenceRules, FilterState):
             self._record_jitter(zs, Rs)
         self._held = self._jittered(self._estimate)
         self._estimate = self._reported(self._held)
+        if self._estimate is not None:
+            self._highest_reported = max(self._highest_reported, self._estimate.hypothesis)
         return self._estimate
 
     def _capped(self, zs: np.ndarray, Rs: np.ndarray, evidence: list | None,
@@ -450,9 +454,9 @@ class TCAFF(EvidenceRules, FilterState):
         its window held, is at least the main path's measurements in the window; until then
         the main tree is contested (`_contested`). The dormant state is fused with the
         confirming hypothesis's, which goes on as the main tree's leaf: under the dormant
-        id, or a new one when it displaces a main tree. Any open hypothesis consistent with
-        the dormant one (a measurement of it in the last W steps) contests the main tree,
-        before it is confirmed."""
+        id, or a new one when an id issued since was reported. Any open hypothesis consistent
+        with the dormant one (a measurement of it in the last W steps) contests the main
+        tree, before it is confirmed."""
         prm, dormant, explore = self.params, self._dormant, self._explore
         if len(explore) == 0:
             return
@@ -470,12 +474,11 @@ class TCAFF(EvidenceRules, FilterState):
             if max(self._dormant_peak, int(taken[best])) < main_taken:
                 return
             self._reclaiming = False
-        if self._main is None or self._provisional is not None:
-            # every id issued since the dormant one was a provisional acceptance, reported
-            # never (a main tree reported in the gap would be the dormant one or the main)
+        if self._highest_reported <= int(dormant.tree[0]):
+            # no id issued since the dormant one was reported: it goes on under its own
             self.hypothesis = int(dormant.tree[0])
         else:
-            self.hypothesis += 1  # the displaced main tree may have been reported
+            self.hypothesis += 1  # never an id that was reported for another hypothesis
         x, P = kalman_children(dormant, [0], [0], explore.x[[best]], explore.P[[best]],
                                self._model)
         leaf = explore.take([best])

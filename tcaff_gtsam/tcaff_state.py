@@ -79,6 +79,7 @@ class FilterState:
             state["dormant.peak"] = np.array(self._dormant_peak, dtype=np.int64)
             state["dormant.hypothesis"] = np.array(self._dormant.tree[0], dtype=np.int64)
         state["peak"] = np.array(self._peak, dtype=np.int64)
+        state["highest_reported"] = np.array(self._highest_reported, dtype=np.int64)
         state["reclaiming"] = np.array(self._reclaiming, dtype=np.int64)
         state["returning"] = np.array(self._returning, dtype=np.int64)
         if self._silent_switch is not None:
@@ -105,7 +106,8 @@ class FilterState:
                 symmetric positive definite; negative counters, steps since a measurement
                 below 0 or beyond the step, counters of 2^62 or more; hypotheses at step 0;
                 tree ids out of range (main tree ids other than the hypothesis counter,
-                exploring ids not below the next id or not grouped); measurement choices
+                exploring ids not below the next id or not grouped, a highest reported id
+                above the hypothesis counter); measurement choices
                 before the first step or beyond the step's measurements; jitters beyond
                 `JITTER_CAP`, object counts of 2^31 or more. Anything else that fails while
                 a checked state is restored, with the filter's own state restored.
@@ -137,6 +139,12 @@ class FilterState:
             if reclaiming and (dormant[0] is None or "main.x" not in state):
                 raise DataError("TCAFF state: reclaiming needs a dormant hypothesis beside a "
                                 "main tree")
+            # absent from states saved before it was recorded: any id issued may have been
+            highest_reported = _counter(state.get("highest_reported", counters["hypothesis"]),
+                                        "highest_reported")
+            if highest_reported > counters["hypothesis"]:
+                raise DataError(f"TCAFF state: highest_reported = {highest_reported} is above "
+                                f"the hypothesis counter {counters['hypothesis']}")
             # absent from states saved before a return from a gap was counted
             returning = _counter(state.get("returning", 0), "returning")
             if returning >= self.params.early_measurements or (
@@ -208,6 +216,7 @@ class FilterState:
                                   maxlen=self._columns)
             self._dormant, self._dormant_age, self._dormant_peak = dormant
             self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
+            self._highest_reported = highest_reported
             self._silent_switch, self._provisional = silent_switch, provisional
             # a filter without a reference keeps no record (it would never trim one)
             self._jitter, self._last_taken = ((jitter, last_taken)

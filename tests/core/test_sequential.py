@@ -19,6 +19,9 @@ from tcaff_gtsam.params import constant_alignment_covariance
 R = constant_alignment_covariance()
 TRUTH = np.array([4.0, -1.0, 0.7])
 W = TCAFFParams().window
+# the step from which a main tree last measured at step 29 (the 30 steps of `gap_stream`'s or
+# a stream's lead) is dropped
+DROPPED = 30 + TCAFFParams().drop_after
 
 
 def feed(filt: TCAFF, zs_per_step, objects=None, evidence=None):
@@ -242,10 +245,36 @@ def test_a_window_completed_as_the_dormant_hypothesis_returns_is_not_reported(se
     filt = TCAFF()
     estimates = feed(filt, zs[:back + 2])
     assert filt.held is not None and not correct(filt.held, stream.truth[back + 1])
-    assert all(est is None for est in estimates[30 + TCAFFParams().drop_after:])
+    assert all(est is None for est in estimates[DROPPED:])
     estimates += feed(filt, zs[back + 2:])
     assert all(est is not None and correct(est, stream.truth[t])
                for t, est in enumerate(estimates[back + 2:], back + 2))
+    # the wrong one's id was never reported: the truth goes on under its own
+    assert len({est.hypothesis for est in estimates if est is not None}) == 1
+
+
+def test_the_highest_reported_id_survives_save_and_load():
+    """Saved at the step the window accepted the wrong one (its id never reported), the
+    restored filter recalls the truth under its own id too. A state saved before the highest
+    reported id was recorded takes every id issued as reported (a new id, never a reused one);
+    one above the hypothesis counter is refused."""
+    back = 90
+    wrong = TRUTH + np.array([5.0, -3.0, 2.0])
+    seen = back + 1 - W
+    _, zs = gap_stream(0, 60, lambda t: wrong[None] if seen <= t < seen + 4
+                       else np.empty((0, 3)))
+    a = TCAFF()
+    first_id = {est.hypothesis for est in feed(a, zs[:back + 2]) if est is not None}
+    state = a.state_dict()
+    assert first_id == {int(state["highest_reported"])} and int(state["hypothesis"]) > 1
+    b, older = TCAFF(), TCAFF()
+    b.load_state_dict(state)
+    older.load_state_dict({k: v for k, v in state.items() if k != "highest_reported"})
+    for filt, ids in [(a, first_id), (b, first_id), (older, {int(state["hypothesis"]) + 1})]:
+        assert {est.hypothesis for est in feed(filt, zs[back + 2:])} == ids
+    too_high = dict(state, highest_reported=state["hypothesis"] + 1)
+    with pytest.raises(DataError, match="highest_reported = 3 is above"):
+        TCAFF().load_state_dict(too_high)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -275,8 +304,8 @@ def test_a_dormant_decoy_seen_as_the_window_accepts_the_truth_only_contests_it(s
         else:
             zs.append(z)
     estimates = feed(TCAFF(), zs)
-    dropped = 30 + TCAFFParams().drop_after  # the wrong one is dormant from here
-    reported = [t for t in range(dropped, len(zs)) if estimates[t] is not None]
+    # the wrong one is dormant from DROPPED
+    reported = [t for t in range(DROPPED, len(zs)) if estimates[t] is not None]
     assert reported and reported[0] <= accepted + W
     assert all(estimates[t] is not None and correct(estimates[t], stream.truth[t])
                for t in range(reported[0], len(zs)))
