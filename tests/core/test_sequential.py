@@ -808,3 +808,26 @@ def test_among_look_alikes_a_repeat_of_the_same_objects_settles_a_provisional_ac
     assert first(early) == 2 and all(est is not None for est in early[2:6])
     assert first(feed(TCAFF(TCAFFParams(sequential=False)), zs, objects=20,
                       evidence=ids)) is None
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["truth", "decoy", "both", "empty", "clutter"]),
+                          st.integers(1, 2 * W)), min_size=2, max_size=12))
+@example([("truth", 12), ("empty", 45), ("decoy", 6), ("both", 1), ("truth", 10)])
+def test_a_reported_id_names_one_hypothesis(runs):
+    """Runs of steps that see the truth, a decoy far from it, both, nothing or clutter: the ids
+    reported never decrease (an id issued after another was reported is never reused), and
+    every estimate reported under one id is of one alignment, the truth's or the decoy's."""
+    decoy = TRUTH + np.array([25.0, -18.0, 2.0])
+    clutter = TRUTH + np.array([-30.0, 40.0, -2.5])
+    seen = {"truth": [TRUTH], "decoy": [decoy], "both": [TRUTH, decoy], "empty": [],
+            "clutter": [clutter]}
+    zs = [seen[kind] for kind, length in runs for _ in range(length)]
+    ids, of = [], {}
+    for est in feed(TCAFF(), zs, objects=20):
+        if est is None:
+            continue
+        ids.append(est.hypothesis)
+        near = "truth" if np.hypot(*(est.x[:2] - TRUTH[:2])) < 5.0 else "decoy"
+        assert of.setdefault(est.hypothesis, near) == near
+    assert ids == sorted(ids)
