@@ -104,6 +104,21 @@ class TCAFFParams(_ByValue):
             measurement for `drop_after` steps ("best_path"), or (released code, "window")
             when the best path's whole window has been empty for more than `drop_after`
             consecutive steps.
+        hold_for: with `drop_rule` "best_path" and a `jitter_reference`, a main tree whose
+            jitter was within the reference at its last measurement (its consecutive
+            registrations moved no more than the odometries' assumed drift explains) is
+            held, and reported, until its best path has held no measurement for this many
+            steps instead of `drop_after`, where that is longer: its covariance grows by
+            `held_Q`, which that drift is. None, or without a reference: `drop_after`.
+        held_Q: (d, d) growth per step of a held leaf's covariance once it has gone W steps
+            without a measurement (the first W steps grow it by Q): by then its error is the
+            odometries' drift since its last measurements, which Q, sized to gate and
+            follow an alignment that is being measured, overstates by far; for W steps Q
+            also covers the registrations that ended an overlap, whose covariance is the
+            least sure (docs/tcaff.md). With a `jitter_reference`, only while the jitter was
+            within it at the main hypothesis's last measurement (above it, the alignment
+            drifts faster than assumed: Q). `PairwiseAligner` gives its filter the aligner's
+            `map_drift` over one second unless the filter names its own. None: Q throughout.
         switch_after: while a main tree exists, switch to an exploring hypothesis that is
             inconsistent with it (Mahalanobis test at `gate_probability`), below tau, and
             better by `switch_margin` nats for this many consecutive steps. None never re-checks
@@ -157,10 +172,10 @@ class TCAFFParams(_ByValue):
             evidence, so the rules change nothing there and a small static scene is accepted
             as the paper's filter accepts it. 0: ids at every step (and the rules always on).
         report_after: report no estimate once the main tree's best path has held no
-            measurement for this many steps, while the tree itself is kept until
-            `drop_after`: unreported, it can still be confirmed (`TCAFF.held`), e.g. by the
-            aligner's tracking when the robots see shared objects again. None: reported
-            until dropped.
+            measurement for this many steps, while the tree itself is kept until it is
+            dropped (`drop_after`, `hold_for`): unreported, it can still be confirmed
+            (`TCAFF.held`), e.g. by the aligner's tracking when the robots see shared
+            objects again. None: reported until dropped.
         sequential: accept a hypothesis as soon as its evidence makes acceptance certain,
             not only when its exploring tree is W steps old (docs/tcaff.md, "Sequential
             acceptance"). A hypothesis's score is its path cost less its object support
@@ -225,14 +240,14 @@ class TCAFFParams(_ByValue):
     `MAX_LEAVES`, `MAX_MEASUREMENTS`, and together `MAX_TREE_BYTES`); costs and evidence in
     nats (tau in [-1e6, 1e6], switch_margin and object_nats in [0, 1e6]) at most 1e6
     (`MAX_NATS`: a thousand-step window whose every step is as unlikely as the smallest
-    positive float, e^-745); counts of steps (drop_after, switch_after, report_after,
-    recall_for, jitter_span) at most `MAX_STEPS`, 315 576 000 (a year of steps at 10 Hz);
-    counts within a window (min_distinct, switch_support, early_measurements) at most
+    positive float, e^-745); counts of steps (drop_after, hold_for, switch_after,
+    report_after, recall_for, jitter_span) at most `MAX_STEPS`, 315 576 000 (a year of steps
+    at 10 Hz); counts within a window (min_distinct, switch_support, early_measurements) at most
     `MAX_WINDOW`, which no path holds more measurements than; object_base at most 1e6
     (`MAX_OBJECTS`); jitter_reference at most 1e6 (`MAX_FACTOR`); gate_box entries (metres
     or radians) at most 1e9 (`MAX_COORDINATE`, the bound of every measurement); the entries
-    of Q and P0 at most 1e18 (`MAX_VARIANCE`, the bound of every measurement covariance) in
-    magnitude. Probabilities and shares are bounded by their ranges.
+    of Q, held_Q and P0 at most 1e18 (`MAX_VARIANCE`, the bound of every measurement
+    covariance) in magnitude. Probabilities and shares are bounded by their ranges.
     """
 
     window: int = 8
@@ -254,6 +269,8 @@ class TCAFFParams(_ByValue):
     promotion: Literal["branch", "reseed"] = "branch"
     drop_rule: Literal["best_path", "window"] = "best_path"
     drop_after: int = 40
+    hold_for: int | None = 200
+    held_Q: np.ndarray | None = None
     switch_after: int | None = 3
     switch_margin: float = 5.0
     switch_support: int | None = 2
@@ -285,6 +302,9 @@ class TCAFFParams(_ByValue):
             _count(o, name, getattr(self, name), 1, high, limit)
         steps = dict(high=MAX_STEPS, limit="MAX_STEPS")
         _count(o, "drop_after", self.drop_after, 1, **steps)
+        _count(o, "hold_for", self.hold_for, 1, **steps, none=True)
+        if self.held_Q is not None:
+            object.__setattr__(self, "held_Q", _spd(self.held_Q, d, o, "held_Q", bounded=True))
         _count(o, "window", self.window, 1, MAX_WINDOW, "MAX_WINDOW")
         for name in ("p_no_measurement", "gate_probability"):
             value = getattr(self, name)
@@ -380,7 +400,7 @@ class TCAFFParams(_ByValue):
         hypothesis confirmed at a step is never abandoned at that step."""
         return cls(min_distinct=1, switch_stale=False, withhold_contested=False,
                    switch_support=None, sequential=False, recall_for=None,
-                   neutral_empty_steps=False)
+                   neutral_empty_steps=False, hold_for=None)
 
     @classmethod
     def reference(cls) -> TCAFFParams:
@@ -389,7 +409,7 @@ class TCAFFParams(_ByValue):
                    promotion="reseed", drop_rule="window", drop_after=40, switch_after=None,
                    switch_support=None, min_distinct=1, switch_stale=False,
                    withhold_contested=False, sequential=False, recall_for=None,
-                   neutral_empty_steps=False)
+                   neutral_empty_steps=False, hold_for=None)
 
 
 def _default_odometry_cov(dim: int) -> np.ndarray:

@@ -59,6 +59,9 @@ class CostModel:
         gate_chi2: squared Mahalanobis distance above which a measurement is gated out.
         gate_box: (d,) box half-widths.
         no_measurement_cost: cost of a no-measurement child.
+        held_Q: (d, d) process noise of a no-measurement child whose path has gone more than
+            `held_after` steps without a measurement, instead of Q; None: Q.
+        held_after: steps.
     """
 
     Q: np.ndarray
@@ -68,6 +71,8 @@ class CostModel:
     gate_chi2: float
     gate_box: np.ndarray
     no_measurement_cost: float
+    held_Q: np.ndarray | None = None
+    held_after: int = 0
 
 
 #: every field of `Leaves`, in order, with its dtype
@@ -473,7 +478,9 @@ def extend(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: CostModel,
            max_children: int, prune: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
            ) -> Leaves:
     """Advance every leaf by one step: its best `max_children` gated measurements and one
-    no-measurement child. Columns shift left by one; the new step is the last column.
+    no-measurement child (its covariance grown by Q, or by `model.held_Q` once its path has
+    gone more than `model.held_after` steps without a measurement). Columns shift left by
+    one; the new step is the last column.
 
     Children are pruned before their Kalman updates are computed: `prune(cost, choice, tree)`
     gets the children's window costs (n,), paths (n, W + 2) and tree ids (n,) and returns
@@ -497,4 +504,8 @@ def extend(leaves: Leaves, zs: np.ndarray, Rs: np.ndarray, model: CostModel,
     parents, meas = parents[keep], meas[keep]
     x, P = kalman_children(leaves, parents, meas, zs, Rs, model)
     since = np.where(meas >= 0, 0, leaves.since[parents] + 1)
+    if model.held_Q is not None:
+        held = np.flatnonzero(since > model.held_after)
+        if held.size:
+            P[held] = leaves.P[parents[held]] + model.held_Q
     return Leaves(x, P, choice[keep], edge[keep], since, tree[keep])

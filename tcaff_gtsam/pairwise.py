@@ -49,9 +49,10 @@ def feeding(aligner: FrameAlignerParams, tcaff: TCAFFParams) -> FrameAlignerPara
 
 
 def fed_by(tcaff: TCAFFParams, aligner: FrameAlignerParams) -> TCAFFParams:
-    """`tcaff` for a filter of `aligner`'s candidates: with the aligner's `jitter_reference`
-    where the filter names none and the aligner's covariance counts the error consecutive
-    registrations share (calibrated, `repeat_inflation` > 0).
+    """`tcaff` for a filter of `aligner`'s candidates where the aligner's covariance counts the
+    error consecutive registrations share (calibrated, `repeat_inflation` > 0): with the
+    aligner's `jitter_reference`, and for (x, y, theta) a `held_Q` of its `map_drift` over one
+    second, diag(d_t^2, d_t^2, d_theta^2), each where the filter names none.
 
     Raises:
         ConfigError: tcaff not a TCAFFParams or aligner not a FrameAlignerParams.
@@ -59,10 +60,15 @@ def fed_by(tcaff: TCAFFParams, aligner: FrameAlignerParams) -> TCAFFParams:
     _require(isinstance(tcaff, TCAFFParams), "fed_by", "tcaff", tcaff, "must be a TCAFFParams")
     _require(isinstance(aligner, FrameAlignerParams), "fed_by", "aligner", aligner,
              "must be a FrameAlignerParams")
-    if (tcaff.jitter_reference is not None or aligner.jitter_reference is None
-            or aligner.covariance != "calibrated" or aligner.repeat_inflation == 0):
+    if aligner.covariance != "calibrated" or aligner.repeat_inflation == 0:
         return tcaff
-    return replace(tcaff, jitter_reference=aligner.jitter_reference)
+    if tcaff.jitter_reference is None and aligner.jitter_reference is not None:
+        tcaff = replace(tcaff, jitter_reference=aligner.jitter_reference)
+    if tcaff.held_Q is None and tcaff.dim == 3:
+        d_t, d_theta = aligner.map_drift
+        if d_t > 0 and d_theta > 0:  # a covariance must be positive definite
+            tcaff = replace(tcaff, held_Q=np.diag([d_t**2, d_t**2, d_theta**2]))
+    return tcaff
 
 
 def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | None,

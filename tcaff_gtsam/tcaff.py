@@ -121,6 +121,9 @@ class TCAFF(EvidenceRules, FilterState):
         # a step without any measurement says nothing about which alignment is right
         self._empty_step_model = (replace(self._model, no_measurement_cost=0.0)
                                   if prm.neutral_empty_steps else self._model)
+        # the same two, for a main tree held while the drift is as assumed (`held_Q`)
+        self._drift_models = tuple(replace(model, held_Q=prm.held_Q, held_after=prm.window)
+                                   for model in (self._model, self._empty_step_model))
         self._columns = prm.window + 2
         self.reset()
 
@@ -170,6 +173,9 @@ class TCAFF(EvidenceRules, FilterState):
         # latest measurement the main hypothesis took (`jitter_reference`)
         self._jitter: deque[tuple[int, float]] = deque()
         self._last_taken: tuple[int, int, np.ndarray, np.ndarray] | None = None
+        # whether the jitter was within `jitter_reference` at the main hypothesis's latest
+        # measurement (`hold_for`)
+        self._drift_as_assumed = False
         self._estimate: AlignmentEstimate | None = None
         self._held: AlignmentEstimate | None = None
 
@@ -256,7 +262,11 @@ class TCAFF(EvidenceRules, FilterState):
         model = self._model if zs.shape[0] else self._empty_step_model
         if self._main is not None:
             silent = bool(self._main.since[np.argmin(self._main.cost)] >= prm.window)
-            self._main = extend(self._main, zs, Rs, model, prm.max_children,
+            drifting = prm.held_Q is not None and (prm.jitter_reference is None
+                                                   or self._drift_as_assumed)
+            self._main = extend(self._main, zs, Rs,
+                                self._drift_models[zs.shape[0] == 0] if drifting else model,
+                                prm.max_children,
                                 lambda cost, choice, _: self._main_keep(cost, choice))
             if self._main.since[np.argmin(self._main.cost)] == 0:
                 returning = 1 if silent else self._returning + (self._returning > 0)
@@ -303,6 +313,8 @@ class TCAFF(EvidenceRules, FilterState):
             self._empty_windows = 0 if has_measurement else self._empty_windows + 1
         if prm.jitter_reference is not None:
             self._record_jitter(zs, Rs)
+            if self._estimate is not None and self._estimate.measurement >= 0:
+                self._drift_as_assumed = bool(self._jitter) and self._jitter_scale() <= 1.0
         self._held = self._jittered(self._estimate)
         self._estimate = self._reported(self._held)
         if self._estimate is not None:
@@ -416,9 +428,10 @@ class TCAFF(EvidenceRules, FilterState):
 
     def _drop_main(self) -> None:
         """Forget the main tree and what belongs to it: its rival and switch count, the
-        return count, a provisional mark and the recall's claim on its place."""
+        return count, a provisional mark, the recall's claim on its place and the record of
+        its drift (`hold_for`)."""
         self._main, self._rival, self._switch_streak, self._returning = None, None, 0, 0
-        self._provisional, self._reclaiming = None, False
+        self._provisional, self._reclaiming, self._drift_as_assumed = None, False, False
 
     def _keep_dormant(self, leaf: Leaves) -> None:
         """Keep the main tree's leaf (one-leaf Leaves) as the dormant hypothesis, with the
@@ -488,7 +501,7 @@ class TCAFF(EvidenceRules, FilterState):
         self._switch_streak, self._rival, self._empty_windows = 0, None, 0
         self._fresh = self.step
         self._peak, self._returning = self._dormant_peak, 0
-        self._dormant, self._provisional = None, None
+        self._dormant, self._provisional, self._drift_as_assumed = None, None, False
         self._main = Leaves(x, P, leaf.choice, leaf.edge, leaf.since,
                             np.full(1, self.hypothesis, np.int64))
 
@@ -566,16 +579,20 @@ class TCAFF(EvidenceRules, FilterState):
     def _jittered(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
         """`estimate` with its covariance scaled by the jitter over `jitter_reference` where
         that is more than 1."""
-        reference = self.params.jitter_reference
-        if estimate is None or not self._jitter or reference is None:
+        if estimate is None or not self._jitter or self.params.jitter_reference is None:
             return estimate
-        scale = sum(value for _, value in self._jitter) / (len(self._jitter) * reference)
+        scale = self._jitter_scale()
         if scale <= 1.0:
             return estimate
         largest = float(np.abs(estimate.P).max())
         if scale * largest > _LARGEST_ENTRY:
             scale = max(1.0, _LARGEST_ENTRY / largest)
         return replace(estimate, P=estimate.P * scale)
+
+    def _jitter_scale(self) -> float:
+        """The mean jitter recorded over `jitter_reference` (records and a reference needed)."""
+        jitter = self._jitter
+        return sum(value for _, value in jitter) / (len(jitter) * self.params.jitter_reference)
 
     def _consistent(self, leaves: Leaves, other: Leaves) -> np.ndarray:
         """(L,) whether each leaf's state agrees with the single leaf `other`'s (Mahalanobis
@@ -591,7 +608,7 @@ class TCAFF(EvidenceRules, FilterState):
         self._fresh = self.step
         self._peak = 0
         self._returning = 0
-        self._provisional = None
+        self._provisional, self._drift_as_assumed = None, False
         in_tree = np.flatnonzero(complete.tree == complete.tree[best])
         tree = complete.take(in_tree)
         best = int(np.searchsorted(in_tree, best))
@@ -640,7 +657,10 @@ class TCAFF(EvidenceRules, FilterState):
         main = self._main
         best = int(np.argmin(main.cost))
         if prm.drop_rule == "best_path":
-            return bool(main.since[best] >= prm.drop_after)
+            limit = prm.drop_after
+            if prm.hold_for is not None and self._drift_as_assumed:
+                limit = max(limit, prm.hold_for)
+            return bool(main.since[best] >= limit)
         return self._empty_windows > prm.drop_after
 
     def _main_estimate(self) -> AlignmentEstimate | None:

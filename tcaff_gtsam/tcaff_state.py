@@ -80,6 +80,7 @@ class FilterState:
             state["dormant.hypothesis"] = np.array(self._dormant.tree[0], dtype=np.int64)
         state["peak"] = np.array(self._peak, dtype=np.int64)
         state["highest_reported"] = np.array(self._highest_reported, dtype=np.int64)
+        state["drift_as_assumed"] = np.array(self._drift_as_assumed, dtype=np.int64)
         state["reclaiming"] = np.array(self._reclaiming, dtype=np.int64)
         state["returning"] = np.array(self._returning, dtype=np.int64)
         if self._silent_switch is not None:
@@ -145,6 +146,11 @@ class FilterState:
             if highest_reported > counters["hypothesis"]:
                 raise DataError(f"TCAFF state: highest_reported = {highest_reported} is above "
                                 f"the hypothesis counter {counters['hypothesis']}")
+            # absent from states saved before holds were lengthened: a hold of drop_after
+            drift_as_assumed = _counter(state.get("drift_as_assumed", 0), "drift_as_assumed")
+            if drift_as_assumed not in (0, 1) or (drift_as_assumed and "main.x" not in state):
+                raise DataError(f"TCAFF state: drift_as_assumed = {drift_as_assumed} must be "
+                                f"0 or 1, and 0 without a main tree")
             # absent from states saved before a return from a gap was counted
             returning = _counter(state.get("returning", 0), "returning")
             if returning >= self.params.early_measurements or (
@@ -217,6 +223,7 @@ class FilterState:
             self._dormant, self._dormant_age, self._dormant_peak = dormant
             self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
             self._highest_reported = highest_reported
+            self._drift_as_assumed = bool(drift_as_assumed)
             self._silent_switch, self._provisional = silent_switch, provisional
             # a filter without a reference keeps no record (it would never trim one)
             self._jitter, self._last_taken = ((jitter, last_taken)

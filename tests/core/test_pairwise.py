@@ -404,3 +404,18 @@ def test_counted_and_evidence_of_refuse_malformed_arguments():
     ids = (np.arange(len(pair.ego)), np.arange(len(pair.other)))
     with pytest.raises(DataError, match="evidence_of: only"):
         evidence_of(found, ids, np.ones(len(found) + 1, bool))
+
+
+def test_the_pairs_filter_grows_a_held_estimate_by_its_aligners_map_drift():
+    """`fed_by` gives the filter held_Q = the map drift over one second where the aligner's
+    covariance is calibrated and the filter names none; never a singular one."""
+    d_t, d_theta = FrameAlignerParams().map_drift
+    np.testing.assert_allclose(PairwiseAligner().filter.params.held_Q,
+                               np.diag([d_t**2, d_t**2, d_theta**2]))
+    own = np.diag([1e-3, 1e-3, 1e-5])
+    np.testing.assert_array_equal(fed_by(TCAFFParams(held_Q=own), FrameAlignerParams()).held_Q,
+                                  own)
+    for aligner, tcaff in [(FrameAlignerParams(covariance="residual"), TCAFFParams()),
+                           (FrameAlignerParams(map_drift=(0.0, 0.01)), TCAFFParams()),
+                           (FrameAlignerParams.reference(), TCAFFParams.reference())]:
+        assert fed_by(tcaff, aligner).held_Q is None

@@ -28,6 +28,7 @@ OPTIONAL = {("FrameAlignerParams", "max_rmse"), ("FrameAlignerParams", "min_inli
             ("FrameAlignerParams", "size_partial"), ("FrameAlignerParams", "height_epsilon"),
             ("FrameAlignerParams", "repeat_Q"), ("FrameAlignerParams", "sparse_associations"),
             ("TCAFFParams", "report_after"), ("TCAFFParams", "recall_for"),
+            ("TCAFFParams", "hold_for"), ("TCAFFParams", "held_Q"),
             ("TCAFFParams", "gate_box"), ("TCAFFParams", "jitter_reference"),
             ("FrameAlignerParams", "jitter_reference"),
             ("TCAFFParams", "switch_after"), ("TCAFFParams", "switch_support"),

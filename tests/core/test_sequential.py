@@ -752,7 +752,8 @@ def step_restored(filt: TCAFF, zs, objects) -> AlignmentEstimate | None:
     return ours
 
 
-@pytest.mark.parametrize("params", [TCAFFParams(), TCAFFParams(jitter_reference=0.15)])
+@pytest.mark.parametrize("params", [TCAFFParams(),
+                                    TCAFFParams(jitter_reference=0.15, hold_for=None)])
 def test_a_dropped_provisional_acceptance_leaves_the_dormant_hypothesis_recallable(params):
     """The truth held, then dropped after a gap (dormant); on its return a decoy seen more
     often blocks the recall, and the truth is accepted early but provisionally, then nothing

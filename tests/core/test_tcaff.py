@@ -105,6 +105,90 @@ def test_default_drops_the_main_tree_after_drop_after_steps_without_measurement(
     assert filt.estimate is None
 
 
+TRUTH = np.array([4.0, -1.0, 0.7])
+EMPTY = np.empty((0, 3))
+
+
+def last_reported(estimates) -> int:
+    """1-based update number of the last estimate."""
+    return max(i + 1 for i, est in enumerate(estimates) if est is not None)
+
+
+def test_a_held_estimate_grows_by_Q_for_W_steps_then_by_held_Q():
+    """Unmeasured, the main tree's covariance grows by Q for W steps, then by held_Q (None:
+    by Q throughout, the paper's); with a jitter reference, only while the jitter was within
+    it."""
+    held_Q = np.diag([1e-4, 1e-4, 2e-5])
+    zs = [TRUTH[None]] * 20 + [EMPTY] * 30
+    Q, W = TCAFFParams().Q, TCAFFParams().window
+    for params, growth in [(TCAFFParams(held_Q=held_Q), lambda k: min(k, W) * Q
+                            + max(0, k - W) * held_Q),
+                           (TCAFFParams(), lambda k: k * Q)]:
+        estimates = run(TCAFF(params), zs)
+        measured = estimates[19]
+        assert measured.measurement == 0
+        for k in range(1, 30):
+            np.testing.assert_allclose(estimates[19 + k].P, measured.P + growth(k), rtol=1e-9)
+    # with a jitter reference, measurements that moved more than their R explains: by Q
+    shift = np.array([0.4, 0.0, 0.02])
+    jumpy = [(TRUTH + (shift if t % 2 else -shift))[None] for t in range(20)] + [EMPTY] * 30
+    held, plain = (run(TCAFF(TCAFFParams(jitter_reference=0.15, held_Q=q)), jumpy)
+                   for q in (held_Q, None))
+    for a, b in zip(held[20:], plain[20:], strict=True):
+        np.testing.assert_array_equal(a.P, b.P)
+
+
+@pytest.mark.parametrize(("params", "held"), [
+    (TCAFFParams(jitter_reference=0.15), 200),  # the jitter was 0: held for hold_for
+    (TCAFFParams(jitter_reference=0.15, hold_for=120), 120),
+    (TCAFFParams(jitter_reference=0.15, hold_for=None), 40),
+    (TCAFFParams(jitter_reference=0.15, hold_for=10), 40),  # never shorter than drop_after
+    (TCAFFParams(), 40),  # no reference: no evidence of the drift
+])
+def test_a_main_tree_is_held_for_hold_for_steps_only_while_its_jitter_was_within_reference(
+        params, held):
+    """The same measurement for 30 steps (a jitter of 0), then nothing: the main tree is
+    reported until `hold_for` steps after its last measurement where the filter has a jitter
+    reference, else until `drop_after`. Measurements that move between steps by more than
+    their R explains (a jitter of about 0.4) are held for `drop_after` only."""
+    filt = TCAFF(params)
+    assert last_reported(run(filt, [TRUTH[None]] * 30 + [EMPTY] * 250)) == 30 + held
+    assert filt.estimate is None and filt.held is None
+    shift = np.array([0.4, 0.0, 0.02])
+    jumpy = [(TRUTH + (shift if t % 2 else -shift))[None] for t in range(30)]
+    assert last_reported(run(TCAFF(params), jumpy + [EMPTY] * 250)) == 30 + 40
+
+
+def test_a_long_hold_survives_save_and_load_and_a_tampered_one_is_refused(tmp_path):
+    """Saved 100 steps into a hold the jitter allows, a restored filter holds it as long; a
+    state that claims the jitter was within its reference without a main tree, or says it
+    with another number than 0 or 1, is refused; a state saved before the record loads
+    with holds of `drop_after`."""
+    params = TCAFFParams(jitter_reference=0.15)
+    zs = [TRUTH[None]] * 30 + [EMPTY] * 250
+    a = TCAFF(params)
+    run(a, zs[:130])
+    a.save(tmp_path / "f.npz")
+    b = TCAFF.load(tmp_path / "f.npz")
+    assert b.params == params
+    assert last_reported(run(a, zs[130:])) == last_reported(run(b, zs[130:])) == 100
+    state = TCAFF(params)
+    run(state, zs[:130])
+    saved = state.state_dict()
+    assert int(saved["drift_as_assumed"]) == 1
+    older = TCAFF(params)
+    older.load_state_dict({k: v for k, v in saved.items() if k != "drift_as_assumed"})
+    # 100 steps unmeasured, past drop_after: dropped at its next step
+    assert older.update(EMPTY, np.empty((0, 3, 3))) is None and older.held is None
+    for bad in (2, -1):
+        with pytest.raises(DataError, match=r"drift_as_assumed = -?\d must be 0 or 1"):
+            TCAFF(params).load_state_dict(dict(saved, drift_as_assumed=np.array(bad)))
+    empty = TCAFF(params)
+    empty.update(EMPTY, np.empty((0, 3, 3)))
+    with pytest.raises(DataError, match="0 without a main tree"):
+        TCAFF(params).load_state_dict(dict(empty.state_dict(), drift_as_assumed=np.array(1)))
+
+
 def test_report_after_hides_a_quiet_main_tree_that_a_measurement_then_revives():
     """Unreported after `report_after` empty steps, the main tree is still held until
     `drop_after`; a measurement within that time brings the same hypothesis back."""
