@@ -104,12 +104,13 @@ class TCAFFParams(_ByValue):
             measurement for `drop_after` steps ("best_path"), or (released code, "window")
             when the best path's whole window has been empty for more than `drop_after`
             consecutive steps.
-        hold_for: with `drop_rule` "best_path" and a `jitter_reference`, a main tree whose
-            jitter was within the reference at its last measurement (its consecutive
-            registrations moved no more than the odometries' assumed drift explains) is
-            held, and reported, until its best path has held no measurement for this many
-            steps instead of `drop_after`, where that is longer: its covariance grows by
-            `held_Q`, which that drift is. None, or without a reference: `drop_after`.
+        hold_for: with `drop_rule` "best_path", a `held_Q` and a `jitter_reference`, a main
+            tree whose own measurements' jitter was within the reference at its last
+            measurement (its consecutive registrations moved no more than the odometries'
+            assumed drift explains) is held, and reported, until its best path has held no
+            measurement for this many steps instead of `drop_after`, where that is longer:
+            its covariance grows by `held_Q`, which that drift is. None, or without either:
+            `drop_after`.
         held_Q: (d, d) growth per step of a held leaf's covariance once it has gone W steps
             without a measurement (the first W steps grow it by Q): by then its error is the
             odometries' drift since its last measurements, which Q, sized to gate and

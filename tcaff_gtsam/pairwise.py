@@ -51,8 +51,10 @@ def feeding(aligner: FrameAlignerParams, tcaff: TCAFFParams) -> FrameAlignerPara
 def fed_by(tcaff: TCAFFParams, aligner: FrameAlignerParams) -> TCAFFParams:
     """`tcaff` for a filter of `aligner`'s candidates where the aligner's covariance counts the
     error consecutive registrations share (calibrated, `repeat_inflation` > 0): with the
-    aligner's `jitter_reference`, and for (x, y, theta) a `held_Q` of its `map_drift` over one
-    second, diag(d_t^2, d_t^2, d_theta^2), each where the filter names none.
+    aligner's `jitter_reference` where the filter names none; and for (x, y, theta), where the
+    filter holds by the drift (`hold_for`) and has a reference to judge the drift by, a
+    `held_Q` of the aligner's `map_drift` over one second, diag(d_t^2, d_t^2, d_theta^2),
+    where it names none.
 
     Raises:
         ConfigError: tcaff not a TCAFFParams or aligner not a FrameAlignerParams.
@@ -64,7 +66,8 @@ def fed_by(tcaff: TCAFFParams, aligner: FrameAlignerParams) -> TCAFFParams:
         return tcaff
     if tcaff.jitter_reference is None and aligner.jitter_reference is not None:
         tcaff = replace(tcaff, jitter_reference=aligner.jitter_reference)
-    if tcaff.held_Q is None and tcaff.dim == 3:
+    if (tcaff.held_Q is None and tcaff.dim == 3 and tcaff.hold_for is not None
+            and tcaff.jitter_reference is not None):
         d_t, d_theta = aligner.map_drift
         if d_t > 0 and d_theta > 0:  # a covariance must be positive definite
             tcaff = replace(tcaff, held_Q=np.diag([d_t**2, d_t**2, d_theta**2]))

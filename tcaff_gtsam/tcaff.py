@@ -168,10 +168,10 @@ class TCAFF(EvidenceRules, FilterState):
         # (step accepted, hypothesis) of a main tree accepted early whose path does not hold
         # what its complete window will be judged by (`_settle_provisional`)
         self._provisional: tuple[int, int] | None = None
-        # (step, d' (R_a + R_b)^-1 d / d_dim) of consecutive measurements of the main
-        # hypothesis over the last `jitter_span` steps, and (step, hypothesis, z, R) of the
+        # (step, d' (R_a + R_b)^-1 d / d_dim, hypothesis) of consecutive measurements of the
+        # main hypothesis over the last `jitter_span` steps, and (step, hypothesis, z, R) of the
         # latest measurement the main hypothesis took (`jitter_reference`)
-        self._jitter: deque[tuple[int, float]] = deque()
+        self._jitter: deque[tuple[int, float, int]] = deque()
         self._last_taken: tuple[int, int, np.ndarray, np.ndarray] | None = None
         # whether the jitter was within `jitter_reference` at the main hypothesis's latest
         # measurement (`hold_for`)
@@ -314,7 +314,8 @@ class TCAFF(EvidenceRules, FilterState):
         if prm.jitter_reference is not None:
             self._record_jitter(zs, Rs)
             if self._estimate is not None and self._estimate.measurement >= 0:
-                self._drift_as_assumed = bool(self._jitter) and self._jitter_scale() <= 1.0
+                own = self._jitter_scale(self.hypothesis)
+                self._drift_as_assumed = own is not None and own <= 1.0
         self._held = self._jittered(self._estimate)
         self._estimate = self._reported(self._held)
         if self._estimate is not None:
@@ -571,7 +572,8 @@ class TCAFF(EvidenceRules, FilterState):
                 value = float(distance) / prm.dim
                 # beyond the cap (and for a distance that overflows) the two disagree wildly,
                 # which is all the record needs to say
-                jitter.append((self.step, value if value <= JITTER_CAP else JITTER_CAP))
+                jitter.append((self.step, value if value <= JITTER_CAP else JITTER_CAP,
+                               estimate.hypothesis))
             self._last_taken = (self.step, estimate.hypothesis, z.copy(), R.copy())
         while jitter and jitter[0][0] <= self.step - prm.jitter_span:
             jitter.popleft()
@@ -579,20 +581,21 @@ class TCAFF(EvidenceRules, FilterState):
     def _jittered(self, estimate: AlignmentEstimate | None) -> AlignmentEstimate | None:
         """`estimate` with its covariance scaled by the jitter over `jitter_reference` where
         that is more than 1."""
-        if estimate is None or not self._jitter or self.params.jitter_reference is None:
+        if estimate is None or self.params.jitter_reference is None:
             return estimate
         scale = self._jitter_scale()
-        if scale <= 1.0:
+        if scale is None or scale <= 1.0:
             return estimate
         largest = float(np.abs(estimate.P).max())
         if scale * largest > _LARGEST_ENTRY:
             scale = max(1.0, _LARGEST_ENTRY / largest)
         return replace(estimate, P=estimate.P * scale)
 
-    def _jitter_scale(self) -> float:
-        """The mean jitter recorded over `jitter_reference` (records and a reference needed)."""
-        jitter = self._jitter
-        return sum(value for _, value in jitter) / (len(jitter) * self.params.jitter_reference)
+    def _jitter_scale(self, hypothesis: int | None = None) -> float | None:
+        """The mean jitter recorded (of `hypothesis`'s measurements only, when given) over
+        `jitter_reference` (which must be set); None without such records."""
+        values = [value for _, value, of in self._jitter if hypothesis is None or of == hypothesis]
+        return sum(values) / (len(values) * self.params.jitter_reference) if values else None
 
     def _consistent(self, leaves: Leaves, other: Leaves) -> np.ndarray:
         """(L,) whether each leaf's state agrees with the single leaf `other`'s (Mahalanobis
@@ -658,7 +661,7 @@ class TCAFF(EvidenceRules, FilterState):
         best = int(np.argmin(main.cost))
         if prm.drop_rule == "best_path":
             limit = prm.drop_after
-            if prm.hold_for is not None and self._drift_as_assumed:
+            if prm.hold_for is not None and prm.held_Q is not None and self._drift_as_assumed:
                 limit = max(limit, prm.hold_for)
             return bool(main.since[best] >= limit)
         return self._empty_windows > prm.drop_after

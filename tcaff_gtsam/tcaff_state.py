@@ -87,8 +87,9 @@ class FilterState:
             state["silent_switch"] = np.array(self._silent_switch, dtype=np.int64)
         if self._provisional is not None:
             state["provisional"] = np.array(self._provisional, dtype=np.int64)
-        state["jitter.steps"] = np.array([k for k, _ in self._jitter], dtype=np.int64)
-        state["jitter.values"] = np.array([v for _, v in self._jitter], dtype=np.float64)
+        state["jitter.steps"] = np.array([k for k, _, _ in self._jitter], dtype=np.int64)
+        state["jitter.values"] = np.array([v for _, v, _ in self._jitter], dtype=np.float64)
+        state["jitter.hypotheses"] = np.array([h for _, _, h in self._jitter], dtype=np.int64)
         if self._last_taken is not None:
             step, hypothesis, z, R = self._last_taken
             state["jitter.last"] = np.array([step, hypothesis], dtype=np.int64)
@@ -223,7 +224,9 @@ class FilterState:
             self._dormant, self._dormant_age, self._dormant_peak = dormant
             self._peak, self._reclaiming, self._returning = peak, bool(reclaiming), returning
             self._highest_reported = highest_reported
-            self._drift_as_assumed = bool(drift_as_assumed)
+            # (a filter without a reference keeps no record of the drift either)
+            self._drift_as_assumed = (bool(drift_as_assumed)
+                                      and self.params.jitter_reference is not None)
             self._silent_switch, self._provisional = silent_switch, provisional
             # a filter without a reference keeps no record (it would never trim one)
             self._jitter, self._last_taken = ((jitter, last_taken)
@@ -406,7 +409,15 @@ class FilterState:
         if bad.size:
             raise DataError(f"TCAFF state: jitter.values[{bad[0]}] = {values[bad[0]]!r} is not "
                             f"a jitter the filter records (in [0, {JITTER_CAP:g}])")
-        jitter = deque(zip(steps.tolist(), values.tolist(), strict=True))
+        # whose measurements each value is of: absent from states saved before (-1, none's)
+        of = (_state_array(state["jitter.hypotheses"], "jitter.hypotheses", np.int64)
+              if "jitter.hypotheses" in state else np.full(steps.shape, -1, np.int64))
+        if of.shape != steps.shape or np.any(of < -1) or np.any(of == 0) or np.any(
+                of > counters["hypothesis"]):
+            raise DataError(f"TCAFF state: jitter.hypotheses must hold one hypothesis id in "
+                            f"[1, {counters['hypothesis']}] per value of jitter.values; got "
+                            f"{of.tolist()[:8]}")
+        jitter = deque(zip(steps.tolist(), values.tolist(), of.tolist(), strict=True))
         if "jitter.last" not in state:
             return jitter, None
         last = _state_array(state["jitter.last"], "jitter.last", np.int64)

@@ -408,7 +408,8 @@ def test_counted_and_evidence_of_refuse_malformed_arguments():
 
 def test_the_pairs_filter_grows_a_held_estimate_by_its_aligners_map_drift():
     """`fed_by` gives the filter held_Q = the map drift over one second where the aligner's
-    covariance is calibrated and the filter names none; never a singular one."""
+    covariance is calibrated, the filter holds by the drift with a reference to judge it by,
+    and names none; never a singular one."""
     d_t, d_theta = FrameAlignerParams().map_drift
     np.testing.assert_allclose(PairwiseAligner().filter.params.held_Q,
                                np.diag([d_t**2, d_t**2, d_theta**2]))
@@ -417,5 +418,7 @@ def test_the_pairs_filter_grows_a_held_estimate_by_its_aligners_map_drift():
                                   own)
     for aligner, tcaff in [(FrameAlignerParams(covariance="residual"), TCAFFParams()),
                            (FrameAlignerParams(map_drift=(0.0, 0.01)), TCAFFParams()),
-                           (FrameAlignerParams.reference(), TCAFFParams.reference())]:
+                           (FrameAlignerParams.reference(), TCAFFParams.reference()),
+                           (FrameAlignerParams(), TCAFFParams.paper()),
+                           (FrameAlignerParams(jitter_reference=None), TCAFFParams())]:
         assert fed_by(tcaff, aligner).held_Q is None

@@ -107,6 +107,7 @@ def test_default_drops_the_main_tree_after_drop_after_steps_without_measurement(
 
 TRUTH = np.array([4.0, -1.0, 0.7])
 EMPTY = np.empty((0, 3))
+HELD_Q = np.diag([1e-4, 1e-4, 2e-5])
 
 
 def last_reported(estimates) -> int:
@@ -118,7 +119,7 @@ def test_a_held_estimate_grows_by_Q_for_W_steps_then_by_held_Q():
     """Unmeasured, the main tree's covariance grows by Q for W steps, then by held_Q (None:
     by Q throughout, the paper's); with a jitter reference, only while the jitter was within
     it."""
-    held_Q = np.diag([1e-4, 1e-4, 2e-5])
+    held_Q = HELD_Q
     zs = [TRUTH[None]] * 20 + [EMPTY] * 30
     Q, W = TCAFFParams().Q, TCAFFParams().window
     for params, growth in [(TCAFFParams(held_Q=held_Q), lambda k: min(k, W) * Q
@@ -139,18 +140,21 @@ def test_a_held_estimate_grows_by_Q_for_W_steps_then_by_held_Q():
 
 
 @pytest.mark.parametrize(("params", "held"), [
-    (TCAFFParams(jitter_reference=0.15), 200),  # the jitter was 0: held for hold_for
-    (TCAFFParams(jitter_reference=0.15, hold_for=120), 120),
-    (TCAFFParams(jitter_reference=0.15, hold_for=None), 40),
-    (TCAFFParams(jitter_reference=0.15, hold_for=10), 40),  # never shorter than drop_after
-    (TCAFFParams(), 40),  # no reference: no evidence of the drift
+    # the jitter was 0: held for hold_for
+    (TCAFFParams(jitter_reference=0.15, held_Q=HELD_Q), 200),
+    (TCAFFParams(jitter_reference=0.15, held_Q=HELD_Q, hold_for=120), 120),
+    (TCAFFParams(jitter_reference=0.15, held_Q=HELD_Q, hold_for=None), 40),
+    # never shorter than drop_after
+    (TCAFFParams(jitter_reference=0.15, held_Q=HELD_Q, hold_for=10), 40),
+    (TCAFFParams(held_Q=HELD_Q), 40),  # no reference: no evidence of the drift
+    (TCAFFParams(jitter_reference=0.15), 40),  # no held_Q: a long hold would grow by Q
 ])
 def test_a_main_tree_is_held_for_hold_for_steps_only_while_its_jitter_was_within_reference(
         params, held):
     """The same measurement for 30 steps (a jitter of 0), then nothing: the main tree is
     reported until `hold_for` steps after its last measurement where the filter has a jitter
-    reference, else until `drop_after`. Measurements that move between steps by more than
-    their R explains (a jitter of about 0.4) are held for `drop_after` only."""
+    reference and a held_Q, else until `drop_after`. Measurements that move between steps by
+    more than their R explains (a jitter of about 0.4) are held for `drop_after` only."""
     filt = TCAFF(params)
     assert last_reported(run(filt, [TRUTH[None]] * 30 + [EMPTY] * 250)) == 30 + held
     assert filt.estimate is None and filt.held is None
@@ -164,7 +168,7 @@ def test_a_long_hold_survives_save_and_load_and_a_tampered_one_is_refused(tmp_pa
     state that claims the jitter was within its reference without a main tree, or says it
     with another number than 0 or 1, is refused; a state saved before the record loads
     with holds of `drop_after`."""
-    params = TCAFFParams(jitter_reference=0.15)
+    params = TCAFFParams(jitter_reference=0.15, held_Q=HELD_Q)
     zs = [TRUTH[None]] * 30 + [EMPTY] * 250
     a = TCAFF(params)
     run(a, zs[:130])
@@ -187,6 +191,24 @@ def test_a_long_hold_survives_save_and_load_and_a_tampered_one_is_refused(tmp_pa
     empty.update(EMPTY, np.empty((0, 3, 3)))
     with pytest.raises(DataError, match="0 without a main tree"):
         TCAFF(params).load_state_dict(dict(empty.state_dict(), drift_as_assumed=np.array(1)))
+    # a filter without a reference keeps no record of the drift, loaded or not
+    plain = TCAFF(TCAFFParams(held_Q=HELD_Q))
+    plain.load_state_dict(saved)
+    assert plain.update(EMPTY, np.empty((0, 3, 3))) is None
+
+
+def test_a_newcomer_is_held_long_only_on_its_own_measurements():
+    """The truth, measured alike at every step (a jitter of 0), is replaced by a far decoy
+    seen every other step, 1.2 m apart between its sightings, which never gives a jitter of
+    its own: the truth's record does not let the decoy be held past `drop_after`."""
+    decoy, shift = TRUTH + np.array([20.0, -15.0, 2.0]), np.array([0.6, 0.0, 0.03])
+    zs = ([TRUTH[None]] * 30
+          + [(decoy + (shift if t % 4 else -shift))[None] if t % 2 == 0 else EMPTY
+             for t in range(30)]
+          + [EMPTY] * 250)
+    estimates = run(TCAFF(TCAFFParams(jitter_reference=0.15, held_Q=HELD_Q)), zs)
+    assert estimates[50] is not None and not np.allclose(estimates[50].x, TRUTH, atol=5.0)
+    assert last_reported(estimates) == 58 + 1 + 40  # its last sighting at step 58 (0-based)
 
 
 def test_report_after_hides_a_quiet_main_tree_that_a_measurement_then_revives():

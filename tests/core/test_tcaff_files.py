@@ -155,6 +155,8 @@ def _first(key: str, value):
     (_first("jitter.steps", 1), "jitter.steps must increase within the last"),
     (_first("jitter.values", -1.0), r"jitter.values\[0\] = .*-1.0.* is not a jitter"),
     (_first("jitter.values", np.nan), r"jitter.values\[0\] = .*nan.* is not a jitter"),
+    (_first("jitter.hypotheses", 0), "jitter.hypotheses must hold one hypothesis id"),
+    (_first("jitter.hypotheses", 10**6), "jitter.hypotheses must hold one hypothesis id"),
     # a finite value beyond what the filter records would scale P to inf
     (_first("jitter.values", 1e308), r"jitter.values\[0\] = .*1e\+308.* is not a jitter"),
     (lambda s: s.__setitem__("jitter.values", s["jitter.values"][1:]),
@@ -236,7 +238,7 @@ def test_measurements_far_apart_record_a_capped_jitter_and_a_finite_covariance()
     z = filt.held.x[None]
     filt.update(z, np.broadcast_to(R_CONSTANT, (1, 3, 3)))
     assert filt.held.measurement == 0
-    assert filt._jitter[-1] == (filt.step, JITTER_CAP)
+    assert filt._jitter[-1] == (filt.step, JITTER_CAP, filt.hypothesis)
     assert np.all(np.isfinite(filt.held.P)) and np.all(np.linalg.eigvalsh(filt.held.P) > 0)
     TCAFF(params).load_state_dict(filt.state_dict())
 
