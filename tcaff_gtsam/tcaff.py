@@ -121,7 +121,8 @@ class TCAFF(EvidenceRules, FilterState):
         # a step without any measurement says nothing about which alignment is right
         self._empty_step_model = (replace(self._model, no_measurement_cost=0.0)
                                   if prm.neutral_empty_steps else self._model)
-        # the same two, for a main tree held while the drift is as assumed (`held_Q`)
+        # the same two (indexed by whether the step is empty), for a main tree held while the
+        # drift is as assumed (`held_Q`)
         self._drift_models = tuple(replace(model, held_Q=prm.held_Q, held_after=prm.window)
                                    for model in (self._model, self._empty_step_model))
         self._columns = prm.window + 2
@@ -259,13 +260,14 @@ class TCAFF(EvidenceRules, FilterState):
             self._drop_main()
         elif self._dormant is not None:
             self._age_dormant()
-        model = self._model if zs.shape[0] else self._empty_step_model
+        empty = zs.shape[0] == 0
+        model = self._empty_step_model if empty else self._model
         if self._main is not None:
             silent = bool(self._main.since[np.argmin(self._main.cost)] >= prm.window)
             drifting = prm.held_Q is not None and (prm.jitter_reference is None
                                                    or self._drift_as_assumed)
             self._main = extend(self._main, zs, Rs,
-                                self._drift_models[zs.shape[0] == 0] if drifting else model,
+                                self._drift_models[empty] if drifting else model,
                                 prm.max_children,
                                 lambda cost, choice, _: self._main_keep(cost, choice))
             if self._main.since[np.argmin(self._main.cost)] == 0:

@@ -31,3 +31,8 @@ def errors(estimates, truth):
 def first_estimate(estimates) -> int | None:
     """1-based update number of the first estimate."""
     return next((i + 1 for i, est in enumerate(estimates) if est is not None), None)
+
+
+def last_estimate(estimates) -> int:
+    """1-based update number of the last estimate (there must be one)."""
+    return max(i + 1 for i, est in enumerate(estimates) if est is not None)

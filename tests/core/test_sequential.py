@@ -273,7 +273,8 @@ def test_the_highest_reported_id_survives_save_and_load():
     for filt, ids in [(a, first_id), (b, first_id), (older, {int(state["hypothesis"]) + 1})]:
         assert {est.hypothesis for est in feed(filt, zs[back + 2:])} == ids
     too_high = dict(state, highest_reported=state["hypothesis"] + 1)
-    with pytest.raises(DataError, match="highest_reported = 3 is above"):
+    with pytest.raises(DataError, match=f"highest_reported = {int(state['hypothesis']) + 1} is "
+                                        f"above"):
         TCAFF().load_state_dict(too_high)
 
 

@@ -7,7 +7,15 @@ import logging
 import numpy as np
 import pytest
 from tcaff_gtsam.eval.sim.streams import alignment_stream, wrong_alignments
-from tcaff_streams import R_CONSTANT, R_HONEST, SLOW_DRIFT, errors, first_estimate, run
+from tcaff_streams import (
+    R_CONSTANT,
+    R_HONEST,
+    SLOW_DRIFT,
+    errors,
+    first_estimate,
+    last_estimate,
+    run,
+)
 
 from tcaff_gtsam import TCAFF, TCAFFParams
 from tcaff_gtsam.errors import ConfigError, DataError, TcaffError
@@ -87,7 +95,7 @@ def test_reference_deletes_the_main_tree_after_40_empty_windows():
     stream = alignment_stream(np.random.default_rng(3), 30, p_empty=0.0, outliers=(0, 0))
     zs = stream.zs + [np.empty((0, 3))] * 100
     estimates = run(TCAFF(TCAFFParams.reference()), zs)
-    last = max(i + 1 for i, est in enumerate(estimates) if est is not None)
+    last = last_estimate(estimates)
     # The window holds step 30 until step 30 + W - 1; from step 30 + W on it is empty. As in
     # the released code the count of empty windows must exceed 40 (at step 30 + W + 40) before
     # the tree is deleted, at the start of the next step.
@@ -100,8 +108,7 @@ def test_default_drops_the_main_tree_after_drop_after_steps_without_measurement(
     zs = stream.zs + [np.empty((0, 3))] * 60
     filt = TCAFF(TCAFFParams(drop_after=25))
     estimates = run(filt, zs)
-    last = max(i + 1 for i, est in enumerate(estimates) if est is not None)
-    assert last == 30 + 25
+    assert last_estimate(estimates) == 30 + 25
     assert filt.estimate is None
 
 
@@ -110,20 +117,14 @@ EMPTY = np.empty((0, 3))
 HELD_Q = np.diag([1e-4, 1e-4, 2e-5])
 
 
-def last_reported(estimates) -> int:
-    """1-based update number of the last estimate."""
-    return max(i + 1 for i, est in enumerate(estimates) if est is not None)
-
-
 def test_a_held_estimate_grows_by_Q_for_W_steps_then_by_held_Q():
     """Unmeasured, the main tree's covariance grows by Q for W steps, then by held_Q (None:
     by Q throughout, the paper's); with a jitter reference, only while the jitter was within
     it."""
-    held_Q = HELD_Q
     zs = [TRUTH[None]] * 20 + [EMPTY] * 30
     Q, W = TCAFFParams().Q, TCAFFParams().window
-    for params, growth in [(TCAFFParams(held_Q=held_Q), lambda k: min(k, W) * Q
-                            + max(0, k - W) * held_Q),
+    for params, growth in [(TCAFFParams(held_Q=HELD_Q), lambda k: min(k, W) * Q
+                            + max(0, k - W) * HELD_Q),
                            (TCAFFParams(), lambda k: k * Q)]:
         estimates = run(TCAFF(params), zs)
         measured = estimates[19]
@@ -134,7 +135,7 @@ def test_a_held_estimate_grows_by_Q_for_W_steps_then_by_held_Q():
     shift = np.array([0.4, 0.0, 0.02])
     jumpy = [(TRUTH + (shift if t % 2 else -shift))[None] for t in range(20)] + [EMPTY] * 30
     held, plain = (run(TCAFF(TCAFFParams(jitter_reference=0.15, held_Q=q)), jumpy)
-                   for q in (held_Q, None))
+                   for q in (HELD_Q, None))
     for a, b in zip(held[20:], plain[20:], strict=True):
         np.testing.assert_array_equal(a.P, b.P)
 
@@ -156,11 +157,11 @@ def test_a_main_tree_is_held_for_hold_for_steps_only_while_its_jitter_was_within
     reference and a held_Q, else until `drop_after`. Measurements that move between steps by
     more than their R explains (a jitter of about 0.4) are held for `drop_after` only."""
     filt = TCAFF(params)
-    assert last_reported(run(filt, [TRUTH[None]] * 30 + [EMPTY] * 250)) == 30 + held
+    assert last_estimate(run(filt, [TRUTH[None]] * 30 + [EMPTY] * 250)) == 30 + held
     assert filt.estimate is None and filt.held is None
     shift = np.array([0.4, 0.0, 0.02])
     jumpy = [(TRUTH + (shift if t % 2 else -shift))[None] for t in range(30)]
-    assert last_reported(run(TCAFF(params), jumpy + [EMPTY] * 250)) == 30 + 40
+    assert last_estimate(run(TCAFF(params), jumpy + [EMPTY] * 250)) == 30 + 40
 
 
 def test_a_long_hold_survives_save_and_load_and_a_tampered_one_is_refused(tmp_path):
@@ -175,7 +176,7 @@ def test_a_long_hold_survives_save_and_load_and_a_tampered_one_is_refused(tmp_pa
     a.save(tmp_path / "f.npz")
     b = TCAFF.load(tmp_path / "f.npz")
     assert b.params == params
-    assert last_reported(run(a, zs[130:])) == last_reported(run(b, zs[130:])) == 100
+    assert last_estimate(run(a, zs[130:])) == last_estimate(run(b, zs[130:])) == 100
     state = TCAFF(params)
     run(state, zs[:130])
     saved = state.state_dict()
@@ -208,7 +209,7 @@ def test_a_newcomer_is_held_long_only_on_its_own_measurements():
           + [EMPTY] * 250)
     estimates = run(TCAFF(TCAFFParams(jitter_reference=0.15, held_Q=HELD_Q)), zs)
     assert estimates[50] is not None and not np.allclose(estimates[50].x, TRUTH, atol=5.0)
-    assert last_reported(estimates) == 58 + 1 + 40  # its last sighting at step 58 (0-based)
+    assert last_estimate(estimates) == 58 + 1 + 40  # its last sighting at step 58 (0-based)
 
 
 def test_report_after_hides_a_quiet_main_tree_that_a_measurement_then_revives():
@@ -218,8 +219,8 @@ def test_report_after_hides_a_quiet_main_tree_that_a_measurement_then_revives():
     quiet = [np.empty((0, 3))] * 20
     filt = TCAFF(TCAFFParams(drop_after=50, report_after=10))
     estimates = run(filt, stream.zs + quiet + [stream.zs[-1]])
-    last = max(i + 1 for i, est in enumerate(estimates[:-1]) if est is not None)
-    assert last == 30 + 9  # reported while the best path's last measurement is < 10 steps old
+    # reported while the best path's last measurement is < 10 steps old
+    assert last_estimate(estimates[:-1]) == 30 + 9
     assert filt.held is not None and estimates[-1] is not None
     assert estimates[-1].hypothesis == estimates[29].hypothesis
     assert estimates[-1].measurement == 0
