@@ -67,6 +67,11 @@ and prints one row per data set (seeds pooled) and model:
             took a measurement of the same hypothesis (d the difference of the two
             measurements): what `TCAFFParams.jitter_reference` compares
 
+--lost P loses each pair's exchanges at random, with probability P (drawn from --lost-seed and
+the pair): a busy machine or a lossy link, where a node steps its filter only for the maps that
+arrive (docs/team.md, `--silence`). --every K exchanges maps every K seconds instead of every
+one. Lost or skipped exchanges count neither as overlap nor as estimates.
+
 Runs are built once and cached as pickles in --cache (delete it after changing the loaders or
 the simulator); the kitchen's maps take the mapping front end about 7 s a run. The default
 (all data sets, today's covariance) takes about 2 minutes on 2 cores, most of it MRCLAM with
@@ -74,6 +79,7 @@ the simulator); the kitchen's maps take the mapping front end about 7 s a run. T
 
     python scripts/bench_nees.py [--data mrclam kitchen sim] [--models today]
         [--seeds 3] [--sim-seeds 2] [--spans 20 150] [--workers 2] [--methods library]
+        [--lost 0.3] [--lost-seed 0] [--every 2]
 """
 
 from __future__ import annotations
@@ -321,12 +327,16 @@ def one_registration(R: np.ndarray, Q: np.ndarray, rho: float) -> np.ndarray:
     return L @ ((v * a[..., None, :]) @ np.swapaxes(v, -1, -2)) @ L.T
 
 
-def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
+def run_source(source: Source, model: str, methods: str, cache: Path, lost: float = 0.0,
+               lost_seed: int = 0, every: int = 1) -> dict:
     """Every directed pair of one run under one model: per estimate the error (n, 3), its P
     (n, 3, 3), its NEES and whether it is correct (as the evaluation scores them,
     `metrics.step_nees` and `step_errors` within `Thresholds`), and the NEES of the measurement
     it took against that measurement's own R and against its R_s (NaN for a held estimate);
-    counts of overlap steps, of those with an estimate and with a correct one."""
+    counts of overlap steps, of those with an estimate and with a correct one. With `lost` >
+    0 each pair's exchanges are lost at random at that rate (`lost_exchanges`, drawn with
+    `lost_seed`), and with `every` > 1 only every `every`-th is made (a slower exchange
+    rate): the pair skips the others, which count neither as overlap nor as estimates."""
     from tcaff_gtsam.precompile import compile_kernels
 
     compile_kernels()
@@ -351,22 +361,30 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
         truth = se2_to_params(T_true)
         shared = run.overlap(i, j)
         on = np.ones(steps, bool) if shared is None else np.asarray(shared, bool)
+        arrived = ~lost_exchanges(steps, lost, lost_seed, i, j)
+        arrived[np.arange(steps) % every != 0] = False
+        on = on & arrived
         x, z = np.full((steps, 3), np.nan), np.full((steps, 3), np.nan)
         P, R = np.full((steps, 3, 3), np.nan), np.full((steps, 3, 3), np.nan)
         hypothesis = np.full(steps, -1)
         for s, t in enumerate(run.times):
+            if not arrived[s]:
+                continue
             est = pair.update(float(t), run.maps[i][s], run.maps[j][s])
             if est is None or not np.all(np.isfinite(truth[s])):
                 continue
             x[s], P[s], hypothesis[s] = est.x, est.P, est.hypothesis
             if est.measurement >= 0:
                 z[s], R[s] = pair.taken[est.measurement].z, pair.taken[est.measurement].R
-        # the jitter of consecutive measurements of one hypothesis (`jitter_reference`)
-        pairs_on = np.flatnonzero(~np.isnan(z[1:, 0]) & ~np.isnan(z[:-1, 0])
-                                  & (hypothesis[1:] == hypothesis[:-1])) + 1
-        d = z[pairs_on] - z[pairs_on - 1]
+        # the jitter of measurements of one hypothesis at consecutive steps of the filter
+        # (the exchanges made: `jitter_reference`)
+        made = np.flatnonzero(arrived)
+        z_m, R_m, h_m = z[made], R[made], hypothesis[made]
+        pairs_on = np.flatnonzero(~np.isnan(z_m[1:, 0]) & ~np.isnan(z_m[:-1, 0])
+                                  & (h_m[1:] == h_m[:-1])) + 1
+        d = z_m[pairs_on] - z_m[pairs_on - 1]
         d[:, 2] = wrap_angle(d[:, 2])
-        jitter = np.einsum("ni,ni->n", d, np.linalg.solve(R[pairs_on] + R[pairs_on - 1],
+        jitter = np.einsum("ni,ni->n", d, np.linalg.solve(R_m[pairs_on] + R_m[pairs_on - 1],
                                                           d[..., None])[..., 0]) / 3
         has = ~np.isnan(x[:, 0])
         ok = limits.correct(step_errors(T_true[has], x[has]))
@@ -391,6 +409,15 @@ def run_source(source: Source, model: str, methods: str, cache: Path) -> dict:
     return {"group": source.group, "model": model, **joined,
             "overlap": overlap, "available": available, "correct": correct,
             "seconds": time.perf_counter() - start}
+
+
+def lost_exchanges(steps: int, share: float, seed: int, i: int, j: int) -> np.ndarray:
+    """(steps,) bool: the exchanges of directed pair (i, j) lost on a busy machine or a lossy
+    link, each at random with probability `share` (drawn from `seed` and the pair: every
+    model sees the same losses)."""
+    if share == 0:
+        return np.zeros(steps, bool)
+    return np.random.default_rng([seed, i, j]).random(steps) < share
 
 
 # -- the table ---------------------------------------------------------------------------------
@@ -509,9 +536,22 @@ def main() -> None:
     parser.add_argument("--spans", nargs="+", type=float, default=[20.0, 150.0],
                         help="MRCLAM map spans kappa, s")
     parser.add_argument("--workers", type=int, default=2, help="processes")
+    parser.add_argument("--lost", type=float, default=0.0,
+                        help="share of each pair's exchanges lost at random (a busy machine, "
+                        "a lossy link): the pair's filter skips those steps, which count "
+                        "neither as overlap nor as estimates")
+    parser.add_argument("--lost-seed", type=int, default=0,
+                        help="seed of the exchanges --lost loses")
+    parser.add_argument("--every", type=int, default=1,
+                        help="exchange maps every this many of the data's steps (1 s each): "
+                        "2 is an exchange every 2 s")
     parser.add_argument("--cache", type=Path, default=Path("results/bench_nees"),
                         help="folder of the cached runs")
     args = parser.parse_args()
+    if not 0.0 <= args.lost < 1.0:
+        parser.error(f"--lost must be in [0, 1), got {args.lost}")
+    if args.every < 1:
+        parser.error(f"--every must be at least 1, got {args.every}")
     todo = [(s, m) for s in sources(args.data, args.seeds, args.sim_seeds, args.scenarios,
                                     args.spans)
             for m in args.models]
@@ -521,8 +561,13 @@ def main() -> None:
     start = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         results = list(pool.map(run_source, *zip(*todo, strict=True),
-                                [args.methods] * len(todo), [args.cache] * len(todo)))
-    print(f"{len(todo)} runs in {time.perf_counter() - start:.0f} s ({args.methods} methods)")
+                                [args.methods] * len(todo), [args.cache] * len(todo),
+                                [args.lost] * len(todo), [args.lost_seed] * len(todo),
+                                [args.every] * len(todo)))
+    lost = (f", {args.lost:.0%} of the exchanges lost (seed {args.lost_seed})" if args.lost
+            else "") + (f", an exchange every {args.every} s" if args.every > 1 else "")
+    print(f"{len(todo)} runs in {time.perf_counter() - start:.0f} s ({args.methods} methods"
+          f"{lost})")
     print_table(results, args.models)
     seconds: dict[str, float] = {}
     for r in results:
