@@ -159,9 +159,10 @@ class TCAFFParams(_ByValue):
             first seen), confirmed this step or not. With `recall_for`, also
             within W steps of a measurement of a dormant hypothesis (`recall_for`). At every
             step, from a switch away from a main tree in a gap of its measurements (W steps
-            without one, or a return from such a gap not yet confirmed) until the hypothesis
-            switched to is measured at a later step: nothing contradicted the one it
-            replaced.
+            without one, or a return from such a gap not yet confirmed), or from the
+            window's acceptance of a hypothesis that contradicts the dormant one at a step
+            that did not measure it, until the hypothesis switched to (accepted) is measured
+            at a later step: nothing contradicted the one it replaced.
         lookalike_share: the distinct-evidence rules (`min_distinct`, `switch_stale`,
             `withhold_contested`, `switch_support`) read object ids only at steps whose two
             maps are of look-alikes: `PairwiseAligner` gives ids when at least this share of

@@ -163,8 +163,9 @@ class TCAFF(EvidenceRules, FilterState):
         # steps or more, until there are `early_measurements` of them (0: not in such a return)
         self._returning = 0
         # (step, hypothesis) of a switch away from a main tree in a gap of its measurements
-        # (or from one that so replaced it and was not measured since), until the hypothesis
-        # switched to is measured at a later step (`_contested`)
+        # (or from one that so replaced it and was not measured since), or of the window's
+        # acceptance of an unmeasured hypothesis over a dormant one it contradicts, until the
+        # hypothesis switched to is measured at a later step (`_contested`)
         self._silent_switch: tuple[int, int] | None = None
         # (step accepted, hypothesis) of a main tree accepted early whose path does not hold
         # what its complete window will be judged by (`_settle_provisional`)
@@ -288,6 +289,11 @@ class TCAFF(EvidenceRules, FilterState):
                 # a tree the window has just accepted is contested as any main tree is; the
                 # dormant hypothesis may take its place from its next measurement (`_recall`)
                 self._contest()
+                if (self._main.since[np.argmin(self._main.cost)] > 0
+                        and not self._consistent(self._main_best(), self._dormant)[0]):
+                    # accepted on its window alone, unmeasured now: nothing has contradicted
+                    # the dormant hypothesis since it fell silent
+                    self._silent_switch = (self.step, self.hypothesis)
             if self._main is None and prm.sequential:
                 self._accept_early()
         if self._provisional is not None:

@@ -72,7 +72,8 @@ class EvidenceRules:
         measurement this step while the rival holds more distinct evidence in the window (and
         at least `min_distinct` pieces; at a step without ids, only while that path holds
         fewer than `min_distinct`), or the dormant hypothesis was seen in the last W
-        steps (`_recall`), or the main tree replaced one in a gap of its measurements and has
+        steps (`_recall`), or the main tree replaced one in a gap of its measurements (or the
+        window accepted it, unmeasured, over the dormant hypothesis it contradicts) and has
         not been measured since the step it did (nothing contradicted the one it replaced:
         a decoy met while the robots were apart is not reported on its lead alone)."""
         if self._reclaiming or self._silent_switch is not None:
