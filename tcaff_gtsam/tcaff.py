@@ -559,8 +559,9 @@ class TCAFF(EvidenceRules, FilterState):
                 # left in a gap of its measurements, or before a return from one is
                 # confirmed, it is recallable as a dropped one is
                 self._keep_dormant(self._main.take([m]))
-            # replacing a main tree that itself replaced one in a gap and was not measured
-            # since: the one left in the gap is no more contradicted than before
+            # replacing a main tree that itself replaced one in a gap (or was accepted by its
+            # window, unmeasured, over the dormant one) and was not measured since: the one
+            # left in the gap is no more contradicted than before
             unconfirmed = self._silent_switch is not None
             self._accept(complete, best)
             if silent or unconfirmed:

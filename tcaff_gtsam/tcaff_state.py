@@ -368,7 +368,8 @@ class FilterState:
     def _main_mark_from(self, state: Mapping, counters: dict[str, int], key: str,
                         first: int) -> tuple[int, int] | None:
         """The (step, hypothesis) of `key`, a mark on the main tree (`silent_switch`: a
-        switch from a silent main tree not yet confirmed; `provisional`: an early acceptance
+        switch from a silent main tree, or the window's acceptance of an unmeasured hypothesis
+        over the dormant one, not yet confirmed; `provisional`: an early acceptance
         not yet settled), or None (absent from states saved before it was recorded); a
         DataError unless it is of the current main tree, at a step in [first, the
         state's]."""
