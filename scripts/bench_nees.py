@@ -67,10 +67,11 @@ and prints one row per data set (seeds pooled) and model:
             took a measurement of the same hypothesis (d the difference of the two
             measurements): what `TCAFFParams.jitter_reference` compares
 
---lost P loses each pair's exchanges at random, with probability P (drawn from --lost-seed and
-the pair): a busy machine or a lossy link, where a node steps its filter only for the maps that
-arrive (docs/team.md, `--silence`). --every K exchanges maps every K seconds instead of every
-one. Lost or skipped exchanges count neither as overlap nor as estimates.
+--lost P loses each robot's maps at random, with probability P (drawn from --lost-seed, the
+robot and the exchange, as a team node's --drop-share draws them): a busy machine or a lossy
+link, where a node steps its filter only for the maps that arrive (docs/team.md,
+`--silence`). --every K exchanges maps every K seconds instead of every one. Lost or skipped
+exchanges count neither as overlap nor as estimates.
 
 Runs are built once and cached as pickles in --cache (delete it after changing the loaders or
 the simulator); the kitchen's maps take the mapping front end about 7 s a run. The default
@@ -334,7 +335,7 @@ def run_source(source: Source, model: str, methods: str, cache: Path, lost: floa
     `metrics.step_nees` and `step_errors` within `Thresholds`), and the NEES of the measurement
     it took against that measurement's own R and against its R_s (NaN for a held estimate);
     counts of overlap steps, of those with an estimate and with a correct one. With `lost` >
-    0 each pair's exchanges are lost at random at that rate (`lost_exchanges`, drawn with
+    0 the other robot's maps are lost at random at that rate (`lost_exchanges`, drawn with
     `lost_seed`), and with `every` > 1 only every `every`-th is made (a slower exchange
     rate): the pair skips the others, which count neither as overlap nor as estimates."""
     from tcaff_gtsam.precompile import compile_kernels
@@ -361,7 +362,7 @@ def run_source(source: Source, model: str, methods: str, cache: Path, lost: floa
         truth = se2_to_params(T_true)
         shared = run.overlap(i, j)
         on = np.ones(steps, bool) if shared is None else np.asarray(shared, bool)
-        arrived = ~lost_exchanges(steps, lost, lost_seed, i, j)
+        arrived = ~lost_exchanges(steps, lost, lost_seed, j)
         arrived[np.arange(steps) % every != 0] = False
         on = on & arrived
         x, z = np.full((steps, 3), np.nan), np.full((steps, 3), np.nan)
@@ -411,13 +412,16 @@ def run_source(source: Source, model: str, methods: str, cache: Path, lost: floa
             "seconds": time.perf_counter() - start}
 
 
-def lost_exchanges(steps: int, share: float, seed: int, i: int, j: int) -> np.ndarray:
-    """(steps,) bool: the exchanges of directed pair (i, j) lost on a busy machine or a lossy
-    link, each at random with probability `share` (drawn from `seed` and the pair: every
-    model sees the same losses)."""
+def lost_exchanges(steps: int, share: float, seed: int, j: int) -> np.ndarray:
+    """(steps,) bool: the exchanges at which robot j's map is lost on a busy machine or a
+    lossy link, each with probability `share`, drawn as a team node draws its losses
+    (`NodeParams.drop_share`: fixed by the seed, the sender and the exchange, so every model
+    and every robot receiving j's maps sees the same losses)."""
+    from tcaff_gtsam.node.node import _draw
+
     if share == 0:
         return np.zeros(steps, bool)
-    return np.random.default_rng([seed, i, j]).random(steps) < share
+    return np.array([_draw(seed, str(j), s) < share for s in range(steps)])
 
 
 # -- the table ---------------------------------------------------------------------------------
@@ -537,9 +541,10 @@ def main() -> None:
                         help="MRCLAM map spans kappa, s")
     parser.add_argument("--workers", type=int, default=2, help="processes")
     parser.add_argument("--lost", type=float, default=0.0,
-                        help="share of each pair's exchanges lost at random (a busy machine, "
-                        "a lossy link): the pair's filter skips those steps, which count "
-                        "neither as overlap nor as estimates")
+                        help="share of each robot's maps lost at random (a busy machine, a "
+                        "lossy link, as a team node's --drop-share): a pair's filter skips "
+                        "the steps whose other map is lost, which count neither as overlap "
+                        "nor as estimates")
     parser.add_argument("--lost-seed", type=int, default=0,
                         help="seed of the exchanges --lost loses")
     parser.add_argument("--every", type=int, default=1,

@@ -289,8 +289,8 @@ class TCAFF(EvidenceRules, FilterState):
                 # a tree the window has just accepted is contested as any main tree is; the
                 # dormant hypothesis may take its place from its next measurement (`_recall`)
                 self._contest()
-                if (self._main.since[np.argmin(self._main.cost)] > 0
-                        and not self._consistent(self._main_best(), self._dormant)[0]):
+                best = self._main_best()
+                if best.since[0] > 0 and not self._consistent(best, self._dormant)[0]:
                     # accepted on its window alone, unmeasured now: nothing has contradicted
                     # the dormant hypothesis since it fell silent
                     self._silent_switch = (self.step, self.hypothesis)
