@@ -279,12 +279,33 @@ def test_a_guided_search_near_the_truth_finds_the_full_searchs_best_candidate(
            and confirms(full[0].z, held, aligner.params))
     assert guided
     if aligner.guided_misses:
+        # held at the truth itself the guided clique always confirms the hold
+        assert (dx, dy, dtheta_deg) != (0.0, 0.0, 0.0)
         assert [m.z.tolist() for m in guided] == [m.z.tolist() for m in full]
         return
     assert all(confirms(m.z, held, aligner.params) for m in guided)
     (dt_full, dtheta_full), (dt, dtheta) = (se2_error(T_true, m.T) for m in (full[0], guided[0]))
     assert dt < dt_full + 0.2 and np.degrees(dtheta - dtheta_full) < 0.5
     assert guided[0].inliers >= full[0].inliers - 2
+
+
+@settings(max_examples=10, deadline=None)
+@given(x=st.floats(-10, 10), y=st.floats(-10, 10), theta=st.floats(-np.pi, np.pi))
+def test_a_guided_search_finds_the_held_one_of_a_grids_symmetric_alignments(x, y, theta):
+    """A 3 x 3 grid fits four turns of itself equally well, and the full search returns some
+    of them; held at one, the guided search searches only the pairs that agree with it and
+    returns that one alone, without falling back to a full search. (A guided flag that is
+    ignored returns the full search's, which need not hold it; one that always misses counts
+    a miss.)"""
+    T_true = se2_from_params([x, y, theta])
+    pair = grid_maps(3, 3, T_oi_oj=T_true)
+    aligner = FrameAligner(FrameAlignerParams(guide_radius=1.5))
+    held = se2_to_params(T_true)
+    guided = aligner.measurements(pair.ego, pair.other, pair.now, held=held, guided=True)
+    assert aligner.guided_misses == 0
+    assert len(guided) == 1 and confirms(guided[0].z, held, aligner.params)
+    dt, dtheta = se2_error(T_true, guided[0].T)
+    assert dt < 0.05 and np.degrees(abs(dtheta)) < 0.5
 
 
 def test_a_guided_search_that_confirms_nothing_searches_in_full():
