@@ -2,7 +2,8 @@
 registration's residuals and geometry: `residual_covariance` (the weighted least-squares
 sandwich) and `calibrated_covariance` (the frame aligner's default: that, with its point noise
 pooled with a prior, the odometries' drift over the map's span, and an inflation for a filter
-that registers the same objects every step)."""
+that registers the same objects every step); and `held_drift`, how an alignment held without
+registrations drifts per second."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from .inputs import real_array, shown
 from .params import _alignment_process_noise, _finite, _spd
 from .registration import MAX_COORDINATE, MAX_WEIGHT
 
-__all__ = ["calibrated_covariance", "residual_covariance"]
+__all__ = ["calibrated_covariance", "held_drift", "residual_covariance"]
 
 
 def residual_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weights: np.ndarray,
@@ -236,3 +237,50 @@ def _calibrated_covariance(T_i_j: np.ndarray, p: np.ndarray, q: np.ndarray, weig
         if eig[0] < least:
             R = R + (least - eig[0]) * np.eye(3)
     return R
+
+
+def held_drift(x, ego_point, other_point, map_drift) -> np.ndarray:
+    """(3, 3) growth per second of the covariance of an alignment x = (x [m], y [m],
+    theta [rad]) of T_oi_oj held without registrations, by the odometries' drift.
+
+    `map_drift` (d_t, d_theta) is the pair's walk per square root of a second (both robots'
+    together, as `FrameAlignerParams.map_drift`): d_t^2 in each translation axis, and the
+    heading's d_theta^2 shared equally by the two robots, each turning about where it is. Robot
+    j's frame turning by a about its point p_j (`other_point`, in o_j) moves x by
+    a (u_y, -u_x, 1), u = R(theta) p_j; robot i's turning about p_i (`ego_point`, in o_i) by
+    a (v_y, -v_x, 1), v = p_i - t. Far from its frame's origin a robot's heading walk moves
+    the alignment's translation by the lever |u| or |v| times the turn, which a diagonal
+    growth leaves out. Where the robots stand at one place (p_i = T_oi_oj p_j) the two levers
+    are one, the lever `calibrated_covariance` gives a registration's heading drift.
+
+    Args:
+        x: (3,) the held alignment; ego_point: (2,) metres in o_i; other_point: (2,) metres
+            in o_j.
+        map_drift: (d_t, d_theta), metres and radians per square root of a second.
+    Raises:
+        DataError: an array not real, not finite, of the wrong shape, or beyond
+            `registration.MAX_COORDINATE`; ConfigError: map_drift out of range.
+    """
+    o = "held_drift"
+    arrays = []
+    for name, value, size in (("x", x, 3), ("ego_point", ego_point, 2),
+                              ("other_point", other_point, 2)):
+        a = real_array(o, name, value)
+        if a.shape != (size,):
+            raise DataError(f"{o}: {name} must have shape ({size},), got {a.shape}")
+        if not (np.isfinite(a).all() and np.abs(a).max() <= MAX_COORDINATE):
+            raise DataError(f"{o}: {name} must be finite and within {MAX_COORDINATE:g} m "
+                            f"(registration.MAX_COORDINATE), got {shown(value)}")
+        arrays.append(a)
+    return _held_drift(*arrays, as_map_drift(o, map_drift))
+
+
+def _held_drift(x: np.ndarray, ego_point: np.ndarray, other_point: np.ndarray,
+                drift: tuple[float, float]) -> np.ndarray:
+    """`held_drift` of checked arguments."""
+    c, s = math.cos(x[2]), math.sin(x[2])
+    u = (c * other_point[0] - s * other_point[1], s * other_point[0] + c * other_point[1])
+    v = (ego_point[0] - x[0], ego_point[1] - x[1])
+    G = np.array([[u[1], -u[0], 1.0], [v[1], -v[0], 1.0]])
+    d_t, d_theta = drift
+    return d_t**2 * _PLANE + 0.5 * d_theta**2 * (G.T @ G)

@@ -7,16 +7,18 @@ from dataclasses import replace
 
 import numpy as np
 
+from .covariance import _held_drift
 from .errors import ConfigError, DataError
 from .frame_aligner import AlignmentMeasurement, FrameAligner, MapMemory, _confirms
 from .identities import ObjectIdentities, recent_ids
 from .inputs import finite_time, shown
 from .object_map import ObjectMap, as_object_map
+from .param_checks import MAX_COORDINATE
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
 __all__ = ["PairwiseAligner", "admitted", "counted", "evidence_of", "explained", "fed_by",
-           "feeding", "gives_ids", "guided_search", "unchecked"]
+           "feeding", "gives_ids", "guided_search", "held_growth", "unchecked"]
 
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
@@ -72,6 +74,50 @@ def fed_by(tcaff: TCAFFParams, aligner: FrameAlignerParams) -> TCAFFParams:
         if d_t > 0 and d_theta > 0:  # a covariance must be positive definite
             tcaff = replace(tcaff, held_Q=np.diag([d_t**2, d_t**2, d_theta**2]))
     return tcaff
+
+
+def held_growth(params: FrameAlignerParams, held: AlignmentEstimate | None, ego_map: ObjectMap,
+                other_map: ObjectMap, now: float) -> np.ndarray | None:
+    """(3, 3) this step's growth of a held alignment's covariance for a filter whose `held_Q`
+    is the aligner's `map_drift` over one second (`fed_by`): that drift with each robot's
+    heading turning about where the robot is now (`covariance.held_drift`), placed at the
+    centroid of its map's objects weighted by how recently each was seen, as a registration
+    weights them (1 / (weight_offset + age^2), age = now - last_seen in seconds). None when
+    there is no held alignment or a map is empty (the filter's own `held_Q` then).
+
+    Raises:
+        ConfigError: params not a FrameAlignerParams; DataError: held neither None nor an
+            AlignmentEstimate of (x, y, theta), a map that is not an ObjectMap, or now not a
+            finite number.
+    """
+    o = "held_growth"
+    _require(isinstance(params, FrameAlignerParams), o, "params", params,
+             "must be a FrameAlignerParams")
+    ego_map = as_object_map(o, "ego_map", ego_map)
+    other_map = as_object_map(o, "other_map", other_map)
+    now = finite_time(o, "now", now)
+    if held is not None and not (isinstance(held, AlignmentEstimate)
+                                 and isinstance(held.x, np.ndarray) and held.x.shape == (3,)
+                                 and held.x.dtype.kind in "iuf"
+                                 and np.all(np.abs(held.x) <= MAX_COORDINATE)):
+        raise DataError(f"{o}: held must be None or an AlignmentEstimate of an (x, y, theta) "
+                        f"within {MAX_COORDINATE:g} (MAX_COORDINATE), got {shown(held)}")
+    if held is None or len(ego_map) == 0 or len(other_map) == 0:
+        return None
+    ego_point, other_point = (_recent_centroid(m, now, params.weight_offset)
+                              for m in (ego_map, other_map))
+    return _held_drift(held.x, ego_point, other_point, params.map_drift)
+
+
+def _recent_centroid(objects: ObjectMap, now: float, offset: float) -> np.ndarray:
+    """(2,) the plane centroid of a map's objects weighted by 1 / (offset + age^2) (all
+    alike where every weight underflows)."""
+    with np.errstate(over="ignore"):
+        weights = 1.0 / (offset + objects.ages(now) ** 2)
+    total = weights.sum()
+    if not total > 0:
+        return objects.centroids[:, :2].mean(axis=0)
+    return weights @ objects.centroids[:, :2] / total
 
 
 def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | None,
@@ -253,6 +299,8 @@ class PairwiseAligner:
             FrameAlignerParams, aligner_params, "PairwiseAligner", "aligner_params"),
             tcaff_params))
         self.filter = TCAFF(fed_by(tcaff_params, self.aligner.params))
+        # a held_Q made of the aligner's map drift grows about where the robots are
+        self._held_by_map = tcaff_params.held_Q is None and self.filter.params.held_Q is not None
         self.measurements: list[AlignmentMeasurement] = []
         self.taken: list[AlignmentMeasurement] = []
         self._last_time: float | None = None
@@ -311,7 +359,9 @@ class PairwiseAligner:
             identities = tuple(copy.copy(each) for each in self._identities)
             ids = tuple(recent_ids(each, objects, t, prm.kappa) for each, objects
                         in zip(identities, (ego_map, other_map), strict=True))
-        estimate = self.filter.update(zs, Rs, evidence_of(kept, ids, only), objects)
+        growth = (held_growth(prm, self.filter.held, ego_map, other_map, t)
+                  if self._held_by_map else None)
+        estimate = self.filter.update(zs, Rs, evidence_of(kept, ids, only), objects, growth)
         # the step succeeded: only now does it count as taken
         self.measurements = measurements
         self.taken = kept

@@ -45,7 +45,12 @@ from .hypothesis_tree import (
 )
 from .params import TCAFFParams, _given_or_default
 from .tcaff_evidence import EvidenceRules
-from .tcaff_inputs import validated_evidence, validated_measurements, validated_objects
+from .tcaff_inputs import (
+    validated_evidence,
+    validated_held_Q,
+    validated_measurements,
+    validated_objects,
+)
 
 # write_snapshot is the module's for its callers (a node writes snapshots on another thread)
 from .tcaff_state import JITTER_CAP, FilterState, write_snapshot  # noqa: F401
@@ -216,7 +221,8 @@ class TCAFF(EvidenceRules, FilterState):
             return False
         return not bool(self._consistent(self._explore, self._main_best()).all())
 
-    def update(self, zs, Rs, evidence=None, objects=None) -> AlignmentEstimate | None:
+    def update(self, zs, Rs, evidence=None, objects=None, held_Q=None
+               ) -> AlignmentEstimate | None:
         """One step.
 
         Args:
@@ -232,14 +238,19 @@ class TCAFF(EvidenceRules, FilterState):
                 (`AlignmentMeasurement.inliers`). Each is worth `object_nats` per object
                 beyond `object_base` to a sequential acceptance (`TCAFFParams.sequential`);
                 None counts every measurement as `object_base` objects.
+            held_Q: None, or (d, d): this step's growth of a held leaf's covariance in place of
+                `params.held_Q` (which must be set), for a caller that knows where the
+                alignment's drift turns it (`PairwiseAligner`: `covariance.held_drift`).
         Returns:
             The estimate from the main tree's best leaf, or None while there is no main tree
             or it is not reported (`withhold_contested`, `report_after`; `held` has it).
         Raises:
-            DataError: wrong shapes, non-finite values, R not symmetric positive definite,
-                evidence or objects of the wrong length, shape or kind.
+            DataError: wrong shapes, non-finite values, R or held_Q not symmetric positive
+                definite, evidence or objects of the wrong length, shape or kind, held_Q for
+                a filter without a `held_Q` of its own.
         """
         zs, Rs = validated_measurements(zs, Rs, self.params)
+        held_Q = validated_held_Q(held_Q, self.params)
         evidence = validated_evidence(evidence, zs.shape[0])
         objects = validated_objects(objects, zs.shape[0])
         prm = self.params
@@ -267,9 +278,12 @@ class TCAFF(EvidenceRules, FilterState):
             silent = bool(self._main.since[np.argmin(self._main.cost)] >= prm.window)
             drifting = prm.held_Q is not None and (prm.jitter_reference is None
                                                    or self._drift_as_assumed)
-            self._main = extend(self._main, zs, Rs,
-                                self._drift_models[empty] if drifting else model,
-                                prm.max_children,
+            main_model = model
+            if drifting:
+                main_model = self._drift_models[empty]
+                if held_Q is not None:
+                    main_model = replace(main_model, held_Q=held_Q)
+            self._main = extend(self._main, zs, Rs, main_model, prm.max_children,
                                 lambda cost, choice, _: self._main_keep(cost, choice))
             if self._main.since[np.argmin(self._main.cost)] == 0:
                 returning = 1 if silent else self._returning + (self._returning > 0)

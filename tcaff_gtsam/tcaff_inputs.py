@@ -1,5 +1,5 @@
 """The checks of `TCAFF.update`'s arguments: measurements, their covariances, object-id
-evidence and object counts."""
+evidence, object counts and a step's growth of a held estimate."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from .param_checks import MAX_COORDINATE, MAX_VARIANCE
 from .params import TCAFFParams
 from .tcaff_state import _not_spd
 
-__all__ = ["validated_evidence", "validated_measurements", "validated_objects"]
+__all__ = ["validated_evidence", "validated_held_Q", "validated_measurements", "validated_objects"]
 
 
 def validated_measurements(zs, Rs, params: TCAFFParams) -> tuple[np.ndarray, np.ndarray]:
@@ -87,3 +87,23 @@ def validated_objects(objects, k: int) -> np.ndarray | None:
         raise DataError(f"TCAFF.update: objects must be whole counts in [0, 2**31), got "
                         f"{shown(objects)}")
     return arr.astype(np.int64)
+
+
+def validated_held_Q(held_Q, params: TCAFFParams) -> np.ndarray | None:
+    """`TCAFF.update`'s held_Q checked: None, or a real symmetric positive definite (d, d)
+    matrix within MAX_VARIANCE, given to a filter that holds by a `held_Q` of its own;
+    DataError naming the argument otherwise."""
+    if held_Q is None:
+        return None
+    d = params.dim
+    if params.held_Q is None:
+        raise DataError("TCAFF.update: held_Q was given, but the filter's params.held_Q is "
+                        "None: it grows a held estimate by Q alone")
+    M = real_array("TCAFF.update", "held_Q", held_Q)
+    if M.shape != (d, d):
+        raise DataError(f"TCAFF.update: held_Q must have shape ({d}, {d}), got {M.shape}")
+    check_within("TCAFF.update", "held_Q", M, MAX_VARIANCE)
+    bad = _not_spd(M[None])
+    if bad is not None:
+        raise DataError(f"TCAFF.update: held_Q is not {bad[1]}: {M.tolist()}")
+    return M

@@ -21,6 +21,7 @@ from tcaff_gtsam.pairwise import (
     feeding,
     gives_ids,
     guided_search,
+    held_growth,
     unchecked,
 )
 from tcaff_gtsam.precompile import compile_kernels
@@ -98,6 +99,8 @@ class SharedStages:
         tcaff_params = methods.tcaff_params(False, settings.window)
         self.checked = feeding(methods.aligner_params(settings.kappa), tcaff_params)
         self.tcaff_params = fed_by(tcaff_params, self.checked)
+        # a held_Q made of the aligner's map drift grows about where the robots are
+        self._held_by_map = tcaff_params.held_Q is None and self.tcaff_params.held_Q is not None
         self.aligner = FrameAligner(unchecked(self.checked))
         # checks beyond the residual need a search of their own; the residual alone filters
         # the unchecked candidates
@@ -171,8 +174,11 @@ class SharedStages:
                                      *self.setup.maps(p, self.s), self.t), objects)
             ids = None if only is None else tuple(self.object_ids(r)
                                                   for r in self.setup.pairs[p])
-            self._tcaff[p] = (self._filters[p].update(zs, Rs, evidence_of(kept, ids, only),
-                                                       objects), zs, Rs)
+            filt = self._filters[p]
+            growth = (held_growth(self.checked, filt.held, *self.setup.maps(p, self.s), self.t)
+                      if self._held_by_map else None)
+            self._tcaff[p] = (filt.update(zs, Rs, evidence_of(kept, ids, only), objects,
+                                          growth), zs, Rs)
             self._steps[p] += [self.s] * len(zs)
             self._z[p] += list(zs)
             self.seconds["tcaff"] += time.perf_counter() - start
