@@ -283,4 +283,12 @@ def _held_drift(x: np.ndarray, ego_point: np.ndarray, other_point: np.ndarray,
     v = (ego_point[0] - x[0], ego_point[1] - x[1])
     G = np.array([[u[1], -u[0], 1.0], [v[1], -v[0], 1.0]])
     d_t, d_theta = drift
-    return d_t**2 * _PLANE + 0.5 * d_theta**2 * (G.T @ G)
+    growth = d_t**2 * _PLANE + 0.5 * d_theta**2 * (G.T @ G)
+    # far from the origins with little translation drift the levers leave a direction grown
+    # too little to pass for positive definite: lifted, as a calibrated R is, to 1e-9 of the
+    # largest growth, which claims only less
+    eig = np.linalg.eigvalsh(growth)
+    least = _MAX_CONDITION_INVERSE * eig[-1]
+    if eig[0] < least:
+        growth = growth + (least - eig[0]) * np.eye(3)
+    return growth

@@ -121,7 +121,7 @@ class TCAFFParams(_ByValue):
             drifts faster than assumed: Q). `PairwiseAligner` gives its filter the aligner's
             `map_drift` over one second unless the filter names its own, and at each step that
             drift with each robot's heading turning about where the robot is
-            (`pairwise.held_growth`, `TCAFF.update`'s held_Q). None: Q throughout.
+            (`pairwise.HeldDrift`, `TCAFF.update`'s held_Q). None: Q throughout.
         switch_after: while a main tree exists, switch to an exploring hypothesis that is
             inconsistent with it (Mahalanobis test at `gate_probability`), below tau, and
             better by `switch_margin` nats for this many consecutive steps. None never re-checks

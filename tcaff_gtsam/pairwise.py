@@ -17,8 +17,8 @@ from .param_checks import MAX_COORDINATE
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .tcaff import TCAFF, AlignmentEstimate
 
-__all__ = ["PairwiseAligner", "admitted", "counted", "evidence_of", "explained", "fed_by",
-           "feeding", "gives_ids", "guided_search", "held_growth", "unchecked"]
+__all__ = ["HeldDrift", "PairwiseAligner", "admitted", "counted", "evidence_of", "explained",
+           "fed_by", "feeding", "gives_ids", "guided_search", "unchecked"]
 
 
 def unchecked(params: FrameAlignerParams) -> FrameAlignerParams:
@@ -68,56 +68,86 @@ def fed_by(tcaff: TCAFFParams, aligner: FrameAlignerParams) -> TCAFFParams:
         return tcaff
     if tcaff.jitter_reference is None and aligner.jitter_reference is not None:
         tcaff = replace(tcaff, jitter_reference=aligner.jitter_reference)
+    held_Q = _map_drift_per_second(aligner)
     if (tcaff.held_Q is None and tcaff.dim == 3 and tcaff.hold_for is not None
-            and tcaff.jitter_reference is not None):
-        d_t, d_theta = aligner.map_drift
-        if d_t > 0 and d_theta > 0:  # a covariance must be positive definite
-            tcaff = replace(tcaff, held_Q=np.diag([d_t**2, d_t**2, d_theta**2]))
+            and tcaff.jitter_reference is not None and held_Q is not None):
+        tcaff = replace(tcaff, held_Q=held_Q)
     return tcaff
 
 
-def held_growth(params: FrameAlignerParams, held: AlignmentEstimate | None, ego_map: ObjectMap,
-                other_map: ObjectMap, now: float) -> np.ndarray | None:
-    """(3, 3) this step's growth of a held alignment's covariance for a filter whose `held_Q`
-    is the aligner's `map_drift` over one second (`fed_by`): that drift with each robot's
-    heading turning about where the robot is now (`covariance.held_drift`), placed at the
-    centroid of its map's objects weighted by how recently each was seen, as a registration
-    weights them (1 / (weight_offset + age^2), age = now - last_seen in seconds). None when
-    there is no held alignment or a map is empty (the filter's own `held_Q` then).
+def _map_drift_per_second(aligner: FrameAlignerParams) -> np.ndarray | None:
+    """diag(d_t^2, d_t^2, d_theta^2) of the aligner's `map_drift`, or None where a part is 0
+    (a covariance must be positive definite)."""
+    d_t, d_theta = aligner.map_drift
+    return np.diag([d_t**2, d_t**2, d_theta**2]) if d_t > 0 and d_theta > 0 else None
 
-    Raises:
-        ConfigError: params not a FrameAlignerParams; DataError: held neither None nor an
-            AlignmentEstimate of (x, y, theta), a map that is not an ObjectMap, or now not a
-            finite number.
+
+class HeldDrift:
+    """Where a pair's two robots were last seen, and the growth of its held alignment's
+    covariance about them: the aligner's `map_drift` over one second with each robot's heading
+    turning about where the robot is (`covariance.held_drift`), for a filter whose `held_Q` is
+    that drift's diagonal (`fed_by`'s; other filters keep their own). A robot is placed at the
+    centroid of its map's objects weighted by how recently each was seen,
+    1 / (weight_offset + age^2), age = now - last_seen in seconds (a registration weights an
+    association 1 / (weight_offset + age_i age_j)); an empty map, as on a silent step, leaves
+    the robot where it was last seen.
     """
-    o = "held_growth"
-    _require(isinstance(params, FrameAlignerParams), o, "params", params,
-             "must be a FrameAlignerParams")
-    ego_map = as_object_map(o, "ego_map", ego_map)
-    other_map = as_object_map(o, "other_map", other_map)
-    now = finite_time(o, "now", now)
-    if held is not None and not (isinstance(held, AlignmentEstimate)
-                                 and isinstance(held.x, np.ndarray) and held.x.shape == (3,)
-                                 and held.x.dtype.kind in "iuf"
-                                 and np.all(np.abs(held.x) <= MAX_COORDINATE)):
-        raise DataError(f"{o}: held must be None or an AlignmentEstimate of an (x, y, theta) "
-                        f"within {MAX_COORDINATE:g} (MAX_COORDINATE), got {shown(held)}")
-    if held is None or len(ego_map) == 0 or len(other_map) == 0:
-        return None
-    ego_point, other_point = (_recent_centroid(m, now, params.weight_offset)
-                              for m in (ego_map, other_map))
-    return _held_drift(held.x, ego_point, other_point, params.map_drift)
+
+    def __init__(self, aligner: FrameAlignerParams, tcaff: TCAFFParams) -> None:
+        """For a pair of `aligner` and a filter of `tcaff` (as `fed_by` gave it).
+
+        Raises:
+            ConfigError: aligner not a FrameAlignerParams or tcaff not a TCAFFParams.
+        """
+        _require(isinstance(aligner, FrameAlignerParams), "HeldDrift", "aligner", aligner,
+                 "must be a FrameAlignerParams")
+        _require(isinstance(tcaff, TCAFFParams), "HeldDrift", "tcaff", tcaff,
+                 "must be a TCAFFParams")
+        self.params = aligner
+        drift = _map_drift_per_second(aligner)
+        #: whether the filter's held_Q is the map drift's diagonal, which this replaces
+        self.applies = (tcaff.held_Q is not None and drift is not None
+                        and np.array_equal(tcaff.held_Q, drift))
+        #: (2,) where robot i was last seen, in o_i, and robot j, in o_j (None: not yet)
+        self.points: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+
+    def growth(self, held: AlignmentEstimate | None, ego_map: ObjectMap, other_map: ObjectMap,
+               now: float) -> np.ndarray | None:
+        """(3, 3) this step's growth of the held alignment's covariance (`TCAFF.update`'s
+        held_Q), having placed each robot by its map; None where it does not apply, without a
+        held alignment, or before both robots were seen.
+
+        Raises:
+            DataError: held neither None nor an AlignmentEstimate of an (x, y, theta) within
+                MAX_COORDINATE, a map that is not an ObjectMap, or now not a finite number.
+        """
+        o = "HeldDrift.growth"
+        maps = (as_object_map(o, "ego_map", ego_map), as_object_map(o, "other_map", other_map))
+        now = finite_time(o, "now", now)
+        if held is not None and not (isinstance(held, AlignmentEstimate)
+                                     and isinstance(held.x, np.ndarray)
+                                     and held.x.shape == (3,) and held.x.dtype.kind in "iuf"
+                                     and np.all(np.abs(held.x) <= MAX_COORDINATE)):
+            raise DataError(f"{o}: held must be None or an AlignmentEstimate of an (x, y, "
+                            f"theta) within {MAX_COORDINATE:g} (MAX_COORDINATE), got "
+                            f"{shown(held)}")
+        offset = self.params.weight_offset
+        self.points = tuple(_recent_centroid(m, now, offset) if len(m) else last
+                            for m, last in zip(maps, self.points, strict=True))
+        if not self.applies or held is None or self.points[0] is None or self.points[1] is None:
+            return None
+        return _held_drift(held.x, *self.points, self.params.map_drift)
 
 
 def _recent_centroid(objects: ObjectMap, now: float, offset: float) -> np.ndarray:
-    """(2,) the plane centroid of a map's objects weighted by 1 / (offset + age^2) (all
-    alike where every weight underflows)."""
-    with np.errstate(over="ignore"):
+    """(2,) the plane centroid of a map's objects (at least one) weighted by
+    1 / (offset + age^2); where weights overflow, of the objects seen at `now`."""
+    with np.errstate(over="ignore", divide="ignore"):
         weights = 1.0 / (offset + objects.ages(now) ** 2)
-    total = weights.sum()
-    if not total > 0:
-        return objects.centroids[:, :2].mean(axis=0)
-    return weights @ objects.centroids[:, :2] / total
+    if not np.all(np.isfinite(weights)):
+        weights = np.isinf(weights).astype(float)
+    weights = weights / weights.max() if weights.max() > 0 else np.ones(len(objects))
+    return weights @ objects.centroids[:, :2] / weights.sum()
 
 
 def admitted(found: list[AlignmentMeasurement], estimate: AlignmentEstimate | None,
@@ -299,8 +329,7 @@ class PairwiseAligner:
             FrameAlignerParams, aligner_params, "PairwiseAligner", "aligner_params"),
             tcaff_params))
         self.filter = TCAFF(fed_by(tcaff_params, self.aligner.params))
-        # a held_Q made of the aligner's map drift grows about where the robots are
-        self._held_by_map = tcaff_params.held_Q is None and self.filter.params.held_Q is not None
+        self._held_drift = HeldDrift(self.aligner.params, self.filter.params)
         self.measurements: list[AlignmentMeasurement] = []
         self.taken: list[AlignmentMeasurement] = []
         self._last_time: float | None = None
@@ -359,8 +388,9 @@ class PairwiseAligner:
             identities = tuple(copy.copy(each) for each in self._identities)
             ids = tuple(recent_ids(each, objects, t, prm.kappa) for each, objects
                         in zip(identities, (ego_map, other_map), strict=True))
-        growth = (held_growth(prm, self.filter.held, ego_map, other_map, t)
-                  if self._held_by_map else None)
+        # placed on a copy, kept as the identities are once the filter has taken the step
+        held_drift = copy.copy(self._held_drift)
+        growth = held_drift.growth(self.filter.held, ego_map, other_map, t)
         estimate = self.filter.update(zs, Rs, evidence_of(kept, ids, only), objects, growth)
         # the step succeeded: only now does it count as taken
         self.measurements = measurements
@@ -368,6 +398,7 @@ class PairwiseAligner:
         ego_memory.add(t, ego_map)
         other_memory.add(t, other_map)
         self._identities = identities
+        self._held_drift = held_drift
         self._last_time = t
         self.guided = guided
         self._since_full = self._since_full + 1 if guided else 0

@@ -239,15 +239,15 @@ class TCAFF(EvidenceRules, FilterState):
                 beyond `object_base` to a sequential acceptance (`TCAFFParams.sequential`);
                 None counts every measurement as `object_base` objects.
             held_Q: None, or (d, d): this step's growth of a held leaf's covariance in place of
-                `params.held_Q` (which must be set), for a caller that knows where the
-                alignment's drift turns it (`PairwiseAligner`: `covariance.held_drift`).
+                `params.held_Q` (which must not be None), for a caller that knows where the
+                alignment's drift turns it (`PairwiseAligner`: `pairwise.HeldDrift`).
         Returns:
             The estimate from the main tree's best leaf, or None while there is no main tree
             or it is not reported (`withhold_contested`, `report_after`; `held` has it).
         Raises:
             DataError: wrong shapes, non-finite values, R or held_Q not symmetric positive
                 definite, evidence or objects of the wrong length, shape or kind, held_Q for
-                a filter without a `held_Q` of its own.
+                a filter whose `params.held_Q` is None.
         """
         zs, Rs = validated_measurements(zs, Rs, self.params)
         held_Q = validated_held_Q(held_Q, self.params)

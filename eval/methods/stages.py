@@ -13,6 +13,7 @@ from tcaff_gtsam.geometry import se2_to_params
 from tcaff_gtsam.identities import ObjectIdentities, recent_ids
 from tcaff_gtsam.object_map import ObjectMap
 from tcaff_gtsam.pairwise import (
+    HeldDrift,
     admitted,
     counted,
     evidence_of,
@@ -21,7 +22,6 @@ from tcaff_gtsam.pairwise import (
     feeding,
     gives_ids,
     guided_search,
-    held_growth,
     unchecked,
 )
 from tcaff_gtsam.precompile import compile_kernels
@@ -99,8 +99,7 @@ class SharedStages:
         tcaff_params = methods.tcaff_params(False, settings.window)
         self.checked = feeding(methods.aligner_params(settings.kappa), tcaff_params)
         self.tcaff_params = fed_by(tcaff_params, self.checked)
-        # a held_Q made of the aligner's map drift grows about where the robots are
-        self._held_by_map = tcaff_params.held_Q is None and self.tcaff_params.held_Q is not None
+        self._held_drift = [HeldDrift(self.checked, self.tcaff_params) for _ in setup.pairs]
         self.aligner = FrameAligner(unchecked(self.checked))
         # checks beyond the residual need a search of their own; the residual alone filters
         # the unchecked candidates
@@ -175,8 +174,7 @@ class SharedStages:
             ids = None if only is None else tuple(self.object_ids(r)
                                                   for r in self.setup.pairs[p])
             filt = self._filters[p]
-            growth = (held_growth(self.checked, filt.held, *self.setup.maps(p, self.s), self.t)
-                      if self._held_by_map else None)
+            growth = self._held_drift[p].growth(filt.held, *self.setup.maps(p, self.s), self.t)
             self._tcaff[p] = (filt.update(zs, Rs, evidence_of(kept, ids, only), objects,
                                           growth), zs, Rs)
             self._steps[p] += [self.s] * len(zs)

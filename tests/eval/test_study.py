@@ -405,6 +405,41 @@ def test_the_studys_tcaff_stage_estimates_what_a_pair_aligner_does():
     assert reported > 0 and provisional > 0
 
 
+def test_the_studys_tcaff_stage_holds_as_a_pair_aligner_does():
+    """Where a pair's alignment is held past W steps without a registration (indoor_return's
+    seed 0 from step 93), the stage grows it as `PairwiseAligner` does, about where the robots
+    are (`pairwise.HeldDrift`): the same estimates and covariances at every step, and held
+    steps that grew by more than the map drift's diagonal."""
+    from tcaff_gtsam.eval.methods.stages import RunSetup, SharedStages
+    from tcaff_gtsam.eval.sim.simulate import simulate
+
+    from tcaff_gtsam import PairwiseAligner
+
+    run = simulate(load_scenario("indoor_return"), 0)
+    setup = RunSetup.of(run)
+    stages = SharedStages(setup, load_methods("tcaff_only"))
+    aligners = [PairwiseAligner(stages.checked, stages.tcaff_params) for _ in setup.pairs]
+    diagonal = stages.tcaff_params.held_Q
+    lever = 0
+    for s, t in enumerate(run.times[:110]):
+        stages.begin(s, float(t))
+        for p, (i, j) in enumerate(setup.pairs):
+            before = aligners[p].filter.held
+            stages.tcaff(p)
+            staged = stages._filters[p].held
+            aligners[p].update(float(t), run.maps[i][s], run.maps[j][s])
+            paired = aligners[p].filter.held
+            assert (staged is None) == (paired is None), (s, p)
+            if staged is None:
+                continue
+            np.testing.assert_array_equal(staged.x, paired.x)
+            np.testing.assert_array_equal(staged.P, paired.P)
+            if before is not None and before.n_measurements == 0 == paired.n_measurements:
+                grown = paired.P - before.P
+                lever += not np.allclose(grown, diagonal, rtol=1e-3, atol=0.0)
+    assert lever > 0
+
+
 def test_the_studys_tcaff_runs_as_a_pair_aligner_does():
     """The study's TCAFF stage gives each pair's filter what `PairwiseAligner` gives its own:
     the aligner's jitter reference, so the covariances it scores are the library's."""
