@@ -15,6 +15,7 @@ from .inputs import finite_time, shown
 from .object_map import ObjectMap, as_object_map
 from .param_checks import MAX_COORDINATE
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
+from .registration import _weights
 from .tcaff import TCAFF, AlignmentEstimate
 
 __all__ = ["HeldDrift", "PairwiseAligner", "admitted", "counted", "evidence_of", "explained",
@@ -140,10 +141,12 @@ class HeldDrift:
 
 
 def _recent_centroid(objects: ObjectMap, now: float, offset: float) -> np.ndarray:
-    """(2,) the plane centroid of a map's objects (at least one) weighted by
-    1 / (offset + age^2); where weights overflow, of the objects seen at `now`."""
+    """(2,) the plane centroid of a map's objects (at least one), each weighted as a
+    registration weights an object it pairs with itself (`registration.arun_weights`:
+    1 / (offset + age^2)); where weights overflow, of the objects seen at `now`."""
+    ages = objects.ages(now)
     with np.errstate(over="ignore", divide="ignore"):
-        weights = 1.0 / (offset + objects.ages(now) ** 2)
+        weights = _weights(ages * ages, offset)
     if not np.all(np.isfinite(weights)):
         weights = np.isinf(weights).astype(float)
     weights = weights / weights.max() if weights.max() > 0 else np.ones(len(objects))

@@ -12,7 +12,7 @@ from tcaff_gtsam.eval.sim.maps import overlapping_maps
 from tcaff_gtsam import TCAFF, FrameAlignerParams, ObjectMap, PairwiseAligner, TCAFFParams
 from tcaff_gtsam.covariance import held_drift
 from tcaff_gtsam.errors import ConfigError, DataError
-from tcaff_gtsam.geometry import se2_from_params, se2_to_params
+from tcaff_gtsam.geometry import compose, se2_from_params, se2_to_params, wrap_angle
 from tcaff_gtsam.pairwise import HeldDrift, fed_by
 from tcaff_gtsam.tcaff import AlignmentEstimate
 
@@ -21,11 +21,8 @@ coordinate = st.floats(-60, 60)
 
 def turned_about(point: np.ndarray, angle: float) -> np.ndarray:
     """(3, 3) the SE(2) turn by `angle` about `point` (2,)."""
-    c, s = np.cos(angle), np.sin(angle)
-    R = np.array([[c, -s], [s, c]])
-    T = np.eye(3)
-    T[:2, :2], T[:2, 2] = R, point - R @ point
-    return T
+    return compose(se2_from_params([*point, 0.0]), se2_from_params([0.0, 0.0, angle]),
+                   se2_from_params([*-point, 0.0]))
 
 
 def turn_direction(T: np.ndarray, left: bool, point: np.ndarray) -> np.ndarray:
@@ -37,7 +34,7 @@ def turn_direction(T: np.ndarray, left: bool, point: np.ndarray) -> np.ndarray:
         D = turned_about(point, a)
         moved.append(se2_to_params(D @ T if left else T @ np.linalg.inv(D)))
     step = moved[0] - moved[1]
-    step[2] = (step[2] + np.pi) % (2 * np.pi) - np.pi
+    step[2] = wrap_angle(step[2])
     return step / (2 * h)
 
 
