@@ -116,7 +116,10 @@ class HypothesisFactors:
         horizon meanwhile are dropped); the pair's alignment is then read through the others.
 
         Args:
-            estimate: what `TCAFF.update(zs, Rs)` returned for this step.
+            estimate: what `TCAFF.update(zs, Rs)` returned for this step (of a
+                `PairwiseAligner`, its `filter.estimate`: the estimate `update` returns may
+                cover the twins of a map that fits itself, `twins.Twins`, which the cycle
+                check would then let through with the candidate's own R).
             zs: (k, 3) the candidates given to TCAFF; Rs: (k, 3, 3) their covariances.
         """
         if not self._planar:

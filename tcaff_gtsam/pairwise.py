@@ -17,6 +17,7 @@ from .param_checks import MAX_COORDINATE
 from .params import FrameAlignerParams, TCAFFParams, _given_or_default, _require
 from .registration import _weights
 from .tcaff import TCAFF, AlignmentEstimate
+from .twins import Twins
 
 __all__ = ["HeldDrift", "PairwiseAligner", "admitted", "counted", "evidence_of", "explained",
            "fed_by", "feeding", "gives_ids", "guided_search", "unchecked"]
@@ -308,7 +309,8 @@ class PairwiseAligner:
         measurements: the candidates of the latest step (ambiguous ones included).
         taken: those of them the filter was given (`admitted`), in the order it was given
             them: the latest estimate's `measurement` indexes this list (for
-            `InterRobotGraph.add_tcaff_estimate`).
+            `InterRobotGraph.add_tcaff_estimate`, with the filter's own estimate,
+            `filter.estimate`: the graph weighs the candidate, which no twin widens).
         guided: whether the latest step's search was guided by the held alignment
             (`guided_search`; the aligner still searched in full when nothing guided
             confirmed the hold).
@@ -333,6 +335,7 @@ class PairwiseAligner:
             tcaff_params))
         self.filter = TCAFF(fed_by(tcaff_params, self.aligner.params))
         self._held_drift = HeldDrift(self.aligner.params, self.filter.params)
+        self._twins = Twins(self.aligner.params, self.filter.params.window)
         self.measurements: list[AlignmentMeasurement] = []
         self.taken: list[AlignmentMeasurement] = []
         self._last_time: float | None = None
@@ -355,7 +358,9 @@ class PairwiseAligner:
             t: seconds, the current time on the maps' `last_seen` clock; increasing.
             ego_map: robot i's map in its odometry frame; other_map: robot j's in its own.
         Returns:
-            The TCAFF estimate of T_oi_oj, or None while no hypothesis has been accepted.
+            The TCAFF estimate of T_oi_oj, or None while no hypothesis has been accepted; its
+            covariance covers the twins of a map that has fitted itself over the window
+            (`twins.Twins`).
         Raises:
             DataError: t not a finite number (a string, None, an array, NaN) or not later than
                 the previous step's; a map that is not an ObjectMap; or maps the aligner
@@ -395,6 +400,8 @@ class PairwiseAligner:
         held_drift = copy.copy(self._held_drift)
         growth = held_drift.growth(self.filter.held, ego_map, other_map, t)
         estimate = self.filter.update(zs, Rs, evidence_of(kept, ids, only), objects, growth)
+        twins = copy.copy(self._twins)
+        estimate = twins.update(estimate, kept, ego_map, other_map, t)
         # the step succeeded: only now does it count as taken
         self.measurements = measurements
         self.taken = kept
@@ -402,6 +409,7 @@ class PairwiseAligner:
         other_memory.add(t, other_map)
         self._identities = identities
         self._held_drift = held_drift
+        self._twins = twins
         self._last_time = t
         self.guided = guided
         self._since_full = self._since_full + 1 if guided else 0

@@ -1,12 +1,12 @@
 """Compile the core's numba kernels into their on-disk cache: `python -m tcaff_gtsam.precompile`.
 
 The kernels (consistency graph, MNO-CLIPPER, mutual inliers, the ranking of look-alike pairs
-and of the partial-view rule's, the TCAFF hypothesis trees) are compiled with `cache=True`: the
-machine code is written next to each module (in its `__pycache__`, or numba's user cache when
-that is not writable) and loaded by later processes. The first process to use them otherwise
-pays the compilation, seconds, on its first alignment step; `make install` runs this once so
-that no user process does. Source changes are noticed by numba, which compiles again on the
-next call.
+and of the partial-view rule's, the TCAFF hypothesis trees, a map's fits of itself) are
+compiled with `cache=True`: the machine code is written next to each module (in its
+`__pycache__`, or numba's user cache when that is not writable) and loaded by later processes.
+The first process to use them otherwise pays the compilation, seconds, on its first alignment
+step; `make install` runs this once so that no user process does. Source changes are noticed
+by numba, which compiles again on the next call.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from .association import _neighbourhood_pairs, _partial_pairs_kept, neighbourhoo
 from .hypothesis_tree import best_per_tree, mahalanobis_to, not_positive_definite
 from .object_map import ObjectMap
 from .pairwise import PairwiseAligner
+from .twins import self_motions
 
 __all__ = ["compile_kernels"]
 
@@ -42,9 +43,9 @@ def compile_kernels() -> float:
     """Run the default and the reference pair aligner through a few steps (every kernel of the
     alignment path: graph, MNO-CLIPPER, the TCAFF filter), prune a large hypothesis tree, rank
     the pairs of look-alike maps past the association cap and those of the partial-view
-    rule, and score their neighbourhoods' agreement, so that each kernel is compiled, or
-    loaded from the cache. The kernels are
-    given writeable arrays only (`inputs.kernel_array`), the ones compiled here.
+    rule, score their neighbourhoods' agreement, and fit a map to itself, so that each kernel
+    is compiled, or loaded from the cache. The kernels are given writeable arrays only
+    (`inputs.kernel_array`), the ones compiled here.
 
     Returns:
         seconds taken.
@@ -68,6 +69,8 @@ def compile_kernels() -> float:
     # the partial-view rule's pairs of maps of many objects: each object's best pair
     _partial_pairs_kept(np.ones((12, 12), bool), np.eye(12, dtype=bool), xy, xy, np.zeros(12),
                         np.zeros(12), 0.25)
+    # a map's objects fitting the map itself turned (an alignment's twins)
+    self_motions(xy[:4], xy, np.ones((4, 12), bool), 0.3, (1.0, 0.1))
     return time.perf_counter() - start
 
 

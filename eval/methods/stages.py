@@ -26,6 +26,7 @@ from tcaff_gtsam.pairwise import (
 )
 from tcaff_gtsam.precompile import compile_kernels
 from tcaff_gtsam.tcaff import TCAFF, AlignmentEstimate
+from tcaff_gtsam.twins import Twins
 
 from ..config import MethodsConfig
 from ..runs import AlignmentRun, directed_pairs
@@ -100,6 +101,7 @@ class SharedStages:
         self.checked = feeding(methods.aligner_params(settings.kappa), tcaff_params)
         self.tcaff_params = fed_by(tcaff_params, self.checked)
         self._held_drift = [HeldDrift(self.checked, self.tcaff_params) for _ in setup.pairs]
+        self._twins = [Twins(self.checked, self.tcaff_params.window) for _ in setup.pairs]
         self.aligner = FrameAligner(unchecked(self.checked))
         # checks beyond the residual need a search of their own; the residual alone filters
         # the unchecked candidates
@@ -113,6 +115,7 @@ class SharedStages:
         self.s, self.t = -1, 0.0
         self._candidates: dict[int, list[AlignmentMeasurement]] = {}
         self._tcaff: dict[int, tuple[AlignmentEstimate | None, np.ndarray, np.ndarray]] = {}
+        self._filtered: dict[int, AlignmentEstimate | None] = {}
         n = setup.run.n_robots
         self._memory = [MapMemory.of(self.checked) for _ in range(n)]
         self._identities = [ObjectIdentities() for _ in range(n)]
@@ -127,6 +130,7 @@ class SharedStages:
         self.s, self.t = s, t
         self._candidates.clear()
         self._tcaff.clear()
+        self._filtered.clear()
         self._ids.clear()
 
     def seconds_total(self) -> float:
@@ -158,7 +162,8 @@ class SharedStages:
         return found
 
     def tcaff(self, p: int) -> tuple[AlignmentEstimate | None, np.ndarray, np.ndarray]:
-        """(estimate or None, zs (k, 3), Rs (k, 3, 3)) of pair p's default TCAFF at this step."""
+        """(estimate or None, zs (k, 3), Rs (k, 3, 3)) of pair p's default TCAFF at this step,
+        as `PairwiseAligner` reports it (its covariance covering the twins, `twins.Twins`)."""
         if p not in self._tcaff:
             found = self._checked(p)
             start = time.perf_counter()
@@ -175,12 +180,20 @@ class SharedStages:
                                                   for r in self.setup.pairs[p])
             filt = self._filters[p]
             growth = self._held_drift[p].growth(filt.held, *self.setup.maps(p, self.s), self.t)
-            self._tcaff[p] = (filt.update(zs, Rs, evidence_of(kept, ids, only), objects,
-                                          growth), zs, Rs)
+            self._filtered[p] = filt.update(zs, Rs, evidence_of(kept, ids, only), objects,
+                                            growth)
+            self._tcaff[p] = (self._twins[p].update(self._filtered[p], kept,
+                                                    *self.setup.maps(p, self.s), self.t), zs, Rs)
             self._steps[p] += [self.s] * len(zs)
             self._z[p] += list(zs)
             self.seconds["tcaff"] += time.perf_counter() - start
         return self._tcaff[p]
+
+    def filtered(self, p: int) -> AlignmentEstimate | None:
+        """Pair p's estimate at this step as its filter gave it (`TCAFF.update`'s, before the
+        twins): what `InterRobotGraph.add_tcaff_estimate` takes with the step's candidates."""
+        self.tcaff(p)
+        return self._filtered[p]
 
     def object_ids(self, robot: int) -> np.ndarray:
         """(n,) persistent ids of the robot's map objects at this step (-1 for objects not

@@ -119,7 +119,10 @@ class GraphRunner:
         outputs = [self.stages.tcaff(p) for p in range(len(self.pairs))]
         for p in self.factored:
             i, j = self.pairs[p]
-            self.graph.add_tcaff_estimate(s, i, j, *outputs[p])
+            # the filter's own estimate: the graph's cycle check weighs it against the
+            # candidate it takes as a factor, which its twins do not widen
+            _, zs, Rs = outputs[p]
+            self.graph.add_tcaff_estimate(s, i, j, self.stages.filtered(p), zs, Rs)
         self.graph.update(s)
         causal = self.estimates["tcaff_isam2_causal"]
         for p, (est, _, _) in enumerate(outputs):

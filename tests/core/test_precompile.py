@@ -24,7 +24,8 @@ ENTRY_KERNELS = [("clipper_graph", "_graph_csr"), ("clipper", "_mno"),
                  ("association", "_best_per_object"),
                  ("association", "_best_pair_of_each"),
                  ("association", "_size_gate"), ("association", "_nearest_rows"),
-                 ("association", "_true_pairs"), ("association", "_mutual_best")]
+                 ("association", "_true_pairs"), ("association", "_mutual_best"),
+                 ("twins", "_self_motions")]
 
 
 def test_compile_kernels_compiles_every_entry_kernel():

@@ -376,20 +376,27 @@ def test_the_graphs_covariances_are_its_marginals_at_each_step():
                                    rtol=1e-9, atol=1e-15)
 
 
-def test_the_studys_tcaff_stage_estimates_what_a_pair_aligner_does():
-    """The study's shared stages repeat `PairwiseAligner.update` (search, admit, count,
-    evidence, filter): at every step and pair both give the same estimate. The grid's seed 6
-    holds an early acceptance that stays provisional while ambiguous candidates near it are
-    found, which only a plain candidate may settle (`TCAFF.confirmable`)."""
+def stages_beside_pair_aligners(scenario: str, seed: int = 0) -> tuple:
+    """(run, setup, stages, aligners): `seed` of `scenario`, the study's shared stages for the
+    tcaff_only set, and a `PairwiseAligner` per pair with the stages' own parameters."""
     from tcaff_gtsam.eval.methods.stages import RunSetup, SharedStages
     from tcaff_gtsam.eval.sim.simulate import simulate
 
     from tcaff_gtsam import PairwiseAligner
 
-    run = simulate(load_scenario("ambiguous_grid"), 6)
+    run = simulate(load_scenario(scenario), seed)
     setup = RunSetup.of(run)
     stages = SharedStages(setup, load_methods("tcaff_only"))
-    aligners = [PairwiseAligner(stages.checked, stages.tcaff_params) for _ in setup.pairs]
+    return run, setup, stages, [PairwiseAligner(stages.checked, stages.tcaff_params)
+                                for _ in setup.pairs]
+
+
+def test_the_studys_tcaff_stage_estimates_what_a_pair_aligner_does():
+    """The study's shared stages repeat `PairwiseAligner.update` (search, admit, count,
+    evidence, filter): at every step and pair both give the same estimate. The grid's seed 6
+    holds an early acceptance that stays provisional while ambiguous candidates near it are
+    found, which only a plain candidate may settle (`TCAFF.confirmable`)."""
+    run, setup, stages, aligners = stages_beside_pair_aligners("ambiguous_grid", 6)
     reported = provisional = 0
     for s, t in enumerate(run.times[:30]):
         stages.begin(s, float(t))
@@ -410,15 +417,7 @@ def test_the_studys_tcaff_stage_holds_as_a_pair_aligner_does():
     seed 0 from step 93), the stage grows it as `PairwiseAligner` does, about where the robots
     are (`pairwise.HeldDrift`): the same estimates and covariances at every step, and held
     steps that grew by more than the map drift's diagonal."""
-    from tcaff_gtsam.eval.methods.stages import RunSetup, SharedStages
-    from tcaff_gtsam.eval.sim.simulate import simulate
-
-    from tcaff_gtsam import PairwiseAligner
-
-    run = simulate(load_scenario("indoor_return"), 0)
-    setup = RunSetup.of(run)
-    stages = SharedStages(setup, load_methods("tcaff_only"))
-    aligners = [PairwiseAligner(stages.checked, stages.tcaff_params) for _ in setup.pairs]
+    run, setup, stages, aligners = stages_beside_pair_aligners("indoor_return")
     diagonal = stages.tcaff_params.held_Q
     lever = 0
     for s, t in enumerate(run.times[:110]):
@@ -438,6 +437,30 @@ def test_the_studys_tcaff_stage_holds_as_a_pair_aligner_does():
                 grown = paired.P - before.P
                 lever += not np.allclose(grown, diagonal, rtol=1e-3, atol=0.0)
     assert lever > 0
+
+
+def test_the_studys_tcaff_stage_covers_twins_as_a_pair_aligner_does():
+    """Where a map has fitted itself over the window (ambiguous_grid's seed 0 from step 34),
+    the stage and `PairwiseAligner` report the same estimates and covariances, widened beyond
+    the filter's own to cover the twins (`twins.Twins`), never narrower; the stage keeps the
+    filter's own for the graph (`SharedStages.filtered`)."""
+    run, setup, stages, aligners = stages_beside_pair_aligners("ambiguous_grid")
+    widened = 0
+    for s, t in enumerate(run.times[:40]):
+        stages.begin(s, float(t))
+        for p, (i, j) in enumerate(setup.pairs):
+            staged = stages.tcaff(p)[0]
+            paired = aligners[p].update(float(t), run.maps[i][s], run.maps[j][s])
+            assert (staged is None) == (paired is None), (s, p)
+            if paired is None:
+                continue
+            np.testing.assert_array_equal(staged.x, paired.x)
+            np.testing.assert_array_equal(staged.P, paired.P)
+            own = aligners[p].filter.estimate.P
+            np.testing.assert_array_equal(stages.filtered(p).P, own)  # the graph's input
+            assert np.linalg.eigvalsh(paired.P - own).min() > -1e-12
+            widened += not np.array_equal(paired.P, own)
+    assert widened > 0
 
 
 def test_the_studys_tcaff_runs_as_a_pair_aligner_does():
