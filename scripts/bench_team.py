@@ -86,7 +86,8 @@ def run_team(run, warm: int, guide_radius: float | None = None
                 taken = aligners[(i, j)].taken
                 zs = np.array([m.z for m in taken]).reshape(-1, 3)
                 Rs = np.array([m.R for m in taken]).reshape(-1, 3, 3)
-                graph.add_tcaff_estimate(s, i, j, estimates[(i, j)], zs, Rs)
+                # the filter's own estimate: the graph weighs the candidate it takes
+                graph.add_tcaff_estimate(s, i, j, aligners[(i, j)].filter.estimate, zs, Rs)
         graph.update(s)
         t3 = time.process_time()
         if s < warm:

@@ -3,8 +3,8 @@
 A map of few objects can fit itself: moved by a rigid motion S, the objects a candidate
 registers land on other objects of the same map (MRCLAM's landmarks stand in twos and threes;
 on data set 6's 150 s maps robots 0 and 4 hold a turn of 112-116 deg for 85-140 steps). Then
-S o x (S a motion of the ego's map) or x o S (of the other's) explains those objects as x
-does: a twin of alignment x. `PairwiseAligner` reports a covariance that covers the twins
+S o x (S a motion of the ego's map) or x o S^-1 (of the other's) explains those objects as
+x does: a twin of alignment x. `PairwiseAligner` reports a covariance that covers the twins
 whose maps have fitted themselves over the window (`twins.Twins`):
 
     P' = P + sum_k (R + d_k d_k') / (m + 1),  d_k = twin_k - x (theta wrapped),

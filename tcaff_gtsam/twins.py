@@ -3,8 +3,8 @@
 A map of few objects can fit itself. Moved by a rigid motion S of its robot's odometry frame,
 the objects a candidate registers land on other objects of the same map: MRCLAM's landmarks
 stand in twos and threes, and six of them in a near-equilateral triangle fit themselves
-turned by about 120 deg. Then S o x (S a motion of the ego's map) or x o S (of the other's)
-explains those objects as alignment x does: a twin of x. Where the robot's map has fitted
+turned by about 120 deg. Then S o x (S a motion of the ego's map) or x o S^-1 (of the
+other's) explains those objects as alignment x does: a twin of x. Where the robot's map has fitted
 itself so at each of the last W + 1 steps, time has not told the twin from the estimate either,
 and the covariance the estimate reports covers both (`Twins`). docs/repetitive-worlds.md,
 "A covariance that covers the twins".
@@ -97,6 +97,7 @@ def _self_motions(points, recent, gate, radius, distinct_t, distinct_h, out):
     mid_x, mid_y = (points[a, 0] + points[b, 0]) / 2.0, (points[a, 1] + points[b, 1]) / 2.0
     heading_ab = math.atan2(points[b, 1] - points[a, 1], points[b, 0] - points[a, 0])
     landed = np.empty(k, np.int64)
+    images = np.empty((out.shape[0], 2))  # where each motion found takes the set's centroid
     r2 = radius * radius
     found = 0
     for c in range(n):
@@ -112,8 +113,11 @@ def _self_motions(points, recent, gate, radius, distinct_t, distinct_h, out):
             cos, sin = math.cos(theta), math.sin(theta)
             tx = (recent[c, 0] + recent[d, 0]) / 2.0 - (cos * mid_x - sin * mid_y)
             ty = (recent[c, 1] + recent[d, 1]) / 2.0 - (sin * mid_x + cos * mid_y)
-            # the identity, and the set's objects onto their own neighbours, are no twin
-            if math.hypot(tx, ty) <= distinct_t and abs(theta) <= distinct_h:
+            # the identity, and the set's objects onto their own neighbours, are no twin: how
+            # far the set's centroid moves, not the frame's origin (a small turn moves an
+            # origin far from the objects a long way)
+            if (math.hypot(cos * cx - sin * cy + tx - cx, sin * cx + cos * cy + ty - cy)
+                    <= distinct_t and abs(theta) <= distinct_h):
                 continue
             fits = True
             for i in range(k):
@@ -133,6 +137,7 @@ def _self_motions(points, recent, gate, radius, distinct_t, distinct_h, out):
                 continue
             # refined: the planar least-squares turn of the set onto where it lands, twice
             # (landed again under the first refinement: a cluster's objects may swap)
+            within = True
             for _ in range(2):
                 qx, qy = 0.0, 0.0
                 for i in range(k):
@@ -147,6 +152,7 @@ def _self_motions(points, recent, gate, radius, distinct_t, distinct_h, out):
                 turn = math.atan2(cross, dot)
                 cos, sin = math.cos(turn), math.sin(turn)
                 sx, sy = qx - (cos * cx - sin * cy), qy - (sin * cx + cos * cy)
+                within = True
                 for i in range(k):
                     px = cos * points[i, 0] - sin * points[i, 1] + sx
                     py = sin * points[i, 0] + cos * points[i, 1] + sy
@@ -156,15 +162,22 @@ def _self_motions(points, recent, gate, radius, distinct_t, distinct_h, out):
                             dist2 = (recent[j, 0] - px) ** 2 + (recent[j, 1] - py) ** 2
                             if dist2 < best:
                                 best, landed[i] = dist2, j
-            new = not (math.hypot(sx, sy) <= distinct_t and abs(turn) <= distinct_h)
+                    within = within and best <= r2
+            # refined, every object must still land within the radius
+            if not within:
+                continue
+            # distinct from the identity and from each other by where the set's centroid goes
+            # (the refined motion takes it to (qx, qy))
+            new = not (math.hypot(qx - cx, qy - cy) <= distinct_t and abs(turn) <= distinct_h)
             for h in range(found):
                 if not new:
                     break
-                if (math.hypot(sx - out[h, 0], sy - out[h, 1]) <= distinct_t
+                if (math.hypot(qx - images[h, 0], qy - images[h, 1]) <= distinct_t
                         and abs(_wrapped(turn - out[h, 2])) <= distinct_h):
                     new = False
             if new:
                 out[found, 0], out[found, 1], out[found, 2] = sx, sy, turn
+                images[found, 0], images[found, 1] = qx, qy
                 found += 1
                 if found == out.shape[0]:
                     return found
@@ -174,7 +187,8 @@ def _self_motions(points, recent, gate, radius, distinct_t, distinct_h, out):
 @numba.njit(cache=True)
 def _wrapped(angle):
     """angle (rad) wrapped to [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+    wrapped = (angle + math.pi) % (2.0 * math.pi) - math.pi
+    return wrapped - 2.0 * math.pi if wrapped >= math.pi else wrapped
 
 
 def self_fit(S: np.ndarray, recent: np.ndarray, gate: np.ndarray, radius: float) -> int:
@@ -202,10 +216,10 @@ def _fit(S: np.ndarray, recent: np.ndarray, gate: np.ndarray, radius: float) -> 
 
 
 def covering(P: np.ndarray, x: np.ndarray, twins: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """(3, 3) the second moment about x (3,) of an equal mixture of the estimate (x, P) and
-    its m twins (m, 3), each as uncertain as one registration (R, (3, 3)):
-    P + sum_k (R + d_k d_k') / (m + 1), d_k = twins[k] - x with its heading wrapped. Never
-    narrower than P.
+    """(3, 3) P + sum_k (R + d_k d_k') / (m + 1), d_k = twins[k] - x with its heading wrapped:
+    the second moment about x (3,) of an equal mixture of the estimate (x, P) and its m twins
+    (m, 3), each as uncertain as one registration (R, (3, 3)), with the estimate's own P kept
+    whole rather than weighted by 1 / (m + 1), so never narrower than P.
 
     Raises:
         DataError: P or R not (3, 3) finite within `MAX_VARIANCE`, x not three finite numbers,
@@ -218,6 +232,11 @@ def covering(P: np.ndarray, x: np.ndarray, twins: np.ndarray, R: np.ndarray) -> 
     if twins.ndim != 2 or twins.shape[1] != 3:
         raise DataError(f"{o}: twins must be (m, 3) alignments, got shape {twins.shape}")
     check_within(o, "twins", twins, MAX_COORDINATE, "m")
+    return _covering(P, x, twins, R)
+
+
+def _covering(P: np.ndarray, x: np.ndarray, twins: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """`covering` on checked arguments."""
     d = twins - x
     d[:, 2] = _wrap_angle(d[:, 2])
     return P + (len(twins) * R + d.T @ d) / (len(twins) + 1)
@@ -342,10 +361,15 @@ class Twins:
                 number. A call that raises leaves the twins as they were.
         """
         o = "Twins.update"
-        if estimate is not None and (not isinstance(estimate, AlignmentEstimate)
-                                     or np.shape(estimate.x) != (3,)):
-            raise DataError(f"{o}: estimate must be an (x, y, theta) AlignmentEstimate or None, "
-                            f"got {shown(estimate)}")
+        if estimate is not None and not (
+                isinstance(estimate, AlignmentEstimate)
+                and isinstance(estimate.measurement, int | np.integer)
+                and not isinstance(estimate.measurement, bool)
+                and np.shape(estimate.x) == (3,) and np.shape(estimate.P) == (3, 3)
+                and np.isfinite(estimate.x).all() and np.isfinite(estimate.P).all()):
+            raise DataError(f"{o}: estimate must be an AlignmentEstimate of finite (x, y, "
+                            f"theta), (3, 3) P and an int measurement, or None, got "
+                            f"{shown(estimate)}")
         if not isinstance(taken, list | tuple) or not all(
                 isinstance(m, AlignmentMeasurement) for m in taken):
             raise DataError(f"{o}: taken must be a list of AlignmentMeasurement, got "
@@ -368,31 +392,34 @@ class Twins:
             m = taken[estimate.measurement]
             found = (estimate.hypothesis, _map_motions(m, now_seen, prm), m.R,
                      len(m.associations))
-        self.seen = tuple((*seen, new)[-(self.window + 1):] if len(new.index) else seen
-                          for seen, new in zip(self.seen, now_seen, strict=True))
-        self.found = found
-        if estimate is None:
-            return None
-        if self.found is None or not self.found[1]:
-            return estimate
-        _, motions, R, k = self.found
-        twins = [_twin(S, robot, estimate.x) for robot, S in motions if self._lasted(robot, S, k)]
-        if not twins:
-            return estimate
-        return replace(estimate, P=covering(estimate.P, estimate.x, np.array(twins), R))
+        seen = tuple((*before, new)[-(self.window + 1):] if len(new.index) else before
+                     for before, new in zip(self.seen, now_seen, strict=True))
+        reported = estimate
+        if estimate is not None and found is not None and found[1]:
+            _, motions, R, k = found
+            twins = np.array([_twin(S, robot, estimate.x) for robot, S in motions
+                              if self._lasted(seen[robot], S, k)]).reshape(-1, 3)
+            # a twin beyond the coordinates an estimate may hold is no alignment to cover
+            twins = twins[(np.abs(twins[:, :2]) <= MAX_COORDINATE).all(axis=1)]
+            if len(twins):
+                reported = replace(estimate, P=_covering(estimate.P, estimate.x, twins, R))
+        # nothing above raises on checked input; the step counts only now
+        self.seen, self.found = seen, found
+        return reported
 
-    def _lasted(self, robot: int, S: np.ndarray, k: int) -> bool:
+    def _lasted(self, seen: tuple[_Seen, ...], S: np.ndarray, k: int) -> bool:
+        """Whether each of a robot's last W + 1 maps (`seen`) fits itself under S with at least
+        k objects landing on others."""
         prm = self.params
-        seen = self.seen[robot]
         return len(seen) == self.window + 1 and all(
             _fit(S, r.points, r.gate, prm.inlier_radius) >= k for r in seen)
 
 
 def _twin(S: np.ndarray, robot: int, x: np.ndarray) -> np.ndarray:
-    """The twin of alignment x (3,) under motion S (3,) of the ego's map (robot 0: S o x) or
-    of the other's (robot 1: x o S)."""
+    """The twin of alignment x (3,) under motion S (3,) of the ego's map (robot 0: S o x, which
+    pairs S e_k with o_k) or of the other's (robot 1: x o S^-1, which pairs e_k with S o_k)."""
     T_S, T_x = _se2_from_params(S), _se2_from_params(x)
-    return _se2_to_params(T_S @ T_x if robot == 0 else T_x @ T_S)
+    return _se2_to_params(T_S @ T_x if robot == 0 else T_x @ np.linalg.inv(T_S))
 
 
 

@@ -64,7 +64,8 @@ def test_a_triangle_of_clusters_fits_itself_turned_by_a_third_about_its_centre(c
 def test_every_motion_found_lands_each_object_on_one_it_may_be_and_a_planted_one_is_found(seed):
     """A set and the set moved by a distinct motion S0, in one map: S0 is found (within the
     distinct thresholds), and every motion returned puts each object of the set within the
-    radius of a map object the gate allows, away from the identity and from each other."""
+    radius of a map object the gate allows, its centroid moved away from where the identity
+    and every other motion returned take it."""
     rng = np.random.default_rng(seed)
     points = rng.uniform(-6, 6, (int(rng.integers(3, 7)), 2))
     S0 = np.array([*rng.uniform(-8, 8, 2), rng.uniform(-math.pi, math.pi)])
@@ -75,12 +76,28 @@ def test_every_motion_found_lands_each_object_on_one_it_may_be_and_a_planted_one
     gate = np.ones((len(points), len(recent)), bool)
     found = self_motions(points, recent, gate, RADIUS, DISTINCT)
     assert any(near(S, S0) for S in found)
+    centre = points.mean(axis=0)
+
+    def apart(a, b):  # judged by where the set's centroid goes
+        return (np.linalg.norm(moved(a, centre[None]) - moved(b, centre[None])) > DISTINCT[0]
+                or abs(wrap_angle(a[2] - b[2])) > DISTINCT[1])
+
     for k, S in enumerate(found):
         gap = np.linalg.norm(moved(S, points)[:, None] - recent[None], axis=2)
-        # refined by least squares, each object lands within about the radius it was found in
-        assert (gap.min(axis=1) <= RADIUS + 0.1).all()
-        assert not near(S, np.zeros(3))
-        assert not any(near(S, other) for other in found[:k])
+        assert (gap.min(axis=1) <= RADIUS + 1e-9).all()
+        assert apart(S, np.zeros(3))
+        assert all(apart(S, other) for other in found[:k])
+
+
+@pytest.mark.parametrize("offset", [0.0, 30.0, 1000.0])
+def test_the_motions_found_do_not_depend_on_where_the_map_lies_in_its_frame(offset):
+    """Near-identity and duplicate motions are judged by where the set's centroid goes, not
+    the frame's origin: two pairs 3 m apart fit themselves by a half turn only, wherever
+    they are."""
+    points = np.array([[0.0, 0.0], [0.0, -0.1], [3.0, 0.0], [3.0, 0.1]]) + offset
+    found = self_motions(points, points, np.ones((4, 4), bool), RADIUS, DISTINCT)
+    assert len(found) == 1
+    assert abs(abs(found[0][2]) - math.pi) < 0.05
 
 
 def test_the_gate_decides_where_an_object_may_land():
@@ -217,6 +234,30 @@ def test_the_other_robots_map_gives_twins_on_the_right():
     # covered as x o S, not as S o x
     assert right @ np.linalg.solve(out[-1].P, right) <= 3 + 1e-6
     assert left @ np.linalg.solve(out[-1].P, left) > 10
+
+
+def test_a_motion_of_the_other_map_gives_the_twin_that_pairs_each_ego_object_with_its_image():
+    """The other map holds a set A and A moved by S0 (no symmetry of its own, so S0 alone is
+    found): the twin pairs e_k with S0 o_k, x o S0^-1, which is covered; x o S0 is not."""
+    rng = np.random.default_rng(11)
+    A = rng.uniform(-4, 4, (4, 2))
+    S0 = np.array([7.0, -2.0, 1.1])
+    other = np.vstack([A, moved(S0, A)])
+    x = estimate().x
+    ego = moved(x, A)
+    twins = Twins(FrameAlignerParams(), W)
+    out = None
+    for step in range(W + 1):
+        now = float(step)
+        out = twins.update(estimate(), measurement(4), a_map(ego, now), a_map(other, now), now)
+    T_x, T_S = se2_from_params(x), se2_from_params(S0)
+    for T, inside in ((T_x @ np.linalg.inv(T_S), True), (T_x @ T_S, False)):
+        d = se2_to_params(T) - x
+        d[2] = wrap_angle(d[2])
+        assert (d @ np.linalg.solve(out.P, d) <= 2 + 1e-6) == inside
+    # and that twin does pair each ego object with the image of its other object
+    np.testing.assert_allclose(moved(se2_to_params(T_x @ np.linalg.inv(T_S)), moved(S0, A)),
+                               ego, atol=1e-9)
 
 
 def test_maps_that_do_not_fit_themselves_leave_the_estimate_as_it_is():
