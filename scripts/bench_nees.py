@@ -521,20 +521,29 @@ def print_table(results: list[dict], models: list[str]) -> None:
                   f"{math.degrees(r['sigma'][2]):7.2f} {tail}")
 
 
+def run_arguments(parser: argparse.ArgumentParser, data: list[str]) -> None:
+    """The arguments that pick this script's runs (--data, default `data`; --seeds;
+    --sim-seeds; --cache), for it and the scripts that read the same runs."""
+    parser.add_argument("--data", nargs="+", default=data, choices=["mrclam", "kitchen", "sim"],
+                        help="data sets to run")
+    parser.add_argument("--seeds", type=int, default=3,
+                        help="seeds of the VIO-like odometry (MRCLAM and kitchen)")
+    parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per sim scenario")
+    parser.add_argument("--cache", type=Path, default=Path("results/bench_nees"),
+                        help="folder of the cached runs (shared by bench_nees.py, "
+                        "fit_covariance_parts.py and twin_nees.py)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", nargs="+", default=["mrclam", "kitchen", "sim"],
-                        choices=["mrclam", "kitchen", "sim"], help="data sets to run")
+    run_arguments(parser, ["mrclam", "kitchen", "sim"])
     parser.add_argument("--models", nargs="+", default=["today"],
                         choices=list(MODELS), help="covariance models to compare")
     parser.add_argument("--methods", default="library", choices=["library", "dataset"],
                         help="library: PairwiseAligner's defaults (with the run's kappa and "
                         "W); dataset: the method set the project's command runs (mrclam: "
                         "repetitive, kitchen: camera, sim: default)")
-    parser.add_argument("--seeds", type=int, default=3,
-                        help="seeds of the VIO-like odometry (MRCLAM and kitchen)")
-    parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per sim scenario")
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS,
                         help="simulator scenarios")
     parser.add_argument("--spans", nargs="+", type=float, default=[20.0, 150.0],
@@ -550,8 +559,6 @@ def main() -> None:
     parser.add_argument("--every", type=int, default=1,
                         help="exchange maps every this many of the data's steps (1 s each): "
                         "2 is an exchange every 2 s")
-    parser.add_argument("--cache", type=Path, default=Path("results/bench_nees"),
-                        help="folder of the cached runs")
     args = parser.parse_args()
     if not 0.0 <= args.lost < 1.0:
         parser.error(f"--lost must be in [0, 1), got {args.lost}")

@@ -40,7 +40,14 @@ import math
 from pathlib import Path
 
 import numpy as np
-from bench_nees import SCENARIOS, declared_drift, library_params, load, sources
+from bench_nees import (
+    SCENARIOS,
+    declared_drift,
+    library_params,
+    load,
+    run_arguments,
+    sources,
+)
 from scipy.optimize import minimize
 from tcaff_gtsam.eval.metrics import Thresholds, step_errors
 from tcaff_gtsam.eval.runs import directed_pairs
@@ -149,12 +156,7 @@ def by_objects(group: str, rows: list[tuple]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", nargs="+", default=["sim", "kitchen", "mrclam"],
-                        choices=["mrclam", "kitchen", "sim"])
-    parser.add_argument("--seeds", type=int, default=3, help="VIO-like odometry seeds")
-    parser.add_argument("--sim-seeds", type=int, default=2)
-    parser.add_argument("--cache", type=Path, default=Path("results/bench_nees"),
-                        help="folder of the cached runs (shared with bench_nees.py)")
+    run_arguments(parser, ["sim", "kitchen", "mrclam"])
     parser.add_argument("--by-objects", action="store_true",
                         help="also split each data set's NEES by the association count k")
     args = parser.parse_args()

@@ -40,26 +40,20 @@ under 7.815 and confident false accepts (off by more than 1 m / 5 deg and outsid
 from __future__ import annotations
 
 import argparse
-import math
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from bench_nees import SCENARIOS, library_params, load, sources
+from bench_nees import SCENARIOS, library_params, load, run_arguments, sources
 from tcaff_gtsam.eval.metrics import NEES_95, NEES_997, Thresholds, step_errors, step_nees
 from tcaff_gtsam.eval.runs import directed_pairs
 
 from tcaff_gtsam.association import size_gates
-from tcaff_gtsam.geometry import se2_from_params, se2_to_params, wrap_angle
+from tcaff_gtsam.frame_aligner import _confirms
+from tcaff_gtsam.geometry import se2_from_params, se2_to_params
 from tcaff_gtsam.pairwise import PairwiseAligner
 from tcaff_gtsam.registration import mutual_inliers
 from tcaff_gtsam.twins import _twin, covering, map_motions
-
-
-def _within(a: np.ndarray, b: np.ndarray, distinct: tuple[float, float]) -> bool:
-    d = a - b
-    return (math.hypot(d[0], d[1]) <= distinct[0]
-            and abs(float(wrap_angle(d[2]))) <= distinct[1])
 
 
 def explained(z: np.ndarray, ego, other, now: float, params) -> int:
@@ -97,10 +91,11 @@ class _Steps:
         return self.found[(step, index)]
 
 
-def on_path(pair, steps: _Steps, s: int, gate: tuple[float, float]) -> tuple | None:
+def on_path(pair, steps: _Steps, s: int) -> tuple | None:
     """The self-motions (side, S) of the latest measurement on the main tree's best path in
     the window that every other measurement of the window on that path also has (within
-    `gate`), and that measurement's R; None without a measurement in the window."""
+    `confirm_translation` and `confirm_heading`), and that measurement's R; None without a
+    measurement in the window."""
     f, W = pair.filter, steps.window
     path = f._main.choice[int(np.argmin(f._main.cost))]
     cols = [c for c in range(2, W + 2) if path[c] >= 0]
@@ -108,7 +103,7 @@ def on_path(pair, steps: _Steps, s: int, gate: tuple[float, float]) -> tuple | N
         return None
     at = [(s - W - 1 + c, int(path[c])) for c in cols]
     keep = [(side, S) for side, S in steps.motions(*at[-1])
-            if all(any(other_side == side and _within(S, S2, gate)
+            if all(any(other_side == side and _confirms(S, S2, steps.params)
                        for other_side, S2 in steps.motions(*key)) for key in at[:-1])]
     return keep, steps.given[at[-1][0]][0][at[-1][1]].R
 
@@ -127,7 +122,6 @@ def run_source(source, cache: Path, persist: list[int]) -> dict:
     for i, j in directed_pairs(run):
         pair = PairwiseAligner(aligner, tcaff)
         prm = pair.aligner.params
-        gate = (prm.confirm_translation, prm.confirm_heading)
         window = pair.filter.params.window
         truth = se2_to_params(run.T_true(i, j))
         tracks: list[dict] = []  # z, R, length, last step, motions [(side, S, length)]
@@ -141,27 +135,27 @@ def run_source(source, cache: Path, persist: list[int]) -> dict:
             if pair.measurements:
                 fresh = []
                 for m in pair.measurements:
-                    before = max((tr for tr in tracks if _within(m.z, tr["z"], gate)),
+                    before = max((tr for tr in tracks if _confirms(m.z, tr["z"], prm)),
                                  key=lambda tr: tr["length"], default=None)
                     found = []
                     for side, S in map_motions(m, ego, other, float(t), prm):
                         lengths = [n + 1 for side0, S0, n in (before or {"motions": []})["motions"]
-                                   if side0 == side and _within(S, S0, gate)]
+                                   if side0 == side and _confirms(S, S0, prm)]
                         found.append((side, S, max(lengths, default=1)))
                     fresh.append({"z": m.z, "R": m.R, "motions": found, "last": s,
                                   "length": 1 + (before["length"] if before else 0)})
                 # a track not continued is kept W steps, or while it is the held estimate's
                 tracks = fresh + [tr for tr in tracks
-                                  if not any(_within(tr["z"], f["z"], gate) for f in fresh)
+                                  if not any(_confirms(tr["z"], f["z"], prm) for f in fresh)
                                   and (s - tr["last"] <= window
-                                       or (est is not None and _within(est.x, tr["z"], gate)))]
+                                       or (est is not None and _confirms(est.x, tr["z"], prm)))]
             if est is None:
                 path_motions = None
             elif pair.filter._main is not None and est.hypothesis == pair.filter.hypothesis:
-                path_motions = on_path(pair, steps, s, gate) or path_motions
+                path_motions = on_path(pair, steps, s) or path_motions
             if est is None or not np.all(np.isfinite(truth[s])):
                 continue
-            carried = max((tr for tr in tracks if _within(est.x, tr["z"], gate)),
+            carried = max((tr for tr in tracks if _confirms(est.x, tr["z"], prm)),
                           key=lambda tr: tr["length"], default=carried)
             T_true = run.T_true(i, j)[s][None]
             own = pair.filter.estimate.P
@@ -207,14 +201,9 @@ def run_source(source, cache: Path, persist: list[int]) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", nargs="+", default=["mrclam", "sim", "kitchen"],
-                        choices=["mrclam", "kitchen", "sim"])
-    parser.add_argument("--seeds", type=int, default=3, help="VIO-like odometry seeds")
-    parser.add_argument("--sim-seeds", type=int, default=2)
+    run_arguments(parser, ["mrclam", "sim", "kitchen"])
     parser.add_argument("--persist", type=int, nargs="+", default=[1, 8],
                         help="steps a twin must persist along its candidate's track (L)")
-    parser.add_argument("--cache", type=Path, default=Path("results/bench_nees"),
-                        help="folder of the cached runs (shared with bench_nees.py)")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     if any(L < 1 for L in args.persist):

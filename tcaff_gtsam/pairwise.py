@@ -400,8 +400,8 @@ class PairwiseAligner:
         held_drift = copy.copy(self._held_drift)
         growth = held_drift.growth(self.filter.held, ego_map, other_map, t)
         estimate = self.filter.update(zs, Rs, evidence_of(kept, ids, only), objects, growth)
-        twins = copy.copy(self._twins)
-        estimate = twins.update(estimate, kept, ego_map, other_map, t)
+        # (commits its own state last, and cannot raise on the checked maps and candidates)
+        estimate = self._twins.update(estimate, kept, ego_map, other_map, t)
         # the step succeeded: only now does it count as taken
         self.measurements = measurements
         self.taken = kept
@@ -409,7 +409,6 @@ class PairwiseAligner:
         other_memory.add(t, other_map)
         self._identities = identities
         self._held_drift = held_drift
-        self._twins = twins
         self._last_time = t
         self.guided = guided
         self._since_full = self._since_full + 1 if guided else 0

@@ -22,7 +22,7 @@ import numpy as np
 from .association import size_gates
 from .errors import DataError
 from .frame_aligner import AlignmentMeasurement, _alignment
-from .geometry import _se2_from_params, _se2_to_params, _wrap_angle
+from .geometry import _se2_from_params, _se2_to_params, _wrap_angle, invert
 from .inputs import check_within, finite_time, kernel_array, point_array, real_array, shown
 from .object_map import ObjectMap, as_object_map
 from .param_checks import MAX_COORDINATE, MAX_VARIANCE, _finite
@@ -419,7 +419,7 @@ def _twin(S: np.ndarray, robot: int, x: np.ndarray) -> np.ndarray:
     """The twin of alignment x (3,) under motion S (3,) of the ego's map (robot 0: S o x, which
     pairs S e_k with o_k) or of the other's (robot 1: x o S^-1, which pairs e_k with S o_k)."""
     T_S, T_x = _se2_from_params(S), _se2_from_params(x)
-    return _se2_to_params(T_S @ T_x if robot == 0 else T_x @ np.linalg.inv(T_S))
+    return _se2_to_params(T_S @ T_x if robot == 0 else T_x @ invert(T_S))
 
 
 

@@ -391,6 +391,20 @@ def stages_beside_pair_aligners(scenario: str, seed: int = 0) -> tuple:
                                 for _ in setup.pairs]
 
 
+def estimates_side_by_side(run, setup, stages, aligners, steps: int):
+    """Over the first `steps` steps, per pair: (p, the stage's estimate, the pair aligner's,
+    that aligner), having checked that both have one or neither, and the same x."""
+    for s, t in enumerate(run.times[:steps]):
+        stages.begin(s, float(t))
+        for p, (i, j) in enumerate(setup.pairs):
+            staged = stages.tcaff(p)[0]
+            paired = aligners[p].update(float(t), run.maps[i][s], run.maps[j][s])
+            assert (staged is None) == (paired is None), (s, p)
+            if paired is not None:
+                np.testing.assert_array_equal(staged.x, paired.x)
+            yield p, staged, paired, aligners[p]
+
+
 def test_the_studys_tcaff_stage_estimates_what_a_pair_aligner_does():
     """The study's shared stages repeat `PairwiseAligner.update` (search, admit, count,
     evidence, filter): at every step and pair both give the same estimate. The grid's seed 6
@@ -398,17 +412,10 @@ def test_the_studys_tcaff_stage_estimates_what_a_pair_aligner_does():
     found, which only a plain candidate may settle (`TCAFF.confirmable`)."""
     run, setup, stages, aligners = stages_beside_pair_aligners("ambiguous_grid", 6)
     reported = provisional = 0
-    for s, t in enumerate(run.times[:30]):
-        stages.begin(s, float(t))
-        for p, (i, j) in enumerate(setup.pairs):
-            staged = stages.tcaff(p)[0]
-            paired = aligners[p].update(float(t), run.maps[i][s], run.maps[j][s])
-            assert (staged is None) == (paired is None), (s, p)
-            if staged is not None:
-                np.testing.assert_array_equal(staged.x, paired.x)
-                reported += 1
-            provisional += any(m.ambiguous for m in aligners[p].measurements) and \
-                aligners[p].filter.provisional
+    for _, _, paired, aligner in estimates_side_by_side(run, setup, stages, aligners, 30):
+        reported += paired is not None
+        provisional += any(m.ambiguous for m in aligner.measurements) and \
+            aligner.filter.provisional
     assert reported > 0 and provisional > 0
 
 
@@ -446,20 +453,14 @@ def test_the_studys_tcaff_stage_covers_twins_as_a_pair_aligner_does():
     filter's own for the graph (`SharedStages.filtered`)."""
     run, setup, stages, aligners = stages_beside_pair_aligners("ambiguous_grid")
     widened = 0
-    for s, t in enumerate(run.times[:40]):
-        stages.begin(s, float(t))
-        for p, (i, j) in enumerate(setup.pairs):
-            staged = stages.tcaff(p)[0]
-            paired = aligners[p].update(float(t), run.maps[i][s], run.maps[j][s])
-            assert (staged is None) == (paired is None), (s, p)
-            if paired is None:
-                continue
-            np.testing.assert_array_equal(staged.x, paired.x)
-            np.testing.assert_array_equal(staged.P, paired.P)
-            own = aligners[p].filter.estimate.P
-            np.testing.assert_array_equal(stages.filtered(p).P, own)  # the graph's input
-            assert np.linalg.eigvalsh(paired.P - own).min() > -1e-12
-            widened += not np.array_equal(paired.P, own)
+    for p, staged, paired, aligner in estimates_side_by_side(run, setup, stages, aligners, 40):
+        if paired is None:
+            continue
+        np.testing.assert_array_equal(staged.P, paired.P)
+        own = aligner.filter.estimate.P
+        np.testing.assert_array_equal(stages.filtered(p).P, own)  # the graph's input
+        assert np.linalg.eigvalsh(paired.P - own).min() > -1e-12
+        widened += not np.array_equal(paired.P, own)
     assert widened > 0
 
 
